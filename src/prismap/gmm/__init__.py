@@ -1,0 +1,5 @@
+"""1-D Gaussian mixtures: the disparity-error model of a stereo matcher (SENSOR_MODELS.md section 2)."""
+
+from prismap.gmm._mixture import GaussianMixture
+
+__all__ = ["GaussianMixture"]

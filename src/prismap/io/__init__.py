@@ -1,0 +1,5 @@
+"""Dataset readers, map files and exports."""
+
+from prismap.io._frame import StereoFrame
+
+__all__ = ["StereoFrame"]

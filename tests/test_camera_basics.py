@@ -1,0 +1,38 @@
+import numpy as np
+import pytest
+
+from prismap import PrismapInputError
+from prismap.camera import StereoCamera
+
+CAM = StereoCamera(focal_px=615.0, cx_px=320.0, cy_px=240.0, baseline_m=0.1, width=640, height=480)
+
+
+def test_depth_disparity_round_trip_and_invalid():
+    z = np.array([0.5, 1.0, 10.0, 100.0])
+    np.testing.assert_allclose(CAM.depth_from_disparity(CAM.disparity_from_depth(z)), z, rtol=1e-12)
+    assert np.isnan(CAM.depth_from_disparity(np.array([0.0, -1.0, np.nan]))).all()
+
+
+def test_doffs_enters_depth():
+    cam = StereoCamera(994.978, 311.193, 254.877, 0.193001, doffs_px=31.086)
+    assert cam.depth_from_disparity(10.0) == pytest.approx(994.978 * 0.193001 / 41.086)
+
+
+def test_triangulated_points_project_back_to_their_pixels():
+    rng = np.random.default_rng(0)
+    disparity = rng.uniform(5, 60, size=(480, 640))
+    disparity[10, 20] = np.nan
+    points = CAM.triangulate(disparity)
+    assert np.isnan(points[10, 20]).all()
+    v, u = 123, 456
+    x, y, z = points[v, u]
+    assert CAM.focal_px * x / z + CAM.cx_px == pytest.approx(u)
+    assert CAM.focal_px * y / z + CAM.cy_px == pytest.approx(v)
+    assert z == pytest.approx(CAM.focal_baseline / disparity[v, u])
+
+
+def test_bad_camera_parameters():
+    with pytest.raises(PrismapInputError, match="baseline_m"):
+        StereoCamera(600, 320, 240, 0.0)
+    with pytest.raises(PrismapInputError, match="`disparity_px` must be 2-D"):
+        CAM.triangulate(np.zeros((4, 4, 3)))
