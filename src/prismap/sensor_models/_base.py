@@ -1,0 +1,98 @@
+"""The one interface every inverse sensor model (ISM) implements, and the name -> model registry.
+
+A model sees rays, never voxels. A *ray* is one pixel's measurement: its measured disparity ``d^``
+(pixels) and its ray norm ``|r| = |((u-cx)/f, (v-cy)/f, 1)|``. The *cells* a ray crosses are given by
+their depth interval ``[depth_start_m, depth_end_m]`` along that ray (depth = camera z, metres; the
+distance along the ray is ``depth * |r|``) and the index of the ray they belong to. Cells are flat
+arrays so a whole frame (hundreds of thousands of rays, millions of cells) is one call.
+
+Every model returns, per cell, the posterior ``P(m = 1 | d^)`` and the log-odds increment the map adds
+(SENSOR_MODELS.md section 3): ``logit(P) - logit(prior of that cell)``. A cell the measurement says
+nothing about gets increment 0.
+"""
+
+from abc import ABC, abstractmethod
+
+import numpy as np
+
+from prismap._validate import as_float_array
+from prismap.errors import PrismapInputError
+
+POLICIES = ("mean", "max-abs", "occupied-wins", "max", "sum")
+"""Per-frame policies that combine the increments of the several rays of one frame that hit one cell."""
+
+
+class InverseSensorModel(ABC):
+    """Base class: ``cell_posteriors`` on flat cell arrays, ``influence_depth`` per ray.
+
+    Subclasses are built from the camera's ``focal_baseline`` (f*b, pixel-metres) and ``doffs_px``,
+    the map's voxel size and prior ``p0``, plus their own parameters.
+    """
+
+    name = "base"
+    default_policy = "mean"
+
+    @abstractmethod
+    def cell_posteriors(self, disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m):
+        """Posterior and log-odds increment of every cell.
+
+        Parameters
+        ----------
+        disparity_px : (R,) float64, pixels, measured disparity of each ray (finite)
+        ray_norm : (R,) float64, ``|r|`` of each ray (>= 1)
+        ray_of_cell : (C,) int64, index into the ray arrays
+        depth_start_m, depth_end_m : (C,) float64, metres, the cell's depth interval on its ray
+
+        Returns
+        -------
+        posterior : (C,) float64 in [0, 1]
+        increment_log : (C,) float64, ``logit(posterior) - logit(cell prior)``
+        """
+
+    @abstractmethod
+    def influence_depth(self, disparity_px, ray_norm):
+        """Depth (metres) beyond which the measurement no longer changes a cell, per ray: (R,) float64.
+
+        Ray casting stops there (or at the map's max range, whichever is nearer).
+        """
+
+    @abstractmethod
+    def with_extra_noise(self, sigma_px):
+        """A copy whose disparity noise is widened by ``N(0, sigma_px^2)`` (robot pose uncertainty)."""
+
+
+def check_cell_arrays(disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m):
+    """Validate and convert the arguments of :meth:`InverseSensorModel.cell_posteriors`."""
+    disparity = as_float_array(disparity_px, "disparity_px", ndim=1)
+    norm = as_float_array(ray_norm, "ray_norm", shape=(disparity.size,))
+    start = as_float_array(depth_start_m, "depth_start_m", ndim=1)
+    end = as_float_array(depth_end_m, "depth_end_m", shape=(start.size,))
+    rays = np.ascontiguousarray(ray_of_cell, dtype=np.int64)
+    if rays.shape != start.shape:
+        raise PrismapInputError(f"`ray_of_cell` must have shape {start.shape}; got {rays.shape}")
+    if rays.size and (rays.min() < 0 or rays.max() >= disparity.size):
+        raise PrismapInputError(f"`ray_of_cell` must index {disparity.size} rays; got values in [{rays.min()}, {rays.max()}]")
+    return disparity, norm, rays, start, end
+
+
+_REGISTRY = {}
+
+
+def register_model(cls):
+    """Class decorator: make ``cls`` available to :func:`make_sensor_model` under ``cls.name``."""
+    _REGISTRY[cls.name] = cls
+    return cls
+
+
+def model_names():
+    """Names accepted by :func:`make_sensor_model`, in registration order."""
+    return tuple(_REGISTRY)
+
+
+def make_sensor_model(name, **params):
+    """Build the model called ``name`` (``ideal``, ``hitmiss``, ``convolution``, ``andert``, ``prism``...)."""
+    try:
+        cls = _REGISTRY[name]
+    except KeyError:
+        raise PrismapInputError(f"unknown sensor model {name!r}; expected one of {list(_REGISTRY)}") from None
+    return cls(**params)
