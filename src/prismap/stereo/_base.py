@@ -1,0 +1,80 @@
+"""The interface every stereo matcher implements, the left-right check, and the name -> matcher registry."""
+
+import importlib
+from abc import ABC, abstractmethod
+
+import numpy as np
+
+from prismap.errors import PrismapInputError
+
+
+class StereoMatcher(ABC):
+    """A dense matcher on a rectified pair: ``compute(left, right)`` -> disparity of the left image.
+
+    Output is ``(H, W) float32`` in pixels with NaN where the matcher gives no value. Subclasses take
+    their parameters as keyword arguments with documented defaults and report them in :meth:`params`
+    (saved with every error model, so a characterisation says what produced it).
+    """
+
+    name = "base"
+
+    @abstractmethod
+    def compute(self, left, right):
+        """Disparity of ``left`` against ``right``: (H, W) float32, pixels, NaN = invalid."""
+
+    @abstractmethod
+    def params(self):
+        """The matcher's parameters as a JSON-serialisable dict."""
+
+
+_MATCHERS = {
+    "bm": "prismap.stereo._opencv:BlockMatcher",
+    "sgbm": "prismap.stereo._opencv:SemiGlobalMatcher",
+    "variational": "prismap.stereo._variational:VariationalMatcher",
+}
+
+
+def matcher_names():
+    """Names accepted by :func:`make_matcher`."""
+    return tuple(_MATCHERS)
+
+
+def make_matcher(name, **params):
+    """Build the matcher called ``name`` (``bm``, ``sgbm``, ``variational``) with keyword ``params``."""
+    try:
+        module_name, class_name = _MATCHERS[name].split(":")
+    except KeyError:
+        raise PrismapInputError(f"unknown matcher {name!r}; expected one of {list(_MATCHERS)}") from None
+    return getattr(importlib.import_module(module_name), class_name)(**params)
+
+
+def left_right_check(disparity_left, disparity_right, *, max_difference_px=1.0):
+    """Invalidate pixels whose match does not map back (dual matching, thesis sec. 3.2.2).
+
+    A left pixel ``(v, u)`` with disparity ``d`` is kept when the right image's disparity at
+    ``(v, round(u - d))`` differs from ``d`` by at most ``max_difference_px``. Occlusions fail it.
+
+    Parameters
+    ----------
+    disparity_left, disparity_right : (H, W) float32, pixels, NaN = invalid
+        Disparity of the left image, and of the right image against the left (positive values).
+
+    Returns
+    -------
+    (H, W) float32: ``disparity_left`` with failing pixels set to NaN.
+    """
+    left = np.asarray(disparity_left, dtype=np.float32)
+    right = np.asarray(disparity_right, dtype=np.float32)
+    if left.shape != right.shape or left.ndim != 2:
+        raise PrismapInputError(
+            f"left-right check needs two 2-D disparity maps of one shape; got {left.shape} and {right.shape}"
+        )
+    height, width = left.shape
+    columns = np.arange(width)[None, :] - np.nan_to_num(left, nan=-1e9)
+    target = np.rint(columns).astype(np.int64)
+    inside = np.isfinite(left) & (target >= 0) & (target < width)
+    rows = np.broadcast_to(np.arange(height)[:, None], left.shape)
+    back = np.full(left.shape, np.nan, dtype=np.float32)
+    back[inside] = right[rows[inside], target[inside]]
+    keep = inside & (np.abs(back - left) <= max_difference_px)
+    return np.where(keep, left, np.float32(np.nan)).astype(np.float32)
