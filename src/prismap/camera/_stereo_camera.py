@@ -47,6 +47,97 @@ class StereoCamera:
                     raise PrismapInputError(f"`{name}` must be a positive integer; got {value!r}")
                 object.__setattr__(self, name, int(value))
 
+    @classmethod
+    def from_kitti_projections(cls, P2, P3, *, width=None, height=None):
+        """The camera of a KITTI rectified pair from its projection matrices (left = ``P2``).
+
+        KITTI writes each rectified camera as ``P_i = K_i [I | t_i]`` relative to camera 0, so
+        ``t_i = K_i^-1 P_i[:, 3]`` and the baseline is ``t_2x - t_3x`` (camera 3 lies at +x of
+        camera 2). When ``t_z = 0`` this is ``(P2[0, 3] - P3[0, 3]) / f``; KITTI's ``t_z`` of a few
+        millimetres shift the baseline by ~1 mm, so the exact form is used. ``P2[0, 3] != 0``
+        (camera 2 is not camera 0) cancels in the difference.
+
+        Parameters
+        ----------
+        P2, P3 : (3, 4) float, pixels / pixel-metres
+            Rectified projection matrices of the left and right colour cameras (or any
+            left/right pair, e.g. ``P0, P1``).
+        width, height : int or None, pixels
+
+        Returns
+        -------
+        StereoCamera
+            ``doffs_px = P3[0, 2] - P2[0, 2]`` (0 for KITTI).
+        """
+        left = as_float_array(P2, "P2", shape=(3, 4), allow_nan=False)
+        right = as_float_array(P3, "P3", shape=(3, 4), allow_nan=False)
+        for name, P in (("P2", left), ("P3", right)):
+            f = P[0, 0]
+            if not (f > 0 and np.isclose(P[1, 1], f, rtol=1e-9) and P[0, 1] == 0 and np.allclose(P[2, :3], [0, 0, 1])):
+                raise PrismapInputError(
+                    f"`{name}` must be a rectified projection [f 0 cx tx; 0 f cy ty; 0 0 1 tz] with f > 0; got {P.tolist()}"
+                )
+        if not (np.isclose(left[0, 0], right[0, 0], rtol=1e-9) and np.isclose(left[1, 2], right[1, 2], rtol=1e-9)):
+            raise PrismapInputError(
+                "`P2` and `P3` must share the focal length and cy of one rectified pair; got "
+                f"f = {left[0, 0]} vs {right[0, 0]}, cy = {left[1, 2]} vs {right[1, 2]}"
+            )
+        t_left = np.linalg.solve(left[:, :3], left[:, 3])
+        t_right = np.linalg.solve(right[:, :3], right[:, 3])
+        baseline = t_left[0] - t_right[0]
+        if baseline <= 0:
+            raise PrismapInputError(
+                f"`P3` must be the right camera (baseline t2x - t3x > 0); got baseline {baseline:.6g} m"
+            )
+        return cls(
+            focal_px=left[0, 0],
+            cx_px=left[0, 2],
+            cy_px=left[1, 2],
+            baseline_m=baseline,
+            doffs_px=right[0, 2] - left[0, 2],
+            width=width,
+            height=height,
+        )
+
+    @classmethod
+    def from_middlebury_calib(cls, fields, *, source="calib"):
+        """The camera of a Middlebury 2014/2021 pair from its ``calib.txt`` fields.
+
+        Parameters
+        ----------
+        fields : dict
+            ``cam0``, ``cam1`` ((3, 3) intrinsics, pixels), ``doffs`` (pixels), ``baseline``
+            (millimetres), ``width``, ``height`` (pixels); other keys are ignored.
+        source : str
+            Where the fields come from, for error messages.
+
+        Returns
+        -------
+        StereoCamera
+            ``f, cx, cy`` from ``cam0``, baseline in metres, ``doffs`` from the file.
+        """
+        missing = [key for key in ("cam0", "cam1", "doffs", "baseline", "width", "height") if key not in fields]
+        if missing:
+            raise PrismapInputError(f"{source}: missing field(s) {missing}; got {sorted(fields)}")
+        cam0 = as_float_array(fields["cam0"], f"{source}: cam0", shape=(3, 3), allow_nan=False)
+        cam1 = as_float_array(fields["cam1"], f"{source}: cam1", shape=(3, 3), allow_nan=False)
+        if not (np.isclose(cam0[0, 0], cam1[0, 0], rtol=1e-6) and np.isclose(cam0[1, 2], cam1[1, 2], rtol=1e-6)):
+            raise PrismapInputError(
+                f"{source}: cam0 and cam1 must share f and cy (a rectified pair); got {cam0.tolist()} and {cam1.tolist()}"
+            )
+        try:
+            return cls(
+                focal_px=cam0[0, 0],
+                cx_px=cam0[0, 2],
+                cy_px=cam0[1, 2],
+                baseline_m=float(fields["baseline"]) / 1000.0,
+                doffs_px=float(fields["doffs"]),
+                width=float(fields["width"]),
+                height=float(fields["height"]),
+            )
+        except (PrismapInputError, TypeError, ValueError) as exc:
+            raise PrismapInputError(f"{source}: {exc}") from None
+
     @property
     def focal_baseline(self):
         """``f * b`` in pixel-metres: depth (m) = focal_baseline / (disparity + doffs)."""
