@@ -1,0 +1,96 @@
+"""Line a map's voxels up with a ground truth, by integer key, for any number of axes."""
+
+import numpy as np
+
+from prismap._validate import as_float_array, check_probability
+from prismap.errors import PrismapInputError
+
+
+def align_to_ground_truth(keys, probability, occupied_keys, region_keys, *, p0):
+    """Predicted ``P`` and true occupancy for every voxel of the evaluated region.
+
+    Parameters
+    ----------
+    keys : (N, D) int
+        Keys ``floor(p / voxel_size)`` of the voxels the map knows (D = 2 or 3, any D works).
+    probability : (N,) float, in [0, 1]
+        The map's ``P(occupied)`` of those voxels.
+    occupied_keys : (M, D) int
+        Keys of the truly occupied voxels. Those outside the region are not scored; repeats
+        are harmless.
+    region_keys : (K, D) int
+        Keys of the evaluated voxels: those a perfect sensor on the same trajectory would have
+        observed. Each key once.
+    p0 : float, keyword-only, in (0, 1)
+        Prior given to region voxels the map never observed ("unknown" scores as the prior).
+
+    Returns
+    -------
+    probability : (K,) float64
+        ``P`` of each region voxel, in the order of ``region_keys``.
+    occupied : (K,) bool
+        Whether each region voxel is truly occupied.
+
+    Raises
+    ------
+    PrismapInputError
+        Key arrays that are not integer (N, D) with the same D, lengths that differ, repeated keys
+        in ``keys`` or ``region_keys``, ``P`` outside [0, 1], or keys too far apart to pack.
+
+    Notes
+    -----
+    Keys are packed into one int64 per voxel (offset by the smallest key on each axis, mixed
+    radix), then matched with ``np.searchsorted`` and ``np.isin``: O((N + M + K) log) and
+    independent of the grid's storage.
+    """
+    p0 = check_probability(p0, "p0")
+    keys = _as_keys(keys, "keys")
+    dims = keys.shape[1]
+    occupied_keys = _as_keys(occupied_keys, "occupied_keys", dims)
+    region_keys = _as_keys(region_keys, "region_keys", dims)
+    p = as_float_array(probability, "probability", ndim=1, allow_nan=False)
+    if p.shape[0] != keys.shape[0]:
+        raise PrismapInputError(f"`probability` must have one value per key ({keys.shape[0]}); got {p.shape[0]}")
+    if p.size and (p.min() < 0.0 or p.max() > 1.0):
+        raise PrismapInputError(f"`probability` must lie in [0, 1]; got values in [{p.min()}, {p.max()}]")
+
+    packed, packed_occupied, packed_region = _pack(keys, occupied_keys, region_keys)
+    for name, array in (("keys", packed), ("region_keys", packed_region)):
+        if np.unique(array).size != array.size:
+            raise PrismapInputError(f"`{name}` must not repeat a key; got {array.size - np.unique(array).size} repeats")
+
+    aligned = np.full(packed_region.size, p0)
+    if packed.size:
+        order = np.argsort(packed)
+        slot = np.minimum(np.searchsorted(packed[order], packed_region), packed.size - 1)
+        found = packed[order[slot]] == packed_region
+        aligned[found] = p[order[slot[found]]]
+    return aligned, np.isin(packed_region, packed_occupied)
+
+
+def _as_keys(value, name, dims=None):
+    array = np.asarray(value)
+    if array.ndim != 2 or (array.size and not np.issubdtype(array.dtype, np.integer)):
+        raise PrismapInputError(f"`{name}` must be an (N, D) integer array; got shape {array.shape}, dtype {array.dtype}")
+    if dims is not None and array.shape[1] != dims:
+        raise PrismapInputError(f"`{name}` must have {dims} columns like `keys`; got {array.shape[1]}")
+    return array.astype(np.int64, copy=False)
+
+
+def _pack(*key_arrays):
+    """One int64 per key, the same code for equal keys across all arrays."""
+    stacked = np.concatenate(key_arrays, axis=0)
+    dims = stacked.shape[1]
+    if stacked.shape[0] == 0:
+        return tuple(np.zeros(0, np.int64) for _ in key_arrays)
+    low = stacked.min(axis=0)
+    span = stacked.max(axis=0).astype(object) - low.astype(object) + 1
+    total = 1
+    for s in span:
+        total *= int(s)
+    if total >= 2**63:
+        raise PrismapInputError(f"keys span {[int(s) for s in span]} voxels per axis: too far apart to pack into int64")
+    strides = np.ones(dims, dtype=np.int64)
+    for axis in range(dims - 2, -1, -1):
+        strides[axis] = strides[axis + 1] * int(span[axis + 1])
+    return tuple((array - low) @ strides for array in key_arrays)

@@ -1,0 +1,196 @@
+"""Proper scores of a probabilistic map against true occupancy (SENSOR_MODELS.md section 6)."""
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.stats import rankdata
+
+from prismap._validate import as_float_array
+from prismap.errors import PrismapInputError
+
+LOG_LOSS_EPS = 1e-6
+"""Probabilities are clipped to ``[LOG_LOSS_EPS, 1 - LOG_LOSS_EPS]`` before the log-loss."""
+
+
+@dataclass(frozen=True)
+class MapScores:
+    """Per-voxel scores of predicted occupancy probabilities against the truth.
+
+    Attributes
+    ----------
+    n_voxels, n_occupied, n_free : int
+        Evaluated voxels, and how many of them are truly occupied / free.
+    brier : float
+        Mean of ``(P - y)^2``; 0 is perfect, 0.25 is a constant 0.5.
+    log_loss : float, nats
+        Mean of ``-y ln P - (1 - y) ln(1 - P)`` with ``P`` clipped to ``[1e-6, 1 - 1e-6]``, so a
+        confident wrong voxel costs at most ``ln(1e6) = 13.8`` nats instead of infinity.
+    ece : float
+        Expected calibration error: ``sum_b (n_b / N) |mean P in b - occupied fraction in b|``
+        over the reliability bins.
+    roc_auc : float
+        Probability that a random occupied voxel gets a higher ``P`` than a random free one
+        (ties count one half); NaN when the truth has one class only.
+    occupied_called_free : float
+        Fraction of truly occupied voxels with ``P < 0.5`` (the unsafe error); NaN without any.
+    free_called_occupied : float
+        Fraction of truly free voxels with ``P > 0.5``; NaN without any.
+    bin_edges : (B + 1,) float64
+        Edges of the equal-width reliability bins on ``[0, 1]``.
+    bin_counts : (B,) int64
+        Voxels per bin (the last bin includes ``P = 1``).
+    bin_mean_probability, bin_occupied_fraction : (B,) float64
+        Mean predicted ``P`` and observed occupied fraction per bin; NaN in empty bins.
+    hist_edges : (H + 1,) float64
+        Edges of the ``P`` histograms on ``[0, 1]``.
+    hist_free, hist_occupied : (H,) int64
+        Counts of ``P`` among truly free and truly occupied voxels (thesis fig. 6.7).
+    """
+
+    n_voxels: int
+    n_occupied: int
+    n_free: int
+    brier: float
+    log_loss: float
+    ece: float
+    roc_auc: float
+    occupied_called_free: float
+    free_called_occupied: float
+    bin_edges: np.ndarray
+    bin_counts: np.ndarray
+    bin_mean_probability: np.ndarray
+    bin_occupied_fraction: np.ndarray
+    hist_edges: np.ndarray
+    hist_free: np.ndarray
+    hist_occupied: np.ndarray
+
+    def to_dict(self):
+        """Plain Python types for JSON: arrays become lists and NaN becomes ``None``."""
+        out = {}
+        for name, value in self.__dict__.items():
+            if isinstance(value, np.ndarray):
+                out[name] = [_plain(v) for v in value.tolist()]
+            else:
+                out[name] = _plain(value)
+        return out
+
+
+def _plain(value):
+    if isinstance(value, float) and not np.isfinite(value):
+        return None
+    return value
+
+
+def score_map(probability, occupied, *, n_bins=10, n_hist_bins=20):
+    """Score predicted occupancy probabilities of a set of voxels against the truth.
+
+    Parameters
+    ----------
+    probability : (N,) float, in [0, 1]
+        Predicted ``P(occupied)`` of each evaluated voxel (unknown voxels carry the prior ``p0``:
+        see :func:`align_to_ground_truth`).
+    occupied : (N,) bool
+        True occupancy of the same voxels (0/1 integers are accepted).
+    n_bins : int, keyword-only
+        Equal-width reliability bins for the calibration error and diagram.
+    n_hist_bins : int, keyword-only
+        Equal-width bins of the ``P`` histograms of free and occupied voxels.
+
+    Returns
+    -------
+    MapScores
+
+    Raises
+    ------
+    PrismapInputError
+        Shapes differ, the set is empty, ``P`` leaves ``[0, 1]`` or is NaN, ``occupied`` is not
+        binary, or a bin count is not a positive integer.
+    """
+    p = as_float_array(probability, "probability", ndim=1, allow_nan=False)
+    y = _as_binary(occupied, "occupied")
+    if y.shape != p.shape:
+        raise PrismapInputError(f"`occupied` must have the shape of `probability` {p.shape}; got {y.shape}")
+    if p.size == 0:
+        raise PrismapInputError("`probability` is empty: there are no voxels to score")
+    if p.min() < 0.0 or p.max() > 1.0:
+        raise PrismapInputError(f"`probability` must lie in [0, 1]; got values in [{p.min()}, {p.max()}]")
+    n_bins = _check_count(n_bins, "n_bins")
+    n_hist_bins = _check_count(n_hist_bins, "n_hist_bins")
+
+    n_occupied = int(y.sum())
+    n_free = int(p.size - n_occupied)
+    clipped = np.clip(p, LOG_LOSS_EPS, 1.0 - LOG_LOSS_EPS)
+    log_loss = -np.mean(np.where(y, np.log(clipped), np.log1p(-clipped)))
+
+    bin_edges = np.linspace(0.0, 1.0, n_bins + 1)
+    bin_index = np.minimum((p * n_bins).astype(np.int64), n_bins - 1)
+    bin_counts = np.bincount(bin_index, minlength=n_bins)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        bin_mean = np.bincount(bin_index, weights=p, minlength=n_bins) / bin_counts
+        bin_fraction = np.bincount(bin_index, weights=y, minlength=n_bins) / bin_counts
+    filled = bin_counts > 0
+    ece = float(np.sum(bin_counts[filled] * np.abs(bin_mean[filled] - bin_fraction[filled])) / p.size)
+
+    hist_edges = np.linspace(0.0, 1.0, n_hist_bins + 1)
+    return MapScores(
+        n_voxels=int(p.size),
+        n_occupied=n_occupied,
+        n_free=n_free,
+        brier=float(np.mean((p - y) ** 2)),
+        log_loss=float(log_loss),
+        ece=ece,
+        roc_auc=roc_auc(p, y),
+        occupied_called_free=float(np.mean(p[y] < 0.5)) if n_occupied else float("nan"),
+        free_called_occupied=float(np.mean(p[~y] > 0.5)) if n_free else float("nan"),
+        bin_edges=bin_edges,
+        bin_counts=bin_counts.astype(np.int64),
+        bin_mean_probability=bin_mean,
+        bin_occupied_fraction=bin_fraction,
+        hist_edges=hist_edges,
+        hist_free=np.histogram(p[~y], bins=hist_edges)[0].astype(np.int64),
+        hist_occupied=np.histogram(p[y], bins=hist_edges)[0].astype(np.int64),
+    )
+
+
+def roc_auc(score, positive):
+    """Area under the ROC curve from ranks (Mann-Whitney U), ties counted one half.
+
+    Parameters
+    ----------
+    score : (N,) float
+        Higher means "more likely positive".
+    positive : (N,) bool
+
+    Returns
+    -------
+    float
+        ``(sum of positive ranks - n_pos (n_pos + 1) / 2) / (n_pos n_neg)`` with average ranks for
+        ties; NaN when either class is absent (the AUC is undefined).
+    """
+    s = as_float_array(score, "score", ndim=1, allow_nan=False)
+    y = _as_binary(positive, "positive")
+    if y.shape != s.shape:
+        raise PrismapInputError(f"`positive` must have the shape of `score` {s.shape}; got {y.shape}")
+    n_pos = int(y.sum())
+    n_neg = y.size - n_pos
+    if n_pos == 0 or n_neg == 0:
+        return float("nan")
+    ranks = rankdata(s)
+    return float((ranks[y].sum() - n_pos * (n_pos + 1) / 2.0) / (n_pos * n_neg))
+
+
+def _as_binary(value, name):
+    array = np.asarray(value)
+    if array.ndim != 1:
+        raise PrismapInputError(f"`{name}` must be 1-D; got shape {array.shape}")
+    if array.dtype == bool:
+        return array
+    if array.size and not (np.issubdtype(array.dtype, np.number) and np.all((array == 0) | (array == 1))):
+        raise PrismapInputError(f"`{name}` must be boolean (or 0/1); got dtype {array.dtype} with other values")
+    return array.astype(bool)
+
+
+def _check_count(value, name):
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+        raise PrismapInputError(f"`{name}` must be a positive integer; got {value!r}")
+    return int(value)

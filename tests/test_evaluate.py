@@ -1,0 +1,170 @@
+"""Map scores against hand-computed values, scikit-learn, and the alignment of keys to ground truth."""
+
+import json
+
+import numpy as np
+import pytest
+from sklearn.metrics import brier_score_loss, log_loss, roc_auc_score
+
+from prismap.errors import PrismapInputError
+from prismap.evaluate import LOG_LOSS_EPS, MapScores, align_to_ground_truth, roc_auc, score_map
+
+
+def test_scores_by_hand():
+    p = np.array([0.1, 0.4, 0.35, 0.8])
+    y = np.array([False, False, True, True])
+    s = score_map(p, y, n_bins=2, n_hist_bins=2)
+    assert s.n_voxels == 4 and s.n_occupied == 2 and s.n_free == 2
+    assert s.brier == pytest.approx((0.01 + 0.16 + 0.4225 + 0.04) / 4)
+    assert s.log_loss == pytest.approx(-(np.log(0.9) + np.log(0.6) + np.log(0.35) + np.log(0.8)) / 4)
+    # pairs (occupied, free): (0.35, 0.1) yes, (0.35, 0.4) no, (0.8, 0.1) yes, (0.8, 0.4) yes -> 3/4
+    assert s.roc_auc == pytest.approx(0.75)
+    # bin [0, 0.5): p 0.1, 0.4, 0.35 -> mean 0.2833, 1 of 3 occupied; bin [0.5, 1]: 0.8, 1 of 1
+    np.testing.assert_array_equal(s.bin_counts, [3, 1])
+    np.testing.assert_allclose(s.bin_mean_probability, [0.85 / 3, 0.8])
+    np.testing.assert_allclose(s.bin_occupied_fraction, [1 / 3, 1.0])
+    assert s.ece == pytest.approx((3 * abs(0.85 / 3 - 1 / 3) + 1 * 0.2) / 4)
+    assert s.occupied_called_free == 0.5 and s.free_called_occupied == 0.0
+    np.testing.assert_array_equal(s.hist_free, [2, 0])
+    np.testing.assert_array_equal(s.hist_occupied, [1, 1])
+
+
+def test_auc_ties_count_half():
+    assert roc_auc([0.5, 0.5, 0.5], [True, False, False]) == 0.5
+    # occupied 0.7 vs free {0.7, 0.2}: one tie (1/2) and one win -> 0.75
+    assert roc_auc([0.7, 0.7, 0.2], [True, False, False]) == pytest.approx(0.75)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_scores_match_sklearn(seed):
+    rng = np.random.default_rng(seed)
+    y = rng.random(500) < 0.3
+    # informative but noisy, rounded so that ties occur; away from the log-loss clip
+    p = np.clip(np.round(0.3 + 0.4 * y + rng.normal(0, 0.2, 500), 2), 0.01, 0.99)
+    s = score_map(p, y)
+    assert s.brier == pytest.approx(brier_score_loss(y, p), rel=1e-12)
+    assert s.log_loss == pytest.approx(log_loss(y, p), rel=1e-12)
+    assert s.roc_auc == pytest.approx(roc_auc_score(y, p), rel=1e-12)
+
+
+def test_ece_brute_force():
+    rng = np.random.default_rng(5)
+    p = rng.random(300)
+    y = rng.random(300) < p**2
+    s = score_map(p, y, n_bins=7)
+    total = 0.0
+    for b in range(7):
+        lo, hi = b / 7, (b + 1) / 7
+        inside = (p >= lo) & ((p < hi) if b < 6 else (p <= hi))
+        if inside.any():
+            total += inside.sum() * abs(p[inside].mean() - y[inside].mean())
+    assert s.ece == pytest.approx(total / 300)
+    assert s.bin_counts.sum() == 300 and s.hist_free.sum() + s.hist_occupied.sum() == 300
+
+
+def test_perfect_and_constant_predictors():
+    y = np.array([0, 1, 1, 0, 1], dtype=bool)
+    perfect = score_map(y.astype(float), y)
+    assert perfect.brier == 0 and perfect.ece == 0 and perfect.roc_auc == 1
+    assert perfect.log_loss == pytest.approx(-np.log1p(-LOG_LOSS_EPS))  # clipped, not exactly 0
+    assert perfect.occupied_called_free == 0 and perfect.free_called_occupied == 0
+    worst = score_map(1.0 - y, y)
+    assert worst.brier == 1 and worst.roc_auc == 0
+    assert worst.log_loss == pytest.approx(-np.log(LOG_LOSS_EPS))  # bounded by the clip
+    constant = score_map(np.full(5, 0.5), y)
+    assert constant.brier == 0.25 and constant.roc_auc == 0.5
+    assert constant.log_loss == pytest.approx(np.log(2))
+    # P = 0.5 is neither called free (< 0.5) nor occupied (> 0.5)
+    assert constant.occupied_called_free == 0 and constant.free_called_occupied == 0
+    assert constant.ece == pytest.approx(abs(0.5 - 0.6))
+
+
+def test_one_class_truth_gives_nan_auc_and_rate():
+    s = score_map([0.2, 0.9], [True, True])
+    assert np.isnan(s.roc_auc) and np.isnan(s.free_called_occupied)
+    assert s.occupied_called_free == 0.5
+    d = s.to_dict()
+    assert d["roc_auc"] is None and d["free_called_occupied"] is None
+    assert d["bin_mean_probability"][0] is None  # empty bin
+    json.dumps(d, allow_nan=False)
+
+
+def test_to_dict_round_trips_values():
+    s = score_map([0.1, 0.9, 0.6], [False, True, False])
+    d = s.to_dict()
+    assert set(d) == set(MapScores.__dataclass_fields__)
+    assert d["brier"] == s.brier and d["bin_counts"] == s.bin_counts.tolist()
+
+
+@pytest.mark.parametrize(
+    "p, y, match",
+    [
+        ([0.1, 0.2], [True], "shape of `probability`"),
+        ([], [], "empty"),
+        ([0.1, 1.2], [True, False], r"\[0, 1\]"),
+        ([-0.1, 0.5], [True, False], r"\[0, 1\]"),
+        ([np.nan, 0.5], [True, False], "finite"),
+        ([0.1, 0.5], [2, 0], "boolean"),
+        ([[0.1, 0.5]], [[True, False]], "1-D"),
+    ],
+)
+def test_score_errors(p, y, match):
+    with pytest.raises(PrismapInputError, match=match):
+        score_map(p, y)
+
+
+def test_bin_count_errors():
+    with pytest.raises(PrismapInputError, match="n_bins"):
+        score_map([0.5], [True], n_bins=0)
+    with pytest.raises(PrismapInputError, match="n_hist_bins"):
+        score_map([0.5], [True], n_hist_bins=2.5)
+
+
+def test_align_3d_by_hand():
+    keys = np.array([[0, 0, 0], [1, 0, 0], [-1, 2, 5]])
+    prob = np.array([0.9, 0.2, 0.7])
+    occupied = np.array([[0, 0, 0], [-1, 2, 5], [9, 9, 9], [0, 0, 0]])  # one outside region, one repeat
+    region = np.array([[-1, 2, 5], [1, 0, 0], [3, 3, 3], [0, 0, 0]])
+    p, y = align_to_ground_truth(keys, prob, occupied, region, p0=0.05)
+    np.testing.assert_array_equal(p, [0.7, 0.2, 0.05, 0.9])
+    np.testing.assert_array_equal(y, [True, False, False, True])
+
+
+def test_align_matches_dict_lookup_2d():
+    rng = np.random.default_rng(3)
+    keys = np.unique(rng.integers(-50, 50, size=(400, 2)), axis=0)
+    prob = rng.random(len(keys))
+    region = np.unique(rng.integers(-60, 60, size=(500, 2)), axis=0)
+    occupied = rng.integers(-60, 60, size=(200, 2))
+    p, y = align_to_ground_truth(keys, prob, occupied, region, p0=0.1)
+    lookup = {tuple(k): v for k, v in zip(keys.tolist(), prob)}
+    occ = {tuple(k) for k in occupied.tolist()}
+    np.testing.assert_array_equal(p, [lookup.get(tuple(k), 0.1) for k in region.tolist()])
+    np.testing.assert_array_equal(y, [tuple(k) in occ for k in region.tolist()])
+
+
+def test_align_empty_map_scores_prior():
+    p, y = align_to_ground_truth(np.zeros((0, 3), int), [], [[1, 1, 1]], [[1, 1, 1], [0, 0, 0]], p0=0.2)
+    np.testing.assert_array_equal(p, [0.2, 0.2])
+    np.testing.assert_array_equal(y, [True, False])
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        ({"keys": [[0, 0, 0]], "probability": [0.5, 0.5]}, "one value per key"),
+        ({"keys": [[0.5, 0, 0]]}, "integer"),
+        ({"region_keys": [[0, 0]]}, "3 columns"),
+        ({"keys": [[0, 0, 0], [0, 0, 0]], "probability": [0.1, 0.2]}, "`keys` must not repeat"),
+        ({"region_keys": [[1, 1, 1], [1, 1, 1]]}, "`region_keys` must not repeat"),
+        ({"probability": [1.5]}, r"\[0, 1\]"),
+        ({"p0": 0.0}, "p0"),
+        ({"region_keys": [[-(2**62), 0, 0], [2**62, 0, 0]]}, "too far apart"),
+    ],
+)
+def test_align_errors(kwargs, match):
+    args = {"keys": [[0, 0, 0]], "probability": [0.5], "occupied_keys": [[0, 0, 0]], "region_keys": [[0, 0, 0]], "p0": 0.1}
+    args.update(kwargs)
+    p0 = args.pop("p0")
+    with pytest.raises(PrismapInputError, match=match):
+        align_to_ground_truth(*args.values(), p0=p0)
