@@ -75,7 +75,8 @@ class StereoCamera:
             f = P[0, 0]
             if not (f > 0 and np.isclose(P[1, 1], f, rtol=1e-9) and P[0, 1] == 0 and np.allclose(P[2, :3], [0, 0, 1])):
                 raise PrismapInputError(
-                    f"`{name}` must be a rectified projection [f 0 cx tx; 0 f cy ty; 0 0 1 tz] with f > 0; got {P.tolist()}"
+                    f"`{name}` must be a rectified projection [f 0 cx tx; 0 f cy ty; 0 0 1 tz] with f > 0; "
+                    f"got {P.tolist()}"
                 )
         if not (np.isclose(left[0, 0], right[0, 0], rtol=1e-9) and np.isclose(left[1, 2], right[1, 2], rtol=1e-9)):
             raise PrismapInputError(
@@ -123,7 +124,8 @@ class StereoCamera:
         cam1 = as_float_array(fields["cam1"], f"{source}: cam1", shape=(3, 3), allow_nan=False)
         if not (np.isclose(cam0[0, 0], cam1[0, 0], rtol=1e-6) and np.isclose(cam0[1, 2], cam1[1, 2], rtol=1e-6)):
             raise PrismapInputError(
-                f"{source}: cam0 and cam1 must share f and cy (a rectified pair); got {cam0.tolist()} and {cam1.tolist()}"
+                f"{source}: cam0 and cam1 must share f and cy (a rectified pair); "
+                f"got {cam0.tolist()} and {cam1.tolist()}"
             )
         try:
             return cls(

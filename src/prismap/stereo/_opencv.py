@@ -1,0 +1,313 @@
+"""OpenCV's block matcher and semiglobal matcher behind :class:`prismap.stereo.StereoMatcher`."""
+
+from abc import abstractmethod
+
+import cv2
+import numpy as np
+
+from prismap.errors import PrismapInputError
+from prismap.stereo._base import StereoMatcher, left_right_check
+
+
+class _OpenCVMatcher(StereoMatcher):
+    """Shared part: argument checks, fixed-point -> float conversion, the optional left-right check.
+
+    OpenCV returns int16 disparities scaled by 16 and marks invalid pixels with
+    ``(min_disparity - 1) * 16``; those become NaN. The right image's disparity for the
+    left-right check comes from matching the horizontally flipped pair (right as reference).
+    """
+
+    def __init__(self, *, min_disparity, num_disparities, block_size, left_right_check, lr_max_difference_px):
+        try:
+            lr_max = float(lr_max_difference_px)
+        except (TypeError, ValueError):
+            lr_max = np.nan
+        if not np.isfinite(lr_max) or lr_max < 0:
+            raise PrismapInputError(
+                f"`lr_max_difference_px` must be a finite number >= 0; got {lr_max_difference_px!r}"
+            )
+        self.min_disparity = _integer(min_disparity, "min_disparity", "an integer")
+        self.num_disparities = _integer(
+            num_disparities, "num_disparities", "a positive multiple of 16", lambda n: n > 0 and n % 16 == 0
+        )
+        self.block_size = _integer(block_size, "block_size", "an odd positive integer", lambda n: n > 0 and n % 2)
+        self.left_right_check = bool(left_right_check)
+        self.lr_max_difference_px = lr_max
+
+    def compute(self, left, right):
+        """Disparity of ``left`` against ``right``.
+
+        Parameters
+        ----------
+        left, right : (H, W) or (H, W, 3) uint8
+            Rectified pair, grey or RGB, of one shape.
+
+        Returns
+        -------
+        disparity : (H, W) float32, pixels, NaN = invalid
+            With ``left_right_check=True``, pixels whose match does not map back within
+            ``lr_max_difference_px`` are NaN too.
+        """
+        left, right = self._prepare(_check_pair(left, right))
+        matcher = self._create(channels=1 if left.ndim == 2 else left.shape[2])
+        disparity = self._to_float(matcher.compute(left, right))
+        if self.left_right_check:
+            disparity_right = self._right_disparity(matcher, left, right)
+            disparity = left_right_check(disparity, disparity_right, max_difference_px=self.lr_max_difference_px)
+        return disparity
+
+    def _right_disparity(self, matcher, left, right):
+        """Disparity of the right image against the left (positive), from the flipped pair.
+
+        OpenCV leaves the first ``min_disparity + num_disparities`` columns of its reference image
+        unmatched; flipped, those would be the right image's last columns, which the check needs
+        for the left image's last columns. The flipped pair is therefore padded by that many
+        edge-replicated columns, which are cropped off again.
+        """
+        pad = max(self.min_disparity + self.num_disparities, 0)
+        flipped = [cv2.copyMakeBorder(image[:, ::-1], 0, 0, pad, 0, cv2.BORDER_REPLICATE) for image in (right, left)]
+        return self._to_float(matcher.compute(*flipped))[:, pad:][:, ::-1]
+
+    def params(self):
+        """Every parameter, as a JSON-serialisable dict (``name`` included)."""
+        return {"name": self.name, **vars(self)}
+
+    def __repr__(self):
+        args = ", ".join(f"{key}={value!r}" for key, value in vars(self).items())
+        return f"{type(self).__name__}({args})"
+
+    def _to_float(self, fixed_point):
+        disparity = fixed_point.astype(np.float32) / np.float32(16.0)
+        return np.where(fixed_point >= self.min_disparity * 16, disparity, np.float32(np.nan))
+
+    def _prepare(self, pair):
+        return pair
+
+    @abstractmethod
+    def _create(self, *, channels):
+        """The configured OpenCV matcher for images of ``channels`` channels."""
+
+
+class BlockMatcher(_OpenCVMatcher):
+    """Block matching (``cv2.StereoBM``): sum of absolute differences over a square window.
+
+    Fast and sparse: low-texture and ambiguous pixels are left invalid. Colour input is
+    converted to grey (StereoBM matches one channel).
+
+    Parameters
+    ----------
+    min_disparity : int, pixels
+        Smallest disparity searched.
+    num_disparities : int, pixels, positive multiple of 16
+        Size of the search range ``[min_disparity, min_disparity + num_disparities)``.
+    block_size : int, pixels, odd, 5..255
+        Side of the matching window.
+    pre_filter_type : {"xsobel", "normalized_response"}
+        Pre-filter applied before matching.
+    pre_filter_size : int, pixels, odd, 5..255
+        Window of the normalised-response pre-filter.
+    pre_filter_cap : int, 1..63
+        Clip of the pre-filtered values.
+    texture_threshold : int
+        Minimum summed texture in the window; weaker windows are invalid.
+    uniqueness_ratio : int, percent
+        Margin by which the best cost must beat the second best.
+    speckle_window_size : int, pixels
+        Largest connected region treated as speckle and removed (0 = off).
+    speckle_range : int, pixels
+        Disparity variation allowed inside one connected region.
+    left_right_check : bool
+        Apply :func:`prismap.stereo.left_right_check` (matches the pair twice).
+    lr_max_difference_px : float, pixels
+        Tolerance of the left-right check.
+    """
+
+    name = "bm"
+    _PRE_FILTERS = {
+        "xsobel": cv2.StereoBM_PREFILTER_XSOBEL,
+        "normalized_response": cv2.StereoBM_PREFILTER_NORMALIZED_RESPONSE,
+    }
+
+    def __init__(
+        self,
+        *,
+        min_disparity=0,
+        num_disparities=64,
+        block_size=15,
+        pre_filter_type="xsobel",
+        pre_filter_size=9,
+        pre_filter_cap=31,
+        texture_threshold=10,
+        uniqueness_ratio=15,
+        speckle_window_size=0,
+        speckle_range=0,
+        left_right_check=False,
+        lr_max_difference_px=1.0,
+    ):
+        super().__init__(
+            min_disparity=min_disparity,
+            num_disparities=num_disparities,
+            block_size=block_size,
+            left_right_check=left_right_check,
+            lr_max_difference_px=lr_max_difference_px,
+        )
+        _integer(block_size, "block_size", "odd in 5..255 for block matching", lambda n: 5 <= n <= 255)
+        if pre_filter_type not in self._PRE_FILTERS:
+            raise PrismapInputError(
+                f"`pre_filter_type` must be one of {list(self._PRE_FILTERS)}; got {pre_filter_type!r}"
+            )
+        self.pre_filter_type = pre_filter_type
+        self.pre_filter_size = _integer(
+            pre_filter_size, "pre_filter_size", "odd in 5..255", lambda n: 5 <= n <= 255 and n % 2
+        )
+        self.pre_filter_cap = _integer(pre_filter_cap, "pre_filter_cap", "an integer in 1..63", lambda n: 1 <= n <= 63)
+        self.texture_threshold = _non_negative_int(texture_threshold, "texture_threshold")
+        self.uniqueness_ratio = _non_negative_int(uniqueness_ratio, "uniqueness_ratio")
+        self.speckle_window_size = _non_negative_int(speckle_window_size, "speckle_window_size")
+        self.speckle_range = _non_negative_int(speckle_range, "speckle_range")
+
+    def _prepare(self, pair):
+        return tuple(cv2.cvtColor(image, cv2.COLOR_RGB2GRAY) if image.ndim == 3 else image for image in pair)
+
+    def _create(self, *, channels):
+        matcher = cv2.StereoBM_create(numDisparities=self.num_disparities, blockSize=self.block_size)
+        matcher.setMinDisparity(self.min_disparity)
+        matcher.setPreFilterType(self._PRE_FILTERS[self.pre_filter_type])
+        matcher.setPreFilterSize(self.pre_filter_size)
+        matcher.setPreFilterCap(self.pre_filter_cap)
+        matcher.setTextureThreshold(self.texture_threshold)
+        matcher.setUniquenessRatio(self.uniqueness_ratio)
+        matcher.setSpeckleWindowSize(self.speckle_window_size)
+        matcher.setSpeckleRange(self.speckle_range)
+        return matcher
+
+
+class SemiGlobalMatcher(_OpenCVMatcher):
+    """Semiglobal block matching (``cv2.StereoSGBM``, after Hirschmuller 2008).
+
+    Dense: path-wise smoothness costs ``P1`` (disparity change of 1) and ``P2`` (larger changes)
+    aggregated along several directions. Grey or RGB input (costs summed over channels).
+
+    Parameters
+    ----------
+    min_disparity : int, pixels
+    num_disparities : int, pixels, positive multiple of 16
+    block_size : int, pixels, odd
+        Side of the matching window (3..11 is typical; 1 matches single pixels).
+    p1, p2 : int or None
+        Smoothness penalties; ``None`` = ``8 cn block_size^2`` and ``32 cn block_size^2`` with
+        ``cn`` the number of image channels (OpenCV's recommended values). ``p2 > p1``.
+    mode : {"sgbm", "sgbm_3way", "hh", "hh4"}
+        5-direction SGBM, its faster 3-way variant, or the full 8-direction (``hh``) and
+        4-direction (``hh4``) algorithm.
+    pre_filter_cap : int
+        Clip of the x-derivative pre-filter.
+    uniqueness_ratio : int, percent
+        Margin by which the best cost must beat the second best.
+    speckle_window_size : int, pixels
+        Largest connected region treated as speckle and removed (0 = off).
+    speckle_range : int, pixels
+        Disparity variation allowed inside one connected region.
+    left_right_check : bool
+        Apply :func:`prismap.stereo.left_right_check` (matches the pair twice).
+    lr_max_difference_px : float, pixels
+        Tolerance of the left-right check.
+
+    References
+    ----------
+    .. [1] H. Hirschmuller, "Stereo processing by semiglobal matching and mutual information",
+       IEEE TPAMI 30(2), 2008. :DOI:`10.1109/TPAMI.2007.1166`
+    """
+
+    name = "sgbm"
+    _MODES = {
+        "sgbm": cv2.STEREO_SGBM_MODE_SGBM,
+        "sgbm_3way": cv2.STEREO_SGBM_MODE_SGBM_3WAY,
+        "hh": cv2.STEREO_SGBM_MODE_HH,
+        "hh4": cv2.STEREO_SGBM_MODE_HH4,
+    }
+
+    def __init__(
+        self,
+        *,
+        min_disparity=0,
+        num_disparities=64,
+        block_size=5,
+        p1=None,
+        p2=None,
+        mode="sgbm",
+        pre_filter_cap=63,
+        uniqueness_ratio=10,
+        speckle_window_size=100,
+        speckle_range=2,
+        left_right_check=False,
+        lr_max_difference_px=1.0,
+    ):
+        super().__init__(
+            min_disparity=min_disparity,
+            num_disparities=num_disparities,
+            block_size=block_size,
+            left_right_check=left_right_check,
+            lr_max_difference_px=lr_max_difference_px,
+        )
+        if mode not in self._MODES:
+            raise PrismapInputError(f"`mode` must be one of {list(self._MODES)}; got {mode!r}")
+        self.p1 = None if p1 is None else _non_negative_int(p1, "p1")
+        self.p2 = None if p2 is None else _non_negative_int(p2, "p2")
+        if self.p1 is not None and self.p2 is not None and self.p2 <= self.p1:
+            raise PrismapInputError(f"`p2` must exceed `p1`; got p1={p1!r}, p2={p2!r}")
+        self.mode = mode
+        self.pre_filter_cap = _non_negative_int(pre_filter_cap, "pre_filter_cap")
+        self.uniqueness_ratio = _non_negative_int(uniqueness_ratio, "uniqueness_ratio")
+        self.speckle_window_size = _non_negative_int(speckle_window_size, "speckle_window_size")
+        self.speckle_range = _non_negative_int(speckle_range, "speckle_range")
+
+    def _create(self, *, channels):
+        area = channels * self.block_size**2
+        p1 = 8 * area if self.p1 is None else self.p1
+        p2 = 32 * area if self.p2 is None else self.p2
+        if p2 <= p1:
+            raise PrismapInputError(f"`p2` must exceed `p1`; got p1={p1}, p2={p2} for {channels}-channel images")
+        return cv2.StereoSGBM_create(
+            minDisparity=self.min_disparity,
+            numDisparities=self.num_disparities,
+            blockSize=self.block_size,
+            P1=p1,
+            P2=p2,
+            disp12MaxDiff=-1,
+            preFilterCap=self.pre_filter_cap,
+            uniquenessRatio=self.uniqueness_ratio,
+            speckleWindowSize=self.speckle_window_size,
+            speckleRange=self.speckle_range,
+            mode=self._MODES[self.mode],
+        )
+
+
+def _check_pair(left, right):
+    """Both images as contiguous uint8 arrays of one (H, W) or (H, W, 3) shape, else raise."""
+    pair = []
+    for name, image in (("left", left), ("right", right)):
+        image = np.asarray(image)
+        if image.dtype != np.uint8:
+            raise PrismapInputError(f"`{name}` must be a uint8 image; got dtype {image.dtype}")
+        if not (image.ndim == 2 or (image.ndim == 3 and image.shape[2] == 3)):
+            raise PrismapInputError(f"`{name}` must be an (H, W) grey or (H, W, 3) RGB image; got shape {image.shape}")
+        pair.append(np.ascontiguousarray(image))
+    if pair[0].shape != pair[1].shape:
+        raise PrismapInputError(f"`left` and `right` must have one shape; got {pair[0].shape} and {pair[1].shape}")
+    return tuple(pair)
+
+
+def _integer(value, name, expected, condition=lambda n: True):
+    """``int(value)`` if ``value`` is an integer meeting ``condition``, else raise with ``expected``."""
+    try:
+        number = int(value)
+    except (TypeError, ValueError, OverflowError):
+        number = None
+    if number is None or isinstance(value, (bool, np.bool_)) or number != value or not condition(number):
+        raise PrismapInputError(f"`{name}` must be {expected}; got {value!r}")
+    return number
+
+
+def _non_negative_int(value, name):
+    return _integer(value, name, "a non-negative integer", lambda n: n >= 0)
