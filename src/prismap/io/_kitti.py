@@ -1,0 +1,380 @@
+"""Readers of the KITTI odometry, raw and stereo 2012/2015 layouts.
+
+Also the PNG and text helpers the New Tsukuba reader shares: every failure becomes a
+:class:`PrismapInputError` naming the file (and line or field) and the problem.
+"""
+
+import dataclasses
+from collections.abc import Sequence
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from prismap.camera import StereoCamera
+from prismap.errors import PrismapInputError
+from prismap.io._frame import StereoFrame
+from prismap.io._velodyne import read_velodyne_bin, velodyne_to_camera
+
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+_TEXT_FIELDS = frozenset({"calib_time"})
+_ROTATION_TOLERANCE = 1e-3
+
+
+# ----------------------------------------------------------------------------- shared file helpers
+
+
+def _read_text(path, what):
+    """The UTF-8 text of ``path``; ``what`` names the file's role in messages."""
+    path = Path(path)
+    if not path.is_file():
+        raise PrismapInputError(f"{path}: {what} not found")
+    try:
+        return path.read_bytes().decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise PrismapInputError(f"{path}: {what} is not UTF-8 text (byte {exc.start})") from None
+
+
+def _parse_numbers(text, path, line_no, field=None):
+    """Finite floats of one whitespace-separated field, or an error naming file, line and field."""
+    where = f"{path} line {line_no}" + (f", field {field}" if field else "")
+    try:
+        values = np.array([float(token) for token in text.split()], dtype=np.float64)
+    except ValueError:
+        raise PrismapInputError(f"{where}: expected numbers; got {text.strip()[:60]!r}") from None
+    if not np.all(np.isfinite(values)):
+        raise PrismapInputError(f"{where}: numbers must be finite; got {text.strip()[:60]!r}")
+    return values
+
+
+def _read_png(path, what, flags=cv2.IMREAD_UNCHANGED):
+    """Decode a PNG with OpenCV, turning its silent ``None`` into an error."""
+    path = Path(path)
+    if not path.is_file():
+        raise PrismapInputError(f"{path}: {what} not found")
+    with open(path, "rb") as handle:
+        if handle.read(len(_PNG_SIGNATURE)) != _PNG_SIGNATURE:
+            raise PrismapInputError(f"{path}: {what} is not a PNG file (wrong signature)")
+    image = cv2.imread(str(path), flags)
+    if image is None:
+        raise PrismapInputError(f"{path}: {what} cannot be decoded (truncated or corrupt PNG)")
+    return image
+
+
+def _read_rgb(path, what="image"):
+    """(H, W, 3) uint8 RGB image (OpenCV reads BGR)."""
+    image = _read_png(path, what, cv2.IMREAD_COLOR)
+    return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
+
+
+def _read_gray_png(path, what, dtype):
+    """Single-channel PNG of exactly ``dtype`` (uint8 or uint16)."""
+    image = _read_png(path, what)
+    if image.ndim != 2 or image.dtype != dtype:
+        channels = 1 if image.ndim == 2 else image.shape[2]
+        raise PrismapInputError(
+            f"{path}: {what} must be a single-channel {np.dtype(dtype).name} PNG; "
+            f"got {channels}-channel {image.dtype.name}"
+        )
+    return image
+
+
+def _paired_files(left_dir, right_dir, pattern):
+    """Sorted file names present in both folders; an error if either lacks one of the other's."""
+    left = sorted(p.name for p in Path(left_dir).glob(pattern))
+    if not left:
+        raise PrismapInputError(f"{left_dir}: no files matching {pattern!r}")
+    right = {p.name for p in Path(right_dir).glob(pattern)}
+    missing = [name for name in left if name not in right]
+    if missing:
+        raise PrismapInputError(f"{right_dir}: missing {len(missing)} right image(s), first {missing[0]!r}")
+    return left
+
+
+def _with_image_size(camera, image):
+    return dataclasses.replace(camera, width=image.shape[1], height=image.shape[0])
+
+
+def _homogeneous(rotation_translation):
+    T = np.eye(4)
+    T[:3, :] = rotation_translation
+    return T
+
+
+# ----------------------------------------------------------------------------- KITTI files
+
+
+def read_kitti_calib(path):
+    """Read a KITTI calibration file of ``name: numbers`` lines.
+
+    Covers odometry ``calib.txt`` (``P0``..``P3``, optional ``Tr``), raw ``calib_cam_to_cam.txt``
+    and ``calib_velo_to_cam.txt``, and stereo 2012/2015 calibration files.
+
+    Parameters
+    ----------
+    path : str or Path
+
+    Returns
+    -------
+    dict of str -> (K,) float64
+        Every field's numbers in file order; the text field ``calib_time`` is skipped.
+
+    Raises
+    ------
+    PrismapInputError
+        A line without ``name:``, a repeated name, or a value that is not a finite number, named
+        with the file and line.
+    """
+    path = Path(path)
+    fields = {}
+    for line_no, line in enumerate(_read_text(path, "KITTI calibration file").splitlines(), start=1):
+        if not line.strip():
+            continue
+        name, colon, values = line.partition(":")
+        name = name.strip()
+        if not colon or not name or " " in name:
+            raise PrismapInputError(f"{path} line {line_no}: expected 'name: numbers'; got {line.strip()[:60]!r}")
+        if name in fields:
+            raise PrismapInputError(f"{path} line {line_no}: field {name} appears twice")
+        if name not in _TEXT_FIELDS:
+            fields[name] = _parse_numbers(values, path, line_no, name)
+    return fields
+
+
+def _calib_matrix(calib, path, name, shape):
+    if name not in calib:
+        raise PrismapInputError(f"{path}: missing field {name}; found {sorted(calib)}")
+    values = calib[name]
+    count = int(np.prod(shape))
+    if values.size != count:
+        raise PrismapInputError(f"{path}: field {name} must have {count} numbers; got {values.size}")
+    return values.reshape(shape)
+
+
+def _camera_from_projections(P_left, P_right, path):
+    try:
+        return StereoCamera.from_kitti_projections(P_left, P_right)
+    except PrismapInputError as exc:
+        raise PrismapInputError(f"{path}: {exc}") from None
+
+
+def _T_left_cam0(P_left):
+    """Rectified camera-0 -> left-camera transform: ``P = K [I | t]``, so ``x_left = x_cam0 + t``."""
+    T = np.eye(4)
+    T[:3, 3] = np.linalg.solve(P_left[:, :3], P_left[:, 3])
+    return T
+
+
+def read_kitti_poses(path):
+    """Read an odometry ``poses/NN.txt``: one 3x4 row-major camera-to-world pose per line.
+
+    Parameters
+    ----------
+    path : str or Path
+
+    Returns
+    -------
+    (N, 4, 4) float64
+        ``T_world_cam0`` of the left grey camera (camera 0) for each frame, metres; the world is
+        camera 0 of the first frame.
+
+    Raises
+    ------
+    PrismapInputError
+        An empty file or line, a line without exactly 12 finite numbers, or a rotation part that is
+        not orthonormal within 1e-3, named with the file and line.
+    """
+    path = Path(path)
+    lines = _read_text(path, "KITTI pose file").rstrip().splitlines()
+    if not lines:
+        raise PrismapInputError(f"{path}: KITTI pose file is empty")
+    poses = np.empty((len(lines), 4, 4))
+    for index, line in enumerate(lines):
+        values = _parse_numbers(line, path, index + 1)
+        if values.size != 12:
+            raise PrismapInputError(f"{path} line {index + 1}: expected 12 numbers (3x4 pose); got {values.size}")
+        poses[index] = _homogeneous(values.reshape(3, 4))
+        _check_rotation(poses[index, :3, :3], path, index + 1)
+    return poses
+
+
+def _check_rotation(R, path, line_no):
+    error = np.abs(R.T @ R - np.eye(3)).max()
+    if not error <= _ROTATION_TOLERANCE or np.linalg.det(R) < 0:
+        raise PrismapInputError(
+            f"{path} line {line_no}: rotation is not orthonormal with det +1 (max |R^T R - I| = {error:.3g})"
+        )
+
+
+def read_kitti_disparity(path):
+    """Read a KITTI stereo 2012/2015 ground-truth disparity (``disp_occ_0/000000_10.png``, ``disp_noc``...).
+
+    Parameters
+    ----------
+    path : str or Path
+        Single-channel uint16 PNG holding ``256 * disparity``, 0 where unknown.
+
+    Returns
+    -------
+    (H, W) float32, pixels, NaN = unknown
+
+    Raises
+    ------
+    PrismapInputError
+        Missing, not a PNG, truncated or corrupt, or not single-channel uint16 (an 8-bit PNG would
+        silently lose the 1/256 px resolution and scale).
+    """
+    raw = _read_gray_png(path, "KITTI disparity", np.uint16)
+    disparity = raw.astype(np.float32) / np.float32(256.0)
+    disparity[raw == 0] = np.nan
+    return disparity
+
+
+# ----------------------------------------------------------------------------- sequences
+
+
+class _KittiSequence(Sequence):
+    """Frames of a folder pair read lazily: ``len(seq)``, ``seq[i] -> StereoFrame``."""
+
+    def __init__(self, left_dir, right_dir, velodyne_dir, camera, T_cam_velo, poses, source):
+        self._left_dir = Path(left_dir)
+        self._right_dir = Path(right_dir)
+        self._velodyne_dir = Path(velodyne_dir)
+        self._names = _paired_files(left_dir, right_dir, "*.png")
+        self.camera = camera
+        self._T_cam_velo = T_cam_velo
+        self._source = source
+        if poses is not None and len(poses) != len(self._names):
+            raise PrismapInputError(f"{source}: {len(poses)} poses for {len(self._names)} frames")
+        self.poses = poses
+
+    def __len__(self):
+        return len(self._names)
+
+    def __getitem__(self, index):
+        if isinstance(index, slice):
+            return [self[i] for i in range(*index.indices(len(self)))]
+        index = range(len(self))[index]
+        name = self._names[index]
+        left = _read_rgb(self._left_dir / name, "left image")
+        right = _read_rgb(self._right_dir / name, "right image")
+        if right.shape != left.shape:
+            raise PrismapInputError(f"{self._right_dir / name}: right image shape {right.shape} != left {left.shape}")
+        return StereoFrame(
+            left=left,
+            right=right,
+            camera=_with_image_size(self.camera, left),
+            T_world_cam=None if self.poses is None else self.poses[index].copy(),
+            name=f"{self._source}/{Path(name).stem}",
+        )
+
+    @property
+    def T_cam_velo(self):
+        """(4, 4) float64: Velodyne frame -> left (reference) camera frame, metres."""
+        if self._T_cam_velo is None:
+            raise PrismapInputError(f"{self._source}: the calibration has no Velodyne transform (Tr)")
+        return self._T_cam_velo.copy()
+
+    def velodyne(self, index):
+        """Velodyne points of frame ``index`` in the left camera frame: (N, 3) float64, metres."""
+        stem = Path(self._names[range(len(self))[index]]).stem
+        points = read_velodyne_bin(self._velodyne_dir / f"{stem}.bin")
+        return velodyne_to_camera(points, self.T_cam_velo)
+
+
+class KittiOdometry(_KittiSequence):
+    """A KITTI odometry sequence with the colour pair as the stereo camera.
+
+    Parameters
+    ----------
+    root : str or Path
+        Folder holding ``sequences/NN/{image_2,image_3,velodyne,calib.txt}`` and, for sequences
+        00-10, ``poses/NN.txt``.
+    sequence : int or str
+        Sequence number (``3`` or ``"03"``).
+
+    Attributes
+    ----------
+    camera : StereoCamera
+        From ``P2`` (left) and ``P3`` (right) of ``calib.txt``.
+    poses : (N, 4, 4) float64 or None
+        ``T_world_cam`` of the left colour camera (image_2), metres; None without a pose file.
+
+    Notes
+    -----
+    ``poses/NN.txt`` holds ``T_world_cam0`` of the left grey camera. ``P2 = K [I | t2]`` maps
+    rectified camera-0 coordinates into image 2, so ``x_cam2 = x_cam0 + t2`` with
+    ``t2 = K^-1 P2[:, 3]`` (about (0.06, 0, 0) m), and ``T_world_cam2 = T_world_cam0 @ [I | -t2]``:
+    the colour camera sits 6 cm to the left of camera 0. Likewise the Velodyne transform is
+    ``T_cam2_velo = [I | t2] @ Tr``. The world frame stays camera 0 of the first frame.
+    """
+
+    def __init__(self, root, sequence, *, load_poses=True):
+        root = Path(root)
+        try:
+            number = int(sequence)
+        except (TypeError, ValueError):
+            raise PrismapInputError(f"`sequence` must be a sequence number like 3 or '03'; got {sequence!r}") from None
+        seq_dir = root / "sequences" / f"{number:02d}"
+        calib_path = seq_dir / "calib.txt"
+        calib = read_kitti_calib(calib_path)
+        P2 = _calib_matrix(calib, calib_path, "P2", (3, 4))
+        P3 = _calib_matrix(calib, calib_path, "P3", (3, 4))
+        camera = _camera_from_projections(P2, P3, calib_path)
+        T_cam2_cam0 = _T_left_cam0(P2)
+        T_cam_velo = None
+        if "Tr" in calib:
+            T_cam_velo = T_cam2_cam0 @ _homogeneous(_calib_matrix(calib, calib_path, "Tr", (3, 4)))
+        poses = None
+        pose_path = root / "poses" / f"{number:02d}.txt"
+        if load_poses and pose_path.exists():
+            poses = read_kitti_poses(pose_path) @ np.linalg.inv(T_cam2_cam0)
+        super().__init__(
+            seq_dir / "image_2", seq_dir / "image_3", seq_dir / "velodyne", camera, T_cam_velo, poses, str(seq_dir)
+        )
+
+
+class KittiRaw(_KittiSequence):
+    """A KITTI raw drive (``*_sync``) with the rectified colour pair as the stereo camera.
+
+    Parameters
+    ----------
+    drive_dir : str or Path
+        E.g. ``2011_09_26/2011_09_26_drive_0001_sync`` with ``image_02/data``, ``image_03/data``
+        and ``velodyne_points/data``.
+    calib_dir : str or Path or None, keyword-only
+        Folder of ``calib_cam_to_cam.txt`` and ``calib_velo_to_cam.txt``; default the drive's parent.
+
+    Notes
+    -----
+    The camera comes from ``P_rect_02`` and ``P_rect_03``. The Velodyne transform is
+    ``T_cam2_velo = [I | t2] @ R_rect_00 @ [R | T]`` (``R``, ``T`` from ``calib_velo_to_cam.txt``,
+    into unrectified camera 0; ``R_rect_00`` rectifies; ``t2 = K^-1 P_rect_02[:, 3]``). Raw drives
+    carry GPS/IMU (oxts) rather than camera poses: ``poses`` is None.
+    """
+
+    def __init__(self, drive_dir, *, calib_dir=None):
+        drive_dir = Path(drive_dir)
+        calib_dir = drive_dir.parent if calib_dir is None else Path(calib_dir)
+        cam_path = calib_dir / "calib_cam_to_cam.txt"
+        velo_path = calib_dir / "calib_velo_to_cam.txt"
+        cam = read_kitti_calib(cam_path)
+        P2 = _calib_matrix(cam, cam_path, "P_rect_02", (3, 4))
+        P3 = _calib_matrix(cam, cam_path, "P_rect_03", (3, 4))
+        camera = _camera_from_projections(P2, P3, cam_path)
+        R_rect = np.eye(4)
+        R_rect[:3, :3] = _calib_matrix(cam, cam_path, "R_rect_00", (3, 3))
+        velo = read_kitti_calib(velo_path)
+        T_cam0_velo = np.eye(4)
+        T_cam0_velo[:3, :3] = _calib_matrix(velo, velo_path, "R", (3, 3))
+        T_cam0_velo[:3, 3] = _calib_matrix(velo, velo_path, "T", (3,))
+        T_cam_velo = _T_left_cam0(P2) @ R_rect @ T_cam0_velo
+        super().__init__(
+            drive_dir / "image_02" / "data",
+            drive_dir / "image_03" / "data",
+            drive_dir / "velodyne_points" / "data",
+            camera,
+            T_cam_velo,
+            None,
+            str(drive_dir),
+        )
