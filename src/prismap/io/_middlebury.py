@@ -1,0 +1,144 @@
+"""Middlebury 2014/2021 stereo folders (``im0.png``, ``im1.png``, ``calib.txt``, ``disp0.pfm``).
+
+``calib.txt`` holds one ``key=value`` per line: ``cam0=[f 0 cx; 0 f cy; 0 0 1]``, ``cam1=[...]``,
+``doffs`` (pixels), ``baseline`` (millimetres), ``width``, ``height``, ``ndisp`` and a few more
+scalars (``isint``, ``vmin``, ``vmax``, ``dyavg``, ``dymax``).
+"""
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from prismap.camera import StereoCamera
+from prismap.errors import PrismapInputError
+from prismap.io._frame import StereoFrame
+from prismap.io._pfm import read_pfm
+
+# Quarter-resolution Motorcycle (Middlebury 2014) as scikit-image ships it; calibration from DESIGN.md.
+_MOTORCYCLE_CAMERA = dict(focal_px=994.978, cx_px=311.193, cy_px=254.877, baseline_m=0.193001, doffs_px=31.086)
+
+
+def read_middlebury_calib(path):
+    """The stereo camera of a Middlebury ``calib.txt``.
+
+    Parameters
+    ----------
+    path : str or Path
+        The ``calib.txt`` file.
+
+    Returns
+    -------
+    StereoCamera
+        ``f, cx, cy`` from ``cam0``, baseline converted from millimetres to metres, ``doffs``,
+        ``width`` and ``height`` from the file.
+    """
+    path = Path(path)
+    return StereoCamera.from_middlebury_calib(_parse_calib(path), source=str(path))
+
+
+def load_middlebury_folder(path):
+    """One Middlebury scene folder as a :class:`StereoFrame`.
+
+    Parameters
+    ----------
+    path : str or Path
+        Folder with ``im0.png`` (left), ``im1.png`` (right), ``calib.txt`` and, when the ground
+        truth is public, ``disp0.pfm``.
+
+    Returns
+    -------
+    StereoFrame
+        RGB (or grey) uint8 images; ``disparity_gt`` (H, W) float32 pixels with ``inf`` -> NaN, or
+        None without ``disp0.pfm``; ``name`` = the folder's name; ``extras["calib"]`` = the
+        remaining scalar fields of ``calib.txt`` (``ndisp``, ``vmin``, ``vmax``, ...).
+    """
+    folder = Path(path)
+    if not folder.is_dir():
+        raise PrismapInputError(
+            f"{folder}: not a Middlebury folder (expected a directory with im0.png, im1.png, calib.txt)"
+        )
+    fields = _parse_calib(folder / "calib.txt")
+    camera = StereoCamera.from_middlebury_calib(fields, source=str(folder / "calib.txt"))
+    left = _read_png(folder / "im0.png")
+    right = _read_png(folder / "im1.png")
+    if left.shape != right.shape:
+        raise PrismapInputError(
+            f"{folder}: im0.png and im1.png must have one shape; got {left.shape} and {right.shape}"
+        )
+    if (camera.height, camera.width) != left.shape[:2]:
+        raise PrismapInputError(
+            f"{folder}: calib.txt says width={camera.width}, height={camera.height}; "
+            f"im0.png is {left.shape[1]}x{left.shape[0]}"
+        )
+    disparity_gt = None
+    if (folder / "disp0.pfm").exists():
+        disparity_gt = read_pfm(folder / "disp0.pfm")
+        if disparity_gt.shape != left.shape[:2]:
+            raise PrismapInputError(
+                f"{folder}: disp0.pfm must be one-channel of the images' size {left.shape[:2]}; "
+                f"got shape {disparity_gt.shape}"
+            )
+        disparity_gt = np.where(np.isinf(disparity_gt), np.float32(np.nan), disparity_gt)
+    extras = {"calib": {key: value for key, value in fields.items() if key not in ("cam0", "cam1")}}
+    return StereoFrame(left, right, camera, disparity_gt=disparity_gt, name=folder.name, extras=extras)
+
+
+def load_middlebury_motorcycle():
+    """Middlebury 2014 Motorcycle at quarter resolution, from scikit-image's bundled copy.
+
+    Returns
+    -------
+    StereoFrame
+        (500, 741, 3) RGB uint8 images, ground-truth disparity (pixels, NaN where unknown),
+        f = 994.978 px, (cx, cy) = (311.193, 254.877) px, doffs = 31.086 px, baseline 0.193001 m.
+    """
+    from skimage import data
+
+    left, right, disparity = data.stereo_motorcycle()
+    height, width = disparity.shape
+    camera = StereoCamera(**_MOTORCYCLE_CAMERA, width=width, height=height)
+    disparity_gt = np.where(np.isfinite(disparity), disparity, np.nan).astype(np.float32)
+    return StereoFrame(left, right, camera, disparity_gt=disparity_gt, name="middlebury-2014/Motorcycle (quarter)")
+
+
+def _parse_calib(path):
+    """``calib.txt`` as a dict: matrices as (3, 3) float64 arrays, other values as float."""
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise PrismapInputError(f"{path}: cannot read the calibration file ({exc.strerror or exc})") from None
+    fields = {}
+    for number, line in enumerate(text.splitlines(), start=1):
+        line = line.strip()
+        if not line or line.startswith("#"):
+            continue
+        key, sep, value = line.partition("=")
+        key, value = key.strip(), value.strip()
+        if not sep or not key:
+            raise PrismapInputError(f"{path}, line {number}: expected `key=value`; got {line!r}")
+        try:
+            if value.startswith("["):
+                rows = value.strip("[]").split(";")
+                fields[key] = np.array([[float(x) for x in row.split()] for row in rows])
+                if fields[key].shape != (3, 3):
+                    raise ValueError(f"a 3x3 matrix, got shape {fields[key].shape}")
+            else:
+                fields[key] = float(value)
+        except ValueError as exc:
+            raise PrismapInputError(f"{path}, line {number}: cannot parse {key}={value!r} ({exc})") from None
+    return fields
+
+
+def _read_png(path):
+    """An 8-bit PNG as RGB (or grey) uint8, or raise naming the file."""
+    if not path.is_file():
+        raise PrismapInputError(f"{path}: file not found")
+    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if image is None:
+        raise PrismapInputError(f"{path}: cannot decode the image")
+    if image.dtype != np.uint8:
+        raise PrismapInputError(f"{path}: expected an 8-bit image; got dtype {image.dtype}")
+    if image.ndim == 3:
+        image = cv2.cvtColor(image, cv2.COLOR_BGRA2RGB if image.shape[2] == 4 else cv2.COLOR_BGR2RGB)
+    return image
