@@ -1,0 +1,390 @@
+"""Stereo sequences on disk in the KITTI odometry layout, plus a ground-truth occupancy file.
+
+Layout of a sequence directory (KITTI odometry, with prismap's own additions marked *)::
+
+    calib.txt             P0: .. P3: 12 numbers each (3x4 row-major projection matrices, pixels / pixel-metres)
+    image_2/NNNNNN.png    left (reference) images, 8-bit grey or RGB
+    image_3/NNNNNN.png    right images, same names and sizes
+    poses.txt             optional: one line per frame, the 3x4 row-major T_world_cam (metres) of the left camera
+    disp/NNNNNN.png     * optional: left ground-truth disparity, uint16, value = round(256 * d), 0 = invalid
+    occupancy.npz       * optional: ground-truth occupancy (:class:`GroundTruthOccupancy`)
+
+``P2 = K [I | 0]`` and ``P3 = K_right [I | (-f b, 0, 0)]`` with ``K_right`` the left ``K`` whose ``cx`` is
+shifted by the disparity offset ``doffs``; so ``f = P2[0, 0]``, ``baseline = (P2[0, 3] - P3[0, 3]) / f`` and
+``doffs = P3[0, 2] - P2[0, 2]``. ``P0``/``P1`` are written equal to ``P2``/``P3`` (KITTI's grey pair) and ignored
+on reading. Unlike KITTI's ``poses/NN.txt`` (poses of the grey camera P0), ``poses.txt`` here holds the poses
+of the image_2 camera itself.
+"""
+
+import struct
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from prismap._files import atomic_path, write_text_atomic
+from prismap._validate import check_positive
+from prismap.camera import StereoCamera
+from prismap.errors import PrismapInputError
+from prismap.io._frame import StereoFrame
+
+GROUND_TRUTH_FORMAT = "prismap-ground-truth-occupancy"
+GROUND_TRUTH_VERSION = 1
+_DISPARITY_SCALE = 256.0
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+@dataclass(frozen=True)
+class GroundTruthOccupancy:
+    """Exact occupancy of a simulated world, restricted to what a perfect sensor would have observed.
+
+    ``evaluate`` scores a map on the ``observed_keys``: those in ``occupied_keys`` are truly occupied,
+    the rest (:attr:`free_keys`) truly free. Voxels never observed are not scored: no sensor could know them.
+
+    Attributes
+    ----------
+    voxel_size_m : float, metres
+    occupied_keys : (N, 3) int64
+        Keys ``floor(p / voxel_size_m)`` of every voxel containing a point of a solid (observed or not);
+        2-D worlds use the layer z key 0.
+    observed_keys : (M, 3) int64
+        Keys of the voxels a noise-free sensor saw along the frames: free space in front of the surfaces
+        and the voxels holding the visible surface points (see ``prismap.sim``).
+    """
+
+    voxel_size_m: float
+    occupied_keys: np.ndarray
+    observed_keys: np.ndarray
+
+    def __post_init__(self):
+        object.__setattr__(self, "voxel_size_m", check_positive(self.voxel_size_m, "voxel_size_m"))
+        for name in ("occupied_keys", "observed_keys"):
+            keys = np.asarray(getattr(self, name))
+            if keys.ndim != 2 or keys.shape[1] != 3 or not np.issubdtype(keys.dtype, np.integer):
+                raise PrismapInputError(f"`{name}` must be an (N, 3) integer array; got {keys.dtype} {keys.shape}")
+            keys = np.unique(keys.astype(np.int64), axis=0)
+            keys.setflags(write=False)
+            object.__setattr__(self, name, keys)
+
+    @property
+    def free_keys(self):
+        """(K, 3) int64: observed keys that hold no solid, sorted."""
+        occupied = _packed(self.occupied_keys)
+        observed = _packed(self.observed_keys)
+        return self.observed_keys[~np.isin(observed, occupied)]
+
+    @property
+    def observed_occupied_keys(self):
+        """(K, 3) int64: observed keys that hold a solid, sorted."""
+        return self.observed_keys[np.isin(_packed(self.observed_keys), _packed(self.occupied_keys))]
+
+
+def _packed(keys):
+    """One int64 per (x, y, z) key, for set operations; keys must lie within +-2**20."""
+    k = np.asarray(keys, dtype=np.int64) + (1 << 20)
+    return (k[:, 0] << 42) | (k[:, 1] << 21) | k[:, 2]
+
+
+def write_ground_truth(path, truth):
+    """Write ``truth`` (:class:`GroundTruthOccupancy`) to ``path`` (``.npz``) atomically.
+
+    Fields: ``format`` (str), ``version`` (int), ``voxel_size_m`` (float), ``occupied_keys`` and
+    ``observed_keys`` ((N, 3) int64).
+    """
+    with atomic_path(path) as tmp:
+        np.savez_compressed(
+            tmp,
+            format=np.array(GROUND_TRUTH_FORMAT),
+            version=np.array(GROUND_TRUTH_VERSION),
+            voxel_size_m=np.array(truth.voxel_size_m),
+            occupied_keys=truth.occupied_keys,
+            observed_keys=truth.observed_keys,
+        )
+
+
+def read_ground_truth(path):
+    """Read a file written by :func:`write_ground_truth`; clear errors name the file and the field."""
+    path = Path(path)
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            fields = {name: data[name] for name in data.files}
+    except FileNotFoundError:
+        raise PrismapInputError(f"{path}: ground-truth occupancy file not found") from None
+    except (OSError, ValueError, EOFError) as exc:
+        raise PrismapInputError(f"{path}: not a readable .npz file ({exc})") from None
+    missing = [n for n in ("format", "version", "voxel_size_m", "occupied_keys", "observed_keys") if n not in fields]
+    if missing:
+        raise PrismapInputError(f"{path}: ground-truth occupancy file lacks field(s) {missing}")
+    if str(fields["format"]) != GROUND_TRUTH_FORMAT or int(fields["version"]) != GROUND_TRUTH_VERSION:
+        raise PrismapInputError(
+            f"{path}: expected format {GROUND_TRUTH_FORMAT!r} version {GROUND_TRUTH_VERSION}; "
+            f"got {str(fields['format'])!r} version {fields['version']}"
+        )
+    try:
+        return GroundTruthOccupancy(float(fields["voxel_size_m"]), fields["occupied_keys"], fields["observed_keys"])
+    except PrismapInputError as exc:
+        raise PrismapInputError(f"{path}: {exc}") from None
+
+
+def write_sequence(frames, out_dir, *, occupancy=None):
+    """Write stereo frames as a KITTI-layout sequence (see the module docstring); every file atomically.
+
+    Parameters
+    ----------
+    frames : iterable of StereoFrame
+        One camera for all frames; poses either on every frame or on none; ``disparity_gt`` likewise
+        (written to ``disp/``, quantised to 1/256 px; disparities must lie in (0, 255.99] px or be NaN).
+    out_dir : str or Path
+        Created if missing; existing files of the same names are replaced.
+    occupancy : GroundTruthOccupancy, optional
+        Written to ``occupancy.npz``.
+
+    Returns
+    -------
+    count : int
+        Number of frames written.
+    """
+    out_dir = Path(out_dir)
+    camera = None
+    poses = []
+    has_pose = has_disparity = None
+    count = 0
+    for index, frame in enumerate(frames):
+        if not isinstance(frame, StereoFrame):
+            raise PrismapInputError(f"`frames[{index}]` must be a StereoFrame; got {type(frame).__name__}")
+        if camera is None:
+            camera = frame.camera
+            has_pose = frame.T_world_cam is not None
+            has_disparity = frame.disparity_gt is not None
+        elif not _same_intrinsics(camera, frame.camera):
+            raise PrismapInputError(f"`frames[{index}]` has another camera than frame 0: {frame.camera} vs {camera}")
+        if (frame.T_world_cam is not None) != has_pose or (frame.disparity_gt is not None) != has_disparity:
+            raise PrismapInputError(
+                f"`frames[{index}]`: poses and ground-truth disparities must be given for every frame or for none"
+            )
+        stem = f"{index:06d}.png"
+        _write_image(out_dir / "image_2" / stem, frame.left, f"frames[{index}].left")
+        _write_image(out_dir / "image_3" / stem, frame.right, f"frames[{index}].right")
+        if has_disparity:
+            _write_image(out_dir / "disp" / stem, _encode_disparity(frame.disparity_gt, index), "disp")
+        if has_pose:
+            pose = np.asarray(frame.T_world_cam, dtype=np.float64)
+            if pose.shape != (4, 4) or not np.all(np.isfinite(pose)):
+                raise PrismapInputError(f"`frames[{index}].T_world_cam` must be a finite (4, 4) array; got {pose}")
+            poses.append(pose[:3].ravel())
+        count += 1
+    if count == 0:
+        raise PrismapInputError("`frames` is empty: a sequence needs at least one frame")
+    write_text_atomic(out_dir / "calib.txt", _calib_text(camera))
+    if has_pose:
+        write_text_atomic(out_dir / "poses.txt", "".join(" ".join(f"{v:.17g}" for v in p) + "\n" for p in poses))
+    if occupancy is not None:
+        write_ground_truth(out_dir / "occupancy.npz", occupancy)
+    return count
+
+
+def _same_intrinsics(a, b):
+    fields = ("focal_px", "cx_px", "cy_px", "baseline_m", "doffs_px")
+    return all(np.isclose(getattr(a, f), getattr(b, f), rtol=1e-12, atol=1e-12) for f in fields)
+
+
+def _write_image(path, image, name):
+    image = np.asarray(image)
+    if image.ndim == 3 and image.shape[2] == 3:
+        image = cv2.cvtColor(image, cv2.COLOR_RGB2BGR)
+    elif image.ndim != 2:
+        raise PrismapInputError(f"`{name}` must be (H, W) or (H, W, 3); got shape {image.shape}")
+    if image.dtype not in (np.uint8, np.uint16):
+        raise PrismapInputError(f"`{name}` must be uint8 (or uint16 for disparity); got {image.dtype}")
+    with atomic_path(path) as tmp:
+        if not cv2.imwrite(str(tmp), image):
+            raise PrismapInputError(f"{path}: OpenCV could not write the image")
+
+
+def _encode_disparity(disparity, index):
+    d = np.asarray(disparity, dtype=np.float64)
+    valid = np.isfinite(d) & (d > 0)
+    if np.any(d[valid] > 65535 / _DISPARITY_SCALE):
+        raise PrismapInputError(
+            f"`frames[{index}].disparity_gt` reaches {d[valid].max():.2f} px; the uint16 x 256 format stores at most 255.99"
+        )
+    return np.where(valid, np.maximum(np.round(d * _DISPARITY_SCALE), 1), 0).astype(np.uint16)
+
+
+def _calib_text(camera):
+    f, cx, cy = camera.focal_px, camera.cx_px, camera.cy_px
+    left = np.array([[f, 0.0, cx, 0.0], [0.0, f, cy, 0.0], [0.0, 0.0, 1.0, 0.0]])
+    right = left.copy()
+    right[0, 2] += camera.doffs_px
+    right[0, 3] = -f * camera.baseline_m
+    rows = [("P0", left), ("P1", right), ("P2", left), ("P3", right)]
+    return "".join(f"{name}: " + " ".join(f"{v:.17g}" for v in p.ravel()) + "\n" for name, p in rows)
+
+
+def _read_calib(path):
+    """The StereoCamera of ``calib.txt`` (P2 and P3), without image size."""
+    if not path.is_file():
+        raise PrismapInputError(f"{path}: calibration file not found")
+    matrices = {}
+    for number, line in enumerate(path.read_text(encoding="utf-8", errors="replace").splitlines(), start=1):
+        if not line.strip():
+            continue
+        name, sep, rest = line.partition(":")
+        if not sep:
+            raise PrismapInputError(f"{path}, line {number}: expected 'NAME: numbers'; got {line[:60]!r}")
+        try:
+            values = np.array([float(v) for v in rest.split()])
+        except ValueError:
+            raise PrismapInputError(f"{path}, line {number}: field {name.strip()} holds a non-number") from None
+        matrices[name.strip()] = (values, number)
+    for name in ("P2", "P3"):
+        if name not in matrices:
+            raise PrismapInputError(f"{path}: field {name} is missing (needed for the rectified pair)")
+        values, number = matrices[name]
+        if values.size != 12 or not np.all(np.isfinite(values)):
+            raise PrismapInputError(
+                f"{path}, line {number}: {name} must hold 12 finite numbers; got {values.size}: {values.tolist()}"
+            )
+    p2, p3 = (matrices[n][0].reshape(3, 4) for n in ("P2", "P3"))
+    focal = p2[0, 0]
+    if not focal > 0:
+        raise PrismapInputError(f"{path}: P2[0, 0] (focal length) must be > 0; got {focal}")
+    baseline = (p2[0, 3] - p3[0, 3]) / focal
+    if not baseline > 0:
+        raise PrismapInputError(
+            f"{path}: baseline (P2[0,3] - P3[0,3]) / f must be > 0; got {baseline} (is P3 the right camera?)"
+        )
+    return focal, p2[0, 2], p2[1, 2], baseline, p3[0, 2] - p2[0, 2]
+
+
+def _read_poses(path):
+    poses = []
+    for number, line in enumerate(path.read_text(encoding="utf-8", errors="replace").splitlines(), start=1):
+        if not line.strip():
+            continue
+        try:
+            values = np.array([float(v) for v in line.split()])
+        except ValueError:
+            raise PrismapInputError(f"{path}, line {number}: a pose must be 12 numbers; got {line[:80]!r}") from None
+        if values.size != 12:
+            raise PrismapInputError(f"{path}, line {number}: a pose must be 12 numbers; got {values.size} columns")
+        if not np.all(np.isfinite(values)):
+            raise PrismapInputError(f"{path}, line {number}: the pose contains NaN or infinity")
+        pose = np.eye(4)
+        pose[:3] = values.reshape(3, 4)
+        poses.append(pose)
+    return np.array(poses).reshape(-1, 4, 4)
+
+
+def _png_size(path):
+    """``(height, width)`` from a PNG header, without decoding the image."""
+    with open(path, "rb") as handle:
+        header = handle.read(24)
+    if len(header) < 24 or header[:8] != _PNG_SIGNATURE or header[12:16] != b"IHDR":
+        raise PrismapInputError(f"{path}: not a PNG file (bad or truncated header)")
+    width, height = struct.unpack(">II", header[16:24])
+    return height, width
+
+
+class Sequence:
+    """A sequence directory opened by :func:`read_sequence`: frames are read from disk on access.
+
+    Attributes
+    ----------
+    path : Path
+    camera : StereoCamera
+        From ``calib.txt``, with the image size.
+    poses : (N, 4, 4) float64 or None
+        ``T_world_cam`` of each frame, metres; None without ``poses.txt``.
+    ground_truth : GroundTruthOccupancy or None
+        From ``occupancy.npz``, read on first access.
+    names : list of str
+        Frame file names (``NNNNNN.png``), sorted.
+    """
+
+    def __init__(self, path):
+        self.path = Path(path)
+        if not self.path.is_dir():
+            raise PrismapInputError(f"{self.path}: sequence directory not found")
+        left_dir, right_dir = self.path / "image_2", self.path / "image_3"
+        if not left_dir.is_dir():
+            raise PrismapInputError(f"{left_dir}: image directory not found")
+        self.names = sorted(p.name for p in left_dir.glob("*.png"))
+        if not self.names:
+            raise PrismapInputError(f"{left_dir}: no .png images")
+        size = None
+        for name in self.names:
+            for folder in (left_dir, right_dir):
+                if not (folder / name).is_file():
+                    raise PrismapInputError(f"{folder / name}: image missing (its pair exists in {left_dir})")
+                this = _png_size(folder / name)
+                if size is None:
+                    size = this
+                elif this != size:
+                    raise PrismapInputError(
+                        f"{folder / name}: image size {this[1]}x{this[0]} differs from "
+                        f"{left_dir / self.names[0]} ({size[1]}x{size[0]})"
+                    )
+        focal, cx, cy, baseline, doffs = _read_calib(self.path / "calib.txt")
+        self.camera = StereoCamera(focal, cx, cy, baseline, doffs, width=size[1], height=size[0])
+        poses_path = self.path / "poses.txt"
+        self.poses = _read_poses(poses_path) if poses_path.is_file() else None
+        if self.poses is not None and len(self.poses) != len(self.names):
+            raise PrismapInputError(f"{poses_path}: {len(self.poses)} poses for {len(self.names)} frames")
+        self._ground_truth = None
+
+    @property
+    def ground_truth(self):
+        path = self.path / "occupancy.npz"
+        if self._ground_truth is None and path.is_file():
+            self._ground_truth = read_ground_truth(path)
+        return self._ground_truth
+
+    def __len__(self):
+        return len(self.names)
+
+    def __iter__(self):
+        return (self[i] for i in range(len(self)))
+
+    def __getitem__(self, index):
+        if not isinstance(index, (int, np.integer)):
+            raise TypeError(f"sequence indices must be integers; got {type(index).__name__}")
+        if not -len(self) <= index < len(self):
+            raise IndexError(f"frame {index} out of range for {len(self)} frames in {self.path}")
+        index = int(index) % len(self)
+        name = self.names[index]
+        left = _read_image(self.path / "image_2" / name, np.uint8)
+        right = _read_image(self.path / "image_3" / name, np.uint8)
+        disparity = None
+        disparity_path = self.path / "disp" / name
+        if disparity_path.is_file():
+            raw = _read_image(disparity_path, np.uint16)
+            if raw.shape != left.shape[:2]:
+                raise PrismapInputError(f"{disparity_path}: size {raw.shape} differs from the images' {left.shape[:2]}")
+            disparity = np.where(raw > 0, raw / np.float32(_DISPARITY_SCALE), np.nan).astype(np.float32)
+        pose = None if self.poses is None else self.poses[index].copy()
+        return StereoFrame(left, right, self.camera, disparity, pose, name=f"{self.path.name}/{name}")
+
+
+def _read_image(path, dtype):
+    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if image is None:
+        raise PrismapInputError(f"{path}: not a readable image (missing, truncated or corrupt)")
+    if image.dtype != dtype:
+        raise PrismapInputError(f"{path}: expected a {np.dtype(dtype).name} image; got {image.dtype}")
+    if image.ndim == 3 and dtype == np.uint8:
+        image = cv2.cvtColor(image, cv2.COLOR_BGRA2RGB if image.shape[2] == 4 else cv2.COLOR_BGR2RGB)
+    elif image.ndim != 2:
+        raise PrismapInputError(f"{path}: expected a single-channel {np.dtype(dtype).name} image; got shape {image.shape}")
+    return image
+
+
+def read_sequence(path):
+    """Open a sequence directory written by :func:`write_sequence` (or a KITTI-like one); see :class:`Sequence`.
+
+    Checks eagerly: the images exist in pairs with one size (PNG headers only), ``calib.txt`` has P2 and P3,
+    ``poses.txt`` (if present) has 12 finite numbers per line and one line per frame. Images are decoded when a
+    frame is accessed. Errors are :class:`PrismapInputError` naming the file (and line).
+    """
+    return Sequence(path)

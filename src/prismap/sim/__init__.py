@@ -1,0 +1,23 @@
+"""Synthetic worlds with exact ground truth: 2-D rectangle worlds with a 1-row stereo range sensor, and
+textured 3-D box scenes rendered as rectified stereo pairs."""
+
+from prismap.sim._poses import pose_from_heading, poses_from_se2
+from prismap.sim._world2d import (
+    DisparityFrame,
+    StereoScanner2D,
+    World2D,
+    office_world,
+    simple_world,
+    waypoint_path,
+)
+
+__all__ = [
+    "DisparityFrame",
+    "StereoScanner2D",
+    "World2D",
+    "office_world",
+    "pose_from_heading",
+    "poses_from_se2",
+    "simple_world",
+    "waypoint_path",
+]

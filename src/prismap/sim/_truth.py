@@ -1,0 +1,83 @@
+"""Exact ground-truth occupancy of box worlds: solid voxels, and the voxels a perfect sensor observes."""
+
+import numpy as np
+
+from prismap._validate import check_positive
+from prismap.errors import PrismapInputError
+from prismap.io._sequence import GroundTruthOccupancy
+from prismap.sim._kernels import mark_visible
+
+
+def solid_key_ranges(box_lo, box_hi, voxel_size_m):
+    """Inclusive key ranges ``(lo, hi)`` ((B, D) int64 each) of closed boxes: keys ``floor(p / voxel)`` of their points.
+
+    A voxel is the half-open cube ``[k s, (k + 1) s)``; a box ``[lo, hi]`` is closed, so a face lying exactly
+    on a voxel boundary marks the voxel beyond it too: that is where ``floor`` puts a ray hit on that face.
+    """
+    return (
+        np.floor(np.asarray(box_lo, dtype=np.float64) / voxel_size_m).astype(np.int64),
+        np.floor(np.asarray(box_hi, dtype=np.float64) / voxel_size_m).astype(np.int64),
+    )
+
+
+def ground_truth(box_lo, box_hi, frames, voxel_size_m, *, planar=False, max_range_m=np.inf):
+    """Occupied and observed voxels of a world of closed axis-aligned boxes seen by ``frames``.
+
+    Occupied: every voxel containing a point of a box (boxes are solid, so their inside is occupied too).
+    Observed by a frame: (a) voxels whose centre projects (nearest pixel) into the image at a camera depth in
+    (0, min(true surface depth at that pixel, ``max_range_m``)] -- the free space a noise-free sensor sweeps,
+    tested like a projective mapper does -- and (b) the voxels holding the visible surface points of the
+    pixels (their true hits within ``max_range_m``). Only voxels inside the boxes' bounding box count.
+
+    Parameters
+    ----------
+    box_lo, box_hi : (B, 3) float, metres, world frame
+    frames : iterable
+        Objects with ``camera`` (StereoCamera), ``T_world_cam`` (4, 4) and ``disparity_gt`` (H, W), pixels,
+        NaN where nothing is hit.
+    voxel_size_m : float, metres
+    planar : bool
+        2-D world: voxel centres are taken in the sensor plane z = 0 and only the layer z key 0 is used.
+    max_range_m : float, metres
+
+    Returns
+    -------
+    GroundTruthOccupancy
+    """
+    voxel = check_positive(voxel_size_m, "voxel_size_m")
+    max_range = float(max_range_m)
+    key_lo, key_hi = solid_key_ranges(box_lo, box_hi, voxel)
+    bounds_lo, bounds_hi = key_lo.min(axis=0), key_hi.max(axis=0)
+    if planar:
+        bounds_lo[2] = bounds_hi[2] = 0
+    shape = tuple(int(n) for n in bounds_hi - bounds_lo + 1)
+    if np.prod(shape, dtype=np.float64) > 2e8:
+        raise PrismapInputError(f"`voxel_size_m` = {voxel} gives {shape} voxels over the world: choose a larger one")
+    seen = np.zeros(shape, dtype=np.bool_)
+    for index, frame in enumerate(frames):
+        if frame.T_world_cam is None or frame.disparity_gt is None:
+            raise PrismapInputError(f"`frames[{index}]` needs `T_world_cam` and `disparity_gt` for the ground truth")
+        camera = frame.camera
+        pose = np.asarray(frame.T_world_cam, dtype=np.float64)
+        depth = camera.depth_from_disparity(frame.disparity_gt)
+        mark_visible(
+            seen, bounds_lo, voxel, 0.0 if planar else np.nan, np.ascontiguousarray(pose[:3, :3]),
+            np.ascontiguousarray(pose[:3, 3]),
+            camera.focal_px, camera.cx_px, camera.cy_px, np.where(np.isnan(depth), np.inf, depth), max_range,
+        )
+        points_cam = camera.triangulate(frame.disparity_gt)
+        hit = np.isfinite(depth) & (depth <= max_range)
+        points_w = points_cam[hit] @ pose[:3, :3].T + pose[:3, 3]
+        keys = np.floor(points_w / voxel).astype(np.int64) - bounds_lo
+        if planar:
+            keys[:, 2] = 0
+        inside = np.all((keys >= 0) & (keys < np.array(shape)), axis=1)
+        seen[tuple(keys[inside].T)] = True
+    occupied = [
+        np.stack(np.meshgrid(*(np.arange(a, b + 1) for a, b in zip(lo, hi)), indexing="ij"), axis=-1).reshape(-1, 3)
+        for lo, hi in zip(key_lo, key_hi)
+    ]
+    occupied = np.concatenate(occupied)
+    if planar:
+        occupied = occupied[occupied[:, 2] == 0]
+    return GroundTruthOccupancy(voxel, occupied, np.argwhere(seen) + bounds_lo)
