@@ -1,0 +1,524 @@
+"""The occupancy map: an unbounded sparse grid of hashed voxel blocks holding log-odds and counts."""
+
+import numpy as np
+
+from prismap._validate import as_float_array, check_positive, check_probability
+from prismap.errors import PrismapInputError
+from prismap.grid import _integrate, _kernels
+from prismap.grid._keys import KEY_LIMIT, check_keys, point_to_key
+from prismap.grid._storage import BlockTable
+from prismap.sensor_models import POLICIES
+
+FREE, OCCUPIED, UNKNOWN = 0, 1, -1
+"""Voxel states returned by :meth:`OccupancyMap.state`."""
+
+OCTOMAP_CLAMP = (0.1192, 0.971)
+"""OctoMap's default clamping thresholds (probabilities)."""
+
+BLOCK_BITS = {3: (3, 3, 3), 2: (4, 4, 0)}
+"""log2 block sizes: 8x8x8 voxels for 3-D maps, 16x16x1 for 2-D maps."""
+
+
+def logit(p):
+    """``ln(p / (1 - p))``."""
+    return np.log(p) - np.log1p(-p)
+
+
+def _sigmoid(log):
+    return 1.0 / (1.0 + np.exp(-np.asarray(log, dtype=np.float64)))
+
+
+class OccupancyMap:
+    """Unbounded sparse voxel map of float32 log-odds and per-voxel observation counts.
+
+    Voxels live in hashed blocks (8^3 in 3-D; 16x16x1 in 2-D) created when first observed. A voxel
+    stores its full log-odds ``l`` (``logit(p0)`` before any update) and how many frames observed it
+    (uint16, saturating at 65535). A voxel no frame observed is *unknown*, whatever its probability.
+
+    Parameters
+    ----------
+    voxel_size_m : float, metres, > 0
+    p0 : float in (0, 1)
+        Prior occupancy of a voxel: the environment's occupancy ratio at this voxel size
+        (SENSOR_MODELS.md section 5); it must equal the sensor model's ``p0``.
+    ndim : {3, 2}
+        A 2-D map is the same engine with one layer of voxels (z key 0); its points and rays are
+        (N, 2) arrays in the x-y plane.
+    clamp : (float, float) or None
+        Probabilities ``(p_min, p_max)`` to clamp each voxel to after every update, e.g.
+        :data:`OCTOMAP_CLAMP`. Off by default: clamping makes the map depend on the order of frames,
+        which breaks parallel integration and exact merging.
+    occupied_threshold, free_threshold : float in (0, 1)
+        A known voxel is occupied if ``P >= occupied_threshold``, free if ``P < free_threshold``,
+        unknown in between. Both default to 0.5 (OctoMap's rule).
+    """
+
+    def __init__(self, voxel_size_m, *, p0, ndim=3, clamp=None, occupied_threshold=0.5, free_threshold=0.5):
+        self.voxel_size_m = check_positive(voxel_size_m, "voxel_size_m")
+        self.p0 = check_probability(p0, "p0")
+        if ndim not in BLOCK_BITS:
+            raise PrismapInputError(f"`ndim` must be 2 or 3; got {ndim!r}")
+        self.ndim = int(ndim)
+        if clamp is not None:
+            lo, hi = (check_probability(c, "clamp") for c in clamp)
+            if not lo < self.p0 < hi:
+                raise PrismapInputError(f"`clamp` must satisfy p_min < p0 < p_max; got {clamp!r} with p0={self.p0}")
+            clamp = (lo, hi)
+        self.clamp = clamp
+        self.occupied_threshold = check_probability(occupied_threshold, "occupied_threshold")
+        self.free_threshold = check_probability(free_threshold, "free_threshold")
+        if self.free_threshold > self.occupied_threshold:
+            raise PrismapInputError(
+                f"`free_threshold` ({free_threshold}) must not exceed `occupied_threshold` ({occupied_threshold})"
+            )
+        self.prior_log = float(np.float32(logit(self.p0)))
+        self.policies = ()
+        self.n_frames = 0
+        self._store = BlockTable(BLOCK_BITS[self.ndim], {"log": ((1 << sum(BLOCK_BITS[self.ndim]),), np.float32),
+                                                          "count": ((1 << sum(BLOCK_BITS[self.ndim]),), np.uint16)})
+        self._accumulator = _integrate.new_accumulator(self._store.bits)
+
+    # ----------------------------------------------------------------------------------- integration
+    def integrate_rays(self, origin_w, rays_w, disparity_px, model, *, mode="ray", policy=None,
+                       max_range_m=np.inf, extra_noise_px=None, _projection=None):
+        """Integrate one frame given as rays from one origin (ray mode).
+
+        Parameters
+        ----------
+        origin_w : (3,) or (2,) float, metres, world frame
+            Optical centre of the camera.
+        rays_w : (R, 3) or (R, 2) float, world frame
+            Camera ray of each measurement rotated into the world, scaled so that the point at camera
+            depth ``z`` is ``origin_w + z * rays_w``; its norm is the ray's ``|r| >= 1``.
+        disparity_px : (R,) float, pixels, NaN = invalid (skipped)
+        model : InverseSensorModel
+        policy : str or None
+            Per-frame policy (``mean``, ``max-abs``, ``occupied-wins``, ``max``, ``sum``); None = the
+            model's ``default_policy``.
+        max_range_m : float, metres, > 0
+            Distance along a ray beyond which nothing is updated. A ray whose measurement lies
+            beyond it only clears free space up to it, excluding the voxel that contains the
+            max-range point (as OctoMap does).
+        extra_noise_px : (R,) float, pixels, or None
+            Extra disparity noise per ray (robot pose uncertainty, see :meth:`integrate_disparity`).
+
+        Notes
+        -----
+        Each ray is traversed (Amanatides & Woo [1]_) from the origin to
+        ``min(model.influence_depth, max range)``, including the voxel that contains the stop depth.
+        Several rays of the frame that cross one voxel give it ONE update, combined by ``policy``:
+        ``mean`` of their increments, ``max-abs`` (the one of largest magnitude), ``occupied-wins``
+        (the largest increment if any is positive, i.e. some ray says occupied, else the mean: with
+        the hit/miss model this is OctoMap's rule), ``max``, or ``sum``.
+
+        References
+        ----------
+        .. [1] J. Amanatides, A. Woo, "A fast voxel traversal algorithm for ray tracing",
+           Eurographics 1987.
+        """
+        origin = self._points(origin_w, "origin_w", single=True)
+        rays = self._points(rays_w, "rays_w", as_direction=True)
+        disparity = as_float_array(disparity_px, "disparity_px", shape=(rays.shape[0],))
+        code = self._policy_code(policy, model)
+        max_range = check_positive(max_range_m, "max_range_m") if np.isfinite(max_range_m) else np.inf
+        valid = np.isfinite(disparity) & np.isfinite(rays).all(axis=1)
+        ray_norm = np.sqrt((rays * rays).sum(axis=1))
+        if np.any(ray_norm[valid] < 1.0 - 1e-9):
+            raise PrismapInputError("`rays_w` must have norm >= 1 (camera rays (x/z, y/z, 1) rotated into the world)")
+        noise = None
+        if extra_noise_px is not None:
+            noise = as_float_array(extra_noise_px, "extra_noise_px", shape=(rays.shape[0],))[valid]
+            if not np.all(noise >= 0) or not np.all(np.isfinite(noise)):
+                raise PrismapInputError("`extra_noise_px` must be finite and >= 0 at every valid ray")
+        if _projection is not None:
+            _projection = dict(_projection, ray_index=_reindex(_projection["ray_index"], valid))
+        rays, disparity, ray_norm = np.ascontiguousarray(rays[valid]), disparity[valid], ray_norm[valid]
+        groups = _integrate.noise_groups(model, noise)
+        ranges = (max_range, (KEY_LIMIT - 2 - np.abs(np.floor(origin / self.voxel_size_m)).max()) * self.voxel_size_m)
+        if ranges[1] <= 0:
+            raise PrismapInputError(f"`origin_w` {origin.tolist()} lies outside the map's key range")
+        self._accumulator.clear()
+        if mode == "ray":
+            _integrate.ray_mode(self._accumulator, origin, rays, disparity, ray_norm, groups, ranges, self.voxel_size_m)
+        elif mode == "projective":
+            if _projection is None:
+                raise PrismapInputError("projective mode needs a camera image: use `integrate_disparity(..., mode='projective')`")
+            _integrate.projective_mode(self._accumulator, origin, rays, disparity, ray_norm, groups, ranges,
+                                       self.voxel_size_m, _projection)
+        else:
+            raise PrismapInputError(f"`mode` must be 'ray' or 'projective'; got {mode!r}")
+        self._apply_accumulator(code)
+        name = policy or model.default_policy
+        if name not in self.policies:
+            self.policies = (*self.policies, name)
+        self.n_frames += 1
+
+    def integrate_disparity(self, disparity_px, camera, T_world_cam, model, *, mode="ray", policy=None,
+                            max_range_m=np.inf, subsample=1, pose_covariance=None):
+        """Integrate one disparity image seen from pose ``T_world_cam``.
+
+        Parameters
+        ----------
+        disparity_px : (H, W) float, pixels, NaN = invalid
+            Pixels with a non-finite disparity or ``d + doffs <= 0`` are skipped.
+        camera : StereoCamera
+        T_world_cam : (4, 4) float, metres, camera -> world; must be finite
+        model : InverseSensorModel
+        mode : {"ray", "projective"}
+            ``ray`` casts every pixel's ray through the grid; ``projective`` visits the voxels of the
+            camera frustum (up to where the measurements stop influencing), projects each centre into
+            the image and updates it once from the pixel it lands on.
+        policy, max_range_m : see :meth:`integrate_rays`
+        subsample : int >= 1
+            Use every ``subsample``-th pixel in both directions.
+        pose_covariance : (3, 3) or (6, 6) float or None
+            Covariance of the camera position (m^2, world axes) or of (position, rotation vector)
+            (m^2, rad^2, world axes). Widens each ray's disparity noise, see Notes.
+
+        Notes
+        -----
+        Pose uncertainty (thesis sec. 4.4.3) is folded into the sensor noise to first order. A small
+        pose error ``(dt, dtheta)`` (world axes) moves the measured point ``p = z r`` (camera frame) by
+        ``-(R^T dt) - (R^T dtheta) x p``; its depth changes by ``dz = -J (R^T dt, R^T dtheta)`` with
+        ``J = (0, 0, 1, p_y, -p_x, 0)``, so ``sigma_z^2 = J Sigma_cam J^T`` where
+        ``Sigma_cam = diag(R, R)^T Sigma diag(R, R)``. Since ``d + doffs = f b / z``, the equivalent
+        disparity noise is ``sigma_d = f b sigma_z / z^2`` (pixels) at the measured depth ``z``. Rays
+        are grouped by ``sigma_d`` and each group uses ``model.with_extra_noise(sigma_d)``. Lateral
+        displacement of the point is not represented (the model is one-dimensional along the ray).
+        """
+        if self.ndim != 3:
+            raise PrismapInputError("`integrate_disparity` needs a 3-D map; a 2-D map takes rays in the plane: `integrate_rays`")
+        disparity = as_float_array(disparity_px, "disparity_px", ndim=2)
+        pose = as_float_array(T_world_cam, "T_world_cam", shape=(4, 4), allow_nan=False)
+        if int(subsample) != subsample or subsample < 1:
+            raise PrismapInputError(f"`subsample` must be an integer >= 1; got {subsample!r}")
+        step = int(subsample)
+        disparity = disparity[::step, ::step]
+        rays_cam = camera.pixel_rays(np.shape(disparity_px))[::step, ::step].reshape(-1, 3)
+        d = disparity.reshape(-1).copy()
+        d[~(d + camera.doffs_px > 0)] = np.nan
+        rotation, origin = pose[:3, :3], pose[:3, 3]
+        noise = None
+        if pose_covariance is not None:
+            noise = pose_noise_px(d, rays_cam, rotation, pose_covariance, camera.focal_baseline, camera.doffs_px)
+        projection = None
+        if mode == "projective":
+            ray_index = np.arange(d.size, dtype=np.int64).reshape(disparity.shape)
+            projection = {"R_cam_world": np.ascontiguousarray(rotation.T), "focal": camera.focal_px,
+                          "cx": camera.cx_px, "cy": camera.cy_px, "subsample": float(step), "ray_index": ray_index}
+        self.integrate_rays(origin, rays_cam @ rotation.T, d, model, mode=mode, policy=policy,
+                            max_range_m=max_range_m, extra_noise_px=noise, _projection=projection)
+
+    def merge(self, other):
+        """Add another map of the same grid into this one (in place); returns ``self``.
+
+        Voxels known to both get ``l1 + l2 - logit(p0)`` (the sum of both maps' evidence; clamped if
+        this map clamps) and the sum of the counts; voxels known to one map keep its value. With
+        clamping off, integrating frames 1..n into one map equals merging maps of any split of them up
+        to float32 rounding (a few 1e-6 in log-odds; the test states the bound).
+        """
+        if not isinstance(other, OccupancyMap):
+            raise PrismapInputError(f"can only merge an OccupancyMap; got {type(other).__name__}")
+        for attr in ("voxel_size_m", "p0", "ndim"):
+            if getattr(self, attr) != getattr(other, attr):
+                raise PrismapInputError(
+                    f"cannot merge maps of different grids: {attr} {getattr(self, attr)!r} != {getattr(other, attr)!r}"
+                )
+        store, theirs = self._store, other._store
+        store.reserve(len(theirs))
+        lo, hi = self._clamp_log()
+        _kernels.merge_blocks(store.table_keys, store.table_slots, store.block_keys, store.n_blocks,
+                              store.payload["log"], store.payload["count"], theirs.block_keys, len(theirs),
+                              theirs.payload["log"], theirs.payload["count"], lo, hi, self.prior_log)
+        self.policies = (*self.policies, *(p for p in other.policies if p not in self.policies))
+        self.n_frames += other.n_frames
+        return self
+
+    def set_voxels(self, keys, log_odds, counts):
+        """Overwrite the log-odds and counts of the given voxels (the map file reader uses this).
+
+        Parameters
+        ----------
+        keys : (N, 3) int, voxel keys (z key 0 in a 2-D map)
+        log_odds : (N,) float, log-odds
+        counts : (N,) int in [1, 65535], frames that observed each voxel
+        """
+        keys = self._keys(keys)
+        log = as_float_array(log_odds, "log_odds", shape=(keys.shape[0],), dtype=np.float32, allow_nan=False)
+        count = np.asarray(counts)
+        if (count.shape != (keys.shape[0],) or not np.issubdtype(count.dtype, np.integer)
+                or (count.size and (count.min() < 1 or count.max() > 65535))):
+            raise PrismapInputError(
+                f"`counts` must be ({keys.shape[0]},) integers in [1, 65535]; got shape {count.shape}, dtype {count.dtype}"
+            )
+        store = self._store
+        store.reserve(_kernels.count_new_blocks(store.table_keys, store.table_slots, keys, store.bits))
+        _kernels.set_voxels(store.table_keys, store.table_slots, store.block_keys, store.n_blocks, store.payload["log"],
+                            store.payload["count"], keys, log, count.astype(np.uint16), store.bits, self.prior_log)
+
+    def copy(self):
+        """An independent copy of the map."""
+        twin = OccupancyMap(self.voxel_size_m, p0=self.p0, ndim=self.ndim, clamp=self.clamp,
+                            occupied_threshold=self.occupied_threshold, free_threshold=self.free_threshold)
+        twin.merge(self)
+        twin.policies, twin.n_frames = self.policies, self.n_frames
+        return twin
+
+    # --------------------------------------------------------------------------------------- queries
+    @property
+    def n_known(self):
+        """Number of voxels observed at least once."""
+        return int(np.count_nonzero(self._store.payload["count"][: len(self._store)]))
+
+    def nbytes(self):
+        """Bytes of memory the map's storage holds (allocated, including spare capacity)."""
+        return self._store.nbytes()
+
+    def lookup_keys(self, keys):
+        """Log-odds and observation count at each key.
+
+        Parameters
+        ----------
+        keys : (N, 3) int, voxel keys
+
+        Returns
+        -------
+        log_odds : (N,) float32, ``logit(p0)`` where never observed
+        counts : (N,) uint16, 0 = unknown
+        """
+        keys = self._keys(keys)
+        store = self._store
+        return _kernels.lookup(store.table_keys, store.table_slots, store.payload["log"], store.payload["count"],
+                               keys, store.bits, np.float32(self.prior_log))
+
+    def probability_at_keys(self, keys):
+        """(N,) float64 occupancy probability at each key (``p0`` where unknown)."""
+        return _sigmoid(self.lookup_keys(keys)[0])
+
+    def state_at_keys(self, keys):
+        """(N,) int8 state at each key: :data:`FREE`, :data:`OCCUPIED` or :data:`UNKNOWN`."""
+        log, count = self.lookup_keys(keys)
+        return self._states(log, count)
+
+    def probability(self, points_w):
+        """(N,) float64 occupancy probability at world points ((N, 3), or (N, 2) in a 2-D map), metres."""
+        return self.probability_at_keys(self.point_keys(points_w))
+
+    def state(self, points_w):
+        """(N,) int8 state (:data:`FREE`, :data:`OCCUPIED`, :data:`UNKNOWN`) at world points, metres."""
+        return self.state_at_keys(self.point_keys(points_w))
+
+    def point_keys(self, points_w):
+        """(N, 3) int32 keys of world points ((N, 3), or (N, 2) in a 2-D map: z key 0)."""
+        points = self._points(points_w, "points_w")
+        return self._keys(point_to_key(points, self.voxel_size_m))
+
+    def known_voxels(self):
+        """Every observed voxel.
+
+        Returns
+        -------
+        keys : (N, 3) int32, voxel keys
+        log_odds : (N,) float32
+        counts : (N,) uint16, >= 1
+        """
+        store = self._store
+        n = len(store)
+        count = store.payload["count"][:n]
+        known = count > 0
+        keys = store.voxel_keys()[known].astype(np.int32)
+        return keys, store.payload["log"][:n][known], count[known]
+
+    def occupied_voxels(self):
+        """Voxels in the occupied state.
+
+        Returns
+        -------
+        keys : (N, 3) int32, voxel keys
+        centers_w : (N, 3) float64, metres, world frame (z = 0.5 voxel in a 2-D map)
+        probability : (N,) float64
+        """
+        keys, log, count = self.known_voxels()
+        mine = self._states(log, count) == OCCUPIED
+        keys = keys[mine]
+        return keys, (keys + 0.5) * self.voxel_size_m, _sigmoid(log[mine])
+
+    def bounding_box(self, *, occupied_only=False):
+        """Axis-aligned box of the known (or occupied) voxels: ``(min_w, max_w)`` (3,) metres, or None if empty."""
+        keys = self.occupied_voxels()[0] if occupied_only else self.known_voxels()[0]
+        if keys.shape[0] == 0:
+            return None
+        return keys.min(axis=0) * self.voxel_size_m, (keys.max(axis=0) + 1.0) * self.voxel_size_m
+
+    def slice_image(self, *, layer=None, z_range_m=None):
+        """A horizontal slice as an image of occupancy probabilities, NaN = unknown.
+
+        Parameters
+        ----------
+        layer : int or None
+            z key of the layer (0 for a 2-D map, the default there).
+        z_range_m : (float, float) or None, metres
+            Alternatively, every layer whose voxels overlap ``[z_min, z_max)``; a column then takes the
+            largest probability among its known voxels (an obstacle anywhere in the range blocks it).
+
+        Returns
+        -------
+        image : (H, W) float64, row = y key - y0, column = x key - x0; NaN where unknown
+        extent_m : (4,) float64, ``(x_min, x_max, y_min, y_max)`` of the image's outer edges, metres
+            (``imshow(image, origin="lower", extent=extent_m)``).
+        """
+        if (layer is None) == (z_range_m is None):
+            if self.ndim == 2 and layer is None and z_range_m is None:
+                layer = 0
+            else:
+                raise PrismapInputError("give exactly one of `layer` or `z_range_m`")
+        if layer is not None:
+            if int(layer) != layer:
+                raise PrismapInputError(f"`layer` must be an integer z key; got {layer!r}")
+            z_lo = z_hi = int(layer)
+        else:
+            z_min, z_max = as_float_array(z_range_m, "z_range_m", shape=(2,), allow_nan=False)
+            if not z_max > z_min:
+                raise PrismapInputError(f"`z_range_m` must be (z_min, z_max) with z_max > z_min; got {tuple(z_range_m)}")
+            z_lo = int(np.floor(z_min / self.voxel_size_m))
+            z_hi = int(np.ceil(z_max / self.voxel_size_m)) - 1
+        keys, log, _ = self.known_voxels()
+        inside = (keys[:, 2] >= z_lo) & (keys[:, 2] <= z_hi)
+        keys, prob = keys[inside], _sigmoid(log[inside])
+        if keys.shape[0] == 0:
+            return np.full((0, 0), np.nan), np.zeros(4)
+        x0, y0 = keys[:, 0].min(), keys[:, 1].min()
+        width, height = keys[:, 0].max() - x0 + 1, keys[:, 1].max() - y0 + 1
+        image = np.full((height, width), -np.inf)
+        np.maximum.at(image, (keys[:, 1] - y0, keys[:, 0] - x0), prob)
+        image[np.isneginf(image)] = np.nan
+        v = self.voxel_size_m
+        return image, np.array([x0 * v, (x0 + width) * v, y0 * v, (y0 + height) * v])
+
+    def first_occupied(self, origin_w, directions_w, *, max_range_m):
+        """First occupied voxel along each ray; unknown voxels are passed through.
+
+        Parameters
+        ----------
+        origin_w : (3,) float, metres, world frame ((2,) in a 2-D map)
+        directions_w : (N, 3) float, world frame, non-zero (need not be unit)
+        max_range_m : float, metres, > 0, distance searched along each ray
+
+        Returns
+        -------
+        hit : (N,) bool
+        keys : (N, 3) int32, the voxel hit (0 where no hit)
+        distance_m : (N,) float64, metres from the origin to where the ray enters it (NaN where no hit)
+        """
+        origin = self._points(origin_w, "origin_w", single=True)
+        directions = self._points(directions_w, "directions_w", as_direction=True)
+        norm = np.sqrt((directions**2).sum(axis=1))
+        if not np.all(norm > 0) or not np.all(np.isfinite(directions)):
+            raise PrismapInputError("`directions_w` must be finite and non-zero")
+        reach = check_positive(max_range_m, "max_range_m")
+        unit = directions / norm[:, None]
+        t_stop = np.full(unit.shape[0], reach)
+        ray, keys, t_in, _ = _kernels.cast_rays(origin, np.ascontiguousarray(unit), t_stop,
+                                                np.zeros(unit.shape[0], dtype=np.bool_), self.voxel_size_m)
+        occupied = self.state_at_keys(keys) == OCCUPIED
+        hit = np.zeros(unit.shape[0], dtype=bool)
+        out_keys = np.zeros((unit.shape[0], 3), dtype=np.int32)
+        distance = np.full(unit.shape[0], np.nan)
+        ray, keys, t_in = ray[occupied], keys[occupied], t_in[occupied]
+        first = np.unique(ray, return_index=True)[1]  # cells come in ray order, nearest first
+        hit[ray[first]] = True
+        out_keys[ray[first]] = keys[first]
+        distance[ray[first]] = t_in[first]
+        return hit, out_keys, distance
+
+    # ------------------------------------------------------------------------------------- internals
+    def _states(self, log, count):
+        prob = _sigmoid(log)
+        state = np.full(prob.shape, UNKNOWN, dtype=np.int8)
+        known = count > 0
+        state[known & (prob >= self.occupied_threshold)] = OCCUPIED
+        state[known & (prob < self.free_threshold)] = FREE
+        return state
+
+    def _clamp_log(self):
+        if self.clamp is None:
+            return -np.inf, np.inf
+        return float(logit(self.clamp[0])), float(logit(self.clamp[1]))
+
+    def _policy_code(self, policy, model):
+        name = model.default_policy if policy is None else policy
+        if name not in POLICIES:
+            raise PrismapInputError(f"`policy` must be one of {list(POLICIES)}; got {name!r}")
+        return _kernels.POLICY_CODES[name]
+
+    def _apply_accumulator(self, code):
+        acc, store = self._accumulator, self._store
+        store.reserve(len(acc))
+        lo, hi = self._clamp_log()
+        _kernels.apply_frame(store.table_keys, store.table_slots, store.block_keys, store.n_blocks,
+                             store.payload["log"], store.payload["count"], acc.block_keys, len(acc),
+                             acc.payload["acc"], code, lo, hi, self.prior_log)
+
+    def _points(self, value, name, *, single=False, as_direction=False):
+        """(N, 3) (or (3,) if ``single``) float64 world coordinates; a 2-D map takes (.., 2) and pads z."""
+        shape = (self.ndim,) if single else (None, self.ndim)
+        array = as_float_array(value, name, shape=shape, allow_nan=as_direction and not single)
+        if single and not np.all(np.isfinite(array)):
+            raise PrismapInputError(f"`{name}` must be finite; got {array.tolist()}")
+        if self.ndim == 2:
+            pad = 0.0 if as_direction else 0.5 * self.voxel_size_m
+            array = np.concatenate([array, np.full((*array.shape[:-1], 1), pad)], axis=-1)
+        return np.ascontiguousarray(array)
+
+    def _keys(self, keys):
+        keys = check_keys(keys)
+        if self.ndim == 2 and np.any(keys[:, 2] != 0):
+            raise PrismapInputError("a 2-D map has one layer: `keys` must have z key 0")
+        return keys
+
+    def __repr__(self):
+        return (f"OccupancyMap(voxel_size_m={self.voxel_size_m}, p0={self.p0}, ndim={self.ndim}, "
+                f"clamp={self.clamp}, known={self.n_known}, frames={self.n_frames})")
+
+
+def _reindex(ray_index, valid):
+    """Ray index image after dropping invalid rays: -1 where the ray was dropped."""
+    new = np.full(valid.size, -1, dtype=np.int64)
+    new[valid] = np.arange(int(valid.sum()))
+    flat = ray_index.reshape(-1)
+    return np.where(flat >= 0, new[np.maximum(flat, 0)], -1).reshape(ray_index.shape)
+
+
+def pose_noise_px(disparity, rays_cam, R_world_cam, pose_covariance, focal_baseline, doffs_px):
+    """Disparity noise (pixels) equivalent to a pose covariance, per ray (first order).
+
+    Parameters
+    ----------
+    disparity : (R,) float, pixels (NaN = invalid: NaN out)
+    rays_cam : (R, 3) float, camera rays ``(x/z, y/z, 1)``
+    R_world_cam : (3, 3) float, rotation camera -> world
+    pose_covariance : (3, 3) or (6, 6) float, m^2 (and rad^2), world axes
+    focal_baseline : float, pixel-metres
+    doffs_px : float, pixels
+
+    Returns
+    -------
+    sigma_px : (R,) float64, ``f b sqrt(J Sigma_cam J^T) / z^2`` with ``J = (0, 0, 1, p_y, -p_x, 0)``,
+        ``p = z r`` (see :meth:`OccupancyMap.integrate_disparity`).
+    """
+    cov = as_float_array(pose_covariance, "pose_covariance", ndim=2, allow_nan=False)
+    if cov.shape not in ((3, 3), (6, 6)) or not np.allclose(cov, cov.T) or np.linalg.eigvalsh(cov).min() < -1e-12:
+        raise PrismapInputError(f"`pose_covariance` must be a symmetric positive semi-definite (3, 3) or (6, 6); got shape {cov.shape}")
+    full = np.zeros((6, 6))
+    full[: cov.shape[0], : cov.shape[0]] = cov
+    rot = np.zeros((6, 6))
+    rot[:3, :3] = rot[3:, 3:] = R_world_cam
+    cov_cam = rot.T @ full @ rot
+    depth = focal_baseline / (np.asarray(disparity, dtype=np.float64) + doffs_px)
+    points = rays_cam * depth[:, None]
+    jac = np.zeros((depth.size, 6))
+    jac[:, 2] = 1.0
+    jac[:, 3] = points[:, 1]
+    jac[:, 4] = -points[:, 0]
+    sigma_z = np.sqrt(np.einsum("ri,ij,rj->r", jac, cov_cam, jac))
+    return focal_baseline * sigma_z / depth**2

@@ -1,0 +1,72 @@
+"""Hashed voxel blocks: a growable table from packed block key to a slot in flat per-block arrays."""
+
+import numpy as np
+
+from prismap.grid import _kernels
+
+
+class BlockTable:
+    """Blocks of ``2**sum(bits)`` voxels, found through an open-addressing hash table.
+
+    Parameters
+    ----------
+    bits : tuple of 3 int
+        log2 of the block size on x, y, z: ``(3, 3, 3)`` for 8^3 blocks, ``(4, 4, 0)`` for 16x16x1.
+    payload : dict of str -> (tuple, dtype)
+        Per-block arrays: name -> (trailing shape after the block axis, dtype).
+    """
+
+    def __init__(self, bits, payload):
+        self.bits = tuple(int(b) for b in bits)
+        self.block_voxels = 1 << sum(self.bits)
+        self.n_blocks = np.zeros(1, dtype=np.int64)
+        self.block_keys = np.empty(0, dtype=np.int64)
+        self.table_keys = np.full(16, _kernels.EMPTY, dtype=np.int64)
+        self.table_slots = np.zeros(16, dtype=np.int32)
+        self.payload = {name: np.empty((0, *shape), dtype=dtype) for name, (shape, dtype) in payload.items()}
+
+    def __len__(self):
+        return int(self.n_blocks[0])
+
+    def clear(self):
+        """Forget every block but keep the allocated memory (the frame accumulator is reused)."""
+        self.n_blocks[0] = 0
+        self.table_keys.fill(_kernels.EMPTY)
+
+    def reserve(self, extra):
+        """Make room for ``extra`` more blocks (block arrays and a table at most half full)."""
+        n = len(self)
+        need = n + int(extra)
+        if need > self.block_keys.size:
+            capacity = max(need, 2 * self.block_keys.size, 64)
+            self.block_keys = _grown(self.block_keys, capacity, n)
+            self.payload = {name: _grown(array, capacity, n) for name, array in self.payload.items()}
+        if 2 * need > self.table_keys.size:
+            size = 1 << int(np.ceil(np.log2(4 * need)))
+            self.table_keys, self.table_slots = _kernels.rehash(self.block_keys, n, size)
+
+    def block_coords(self):
+        """(B, 3) int64 block coordinates of the stored blocks."""
+        packed = self.block_keys[: len(self)]
+        shifts = np.array([42, 21, 0], dtype=np.int64)
+        return ((packed[:, None] >> shifts) & _kernels._MASK21) - _kernels._OFFSET
+
+    def voxel_keys(self):
+        """(B, V, 3) int64 voxel keys of every voxel of every stored block (V = voxels per block)."""
+        bx, by, bz = self.bits
+        local = np.arange(self.block_voxels, dtype=np.int64)
+        offsets = np.stack(
+            [local & ((1 << bx) - 1), (local >> bx) & ((1 << by) - 1), (local >> (bx + by)) & ((1 << bz) - 1)], axis=1
+        )
+        return (self.block_coords()[:, None, :] << np.array(self.bits, dtype=np.int64)) + offsets[None, :, :]
+
+    def nbytes(self):
+        """Bytes held by the table and the block arrays (allocated capacity, not just the used part)."""
+        arrays = [self.block_keys, self.table_keys, self.table_slots, *self.payload.values()]
+        return int(sum(a.nbytes for a in arrays))
+
+
+def _grown(array, capacity, used):
+    grown = np.empty((capacity, *array.shape[1:]), dtype=array.dtype)
+    grown[:used] = array[:used]
+    return grown

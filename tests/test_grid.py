@@ -1,0 +1,215 @@
+"""The sparse voxel map: keys, ray casting against hand-computed maps and a slow reference, policies,
+queries, merging, pose noise and bad input."""
+
+import numpy as np
+import pytest
+
+from prismap.camera import StereoCamera
+from prismap.errors import PrismapInputError
+from prismap.grid import FREE, OCCUPIED, OCTOMAP_CLAMP, UNKNOWN, OccupancyMap, key_to_center, point_to_key, pose_noise_px
+from prismap.grid._kernels import cast_rays
+from prismap.sensor_models import InverseSensorModel
+
+L_HIT = np.log(0.7 / 0.3)
+L_MISS = np.log(0.4 / 0.6)
+
+
+def logit(p):
+    return np.log(p / (1 - p))
+
+
+class HitMissModel(InverseSensorModel):
+    """OctoMap's hit/miss model on one ray, written here so the grid is tested without `sensor_models`.
+
+    ``p_hit`` in the cell whose depth interval contains the measured depth, ``p_miss`` before it.
+    """
+
+    name = "test-hitmiss"
+    default_policy = "occupied-wins"
+
+    def __init__(self, focal_baseline, *, doffs_px=0.0, p0=0.5, extra_noise_px=0.0):
+        self.focal_baseline, self.doffs_px, self.p0 = focal_baseline, doffs_px, p0
+        self.extra_noise_px = extra_noise_px
+
+    def depth(self, disparity_px):
+        return self.focal_baseline / (np.asarray(disparity_px) + self.doffs_px)
+
+    def cell_posteriors(self, disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m):
+        z = self.depth(disparity_px)[ray_of_cell]
+        hit = (depth_start_m <= z) & (z < depth_end_m)
+        post = np.where(hit, 0.7, np.where(depth_end_m <= z, 0.4, self.p0))
+        return post, logit(post) - logit(self.p0)
+
+    def influence_depth(self, disparity_px, ray_norm):
+        return self.depth(disparity_px)
+
+    def with_extra_noise(self, sigma_px):
+        return HitMissModel(self.focal_baseline, doffs_px=self.doffs_px, p0=self.p0, extra_noise_px=sigma_px)
+
+
+class ConstantModel(InverseSensorModel):
+    """Every cell of ray i gets increment ``values[i]``; rays stop at depth ``depth_m``."""
+
+    name = "test-constant"
+    default_policy = "mean"
+
+    def __init__(self, values, depth_m):
+        self.values, self.depth_m = np.asarray(values, dtype=float), depth_m
+
+    def cell_posteriors(self, disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m):
+        inc = self.values[ray_of_cell]
+        return 1 / (1 + np.exp(-inc)), inc
+
+    def influence_depth(self, disparity_px, ray_norm):
+        return np.full(np.shape(disparity_px), self.depth_m)
+
+    def with_extra_noise(self, sigma_px):
+        return self
+
+
+FB = 10.0  # focal * baseline of the hand-made rays: disparity = FB / depth
+
+
+def one_ray(origin, ray, depth, *, voxel=0.1, max_range=np.inf, policy=None):
+    grid = OccupancyMap(voxel, p0=0.5)
+    grid.integrate_rays(origin, [ray], [FB / depth], HitMissModel(FB), max_range_m=max_range, policy=policy)
+    return grid
+
+
+def as_dict(grid):
+    keys, log, count = grid.known_voxels()
+    assert np.all(count == 1)
+    return {tuple(k): float(v) for k, v in zip(keys.tolist(), log)}
+
+
+def expected(free, hit):
+    out = {tuple(k): L_MISS for k in free}
+    out.update({tuple(k): L_HIT for k in hit})
+    return out
+
+
+def assert_map(grid, free, hit):
+    got, want = as_dict(grid), expected(free, hit)
+    assert got.keys() == want.keys()
+    for k in want:
+        assert got[k] == pytest.approx(want[k], abs=1e-6), k
+
+
+# ------------------------------------------------------------------------------------------- keys
+def test_point_to_key_and_key_to_center_round_trip():
+    rng = np.random.default_rng(0)
+    keys = rng.integers(-100000, 100000, size=(1000, 3))
+    for voxel in (0.05, 0.1, 0.37):
+        centers = key_to_center(keys, voxel)
+        np.testing.assert_array_equal(point_to_key(centers, voxel), keys)
+        points = rng.uniform(-500, 500, size=(1000, 3))
+        k = point_to_key(points, voxel)
+        assert np.all(np.abs(points - key_to_center(k, voxel)) <= voxel / 2 + 1e-9)
+    assert point_to_key([[-0.01, 0.0, 0.099]], 0.1).tolist() == [[-1, 0, 0]]
+
+
+@pytest.mark.parametrize("bad", [0.0, -0.1, np.nan, np.inf])
+def test_bad_voxel_size_is_an_error(bad):
+    with pytest.raises(PrismapInputError, match="voxel_size_m"):
+        OccupancyMap(bad, p0=0.5)
+    with pytest.raises(PrismapInputError, match="voxel_size_m"):
+        point_to_key([[0.0, 0.0, 0.0]], bad)
+
+
+# ------------------------------------------------------------------------------ hand-computed maps
+def test_single_ray_along_an_axis():
+    grid = one_ray([0.05, 0.05, 0.05], [1.0, 0.0, 0.0], 0.53)
+    assert_map(grid, [(x, 0, 0) for x in range(5)], [(5, 0, 0)])
+
+
+def test_diagonal_ray_through_voxel_corners_skips_touched_voxels():
+    grid = one_ray([0.0, 0.0, 0.0], [1.0, 1.0, 1.0], 0.35)
+    assert_map(grid, [(0, 0, 0), (1, 1, 1), (2, 2, 2)], [(3, 3, 3)])
+
+
+def test_ray_shorter_than_one_voxel():
+    grid = one_ray([0.01, 0.01, 0.01], [0.0, 0.0, 1.0], 0.05)
+    assert_map(grid, [], [(0, 0, 0)])
+
+
+def test_ray_beyond_max_range_clears_free_space_only():
+    grid = one_ray([0.05, 0.05, 0.05], [1.0, 0.0, 0.0], 2.0, max_range=0.5)
+    # The max-range point x = 0.55 lies in voxel 5, which is excluded (as OctoMap).
+    assert_map(grid, [(x, 0, 0) for x in range(5)], [])
+
+
+def test_camera_on_a_voxel_boundary():
+    grid = one_ray([0.0, 0.05, 0.05], [-1.0, 0.0, 0.0], 0.25)
+    assert_map(grid, [(-1, 0, 0), (-2, 0, 0)], [(-3, 0, 0)])
+    grid = one_ray([0.0, 0.05, 0.05], [1.0, 0.0, 0.0], 0.25)
+    assert_map(grid, [(0, 0, 0), (1, 0, 0)], [(2, 0, 0)])
+
+
+def test_oblique_ray_with_camera_depth_parameter():
+    # Camera ray (x/z, y/z, 1) = (0.5, 0, 1) from (0.05, 0.05, 0.05): x = 0.05 + 0.5 t, z = 0.05 + t.
+    # Borders crossed: z=0.1 (t=.05), x=0.1 (t=.1), z=0.2 (.15), z=0.3 (.25), x=0.2 (.3), z=0.4 (.35).
+    grid = one_ray([0.05, 0.05, 0.05], [0.5, 0.0, 1.0], 0.4)
+    free = [(0, 0, 0), (0, 0, 1), (1, 0, 1), (1, 0, 2), (1, 0, 3), (2, 0, 3)]
+    assert_map(grid, free, [(2, 0, 4)])
+
+
+def reference_cells(origin, ray, t_stop, voxel, exclusive=False):
+    """Slow reference: every voxel of the bounding box whose slab interval with the ray passes the rule."""
+    end = origin + ray * t_stop
+    lo = np.floor(np.minimum(origin, end) / voxel).astype(int) - 1
+    hi = np.floor(np.maximum(origin, end) / voxel).astype(int) + 1
+    grid = np.stack(np.meshgrid(*[np.arange(a, b + 1) for a, b in zip(lo, hi)], indexing="ij"), -1).reshape(-1, 3)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ta = (grid * voxel - origin) / ray
+        tb = ((grid + 1) * voxel - origin) / ray
+    t0 = np.maximum(np.minimum(ta, tb).max(axis=1), 0.0)
+    t1 = np.maximum(ta, tb).min(axis=1)
+    keep = (t1 - t0) > 1e-6 * voxel
+    keep &= (t1 <= t_stop) if exclusive else (t0 <= t_stop)
+    return {tuple(k): (a, b) for k, a, b in zip(grid[keep], t0[keep], t1[keep])}
+
+
+def test_cast_rays_matches_slow_reference_on_random_rays():
+    rng = np.random.default_rng(1)
+    voxel = 0.1
+    for exclusive in (False, True):
+        origin = rng.uniform(-1, 1, 3)
+        rays = rng.normal(size=(40, 3))
+        t_stop = rng.uniform(0.01, 1.5, 40)
+        ray_of, keys, t_in, t_out = cast_rays(origin, rays, t_stop, np.full(40, exclusive), voxel)
+        for i in range(40):
+            mine = ray_of == i
+            got = {tuple(k): (a, b) for k, a, b in zip(keys[mine].tolist(), t_in[mine], t_out[mine])}
+            want = reference_cells(origin, rays[i], t_stop[i], voxel, exclusive)
+            assert got.keys() == want.keys()
+            for k in want:
+                np.testing.assert_allclose(got[k], want[k], atol=1e-9)
+            assert np.all(np.diff(t_in[mine]) > 0)  # nearest first
+
+
+# --------------------------------------------------------------------------------------- policies
+@pytest.mark.parametrize(
+    ("policy", "want"),
+    [("mean", 0.5), ("max-abs", -2.0), ("occupied-wins", 1.5), ("max", 1.5), ("sum", 2.0), (None, 0.5)],
+)
+def test_policies_combine_rays_of_one_frame_into_one_update(policy, want):
+    grid = OccupancyMap(0.1, p0=0.5)
+    values = [1.5, 1.0, -2.0, 1.5]
+    rays = np.tile([0.0, 0.0, 1.0], (4, 1))
+    grid.integrate_rays([0.05, 0.05, 0.05], rays, np.ones(4), ConstantModel(values, 0.3), policy=policy)
+    keys, log, count = grid.known_voxels()
+    assert sorted(keys[:, 2].tolist()) == [0, 1, 2, 3]
+    np.testing.assert_allclose(log, want, atol=1e-6)
+    assert np.all(count == 1)
+
+
+def test_occupied_wins_without_positive_increments_takes_the_mean():
+    grid = OccupancyMap(0.1, p0=0.5)
+    rays = np.tile([0.0, 0.0, 1.0], (2, 1))
+    grid.integrate_rays([0.05, 0.05, 0.05], rays, np.ones(2), ConstantModel([-1.0, -3.0], 0.1), policy="occupied-wins")
+    np.testing.assert_allclose(grid.known_voxels()[1], -2.0)
+
+
+def test_unknown_policy_is_an_error():
+    with pytest.raises(PrismapInputError, match="policy"):
+        one_ray([0.05, 0.05, 0.05], [1.0, 0.0, 0.0], 0.5, policy="median")
