@@ -1,0 +1,16 @@
+"""Errors of a stereo matcher against ground truth, their histograms, fitted error models and tables."""
+
+from prismap.characterise._histogram import ErrorHistogram
+from prismap.characterise._model import ErrorModel, format_table, load_error_model, write_error_model
+from prismap.characterise._run import Characterisation, characterise_matcher, write_characterisation
+
+__all__ = [
+    "Characterisation",
+    "ErrorHistogram",
+    "ErrorModel",
+    "characterise_matcher",
+    "format_table",
+    "load_error_model",
+    "write_characterisation",
+    "write_error_model",
+]

@@ -1,0 +1,90 @@
+"""``prismap characterise``: measure a matcher's disparity errors on data with ground truth, fit mixtures."""
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from prismap._validate import check_positive
+from prismap.errors import PrismapInputError
+
+MOTORCYCLE = "middlebury-motorcycle"
+
+
+def register(subparsers):
+    """Add the ``characterise`` parser."""
+    parser = subparsers.add_parser(
+        "characterise",
+        help="fit Gaussian-mixture error models to a stereo matcher's disparity errors",
+        description=(
+            "Run a stereo matcher on frames with ground-truth disparity, histogram its errors "
+            "e = d_true - d_computed, fit Gaussian mixtures with G = 1..max-components by EM and write "
+            "error_model.json, table.md, errors.png and errors_wide.png into --out. The matcher's disparity "
+            "search range is set to cover the largest ground-truth disparity."
+        ),
+    )
+    parser.add_argument("--dataset", required=True, metavar="NAME|PATH",
+                        help=f"'{MOTORCYCLE}' (bundled with scikit-image) or a Middlebury 2014 folder")
+    parser.add_argument("--matcher", required=True, choices=("bm", "sgbm", "variational"))
+    parser.add_argument("--max-components", type=int, default=4, metavar="G", help="largest G fitted (default 4)")
+    parser.add_argument("--out", required=True, type=Path, metavar="DIR", help="output directory")
+    parser.add_argument("--bin-width", type=float, default=1 / 32, metavar="PX",
+                        help="histogram bin width in pixels (default 1/32)")
+    parser.add_argument("--lr-check", action="store_true", help="invalidate pixels failing the left-right check")
+    parser.add_argument("--criterion", choices=("bic", "aic"), default="bic", help="selection criterion (default bic)")
+    parser.add_argument("--tolerance", type=float, default=0.01, metavar="NATS",
+                        help="select the smallest G within this many nats per error of the best (default 0.01)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the EM restarts (default 0)")
+    parser.set_defaults(func=run)
+
+
+def run(args):
+    """Characterise the matcher on the dataset and write the results; return the exit status."""
+    from prismap.characterise import characterise_matcher, write_characterisation
+    from prismap.stereo import make_matcher
+
+    bin_width = check_positive(args.bin_width, "--bin-width")
+    frames = _load_frames(args.dataset)
+    options = {"left_right_check": True} if args.lr_check else {}
+    options.update(_search_range(args.matcher, frames))
+    try:
+        matcher = make_matcher(args.matcher, **options)
+    except TypeError:
+        raise PrismapInputError(f"--lr-check: matcher {args.matcher!r} has no left-right check option") from None
+    result = characterise_matcher(
+        frames, matcher, max_components=args.max_components, bin_width=bin_width, dataset=args.dataset,
+        criterion=args.criterion, tolerance=args.tolerance, seed=args.seed,
+    )
+    paths = write_characterisation(result, args.out)
+    stats = result.histogram.statistics()
+    mixture = result.mixture
+    print(f"{args.matcher} on {args.dataset}: {stats['n_errors']} errors, coverage {stats['coverage']:.3f}, "
+          f"bad-2px {stats['bad_2px']:.3f}; selected G = {result.model.selected_components}")
+    for weight, mean, sigma in zip(mixture.weights, mixture.means, mixture.sigmas):
+        print(f"  w = {weight:.3f}  mu = {mean:+.3f} px  sigma = {sigma:.3f} px")
+    for path in paths.values():
+        print(f"wrote {path}")
+    return 0
+
+
+def _load_frames(dataset):
+    import prismap.io
+
+    if dataset == MOTORCYCLE:
+        return [prismap.io.load_middlebury_motorcycle()]
+    path = Path(dataset)
+    if not path.exists():
+        raise PrismapInputError(f"--dataset {dataset}: no such file or directory "
+                                f"(expected '{MOTORCYCLE}' or a Middlebury 2014 folder)")
+    return [prismap.io.load_middlebury_folder(path)]
+
+
+def _search_range(matcher_name, frames):
+    """Matcher options whose disparity range covers every frame's largest ground-truth disparity."""
+    largest = max((np.nanmax(np.where(np.isfinite(f.disparity_gt), f.disparity_gt, np.nan))
+                   for f in frames if f.disparity_gt is not None and np.isfinite(f.disparity_gt).any()), default=None)
+    if largest is None:
+        raise PrismapInputError("the dataset has no valid ground-truth disparity to characterise against")
+    if matcher_name == "variational":
+        return {"max_disparity": float(math.ceil(largest) + 1)}
+    return {"num_disparities": 16 * math.ceil((largest + 1) / 16)}

@@ -1,0 +1,129 @@
+"""Figures of a matcher's disparity errors with the fitted mixtures (after thesis figs. 3.8-3.10)."""
+
+import numpy as np
+
+from prismap._files import atomic_path
+from prismap.errors import PrismapInputError
+
+
+def plot_error_fits(histogram, model, *, path=None, half_width_px=None):
+    """Error histogram as a density with the fitted mixtures for G = 1, 2, 3 and the selected G.
+
+    One panel per G over a narrow range around the peak, where the dominant components live.
+
+    Parameters
+    ----------
+    histogram : prismap.characterise.ErrorHistogram
+    model : prismap.characterise.ErrorModel
+    path : str or Path or None, keyword-only
+        Where to save the figure (format from the suffix), written atomically.
+    half_width_px : float, pixels, keyword-only
+        Half-width of the range shown; default ``max(4, 5 sigma)`` of the selected model's heaviest
+        component, like the thesis's -4..4 px.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    from matplotlib.figure import Figure
+
+    density_edges, density, total = _display_density(histogram)
+    dominant = model.mixture
+    centre = float(dominant.means[0])
+    half = float(half_width_px) if half_width_px is not None else max(4.0, float(np.ceil(5 * dominant.sigmas[0])))
+    available = {fit.n_components for fit in model.fits}
+    panels = sorted(({1, 2, 3} & available) | {model.selected_components})
+    columns = 2 if len(panels) == 4 else len(panels)
+    rows = -(-len(panels) // columns)
+    fig = Figure(figsize=(4.2 * columns, 3.2 * rows), layout="constrained")
+    axes = np.atleast_1d(fig.subplots(rows, columns, squeeze=False).ravel())
+    low, high = centre - half, centre + half
+    factor = max(1, int(round(2 * half / histogram.bin_width / 256)))
+    edges, values = _rebin(density_edges, density, factor, low, high)
+    x = np.linspace(low, high, 2001)
+    for ax, g in zip(axes, panels):
+        fit = model.fit(g)
+        ax.stairs(values, edges, fill=True, alpha=0.45, color="0.45", label="error hist")
+        ax.plot(x, fit.mixture.pdf(x), color="C3", lw=1.6, label="GMM")
+        title = f"G = {g}" + (" (selected)" if g == model.selected_components else "")
+        ax.set_title(f"{title}: ln L / N = {fit.mean_log_likelihood:.3f}", fontsize=10)
+        ax.set_xlim(low, high)
+        ax.set_ylim(bottom=0)
+        ax.set_xlabel("error e = d_true - d_computed (px)")
+        ax.set_ylabel("probability density")
+        ax.legend(fontsize=8, loc="upper right")
+    for ax in axes[len(panels):]:
+        ax.set_visible(False)
+    fig.suptitle(f"{model.matcher} on {model.dataset or 'data'}: {total} errors", fontsize=11)
+    return _finish(fig, path)
+
+
+def plot_error_tails(histogram, model, *, path=None):
+    """The whole error range on a log density axis, so the wide outlier components show.
+
+    The histogram is shown in bins of about 1/4 px with the selected mixture and the single Gaussian.
+
+    Parameters
+    ----------
+    histogram : prismap.characterise.ErrorHistogram
+    model : prismap.characterise.ErrorModel
+    path : str or Path or None, keyword-only
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    from matplotlib.figure import Figure
+
+    edges, density, total = _display_density(histogram)
+    occupied = np.flatnonzero(histogram.counts)
+    low = float(edges[occupied[0]]) - 1.0
+    high = float(edges[occupied[-1] + 1]) + 1.0
+    factor = max(1, int(round(0.25 / histogram.bin_width)))
+    edges, values = _rebin(edges, density, factor, low, high)
+    fig = Figure(figsize=(8, 3.6), layout="constrained")
+    ax = fig.subplots()
+    shown = np.where(values > 0, values, np.nan)
+    ax.stairs(np.nan_to_num(shown, nan=0.0), edges, fill=True, alpha=0.45, color="0.45", label="error hist")
+    x = np.linspace(low, high, 4001)
+    selected = model.selected_components
+    ax.plot(x, model.mixture.pdf(x), color="C3", lw=1.4, label=f"GMM, G = {selected} (selected)")
+    if selected != 1 and any(fit.n_components == 1 for fit in model.fits):
+        ax.plot(x, model.fit(1).mixture.pdf(x), color="C0", lw=1.0, ls="--", label="GMM, G = 1")
+    floor = 1.0 / (total * histogram.bin_width * factor)
+    ax.set_yscale("log")
+    ax.set_ylim(0.3 * floor, 2.0 * np.nanmax(shown))
+    ax.set_xlim(low, high)
+    ax.set_xlabel("error e = d_true - d_computed (px)")
+    ax.set_ylabel("probability density")
+    outside = histogram.n_below + histogram.n_above
+    ax.set_title(
+        f"{model.matcher} on {model.dataset or 'data'}: all {total} binned errors"
+        + (f" ({outside} beyond +-{histogram.limit_px:g} px not shown)" if outside else ""),
+        fontsize=10,
+    )
+    ax.legend(fontsize=8)
+    return _finish(fig, path)
+
+
+def _display_density(histogram):
+    if histogram.counts.sum() == 0:
+        raise PrismapInputError("the error histogram is empty: nothing to plot")
+    return histogram.edges, histogram.density(), int(histogram.counts.sum())
+
+
+def _rebin(edges, density, factor, low, high):
+    """Average ``factor`` neighbouring bins and keep those overlapping ``[low, high]``."""
+    usable = (density.size // factor) * factor
+    merged = density[:usable].reshape(-1, factor).mean(axis=1)
+    merged_edges = edges[: usable + 1 : factor]
+    keep = (merged_edges[1:] > low) & (merged_edges[:-1] < high)
+    index = np.flatnonzero(keep)
+    return merged_edges[index[0] : index[-1] + 2], merged[index]
+
+
+def _finish(fig, path):
+    if path is not None:
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, dpi=110)
+    return fig
