@@ -57,7 +57,8 @@ def align_to_ground_truth(keys, probability, occupied_keys, region_keys, *, p0):
     packed, packed_occupied, packed_region = _pack(keys, occupied_keys, region_keys)
     for name, array in (("keys", packed), ("region_keys", packed_region)):
         if np.unique(array).size != array.size:
-            raise PrismapInputError(f"`{name}` must not repeat a key; got {array.size - np.unique(array).size} repeats")
+            repeats = array.size - np.unique(array).size
+            raise PrismapInputError(f"`{name}` must not repeat a key; got {repeats} repeats")
 
     aligned = np.full(packed_region.size, p0)
     if packed.size:
@@ -71,7 +72,9 @@ def align_to_ground_truth(keys, probability, occupied_keys, region_keys, *, p0):
 def _as_keys(value, name, dims=None):
     array = np.asarray(value)
     if array.ndim != 2 or (array.size and not np.issubdtype(array.dtype, np.integer)):
-        raise PrismapInputError(f"`{name}` must be an (N, D) integer array; got shape {array.shape}, dtype {array.dtype}")
+        raise PrismapInputError(
+            f"`{name}` must be an (N, D) integer array; got shape {array.shape}, dtype {array.dtype}"
+        )
     if dims is not None and array.shape[1] != dims:
         raise PrismapInputError(f"`{name}` must have {dims} columns like `keys`; got {array.shape[1]}")
     return array.astype(np.int64, copy=False)

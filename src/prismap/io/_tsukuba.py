@@ -69,7 +69,9 @@ def read_tsukuba_track(path, *, baseline_m=TSUKUBA_CAMERA.baseline_m):
     for index, line in enumerate(lines):
         values = _parse_numbers(line.replace(",", " "), path, index + 1)
         if values.size != 6:
-            raise PrismapInputError(f"{path} line {index + 1}: expected 6 numbers (X, Y, Z, A, B, C); got {values.size}")
+            raise PrismapInputError(
+                f"{path} line {index + 1}: expected 6 numbers (X, Y, Z, A, B, C); got {values.size}"
+            )
         a, b, c = np.deg2rad(values[3:])
         T = np.eye(4)
         T[:3, :3] = _rot_z(c) @ _rot_y(b) @ _rot_x(a)
@@ -132,7 +134,9 @@ def read_tsukuba_depth(path):
         raise PrismapInputError(f"{path}: Tsukuba depth map must hold a 2-D single-channel matrix named 'depth'")
     depth = depth.astype(np.float64) / 100.0
     if not np.all(np.isfinite(depth) & (depth > 0)):
-        raise PrismapInputError(f"{path}: Tsukuba depths must be finite and > 0; got values in [{depth.min()}, {depth.max()}] m")
+        raise PrismapInputError(
+            f"{path}: Tsukuba depths must be finite and > 0; got values in [{depth.min()}, {depth.max()}] m"
+        )
     return depth
 
 
@@ -199,7 +203,8 @@ class NewTsukuba(Sequence):
             raise PrismapInputError(f"{self._left_dir}: no images named like tsukuba_{illumination}_L_00001.png")
         missing = [n for n in self._numbers if not self._image_path("R", n).is_file()]
         if missing:
-            raise PrismapInputError(f"{self._right_dir}: missing {len(missing)} right image(s), first {self._image_path('R', missing[0]).name}")
+            first = self._image_path("R", missing[0]).name
+            raise PrismapInputError(f"{self._right_dir}: missing {len(missing)} right image(s), first {first}")
         self.camera = TSUKUBA_CAMERA
         self.poses = None
         track = self._root / "groundtruth" / "camera_track.txt"
@@ -229,7 +234,7 @@ class NewTsukuba(Sequence):
             raise PrismapInputError(f"{self._right_dir}: right image {number} shape {right.shape} != left {left.shape}")
         truth = self._root / "groundtruth"
         if self._ground_truth == "disparity":
-            disparity = read_tsukuba_disparity(truth / "disparity_maps" / "left" / f"tsukuba_disparity_L_{number:05d}.png")
+            disparity = read_tsukuba_disparity(truth / "disparity_maps/left" / f"tsukuba_disparity_L_{number:05d}.png")
         elif self._ground_truth == "depth":
             depth = read_tsukuba_depth(truth / "depth_maps" / "left" / f"tsukuba_depth_L_{number:05d}.xml")
             disparity = self.camera.disparity_from_depth(depth).astype(np.float32)

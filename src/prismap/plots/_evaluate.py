@@ -63,7 +63,8 @@ def plot_probability_histograms(scores_by_model, *, path=None, density=True):
     fig, axes = _figure(len(scores_by_model), sharex=True)
     for ax, (name, scores) in zip(np.atleast_1d(axes), scores_by_model.items()):
         widths = np.diff(scores.hist_edges)
-        for counts, label, color in ((scores.hist_free, "free", "tab:blue"), (scores.hist_occupied, "occupied", "tab:red")):
+        classes = ((scores.hist_free, "free", "tab:blue"), (scores.hist_occupied, "occupied", "tab:red"))
+        for counts, label, color in classes:
             total = counts.sum()
             heights = counts / (total * widths) if density and total else counts
             ax.bar(scores.hist_edges[:-1], heights, width=widths, align="edge", alpha=0.5, color=color, label=label)
@@ -76,7 +77,9 @@ def plot_probability_histograms(scores_by_model, *, path=None, density=True):
 
 def _check_scores(scores_by_model):
     if not isinstance(scores_by_model, dict) or not scores_by_model:
-        raise PrismapInputError(f"`scores_by_model` must be a non-empty dict of name -> MapScores; got {scores_by_model!r:.80}")
+        raise PrismapInputError(
+            f"`scores_by_model` must be a non-empty dict of name -> MapScores; got {scores_by_model!r:.80}"
+        )
     for name, scores in scores_by_model.items():
         if not isinstance(scores, MapScores):
             raise PrismapInputError(f"`scores_by_model[{name!r}]` must be a MapScores; got {type(scores).__name__}")
