@@ -208,7 +208,7 @@ def format_table(model):
     notes = []
     for fit, components in shown:
         mark = "*" if fit.n_components == model.selected_components else ""
-        cells = [f"{fit.n_components}{mark}", f"{fit.aic:.4g}", f"{fit.bic:.4g}"]
+        cells = [f"{fit.n_components}{mark}", f"{fit.aic:.6g}", f"{fit.bic:.6g}"]
         for mu, sigma, weight in components:
             cells += [f"{mu:.2f}", f"{sigma:.2f}", f"{weight:.2f}"]
         cells += [""] * (len(header) - len(cells))

@@ -44,6 +44,8 @@ def run(args):
     from prismap.stereo import make_matcher
 
     bin_width = check_positive(args.bin_width, "--bin-width")
+    if args.max_components < 1:
+        raise PrismapInputError(f"`--max-components` must be >= 1; got {args.max_components}")
     frames = _load_frames(args.dataset)
     options = {"left_right_check": True} if args.lr_check else {}
     options.update(_search_range(args.matcher, frames))
