@@ -2,6 +2,8 @@
 textured 3-D box scenes rendered as rectified stereo pairs."""
 
 from prismap.sim._poses import pose_from_heading, poses_from_se2
+from prismap.sim._scene3d import Scene3D, indoor_scene, indoor_trajectory, tsukuba_camera
+from prismap.sim._textures import PHOTOGRAPHS, texture_bank
 from prismap.sim._world2d import (
     DisparityFrame,
     StereoScanner2D,
@@ -12,6 +14,12 @@ from prismap.sim._world2d import (
 )
 
 __all__ = [
+    "PHOTOGRAPHS",
+    "Scene3D",
+    "indoor_scene",
+    "indoor_trajectory",
+    "texture_bank",
+    "tsukuba_camera",
     "DisparityFrame",
     "StereoScanner2D",
     "World2D",

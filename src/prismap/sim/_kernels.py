@@ -40,7 +40,10 @@ def _first_hit(origin, direction, box_lo, box_hi):
                 axis_near = a
             if t1 < t_far:
                 t_far = t1
-        if missed or t_near > t_far or t_near <= 0.0:
+            if t_near > t_far or t_far <= 0.0 or t_near >= best_t:
+                missed = True  # no entry, behind the origin, or farther than the best hit so far
+                break
+        if missed or t_near <= 0.0:
             continue
         if t_near < best_t:
             best_t = t_near

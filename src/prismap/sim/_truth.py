@@ -34,7 +34,8 @@ def ground_truth(box_lo, box_hi, frames, voxel_size_m, *, planar=False, max_rang
     box_lo, box_hi : (B, 3) float, metres, world frame
     frames : iterable
         Objects with ``camera`` (StereoCamera), ``T_world_cam`` (4, 4) and ``disparity_gt`` (H, W), pixels,
-        NaN where nothing is hit.
+        NaN where nothing is hit. The true depth comes from ``extras["depth_m"]`` (float64, inf = no hit) when
+        a frame has it (rendered frames: no float32 rounding), else from ``disparity_gt``.
     voxel_size_m : float, metres
     planar : bool
         2-D world: voxel centres are taken in the sensor plane z = 0 and only the layer z key 0 is used.
@@ -59,15 +60,16 @@ def ground_truth(box_lo, box_hi, frames, voxel_size_m, *, planar=False, max_rang
             raise PrismapInputError(f"`frames[{index}]` needs `T_world_cam` and `disparity_gt` for the ground truth")
         camera = frame.camera
         pose = np.asarray(frame.T_world_cam, dtype=np.float64)
-        depth = camera.depth_from_disparity(frame.disparity_gt)
+        depth = getattr(frame, "extras", {}).get("depth_m")
+        if depth is None:
+            depth = camera.depth_from_disparity(frame.disparity_gt)
         mark_visible(
             seen, bounds_lo, voxel, 0.0 if planar else np.nan, np.ascontiguousarray(pose[:3, :3]),
             np.ascontiguousarray(pose[:3, 3]),
             camera.focal_px, camera.cx_px, camera.cy_px, np.where(np.isnan(depth), np.inf, depth), max_range,
         )
-        points_cam = camera.triangulate(frame.disparity_gt)
         hit = np.isfinite(depth) & (depth <= max_range)
-        points_w = points_cam[hit] @ pose[:3, :3].T + pose[:3, 3]
+        points_w = (camera.pixel_rays(depth.shape)[hit] * depth[hit, None]) @ pose[:3, :3].T + pose[:3, 3]
         keys = np.floor(points_w / voxel).astype(np.int64) - bounds_lo
         if planar:
             keys[:, 2] = 0
