@@ -58,9 +58,10 @@ def load_map(path):
     if not path.is_file():
         raise PrismapInputError(f"{path}: no such map file")
     try:
-        with np.load(path, allow_pickle=False) as data:
-            if not isinstance(data, np.lib.npyio.NpzFile):
-                raise PrismapInputError(f"{path}: not a prismap map (.npz archive); got a single .npy array")
+        data = np.load(path, allow_pickle=False)
+        if not isinstance(data, np.lib.npyio.NpzFile):
+            raise PrismapInputError(f"{path}: not a prismap map (.npz archive); got a single .npy array")
+        with data:
             missing = [f for f in _FIELDS if f not in data.files]
             if "format" in missing or ("format" in data.files and str(data["format"]) != FORMAT):
                 raise PrismapInputError(f"{path}: not a prismap map file (no format field {FORMAT!r})")
