@@ -1,0 +1,169 @@
+"""KITTI-layout sequences on disk: write -> read round trips and the errors of broken directories."""
+
+import cv2
+import numpy as np
+import pytest
+
+from prismap.camera import StereoCamera
+from prismap.errors import PrismapInputError
+from prismap.io import StereoFrame
+from prismap.io._sequence import GroundTruthOccupancy, read_ground_truth, read_sequence, write_sequence
+
+CAMERA = StereoCamera(120.5, 15.25, 9.75, 0.25, doffs_px=1.5, width=32, height=20)
+
+
+def _frames(n=3, *, colour=True, seed=0):
+    rng = np.random.default_rng(seed)
+    frames = []
+    for i in range(n):
+        shape = (20, 32, 3) if colour else (20, 32)
+        disparity = rng.uniform(0.5, 200.0, (20, 32)).astype(np.float32)
+        disparity[rng.random((20, 32)) < 0.2] = np.nan
+        pose = np.eye(4)
+        pose[:3, :3] = np.linalg.qr(rng.normal(size=(3, 3)))[0]
+        pose[:3, 3] = rng.normal(size=3) * 10
+        left, right = (rng.integers(0, 256, shape, dtype=np.uint8) for _ in range(2))
+        frames.append(StereoFrame(left, right, CAMERA, disparity, pose, name=f"f{i}"))
+    return frames
+
+
+def _truth():
+    occupied = np.array([[0, 0, 0], [1, -2, 3], [-5, 4, 0]])
+    observed = np.array([[0, 0, 0], [1, 1, 1], [2, 1, 1], [-5, 4, 0]])
+    return GroundTruthOccupancy(0.05, occupied, observed)
+
+
+def test_round_trip_of_a_short_sequence(tmp_path):
+    frames = _frames()
+    assert write_sequence(frames, tmp_path, occupancy=_truth()) == 3
+    seq = read_sequence(tmp_path)
+    assert len(seq) == 3 and seq.names == ["000000.png", "000001.png", "000002.png"]
+    assert seq.camera == CAMERA
+    for original, frame in zip(frames, seq):
+        np.testing.assert_array_equal(frame.left, original.left)
+        np.testing.assert_array_equal(frame.right, original.right)
+        np.testing.assert_array_equal(frame.T_world_cam, original.T_world_cam)  # %.17g is exact
+        np.testing.assert_array_equal(np.isnan(frame.disparity_gt), np.isnan(original.disparity_gt))
+        np.testing.assert_allclose(frame.disparity_gt, original.disparity_gt, atol=0.5 / 256, equal_nan=True)
+        assert frame.camera == CAMERA and frame.disparity_gt.dtype == np.float32
+    np.testing.assert_array_equal(seq.poses, np.array([f.T_world_cam for f in frames]))
+    np.testing.assert_array_equal(seq[-1].left, frames[-1].left)
+    truth = seq.ground_truth
+    assert truth.voxel_size_m == 0.05
+    np.testing.assert_array_equal(truth.free_keys, [[1, 1, 1], [2, 1, 1]])
+    np.testing.assert_array_equal(truth.observed_occupied_keys, [[-5, 4, 0], [0, 0, 0]])
+    with pytest.raises(IndexError):
+        seq[3]
+
+
+def test_calibration_follows_kitti_projection_matrices(tmp_path):
+    write_sequence(_frames(1), tmp_path)
+    rows = {line.split(":")[0]: np.array(line.split()[1:], float).reshape(3, 4) for line in (tmp_path / "calib.txt").read_text().splitlines()}
+    assert sorted(rows) == ["P0", "P1", "P2", "P3"]
+    p2, p3 = rows["P2"], rows["P3"]
+    assert (p2[0, 3] - p3[0, 3]) / p2[0, 0] == pytest.approx(0.25)
+    assert p3[0, 2] - p2[0, 2] == pytest.approx(1.5) and p2[1, 2] == 9.75
+    png = cv2.imread(str(tmp_path / "disp" / "000000.png"), cv2.IMREAD_UNCHANGED)
+    assert png.dtype == np.uint16 and (png == 0).any()
+
+
+def test_grey_frames_without_pose_or_disparity(tmp_path):
+    frames = [StereoFrame(f.left, f.right, CAMERA) for f in _frames(2, colour=False)]
+    write_sequence(frames, tmp_path)
+    seq = read_sequence(tmp_path)
+    assert seq.poses is None and seq.ground_truth is None
+    frame = seq[1]
+    assert frame.left.shape == (20, 32) and frame.disparity_gt is None and frame.T_world_cam is None
+    np.testing.assert_array_equal(frame.right, frames[1].right)
+
+
+def test_ground_truth_file_round_trip_and_errors(tmp_path):
+    from prismap.io._sequence import write_ground_truth
+
+    path = tmp_path / "occupancy.npz"
+    write_ground_truth(path, _truth())
+    back = read_ground_truth(path)
+    np.testing.assert_array_equal(back.occupied_keys, _truth().occupied_keys)
+    np.testing.assert_array_equal(back.observed_keys, _truth().observed_keys)
+    np.savez(tmp_path / "other.npz", format=np.array("prismap-ground-truth-occupancy"), version=np.array(7),
+             voxel_size_m=np.array(0.1), occupied_keys=np.zeros((0, 3), int), observed_keys=np.zeros((0, 3), int))
+    with pytest.raises(PrismapInputError, match="other.npz: expected format .* version 1; got .* version 7"):
+        read_ground_truth(tmp_path / "other.npz")
+    np.savez(tmp_path / "short.npz", voxel_size_m=np.array(0.1))
+    with pytest.raises(PrismapInputError, match="short.npz: ground-truth occupancy file lacks field"):
+        read_ground_truth(tmp_path / "short.npz")
+    (tmp_path / "junk.npz").write_bytes(b"not a zip")
+    with pytest.raises(PrismapInputError, match="junk.npz: not a readable .npz"):
+        read_ground_truth(tmp_path / "junk.npz")
+    with pytest.raises(PrismapInputError, match="`occupied_keys` must be an \\(N, 3\\) integer array"):
+        GroundTruthOccupancy(0.1, np.zeros((2, 2), int), np.zeros((0, 3), int))
+
+
+def _written(tmp_path, n=2):
+    write_sequence(_frames(n), tmp_path)
+    return tmp_path
+
+
+def _replace_line(path, number, text):
+    lines = path.read_text().splitlines()
+    lines[number - 1] = text
+    path.write_text("\n".join(lines) + "\n")
+
+
+@pytest.mark.parametrize(
+    ("damage", "message"),
+    [
+        (lambda d: _replace_line(d / "calib.txt", 4, "P3: 1 2 3"), "calib.txt, line 4: P3 must hold 12 finite numbers; got 3"),
+        (lambda d: _replace_line(d / "calib.txt", 4, "Q3: 1 2 3"), "calib.txt: field P3 is missing"),
+        (lambda d: _replace_line(d / "calib.txt", 3, "P2: 1 2 x 4"), "calib.txt, line 3: field P2 holds a non-number"),
+        (lambda d: _replace_line(d / "calib.txt", 2, "no colon here"), "calib.txt, line 2: expected 'NAME: numbers'"),
+        (lambda d: (d / "calib.txt").unlink(), "calib.txt: calibration file not found"),
+        (lambda d: _replace_line(d / "poses.txt", 2, "1 0 0 0 0 1 0 0 0 0 1"), "poses.txt, line 2: a pose must be 12 numbers; got 11 columns"),
+        (lambda d: _replace_line(d / "poses.txt", 1, "1 0 0 nan 0 1 0 0 0 0 1 0"), "poses.txt, line 1: the pose contains NaN"),
+        (lambda d: _replace_line(d / "poses.txt", 1, "1 0 0 a 0 1 0 0 0 0 1 0"), "poses.txt, line 1: a pose must be 12 numbers"),
+        (lambda d: (d / "poses.txt").write_text("1 0 0 0 0 1 0 0 0 0 1 0\n"), "poses.txt: 1 poses for 2 frames"),
+        (lambda d: (d / "image_3" / "000001.png").unlink(), "image_3/000001.png: image missing"),
+        (
+            lambda d: cv2.imwrite(str(d / "image_3" / "000001.png"), np.zeros((21, 32), np.uint8)),
+            "image_3/000001.png: image size 32x21 differs from .*image_2/000000.png \\(32x20\\)",
+        ),
+        (lambda d: (d / "image_2" / "000001.png").write_bytes(b"GIF89a" + bytes(30)), "image_2/000001.png: not a PNG file"),
+        (lambda d: [p.unlink() for p in (d / "image_2").glob("*.png")], "image_2: no .png images"),
+    ],
+)
+def test_broken_sequences_are_reported_on_opening(tmp_path, damage, message):
+    damage(_written(tmp_path))
+    with pytest.raises(PrismapInputError, match=message):
+        read_sequence(tmp_path)
+
+
+def test_broken_images_are_reported_on_access(tmp_path):
+    directory = _written(tmp_path)
+    data = (directory / "image_2" / "000001.png").read_bytes()
+    (directory / "image_2" / "000001.png").write_bytes(data[:40])
+    cv2.imwrite(str(directory / "disp" / "000000.png"), np.zeros((20, 32), np.uint8))
+    seq = read_sequence(directory)
+    with pytest.raises(PrismapInputError, match="image_2/000001.png: not a readable image"):
+        seq[1]
+    with pytest.raises(PrismapInputError, match="disp/000000.png: expected a uint16 image; got uint8"):
+        seq[0]
+    with pytest.raises(PrismapInputError, match="sequence directory not found"):
+        read_sequence(directory / "nowhere")
+
+
+def test_write_rejects_inconsistent_frames(tmp_path):
+    frames = _frames(2)
+    other = StereoCamera(100.0, 15.25, 9.75, 0.25, width=32, height=20)
+    mixed = [frames[0], StereoFrame(frames[1].left, frames[1].right, other, frames[1].disparity_gt, frames[1].T_world_cam)]
+    with pytest.raises(PrismapInputError, match="`frames\\[1\\]` has another camera"):
+        write_sequence(mixed, tmp_path / "a")
+    no_pose = [frames[0], StereoFrame(frames[1].left, frames[1].right, CAMERA, frames[1].disparity_gt)]
+    with pytest.raises(PrismapInputError, match="`frames\\[1\\]`: poses and ground-truth disparities"):
+        write_sequence(no_pose, tmp_path / "b")
+    with pytest.raises(PrismapInputError, match="`frames` is empty"):
+        write_sequence([], tmp_path / "c")
+    with pytest.raises(PrismapInputError, match="`frames\\[0\\]` must be a StereoFrame"):
+        write_sequence([np.zeros((2, 2))], tmp_path / "d")
+    big = StereoFrame(frames[0].left, frames[0].right, CAMERA, np.full((20, 32), 300.0, np.float32), frames[0].T_world_cam)
+    with pytest.raises(PrismapInputError, match="reaches 300.00 px; the uint16 x 256 format stores at most 255.99"):
+        write_sequence([big], tmp_path / "e")
