@@ -55,16 +55,15 @@ def align_to_ground_truth(keys, probability, occupied_keys, region_keys, *, p0):
         raise PrismapInputError(f"`probability` must lie in [0, 1]; got values in [{p.min()}, {p.max()}]")
 
     packed, packed_occupied, packed_region = _pack(keys, occupied_keys, region_keys)
-    for name, array in (("keys", packed), ("region_keys", packed_region)):
-        if np.unique(array).size != array.size:
-            repeats = array.size - np.unique(array).size
-            raise PrismapInputError(f"`{name}` must not repeat a key; got {repeats} repeats")
+    order = np.argsort(packed)
+    sorted_keys = packed[order]
+    _check_unique(sorted_keys, "keys")
+    _check_unique(np.sort(packed_region), "region_keys")
 
     aligned = np.full(packed_region.size, p0)
     if packed.size:
-        order = np.argsort(packed)
-        slot = np.minimum(np.searchsorted(packed[order], packed_region), packed.size - 1)
-        found = packed[order[slot]] == packed_region
+        slot = np.minimum(np.searchsorted(sorted_keys, packed_region), packed.size - 1)
+        found = sorted_keys[slot] == packed_region
         aligned[found] = p[order[slot[found]]]
     return aligned, np.isin(packed_region, packed_occupied)
 
@@ -78,6 +77,12 @@ def _as_keys(value, name, dims=None):
     if dims is not None and array.shape[1] != dims:
         raise PrismapInputError(f"`{name}` must have {dims} columns like `keys`; got {array.shape[1]}")
     return array.astype(np.int64, copy=False)
+
+
+def _check_unique(sorted_codes, name):
+    repeats = int(np.count_nonzero(sorted_codes[1:] == sorted_codes[:-1]))
+    if repeats:
+        raise PrismapInputError(f"`{name}` must not repeat a key; got {repeats} repeats")
 
 
 def _pack(*key_arrays):
