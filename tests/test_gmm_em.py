@@ -175,3 +175,10 @@ def test_kmeans_plus_plus_picks_data_points_and_spreads_out():
 def test_bad_input_raises_a_clear_error(call, message):
     with pytest.raises(PrismapInputError, match=message):
         call()
+
+
+def test_histogram_fits_never_go_below_the_bin_resolution():
+    edges = np.arange(-2.0, 2.0 + 1e-9, 0.5)
+    counts = np.array([0, 0, 0, 50, 0, 0, 40, 0], dtype=float)  # two spikes, one bin each
+    fit = fit_histogram(edges, counts, n_components=2, min_sigma=1e-6)
+    np.testing.assert_allclose(fit.mixture.sigmas, 0.5 / np.sqrt(12.0))

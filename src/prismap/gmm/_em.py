@@ -101,8 +101,8 @@ def fit_mixture(values, *, weights=None, n_components, bin_width=None, restarts=
     max_iter : int, >= 1
         EM iterations per start.
     min_sigma : float, pixels, optional
-        Lower bound of every sigma. Default: ``bin_width / sqrt(12)`` for a histogram, else
-        ``1e-3 *`` the standard deviation of the samples.
+        Lower bound of every sigma. Default ``1e-3 *`` the standard deviation of the samples; with a
+        histogram it is never below ``bin_width / sqrt(12)``, the spread of a value within its bin.
 
     Returns
     -------
@@ -137,7 +137,7 @@ def fit_histogram(bin_edges, counts, *, n_components, restarts=4, seed=0, tol=1e
     counts : (B,) float, >= 0
         Errors per bin.
     n_components, restarts, seed, tol, max_iter, min_sigma
-        As in :func:`fit_mixture`; ``min_sigma`` defaults to ``bin_width / sqrt(12)``.
+        As in :func:`fit_mixture`; ``min_sigma`` is at least ``bin_width / sqrt(12)``.
 
     Returns
     -------
@@ -227,11 +227,12 @@ def _fit(points, counts, *, n_components, bin_width, restarts, seed, tol, max_it
     total = counts.sum()
     mean = counts @ points / total
     std = np.sqrt(counts @ (points - mean) ** 2 / total)
-    if min_sigma is None:
-        min_sigma = bin_width / np.sqrt(12.0) if bin_width is not None else 1e-3 * std
-        min_sigma = min_sigma if min_sigma > 0 else 1e-12
-    else:
+    if min_sigma is not None:
         min_sigma = check_positive(min_sigma, "min_sigma")
+    elif bin_width is None:
+        min_sigma = max(1e-3 * std, 1e-12)
+    if bin_width is not None:
+        min_sigma = max(min_sigma or 0.0, bin_width / np.sqrt(12.0))
     var_floor = min_sigma**2
     best = None
     for start in _starts(points, counts, n_components, restarts, seed, mean, std):
