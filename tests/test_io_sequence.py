@@ -97,6 +97,16 @@ def test_ground_truth_file_round_trip_and_errors(tmp_path):
         read_ground_truth(tmp_path / "junk.npz")
     with pytest.raises(PrismapInputError, match="`occupied_keys` must be an \\(N, 3\\) integer array"):
         GroundTruthOccupancy(0.1, np.zeros((2, 2), int), np.zeros((0, 3), int))
+    with pytest.raises(PrismapInputError, match="`observed_keys` must lie within \\+-1048576; got 1048576"):
+        GroundTruthOccupancy(0.1, np.zeros((0, 3), int), np.array([[0, 1 << 20, 0]]))
+
+
+def test_ground_truth_keys_are_sorted_and_unique():
+    keys = np.array([[2, 0, 0], [-1, 5, 5], [2, 0, 0], [-1, 5, -7], [0, -3, 9]])
+    truth = GroundTruthOccupancy(0.1, keys, keys[:2])
+    np.testing.assert_array_equal(truth.occupied_keys, np.unique(keys, axis=0))
+    np.testing.assert_array_equal(truth.observed_keys, [[-1, 5, 5], [2, 0, 0]])
+    assert truth.free_keys.shape == (0, 3)
 
 
 def _written(tmp_path, n=2):

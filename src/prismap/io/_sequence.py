@@ -33,6 +33,7 @@ GROUND_TRUTH_FORMAT = "prismap-ground-truth-occupancy"
 GROUND_TRUTH_VERSION = 1
 _DISPARITY_SCALE = 256.0
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+_KEY_LIMIT = 1 << 20  # |key| bound of the ground-truth file: 10 km at 1 cm voxels
 
 
 @dataclass(frozen=True)
@@ -45,10 +46,10 @@ class GroundTruthOccupancy:
     Attributes
     ----------
     voxel_size_m : float, metres
-    occupied_keys : (N, 3) int64
+    occupied_keys : (N, 3) int64, sorted, unique, |key| < 2**20
         Keys ``floor(p / voxel_size_m)`` of every voxel containing a point of a solid (observed or not);
         2-D worlds use the layer z key 0.
-    observed_keys : (M, 3) int64
+    observed_keys : (M, 3) int64, sorted, unique, |key| < 2**20
         Keys of the voxels a noise-free sensor saw along the frames: free space in front of the surfaces
         and the voxels holding the visible surface points (see ``prismap.sim``).
     """
@@ -63,7 +64,12 @@ class GroundTruthOccupancy:
             keys = np.asarray(getattr(self, name))
             if keys.ndim != 2 or keys.shape[1] != 3 or not np.issubdtype(keys.dtype, np.integer):
                 raise PrismapInputError(f"`{name}` must be an (N, 3) integer array; got {keys.dtype} {keys.shape}")
-            keys = np.unique(keys.astype(np.int64), axis=0)
+            keys = keys.astype(np.int64)
+            if keys.size and np.abs(keys).max() >= _KEY_LIMIT:
+                raise PrismapInputError(f"`{name}` must lie within +-{_KEY_LIMIT}; got {np.abs(keys).max()}")
+            packed = _packed(keys)
+            if np.any(np.diff(packed) <= 0):  # not yet sorted and unique
+                keys = keys[np.unique(packed, return_index=True)[1]]
             keys.setflags(write=False)
             object.__setattr__(self, name, keys)
 
@@ -81,8 +87,8 @@ class GroundTruthOccupancy:
 
 
 def _packed(keys):
-    """One int64 per (x, y, z) key, for set operations; keys must lie within +-2**20."""
-    k = np.asarray(keys, dtype=np.int64) + (1 << 20)
+    """One int64 per (x, y, z) key, ordered like the keys lexicographically; keys lie within +-2**20."""
+    k = np.asarray(keys, dtype=np.int64) + _KEY_LIMIT
     return (k[:, 0] << 42) | (k[:, 1] << 21) | k[:, 2]
 
 

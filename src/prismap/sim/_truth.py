@@ -75,11 +75,9 @@ def ground_truth(box_lo, box_hi, frames, voxel_size_m, *, planar=False, max_rang
             keys[:, 2] = 0
         inside = np.all((keys >= 0) & (keys < np.array(shape)), axis=1)
         seen[tuple(keys[inside].T)] = True
-    occupied = [
-        np.stack(np.meshgrid(*(np.arange(a, b + 1) for a, b in zip(lo, hi)), indexing="ij"), axis=-1).reshape(-1, 3)
-        for lo, hi in zip(key_lo, key_hi)
-    ]
-    occupied = np.concatenate(occupied)
-    if planar:
-        occupied = occupied[occupied[:, 2] == 0]
-    return GroundTruthOccupancy(voxel, occupied, np.argwhere(seen) + bounds_lo)
+    occupied = np.zeros(shape, dtype=np.bool_)
+    for lo, hi in zip(key_lo - bounds_lo, key_hi - bounds_lo):
+        if planar:
+            lo[2], hi[2] = 0, 0
+        occupied[lo[0] : hi[0] + 1, lo[1] : hi[1] + 1, lo[2] : hi[2] + 1] = True
+    return GroundTruthOccupancy(voxel, np.argwhere(occupied) + bounds_lo, np.argwhere(seen) + bounds_lo)
