@@ -156,3 +156,47 @@ def test_ground_truth_observed_voxels_match_numpy_reference():
 def test_bad_input_is_reported(call, message):
     with pytest.raises(PrismapInputError, match=message):
         call()
+
+
+def _cast_reference(origin, directions, lo, hi):
+    """Slow numpy slab test: nearest positive entry parameter and box of each ray (inf, -1 on a miss)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t0 = (lo[None] - origin) / directions[:, None]
+        t1 = (hi[None] - origin) / directions[:, None]
+    near = np.nanmax(np.minimum(t0, t1), axis=-1)
+    far = np.nanmin(np.maximum(t0, t1), axis=-1)
+    near = np.where((near <= far) & (near > 0), near, np.inf)
+    return near.min(axis=1), np.where(np.isfinite(near.min(axis=1)), near.argmin(axis=1), -1)
+
+
+def test_ray_casting_kernel_matches_numpy_slab_reference():
+    rng = np.random.default_rng(11)
+    lo = rng.uniform(-6, 6, (40, 3))
+    hi = lo + rng.uniform(0.05, 2.0, (40, 3))
+    outside = ~np.any(np.all((lo <= 0) & (hi >= 0), axis=1))
+    assert outside  # the camera at the origin is in no box
+    scene = sim.Scene3D.from_boxes(lo, hi)
+    for heading, pitch in [(0.3, 0.1), (2.0, -0.4), (-1.2, 0.8)]:
+        pose = sim.pose_from_heading([0.0, 0.0, 0.0], heading, pitch_rad=pitch)
+        depth = scene.cast(SMALL, pose)
+        directions = SMALL.pixel_rays().reshape(-1, 3) @ pose[:3, :3].T
+        expected, _ = _cast_reference(np.zeros(3), directions, lo, hi)
+        np.testing.assert_allclose(depth.ravel(), expected, rtol=1e-12)
+        assert 0.0 < np.isfinite(depth).mean() < 1.0  # both hits and misses are compared
+
+
+def test_rendered_frames_survive_the_sequence_files(tmp_path):
+    from prismap.io._sequence import read_sequence, write_sequence
+
+    scene = sim.indoor_scene(seed=5)
+    frames = list(scene.frames(SMALL, sim.indoor_trajectory(3, seed=5), seed=5))
+    truth = scene.ground_truth(frames, 0.2)
+    write_sequence(frames, tmp_path, occupancy=truth)
+    seq = read_sequence(tmp_path)
+    assert seq.camera == SMALL and len(seq) == 3
+    for frame, back in zip(frames, seq):
+        np.testing.assert_array_equal(back.left, frame.left)
+        np.testing.assert_allclose(back.disparity_gt, frame.disparity_gt, atol=0.5 / 256)
+        np.testing.assert_array_equal(back.T_world_cam, frame.T_world_cam)
+    np.testing.assert_array_equal(seq.ground_truth.observed_keys, truth.observed_keys)
+    np.testing.assert_array_equal(seq.ground_truth.occupied_keys, truth.occupied_keys)

@@ -213,7 +213,8 @@ def _encode_disparity(disparity, index):
     valid = np.isfinite(d) & (d > 0)
     if np.any(d[valid] > 65535 / _DISPARITY_SCALE):
         raise PrismapInputError(
-            f"`frames[{index}].disparity_gt` reaches {d[valid].max():.2f} px; the uint16 x 256 format stores at most 255.99"
+            f"`frames[{index}].disparity_gt` reaches {d[valid].max():.2f} px; "
+            "the uint16 x 256 format stores at most 255.99"
         )
     return np.where(valid, np.maximum(np.round(d * _DISPARITY_SCALE), 1), 0).astype(np.uint16)
 
@@ -342,6 +343,7 @@ class Sequence:
 
     @property
     def ground_truth(self):
+        """GroundTruthOccupancy of ``occupancy.npz``, or None without the file (read once, then kept)."""
         path = self.path / "occupancy.npz"
         if self._ground_truth is None and path.is_file():
             self._ground_truth = read_ground_truth(path)
@@ -382,7 +384,9 @@ def _read_image(path, dtype):
     if image.ndim == 3 and dtype == np.uint8:
         image = cv2.cvtColor(image, cv2.COLOR_BGRA2RGB if image.shape[2] == 4 else cv2.COLOR_BGR2RGB)
     elif image.ndim != 2:
-        raise PrismapInputError(f"{path}: expected a single-channel {np.dtype(dtype).name} image; got shape {image.shape}")
+        raise PrismapInputError(
+            f"{path}: expected a single-channel {np.dtype(dtype).name} image; got shape {image.shape}"
+        )
     return image
 
 

@@ -58,12 +58,16 @@ class Scene3D:
         tint = as_float_array(self.box_tint, "box_tint", shape=(n, 3), allow_nan=False)
         texture = np.ascontiguousarray(self.box_texture, dtype=np.int64)
         if n == 0 or np.any(lo > hi):
-            raise PrismapInputError(f"a scene needs boxes with `box_lo` <= `box_hi`; bad rows {np.flatnonzero(np.any(lo > hi, axis=1)).tolist()}")
+            bad = np.flatnonzero(np.any(lo > hi, axis=1)).tolist()
+            raise PrismapInputError(f"a scene needs boxes with `box_lo` <= `box_hi`; bad rows {bad}")
         if texture.shape != (n,) or np.any((texture < 0) | (texture >= len(texture_bank()))):
-            raise PrismapInputError(f"`box_texture` must be {n} indices in [0, {len(texture_bank())}); got {texture.tolist()}")
+            raise PrismapInputError(
+                f"`box_texture` must be {n} indices in [0, {len(texture_bank())}); got {texture.tolist()}"
+            )
         if np.any(texel <= 0) or np.any(tint < 0):
             raise PrismapInputError("`box_texel_m` must be > 0 and `box_tint` >= 0")
-        for name, value in (("box_lo", lo), ("box_hi", hi), ("box_texture", texture), ("box_texel_m", texel), ("box_tint", tint)):
+        checked = {"box_lo": lo, "box_hi": hi, "box_texture": texture, "box_texel_m": texel, "box_tint": tint}
+        for name, value in checked.items():
             value.setflags(write=False)
             object.__setattr__(self, name, value)
 
@@ -76,7 +80,7 @@ class Scene3D:
         return cls(lo, box_hi, np.full(n, index), np.full(n, float(texel_m)), np.ones((n, 3)), name=name)
 
     def cast(self, camera, T_world_cam, *, right=False):
-        """Exact depth (H, W) float64 (metres of camera z, inf where nothing is hit) seen by the left (or right) camera."""
+        """Exact depth (H, W) float64, metres of camera z, inf where nothing is hit, of the left (or right) view."""
         return self._cast(camera, T_world_cam, right)[0][0]
 
     def _cast(self, camera, T_world_cam, right):
@@ -91,7 +95,8 @@ class Scene3D:
 
     def _image(self, camera, T_world_cam, right, noise_sigma, rng):
         (depth, box, axis), view = self._cast(camera, T_world_cam, right)
-        image = shade_view(*view, depth, box, axis, self.box_texture, self.box_texel_m, self.box_tint, texture_bank(), _SHADE)
+        looks = (self.box_texture, self.box_texel_m, self.box_tint, texture_bank(), _SHADE)
+        image = shade_view(*view, depth, box, axis, *looks)
         image *= 255.0
         if noise_sigma > 0:
             image += np.float32(noise_sigma) * rng.standard_normal(image.shape, dtype=np.float32)
@@ -178,15 +183,16 @@ def indoor_scene(*, seed=0):
         ((lx - 0.02, 2.0, 1.0), (lx, 3.5, 2.0), tex["chelsea"], 0.005, (1.0, 1.0, 1.0)),
         ((10.0, 0.0, 1.3), (12.0, 0.02, 2.3), tex["rocket"], 0.008, (1.0, 1.0, 1.0)),
     ]
-    for (x0, x1), (y0, y1) in [((6.0, 6.06), (3.9, 3.96)), ((7.94, 8.0), (3.9, 3.96)), ((6.0, 6.06), (5.04, 5.1)), ((7.94, 8.0), (5.04, 5.1))]:
-        boxes.append(((x0, y0, 0.0), (x1, y1, 0.70), noise + 3, 0.01, (0.5, 0.4, 0.3)))  # table legs
+    for x0, y0 in [(6.0, 3.9), (7.94, 3.9), (6.0, 5.04), (7.94, 5.04)]:  # table legs
+        boxes.append(((x0, y0, 0.0), (x0 + 0.06, y0 + 0.06, 0.70), noise + 3, 0.01, (0.5, 0.4, 0.3)))
     bands = [((0.3, 2.5), (4.0, 8.6)), ((11.5, 13.3), (0.8, 4.6)), ((1.0, 3.5), (0.3, 1.4)), ((8.0, 12.5), (7.4, 8.6))]
     for (x0, x1), (y0, y1) in bands:  # two seeded boxes per band along the walls
         for _ in range(2):
             size = rng.uniform([0.3, 0.3, 0.3], [0.9, 0.9, 1.4])
             corner = rng.uniform([x0, y0], [x1 - size[0], y1 - size[1]])
             texture = int(rng.integers(len(texture_bank())))
-            boxes.append(((*corner, 0.0), (*(corner + size[:2]), size[2]), texture, rng.uniform(0.005, 0.015), rng.uniform(0.6, 1.0, 3)))
+            texel, tint = rng.uniform(0.005, 0.015), rng.uniform(0.6, 1.0, 3)
+            boxes.append(((*corner, 0.0), (*(corner + size[:2]), size[2]), texture, texel, tint))
     lo, hi, texture, texel, tint = (np.array(column) for column in zip(*boxes))
     return Scene3D(lo, hi, texture, texel, tint, name=f"indoor-{seed}")
 

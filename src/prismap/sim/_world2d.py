@@ -142,7 +142,9 @@ def office_world():
 
 
 def _outer_walls(width, height, t=0.2):
-    return [(0.0, 0.0, width, t), (0.0, height - t, width, height), (0.0, 0.0, t, height), (width - t, 0.0, width, height)]
+    return [
+        (0.0, 0.0, width, t), (0.0, height - t, width, height), (0.0, 0.0, t, height), (width - t, 0.0, width, height)
+    ]
 
 
 def _wall_with_doors(x0, x1, y0, y1, door_centres, door_width=1.0):
@@ -243,7 +245,9 @@ class StereoScanner2D:
         if not 0 < fov < 180:
             raise PrismapInputError(f"`fov_deg` must lie in (0, 180) degrees; got {fov_deg!r}")
         if error_model is not None and not isinstance(error_model, GaussianMixture):
-            raise PrismapInputError(f"`error_model` must be a GaussianMixture or None; got {type(error_model).__name__}")
+            raise PrismapInputError(
+                f"`error_model` must be a GaussianMixture or None; got {type(error_model).__name__}"
+            )
         self.max_range_m = check_positive(max_range_m, "max_range_m")
         self.error_model = error_model
         focal = (n_rays / 2) / np.tan(np.radians(fov) / 2)
