@@ -7,5 +7,28 @@ from prismap.sensor_models._base import (
     model_names,
     register_model,
 )
+from prismap.sensor_models._classic import AndertModel, ConvolutionModel, HitMissModel, IdealModel
+from prismap.sensor_models._prism import (
+    PrismModel,
+    estimate_prior_from_likelihood,
+    log_mean_likelihood,
+    prior_from_ground_truth,
+    prism_discrete_posteriors,
+)
 
-__all__ = ["POLICIES", "InverseSensorModel", "make_sensor_model", "model_names", "register_model"]
+__all__ = [
+    "POLICIES",
+    "AndertModel",
+    "ConvolutionModel",
+    "HitMissModel",
+    "IdealModel",
+    "InverseSensorModel",
+    "PrismModel",
+    "estimate_prior_from_likelihood",
+    "log_mean_likelihood",
+    "make_sensor_model",
+    "model_names",
+    "prior_from_ground_truth",
+    "prism_discrete_posteriors",
+    "register_model",
+]

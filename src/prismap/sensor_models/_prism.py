@@ -1,0 +1,355 @@
+"""PRISM, the principled inverse sensor model (SENSOR_MODELS.md section 5): exact, direct and tabulated.
+
+Under its assumptions (independent cells with a Poisson surface rate, the pixel sees the first surface,
+disparity errors from one Gaussian mixture, a far measurement when nothing lies before ``z_max``) the
+posterior of a cell ``[a, c]`` is ``P = (p_c C(a) + C(c) - C(a)) / Z``. Everything is computed from
+``log C`` and ``log D = log(Z - C)`` so that nothing underflows.
+
+References
+----------
+E. Kaufman, T. Lee, Z. Ai, "Bayesian occupancy grid mapping via an exact inverse sensor model", ACC 2016.
+L. Matthies, S. Shafer, "Error modeling in stereo navigation", IEEE J. Robotics and Automation, 1987.
+"""
+
+import dataclasses
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import minimize_scalar
+from scipy.special import log_ndtr, logsumexp
+
+from prismap._validate import as_float_array, check_positive, check_probability
+from prismap.errors import PrismapInputError
+from prismap.gmm import GaussianMixture
+from prismap.sensor_models import _kernels
+from prismap.sensor_models._base import register_model
+from prismap.sensor_models._params import RayModel
+
+INFLUENCE_EPSILON = 1e-3
+"""Default log-odds bound beyond the influence depth: every later cell has ``|increment| < epsilon``."""
+
+TABLE_TOLERANCE = {"abs": 1e-2, "rel": 2e-3, "large": 50.0, "large_rel": 5e-2, "posterior": 1e-3}
+"""Error bound of ``method="table"`` against ``method="direct"`` (disparities on the ``disparity_step_px`` grid):
+``|inc_table - inc_direct| <= abs + rel |inc_direct|`` where ``|inc_direct| <= large`` (posterior within
+e^-50 of 0 or 1), ``<= large_rel |inc_direct|`` beyond, and ``|P_table - P_direct| <= posterior``. It includes
+the cut at the influence depth (``influence_epsilon``). Checked by ``tests/test_sensor_models_prism.py``."""
+
+_QUAD_STEP = 0.25  # x-width of one Gauss-Legendre panel (x: one unit per prior e-fold or narrowest sigma)
+_NODES_PER_TABLE_STEP = 2  # table node spacing = 2 panels = 0.5 in x
+_LAMBDA_STEP = 0.05  # table grid in log(lambda_z): one table every 5 % of ray norm
+
+
+def _log_diff_ndtr(hi, lo):
+    """``log(Phi(hi) - Phi(lo))`` for ``hi >= lo``, accurate in both tails."""
+    hi, lo = np.broadcast_arrays(np.asarray(hi, dtype=np.float64), np.asarray(lo, dtype=np.float64))
+    upper = lo > 0  # both in the upper tail: use the mirrored pair
+    a = np.where(upper, -lo, hi)
+    b = np.where(upper, -hi, lo)
+    log_a = log_ndtr(a)
+    with np.errstate(divide="ignore"):
+        return log_a + np.log(-np.expm1(np.minimum(log_ndtr(b) - log_a, 0.0)))
+
+
+def log_mean_likelihood(u_lo, u_hi, disparity_px, mixture, doffs_px=0.0):
+    """Log of ``g`` averaged over true disparities uniform in ``[u_lo, u_hi]`` (pixels); arrays broadcast.
+
+    ``g(u) = sum_j w_j N(u - doffs - d^; mu_j, sigma_j^2)``, so the average is a sum of normal-CDF
+    differences divided by ``u_hi - u_lo``.
+    """
+    u_lo, u_hi, d = np.broadcast_arrays(*(np.asarray(v, dtype=np.float64) for v in (u_lo, u_hi, disparity_px)))
+    shift = (d + doffs_px)[..., None] + mixture.means
+    terms = np.log(mixture.weights) + _log_diff_ndtr(
+        (u_hi[..., None] - shift) / mixture.sigmas, (u_lo[..., None] - shift) / mixture.sigmas
+    )
+    return logsumexp(terms, axis=-1) - np.log(u_hi - u_lo)
+
+
+def prism_discrete_posteriors(disparity_px, cell_edges_depth_m, mixture, *, focal_baseline, doffs_px=0.0, p0=0.05):
+    """The thesis's discrete PRISM on one ray of equal cells: O(n) with prefix sums, in log space.
+
+    Cell ``k`` (1-based) is the first occupied one with ``pi_k = p0 (1 - p0)^(k-1)`` and then produces
+    ``d^`` with ``L_k``, ``g`` averaged uniformly in disparity over the cell; no occupied cell gives
+    ``pi_far = (1 - p0)^n`` and ``L_far``, ``g`` averaged over true disparities in ``(0, f b / z_n]``.
+    ``P(m_i | d^) = (p0 sum_{k<i} pi_k L_k + pi_i L_i) / (sum_k pi_k L_k + pi_far L_far)``.
+
+    Parameters
+    ----------
+    disparity_px : float, pixels
+        Measured disparity ``d^``.
+    cell_edges_depth_m : (n + 1,) float64, metres, increasing, > 0
+        Cell boundaries along the ray (depth); the spec's cells are equal, any increasing edges work.
+    mixture : GaussianMixture
+        Disparity error model ``e = d_true - d^``.
+    focal_baseline : float, pixel-metres
+    doffs_px : float, pixels
+    p0 : float in (0, 1)
+        Prior occupancy of one cell.
+
+    Returns
+    -------
+    posterior : (n,) float64 in [0, 1]
+    """
+    edges = as_float_array(cell_edges_depth_m, "cell_edges_depth_m", ndim=1, allow_nan=False)
+    if edges.size < 2 or edges[0] <= 0 or np.any(np.diff(edges) <= 0):
+        raise PrismapInputError("`cell_edges_depth_m` must hold >= 2 increasing depths > 0")
+    fb = check_positive(focal_baseline, "focal_baseline")
+    p0 = check_probability(p0, "p0")
+    d = float(disparity_px)
+    u = fb / edges
+    n = edges.size - 1
+    log_l = log_mean_likelihood(u[1:], u[:-1], d, mixture, doffs_px)
+    log_pi = np.log(p0) + np.arange(n) * np.log1p(-p0)
+    log_far = n * np.log1p(-p0) + log_mean_likelihood(0.0, u[-1], d, mixture, doffs_px)
+    terms = log_pi + log_l
+    before = np.concatenate(([-np.inf], np.logaddexp.accumulate(terms)[:-1]))
+    log_num = np.logaddexp(np.log(p0) + before, terms)
+    log_norm = np.logaddexp(np.logaddexp.reduce(terms), log_far)
+    return np.exp(log_num - log_norm)
+
+
+@register_model
+@dataclass(frozen=True, kw_only=True)
+class PrismModel(RayModel):
+    """PRISM: the exact posterior of a cell given one measured disparity, from a measured error GMM.
+
+    Surfaces along a ray form a Poisson process of rate ``lambda = -ln(1 - p0) / voxel_size_m`` per metre
+    of ray (``lambda_z = lambda |r|`` per metre of depth), starting at ``near_m``; the pixel sees the first
+    one; ``d^ = f b / z* - doffs - e`` with ``e`` from ``error_model``; nothing before ``max_range_m``
+    gives a far measurement. ``cell_posteriors`` uses ``method``:
+
+    - ``"table"`` (default): ``log C`` and ``log D`` tabulated per (``d^`` rounded to ``disparity_step_px``,
+      ``lambda_z`` on a 5 % grid) on a grid uniform in ``x = lambda_z z - f b / (sigma_min z)`` (one
+      node per prior e-fold or narrowest sigma), cubic Hermite in ``x`` with exact derivatives, linear in
+      ``log lambda_z``. Error against ``"direct"``: within :data:`TABLE_TOLERANCE` for disparities on the
+      step grid; off-grid disparities are rounded (a shift of at most half a step). Tables are cached on
+      the model (one model per error model and camera), so a sequence pays for each table once.
+    - ``"direct"``: quadrature ray by ray (8-point Gauss-Legendre panels of x-width 0.25) with every cell
+      boundary a panel edge.
+
+    Parameters
+    ----------
+    error_model : GaussianMixture
+        Disparity error ``e = d_true - d_computed`` of the matcher (pixels).
+    p0 : float in (0, 1), default 0.05
+        Prior occupancy of a ``voxel_size_m`` cell: the scene's occupancy ratio, NOT 0.5 (see
+        :func:`estimate_prior_from_likelihood`, :func:`prior_from_ground_truth`).
+    near_m : float, metres, default 0.1
+        ``z0``: no surface before this depth.
+    max_range_m : float, metres, default 200
+        ``z_max``: beyond it, the far measurement.
+    method : {"table", "direct"}
+    disparity_step_px : float, pixels, default 1/16
+        Table key resolution (OpenCV's sub-pixel step).
+    influence_epsilon : float, log-odds, default 1e-3
+    """
+
+    name = "prism"
+    default_policy = "mean"
+    error_model: GaussianMixture | None = None
+    near_m: float = 0.1
+    max_range_m: float = 200.0
+    method: str = "table"
+    disparity_step_px: float = 1.0 / 16.0
+    influence_epsilon: float = INFLUENCE_EPSILON
+    _tables: dict = field(default_factory=dict, init=False, repr=False, compare=False)
+
+    def __post_init__(self):
+        super().__post_init__()
+        if not isinstance(self.error_model, GaussianMixture):
+            raise PrismapInputError(
+                f"prism: `error_model` must be a GaussianMixture (fit one with prismap.gmm); got {type(self.error_model).__name__}"
+            )
+        near = check_positive(self.near_m, "near_m")
+        far = check_positive(self.max_range_m, "max_range_m")
+        if far <= near:
+            raise PrismapInputError(f"prism: need near_m < max_range_m; got {near} and {far}")
+        if self.method not in ("table", "direct"):
+            raise PrismapInputError(f"prism: `method` must be 'table' or 'direct'; got {self.method!r}")
+        object.__setattr__(self, "near_m", near)
+        object.__setattr__(self, "max_range_m", far)
+        object.__setattr__(self, "disparity_step_px", check_positive(self.disparity_step_px, "disparity_step_px"))
+        object.__setattr__(self, "influence_epsilon", check_positive(self.influence_epsilon, "influence_epsilon"))
+
+    # ------------------------------------------------------------------ derived constants
+    @property
+    def rate_per_m(self):
+        """``lambda``: surfaces per metre of ray, from ``p0`` and ``voxel_size_m``."""
+        return -np.log1p(-self.p0) / self.voxel_size_m
+
+    def _mixture_arrays(self):
+        m = self.error_model
+        log_wn = np.log(m.weights) - np.log(m.sigmas) - 0.5 * np.log(2 * np.pi)
+        return log_wn, np.ascontiguousarray(m.means), np.ascontiguousarray(m.sigmas)
+
+    def _ku(self):
+        return self.focal_baseline / float(self.error_model.sigmas.min())
+
+    def _log_far(self, disparity):
+        u_max = self.focal_baseline / self.max_range_m
+        return log_mean_likelihood(0.0, u_max, disparity, self.error_model, self.doffs_px)
+
+    # ------------------------------------------------------------------ interface
+    def cell_posteriors(self, disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m, *, method=None):
+        """Posterior and increment per cell (see :class:`InverseSensorModel`); ``method`` overrides the model's."""
+        method = self.method if method is None else method
+        disparity, norm, rays, start, end, _ = self._prepare(disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m)
+        lam = self.rate_per_m * norm
+        if method == "direct":
+            order = np.argsort(rays, kind="stable")
+            ray_start = np.searchsorted(rays[order], np.arange(disparity.size + 1))
+            return _kernels.prism_direct_cells(
+                disparity + self.doffs_px, lam, order, ray_start, start, end, self.near_m, self.max_range_m,
+                self.focal_baseline, self._ku(), _QUAD_STEP, self._log_far(disparity), *self._mixture_arrays(),
+            )
+        if method != "table":
+            raise PrismapInputError(f"prism: `method` must be 'table' or 'direct'; got {method!r}")
+        packed, tab_a, tab_b, weight_b = self._tables_for(disparity, norm)
+        return _kernels.prism_table_cells(
+            lam, tab_a, tab_b, weight_b, rays, start, end, self.near_m, self.max_range_m, self.focal_baseline,
+            _QUAD_STEP, *packed, *self._mixture_arrays(),
+        )
+
+    def influence_depth(self, disparity_px, ray_norm):
+        """Depth beyond which every cell's ``|logit(P) - logit(p_c)| < influence_epsilon`` (metres), per ray.
+
+        From the bound ``|increment(a)| <= log(1 + e^{-lambda (a - z0)} sup_{t >= a} g(t) / C(a))``, which
+        holds for a cell of any length starting at ``a``; capped at ``max_range_m``.
+        """
+        disparity = as_float_array(disparity_px, "disparity_px", ndim=1, allow_nan=False)
+        norm = as_float_array(ray_norm, "ray_norm", shape=(disparity.size,))
+        packed, tab_a, tab_b, _ = self._tables_for(disparity, norm)
+        z_infl = packed[7]
+        return np.maximum(z_infl[tab_a], z_infl[tab_b])
+
+    def with_extra_noise(self, sigma_px):
+        """A copy whose error model is ``error_model.widened(sigma_px)`` (fresh table cache)."""
+        extra = check_positive(sigma_px, "sigma_px")
+        return dataclasses.replace(self, error_model=self.error_model.widened(extra))
+
+    # ------------------------------------------------------------------ tables
+    def _tables_for(self, disparity, norm):
+        """Build missing tables for these rays; pack the needed ones into flat arrays for the kernel."""
+        key_d = np.rint(disparity / self.disparity_step_px).astype(np.int64)
+        k_real = np.log(np.maximum(norm, 1.0)) / _LAMBDA_STEP
+        key_l = np.floor(k_real).astype(np.int64)
+        weight_b = k_real - key_l
+        pairs = np.concatenate([np.stack([key_d, key_l], 1), np.stack([key_d, key_l + 1], 1)])
+        unique, inverse = np.unique(pairs, axis=0, return_inverse=True)
+        inverse = inverse.reshape(-1)
+        for kd, kl in unique:
+            if (kd, kl) not in self._tables:
+                self._tables[(int(kd), int(kl))] = self._build_table(int(kd), int(kl))
+        tables = [self._tables[(int(kd), int(kl))] for kd, kl in unique]
+        lengths = np.array([t["log_c"].size for t in tables], dtype=np.int64)
+        offsets = np.concatenate(([0], np.cumsum(lengths)[:-1])).astype(np.int64)
+        scalars = {key: np.array([t[key] for t in tables], dtype=np.float64)
+                   for key in ("lam", "ku", "x0", "inv_h", "z_end", "shift", "log_z", "z_infl", "log_far")}
+        flat = [np.concatenate([t[key] for t in tables]) for key in ("log_c", "dlog_c", "log_d", "dlog_d")]
+        packed = (scalars["lam"], scalars["ku"], scalars["x0"], scalars["inv_h"], offsets, lengths,
+                  scalars["z_end"], scalars["z_infl"], scalars["shift"], scalars["log_z"], scalars["log_far"], *flat)
+        n = disparity.size
+        return packed, inverse[:n].astype(np.int64), inverse[n:].astype(np.int64), weight_b
+
+    def _build_table(self, key_d, key_l):
+        d = key_d * self.disparity_step_px
+        lam = self.rate_per_m * np.exp(key_l * _LAMBDA_STEP)
+        shift = d + self.doffs_px
+        ku = self._ku()
+        log_wn, means, sigmas = self._mixture_arrays()
+        log_far = float(self._log_far(d))
+        z, log_c, log_d, log_z, i_infl = _kernels.prism_march(
+            shift, lam, self.near_m, self.max_range_m, self.focal_baseline, ku, _QUAD_STEP,
+            log_far, float(np.log(np.expm1(self.influence_epsilon))), 2 * _NODES_PER_TABLE_STEP,
+            log_wn, means, sigmas,
+        )
+        step = _NODES_PER_TABLE_STEP
+        full_steps = (z.size - 1) // step
+        if full_steps < 1:
+            raise PrismapInputError(f"prism: near_m={self.near_m} to max_range_m={self.max_range_m} is too short to tabulate")
+        idx = np.arange(0, full_steps * step + 1, step)  # to where the remaining evidence is < e^-40 of C
+        zn = z[idx]
+        log_qg = np.log(lam) - lam * (zn - self.near_m) + _log_g(self.focal_baseline / zn, shift, log_wn, means, sigmas)
+        dx_dz = lam + ku / zn**2
+        with np.errstate(invalid="ignore"):
+            dlog_c = np.where(np.isfinite(log_c[idx]), np.exp(log_qg - log_c[idx]) / dx_dz, 0.0)
+        dlog_d = -np.exp(log_qg - log_d[idx]) / dx_dz
+        h = _QUAD_STEP * step
+        return {
+            "lam": lam, "ku": ku, "x0": _kernels.x_of_z(self.near_m, lam, ku), "inv_h": 1.0 / h,
+            "z_end": float(zn[-1]), "shift": shift, "log_z": log_z, "z_infl": float(z[i_infl]), "log_far": log_far,
+            "log_c": log_c[idx] - log_z, "dlog_c": dlog_c, "log_d": log_d[idx] - log_z, "dlog_d": dlog_d,
+        }
+
+
+def _log_g(u, shift, log_wn, means, sigmas):
+    t = (np.asarray(u)[..., None] - shift - means) / sigmas
+    return logsumexp(log_wn - 0.5 * t * t, axis=-1)
+
+
+def prior_from_ground_truth(occupied):
+    """``p0`` as the occupancy ratio of a ground-truth map: the fraction of its known cells that are occupied.
+
+    Parameters
+    ----------
+    occupied : (N,) bool
+        Occupancy of every known cell of a ground-truth map with the target voxel size.
+
+    Returns
+    -------
+    float in (0, 1), kept at least ``1 / (N + 2)`` away from 0 and 1 (Laplace's rule).
+    """
+    occupied = np.asarray(occupied)
+    if occupied.size == 0 or occupied.dtype != bool:
+        raise PrismapInputError(f"`occupied` must be a non-empty bool array; got dtype {occupied.dtype}, size {occupied.size}")
+    return float((occupied.sum() + 1.0) / (occupied.size + 2.0))
+
+
+def estimate_prior_from_likelihood(disparity_px, ray_norm, *, error_model, focal_baseline, doffs_px=0.0,
+                                   voxel_size_m=0.1, near_m=0.1, max_range_m=200.0, max_rays=2000, seed=0,
+                                   bounds=(1e-4, 0.9)):
+    """``p0`` maximising the measurements' likelihood under PRISM's forward model.
+
+    Each measured disparity has density ``Z(d^; lambda_z)`` (the normaliser of section 5, a proper density
+    in ``d^``); the estimate maximises ``sum_i log Z_i`` over ``p0`` (bounded scalar search in ``log p0``).
+    Uses at most ``max_rays`` rays drawn with ``seed``. Rays are treated as independent, which they are
+    not quite (neighbouring pixels see the same surface): fine for one number.
+
+    Parameters
+    ----------
+    disparity_px : (R,) float64, pixels, finite
+    ray_norm : (R,) float64, ``|r|`` of each ray
+    error_model : GaussianMixture
+    focal_baseline, doffs_px, voxel_size_m, near_m, max_range_m
+        As for :class:`PrismModel`.
+    bounds : (float, float)
+        Search interval of ``p0``.
+
+    Returns
+    -------
+    float
+        The maximum-likelihood ``p0`` for cells of ``voxel_size_m``.
+    """
+    disparity = as_float_array(disparity_px, "disparity_px", ndim=1, allow_nan=False)
+    norm = as_float_array(ray_norm, "ray_norm", shape=(disparity.size,), allow_nan=False)
+    if disparity.size == 0:
+        raise PrismapInputError("`disparity_px` is empty: nothing to estimate p0 from")
+    lo, hi = (check_probability(b, "bounds") for b in bounds)
+    if lo >= hi:
+        raise PrismapInputError(f"`bounds` must be increasing; got {bounds}")
+    if disparity.size > max_rays:
+        pick = np.random.default_rng(seed).choice(disparity.size, size=int(max_rays), replace=False)
+        disparity, norm = disparity[pick], norm[pick]
+    model = PrismModel(error_model=error_model, focal_baseline=focal_baseline, doffs_px=doffs_px,
+                       voxel_size_m=voxel_size_m, near_m=near_m, max_range_m=max_range_m)
+    shift = disparity + model.doffs_px
+    log_far = model._log_far(disparity)
+    log_wn, means, sigmas = model._mixture_arrays()
+
+    def negative_log_likelihood(log_p0):
+        lam = -np.log1p(-np.exp(log_p0)) / model.voxel_size_m * norm
+        return -_kernels.prism_log_evidence(shift, lam, model.near_m, model.max_range_m, model.focal_baseline,
+                                           model._ku(), _QUAD_STEP, log_far, log_wn, means, sigmas).sum()
+
+    result = minimize_scalar(negative_log_likelihood, bounds=(np.log(lo), np.log(hi)), method="bounded",
+                             options={"xatol": 1e-3})
+    return float(np.exp(result.x))
