@@ -1,0 +1,233 @@
+"""PRISM: discrete reference against brute force, continuous against discrete, table against direct, shape."""
+
+import itertools
+
+import numpy as np
+import pytest
+
+from prismap.errors import PrismapInputError
+from prismap.gmm import GaussianMixture
+from prismap.sensor_models import (
+    PrismModel,
+    estimate_prior_from_likelihood,
+    make_sensor_model,
+    prior_from_ground_truth,
+    prism_discrete_posteriors,
+)
+from prismap.sensor_models._prism import TABLE_TOLERANCE
+
+FB = 61.5  # New Tsukuba: 615 px * 0.10 m
+MIXTURE = GaussianMixture([0.85, 0.15], [0.05, -0.3], [0.4, 2.5])
+
+
+def _on_grid(depth):
+    """Disparity of ``depth`` rounded to OpenCV's 1/16 px."""
+    return np.round(FB / np.asarray(depth, dtype=np.float64) * 16) / 16
+
+
+def _one_ray_cells(edges):
+    n = edges.size - 1
+    return np.zeros(n, np.int64), edges[:-1], edges[1:]
+
+
+def _brute_force(d_hat, edges, mixture, p0, doffs=0.0):
+    """Enumerate all 2^n maps: independent cells of prior p0, the first occupied cell produces d^."""
+    u = FB / edges
+    n = edges.size - 1
+    # g averaged uniformly over true disparities of each cell: e = u - doffs - d^
+    lik = (mixture.cdf(u[:-1] - doffs - d_hat) - mixture.cdf(u[1:] - doffs - d_hat)) / (u[:-1] - u[1:])
+    lik_far = (mixture.cdf(u[-1] - doffs - d_hat) - mixture.cdf(0.0 - doffs - d_hat)) / u[-1]
+    joint_occupied = np.zeros(n)
+    total = 0.0
+    for bits in itertools.product((0, 1), repeat=n):
+        bits = np.array(bits)
+        prior = np.prod(np.where(bits == 1, p0, 1 - p0))
+        occupied = np.flatnonzero(bits)
+        weight = prior * (lik[occupied[0]] if occupied.size else lik_far)
+        total += weight
+        joint_occupied += weight * bits
+    return joint_occupied / total
+
+
+@pytest.mark.parametrize(("n", "depth", "p0"), [(1, 2.0, 0.3), (6, 2.7, 0.2), (12, 3.1, 0.1), (12, 9.0, 0.05)])
+def test_discrete_reference_equals_brute_force(n, depth, p0):
+    edges = 1.0 + 0.4 * np.arange(n + 1)
+    d_hat = FB / depth
+    expected = _brute_force(d_hat, edges, MIXTURE, p0)
+    got = prism_discrete_posteriors(d_hat, edges, MIXTURE, focal_baseline=FB, p0=p0)
+    np.testing.assert_allclose(got, expected, rtol=0, atol=1e-12)
+
+
+def test_discrete_reference_with_disparity_offset():
+    edges = np.linspace(2.0, 5.0, 9)
+    d_hat = FB / 3.3 - 31.0
+    expected = _brute_force(d_hat, edges, MIXTURE, 0.15, doffs=31.0)
+    got = prism_discrete_posteriors(d_hat, edges, MIXTURE, focal_baseline=FB, doffs_px=31.0, p0=0.15)
+    np.testing.assert_allclose(got, expected, rtol=0, atol=1e-12)
+
+
+def test_continuous_converges_to_discrete_as_cells_shrink():
+    errors = []
+    d_hat = FB / 3.0
+    rate = 0.5  # surfaces per metre
+    for length in (0.2, 0.1, 0.05, 0.025, 0.0125):
+        edges = np.arange(1.0, 8.0 + 1e-9, length)
+        p0 = -np.expm1(-rate * length)
+        model = PrismModel(error_model=MIXTURE, focal_baseline=FB, voxel_size_m=length, p0=p0,
+                           near_m=edges[0], max_range_m=edges[-1], method="direct")
+        continuous, _ = model.cell_posteriors([d_hat], [1.0], *_one_ray_cells(edges))
+        discrete = prism_discrete_posteriors(d_hat, edges, MIXTURE, focal_baseline=FB, p0=p0)
+        errors.append(np.abs(continuous - discrete).max())
+    assert all(b < 0.6 * a for a, b in zip(errors, errors[1:])), errors
+    assert errors[-1] < 2e-3
+
+
+def _random_cells(rng, depths, n_cells=120):
+    starts, ends, rays = [], [], []
+    for r, z in enumerate(depths):
+        edges = np.sort(rng.uniform(0.1, 2.5 * z + 1.0, n_cells + 1))
+        starts.append(edges[:-1])
+        ends.append(edges[1:])
+        rays.append(np.full(n_cells, r))
+    return np.concatenate(rays), np.concatenate(starts), np.concatenate(ends)
+
+
+@pytest.mark.parametrize(
+    ("mixture", "voxel", "p0"),
+    [(MIXTURE, 0.1, 0.05), (GaussianMixture.gaussian(0.3), 0.05, 0.2), (GaussianMixture([0.6, 0.3, 0.1], [0.1, -0.5, 2.0], [0.25, 1.0, 6.0]), 0.2, 0.01)],
+)
+def test_table_agrees_with_direct_within_stated_bound(mixture, voxel, p0):
+    rng = np.random.default_rng(3)
+    depths = np.exp(rng.uniform(np.log(0.4), np.log(40.0), 25))
+    disparity = _on_grid(depths)
+    norm = rng.uniform(1.0, 1.3, depths.size)
+    cells = _random_cells(rng, depths)
+    model = make_sensor_model("prism", focal_baseline=FB, error_model=mixture, voxel_size_m=voxel, p0=p0)
+    p_table, inc_table = model.cell_posteriors(disparity, norm, *cells)
+    p_direct, inc_direct = model.cell_posteriors(disparity, norm, *cells, method="direct")
+    err = np.abs(inc_table - inc_direct)
+    moderate = np.abs(inc_direct) <= TABLE_TOLERANCE["large"]
+    assert moderate.sum() > 500 and (~moderate).sum() > 50
+    assert np.all(err[moderate] <= TABLE_TOLERANCE["abs"] + TABLE_TOLERANCE["rel"] * np.abs(inc_direct[moderate]))
+    assert np.all(err[~moderate] <= TABLE_TOLERANCE["large_rel"] * np.abs(inc_direct[~moderate]))
+    assert np.abs(p_table - p_direct).max() <= TABLE_TOLERANCE["posterior"]
+
+
+@pytest.mark.parametrize("method", ["table", "direct"])
+def test_finite_and_in_unit_interval_from_10cm_to_200m_with_high_rate(method):
+    rate = 50.0  # per metre: p0 = 1 - e^-5 for 0.1 m cells
+    model = make_sensor_model("prism", focal_baseline=FB, error_model=GaussianMixture.gaussian(0.3),
+                              voxel_size_m=0.1, p0=-np.expm1(-rate * 0.1), method=method)
+    depths = np.array([0.1, 0.3, 2.0, 30.0, 150.0, 200.0])
+    disparity = _on_grid(depths)
+    edges = np.geomspace(0.1, 200.0, 150)
+    rays = np.repeat(np.arange(depths.size), edges.size - 1)
+    post, inc = model.cell_posteriors(disparity, np.full(depths.size, 1.05), rays,
+                                      np.tile(edges[:-1], depths.size), np.tile(edges[1:], depths.size))
+    assert np.all(np.isfinite(post)) and np.all(np.isfinite(inc))
+    assert np.all((post >= 0) & (post <= 1))
+
+
+def _profile(model, depth, edges):
+    post, inc = model.cell_posteriors(_on_grid([depth]), [1.0], *_one_ray_cells(edges), method="direct")
+    return post, inc, 0.5 * (edges[:-1] + edges[1:])
+
+
+def test_shape_free_in_front_peak_skewed_behind_prior_far_behind():
+    sigma = GaussianMixture.gaussian(0.5)
+    model = PrismModel(error_model=sigma, focal_baseline=FB, voxel_size_m=0.01, p0=1e-4)
+    edges = np.arange(2.0, 40.0, 0.01)
+    depth = 10.0
+    post, inc, centre = _profile(model, depth, edges)
+    z_hat = FB / _on_grid([depth])[0]
+    sigma_z = z_hat**2 * 0.5 / FB
+    assert post[centre < z_hat - 5 * sigma_z].max() < 1e-6  # free in front
+    assert abs(centre[np.argmax(post)] - z_hat) < 0.5 * sigma_z  # peak at the measurement
+    behind = np.interp(z_hat + 1.5 * sigma_z, centre, post)
+    ahead = np.interp(z_hat - 1.5 * sigma_z, centre, post)
+    assert behind > 1.5 * ahead  # skewed to larger depth (Matthies & Shafer)
+    peak = np.abs(centre - z_hat) < 10 * sigma_z  # with this tiny prior, P is the first-surface mass
+    assert (post[peak] * centre[peak]).sum() / post[peak].sum() > z_hat
+    prior = -np.expm1(-model.rate_per_m * 0.01)
+    far = centre > model.influence_depth(_on_grid([depth]), [1.0])[0]
+    assert far.any() and np.all(np.abs(inc[far]) < model.influence_epsilon)
+    np.testing.assert_allclose(post[far], prior, rtol=2 * model.influence_epsilon)
+
+
+def test_peak_flattens_with_distance_and_with_extra_noise():
+    model = PrismModel(error_model=MIXTURE, focal_baseline=FB, voxel_size_m=0.1, p0=0.05)
+    edges = np.arange(0.5, 60.0, 0.1)
+    peaks = [_profile(model, depth, edges)[0].max() for depth in (2.0, 5.0, 10.0, 20.0)]
+    assert all(b < a for a, b in zip(peaks, peaks[1:])), peaks
+    wider = model.with_extra_noise(1.0)
+    assert wider.error_model.sigmas[0] == pytest.approx(np.hypot(0.4, 1.0))
+    assert _profile(wider, 5.0, edges)[0].max() < peaks[1]
+
+
+def test_influence_depth_bounds_every_later_cell():
+    model = PrismModel(error_model=MIXTURE, focal_baseline=FB, voxel_size_m=0.1, p0=0.05)
+    depths = np.array([1.0, 4.0, 15.0])
+    disparity = _on_grid(depths)
+    norm = np.array([1.0, 1.1, 1.25])
+    influence = model.influence_depth(disparity, norm)
+    assert np.all(influence > FB / disparity) and np.all(influence <= model.max_range_m)
+    rng = np.random.default_rng(5)
+    rays = np.repeat(np.arange(3), 40)
+    start = np.repeat(influence, 40) + rng.uniform(0, 5, 120)
+    end = start + rng.uniform(0.01, 0.5, 120)
+    _, inc = model.cell_posteriors(disparity, norm, rays, start, end, method="direct")
+    assert np.all(np.abs(inc) < model.influence_epsilon)
+
+
+def _simulate_disparities(rng, p0, n, voxel=0.1, near=0.5, far=60.0):
+    """Disparities drawn from PRISM's own forward model with prior p0."""
+    rate = -np.log1p(-p0) / voxel
+    norm = rng.uniform(1.0, 1.2, n)
+    depth = near + rng.exponential(1.0 / (rate * norm))
+    true_disp = np.where(depth < far, FB / np.minimum(depth, far), rng.uniform(0, FB / far, n))
+    return true_disp - MIXTURE.sample(n, rng), norm
+
+
+def test_prior_estimated_from_likelihood_recovers_the_simulated_prior():
+    rng = np.random.default_rng(11)
+    disparity, norm = _simulate_disparities(rng, 0.03, 600)
+    estimate = estimate_prior_from_likelihood(disparity, norm, error_model=MIXTURE, focal_baseline=FB,
+                                              voxel_size_m=0.1, near_m=0.5, max_range_m=60.0, max_rays=600)
+    assert estimate == pytest.approx(0.03, rel=0.2)
+
+
+def test_prior_from_ground_truth_is_the_smoothed_occupancy_ratio():
+    occupied = np.zeros(98, bool)
+    occupied[:4] = True
+    assert prior_from_ground_truth(occupied) == pytest.approx(5 / 100)
+    with pytest.raises(PrismapInputError, match="bool"):
+        prior_from_ground_truth(np.array([0.1, 0.2]))
+
+
+@pytest.mark.parametrize(
+    ("params", "message"),
+    [
+        ({}, "error_model"),
+        ({"error_model": MIXTURE, "p0": 1.0}, "p0"),
+        ({"error_model": MIXTURE, "near_m": 5.0, "max_range_m": 2.0}, "near_m < max_range_m"),
+        ({"error_model": MIXTURE, "method": "fast"}, "method"),
+        ({"error_model": MIXTURE, "voxel_size_m": -0.1}, "voxel_size_m"),
+        ({"error_model": MIXTURE, "focal_baseline": 0.0}, "focal_baseline"),
+    ],
+)
+def test_bad_parameters_are_named(params, message):
+    params = {"focal_baseline": FB, **params}
+    with pytest.raises(PrismapInputError, match=message):
+        make_sensor_model("prism", **params)
+
+
+def test_bad_rays_are_named():
+    model = PrismModel(error_model=MIXTURE, focal_baseline=FB)
+    with pytest.raises(PrismapInputError, match="finite"):
+        model.cell_posteriors([np.nan], [1.0], [0], [1.0], [1.1])
+    with pytest.raises(PrismapInputError, match="ray_norm"):
+        model.cell_posteriors([5.0], [0.5], [0], [1.0], [1.1])
+    with pytest.raises(PrismapInputError, match="ray_of_cell"):
+        model.cell_posteriors([5.0], [1.0], [3], [1.0], [1.1])
+    with pytest.raises(PrismapInputError, match="increasing"):
+        prism_discrete_posteriors(5.0, [2.0, 1.0], MIXTURE, focal_baseline=FB)
