@@ -1,0 +1,245 @@
+"""What a mapping run is: one frozen configuration, and the sensor model it builds for a camera."""
+
+import hashlib
+import json
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from prismap._validate import check_positive, check_probability
+from prismap.errors import PrismapInputError
+from prismap.gmm import GaussianMixture
+from prismap.sensor_models import POLICIES, make_sensor_model, model_names
+from prismap.stereo import matcher_names
+
+MODES = ("ray", "projective")
+DISPARITY_FROM_MATCHER = "matcher"
+DISPARITY_FROM_SEQUENCE = "sequence"
+NEEDS_SIGMA = ("convolution", "andert")
+"""Models parametrised by one disparity noise ``sigma_px``: taken from the error model unless given."""
+
+
+def dominant_sigma_px(mixture):
+    """Standard deviation (pixels) of the largest-weight component of ``mixture``.
+
+    Models with a single Gaussian disparity noise (convolution, Andert) take this sigma: the core of
+    the matcher's error distribution, which most pixels follow. The mixture's overall std would be
+    inflated by the gross-error components and blur every measurement.
+    """
+    return float(mixture.sigmas[int(np.argmax(mixture.weights))])
+
+
+def _as_mixture(error_model):
+    if error_model is None or isinstance(error_model, GaussianMixture):
+        return error_model
+    mixture = getattr(error_model, "mixture", None)
+    if isinstance(mixture, GaussianMixture):
+        return mixture
+    raise PrismapInputError(
+        f"`error_model` must be a GaussianMixture or an error model with `.mixture`; got {type(error_model).__name__}"
+    )
+
+
+def build_sensor_model(name, camera, *, voxel_size_m, p0, error_model=None, **params):
+    """The inverse sensor model ``name`` for ``camera`` on a map of ``voxel_size_m`` and prior ``p0``.
+
+    Parameters
+    ----------
+    name : str
+        A name of :func:`prismap.sensor_models.model_names` (``ideal``, ``hitmiss``, ``convolution``,
+        ``andert``, ``prism``).
+    camera : StereoCamera
+        Supplies ``focal_baseline`` (pixel-metres) and ``doffs_px``.
+    voxel_size_m : float, metres
+    p0 : float in (0, 1)
+        Prior occupancy; must equal the map's.
+    error_model : GaussianMixture or object with ``.mixture`` or None
+        The matcher's disparity error ``e = d_true - d_computed`` (pixels). ``prism`` uses the whole
+        mixture; ``convolution`` and ``andert`` use :func:`dominant_sigma_px` unless ``sigma_px`` is in
+        ``params``; ``ideal`` and ``hitmiss`` ignore it.
+    **params
+        The model's own parameters (e.g. ``p_hit``, ``eta``, ``near_m``).
+
+    Returns
+    -------
+    InverseSensorModel
+    """
+    if name not in model_names():
+        raise PrismapInputError(f"unknown sensor model {name!r}; expected one of {list(model_names())}")
+    mixture = _as_mixture(error_model)
+    params = dict(params)
+    if name == "prism" and "error_model" not in params:
+        if mixture is None:
+            raise PrismapInputError("sensor model 'prism' needs an error model (--error-model MODEL.json)")
+        params["error_model"] = mixture
+    elif name in NEEDS_SIGMA and "sigma_px" not in params:
+        if mixture is None:
+            raise PrismapInputError(
+                f"sensor model {name!r} needs an error model (--error-model MODEL.json) or an explicit sigma_px"
+            )
+        params["sigma_px"] = dominant_sigma_px(mixture)
+    try:
+        return make_sensor_model(name, focal_baseline=camera.focal_baseline, doffs_px=camera.doffs_px,
+                                 voxel_size_m=voxel_size_m, p0=p0, **params)
+    except TypeError as exc:
+        raise PrismapInputError(f"sensor model {name!r}: bad parameter(s) {sorted(params)}: {exc}") from None
+
+
+def _frozen_params(value, name):
+    """A mapping as a sorted tuple of (key, value) pairs: hashable, picklable, order-free."""
+    if value is None:
+        return ()
+    items = value.items() if isinstance(value, dict) else value
+    try:
+        pairs = tuple(sorted((str(k), v) for k, v in items))
+    except (TypeError, ValueError):
+        raise PrismapInputError(f"`{name}` must be a mapping of parameter names to values; got {value!r}") from None
+    return pairs
+
+
+@dataclass(frozen=True, eq=False)
+class MappingConfig:
+    """Everything that decides a map, apart from the input sequence.
+
+    Parameters
+    ----------
+    model : str
+        Inverse sensor model name (see :func:`build_sensor_model`).
+    voxel_size_m : float, metres, > 0
+    p0 : float in (0, 1)
+        Prior occupancy of a voxel (the scene's occupancy ratio at this voxel size).
+    error_model : GaussianMixture or None
+        The matcher's disparity error model, pixels (needed by ``prism``, and by ``convolution`` and
+        ``andert`` without an explicit ``sigma_px``).
+    model_params : dict
+        Extra parameters of the sensor model.
+    matcher : str
+        Stereo matcher name (:func:`prismap.stereo.make_matcher`), used when ``disparity_source`` is
+        ``"matcher"``.
+    matcher_params : dict
+        Its parameters (e.g. ``num_disparities``).
+    disparity_source : str
+        ``"matcher"`` (match the sequence's images), ``"sequence"`` (the sequence's own ``disp/``) or
+        the path of a directory of uint16 PNG disparities (value / 256 = pixels, 0 = invalid) named like
+        the sequence's images.
+    mode : {"ray", "projective"}
+    policy : str or None
+        Per-frame policy; None = the model's default.
+    max_range_m : float, metres
+        Distance along a ray beyond which nothing is updated (inf = no limit).
+    subsample : int >= 1
+        Use every ``subsample``-th pixel in both directions.
+    frames : (int, int or None)
+        ``(start, stop)``: the frames ``start <= i < stop`` of the sequence (stop None = to the end).
+
+    Notes
+    -----
+    Mappings are stored as sorted ``(key, value)`` tuples, so a config is picklable (Dask ships it to
+    workers); :attr:`model_options` and :attr:`matcher_options` give them as dicts. Configs compare and
+    hash by :meth:`fingerprint` (the error model by value).
+    """
+
+    model: str = "prism"
+    voxel_size_m: float = 0.1
+    p0: float = 0.05
+    error_model: GaussianMixture | None = None
+    model_params: tuple = ()
+    matcher: str = "sgbm"
+    matcher_params: tuple = ()
+    disparity_source: str = DISPARITY_FROM_MATCHER
+    mode: str = "ray"
+    policy: str | None = None
+    max_range_m: float = math.inf
+    subsample: int = 1
+    frames: tuple = (0, None)
+
+    def __post_init__(self):
+        def set_(name, value):
+            object.__setattr__(self, name, value)
+
+        if self.model not in model_names():
+            raise PrismapInputError(f"unknown sensor model {self.model!r}; expected one of {list(model_names())}")
+        if self.matcher not in matcher_names():
+            raise PrismapInputError(f"unknown matcher {self.matcher!r}; expected one of {list(matcher_names())}")
+        set_("voxel_size_m", check_positive(self.voxel_size_m, "voxel_size_m"))
+        set_("p0", check_probability(self.p0, "p0"))
+        set_("error_model", _as_mixture(self.error_model))
+        set_("model_params", _frozen_params(self.model_params, "model_params"))
+        set_("matcher_params", _frozen_params(self.matcher_params, "matcher_params"))
+        if not isinstance(self.disparity_source, str) or not self.disparity_source:
+            raise PrismapInputError(f"`disparity_source` must be 'matcher', 'sequence' or a directory; got {self.disparity_source!r}")
+        if self.mode not in MODES:
+            raise PrismapInputError(f"`mode` must be one of {list(MODES)}; got {self.mode!r}")
+        if self.policy is not None and self.policy not in POLICIES:
+            raise PrismapInputError(f"`policy` must be one of {list(POLICIES)} or None; got {self.policy!r}")
+        max_range = float(self.max_range_m)
+        set_("max_range_m", max_range if max_range == math.inf else check_positive(max_range, "max_range_m"))
+        if isinstance(self.subsample, bool) or int(self.subsample) != self.subsample or self.subsample < 1:
+            raise PrismapInputError(f"`subsample` must be an integer >= 1; got {self.subsample!r}")
+        set_("subsample", int(self.subsample))
+        set_("frames", _check_frames(self.frames))
+
+    @property
+    def model_options(self):
+        """Sensor model parameters as a dict."""
+        return dict(self.model_params)
+
+    @property
+    def matcher_options(self):
+        """Matcher parameters as a dict."""
+        return dict(self.matcher_params)
+
+    def sensor_model(self, camera):
+        """The configured sensor model for ``camera`` (see :func:`build_sensor_model`)."""
+        return build_sensor_model(self.model, camera, voxel_size_m=self.voxel_size_m, p0=self.p0,
+                                  error_model=self.error_model, **self.model_options)
+
+    def frame_indices(self, n_frames):
+        """``range`` of the frames of a sequence of ``n_frames`` this config maps; raises if empty."""
+        start, stop = self.frames
+        stop = n_frames if stop is None else min(stop, n_frames)
+        if start >= stop:
+            raise PrismapInputError(
+                f"frames {start}:{'' if self.frames[1] is None else self.frames[1]} select no frame "
+                f"of a sequence of {n_frames} frames"
+            )
+        return range(start, stop)
+
+    def to_dict(self):
+        """Plain-JSON form (the error model as its weights, means and sigmas)."""
+        return {
+            "model": self.model, "model_params": self.model_options,
+            "error_model": None if self.error_model is None else self.error_model.to_dict(),
+            "voxel_size_m": self.voxel_size_m, "p0": self.p0,
+            "matcher": self.matcher, "matcher_params": self.matcher_options,
+            "disparity_source": self.disparity_source, "mode": self.mode, "policy": self.policy,
+            "max_range_m": None if math.isinf(self.max_range_m) else self.max_range_m,
+            "subsample": self.subsample, "frames": list(self.frames),
+        }
+
+    def fingerprint(self):
+        """SHA-256 (hex) of :meth:`to_dict`: equal configs give equal fingerprints."""
+        text = json.dumps(self.to_dict(), sort_keys=True, default=repr)
+        return hashlib.sha256(text.encode("utf-8")).hexdigest()
+
+    def __eq__(self, other):
+        return isinstance(other, MappingConfig) and self.fingerprint() == other.fingerprint()
+
+    def __hash__(self):
+        return hash(self.fingerprint())
+
+
+def _check_frames(frames):
+    try:
+        start, stop = frames
+    except (TypeError, ValueError):
+        raise PrismapInputError(f"`frames` must be (start, stop); got {frames!r}") from None
+    for value in (start, stop):
+        if value is not None and (not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < 0):
+            raise PrismapInputError(f"`frames` must hold integers >= 0 (stop may be None); got {frames!r}")
+    start = 0 if start is None else int(start)
+    stop = None if stop is None else int(stop)
+    if stop is not None and stop <= start:
+        raise PrismapInputError(f"`frames` {start}:{stop} is empty: stop must exceed start")
+    return (start, stop)

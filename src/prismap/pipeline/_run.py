@@ -1,0 +1,218 @@
+"""Frames in, map out: a sequence integrated frame by frame, here or on Dask workers, resumably."""
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from prismap._progress import progress as progress_bar
+from prismap.errors import PrismapInputError
+from prismap.grid import OccupancyMap
+from prismap.io._sequence import _DISPARITY_SCALE, Sequence, _read_image, read_sequence
+from prismap.pipeline._checkpoint import open_checkpoint, run_fingerprint, save_checkpoint
+from prismap.pipeline._config import DISPARITY_FROM_MATCHER, DISPARITY_FROM_SEQUENCE, MappingConfig
+from prismap.stereo import make_matcher
+
+_MODEL_CACHE = {}
+"""The last sensor model built in this process, keyed by (config fingerprint, camera): a Dask worker
+maps many chunks with one model, and PRISM's tables are built once per model."""
+
+
+def open_sequence(sequence):
+    """A :class:`~prismap.io._sequence.Sequence` from itself or from its directory path."""
+    return sequence if isinstance(sequence, Sequence) else read_sequence(sequence)
+
+
+def new_map(config, ndim=3):
+    """An empty map on the config's grid (voxel size, prior); no clamping, so chunks merge exactly."""
+    return OccupancyMap(config.voxel_size_m, p0=config.p0, ndim=ndim)
+
+
+def sensor_model_for(config, camera):
+    """``config.sensor_model(camera)``, reused while the config and camera stay the same."""
+    key = (config.fingerprint(), camera.focal_baseline, camera.doffs_px)
+    if key not in _MODEL_CACHE:
+        _MODEL_CACHE.clear()
+        _MODEL_CACHE[key] = config.sensor_model(camera)
+    return _MODEL_CACHE[key]
+
+
+class DisparitySource:
+    """The disparity image of each frame of a sequence, as ``config.disparity_source`` says.
+
+    Parameters
+    ----------
+    sequence : Sequence
+    config : MappingConfig
+    """
+
+    def __init__(self, sequence, config):
+        self.sequence = sequence
+        self.kind = config.disparity_source
+        self.matcher = None
+        if self.kind == DISPARITY_FROM_MATCHER:
+            try:
+                self.matcher = make_matcher(config.matcher, **config.matcher_options)
+            except TypeError as exc:
+                raise PrismapInputError(f"matcher {config.matcher!r}: bad parameter(s) {config.matcher_options}: {exc}") from None
+        elif self.kind != DISPARITY_FROM_SEQUENCE and not Path(self.kind).is_dir():
+            raise PrismapInputError(f"disparity directory {self.kind}: not found")
+
+    def __call__(self, index):
+        """``(disparity, T_world_cam)`` of frame ``index``: (H, W) float32 pixels (NaN = invalid), (4, 4) metres."""
+        frame = self.sequence[index]
+        if frame.T_world_cam is None:
+            raise PrismapInputError(f"{self.sequence.path}: no poses.txt; mapping needs the pose of every frame")
+        if self.matcher is not None:
+            return self.matcher.compute(frame.left, frame.right), frame.T_world_cam
+        if self.kind == DISPARITY_FROM_SEQUENCE:
+            if frame.disparity_gt is None:
+                raise PrismapInputError(f"{self.sequence.path / 'disp' / self.sequence.names[index]}: disparity file missing")
+            return frame.disparity_gt, frame.T_world_cam
+        path = Path(self.kind) / self.sequence.names[index]
+        if not path.is_file():
+            raise PrismapInputError(f"{path}: disparity file missing (expected one uint16 PNG per frame, value / 256 = px)")
+        raw = _read_image(path, np.uint16)
+        if raw.shape != frame.left.shape[:2]:
+            raise PrismapInputError(f"{path}: size {raw.shape} differs from the images' {frame.left.shape[:2]}")
+        return np.where(raw > 0, raw / np.float32(_DISPARITY_SCALE), np.nan).astype(np.float32), frame.T_world_cam
+
+
+def integrate_frames(grid, sequence, config, indices, *, on_frame=None):
+    """Integrate frames ``indices`` of ``sequence`` into ``grid`` (in place), in order.
+
+    Parameters
+    ----------
+    grid : OccupancyMap
+    sequence : Sequence
+    config : MappingConfig
+    indices : iterable of int
+    on_frame : callable or None
+        Called with ``grid`` after each frame (progress bars, checkpoints).
+    """
+    model = sensor_model_for(config, sequence.camera)
+    source = DisparitySource(sequence, config)
+    for index in indices:
+        disparity, pose = source(index)
+        grid.integrate_disparity(disparity, sequence.camera, pose, model, mode=config.mode, policy=config.policy,
+                                 max_range_m=config.max_range_m, subsample=config.subsample)
+        if on_frame is not None:
+            on_frame(grid)
+    return grid
+
+
+def map_chunk(sequence_path, config, start, stop):
+    """Map frames ``start <= i < stop`` into a fresh map (what a Dask worker runs).
+
+    The worker opens the sequence itself, so no image crosses the network; it returns the chunk's map
+    as arrays: ``(keys (N, 3) int32, log_odds (N,) float32, counts (N,) uint16, n_frames, policies)``.
+    """
+    grid = integrate_frames(new_map(config), read_sequence(sequence_path), config, range(start, stop))
+    return (*grid.known_voxels(), grid.n_frames, grid.policies)
+
+
+def _chunk_map(config, result):
+    keys, log, counts, n_frames, policies = result
+    chunk = new_map(config)
+    chunk.set_voxels(keys, log, counts)
+    chunk.n_frames, chunk.policies = n_frames, tuple(policies)
+    return chunk
+
+
+def map_sequence(sequence, config, *, progress=True, checkpoint=None, checkpoint_every=0, client=None,
+                 chunk_frames=None):
+    """Integrate a stereo sequence into an occupancy map.
+
+    Parameters
+    ----------
+    sequence : str or Path or Sequence
+        A KITTI-layout sequence directory (:func:`prismap.io._sequence.read_sequence`) with ``poses.txt``.
+    config : MappingConfig
+    progress : bool
+        Show a progress bar (when stderr is a terminal, see :func:`prismap._progress.progress`).
+    checkpoint : str or Path or None
+        Checkpoint name (``NAME.npz`` + ``NAME.json``, see :func:`open_checkpoint`). An existing
+        checkpoint of the same config and inputs is resumed; one of another run is refused. The files
+        are left in place on return, so the caller can write its result first and then call
+        :func:`remove_checkpoint`.
+    checkpoint_every : int >= 0
+        Write the checkpoint after every ``checkpoint_every`` frames (0 = never). With Dask, at the
+        first chunk boundary after each ``checkpoint_every`` frames.
+    client : distributed.Client or None
+        Integrate chunks of frames on this Dask cluster (see Notes); None = here, sequentially.
+    chunk_frames : int or None
+        Frames per Dask task; None = a quarter of the frames per worker, at most ``checkpoint_every``.
+
+    Returns
+    -------
+    OccupancyMap
+        ``n_frames`` is the number of frames integrated (resumed ones included).
+
+    Notes
+    -----
+    On Dask, each task maps a contiguous chunk of frames into its own map (the worker reads the frames
+    from ``sequence``'s path, which every worker must see) and returns it as arrays; chunk maps are
+    merged in frame order, at most two per worker in flight, so memory stays bounded by the chunks.
+    Without clamping, a merged map equals the sequential one up to float32 rounding of the log-odds
+    sums (:meth:`OccupancyMap.merge`). A sequential run resumed from a checkpoint equals an
+    uninterrupted one exactly.
+    """
+    if not isinstance(config, MappingConfig):
+        raise PrismapInputError(f"`config` must be a MappingConfig; got {type(config).__name__}")
+    if isinstance(checkpoint_every, bool) or int(checkpoint_every) != checkpoint_every or checkpoint_every < 0:
+        raise PrismapInputError(f"`checkpoint_every` must be an integer >= 0; got {checkpoint_every!r}")
+    sequence = open_sequence(sequence)
+    indices = config.frame_indices(len(sequence))
+    grid = None
+    fingerprint = None
+    if checkpoint is not None:
+        fingerprint = run_fingerprint(sequence, config)
+        grid = open_checkpoint(checkpoint, fingerprint)
+    grid = new_map(config) if grid is None else grid
+    todo = indices[grid.n_frames:]
+    bar = progress_bar(total=len(indices), desc=f"map {config.model}", unit="frame", enabled=None if progress else False)
+    bar.update(grid.n_frames)
+    saved = [grid.n_frames]
+
+    def after(done):
+        bar.update(done.n_frames - bar.n)
+        if checkpoint is not None and checkpoint_every and done.n_frames - saved[0] >= checkpoint_every \
+                and done.n_frames < len(indices):
+            save_checkpoint(checkpoint, fingerprint, done)
+            saved[0] = done.n_frames
+
+    try:
+        if client is None:
+            integrate_frames(grid, sequence, config, todo, on_frame=after)
+        else:
+            _map_on_dask(grid, sequence, config, todo, client, chunk_frames, checkpoint_every, after)
+    finally:
+        bar.close()
+    return grid
+
+
+def _map_on_dask(grid, sequence, config, todo, client, chunk_frames, checkpoint_every, after):
+    """Merge chunk maps computed by ``client``'s workers into ``grid`` in frame order."""
+    n_workers = max(1, sum(client.nthreads().values()))
+    if chunk_frames is None:
+        chunk_frames = max(1, math.ceil(len(todo) / (4 * n_workers)))
+        if checkpoint_every:
+            chunk_frames = min(chunk_frames, checkpoint_every)
+    elif isinstance(chunk_frames, bool) or int(chunk_frames) != chunk_frames or chunk_frames < 1:
+        raise PrismapInputError(f"`chunk_frames` must be an integer >= 1; got {chunk_frames!r}")
+    chunks = [(todo[i], todo[min(i + int(chunk_frames), len(todo)) - 1] + 1) for i in range(0, len(todo), int(chunk_frames))]
+    path = str(sequence.path.resolve())
+    pending = []
+    for start, stop in chunks:
+        pending.append(client.submit(map_chunk, path, config, start, stop, pure=False))
+        if len(pending) >= 2 * n_workers:
+            _merge_next(grid, config, pending, after)
+    while pending:
+        _merge_next(grid, config, pending, after)
+
+
+def _merge_next(grid, config, pending, after):
+    future = pending.pop(0)
+    grid.merge(_chunk_map(config, future.result()))
+    future.release()
+    after(grid)
