@@ -12,7 +12,7 @@ from prismap.camera import StereoCamera
 from prismap.errors import PrismapInputError
 from prismap.gmm import GaussianMixture
 from prismap.grid import OccupancyMap
-from prismap.io._sequence import read_ground_truth, read_sequence, write_ground_truth, write_sequence
+from prismap.io import load_map, read_ground_truth, read_sequence, write_ground_truth, write_sequence
 from prismap.pipeline import (
     DisparitySource,
     MappingConfig,
@@ -205,8 +205,6 @@ def test_a_run_interrupted_after_a_checkpoint_resumes_to_the_uninterrupted_map(s
 
 
 def read_checkpoint_frames(checkpoint):
-    from prismap.io._mapfile import load_map
-
     return load_map(checkpoint).n_frames
 
 

@@ -1,6 +1,6 @@
 """Resumable runs: a partial map plus the fingerprint of what produced it, both written atomically.
 
-A checkpoint is two files beside each other: ``NAME.npz`` (a map file, :func:`prismap.io._mapfile.save_map`)
+A checkpoint is two files beside each other: ``NAME.npz`` (a map file, :func:`prismap.io.save_map`)
 and ``NAME.json`` (format, fingerprint, frames done). The JSON is written first, when the run starts,
 so a map checkpoint never exists without the fingerprint that vouches for it. How many frames the map
 holds is the map's own ``n_frames`` (written in the same atomic file as the voxels), so the two files
@@ -13,7 +13,7 @@ from pathlib import Path
 
 from prismap._files import write_text_atomic
 from prismap.errors import PrismapInputError
-from prismap.io._mapfile import load_map, save_map
+from prismap.io import load_map, save_map
 from prismap.pipeline._config import DISPARITY_FROM_MATCHER, DISPARITY_FROM_SEQUENCE
 
 FORMAT = "prismap-map-checkpoint"

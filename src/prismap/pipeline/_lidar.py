@@ -6,7 +6,7 @@ from prismap._progress import progress as progress_bar
 from prismap._validate import as_float_array, check_positive
 from prismap.errors import PrismapInputError
 from prismap.grid import OccupancyMap
-from prismap.io._sequence import GroundTruthOccupancy
+from prismap.io import GroundTruthOccupancy
 from prismap.sensor_models import make_sensor_model
 
 LIDAR_P0 = 0.5
@@ -83,7 +83,7 @@ def ground_truth_from_map(grid):
     Returns
     -------
     GroundTruthOccupancy
-        Write it with :func:`prismap.io._sequence.write_ground_truth`; ``prismap evaluate --gt FILE``
+        Write it with :func:`prismap.io.write_ground_truth`; ``prismap evaluate --gt FILE``
         reads it.
     """
     if not isinstance(grid, OccupancyMap):

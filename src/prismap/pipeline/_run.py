@@ -3,12 +3,10 @@
 import math
 from pathlib import Path
 
-import numpy as np
-
 from prismap._progress import progress as progress_bar
 from prismap.errors import PrismapInputError
 from prismap.grid import OccupancyMap
-from prismap.io._sequence import _DISPARITY_SCALE, Sequence, _read_image, read_sequence
+from prismap.io import Sequence, read_kitti_disparity, read_sequence
 from prismap.pipeline._checkpoint import open_checkpoint, run_fingerprint, save_checkpoint
 from prismap.pipeline._config import DISPARITY_FROM_MATCHER, DISPARITY_FROM_SEQUENCE, MappingConfig
 from prismap.stereo import make_matcher
@@ -19,7 +17,7 @@ maps many chunks with one model, and PRISM's tables are built once per model."""
 
 
 def open_sequence(sequence):
-    """A :class:`~prismap.io._sequence.Sequence` from itself or from its directory path."""
+    """A :class:`~prismap.io.Sequence` from itself or from its directory path."""
     return sequence if isinstance(sequence, Sequence) else read_sequence(sequence)
 
 
@@ -72,10 +70,10 @@ class DisparitySource:
         path = Path(self.kind) / self.sequence.names[index]
         if not path.is_file():
             raise PrismapInputError(f"{path}: disparity file missing (expected one uint16 PNG per frame, value / 256 = px)")
-        raw = _read_image(path, np.uint16)
-        if raw.shape != frame.left.shape[:2]:
-            raise PrismapInputError(f"{path}: size {raw.shape} differs from the images' {frame.left.shape[:2]}")
-        return np.where(raw > 0, raw / np.float32(_DISPARITY_SCALE), np.nan).astype(np.float32), frame.T_world_cam
+        disparity = read_kitti_disparity(path)
+        if disparity.shape != frame.left.shape[:2]:
+            raise PrismapInputError(f"{path}: size {disparity.shape} differs from the images' {frame.left.shape[:2]}")
+        return disparity, frame.T_world_cam
 
 
 def integrate_frames(grid, sequence, config, indices, *, on_frame=None):
@@ -126,7 +124,7 @@ def map_sequence(sequence, config, *, progress=True, checkpoint=None, checkpoint
     Parameters
     ----------
     sequence : str or Path or Sequence
-        A KITTI-layout sequence directory (:func:`prismap.io._sequence.read_sequence`) with ``poses.txt``.
+        A KITTI-layout sequence directory (:func:`prismap.io.read_sequence`) with ``poses.txt``.
     config : MappingConfig
     progress : bool
         Show a progress bar (when stderr is a terminal, see :func:`prismap._progress.progress`).

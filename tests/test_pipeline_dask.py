@@ -1,0 +1,66 @@
+"""Mapping and characterisation on a local Dask cluster of 2 worker processes equal the sequential runs."""
+
+import numpy as np
+import pytest
+
+from prismap.errors import PrismapInputError
+from prismap.io import load_map
+from prismap.pipeline import characterise_sequence, map_sequence
+from test_pipeline import assert_same_map, config, synthetic_sequence
+
+distributed = pytest.importorskip("distributed")
+
+MERGE_ATOL = 2e-5
+"""Log-odds tolerance of chunked merges against one sequential sum (float32 rounding, a few 1e-6 per merge)."""
+
+
+@pytest.fixture(scope="module")
+def client():
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster, \
+            distributed.Client(cluster) as dask_client:
+        yield dask_client
+
+
+@pytest.fixture(scope="module")
+def sequence_dir(tmp_path_factory):
+    return synthetic_sequence(tmp_path_factory.mktemp("dask") / "seq", n_frames=7)
+
+
+@pytest.mark.parametrize("chunk_frames", [None, 3])
+def test_dask_map_equals_the_sequential_map(sequence_dir, client, chunk_frames):
+    cfg = config(model="convolution")
+    sequential = map_sequence(sequence_dir, cfg, progress=False)
+    parallel = map_sequence(sequence_dir, cfg, progress=False, client=client, chunk_frames=chunk_frames)
+    assert parallel.n_frames == 7 and parallel.policies == sequential.policies
+    assert_same_map(parallel, sequential, atol=MERGE_ATOL)
+
+
+def test_dask_map_with_matcher_and_checkpoints(sequence_dir, client, tmp_path):
+    cfg = config(model="ideal", error_model=None, disparity_source="matcher", frames=(1, 7))
+    checkpoint = tmp_path / "run.checkpoint.npz"
+    parallel = map_sequence(sequence_dir, cfg, progress=False, client=client, checkpoint=checkpoint,
+                            checkpoint_every=2)
+    assert load_map(checkpoint).n_frames == 4  # chunks of 2 frames: saved after 2 and 4, not after the last
+    assert_same_map(parallel, map_sequence(sequence_dir, cfg, progress=False), atol=MERGE_ATOL)
+    resumed = map_sequence(sequence_dir, cfg, progress=False, client=client, checkpoint=checkpoint)
+    assert_same_map(resumed, parallel, atol=MERGE_ATOL)
+
+
+def test_dask_characterisation_equals_the_sequential_histogram(sequence_dir, client):
+    params = {"num_disparities": 16, "block_size": 5}
+    sequential = characterise_sequence(sequence_dir, "sgbm", matcher_params=params, progress=False)
+    parallel = characterise_sequence(sequence_dir, "sgbm", matcher_params=params, client=client, chunk_frames=2,
+                                     progress=False)
+    assert parallel.n_frames == sequential.n_frames == 7
+    np.testing.assert_array_equal(parallel.counts, sequential.counts)
+    for name in ("n_below", "n_above", "n_gt_valid", "n_bad_1px", "n_bad_2px"):
+        assert getattr(parallel, name) == getattr(sequential, name)
+    assert parallel.sum_abs_error_px == pytest.approx(sequential.sum_abs_error_px, rel=1e-12)
+    assert sequential.counts.sum() > 0.5 * sequential.n_gt_valid  # the matcher found most pixels
+
+
+def test_characterisation_errors_are_raised_before_any_task(sequence_dir, client):
+    with pytest.raises(PrismapInputError, match="unknown matcher 'census'"):
+        characterise_sequence(sequence_dir, "census", client=client)
+    with pytest.raises(PrismapInputError, match="frames 9:7 select no frame"):
+        characterise_sequence(sequence_dir, "bm", frames=(9, None), client=client)
