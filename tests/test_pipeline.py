@@ -31,11 +31,12 @@ VOXEL = 0.2
 MIXTURE = GaussianMixture([0.8, 0.2], [0.05, -0.3], [0.4, 2.5])
 
 
-def synthetic_sequence(path, n_frames=6, *, camera=CAMERA, seed=0):
-    """Write ``n_frames`` of the seeded indoor scene (with disp/ and occupancy.npz at VOXEL) to ``path``."""
+def synthetic_sequence(path, n_frames=6, *, camera=CAMERA, seed=0, truth=True):
+    """Write ``n_frames`` of the seeded indoor scene (with disp/, and occupancy.npz at VOXEL) to ``path``."""
     scene = sim.indoor_scene(seed=seed)
     frames = list(scene.frames(camera, sim.indoor_trajectory(n_frames, seed=seed), seed=seed))
-    write_sequence(frames, path, occupancy=scene.ground_truth(frames, VOXEL, max_range_m=8.0))
+    occupancy = scene.ground_truth(frames, VOXEL, max_range_m=8.0) if truth else None
+    write_sequence(frames, path, occupancy=occupancy)
     return path
 
 

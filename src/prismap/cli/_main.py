@@ -12,7 +12,7 @@ import sys
 from prismap import __version__
 from prismap.errors import PrismapInputError
 
-COMMANDS = ("characterise",)
+COMMANDS = ("characterise", "map", "evaluate")
 
 
 def build_parser():

@@ -1,0 +1,95 @@
+"""``prismap evaluate``: score a map file against ground-truth occupancy."""
+
+import json
+from pathlib import Path
+
+from prismap.errors import PrismapInputError
+
+_ROWS = (
+    ("voxels scored", "n_voxels", "{:d}"),
+    ("truly occupied", "n_occupied", "{:d}"),
+    ("truly free", "n_free", "{:d}"),
+    ("Brier score", "brier", "{:.4f}"),
+    ("log-loss (nats)", "log_loss", "{:.4f}"),
+    ("ECE", "ece", "{:.4f}"),
+    ("ROC AUC", "roc_auc", "{:.4f}"),
+    ("occupied called free", "occupied_called_free", "{:.4f}"),
+    ("free called occupied", "free_called_occupied", "{:.4f}"),
+)
+
+
+def register(subparsers):
+    """Add the ``evaluate`` parser."""
+    parser = subparsers.add_parser(
+        "evaluate",
+        help="score an occupancy map against ground truth",
+        description=(
+            "Score a map file (prismap map) against ground-truth occupancy: a file written by "
+            "prismap.io's write_ground_truth (e.g. a LiDAR reference map) or a sequence directory holding "
+            "occupancy.npz. Every voxel of the ground truth's observed region is scored; voxels the map never "
+            "observed score as its prior p0. Prints the scores and writes them as JSON: to --out/scores.json "
+            "with a reliability diagram --out/reliability.png, or beside the map as MAP.scores.json."
+        ),
+    )
+    parser.add_argument("--map", required=True, type=Path, metavar="MAP.npz", help="map file")
+    parser.add_argument("--gt", required=True, type=Path, metavar="DIR|FILE", help="ground-truth occupancy")
+    parser.add_argument("--out", type=Path, metavar="DIR", help="directory for scores.json and reliability.png")
+    parser.set_defaults(func=run)
+
+
+def run(args):
+    """Score the map and write the results; return the exit status."""
+    from prismap._files import write_text_atomic
+    from prismap.evaluate import align_to_ground_truth, score_map
+    from prismap.io import load_map, read_ground_truth
+
+    grid = load_map(args.map)
+    truth = read_ground_truth(_truth_file(args.gt))
+    if abs(truth.voxel_size_m - grid.voxel_size_m) > 1e-9 * grid.voxel_size_m:
+        raise PrismapInputError(
+            f"--gt {args.gt}: voxel size {truth.voxel_size_m} m differs from the map's {grid.voxel_size_m} m"
+        )
+    if grid.ndim == 2:
+        raise PrismapInputError(f"--map {args.map}: a 2-D map; evaluate scores 3-D maps against 3-D ground truth")
+    if truth.observed_keys.shape[0] == 0:
+        raise PrismapInputError(f"--gt {args.gt}: the ground truth observes no voxel: nothing to score")
+    keys = grid.known_voxels()[0]
+    probability, occupied = align_to_ground_truth(
+        keys, grid.probability_at_keys(keys), truth.occupied_keys, truth.observed_keys, p0=grid.p0
+    )
+    scores = score_map(probability, occupied)
+    print(format_scores(scores, title=f"{args.map} against {args.gt}"))
+    result = {"map": str(args.map), "ground_truth": str(args.gt), "voxel_size_m": grid.voxel_size_m, "p0": grid.p0,
+              "policy": "+".join(grid.policies), "n_frames": grid.n_frames, "scores": scores.to_dict()}
+    if args.out is None:
+        json_path = args.map.with_name(args.map.name.removesuffix(".npz") + ".scores.json")
+    else:
+        from prismap.plots import plot_reliability
+
+        json_path = args.out / "scores.json"
+        plot_reliability({args.map.stem: scores}, path=args.out / "reliability.png", title=f"Reliability of {args.map.name}")
+        print(f"wrote {args.out / 'reliability.png'}")
+    write_text_atomic(json_path, json.dumps(result, indent=1) + "\n")
+    print(f"wrote {json_path}")
+    return 0
+
+
+def format_scores(scores, *, title):
+    """The scores as a two-column Markdown table."""
+    lines = [f"{title}", "", "| score | value |", "|---|---|"]
+    for label, name, fmt in _ROWS:
+        value = getattr(scores, name)
+        text = "n/a" if isinstance(value, float) and value != value else fmt.format(value)
+        lines.append(f"| {label} | {text} |")
+    return "\n".join(lines)
+
+
+def _truth_file(path):
+    if path.is_dir():
+        candidate = path / "occupancy.npz"
+        if not candidate.is_file():
+            raise PrismapInputError(f"--gt {path}: a directory without occupancy.npz (ground-truth occupancy)")
+        return candidate
+    if not path.is_file():
+        raise PrismapInputError(f"--gt {path}: no such file or directory")
+    return path

@@ -1,0 +1,153 @@
+"""``prismap map``: integrate a stereo sequence into an occupancy map file, sequentially or on Dask, resumably."""
+
+import ast
+import contextlib
+import math
+from pathlib import Path
+
+from prismap._validate import check_positive, check_probability
+from prismap.errors import PrismapInputError
+
+
+def register(subparsers):
+    """Add the ``map`` parser."""
+    from prismap.sensor_models import POLICIES, model_names
+    from prismap.stereo import matcher_names
+
+    parser = subparsers.add_parser(
+        "map",
+        help="build an occupancy map from a stereo sequence",
+        description=(
+            "Integrate the frames of a KITTI-layout stereo sequence (image_2, image_3, calib.txt, poses.txt) "
+            "into a sparse voxel occupancy map and write it to --out (.npz, atomically, only when complete). "
+            "Disparities come from --matcher, or from --disparity-dir (uint16 PNG, value / 256 = px, 0 = "
+            "invalid; SEQ/disp for the sequence's ground truth). With --checkpoint-every K the partial map is "
+            "saved beside --out every K frames (OUT.checkpoint.npz/.json); the same command run again resumes "
+            "from it, and refuses a checkpoint written with other options or inputs."
+        ),
+    )
+    parser.add_argument("--sequence", required=True, type=Path, metavar="DIR", help="sequence directory")
+    parser.add_argument("--matcher", default="sgbm", choices=matcher_names(), help="stereo matcher (default sgbm)")
+    parser.add_argument("--matcher-param", action="append", default=[], metavar="KEY=VALUE",
+                        help="matcher parameter, repeatable (e.g. num_disparities=64)")
+    parser.add_argument("--model", default="prism", choices=model_names(), help="inverse sensor model (default prism)")
+    parser.add_argument("--model-param", action="append", default=[], metavar="KEY=VALUE",
+                        help="sensor model parameter, repeatable (e.g. p_hit=0.7)")
+    parser.add_argument("--error-model", type=Path, metavar="MODEL.json",
+                        help="the matcher's error model (prismap characterise); needed by prism, and by "
+                             "convolution/andert without sigma_px (they take the largest-weight component's sigma)")
+    parser.add_argument("--voxel", required=True, type=float, metavar="M", help="voxel size in metres")
+    parser.add_argument("--p0", type=float, default=0.05, help="prior occupancy of a voxel (default 0.05)")
+    parser.add_argument("--mode", choices=("ray", "projective"), default="ray", help="integration mode (default ray)")
+    parser.add_argument("--policy", choices=POLICIES, help="per-frame policy (default: the model's)")
+    parser.add_argument("--max-range", type=float, default=math.inf, metavar="M",
+                        help="distance along a ray beyond which nothing is updated (default: none)")
+    parser.add_argument("--subsample", type=int, default=1, metavar="S", help="use every S-th pixel (default 1)")
+    parser.add_argument("--disparity-dir", type=Path, metavar="DIR", help="precomputed disparities instead of matching")
+    parser.add_argument("--frames", default=":", metavar="A:B", help="frames A <= i < B (default all)")
+    where = parser.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=int, metavar="N", help="integrate on a local Dask cluster of N processes")
+    where.add_argument("--scheduler", metavar="ADDRESS", help="integrate on an existing Dask cluster")
+    parser.add_argument("--chunk-frames", type=int, metavar="C", help="frames per Dask task (default: automatic)")
+    parser.add_argument("--checkpoint-every", type=int, default=0, metavar="K",
+                        help="save a resumable checkpoint every K frames (default 0 = never)")
+    parser.add_argument("--out", required=True, type=Path, metavar="MAP.npz", help="output map file")
+    parser.set_defaults(func=run)
+
+
+def run(args):
+    """Map the sequence and write the map; return the exit status."""
+    from prismap.io import read_sequence, save_map
+    from prismap.pipeline import MappingConfig, map_sequence, remove_checkpoint
+
+    if args.checkpoint_every < 0:
+        raise PrismapInputError(f"--checkpoint-every must be >= 0; got {args.checkpoint_every}")
+    if args.workers is not None and args.workers < 1:
+        raise PrismapInputError(f"--workers must be >= 1; got {args.workers}")
+    if not args.sequence.is_dir():
+        raise PrismapInputError(f"--sequence {args.sequence}: sequence directory not found")
+    sequence = read_sequence(args.sequence)
+    config = MappingConfig(
+        model=args.model, voxel_size_m=check_positive(args.voxel, "--voxel"), p0=check_probability(args.p0, "--p0"),
+        error_model=_error_model(args.error_model), model_params=parse_params(args.model_param, "--model-param"),
+        matcher=args.matcher, matcher_params=parse_params(args.matcher_param, "--matcher-param"),
+        disparity_source="matcher" if args.disparity_dir is None else _disparity_dir(args.disparity_dir),
+        mode=args.mode, policy=args.policy, max_range_m=args.max_range, subsample=args.subsample,
+        frames=parse_frames(args.frames),
+    )
+    config.sensor_model(sequence.camera)  # a bad model option fails here, not on the first frame or a worker
+    checkpoint = args.out.with_name(args.out.name.removesuffix(".npz") + ".checkpoint.npz")
+    with _dask_client(args.workers, args.scheduler) as client:
+        grid = map_sequence(sequence, config, progress=True, checkpoint=checkpoint,
+                            checkpoint_every=args.checkpoint_every, client=client, chunk_frames=args.chunk_frames)
+    save_map(grid, args.out)
+    remove_checkpoint(checkpoint)
+    print(f"{grid.n_frames} frames, {grid.n_known} known voxels, {len(grid.occupied_voxels()[0])} occupied "
+          f"({config.model}, voxel {config.voxel_size_m} m); wrote {args.out}")
+    return 0
+
+
+def parse_params(items, option):
+    """``["k=v", ...]`` as a dict; values are Python literals (numbers, booleans, strings)."""
+    params = {}
+    for item in items:
+        key, sep, text = item.partition("=")
+        if not sep or not key.strip():
+            raise PrismapInputError(f"{option} {item!r}: expected KEY=VALUE")
+        try:
+            params[key.strip()] = ast.literal_eval(text.strip())
+        except (ValueError, SyntaxError):
+            params[key.strip()] = text.strip()
+    return params
+
+
+def parse_frames(text):
+    """``"A:B"`` (either side may be empty) as ``(start, stop)``; raises for an empty or bad range."""
+    first, sep, last = text.partition(":")
+    try:
+        start = int(first) if first.strip() else 0
+        stop = int(last) if last.strip() else None
+    except ValueError:
+        raise PrismapInputError(f"--frames {text!r}: expected A:B with integers A < B (either may be omitted)") from None
+    if not sep or start < 0 or (stop is not None and stop <= start):
+        raise PrismapInputError(f"--frames {text!r}: the range is empty or malformed; expected A:B with 0 <= A < B")
+    return (start, stop)
+
+
+def _error_model(path):
+    if path is None:
+        return None
+    from prismap.characterise import load_error_model
+
+    return load_error_model(path).mixture
+
+
+def _disparity_dir(path):
+    if not path.is_dir():
+        raise PrismapInputError(f"--disparity-dir {path}: directory not found")
+    return str(path.resolve())
+
+
+@contextlib.contextmanager
+def _dask_client(workers, scheduler):
+    """A Dask client for ``--workers`` (a local cluster of processes) or ``--scheduler``, else None."""
+    if workers is None and scheduler is None:
+        yield None
+        return
+    from distributed import Client, LocalCluster
+
+    cluster = None
+    if scheduler is not None:
+        try:
+            client = Client(scheduler, timeout="10s")
+        except (OSError, TimeoutError, ValueError) as exc:
+            raise PrismapInputError(f"--scheduler {scheduler}: cannot connect ({exc})") from None
+    else:
+        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None)
+        client = Client(cluster)
+    try:
+        yield client
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
