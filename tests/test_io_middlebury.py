@@ -91,7 +91,7 @@ def test_write_pfm_round_trip_and_nan_becomes_inf(tmp_path):
 
 
 def test_pfm_errors_name_the_file(tmp_path):
-    with pytest.raises(PrismapInputError, match=r"missing.pfm: cannot read the PFM file"):
+    with pytest.raises(PrismapInputError, match=r"missing.pfm: PFM file not found"):
         read_pfm(tmp_path / "missing.pfm")
     (tmp_path / "bad.pfm").write_bytes(b"P6\n3 2\n255\n" + bytes(18))
     with pytest.raises(PrismapInputError, match=r"bad.pfm: not a PFM file"):
@@ -119,15 +119,15 @@ def test_calib_errors_name_file_and_field(tmp_path):
     with pytest.raises(PrismapInputError, match=r"calib.txt: missing field\(s\) \['baseline'\]"):
         read_middlebury_calib(path)
     path.write_text(MOTORCYCLE_CALIB.replace("doffs=124.343", "doffs=12,4"))
-    with pytest.raises(PrismapInputError, match=r"calib.txt, line 3: cannot parse doffs='12,4'"):
+    with pytest.raises(PrismapInputError, match=r"calib.txt line 3, field doffs: expected numbers; got '12,4'"):
         read_middlebury_calib(path)
     path.write_text(MOTORCYCLE_CALIB.replace("[3979.911 0 1244.772; ", "[3979.911 0 1244.772 0; "))
-    with pytest.raises(PrismapInputError, match=r"line 1: cannot parse cam0"):
+    with pytest.raises(PrismapInputError, match=r"calib.txt line 1, field cam0: expected a 3x3 matrix \[a b c; d e f; g h i\]"):
         read_middlebury_calib(path)
     path.write_text("cam0 [1 0 0; 0 1 0; 0 0 1]\n")
-    with pytest.raises(PrismapInputError, match=r"line 1: expected `key=value`"):
+    with pytest.raises(PrismapInputError, match="calib.txt line 1: expected 'key=value'"):
         read_middlebury_calib(path)
-    with pytest.raises(PrismapInputError, match=r"nowhere.txt: cannot read the calibration file"):
+    with pytest.raises(PrismapInputError, match=r"nowhere.txt: Middlebury calibration file not found"):
         read_middlebury_calib(tmp_path / "nowhere.txt")
 
 
@@ -156,7 +156,7 @@ def test_folder_errors_name_files_and_shapes(tmp_path):
     folder = tmp_path / "A"
     _write_folder(folder)
     cv2.imwrite(str(folder / "im1.png"), np.zeros((12, 19, 3), np.uint8))
-    message = r"im0.png and im1.png must have one shape; got \(12, 20, 3\) and \(12, 19, 3\)"
+    message = r"im1.png: right image shape \(12, 19, 3\) != left \(12, 20, 3\)"
     with pytest.raises(PrismapInputError, match=message):
         load_middlebury_folder(folder)
     folder = tmp_path / "B"
@@ -168,7 +168,7 @@ def test_folder_errors_name_files_and_shapes(tmp_path):
     folder = tmp_path / "C"
     _write_folder(folder)
     (folder / "im0.png").unlink()
-    with pytest.raises(PrismapInputError, match=r"im0.png: file not found"):
+    with pytest.raises(PrismapInputError, match=r"im0.png: left image not found"):
         load_middlebury_folder(folder)
     folder = tmp_path / "D"
     _write_folder(folder)

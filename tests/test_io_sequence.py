@@ -123,22 +123,22 @@ def _replace_line(path, number, text):
 @pytest.mark.parametrize(
     ("damage", "message"),
     [
-        (lambda d: _replace_line(d / "calib.txt", 4, "P3: 1 2 3"), "calib.txt, line 4: P3 must hold 12 finite numbers; got 3"),
-        (lambda d: _replace_line(d / "calib.txt", 4, "Q3: 1 2 3"), "calib.txt: field P3 is missing"),
-        (lambda d: _replace_line(d / "calib.txt", 3, "P2: 1 2 x 4"), "calib.txt, line 3: field P2 holds a non-number"),
-        (lambda d: _replace_line(d / "calib.txt", 2, "no colon here"), "calib.txt, line 2: expected 'NAME: numbers'"),
-        (lambda d: (d / "calib.txt").unlink(), "calib.txt: calibration file not found"),
-        (lambda d: _replace_line(d / "poses.txt", 2, "1 0 0 0 0 1 0 0 0 0 1"), "poses.txt, line 2: a pose must be 12 numbers; got 11 columns"),
-        (lambda d: _replace_line(d / "poses.txt", 1, "1 0 0 nan 0 1 0 0 0 0 1 0"), "poses.txt, line 1: the pose contains NaN"),
-        (lambda d: _replace_line(d / "poses.txt", 1, "1 0 0 a 0 1 0 0 0 0 1 0"), "poses.txt, line 1: a pose must be 12 numbers"),
+        (lambda d: _replace_line(d / "calib.txt", 4, "P3: 1 2 3"), "calib.txt: field P3 must have 12 numbers; got 3"),
+        (lambda d: _replace_line(d / "calib.txt", 4, "Q3: 1 2 3"), r"calib.txt: missing field P3; found \['P0', 'P1', 'P2', 'Q3'\]"),
+        (lambda d: _replace_line(d / "calib.txt", 3, "P2: 1 2 x 4"), "calib.txt line 3, field P2: expected numbers; got '1 2 x 4'"),
+        (lambda d: _replace_line(d / "calib.txt", 2, "no colon here"), "calib.txt line 2: expected 'name: numbers'; got 'no colon here'"),
+        (lambda d: (d / "calib.txt").unlink(), "calib.txt: KITTI calibration file not found"),
+        (lambda d: _replace_line(d / "poses.txt", 2, "1 0 0 0 0 1 0 0 0 0 1"), r"poses.txt line 2: expected 12 numbers \(3x4 pose\); got 11"),
+        (lambda d: _replace_line(d / "poses.txt", 1, "1 0 0 nan 0 1 0 0 0 0 1 0"), "poses.txt line 1: numbers must be finite"),
+        (lambda d: _replace_line(d / "poses.txt", 1, "1 0 0 a 0 1 0 0 0 0 1 0"), "poses.txt line 1: expected numbers; got '1 0 0 a 0 1 0 0 0 0 1 0'"),
         (lambda d: (d / "poses.txt").write_text("1 0 0 0 0 1 0 0 0 0 1 0\n"), "poses.txt: 1 poses for 2 frames"),
-        (lambda d: (d / "image_3" / "000001.png").unlink(), "image_3/000001.png: image missing"),
+        (lambda d: (d / "image_3" / "000001.png").unlink(), r"image_3: missing 1 right image\(s\), first \'000001.png\'"),
         (
             lambda d: cv2.imwrite(str(d / "image_3" / "000001.png"), np.zeros((21, 32), np.uint8)),
             "image_3/000001.png: image size 32x21 differs from .*image_2/000000.png \\(32x20\\)",
         ),
-        (lambda d: (d / "image_2" / "000001.png").write_bytes(b"GIF89a" + bytes(30)), "image_2/000001.png: not a PNG file"),
-        (lambda d: [p.unlink() for p in (d / "image_2").glob("*.png")], "image_2: no .png images"),
+        (lambda d: (d / "image_2" / "000001.png").write_bytes(b"GIF89a" + bytes(30)), r"image_2/000001.png: left image is not a PNG file \(bad or truncated header\)"),
+        (lambda d: [p.unlink() for p in (d / "image_2").glob("*.png")], r"image_2: no files matching \'\*.png\'"),
     ],
 )
 def test_broken_sequences_are_reported_on_opening(tmp_path, damage, message):
@@ -153,9 +153,9 @@ def test_broken_images_are_reported_on_access(tmp_path):
     (directory / "image_2" / "000001.png").write_bytes(data[:40])
     cv2.imwrite(str(directory / "disp" / "000000.png"), np.zeros((20, 32), np.uint8))
     seq = read_sequence(directory)
-    with pytest.raises(PrismapInputError, match="image_2/000001.png: not a readable image"):
+    with pytest.raises(PrismapInputError, match=r"image_2/000001.png: left image cannot be decoded \(truncated or corrupt PNG\)"):
         seq[1]
-    with pytest.raises(PrismapInputError, match="disp/000000.png: expected a uint16 image; got uint8"):
+    with pytest.raises(PrismapInputError, match="disp/000000.png: ground-truth disparity must be a single-channel uint16 PNG; got 1-channel uint8"):
         seq[0]
     with pytest.raises(PrismapInputError, match="sequence directory not found"):
         read_sequence(directory / "nowhere")

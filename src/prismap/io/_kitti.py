@@ -1,104 +1,22 @@
 """Readers of the KITTI odometry, raw and stereo 2012/2015 layouts.
 
-Also the PNG and text helpers the New Tsukuba reader shares: every failure becomes a
-:class:`PrismapInputError` naming the file (and line or field) and the problem.
+Every failure becomes a :class:`PrismapInputError` naming the file (and line or field) and the problem.
 """
 
-import dataclasses
 from collections.abc import Sequence
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from prismap.camera import StereoCamera
 from prismap.errors import PrismapInputError
 from prismap.io._frame import StereoFrame
+from prismap.io._images import paired_names, read_disparity_png, read_pair, with_image_size
+from prismap.io._text import homogeneous, parse_numbers, read_number_rows, read_text
 from prismap.io._velodyne import read_velodyne_bin, velodyne_to_camera
 
-_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 _TEXT_FIELDS = frozenset({"calib_time"})
 _ROTATION_TOLERANCE = 1e-3
-
-
-# ----------------------------------------------------------------------------- shared file helpers
-
-
-def _read_text(path, what):
-    """The UTF-8 text of ``path``; ``what`` names the file's role in messages."""
-    path = Path(path)
-    if not path.is_file():
-        raise PrismapInputError(f"{path}: {what} not found")
-    try:
-        return path.read_bytes().decode("utf-8")
-    except UnicodeDecodeError as exc:
-        raise PrismapInputError(f"{path}: {what} is not UTF-8 text (byte {exc.start})") from None
-
-
-def _parse_numbers(text, path, line_no, field=None):
-    """Finite floats of one whitespace-separated field, or an error naming file, line and field."""
-    where = f"{path} line {line_no}" + (f", field {field}" if field else "")
-    try:
-        values = np.array([float(token) for token in text.split()], dtype=np.float64)
-    except ValueError:
-        raise PrismapInputError(f"{where}: expected numbers; got {text.strip()[:60]!r}") from None
-    if not np.all(np.isfinite(values)):
-        raise PrismapInputError(f"{where}: numbers must be finite; got {text.strip()[:60]!r}")
-    return values
-
-
-def _read_png(path, what, flags=cv2.IMREAD_UNCHANGED):
-    """Decode a PNG with OpenCV, turning its silent ``None`` into an error."""
-    path = Path(path)
-    if not path.is_file():
-        raise PrismapInputError(f"{path}: {what} not found")
-    with open(path, "rb") as handle:
-        if handle.read(len(_PNG_SIGNATURE)) != _PNG_SIGNATURE:
-            raise PrismapInputError(f"{path}: {what} is not a PNG file (wrong signature)")
-    image = cv2.imread(str(path), flags)
-    if image is None:
-        raise PrismapInputError(f"{path}: {what} cannot be decoded (truncated or corrupt PNG)")
-    return image
-
-
-def _read_rgb(path, what="image"):
-    """(H, W, 3) uint8 RGB image (OpenCV reads BGR)."""
-    image = _read_png(path, what, cv2.IMREAD_COLOR)
-    return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
-
-
-def _read_gray_png(path, what, dtype):
-    """Single-channel PNG of exactly ``dtype`` (uint8 or uint16)."""
-    image = _read_png(path, what)
-    if image.ndim != 2 or image.dtype != dtype:
-        channels = 1 if image.ndim == 2 else image.shape[2]
-        raise PrismapInputError(
-            f"{path}: {what} must be a single-channel {np.dtype(dtype).name} PNG; "
-            f"got {channels}-channel {image.dtype.name}"
-        )
-    return image
-
-
-def _paired_files(left_dir, right_dir, pattern):
-    """Sorted file names present in both folders; an error if either lacks one of the other's."""
-    left = sorted(p.name for p in Path(left_dir).glob(pattern))
-    if not left:
-        raise PrismapInputError(f"{left_dir}: no files matching {pattern!r}")
-    right = {p.name for p in Path(right_dir).glob(pattern)}
-    missing = [name for name in left if name not in right]
-    if missing:
-        raise PrismapInputError(f"{right_dir}: missing {len(missing)} right image(s), first {missing[0]!r}")
-    return left
-
-
-def _with_image_size(camera, image):
-    return dataclasses.replace(camera, width=image.shape[1], height=image.shape[0])
-
-
-def _homogeneous(rotation_translation):
-    T = np.eye(4)
-    T[:3, :] = rotation_translation
-    return T
 
 
 # ----------------------------------------------------------------------------- KITTI files
@@ -127,7 +45,7 @@ def read_kitti_calib(path):
     """
     path = Path(path)
     fields = {}
-    for line_no, line in enumerate(_read_text(path, "KITTI calibration file").splitlines(), start=1):
+    for line_no, line in enumerate(read_text(path, "KITTI calibration file").splitlines(), start=1):
         if not line.strip():
             continue
         name, colon, values = line.partition(":")
@@ -137,7 +55,7 @@ def read_kitti_calib(path):
         if name in fields:
             raise PrismapInputError(f"{path} line {line_no}: field {name} appears twice")
         if name not in _TEXT_FIELDS:
-            fields[name] = _parse_numbers(values, path, line_no, name)
+            fields[name] = parse_numbers(values, path, line_no, name)
     return fields
 
 
@@ -151,11 +69,15 @@ def _calib_matrix(calib, path, name, shape):
     return values.reshape(shape)
 
 
-def _camera_from_projections(P_left, P_right, path):
+def _rectified_pair(calib, path, left, right, *, width=None, height=None):
+    """The camera of fields ``left`` and ``right`` of a read calibration file, and the left (3, 4) matrix."""
+    P_left = _calib_matrix(calib, path, left, (3, 4))
+    P_right = _calib_matrix(calib, path, right, (3, 4))
     try:
-        return StereoCamera.from_kitti_projections(P_left, P_right)
+        camera = StereoCamera.from_kitti_projections(P_left, P_right, width=width, height=height)
     except PrismapInputError as exc:
         raise PrismapInputError(f"{path}: {exc}") from None
+    return camera, P_left
 
 
 def _T_left_cam0(P_left):
@@ -184,17 +106,9 @@ def read_kitti_poses(path):
         An empty file or line, a line without exactly 12 finite numbers, or a rotation part that is
         not orthonormal within 1e-3, named with the file and line.
     """
-    path = Path(path)
-    lines = _read_text(path, "KITTI pose file").rstrip().splitlines()
-    if not lines:
-        raise PrismapInputError(f"{path}: KITTI pose file is empty")
-    poses = np.empty((len(lines), 4, 4))
-    for index, line in enumerate(lines):
-        values = _parse_numbers(line, path, index + 1)
-        if values.size != 12:
-            raise PrismapInputError(f"{path} line {index + 1}: expected 12 numbers (3x4 pose); got {values.size}")
-        poses[index] = _homogeneous(values.reshape(3, 4))
-        _check_rotation(poses[index, :3, :3], path, index + 1)
+    poses = homogeneous(read_number_rows(path, "KITTI pose file", 12, layout="3x4 pose").reshape(-1, 3, 4))
+    for index, pose in enumerate(poses):
+        _check_rotation(pose[:3, :3], path, index + 1)
     return poses
 
 
@@ -224,10 +138,7 @@ def read_kitti_disparity(path):
         Missing, not a PNG, truncated or corrupt, or not single-channel uint16 (an 8-bit PNG would
         silently lose the 1/256 px resolution and scale).
     """
-    raw = _read_gray_png(path, "KITTI disparity", np.uint16)
-    disparity = raw.astype(np.float32) / np.float32(256.0)
-    disparity[raw == 0] = np.nan
-    return disparity
+    return read_disparity_png(path, "KITTI disparity", dtype=np.uint16, scale=256.0)
 
 
 # ----------------------------------------------------------------------------- sequences
@@ -240,7 +151,7 @@ class _KittiSequence(Sequence):
         self._left_dir = Path(left_dir)
         self._right_dir = Path(right_dir)
         self._velodyne_dir = Path(velodyne_dir)
-        self._names = _paired_files(left_dir, right_dir, "*.png")
+        self._names = paired_names(left_dir, right_dir, "*.png")
         self.camera = camera
         self._T_cam_velo = T_cam_velo
         self._source = source
@@ -256,14 +167,11 @@ class _KittiSequence(Sequence):
             return [self[i] for i in range(*index.indices(len(self)))]
         index = range(len(self))[index]
         name = self._names[index]
-        left = _read_rgb(self._left_dir / name, "left image")
-        right = _read_rgb(self._right_dir / name, "right image")
-        if right.shape != left.shape:
-            raise PrismapInputError(f"{self._right_dir / name}: right image shape {right.shape} != left {left.shape}")
+        left, right = read_pair(self._left_dir / name, self._right_dir / name, colour=True)
         return StereoFrame(
             left=left,
             right=right,
-            camera=_with_image_size(self.camera, left),
+            camera=with_image_size(self.camera, left),
             T_world_cam=None if self.poses is None else self.poses[index].copy(),
             name=f"{self._source}/{Path(name).stem}",
         )
@@ -318,13 +226,11 @@ class KittiOdometry(_KittiSequence):
         seq_dir = root / "sequences" / f"{number:02d}"
         calib_path = seq_dir / "calib.txt"
         calib = read_kitti_calib(calib_path)
-        P2 = _calib_matrix(calib, calib_path, "P2", (3, 4))
-        P3 = _calib_matrix(calib, calib_path, "P3", (3, 4))
-        camera = _camera_from_projections(P2, P3, calib_path)
+        camera, P2 = _rectified_pair(calib, calib_path, "P2", "P3")
         T_cam2_cam0 = _T_left_cam0(P2)
         T_cam_velo = None
         if "Tr" in calib:
-            T_cam_velo = T_cam2_cam0 @ _homogeneous(_calib_matrix(calib, calib_path, "Tr", (3, 4)))
+            T_cam_velo = T_cam2_cam0 @ homogeneous(_calib_matrix(calib, calib_path, "Tr", (3, 4)))
         poses = None
         pose_path = root / "poses" / f"{number:02d}.txt"
         if load_poses and pose_path.exists():
@@ -359,9 +265,7 @@ class KittiRaw(_KittiSequence):
         cam_path = calib_dir / "calib_cam_to_cam.txt"
         velo_path = calib_dir / "calib_velo_to_cam.txt"
         cam = read_kitti_calib(cam_path)
-        P2 = _calib_matrix(cam, cam_path, "P_rect_02", (3, 4))
-        P3 = _calib_matrix(cam, cam_path, "P_rect_03", (3, 4))
-        camera = _camera_from_projections(P2, P3, cam_path)
+        camera, P2 = _rectified_pair(cam, cam_path, "P_rect_02", "P_rect_03")
         R_rect = np.eye(4)
         R_rect[:3, :3] = _calib_matrix(cam, cam_path, "R_rect_00", (3, 3))
         velo = read_kitti_calib(velo_path)

@@ -7,13 +7,14 @@ scalars (``isint``, ``vmin``, ``vmax``, ``dyavg``, ``dymax``).
 
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from prismap.camera import StereoCamera
 from prismap.errors import PrismapInputError
 from prismap.io._frame import StereoFrame
+from prismap.io._images import read_pair
 from prismap.io._pfm import read_pfm
+from prismap.io._text import location, parse_numbers, read_text
 
 # Quarter-resolution Motorcycle (Middlebury 2014) as scikit-image ships it; calibration from DESIGN.md.
 _MOTORCYCLE_CAMERA = dict(focal_px=994.978, cx_px=311.193, cy_px=254.877, baseline_m=0.193001, doffs_px=31.086)
@@ -60,12 +61,7 @@ def load_middlebury_folder(path):
         )
     fields = _parse_calib(folder / "calib.txt")
     camera = StereoCamera.from_middlebury_calib(fields, source=str(folder / "calib.txt"))
-    left = _read_png(folder / "im0.png")
-    right = _read_png(folder / "im1.png")
-    if left.shape != right.shape:
-        raise PrismapInputError(
-            f"{folder}: im0.png and im1.png must have one shape; got {left.shape} and {right.shape}"
-        )
+    left, right = read_pair(folder / "im0.png", folder / "im1.png", colour=False)
     if (camera.height, camera.width) != left.shape[:2]:
         raise PrismapInputError(
             f"{folder}: calib.txt says width={camera.width}, height={camera.height}; "
@@ -103,42 +99,26 @@ def load_middlebury_motorcycle():
 
 
 def _parse_calib(path):
-    """``calib.txt`` as a dict: matrices as (3, 3) float64 arrays, other values as float."""
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise PrismapInputError(f"{path}: cannot read the calibration file ({exc.strerror or exc})") from None
+    """``calib.txt`` as a dict: matrices ``[a b c; d e f; g h i]`` as (3, 3) float64, other values as float."""
     fields = {}
-    for number, line in enumerate(text.splitlines(), start=1):
+    for number, line in enumerate(read_text(path, "Middlebury calibration file").splitlines(), start=1):
         line = line.strip()
         if not line or line.startswith("#"):
             continue
         key, sep, value = line.partition("=")
         key, value = key.strip(), value.strip()
         if not sep or not key:
-            raise PrismapInputError(f"{path}, line {number}: expected `key=value`; got {line!r}")
-        try:
-            if value.startswith("["):
-                rows = value.strip("[]").split(";")
-                fields[key] = np.array([[float(x) for x in row.split()] for row in rows])
-                if fields[key].shape != (3, 3):
-                    raise ValueError(f"a 3x3 matrix, got shape {fields[key].shape}")
-            else:
-                fields[key] = float(value)
-        except ValueError as exc:
-            raise PrismapInputError(f"{path}, line {number}: cannot parse {key}={value!r} ({exc})") from None
+            raise PrismapInputError(f"{location(path, number)}: expected 'key=value'; got {line[:60]!r}")
+        if value.startswith("["):
+            rows = [parse_numbers(row, path, number, key) for row in value.strip("[]").split(";")]
+            if len(rows) != 3 or any(row.size != 3 for row in rows):
+                raise PrismapInputError(
+                    f"{location(path, number, key)}: expected a 3x3 matrix [a b c; d e f; g h i]; got {value[:60]!r}"
+                )
+            fields[key] = np.array(rows)
+        else:
+            numbers = parse_numbers(value, path, number, key)
+            if numbers.size != 1:
+                raise PrismapInputError(f"{location(path, number, key)}: expected one number; got {value[:60]!r}")
+            fields[key] = float(numbers[0])
     return fields
-
-
-def _read_png(path):
-    """An 8-bit PNG as RGB (or grey) uint8, or raise naming the file."""
-    if not path.is_file():
-        raise PrismapInputError(f"{path}: file not found")
-    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if image is None:
-        raise PrismapInputError(f"{path}: cannot decode the image")
-    if image.dtype != np.uint8:
-        raise PrismapInputError(f"{path}: expected an 8-bit image; got dtype {image.dtype}")
-    if image.ndim == 3:
-        image = cv2.cvtColor(image, cv2.COLOR_BGRA2RGB if image.shape[2] == 4 else cv2.COLOR_BGR2RGB)
-    return image

@@ -5,12 +5,11 @@ sign gives the byte order (negative = little-endian), each on its own line; then
 with the rows stored bottom to top. Middlebury marks unknown disparities with ``+inf``.
 """
 
-from pathlib import Path
-
 import numpy as np
 
 from prismap._files import atomic_path
 from prismap.errors import PrismapInputError
+from prismap.io._text import read_bytes
 
 
 def read_pfm(path):
@@ -25,11 +24,7 @@ def read_pfm(path):
     array : (H, W) or (H, W, 3) float32
         Rows top to bottom, native byte order; infinities (Middlebury: unknown) are kept.
     """
-    path = Path(path)
-    try:
-        raw = path.read_bytes()
-    except OSError as exc:
-        raise PrismapInputError(f"{path}: cannot read the PFM file ({exc.strerror or exc})") from None
+    raw = read_bytes(path, "PFM file")
     header, offset = _header(raw)
     if len(header) < 4 or header[0] not in (b"Pf", b"PF"):
         raise PrismapInputError(f"{path}: not a PFM file (expected a 'Pf' or 'PF' header); got {raw[:16]!r}")

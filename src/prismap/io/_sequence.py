@@ -16,23 +16,26 @@ on reading. Unlike KITTI's ``poses/NN.txt`` (poses of the grey camera P0), ``pos
 of the image_2 camera itself.
 """
 
-import struct
+import os
+import shutil
+import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-from prismap._files import atomic_path, write_text_atomic
+from prismap._files import atomic_path
 from prismap._validate import check_positive
-from prismap.camera import StereoCamera
 from prismap.errors import PrismapInputError
 from prismap.io._frame import StereoFrame
+from prismap.io._images import paired_names, png_size, read_disparity_png, read_gray_png, read_pair
+from prismap.io._kitti import _rectified_pair, read_kitti_calib
+from prismap.io._text import homogeneous, read_number_rows
 
 GROUND_TRUTH_FORMAT = "prismap-ground-truth-occupancy"
 GROUND_TRUTH_VERSION = 1
 _DISPARITY_SCALE = 256.0
-_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 _KEY_LIMIT = 1 << 20  # |key| bound of the ground-truth file: 10 km at 1 cm voxels
 
 
@@ -76,14 +79,16 @@ class GroundTruthOccupancy:
     @property
     def free_keys(self):
         """(K, 3) int64: observed keys that hold no solid, sorted."""
-        occupied = _packed(self.occupied_keys)
-        observed = _packed(self.observed_keys)
-        return self.observed_keys[~np.isin(observed, occupied)]
+        return self.observed_keys[~self._observed_is_occupied()]
 
     @property
     def observed_occupied_keys(self):
         """(K, 3) int64: observed keys that hold a solid, sorted."""
-        return self.observed_keys[np.isin(_packed(self.observed_keys), _packed(self.occupied_keys))]
+        return self.observed_keys[self._observed_is_occupied()]
+
+    def _observed_is_occupied(self):
+        """(M,) bool: whether each observed key is also an occupied key."""
+        return np.isin(_packed(self.observed_keys), _packed(self.occupied_keys), assume_unique=True)
 
 
 def _packed(keys):
@@ -134,7 +139,11 @@ def read_ground_truth(path):
 
 
 def write_sequence(frames, out_dir, *, occupancy=None):
-    """Write stereo frames as a KITTI-layout sequence (see the module docstring); every file atomically.
+    """Write stereo frames as a KITTI-layout sequence (see the module docstring), all or nothing.
+
+    The files are written into a temporary directory beside ``out_dir`` and moved into ``out_dir``
+    only once every frame has been checked and written, so a bad frame (or an interruption) leaves
+    ``out_dir`` untouched; frames are still streamed, not held in memory.
 
     Parameters
     ----------
@@ -142,7 +151,7 @@ def write_sequence(frames, out_dir, *, occupancy=None):
         One camera for all frames; poses either on every frame or on none; ``disparity_gt`` likewise
         (written to ``disp/``, quantised to 1/256 px; disparities must lie in (0, 255.99] px or be NaN).
     out_dir : str or Path
-        Created if missing; existing files of the same names are replaced.
+        Created if missing; existing files of the same names are replaced, other files are kept.
     occupancy : GroundTruthOccupancy, optional
         Written to ``occupancy.npz``.
 
@@ -152,6 +161,20 @@ def write_sequence(frames, out_dir, *, occupancy=None):
         Number of frames written.
     """
     out_dir = Path(out_dir)
+    if out_dir.exists() and not out_dir.is_dir():
+        raise PrismapInputError(f"{out_dir}: exists and is not a directory; expected a sequence directory")
+    out_dir.parent.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(dir=out_dir.parent, prefix=f".{out_dir.name}.", suffix=".tmp"))
+    try:
+        count = _write_files(frames, staging, occupancy)
+        _move_into(staging, out_dir)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+    return count
+
+
+def _write_files(frames, out_dir, occupancy):
+    """Write every file of the sequence into the (new, empty) ``out_dir``; the frame count."""
     camera = None
     poses = []
     has_pose = has_disparity = None
@@ -169,25 +192,40 @@ def write_sequence(frames, out_dir, *, occupancy=None):
             raise PrismapInputError(
                 f"`frames[{index}]`: poses and ground-truth disparities must be given for every frame or for none"
             )
-        stem = f"{index:06d}.png"
-        _write_image(out_dir / "image_2" / stem, frame.left, f"frames[{index}].left")
-        _write_image(out_dir / "image_3" / stem, frame.right, f"frames[{index}].right")
-        if has_disparity:
-            _write_image(out_dir / "disp" / stem, _encode_disparity(frame.disparity_gt, index), "disp")
         if has_pose:
             pose = np.asarray(frame.T_world_cam, dtype=np.float64)
             if pose.shape != (4, 4) or not np.all(np.isfinite(pose)):
                 raise PrismapInputError(f"`frames[{index}].T_world_cam` must be a finite (4, 4) array; got {pose}")
             poses.append(pose[:3].ravel())
+        stem = f"{index:06d}.png"
+        _write_image(out_dir / "image_2" / stem, frame.left, f"frames[{index}].left")
+        _write_image(out_dir / "image_3" / stem, frame.right, f"frames[{index}].right")
+        if has_disparity:
+            _write_image(out_dir / "disp" / stem, _encode_disparity(frame.disparity_gt, index), "disp")
         count += 1
     if count == 0:
         raise PrismapInputError("`frames` is empty: a sequence needs at least one frame")
-    write_text_atomic(out_dir / "calib.txt", _calib_text(camera))
+    (out_dir / "calib.txt").write_text(_calib_text(camera), encoding="utf-8")
     if has_pose:
-        write_text_atomic(out_dir / "poses.txt", "".join(" ".join(f"{v:.17g}" for v in p) + "\n" for p in poses))
+        text = "".join(" ".join(f"{v:.17g}" for v in p) + "\n" for p in poses)
+        (out_dir / "poses.txt").write_text(text, encoding="utf-8")
     if occupancy is not None:
         write_ground_truth(out_dir / "occupancy.npz", occupancy)
     return count
+
+
+def _move_into(staging, out_dir):
+    """Move the written sequence into ``out_dir``: one rename when it is new (or empty), else file by file."""
+    try:
+        os.rename(staging, out_dir)  # atomic; replaces an empty directory
+        return
+    except OSError:
+        pass
+    for source in sorted(staging.rglob("*")):
+        if source.is_file():
+            target = out_dir / source.relative_to(staging)
+            target.parent.mkdir(parents=True, exist_ok=True)
+            os.replace(source, target)
 
 
 def _same_intrinsics(a, b):
@@ -203,9 +241,9 @@ def _write_image(path, image, name):
         raise PrismapInputError(f"`{name}` must be (H, W) or (H, W, 3); got shape {image.shape}")
     if image.dtype not in (np.uint8, np.uint16):
         raise PrismapInputError(f"`{name}` must be uint8 (or uint16 for disparity); got {image.dtype}")
-    with atomic_path(path) as tmp:
-        if not cv2.imwrite(str(tmp), image):
-            raise PrismapInputError(f"{path}: OpenCV could not write the image")
+    path.parent.mkdir(exist_ok=True)
+    if not cv2.imwrite(str(path), image):
+        raise PrismapInputError(f"{path}: OpenCV could not write the image")
 
 
 def _encode_disparity(disparity, index):
@@ -229,71 +267,6 @@ def _calib_text(camera):
     return "".join(f"{name}: " + " ".join(f"{v:.17g}" for v in p.ravel()) + "\n" for name, p in rows)
 
 
-def _read_calib(path):
-    """The StereoCamera of ``calib.txt`` (P2 and P3), without image size."""
-    if not path.is_file():
-        raise PrismapInputError(f"{path}: calibration file not found")
-    matrices = {}
-    for number, line in enumerate(path.read_text(encoding="utf-8", errors="replace").splitlines(), start=1):
-        if not line.strip():
-            continue
-        name, sep, rest = line.partition(":")
-        if not sep:
-            raise PrismapInputError(f"{path}, line {number}: expected 'NAME: numbers'; got {line[:60]!r}")
-        try:
-            values = np.array([float(v) for v in rest.split()])
-        except ValueError:
-            raise PrismapInputError(f"{path}, line {number}: field {name.strip()} holds a non-number") from None
-        matrices[name.strip()] = (values, number)
-    for name in ("P2", "P3"):
-        if name not in matrices:
-            raise PrismapInputError(f"{path}: field {name} is missing (needed for the rectified pair)")
-        values, number = matrices[name]
-        if values.size != 12 or not np.all(np.isfinite(values)):
-            raise PrismapInputError(
-                f"{path}, line {number}: {name} must hold 12 finite numbers; got {values.size}: {values.tolist()}"
-            )
-    p2, p3 = (matrices[n][0].reshape(3, 4) for n in ("P2", "P3"))
-    focal = p2[0, 0]
-    if not focal > 0:
-        raise PrismapInputError(f"{path}: P2[0, 0] (focal length) must be > 0; got {focal}")
-    baseline = (p2[0, 3] - p3[0, 3]) / focal
-    if not baseline > 0:
-        raise PrismapInputError(
-            f"{path}: baseline (P2[0,3] - P3[0,3]) / f must be > 0; got {baseline} (is P3 the right camera?)"
-        )
-    return focal, p2[0, 2], p2[1, 2], baseline, p3[0, 2] - p2[0, 2]
-
-
-def _read_poses(path):
-    poses = []
-    for number, line in enumerate(path.read_text(encoding="utf-8", errors="replace").splitlines(), start=1):
-        if not line.strip():
-            continue
-        try:
-            values = np.array([float(v) for v in line.split()])
-        except ValueError:
-            raise PrismapInputError(f"{path}, line {number}: a pose must be 12 numbers; got {line[:80]!r}") from None
-        if values.size != 12:
-            raise PrismapInputError(f"{path}, line {number}: a pose must be 12 numbers; got {values.size} columns")
-        if not np.all(np.isfinite(values)):
-            raise PrismapInputError(f"{path}, line {number}: the pose contains NaN or infinity")
-        pose = np.eye(4)
-        pose[:3] = values.reshape(3, 4)
-        poses.append(pose)
-    return np.array(poses).reshape(-1, 4, 4)
-
-
-def _png_size(path):
-    """``(height, width)`` from a PNG header, without decoding the image."""
-    with open(path, "rb") as handle:
-        header = handle.read(24)
-    if len(header) < 24 or header[:8] != _PNG_SIGNATURE or header[12:16] != b"IHDR":
-        raise PrismapInputError(f"{path}: not a PNG file (bad or truncated header)")
-    width, height = struct.unpack(">II", header[16:24])
-    return height, width
-
-
 class Sequence:
     """A sequence directory opened by :func:`read_sequence`: frames are read from disk on access.
 
@@ -315,17 +288,11 @@ class Sequence:
         if not self.path.is_dir():
             raise PrismapInputError(f"{self.path}: sequence directory not found")
         left_dir, right_dir = self.path / "image_2", self.path / "image_3"
-        if not left_dir.is_dir():
-            raise PrismapInputError(f"{left_dir}: image directory not found")
-        self.names = sorted(p.name for p in left_dir.glob("*.png"))
-        if not self.names:
-            raise PrismapInputError(f"{left_dir}: no .png images")
+        self.names = paired_names(left_dir, right_dir, "*.png")
         size = None
         for name in self.names:
-            for folder in (left_dir, right_dir):
-                if not (folder / name).is_file():
-                    raise PrismapInputError(f"{folder / name}: image missing (its pair exists in {left_dir})")
-                this = _png_size(folder / name)
+            for folder, what in ((left_dir, "left image"), (right_dir, "right image")):
+                this = png_size(folder / name, what)
                 if size is None:
                     size = this
                 elif this != size:
@@ -333,10 +300,15 @@ class Sequence:
                         f"{folder / name}: image size {this[1]}x{this[0]} differs from "
                         f"{left_dir / self.names[0]} ({size[1]}x{size[0]})"
                     )
-        focal, cx, cy, baseline, doffs = _read_calib(self.path / "calib.txt")
-        self.camera = StereoCamera(focal, cx, cy, baseline, doffs, width=size[1], height=size[0])
+        calib_path = self.path / "calib.txt"
+        self.camera, _ = _rectified_pair(
+            read_kitti_calib(calib_path), calib_path, "P2", "P3", width=size[1], height=size[0]
+        )
         poses_path = self.path / "poses.txt"
-        self.poses = _read_poses(poses_path) if poses_path.is_file() else None
+        self.poses = None
+        if poses_path.is_file():
+            rows = read_number_rows(poses_path, "pose file", 12, layout="3x4 pose")
+            self.poses = homogeneous(rows.reshape(-1, 3, 4))
         if self.poses is not None and len(self.poses) != len(self.names):
             raise PrismapInputError(f"{poses_path}: {len(self.poses)} poses for {len(self.names)} frames")
         self._ground_truth = None
@@ -362,32 +334,25 @@ class Sequence:
             raise IndexError(f"frame {index} out of range for {len(self)} frames in {self.path}")
         index = int(index) % len(self)
         name = self.names[index]
-        left = _read_image(self.path / "image_2" / name, np.uint8)
-        right = _read_image(self.path / "image_3" / name, np.uint8)
+        left, right = read_pair(self.path / "image_2" / name, self.path / "image_3" / name, colour=False)
         disparity = None
         disparity_path = self.path / "disp" / name
         if disparity_path.is_file():
-            raw = _read_image(disparity_path, np.uint16)
-            if raw.shape != left.shape[:2]:
-                raise PrismapInputError(f"{disparity_path}: size {raw.shape} differs from the images' {left.shape[:2]}")
-            disparity = np.where(raw > 0, raw / np.float32(_DISPARITY_SCALE), np.nan).astype(np.float32)
+            disparity = read_disparity_png(
+                disparity_path, "ground-truth disparity", dtype=np.uint16, scale=_DISPARITY_SCALE
+            )
+            if disparity.shape != left.shape[:2]:
+                raise PrismapInputError(
+                    f"{disparity_path}: size {disparity.shape} differs from the images' {left.shape[:2]}"
+                )
         pose = None if self.poses is None else self.poses[index].copy()
         return StereoFrame(left, right, self.camera, disparity, pose, name=f"{self.path.name}/{name}")
 
 
 def _read_image(path, dtype):
-    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if image is None:
-        raise PrismapInputError(f"{path}: not a readable image (missing, truncated or corrupt)")
-    if image.dtype != dtype:
-        raise PrismapInputError(f"{path}: expected a {np.dtype(dtype).name} image; got {image.dtype}")
-    if image.ndim == 3 and dtype == np.uint8:
-        image = cv2.cvtColor(image, cv2.COLOR_BGRA2RGB if image.shape[2] == 4 else cv2.COLOR_BGR2RGB)
-    elif image.ndim != 2:
-        raise PrismapInputError(
-            f"{path}: expected a single-channel {np.dtype(dtype).name} image; got shape {image.shape}"
-        )
-    return image
+    """A raw single-channel PNG of ``dtype``; kept for ``prismap.pipeline._run``, which should move to
+    :func:`prismap.io._images.read_disparity_png`."""
+    return read_gray_png(path, "disparity", dtype)
 
 
 def read_sequence(path):

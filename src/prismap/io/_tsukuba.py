@@ -20,7 +20,8 @@ import numpy as np
 from prismap.camera import StereoCamera
 from prismap.errors import PrismapInputError
 from prismap.io._frame import StereoFrame
-from prismap.io._kitti import _parse_numbers, _read_gray_png, _read_rgb, _read_text, _with_image_size
+from prismap.io._images import read_disparity_png, read_pair, with_image_size
+from prismap.io._text import read_number_rows
 
 TSUKUBA_CAMERA = StereoCamera(focal_px=615.0, cx_px=320.0, cy_px=240.0, baseline_m=0.10, width=640, height=480)
 """The dataset's rectified rig: f = 615 px, principal point (320, 240), baseline 10 cm, 640x480."""
@@ -59,19 +60,11 @@ def read_tsukuba_track(path, *, baseline_m=TSUKUBA_CAMERA.baseline_m):
     PrismapInputError
         An empty file or line, or a line without exactly 6 finite numbers, named with file and line.
     """
-    path = Path(path)
-    lines = _read_text(path, "Tsukuba camera track").rstrip().splitlines()
-    if not lines:
-        raise PrismapInputError(f"{path}: Tsukuba camera track is empty")
+    rows = read_number_rows(path, "Tsukuba camera track", 6, layout="X, Y, Z, A, B, C", commas=True)
     T_rig_left = np.eye(4)
     T_rig_left[0, 3] = -0.5 * baseline_m
-    poses = np.empty((len(lines), 4, 4))
-    for index, line in enumerate(lines):
-        values = _parse_numbers(line.replace(",", " "), path, index + 1)
-        if values.size != 6:
-            raise PrismapInputError(
-                f"{path} line {index + 1}: expected 6 numbers (X, Y, Z, A, B, C); got {values.size}"
-            )
+    poses = np.empty((len(rows), 4, 4))
+    for index, values in enumerate(rows):
         a, b, c = np.deg2rad(values[3:])
         T = np.eye(4)
         T[:3, :3] = _rot_z(c) @ _rot_y(b) @ _rot_x(a)
@@ -159,10 +152,7 @@ def read_tsukuba_disparity(path):
     PrismapInputError
         Missing, not a PNG, truncated or corrupt, or not single-channel uint8.
     """
-    raw = _read_gray_png(path, "Tsukuba disparity", np.uint8)
-    disparity = raw.astype(np.float32)
-    disparity[raw == 0] = np.nan
-    return disparity
+    return read_disparity_png(path, "Tsukuba disparity", dtype=np.uint8, scale=1.0)
 
 
 class NewTsukuba(Sequence):
@@ -228,10 +218,7 @@ class NewTsukuba(Sequence):
             return [self[i] for i in range(*index.indices(len(self)))]
         index = range(len(self))[index]
         number = self._numbers[index]
-        left = _read_rgb(self._image_path("L", number), "left image")
-        right = _read_rgb(self._image_path("R", number), "right image")
-        if right.shape != left.shape:
-            raise PrismapInputError(f"{self._right_dir}: right image {number} shape {right.shape} != left {left.shape}")
+        left, right = read_pair(self._image_path("L", number), self._image_path("R", number), colour=True)
         truth = self._root / "groundtruth"
         if self._ground_truth == "disparity":
             disparity = read_tsukuba_disparity(truth / "disparity_maps/left" / f"tsukuba_disparity_L_{number:05d}.png")
@@ -247,7 +234,7 @@ class NewTsukuba(Sequence):
         return StereoFrame(
             left=left,
             right=right,
-            camera=_with_image_size(self.camera, left),
+            camera=with_image_size(self.camera, left),
             disparity_gt=disparity,
             T_world_cam=None if self.poses is None else self.poses[index].copy(),
             name=f"tsukuba/{self._illumination}/{number:05d}",

@@ -1,11 +1,10 @@
 """Velodyne scans as KITTI stores them: float32 (x, y, z, reflectance) records, sensor frame."""
 
-from pathlib import Path
-
 import numpy as np
 
 from prismap._validate import as_float_array
 from prismap.errors import PrismapInputError
+from prismap.io._text import read_bytes
 
 _RECORD_BYTES = 16
 
@@ -29,10 +28,7 @@ def read_velodyne_bin(path):
     PrismapInputError
         The file is missing, its size is not a multiple of 16 bytes, or a value is NaN or infinite.
     """
-    path = Path(path)
-    if not path.is_file():
-        raise PrismapInputError(f"{path}: velodyne scan not found")
-    raw = path.read_bytes()
+    raw = read_bytes(path, "velodyne scan")
     if len(raw) % _RECORD_BYTES:
         raise PrismapInputError(
             f"{path}: velodyne scan size must be a multiple of {_RECORD_BYTES} bytes (x, y, z, reflectance "

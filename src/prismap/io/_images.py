@@ -1,0 +1,156 @@
+"""PNG images and disparity maps of the dataset readers, read with OpenCV.
+
+OpenCV's ``imread`` returns ``None`` for a missing, foreign or corrupt file and hands back BGR; these
+helpers turn both into the reader conventions: a :class:`PrismapInputError` that names the file and
+its role, and RGB channel order.
+"""
+
+import dataclasses
+import struct
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from prismap.errors import PrismapInputError
+
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+def read_png(path, what, flags=cv2.IMREAD_UNCHANGED):
+    """Decode a PNG with ``cv2.imread(path, flags)``; channels stay in OpenCV's BGR(A) order.
+
+    Parameters
+    ----------
+    path : str or Path
+    what : str
+        The file's role in messages (e.g. ``"left image"``).
+    flags : int
+        OpenCV ``IMREAD_*`` flags.
+
+    Returns
+    -------
+    (H, W) or (H, W, C) ndarray
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise PrismapInputError(f"{path}: {what} not found")
+    with open(path, "rb") as handle:
+        if handle.read(len(PNG_SIGNATURE)) != PNG_SIGNATURE:
+            raise PrismapInputError(f"{path}: {what} is not a PNG file (wrong signature)")
+    image = cv2.imread(str(path), flags)
+    if image is None:
+        raise PrismapInputError(f"{path}: {what} cannot be decoded (truncated or corrupt PNG)")
+    return image
+
+
+def read_image(path, what, *, colour):
+    """An 8-bit PNG image in RGB order.
+
+    Parameters
+    ----------
+    path : str or Path
+    what : str
+        The file's role in messages.
+    colour : bool, keyword-only
+        True: always (H, W, 3), grey files repeated and 16-bit files scaled to 8 bits by OpenCV
+        (KITTI, New Tsukuba). False: as stored, grey (H, W) or RGB (H, W, 3) (alpha dropped), and
+        the file must be 8-bit (Middlebury, sequences).
+
+    Returns
+    -------
+    (H, W, 3) or (H, W) uint8
+    """
+    image = read_png(path, what, cv2.IMREAD_COLOR if colour else cv2.IMREAD_UNCHANGED)
+    if image.dtype != np.uint8:
+        raise PrismapInputError(f"{path}: {what} must be an 8-bit PNG; got {image.dtype.name}")
+    if image.ndim == 3:
+        image = cv2.cvtColor(image, cv2.COLOR_BGRA2RGB if image.shape[2] == 4 else cv2.COLOR_BGR2RGB)
+    return image
+
+
+def read_gray_png(path, what, dtype):
+    """A single-channel PNG of exactly ``dtype`` (uint8 or uint16), values untouched.
+
+    Returns
+    -------
+    (H, W) ndarray of ``dtype``
+    """
+    image = read_png(path, what)
+    if image.ndim != 2 or image.dtype != dtype:
+        channels = 1 if image.ndim == 2 else image.shape[2]
+        raise PrismapInputError(
+            f"{path}: {what} must be a single-channel {np.dtype(dtype).name} PNG; "
+            f"got {channels}-channel {image.dtype.name}"
+        )
+    return image
+
+
+def read_disparity_png(path, what, *, dtype, scale):
+    """A disparity map stored as integers ``round(scale * d)`` in a single-channel PNG, 0 = unknown.
+
+    Parameters
+    ----------
+    path : str or Path
+    what : str
+        The file's role in messages.
+    dtype : numpy dtype, keyword-only
+        The PNG's sample type: uint16 (KITTI and prismap sequences, ``scale`` 256) or uint8 (New
+        Tsukuba, ``scale`` 1). Any other type is rejected: an 8-bit file where 16 bits are expected
+        would silently lose the scale.
+    scale : float, keyword-only
+        Stored value per pixel of disparity.
+
+    Returns
+    -------
+    (H, W) float32, pixels, NaN = unknown
+    """
+    raw = read_gray_png(path, what, dtype)
+    disparity = raw.astype(np.float32) / np.float32(scale)
+    disparity[raw == 0] = np.nan
+    return disparity
+
+
+def png_size(path, what):
+    """``(height, width)`` in pixels from a PNG header, without decoding the image."""
+    path = Path(path)
+    if not path.is_file():
+        raise PrismapInputError(f"{path}: {what} not found")
+    with open(path, "rb") as handle:
+        header = handle.read(24)
+    if len(header) < 24 or header[:8] != PNG_SIGNATURE or header[12:16] != b"IHDR":
+        raise PrismapInputError(f"{path}: {what} is not a PNG file (bad or truncated header)")
+    width, height = struct.unpack(">II", header[16:24])
+    return height, width
+
+
+def paired_names(left_dir, right_dir, pattern):
+    """Sorted names of the files matching ``pattern`` in ``left_dir``; each must exist in ``right_dir`` too.
+
+    Returns
+    -------
+    list of str
+        Never empty.
+    """
+    left = sorted(p.name for p in Path(left_dir).glob(pattern))
+    if not left:
+        raise PrismapInputError(f"{left_dir}: no files matching {pattern!r}")
+    right = {p.name for p in Path(right_dir).glob(pattern)}
+    missing = [name for name in left if name not in right]
+    if missing:
+        raise PrismapInputError(f"{right_dir}: missing {len(missing)} right image(s), first {missing[0]!r}")
+    return left
+
+
+def read_pair(left_path, right_path, *, colour):
+    """Left and right images of one frame (:func:`read_image`), which must have one shape."""
+    left = read_image(left_path, "left image", colour=colour)
+    right = read_image(right_path, "right image", colour=colour)
+    if right.shape != left.shape:
+        raise PrismapInputError(f"{right_path}: right image shape {right.shape} != left {left.shape}")
+    return left, right
+
+
+def with_image_size(camera, image):
+    """``camera`` (StereoCamera) with ``width`` and ``height`` of ``image`` ((H, W[, C]))."""
+    return dataclasses.replace(camera, width=image.shape[1], height=image.shape[0])
