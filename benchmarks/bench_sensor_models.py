@@ -1,0 +1,85 @@
+"""Nanoseconds per cell of every inverse sensor model on one batch of rays, side by side in one process.
+
+Scene: a pinhole camera (f = 615 px, 640x480 principal point at the centre, baseline 0.10 m: New Tsukuba)
+looking at a smooth synthetic depth field between 1 and 10 m; disparities rounded to OpenCV's 1/16 px.
+Each ray gets cells of 0.1 m along the ray from 0.5 m to 0.5 m past its measured depth (what a grid
+casting to the influence depth of the ideal model sees). PRISM uses a two-component error mixture.
+
+    .venv/bin/python benchmarks/bench_sensor_models.py            # 320x240 rays (~4 M cells)
+    .venv/bin/python benchmarks/bench_sensor_models.py --full     # 640x480 rays (~17 M cells, ~1 GB)
+"""
+
+import argparse
+import time
+
+import numpy as np
+
+from prismap.gmm import GaussianMixture
+from prismap.sensor_models import make_sensor_model
+
+FOCAL, BASELINE, WIDTH, HEIGHT = 615.0, 0.10, 640, 480
+FB = FOCAL * BASELINE
+MIXTURE = GaussianMixture([0.85, 0.15], [0.05, -0.3], [0.4, 2.5])
+
+
+def scene(step):
+    """Rays of every ``step``-th pixel: disparity, ray norm, and 0.1 m cells along each ray."""
+    v, u = np.mgrid[0:HEIGHT:step, 0:WIDTH:step].astype(np.float64)
+    x, y = (u - WIDTH / 2) / FOCAL, (v - HEIGHT / 2) / FOCAL
+    depth = 5.5 + 4.5 * np.sin(3 * x + 1.0) * np.cos(2 * y)  # 1..10 m
+    disparity = np.round(FB / depth * 16).ravel() / 16
+    ray_norm = np.sqrt(1 + x * x + y * y).ravel()
+    z_hat = FB / disparity
+    step_depth = 0.1 / ray_norm
+    counts = np.ceil((z_hat + 0.5 - 0.5) / step_depth).astype(np.int64)
+    rays = np.repeat(np.arange(disparity.size), counts)
+    first = np.concatenate(([0], np.cumsum(counts)[:-1]))
+    index = np.arange(rays.size) - first[rays]
+    start = 0.5 + index * step_depth[rays]
+    return disparity, ray_norm, rays, start, start + step_depth[rays]
+
+
+def time_call(model, batch, **kwargs):
+    t0 = time.perf_counter()
+    model.cell_posteriors(*batch, **kwargs)
+    return time.perf_counter() - t0
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--full", action="store_true", help="all 640x480 rays instead of 320x240")
+    parser.add_argument("--direct-rays", type=int, default=300, help="rays for the slow direct PRISM")
+    args = parser.parse_args()
+    batch = scene(1 if args.full else 2)
+    n_cells = batch[2].size
+    print(f"scene: {batch[0].size} rays ({'640x480' if args.full else '320x240'} of a 640x480 frame), "
+          f"depth {FB / batch[0].max():.2f}-{FB / batch[0].min():.2f} m, {n_cells} cells of 0.1 m, "
+          f"{np.unique(batch[0]).size} distinct disparities, |r| up to {batch[1].max():.3f}")
+    common = {"focal_baseline": FB, "voxel_size_m": 0.1, "p0": 0.05}
+    small = scene(16)
+    results = {}
+    for name in ("ideal", "hitmiss", "convolution", "andert"):
+        model = make_sensor_model(name, **common)
+        model.cell_posteriors(*small)  # compile / load the numba cache
+        results[name] = time_call(model, batch) / n_cells * 1e9
+    prism = make_sensor_model("prism", error_model=MIXTURE, **common)
+    make_sensor_model("prism", error_model=MIXTURE, **common).cell_posteriors(*small)  # compile, other cache
+    t_cold = time_call(prism, batch)
+    results["prism table (cold: builds tables)"] = t_cold / n_cells * 1e9
+    results["prism table (warm)"] = time_call(prism, batch) / n_cells * 1e9
+    pick = np.random.default_rng(0).choice(batch[0].size, size=min(args.direct_rays, batch[0].size), replace=False)
+    keep = np.isin(batch[2], pick)
+    remap = np.full(batch[0].size, -1)
+    remap[pick] = np.arange(pick.size)
+    sub = (batch[0][pick], batch[1][pick], remap[batch[2][keep]], batch[3][keep], batch[4][keep])
+    prism.cell_posteriors(*small, method="direct")
+    results[f"prism direct ({pick.size} rays)"] = time_call(prism, sub, method="direct") / keep.sum() * 1e9
+    print(f"{'model':40s} {'ns/cell':>10s} {'x ideal':>9s}")
+    for name, ns in results.items():
+        print(f"{name:40s} {ns:10.1f} {ns / results['ideal']:9.2f}")
+    print(f"PRISM tables cached: {len(prism._tables)}; ratio tabulated PRISM (warm) / ideal = "
+          f"{results['prism table (warm)'] / results['ideal']:.2f} (goal <= 1.5)")
+
+
+if __name__ == "__main__":
+    main()
