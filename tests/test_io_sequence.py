@@ -177,3 +177,88 @@ def test_write_rejects_inconsistent_frames(tmp_path):
     big = StereoFrame(frames[0].left, frames[0].right, CAMERA, np.full((20, 32), 300.0, np.float32), frames[0].T_world_cam)
     with pytest.raises(PrismapInputError, match="reaches 300.00 px; the uint16 x 256 format stores at most 255.99"):
         write_sequence([big], tmp_path / "e")
+
+
+def _tree(directory):
+    """{relative path: bytes} of every file below ``directory``."""
+    return {str(p.relative_to(directory)): p.read_bytes() for p in sorted(directory.rglob("*")) if p.is_file()}
+
+
+def _streamed(frames, bad_index, bad):
+    """Frames one by one (as a simulator streams them), frame ``bad_index`` replaced by ``bad(frame)``."""
+    for index, frame in enumerate(frames):
+        yield bad(frame) if index == bad_index else frame
+
+
+BAD_LATER_FRAMES = {
+    "NaN pose": lambda f: StereoFrame(f.left, f.right, CAMERA, f.disparity_gt, np.full((4, 4), np.nan)),
+    "4-channel image": lambda f: StereoFrame(np.dstack([f.left, f.left[:, :, :1]]), f.right, CAMERA, f.disparity_gt, f.T_world_cam),
+    "disparity too large": lambda f: StereoFrame(f.left, f.right, CAMERA, np.full((20, 32), 300.0, np.float32), f.T_world_cam),
+    "other camera": lambda f: StereoFrame(f.left, f.right, StereoCamera(99.0, 15.25, 9.75, 0.25), f.disparity_gt, f.T_world_cam),
+}
+
+
+@pytest.mark.parametrize("bad", BAD_LATER_FRAMES.values(), ids=BAD_LATER_FRAMES.keys())
+def test_a_bad_later_frame_leaves_no_partial_output(tmp_path, bad):
+    """Issue 7: frames 0 and 1 are fine, frame 2 is not; nothing may appear, in a new or an existing directory."""
+    with pytest.raises(PrismapInputError, match="frames\\[2\\]"):
+        write_sequence(_streamed(_frames(3), 2, bad), tmp_path / "new", occupancy=_truth())
+    assert sorted(p.name for p in tmp_path.iterdir()) == []  # neither the sequence nor the staging directory
+    existing = tmp_path / "existing"
+    write_sequence(_frames(2, seed=5), existing)
+    before = _tree(existing)
+    with pytest.raises(PrismapInputError, match="frames\\[2\\]"):
+        write_sequence(_streamed(_frames(3), 2, bad), existing, occupancy=_truth())
+    assert _tree(existing) == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["existing"]
+
+
+def test_an_interrupted_write_leaves_no_partial_output(tmp_path):
+    def interrupted():
+        yield from _frames(2)
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        write_sequence(interrupted(), tmp_path / "seq")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_writing_into_a_used_directory_replaces_same_names_and_keeps_others(tmp_path):
+    write_sequence(_frames(3, seed=1), tmp_path)
+    (tmp_path / "notes.txt").write_text("mine")
+    frames = _frames(3, seed=2)
+    write_sequence(frames, tmp_path)
+    assert (tmp_path / "notes.txt").read_text() == "mine"
+    assert sorted(p.name for p in tmp_path.parent.iterdir() if p.name.startswith(f".{tmp_path.name}.")) == []
+    seq = read_sequence(tmp_path)
+    for original, frame in zip(frames, seq):
+        np.testing.assert_array_equal(frame.left, original.left)
+        np.testing.assert_array_equal(frame.T_world_cam, original.T_world_cam)
+    with pytest.raises(PrismapInputError, match="notes.txt: exists and is not a directory"):
+        write_sequence(frames, tmp_path / "notes.txt")
+
+
+def test_sequence_camera_is_the_kitti_reader_camera(tmp_path):
+    """calib.txt goes through read_kitti_calib and from_kitti_projections: doffs = P3[0, 2] - P2[0, 2]."""
+    from prismap.io import read_kitti_calib
+
+    write_sequence(_frames(1), tmp_path)
+    calib = read_kitti_calib(tmp_path / "calib.txt")
+    expected = StereoCamera.from_kitti_projections(calib["P2"].reshape(3, 4), calib["P3"].reshape(3, 4), width=32, height=20)
+    assert read_sequence(tmp_path).camera == expected == CAMERA
+    assert calib["P3"][2] - calib["P2"][2] == CAMERA.doffs_px
+
+
+def test_random_cameras_round_trip_through_calib_txt(tmp_path):
+    rng = np.random.default_rng(11)
+    image = np.zeros((4, 6), np.uint8)
+    for trial in range(20):
+        camera = StereoCamera(
+            rng.uniform(100, 2000), rng.uniform(0, 600), rng.uniform(0, 400), rng.uniform(0.01, 1.0),
+            doffs_px=rng.uniform(-5, 50), width=6, height=4,
+        )
+        write_sequence([StereoFrame(image, image, camera)], tmp_path / str(trial))
+        back = read_sequence(tmp_path / str(trial)).camera
+        for field in ("focal_px", "cx_px", "cy_px", "baseline_m", "doffs_px"):
+            # %.17g is exact; b = (f b) / f and doffs = (cx + doffs) - cx cost at most a few ulps
+            assert getattr(back, field) == pytest.approx(getattr(camera, field), rel=1e-13, abs=1e-12), field
