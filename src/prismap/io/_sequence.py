@@ -29,7 +29,7 @@ from prismap._files import atomic_path
 from prismap._validate import check_positive
 from prismap.errors import PrismapInputError
 from prismap.io._frame import StereoFrame
-from prismap.io._images import paired_names, png_size, read_disparity_png, read_gray_png, read_pair
+from prismap.io._images import paired_names, png_size, read_disparity_png, read_pair
 from prismap.io._kitti import _rectified_pair, read_kitti_calib
 from prismap.io._text import homogeneous, read_number_rows
 
@@ -308,9 +308,9 @@ class Sequence:
         self.poses = None
         if poses_path.is_file():
             rows = read_number_rows(poses_path, "pose file", 12, layout="3x4 pose")
+            if len(rows) != len(self.names):
+                raise PrismapInputError(f"{poses_path}: {len(rows)} poses for {len(self.names)} frames")
             self.poses = homogeneous(rows.reshape(-1, 3, 4))
-        if self.poses is not None and len(self.poses) != len(self.names):
-            raise PrismapInputError(f"{poses_path}: {len(self.poses)} poses for {len(self.names)} frames")
         self._ground_truth = None
 
     @property
@@ -347,12 +347,6 @@ class Sequence:
                 )
         pose = None if self.poses is None else self.poses[index].copy()
         return StereoFrame(left, right, self.camera, disparity, pose, name=f"{self.path.name}/{name}")
-
-
-def _read_image(path, dtype):
-    """A raw single-channel PNG of ``dtype``; kept for ``prismap.pipeline._run``, which should move to
-    :func:`prismap.io._images.read_disparity_png`."""
-    return read_gray_png(path, "disparity", dtype)
 
 
 def read_sequence(path):
