@@ -428,9 +428,12 @@ def combine_fast(l_ca, l_da, l_cc, l_dc, lam_len):
 def prism_table_cells(
     lam, tab_a, tab_b, weight_b, ray_of_cell, start, end, z0, z_max, fb, hq,
     t_lam, t_ku, t_x0, t_inv_h, t_off, t_len, t_z_end, t_z_infl, t_shift, t_log_z, t_log_far,
-    log_c, dlog_c, log_d, dlog_d, log_wn, means, sigmas,
+    nodes, log_wn, means, sigmas,
 ):
     """Tabulated PRISM: per cell, Hermite look-ups at both ends, linear in log(lambda) between two tables.
+
+    ``nodes`` is (N, 4): normalised log C, its x-derivative, log D, its x-derivative (one cache line per
+    node pair).
 
     Cells starting beyond the influence depth get increment 0; for a cell ending beyond the table (where
     the remaining evidence is below e^-40 of C), ``C(c) = Z`` and ``D(c)`` is integrated on the spot.
@@ -461,21 +464,21 @@ def prism_table_cells(
             h = 1.0 / t_inv_h[t]
             k, f = _locate(a, t_lam[t], t_ku[t], t_x0[t], t_inv_h[t], t_len[t])
             o = t_off[t] + k
-            lda += wt * _hermite(f, h, log_d[o], dlog_d[o], log_d[o + 1], dlog_d[o + 1])
+            lda += wt * _hermite(f, h, nodes[o, 2], nodes[o, 3], nodes[o + 1, 2], nodes[o + 1, 3])
             if k == 0:  # log C is -inf at z0: integrate the first interval
                 if a > z0:
                     lca += wt * (log_integral(z0, a, t_lam[t], t_ku[t], hq, z0, fb, t_shift[t], log_wn, means, sigmas) - t_log_z[t])
                 else:
                     lca = -np.inf
             else:
-                lca += wt * _hermite(f, h, log_c[o], dlog_c[o], log_c[o + 1], dlog_c[o + 1])
+                lca += wt * _hermite(f, h, nodes[o, 0], nodes[o, 1], nodes[o + 1, 0], nodes[o + 1, 1])
             k, f = _locate(c_in, t_lam[t], t_ku[t], t_x0[t], t_inv_h[t], t_len[t])
             o = t_off[t] + k
-            ldc += wt * _hermite(f, h, log_d[o], dlog_d[o], log_d[o + 1], dlog_d[o + 1])
+            ldc += wt * _hermite(f, h, nodes[o, 2], nodes[o, 3], nodes[o + 1, 2], nodes[o + 1, 3])
             if k == 0:
                 lcc += wt * (log_integral(z0, c_in, t_lam[t], t_ku[t], hq, z0, fb, t_shift[t], log_wn, means, sigmas) - t_log_z[t])
             else:
-                lcc += wt * _hermite(f, h, log_c[o], dlog_c[o], log_c[o + 1], dlog_c[o + 1])
+                lcc += wt * _hermite(f, h, nodes[o, 0], nodes[o, 1], nodes[o + 1, 0], nodes[o + 1, 1])
         if beyond:  # the rest is below e^-40 of C: integrate it on the spot (rate of table a)
             lcc = 0.0
             ldc = log_tail(c, t_log_z[ta], t_lam[ta], t_ku[ta], hq, z0, z_max, fb, t_shift[ta], t_log_far[ta],

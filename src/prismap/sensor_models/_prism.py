@@ -240,13 +240,13 @@ class PrismModel(RayModel):
             if (kd, kl) not in self._tables:
                 self._tables[(int(kd), int(kl))] = self._build_table(int(kd), int(kl))
         tables = [self._tables[(int(kd), int(kl))] for kd, kl in unique]
-        lengths = np.array([t["log_c"].size for t in tables], dtype=np.int64)
+        lengths = np.array([t["nodes"].shape[0] for t in tables], dtype=np.int64)
         offsets = np.concatenate(([0], np.cumsum(lengths)[:-1])).astype(np.int64)
         scalars = {key: np.array([t[key] for t in tables], dtype=np.float64)
                    for key in ("lam", "ku", "x0", "inv_h", "z_end", "shift", "log_z", "z_infl", "log_far")}
-        flat = [np.concatenate([t[key] for t in tables]) for key in ("log_c", "dlog_c", "log_d", "dlog_d")]
+        nodes = np.concatenate([t["nodes"] for t in tables])
         packed = (scalars["lam"], scalars["ku"], scalars["x0"], scalars["inv_h"], offsets, lengths,
-                  scalars["z_end"], scalars["z_infl"], scalars["shift"], scalars["log_z"], scalars["log_far"], *flat)
+                  scalars["z_end"], scalars["z_infl"], scalars["shift"], scalars["log_z"], scalars["log_far"], nodes)
         n = disparity.size
         return packed, inverse[:n].astype(np.int64), inverse[n:].astype(np.int64), weight_b
 
@@ -277,7 +277,7 @@ class PrismModel(RayModel):
         return {
             "lam": lam, "ku": ku, "x0": _kernels.x_of_z(self.near_m, lam, ku), "inv_h": 1.0 / h,
             "z_end": float(zn[-1]), "shift": shift, "log_z": log_z, "z_infl": float(z[i_infl]), "log_far": log_far,
-            "log_c": log_c[idx] - log_z, "dlog_c": dlog_c, "log_d": log_d[idx] - log_z, "dlog_d": dlog_d,
+            "nodes": np.ascontiguousarray(np.stack([log_c[idx] - log_z, dlog_c, log_d[idx] - log_z, dlog_d], axis=1)),
         }
 
 
