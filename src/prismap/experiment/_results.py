@@ -1,0 +1,204 @@
+"""One experiment cell (a matcher's disparities mapped with one sensor model), its scores, and the results table."""
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from prismap._files import write_text_atomic
+from prismap.errors import PrismapInputError
+from prismap.evaluate import MapScores, align_to_ground_truth, score_map
+from prismap.sensor_models import prior_from_ground_truth
+
+MODELS = ("ideal", "hitmiss", "convolution", "andert", "prism")
+"""Every inverse sensor model of SENSOR_MODELS.md, in the order of the tables."""
+
+RESULTS_FORMAT = "prismap-experiment-results"
+RESULTS_VERSION = 1
+
+COLUMNS = (
+    ("Brier", "brier", "{:.4f}"),
+    ("log-loss (nats)", "log_loss", "{:.4f}"),
+    ("ECE", "ece", "{:.4f}"),
+    ("ROC AUC", "roc_auc", "{:.3f}"),
+    ("occupied called free", "occupied_called_free", "{:.3f}"),
+    ("free called occupied", "free_called_occupied", "{:.3f}"),
+)
+"""(header, MapScores attribute, format) of the score columns of the results table."""
+
+
+@dataclass(frozen=True)
+class CellResult:
+    """Scores of one map: one matcher's (or error source's) disparities integrated with one sensor model.
+
+    Attributes
+    ----------
+    matcher : str
+        Stereo matcher name, or the label of the simulated error source.
+    model : str
+        Inverse sensor model name.
+    scores : MapScores
+        Against the ground truth's observed voxels (unknown voxels score as ``p0``).
+    time_s : float, seconds
+        Wall time of building the map (sensor model construction and every frame).
+    n_frames : int
+        Frames integrated.
+    settings : dict
+        The run's settings (world, sizes, seed, p0, ...): a cell is reused on resume only if they match.
+    """
+
+    matcher: str
+    model: str
+    scores: MapScores
+    time_s: float
+    n_frames: int
+    settings: dict = field(default_factory=dict)
+
+    def to_dict(self):
+        """Plain-JSON form (scores via :meth:`MapScores.to_dict`, NaN as null)."""
+        return {"format": RESULTS_FORMAT + "-cell", "version": RESULTS_VERSION, "matcher": self.matcher,
+                "model": self.model, "time_s": self.time_s, "n_frames": self.n_frames, "settings": self.settings,
+                "scores": self.scores.to_dict()}
+
+    @classmethod
+    def from_dict(cls, data, *, source="cell"):
+        """Inverse of :meth:`to_dict`; ``source`` names the data in error messages."""
+        try:
+            if data["format"] != RESULTS_FORMAT + "-cell" or data["version"] != RESULTS_VERSION:
+                raise PrismapInputError(f"{source}: not a version-{RESULTS_VERSION} experiment cell "
+                                        f"(format {data['format']!r}, version {data['version']!r})")
+            return cls(str(data["matcher"]), str(data["model"]), scores_from_dict(data["scores"]),
+                       float(data["time_s"]), int(data["n_frames"]), dict(data["settings"]))
+        except (KeyError, TypeError, ValueError) as exc:
+            raise PrismapInputError(f"{source}: malformed experiment cell ({type(exc).__name__}: {exc})") from None
+
+
+def scores_from_dict(data):
+    """A :class:`MapScores` from :meth:`MapScores.to_dict` output (null back to NaN, lists to arrays)."""
+    values = {}
+    for name, value in data.items():
+        if isinstance(value, list):
+            value = np.array([np.nan if v is None else v for v in value])
+            if name in ("bin_counts", "hist_free", "hist_occupied"):
+                value = value.astype(np.int64)
+        elif value is None:
+            value = float("nan")
+        values[name] = value
+    return MapScores(**values)
+
+
+def score_grid(grid, truth):
+    """Score ``grid`` (OccupancyMap) on every voxel ``truth`` (GroundTruthOccupancy) observed; unknown = ``grid.p0``."""
+    keys = grid.known_voxels()[0]
+    probability, occupied = align_to_ground_truth(keys, grid.probability_at_keys(keys), truth.occupied_keys,
+                                                  truth.observed_keys, p0=grid.p0)
+    return score_map(probability, occupied)
+
+
+def prior_of(truth):
+    """``p0`` for a map on ``truth``'s grid: the occupancy ratio of the voxels it observed (Laplace-smoothed).
+
+    This is the "estimate it from a ground-truth map" rule of SENSOR_MODELS.md section 5: the fraction of
+    the evaluated voxels that hold a solid. The sensor models and the map use the same value.
+    """
+    if truth.observed_keys.shape[0] == 0:
+        raise PrismapInputError("the ground truth observes no voxel: no occupancy ratio, and nothing to score")
+    occupied = np.zeros(truth.observed_keys.shape[0], dtype=bool)
+    occupied[: truth.observed_occupied_keys.shape[0]] = True  # only the count matters
+    return prior_from_ground_truth(occupied)
+
+
+def cell_path(out_dir, matcher, model):
+    """Where the cell ``(matcher, model)`` of a run in ``out_dir`` keeps its result JSON."""
+    return Path(out_dir) / "cells" / f"{matcher}__{model}.json"
+
+
+def write_cell(result, path):
+    """Write a :class:`CellResult` as JSON, atomically."""
+    write_text_atomic(path, json.dumps(result.to_dict(), indent=1) + "\n")
+
+
+def read_cell(path, settings):
+    """The cell stored at ``path`` if it exists and was computed with ``settings``; else None (recompute)."""
+    path = Path(path)
+    if not path.is_file():
+        return None
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise PrismapInputError(f"{path}: unreadable experiment cell ({exc}); delete it to recompute") from None
+    result = CellResult.from_dict(data, source=str(path))
+    return result if result.settings == _plain(settings) else None
+
+
+def _plain(value):
+    """``value`` as it reads back from JSON (tuples become lists)."""
+    return json.loads(json.dumps(value))
+
+
+def format_results_table(results, *, title, notes=()):
+    """Markdown: one row per (matcher, model) with every score, the voxel counts and the mapping time."""
+    header = ["matcher", "model", *(c[0] for c in COLUMNS), "time (s)"]
+    lines = [f"# {title}", "", *notes, *([""] if notes else []),
+             "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    best = best_models(results)
+    for result in results:
+        cells = [result.matcher, result.model]
+        for _, name, fmt in COLUMNS:
+            value = getattr(result.scores, name)
+            text = "n/a" if value != value else fmt.format(value)
+            if best.get((result.matcher, name)) == result.model:
+                text = f"**{text}**"
+            cells.append(text)
+        cells.append(f"{result.time_s:.1f}")
+        lines.append("| " + " | ".join(cells) + " |")
+    first = results[0].scores if results else None
+    if first is not None:
+        lines += ["", f"Scored voxels: {first.n_voxels} ({first.n_occupied} occupied, {first.n_free} free). "
+                  "Bold: the best model of each matcher on that score (lowest, highest for ROC AUC)."]
+    return "\n".join(lines) + "\n"
+
+
+def best_models(results):
+    """``{(matcher, score name): model}``: each matcher's best model per score (highest AUC, else lowest)."""
+    best = {}
+    for _, name, _ in COLUMNS:
+        sign = -1.0 if name == "roc_auc" else 1.0
+        for result in results:
+            value = getattr(result.scores, name)
+            if value != value:
+                continue
+            key = (result.matcher, name)
+            current = best.get(key)
+            if current is None or sign * value < sign * current[1]:
+                best[key] = (result.model, value)
+    return {key: model for key, (model, _) in best.items()}
+
+
+def write_results(results, out_dir, *, title, notes=(), settings=None):
+    """Write ``results.md`` and ``results.json`` (every cell with its full scores) into ``out_dir``.
+
+    Returns
+    -------
+    dict of str -> Path: ``{"table": results.md, "json": results.json}``.
+    """
+    out = Path(out_dir)
+    paths = {"table": out / "results.md", "json": out / "results.json"}
+    write_text_atomic(paths["table"], format_results_table(results, title=title, notes=notes))
+    document = {"format": RESULTS_FORMAT, "version": RESULTS_VERSION, "title": title, "settings": settings or {},
+                "cells": [r.to_dict() for r in results]}
+    write_text_atomic(paths["json"], json.dumps(document, indent=1) + "\n")
+    return paths
+
+
+def read_results(path):
+    """The cells of a ``results.json`` written by :func:`write_results`, as a list of :class:`CellResult`."""
+    path = Path(path)
+    try:
+        document = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise PrismapInputError(f"{path}: unreadable results file ({exc})") from None
+    if not isinstance(document, dict) or document.get("format") != RESULTS_FORMAT:
+        raise PrismapInputError(f"{path}: not a prismap experiment results file")
+    return [CellResult.from_dict(cell, source=f"{path} cell {i}") for i, cell in enumerate(document.get("cells", []))]
