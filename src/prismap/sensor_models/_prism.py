@@ -152,6 +152,7 @@ class PrismModel(RayModel):
     disparity_step_px: float = 1.0 / 16.0
     influence_epsilon: float = INFLUENCE_EPSILON
     _tables: dict = field(default_factory=dict, init=False, repr=False, compare=False)
+    _packed: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     def __post_init__(self):
         super().__post_init__()
@@ -228,7 +229,7 @@ class PrismModel(RayModel):
 
     # ------------------------------------------------------------------ tables
     def _tables_for(self, disparity, norm):
-        """Build missing tables for these rays; pack the needed ones into flat arrays for the kernel."""
+        """Table ids (two per ray, bracketing its ``lambda_z``) and the packed tables, building missing ones."""
         key_d = np.rint(disparity / self.disparity_step_px).astype(np.int64)
         k_real = np.log(np.maximum(norm, 1.0)) / _LAMBDA_STEP
         key_l = np.floor(k_real).astype(np.int64)
@@ -236,19 +237,33 @@ class PrismModel(RayModel):
         pairs = np.concatenate([np.stack([key_d, key_l], 1), np.stack([key_d, key_l + 1], 1)])
         unique, inverse = np.unique(pairs, axis=0, return_inverse=True)
         inverse = inverse.reshape(-1)
-        for kd, kl in unique:
-            if (kd, kl) not in self._tables:
-                self._tables[(int(kd), int(kl))] = self._build_table(int(kd), int(kl))
-        tables = [self._tables[(int(kd), int(kl))] for kd, kl in unique]
+        keys = [(int(kd), int(kl)) for kd, kl in unique]
+        missing = [key for key in keys if key not in self._tables]
+        for key in missing:
+            self._tables[key] = self._build_table(*key)
+        if missing or "packed" not in self._packed:
+            self._pack()
+        ids = np.array([self._packed["index"][key] for key in keys], dtype=np.int64)
+        packed = self._packed["packed"]
+        inverse = ids[inverse]
+        n = disparity.size
+        return packed, inverse[:n], inverse[n:], weight_b
+
+    def _pack(self):
+        """Concatenate every cached table into the flat arrays the kernel reads (redone when tables are added)."""
+        keys = list(self._tables)
+        tables = [self._tables[key] for key in keys]
         lengths = np.array([t["nodes"].shape[0] for t in tables], dtype=np.int64)
         offsets = np.concatenate(([0], np.cumsum(lengths)[:-1])).astype(np.int64)
         scalars = {key: np.array([t[key] for t in tables], dtype=np.float64)
                    for key in ("lam", "ku", "x0", "inv_h", "z_end", "shift", "log_z", "z_infl", "log_far")}
         nodes = np.concatenate([t["nodes"] for t in tables])
+        for table, offset, length in zip(tables, offsets, lengths):
+            table["nodes"] = nodes[offset : offset + length]  # a view: the nodes are stored once
         packed = (scalars["lam"], scalars["ku"], scalars["x0"], scalars["inv_h"], offsets, lengths,
                   scalars["z_end"], scalars["z_infl"], scalars["shift"], scalars["log_z"], scalars["log_far"], nodes)
-        n = disparity.size
-        return packed, inverse[:n].astype(np.int64), inverse[n:].astype(np.int64), weight_b
+        self._packed.clear()
+        self._packed.update(index={key: i for i, key in enumerate(keys)}, packed=packed)
 
     def _build_table(self, key_d, key_l):
         d = key_d * self.disparity_step_px
