@@ -76,12 +76,15 @@ def run(args):
         frames=parse_frames(args.frames),
     )
     config.sensor_model(sequence.camera)  # a bad model option fails here, not on the first frame or a worker
-    checkpoint = args.out.with_name(args.out.name.removesuffix(".npz") + ".checkpoint.npz")
+    checkpoint = None
+    if args.checkpoint_every:
+        checkpoint = args.out.with_name(args.out.name.removesuffix(".npz") + ".checkpoint.npz")
     with _dask_client(args.workers, args.scheduler) as client:
         grid = map_sequence(sequence, config, progress=True, checkpoint=checkpoint,
                             checkpoint_every=args.checkpoint_every, client=client, chunk_frames=args.chunk_frames)
     save_map(grid, args.out)
-    remove_checkpoint(checkpoint)
+    if checkpoint is not None:
+        remove_checkpoint(checkpoint)
     print(f"{grid.n_frames} frames, {grid.n_known} known voxels, {len(grid.occupied_voxels()[0])} occupied "
           f"({config.model}, voxel {config.voxel_size_m} m); wrote {args.out}")
     return 0

@@ -131,7 +131,8 @@ class MappingConfig:
     subsample : int >= 1
         Use every ``subsample``-th pixel in both directions.
     frames : (int, int or None)
-        ``(start, stop)``: the frames ``start <= i < stop`` of the sequence (stop None = to the end).
+        ``(start, stop)``: the frames ``start <= i < stop`` of the sequence (stop None or beyond the
+        sequence = to its end).
 
     Notes
     -----

@@ -139,7 +139,7 @@ def map_sequence(sequence, config, *, progress=True, checkpoint=None, checkpoint
     client : distributed.Client or None
         Integrate chunks of frames on this Dask cluster (see Notes); None = here, sequentially.
     chunk_frames : int or None
-        Frames per Dask task; None = a quarter of the frames per worker, at most ``checkpoint_every``.
+        Frames per Dask task; None = half of the frames per worker, at most ``checkpoint_every``.
 
     Returns
     -------
@@ -193,7 +193,7 @@ def _map_on_dask(grid, sequence, config, todo, client, chunk_frames, checkpoint_
     """Merge chunk maps computed by ``client``'s workers into ``grid`` in frame order."""
     n_workers = max(1, sum(client.nthreads().values()))
     if chunk_frames is None:
-        chunk_frames = max(1, math.ceil(len(todo) / (4 * n_workers)))
+        chunk_frames = max(1, math.ceil(len(todo) / (2 * n_workers)))
         if checkpoint_every:
             chunk_frames = min(chunk_frames, checkpoint_every)
     elif isinstance(chunk_frames, bool) or int(chunk_frames) != chunk_frames or chunk_frames < 1:
