@@ -1,6 +1,7 @@
 """Fuzzing the dataset readers: arbitrary bytes and mutated valid files raise PrismapInputError or parse.
 
-Each reader gets arbitrary bytes and mutations of a valid file (truncation, byte flips, inserted NaN,
+Each reader (KITTI, New Tsukuba, Velodyne, Middlebury calib.txt, PFM, sequence calib.txt and poses.txt)
+gets arbitrary bytes and mutations of a valid file (truncation, byte flips, inserted NaN,
 letters and separators, deleted spans that drop or merge columns). Seeded (``derandomize=True``).
 """
 
@@ -12,6 +13,9 @@ from hypothesis import strategies as st
 
 from prismap.errors import PrismapInputError
 from prismap.io._kitti import KittiOdometry, read_kitti_calib, read_kitti_disparity, read_kitti_poses
+from prismap.io._middlebury import read_middlebury_calib
+from prismap.io._pfm import read_pfm
+from prismap.io._sequence import read_sequence
 from prismap.io._tsukuba import read_tsukuba_depth, read_tsukuba_disparity, read_tsukuba_track
 from prismap.io._velodyne import read_velodyne_bin
 
@@ -154,6 +158,49 @@ def valid_xml(workdir):
 def test_fuzz_tsukuba_depth(workdir, valid_xml, data):
     payload = data.draw(_fuzz_bytes(valid_xml))
     _check(read_tsukuba_depth, workdir / "tsukuba_depth_L_00001.xml", payload)
+
+
+VALID_MIDDLEBURY_CALIB = (
+    b"cam0=[3979.911 0 1244.772; 0 3979.911 1019.507; 0 0 1]\ncam1=[3979.911 0 1369.115; 0 3979.911 1019.507; 0 0 1]\n"
+    b"doffs=124.343\nbaseline=193.001\nwidth=2964\nheight=1988\nndisp=270\nvmin=23\nvmax=245\n"
+)
+VALID_PFM = b"Pf\n4 3\n-1\n" + np.random.default_rng(4).uniform(0, 50, 12).astype("<f4").tobytes()
+FEWER = settings(FUZZ, max_examples=EXAMPLES // 3)
+
+
+@FEWER
+@given(data=_fuzz_bytes(VALID_MIDDLEBURY_CALIB))
+def test_fuzz_middlebury_calib(workdir, data):
+    _check(read_middlebury_calib, workdir / "calib_middlebury.txt", data)
+
+
+@FEWER
+@given(data=_fuzz_bytes(VALID_PFM))
+def test_fuzz_pfm(workdir, data):
+    _check(read_pfm, workdir / "disp0.pfm", data)
+
+
+@pytest.fixture(scope="module")
+def sequence_dir(workdir):
+    directory = workdir / "sequence"
+    for folder in ("image_2", "image_3"):
+        (directory / folder).mkdir(parents=True)
+        for index in range(4):
+            cv2.imwrite(str(directory / folder / f"{index:06d}.png"), np.zeros((2, 3), np.uint8))
+    (directory / "calib.txt").write_bytes(VALID_CALIB)
+    return directory
+
+
+@FEWER
+@given(calib=_fuzz_bytes(VALID_CALIB), poses=_fuzz_bytes(VALID_POSES))
+def test_fuzz_sequence_calib_and_poses(sequence_dir, calib, poses):
+    """``read_sequence`` reads calib.txt and poses.txt on opening; either may be the broken one."""
+    (sequence_dir / "calib.txt").write_bytes(calib)
+    (sequence_dir / "poses.txt").write_bytes(poses)
+    try:
+        read_sequence(sequence_dir)
+    except PrismapInputError as exc:
+        assert "calib.txt" in str(exc) or "poses.txt" in str(exc)
 
 
 def test_mutations_reach_both_outcomes(workdir):
