@@ -26,7 +26,7 @@ def scene(step):
     """Rays of every ``step``-th pixel: disparity, ray norm, and 0.1 m cells along each ray."""
     v, u = np.mgrid[0:HEIGHT:step, 0:WIDTH:step].astype(np.float64)
     x, y = (u - WIDTH / 2) / FOCAL, (v - HEIGHT / 2) / FOCAL
-    depth = 5.5 + 4.5 * np.sin(3 * x + 1.0) * np.cos(2 * y)  # 1..10 m
+    depth = 5.5 + 4.5 * np.sin(4 * x + 8 * y * y)  # 1..10 m
     disparity = np.round(FB / depth * 16).ravel() / 16
     ray_norm = np.sqrt(1 + x * x + y * y).ravel()
     z_hat = FB / disparity

@@ -94,7 +94,11 @@ def _random_cells(rng, depths, n_cells=120):
 
 @pytest.mark.parametrize(
     ("mixture", "voxel", "p0"),
-    [(MIXTURE, 0.1, 0.05), (GaussianMixture.gaussian(0.3), 0.05, 0.2), (GaussianMixture([0.6, 0.3, 0.1], [0.1, -0.5, 2.0], [0.25, 1.0, 6.0]), 0.2, 0.01)],
+    [
+        (MIXTURE, 0.1, 0.05),
+        (GaussianMixture.gaussian(0.3), 0.05, 0.2),
+        (GaussianMixture([0.6, 0.3, 0.1], [0.1, -0.5, 2.0], [0.25, 1.0, 6.0]), 0.2, 0.01),
+    ],
 )
 def test_table_agrees_with_direct_within_stated_bound(mixture, voxel, p0):
     rng = np.random.default_rng(3)

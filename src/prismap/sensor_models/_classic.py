@@ -71,7 +71,9 @@ class IdealModel(_ProfileModel):
     default_policy = "mean"
 
     def cell_posteriors(self, disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m):
-        _, norm, rays, start, end, z_hat = self._prepare(disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m)
+        _, norm, rays, start, end, z_hat = self._prepare(
+            disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m
+        )
         return _kernels.ideal_cells(z_hat, norm, rays, start, end, 0.5 * self.alpha_m, self.p_free, self.p_occ, self.p0)
 
     def influence_depth(self, disparity_px, ray_norm):
@@ -151,7 +153,9 @@ class ConvolutionModel(_ProfileModel):
         object.__setattr__(self, "sigma_px", check_positive(self.sigma_px, "sigma_px"))
 
     def cell_posteriors(self, disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m):
-        _, norm, rays, start, end, z_hat = self._prepare(disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m)
+        _, norm, rays, start, end, z_hat = self._prepare(
+            disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m
+        )
         return _kernels.convolution_cells(
             z_hat, self._sigma_depth(z_hat, self.sigma_px), norm, rays, start, end,
             0.5 * self.alpha_m, self.p_free, self.p_occ, self.p0,
@@ -212,7 +216,9 @@ class AndertModel(RayModel):
         object.__setattr__(self, "p_max", p_max)
 
     def cell_posteriors(self, disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m):
-        _, norm, rays, start, end, z_hat = self._prepare(disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m)
+        _, norm, rays, start, end, z_hat = self._prepare(
+            disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m
+        )
         return _kernels.andert_cells(
             z_hat, self._sigma_depth(z_hat, self.sigma_px), norm, rays, start, end,
             self.eta, self.p_min, self.p_max, self.p0,

@@ -389,7 +389,8 @@ def _hermite(f, h, v0, d0, v1, d1):
     """Cubic Hermite on [0, 1] with node derivatives ``d0, d1`` per unit x (scaled by the step ``h``)."""
     f2 = f * f
     f3 = f2 * f
-    return (2.0 * f3 - 3.0 * f2 + 1.0) * v0 + (f3 - 2.0 * f2 + f) * h * d0 + (3.0 * f2 - 2.0 * f3) * v1 + (f3 - f2) * h * d1
+    return ((2.0 * f3 - 3.0 * f2 + 1.0) * v0 + (f3 - 2.0 * f2 + f) * h * d0
+            + (3.0 * f2 - 2.0 * f3) * v1 + (f3 - f2) * h * d1)
 
 
 @nb.njit(cache=True)
@@ -467,7 +468,8 @@ def prism_table_cells(
             lda += wt * _hermite(f, h, nodes[o, 2], nodes[o, 3], nodes[o + 1, 2], nodes[o + 1, 3])
             if k == 0:  # log C is -inf at z0: integrate the first interval
                 if a > z0:
-                    lca += wt * (log_integral(z0, a, t_lam[t], t_ku[t], hq, z0, fb, t_shift[t], log_wn, means, sigmas) - t_log_z[t])
+                    lca += wt * (log_integral(z0, a, t_lam[t], t_ku[t], hq, z0, fb, t_shift[t], log_wn, means, sigmas)
+                                 - t_log_z[t])
                 else:
                     lca = -np.inf
             else:
@@ -476,7 +478,8 @@ def prism_table_cells(
             o = t_off[t] + k
             ldc += wt * _hermite(f, h, nodes[o, 2], nodes[o, 3], nodes[o + 1, 2], nodes[o + 1, 3])
             if k == 0:
-                lcc += wt * (log_integral(z0, c_in, t_lam[t], t_ku[t], hq, z0, fb, t_shift[t], log_wn, means, sigmas) - t_log_z[t])
+                lcc += wt * (log_integral(z0, c_in, t_lam[t], t_ku[t], hq, z0, fb, t_shift[t], log_wn, means, sigmas)
+                             - t_log_z[t])
             else:
                 lcc += wt * _hermite(f, h, nodes[o, 0], nodes[o, 1], nodes[o + 1, 0], nodes[o + 1, 1])
         if beyond:  # the rest is below e^-40 of C: integrate it on the spot (rate of table a)

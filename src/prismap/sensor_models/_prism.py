@@ -134,7 +134,9 @@ class PrismModel(RayModel):
         Prior occupancy of a ``voxel_size_m`` cell: the scene's occupancy ratio, NOT 0.5 (see
         :func:`estimate_prior_from_likelihood`, :func:`prior_from_ground_truth`).
     near_m : float, metres, default 0.1
-        ``z0``: no surface before this depth.
+        ``z0``: no surface before this depth. Table size and build time grow like ``1 / near_m`` (the
+        likelihood term of ``x``): setting it to the matcher's nearest depth ``f b / max_disparity`` saves
+        most of both (0.5 m instead of 0.1 m: 5x less memory, ~2.5x faster builds).
     max_range_m : float, metres, default 200
         ``z_max``: beyond it, the far measurement.
     method : {"table", "direct"}
@@ -158,7 +160,8 @@ class PrismModel(RayModel):
         super().__post_init__()
         if not isinstance(self.error_model, GaussianMixture):
             raise PrismapInputError(
-                f"prism: `error_model` must be a GaussianMixture (fit one with prismap.gmm); got {type(self.error_model).__name__}"
+                "prism: `error_model` must be a GaussianMixture (fit one with prismap.gmm); "
+                f"got {type(self.error_model).__name__}"
             )
         near = check_positive(self.near_m, "near_m")
         far = check_positive(self.max_range_m, "max_range_m")
@@ -193,7 +196,9 @@ class PrismModel(RayModel):
     def cell_posteriors(self, disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m, *, method=None):
         """Posterior and increment per cell (see :class:`InverseSensorModel`); ``method`` overrides the model's."""
         method = self.method if method is None else method
-        disparity, norm, rays, start, end, _ = self._prepare(disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m)
+        disparity, norm, rays, start, end, _ = self._prepare(
+            disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m
+        )
         lam = self.rate_per_m * norm
         if method == "direct":
             order = np.argsort(rays, kind="stable")
@@ -280,7 +285,9 @@ class PrismModel(RayModel):
         step = _NODES_PER_TABLE_STEP
         full_steps = (z.size - 1) // step
         if full_steps < 1:
-            raise PrismapInputError(f"prism: near_m={self.near_m} to max_range_m={self.max_range_m} is too short to tabulate")
+            raise PrismapInputError(
+                f"prism: near_m={self.near_m} to max_range_m={self.max_range_m} is too short to tabulate"
+            )
         idx = np.arange(0, full_steps * step + 1, step)  # to where the remaining evidence is < e^-40 of C
         zn = z[idx]
         log_qg = np.log(lam) - lam * (zn - self.near_m) + _log_g(self.focal_baseline / zn, shift, log_wn, means, sigmas)
@@ -315,7 +322,9 @@ def prior_from_ground_truth(occupied):
     """
     occupied = np.asarray(occupied)
     if occupied.size == 0 or occupied.dtype != bool:
-        raise PrismapInputError(f"`occupied` must be a non-empty bool array; got dtype {occupied.dtype}, size {occupied.size}")
+        raise PrismapInputError(
+            f"`occupied` must be a non-empty bool array; got dtype {occupied.dtype}, size {occupied.size}"
+        )
     return float((occupied.sum() + 1.0) / (occupied.size + 2.0))
 
 
