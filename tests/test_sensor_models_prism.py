@@ -165,6 +165,7 @@ def test_peak_flattens_with_distance_and_with_extra_noise():
     assert all(b < a for a, b in zip(peaks, peaks[1:])), peaks
     wider = model.with_extra_noise(1.0)
     assert wider.error_model.sigmas[0] == pytest.approx(np.hypot(0.4, 1.0))
+    assert model.with_extra_noise(1.0) is wider  # memoised: its tables are reused
     assert _profile(wider, 5.0, edges)[0].max() < peaks[1]
 
 

@@ -155,6 +155,7 @@ class PrismModel(RayModel):
     influence_epsilon: float = INFLUENCE_EPSILON
     _tables: dict = field(default_factory=dict, init=False, repr=False, compare=False)
     _packed: dict = field(default_factory=dict, init=False, repr=False, compare=False)
+    _widened: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     def __post_init__(self):
         super().__post_init__()
@@ -228,9 +229,14 @@ class PrismModel(RayModel):
         return np.maximum(z_infl[tab_a], z_infl[tab_b])
 
     def with_extra_noise(self, sigma_px):
-        """A copy whose error model is ``error_model.widened(sigma_px)`` (fresh table cache)."""
+        """A copy whose error model is ``error_model.widened(sigma_px)``.
+
+        Copies are memoised per ``sigma_px``, so their tables survive from frame to frame.
+        """
         extra = check_positive(sigma_px, "sigma_px")
-        return dataclasses.replace(self, error_model=self.error_model.widened(extra))
+        if extra not in self._widened:
+            self._widened[extra] = dataclasses.replace(self, error_model=self.error_model.widened(extra))
+        return self._widened[extra]
 
     # ------------------------------------------------------------------ tables
     def _tables_for(self, disparity, norm):
