@@ -39,7 +39,7 @@ def scaled_tsukuba_camera(scale):
 
 
 def scene3d_settings(*, n_frames=None, voxel_size_m=None, seed=0, quick=False, matchers=MATCHERS,
-                     characterise_every=4, max_range_m=10.0):
+                     characterise_every=4, max_range_m=10.0, grid_offset=0.5):
     """The settings dict of a 3-D run (sizes of ``SCENE_SIZES`` unless overridden)."""
     sizes = dict(SCENE_SIZES[bool(quick)])
     if n_frames is not None:
@@ -54,7 +54,11 @@ def scene3d_settings(*, n_frames=None, voxel_size_m=None, seed=0, quick=False, m
     unknown = [m for m in matchers if m not in MATCHERS]
     if unknown or not matchers:
         raise PrismapInputError(f"`matchers` must be a non-empty subset of {list(MATCHERS)}; got {list(matchers)}")
+    offset = float(grid_offset)
+    if not 0.0 <= offset < 1.0:
+        raise PrismapInputError(f"`grid_offset` must lie in [0, 1) voxels; got {grid_offset!r}")
     return {"world": "scene3d", "quick": bool(quick), "seed": int(seed), "characterise_every": int(every),
+            "grid_offset_m": offset * sizes["voxel_size_m"],
             "max_range_m": check_positive(max_range_m, "max_range_m"), "matchers": list(matchers), **sizes}
 
 
@@ -65,7 +69,7 @@ def split_frames(n_frames, every):
 
 
 def run_scene3d(out_dir, *, n_frames=None, voxel_size_m=None, seed=0, quick=False, matchers=MATCHERS,
-                models=MODELS, characterise_every=4, max_range_m=10.0):
+                models=MODELS, characterise_every=4, max_range_m=10.0, grid_offset=0.5):
     """Characterise each matcher on some frames of the indoor scene, map the others with every model, score.
 
     The seeded :func:`prismap.sim.indoor_scene` is rendered along :func:`prismap.sim.indoor_trajectory`.
@@ -92,6 +96,12 @@ def run_scene3d(out_dir, *, n_frames=None, voxel_size_m=None, seed=0, quick=Fals
     characterise_every : int >= 2
     max_range_m : float, metres
         Distance along a ray beyond which maps are not updated (and the ground truth not observed).
+    grid_offset : float in [0, 1), voxels
+        The scene and trajectory are translated by this many voxels on every axis. The room's floor,
+        walls and box faces lie at round coordinates; at offset 0 they coincide with voxel faces, and a
+        closed box then marks the voxel beyond its face as occupied although only its boundary plane
+        is solid (the whole floor layer above z = 0, for instance): ground truth no sensor could
+        confirm. The default half voxel puts those planes through voxel middles.
 
     Returns
     -------
@@ -101,12 +111,17 @@ def run_scene3d(out_dir, *, n_frames=None, voxel_size_m=None, seed=0, quick=Fals
     from prismap.io import read_sequence, write_sequence
 
     settings = scene3d_settings(n_frames=n_frames, voxel_size_m=voxel_size_m, seed=seed, quick=quick,
-                                matchers=matchers, characterise_every=characterise_every, max_range_m=max_range_m)
+                                matchers=matchers, characterise_every=characterise_every, max_range_m=max_range_m,
+                                grid_offset=grid_offset)
     out = claim_out_dir(out_dir, settings)
     voxel = settings["voxel_size_m"]
     camera = scaled_tsukuba_camera(settings["image_scale"])
-    scene = sim.indoor_scene(seed=seed)
+    base = sim.indoor_scene(seed=seed)
+    shift = settings["grid_offset_m"]
+    scene = sim.Scene3D(base.box_lo + shift, base.box_hi + shift, base.box_texture, base.box_texel_m, base.box_tint,
+                        name=base.name)
     poses = sim.indoor_trajectory(settings["n_frames"], seed=seed)
+    poses[:, :3, 3] += shift
     char_index, map_index = split_frames(settings["n_frames"], settings["characterise_every"])
     if len(map_index) == 0:
         raise PrismapInputError(f"{settings['n_frames']} frames leave none to map after characterisation")
@@ -132,12 +147,13 @@ def run_scene3d(out_dir, *, n_frames=None, voxel_size_m=None, seed=0, quick=Fals
         cells, maps = run_cells(out, matcher_name, models, build_map, truth, settings)
         results += cells
         artifacts += char_artifacts
-        artifacts += draw_figures(out, matcher_name, cells, maps, truth, layer=math.floor(SLICE_HEIGHT_M / voxel),
+        artifacts += draw_figures(out, matcher_name, cells, maps, truth, layer=math.floor((SLICE_HEIGHT_M + shift) / voxel),
                                   where=f"z = {SLICE_HEIGHT_M} m")
     notes = (
         f"Indoor scene {scene.name}, {camera.width}x{camera.height} New Tsukuba camera, {len(char_index)} "
         f"characterisation frames ({char_index.tolist()}) and {len(map_index)} other mapping frames, "
-        f"{voxel} m voxels, pixel step {settings['subsample']}, rays to {settings['max_range_m']} m.",
+        f"{voxel} m voxels, pixel step {settings['subsample']}, rays to {settings['max_range_m']} m; scene and "
+        f"trajectory shifted by {shift:g} m on each axis so that floor and walls cut voxels through the middle.",
         f"p0 = {p0:.4f}: the occupancy ratio of the voxels a perfect sensor observed (the scored voxels).",
         "Each matcher's PRISM, convolution and Andert models use the error model characterised on the "
         "characterisation frames; time = mapping wall time (PRISM's tables included).",

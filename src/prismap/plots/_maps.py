@@ -58,6 +58,7 @@ def plot_map_slices(maps_by_model, truth, *, layer, path=None, title="", scores_
     """
     from matplotlib import colormaps
     from matplotlib.figure import Figure
+    from scipy.special import expit
 
     if not isinstance(maps_by_model, dict) or not maps_by_model:
         raise PrismapInputError(f"`maps_by_model` must be a non-empty dict of name -> OccupancyMap; got {maps_by_model!r:.80}")
@@ -71,7 +72,7 @@ def plot_map_slices(maps_by_model, truth, *, layer, path=None, title="", scores_
     panels = [("ground truth", truth_image)]
     for name, grid in maps_by_model.items():
         log, count = grid.lookup_keys(keys.reshape(-1, 3))
-        probability = 1.0 / (1.0 + np.exp(-log.astype(np.float64)))
+        probability = expit(log.astype(np.float64))
         probability[count == 0] = np.nan
         label = name
         if scores_by_model and name in scores_by_model:
