@@ -1,0 +1,480 @@
+"""Every inverse sensor model on one ray, judged against PRISM (SENSOR_MODELS.md section 6).
+
+The study evaluates models with ``cell_posteriors`` on equal cells along one ray of norm 1 (depth =
+distance along the ray): cell ``k`` covers ``[k D, (k + 1) D]`` for the ``k`` with ``k D >= near_m``.
+A measured distance ``s`` becomes the disparity ``f b / s - doffs`` rounded to OpenCV's 1/16 px, and
+the profile is drawn at the distance of that rounded disparity, as a matcher would report it.
+
+Models with a single Gaussian noise (``convolution``, ``andert``: any model with a ``sigma_px``) take the
+sigma of the error mixture's dominant (largest-weight) component: the core of the matcher's errors, as
+the mapping pipeline configures them. PRISM takes the whole mixture.
+"""
+
+import dataclasses
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.special import rel_entr
+
+from prismap._progress import progress
+from prismap._validate import check_positive, check_probability
+from prismap.errors import PrismapInputError
+from prismap.gmm import GaussianMixture
+from prismap.sensor_models import make_sensor_model, model_names
+
+CAMERAS = {
+    "middlebury-motorcycle": {"focal_px": 994.978, "baseline_m": 0.193001, "doffs_px": 31.086},
+    "kitti": {"focal_px": 721.5377, "baseline_m": 0.5327, "doffs_px": 0.0},
+    "tsukuba": {"focal_px": 615.0, "baseline_m": 0.10, "doffs_px": 0.0},
+}
+"""Rigs of the study: Middlebury 2014 Motorcycle at scikit-image's quarter resolution, KITTI 2011_09_26
+(cameras 2 and 3, as in KITTI stereo 2015), New Tsukuba."""
+
+DISPARITY_STEP_PX = 1.0 / 16.0
+KL_CLIP = 1e-12
+"""Model posteriors are clipped to ``[KL_CLIP, 1 - KL_CLIP]`` in the KL so a hard 0 or 1 stays finite."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class RaySetup:
+    """Camera, map cell and prior shared by every model of one study.
+
+    Parameters
+    ----------
+    focal_baseline : float, pixel-metres
+    doffs_px : float, pixels
+    voxel_size_m : float, metres
+        Cell length ``D`` along the ray.
+    p0 : float in (0, 1)
+        Prior occupancy of one cell of ``voxel_size_m``.
+    near_m : float, metres
+        First cell boundary (PRISM's ``z0``).
+    epsilon : float, log-odds
+        PRISM's influence bound: cells with ``|increment| < epsilon`` carry no information.
+    """
+
+    focal_baseline: float
+    doffs_px: float = 0.0
+    voxel_size_m: float = 0.1
+    p0: float = 0.05
+    near_m: float = 0.1
+    epsilon: float = 1e-3
+
+    def __post_init__(self):
+        for name in ("focal_baseline", "voxel_size_m", "near_m", "epsilon"):
+            object.__setattr__(self, name, check_positive(getattr(self, name), name))
+        object.__setattr__(self, "p0", check_probability(self.p0, "p0"))
+        if not np.isfinite(self.doffs_px):
+            raise PrismapInputError(f"`doffs_px` must be finite; got {self.doffs_px!r}")
+        object.__setattr__(self, "doffs_px", float(self.doffs_px))
+
+    def with_cell_size(self, cell_m):
+        """The same environment with cells of ``cell_m``: ``p0' = 1 - (1 - p0)^(cell_m / D)`` keeps PRISM's rate."""
+        cell = check_positive(cell_m, "cell_m")
+        p0 = -np.expm1(np.log1p(-self.p0) * cell / self.voxel_size_m)
+        return dataclasses.replace(self, voxel_size_m=cell, p0=float(p0))
+
+    def disparity_at(self, distance_m):
+        """Disparity (pixels, 1/16 px steps) a matcher reports for a surface at ``distance_m`` on a ray of norm 1."""
+        distance = check_positive(distance_m, "distance_m")
+        disparity = np.round((self.focal_baseline / distance - self.doffs_px) / DISPARITY_STEP_PX) * DISPARITY_STEP_PX
+        if disparity + self.doffs_px <= 0:
+            raise PrismapInputError(f"distance {distance} m is beyond the disparity resolution of this camera")
+        return float(disparity)
+
+    def distance_of(self, disparity_px):
+        """Measured distance (metres) of a disparity on a ray of norm 1."""
+        return self.focal_baseline / (disparity_px + self.doffs_px)
+
+
+def single_noise_sigma(mixture):
+    """Sigma (pixels) of the mixture's largest-weight component: the noise of single-Gaussian models."""
+    return float(mixture.sigmas[int(np.argmax(mixture.weights))])
+
+
+def study_models(mixture, *, setup, names=None, prism_method="direct"):
+    """Build the models to compare, all with the setup's camera, cell size and prior.
+
+    Parameters
+    ----------
+    mixture : GaussianMixture
+        Disparity error model (pixels).
+    setup : RaySetup
+    names : sequence of str or None
+        Registered model names; None = every registered model.
+    prism_method : {"direct", "table"}
+        PRISM's evaluation (``direct`` is the reference quadrature).
+
+    Returns
+    -------
+    dict of str -> InverseSensorModel
+    """
+    if not isinstance(mixture, GaussianMixture):
+        raise PrismapInputError(f"`mixture` must be a GaussianMixture; got {type(mixture).__name__}")
+    common = {"focal_baseline": setup.focal_baseline, "doffs_px": setup.doffs_px,
+              "voxel_size_m": setup.voxel_size_m, "p0": setup.p0}
+    models = {}
+    for name in model_names() if names is None else names:
+        if name == "prism":
+            model = make_sensor_model(name, error_model=mixture, near_m=setup.near_m, method=prism_method,
+                                      influence_epsilon=setup.epsilon, **common)
+        else:
+            model = make_sensor_model(name, **common)
+            if hasattr(model, "sigma_px"):
+                model = dataclasses.replace(model, sigma_px=single_noise_sigma(mixture))
+        models[name] = model
+    return models
+
+
+@dataclass(frozen=True)
+class RayProfile:
+    """Posteriors of several models on the cells of one ray (norm 1).
+
+    Attributes
+    ----------
+    disparity_px : float, pixels
+    measured_m : float, metres
+    prior : float
+        Prior of one cell (``p0`` of the setup).
+    edges_m : (n + 1,) float64, metres
+        Cell boundaries along the ray.
+    posterior, increment : dict of str -> (n,) float64
+        ``P(m | d^)`` and ``logit(P) - logit(prior)`` per model.
+    influence_m : dict of str -> float, metres
+        Each model's ``influence_depth``.
+    """
+
+    disparity_px: float
+    measured_m: float
+    prior: float
+    edges_m: np.ndarray
+    posterior: dict
+    increment: dict
+    influence_m: dict
+
+
+def ray_profile(models, disparity_px, *, setup, end_m=None):
+    """Every model's posterior on the cells of one ray, from ``near_m`` to ``end_m``.
+
+    ``end_m`` defaults to one cell past the largest influence depth of the models (capped at 1000 cells
+    past the measurement), so every cell any model updates is included.
+    """
+    disparity = np.array([float(disparity_px)])
+    norm = np.ones(1)
+    influence = {name: float(model.influence_depth(disparity, norm)[0]) for name, model in models.items()}
+    measured = setup.distance_of(disparity[0])
+    cell = setup.voxel_size_m
+    if end_m is None:
+        end_m = min(max(influence.values()) + cell, measured + 1000 * cell)
+    first = int(np.ceil(setup.near_m / cell - 1e-9))
+    last = max(int(np.ceil(end_m / cell - 1e-9)), first + 1)
+    edges = np.arange(first, last + 1) * cell
+    start, end = edges[:-1], edges[1:]
+    rays = np.zeros(start.size, dtype=np.int64)
+    posterior, increment = {}, {}
+    for name, model in models.items():
+        posterior[name], increment[name] = model.cell_posteriors(disparity, norm, rays, start, end)
+    return RayProfile(float(disparity[0]), float(measured), setup.p0, edges, posterior, increment, influence)
+
+
+def divergence(profile, name, *, reference="prism"):
+    """How far model ``name`` is from ``reference`` on one ray.
+
+    Over the cells that either model updates (cell start below the larger of their influence depths):
+
+    - ``mad``: mean ``|P_model - P_ref|`` per cell;
+    - ``kl``: mean Bernoulli ``KL(P_ref || P_model)`` per cell (nats), model clipped to ``[1e-12, 1 - 1e-12]``;
+    - ``cleared``: ``sum P_ref`` over the cells the model pushes toward free (increment < 0): the expected
+      number of occupied cells, by the reference, that the model's update clears.
+
+    Returns
+    -------
+    dict with float values ``mad``, ``kl``, ``cleared`` and int ``n_cells``.
+    """
+    for key in (name, reference):
+        if key not in profile.posterior:
+            raise PrismapInputError(f"model {key!r} is not in the profile; it has {list(profile.posterior)}")
+    end = max(profile.influence_m[name], profile.influence_m[reference])
+    cells = profile.edges_m[:-1] < end
+    cells[0] = True
+    p = profile.posterior[reference][cells]
+    q = np.clip(profile.posterior[name][cells], KL_CLIP, 1.0 - KL_CLIP)
+    kl = rel_entr(p, q) + rel_entr(1.0 - p, 1.0 - q)
+    cleared = profile.increment[name][cells] < 0
+    return {"mad": float(np.abs(p - q).mean()), "kl": float(kl.mean()), "cleared": float(p[cleared].sum()),
+            "n_cells": int(cells.sum())}
+
+
+@dataclass(frozen=True)
+class ModelComparison:
+    """Profiles of every model at several measured distances and their divergences from PRISM.
+
+    Attributes
+    ----------
+    setup : RaySetup
+    distances_m : (D,) float64, metres, the requested distances
+    profiles : tuple of RayProfile, one per distance
+    divergences : dict of str -> dict of str -> (D,) float64
+        ``divergences[model][metric]`` for ``metric`` in ``mad``, ``kl``, ``cleared`` (see :func:`divergence`).
+    noise_sigma_px : float, pixels
+        Sigma given to the single-noise models.
+    """
+
+    setup: RaySetup
+    distances_m: np.ndarray
+    profiles: tuple
+    divergences: dict
+    noise_sigma_px: float
+
+    def to_dict(self):
+        """JSON-ready form: setup, distances, divergences and PRISM's influence depths."""
+        return {
+            "setup": dataclasses.asdict(self.setup),
+            "noise_sigma_px": self.noise_sigma_px,
+            "distances_m": self.distances_m.tolist(),
+            "measured_m": [p.measured_m for p in self.profiles],
+            "disparity_px": [p.disparity_px for p in self.profiles],
+            "influence_m": {name: [p.influence_m[name] for p in self.profiles] for name in self.profiles[0].influence_m},
+            "divergences": {name: {k: v.tolist() for k, v in metrics.items()} for name, metrics in self.divergences.items()},
+        }
+
+    def to_markdown(self):
+        """Markdown table: one row per model and distance with MAD, KL and cleared occupancy."""
+        lines = ["| model | distance (m) | mean abs. diff. of P | mean KL(PRISM \\|\\| model) (nats) | "
+                 "cleared occupancy (cells) |", "|---|---:|---:|---:|---:|"]
+        for name, metrics in self.divergences.items():
+            for i, profile in enumerate(self.profiles):
+                lines.append(f"| {name} | {profile.measured_m:.2f} | {metrics['mad'][i]:.4f} | "
+                             f"{metrics['kl'][i]:.4f} | {metrics['cleared'][i]:.3f} |")
+        return "\n".join(lines) + "\n"
+
+
+def _distances(distances_m):
+    distances = np.atleast_1d(np.asarray(distances_m, dtype=np.float64))
+    if distances.ndim != 1 or distances.size == 0 or not np.all(np.isfinite(distances)) or np.any(distances <= 0):
+        raise PrismapInputError(f"`distances_m` must be a non-empty list of positive distances; got {distances_m!r}")
+    return distances
+
+
+def compare_models(mixture, distances_m, *, setup, names=None):
+    """Profiles of every model (PRISM direct as the reference) at each distance, and their divergences.
+
+    Parameters
+    ----------
+    mixture : GaussianMixture
+        Disparity error model (pixels).
+    distances_m : (D,) float, metres
+        Measured distances along the ray.
+    setup : RaySetup
+    names : sequence of str or None
+        Models to compare (must include ``"prism"``); None = every registered model.
+
+    Returns
+    -------
+    ModelComparison
+    """
+    distances = _distances(distances_m)
+    models = study_models(mixture, setup=setup, names=names)
+    if "prism" not in models:
+        raise PrismapInputError(f"the comparison needs 'prism' among the models; got {list(models)}")
+    profiles = tuple(ray_profile(models, setup.disparity_at(s), setup=setup) for s in distances)
+    divergences = {}
+    for name in models:
+        if name == "prism":
+            continue
+        rows = [divergence(profile, name) for profile in profiles]
+        divergences[name] = {key: np.array([row[key] for row in rows]) for key in ("mad", "kl", "cleared")}
+    return ModelComparison(setup, distances, profiles, divergences, single_noise_sigma(mixture))
+
+
+def influence_distances(mixture, distances_m, *, setup):
+    """PRISM's reach behind the measurement, per measured distance.
+
+    Returns
+    -------
+    measured_m : (D,) float64, metres, distance of the rounded disparity
+    bound_m : (D,) float64, metres
+        ``influence_depth - measured``: the bound PRISM gives ray casting.
+    observed_m : (D,) float64, metres
+        End of the last cell whose ``|increment| >= epsilon`` (direct evaluation) minus the measured distance.
+    """
+    distances = _distances(distances_m)
+    prism = study_models(mixture, setup=setup, names=["prism"])
+    measured, bound, observed = [], [], []
+    for s in distances:
+        profile = ray_profile(prism, setup.disparity_at(s), setup=setup)
+        informative = np.nonzero(np.abs(profile.increment["prism"]) >= setup.epsilon)[0]
+        last = profile.edges_m[informative[-1] + 1] if informative.size else profile.edges_m[0]
+        measured.append(profile.measured_m)
+        bound.append(profile.influence_m["prism"] - profile.measured_m)
+        observed.append(last - profile.measured_m)
+    return np.array(measured), np.array(bound), np.array(observed)
+
+
+def prism_sweeps(mixture, *, setup, distances_m=(2.0, 5.0, 10.0, 20.0), reference_m=10.0,
+                 noise_scales=(0.5, 1.0, 2.0, 4.0), cell_sizes_m=(0.05, 0.1, 0.2, 0.4), mixtures_by_components=None):
+    """PRISM's profile as one thing changes at a time (thesis figs 5.11-5.15).
+
+    Parameters
+    ----------
+    mixture : GaussianMixture
+        The error model (pixels).
+    setup : RaySetup
+    distances_m : sequence of float, metres
+        Measured distances of the ``distance`` sweep.
+    reference_m : float, metres
+        Measured distance of the other sweeps.
+    noise_scales : sequence of float
+        Factors on every sigma of the mixture (``noise`` sweep).
+    cell_sizes_m : sequence of float, metres
+        Cell lengths (``cell size`` sweep); ``p0`` follows so the surface rate stays the same.
+    mixtures_by_components : dict of int -> GaussianMixture or None
+        Fits with G components (``components`` sweep); None = no such sweep.
+
+    Returns
+    -------
+    dict of str -> list of (label, RayProfile)
+        Keys ``distance``, ``noise``, ``cell size`` and (if given) ``components``.
+    """
+    def prism_profile(mix, ray_setup, distance):
+        models = study_models(mix, setup=ray_setup, names=["prism"])
+        return ray_profile(models, ray_setup.disparity_at(distance), setup=ray_setup)
+
+    reference = check_positive(reference_m, "reference_m")
+    sweeps = {
+        "distance": [(f"{s:g} m", prism_profile(mixture, setup, s)) for s in _distances(distances_m)],
+        "noise": [(f"sigma x {k:g}", prism_profile(_scaled(mixture, k), setup, reference)) for k in noise_scales],
+        "cell size": [(f"{c:g} m", prism_profile(mixture, setup.with_cell_size(c), reference)) for c in cell_sizes_m],
+    }
+    if mixtures_by_components:
+        sweeps["components"] = [(f"G = {g}", prism_profile(mix, setup, reference))
+                                for g, mix in sorted(mixtures_by_components.items())]
+    return sweeps
+
+
+def _scaled(mixture, factor):
+    return GaussianMixture(mixture.weights, mixture.means, mixture.sigmas * check_positive(factor, "noise scale"))
+
+
+@dataclass(frozen=True)
+class PerformanceTable:
+    """Cost of every model on one batch of rays (thesis table 6.1).
+
+    Attributes
+    ----------
+    rows : tuple of dict
+        ``{"model", "seconds", "ns_per_cell", "ns_per_ray", "n_rays", "n_cells"}`` per model.
+    scene : str
+        The batch, in words.
+    table_build_s : float, seconds
+        The first ``influence_depth`` call of every model on the batch: for PRISM it builds the tables of
+        the batch's distinct disparities (paid once per error model and camera).
+    n_disparities : int
+        Distinct measured disparities in the batch.
+    """
+
+    rows: tuple
+    scene: str
+    table_build_s: float
+    n_disparities: int
+
+    def to_dict(self):
+        """JSON-ready form."""
+        return {"scene": self.scene, "table_build_s": self.table_build_s, "n_disparities": self.n_disparities,
+                "rows": list(self.rows)}
+
+    def to_markdown(self):
+        """Markdown table with the scene and the one-off table cost underneath."""
+        lines = ["| model | ns per cell | ns per ray | rays | cells | seconds |", "|---|---:|---:|---:|---:|---:|"]
+        for row in self.rows:
+            lines.append(f"| {row['model']} | {row['ns_per_cell']:.1f} | {row['ns_per_ray']:.0f} | {row['n_rays']} | "
+                         f"{row['n_cells']} | {row['seconds']:.3f} |")
+        lines.append("")
+        lines.append(f"Scene: {self.scene}. Before timing, the influence depths of the batch took "
+                     f"{self.table_build_s:.2f} s, mostly building PRISM's tables for {self.n_disparities} distinct "
+                     "disparities (once per error model and camera).")
+        return "\n".join(lines) + "\n"
+
+
+def _band_scene(setup, focal_px, *, width, height, stride, depth_range_m, n_bands):
+    """Rays of every ``stride``-th pixel of a ``width x height`` frame (principal point at the centre) looking
+    at ``n_bands`` fronto-parallel planes in vertical bands, depths spaced evenly."""
+    v, u = np.mgrid[0:height:stride, 0:width:stride].astype(np.float64)
+    x, y = (u - width / 2) / focal_px, (v - height / 2) / focal_px
+    near, far = depth_range_m
+    band_depth = np.linspace(near, far, n_bands)
+    band = np.minimum((u / width * n_bands).astype(np.int64), n_bands - 1)
+    disparity = np.array([setup.disparity_at(z) for z in band_depth])[band].ravel()
+    return disparity, np.sqrt(1.0 + x * x + y * y).ravel(), band_depth
+
+
+def _cells(setup, disparity, norm, end_depth):
+    """Cells of ``voxel_size_m`` along each ray (in distance) from ``near_m`` to ``end_depth`` (depth)."""
+    step = setup.voxel_size_m / norm
+    counts = np.maximum(np.ceil((end_depth - setup.near_m) / step), 1).astype(np.int64)
+    rays = np.repeat(np.arange(disparity.size, dtype=np.int64), counts)
+    index = np.arange(rays.size) - np.repeat(np.cumsum(counts) - counts, counts)
+    start = setup.near_m + index * step[rays]
+    return rays, start, start + step[rays]
+
+
+def time_models(mixture, *, setup, focal_px, width=640, height=480, stride=1, depth_range_m=(1.0, 20.0),
+                n_bands=8, direct_rays=16, chunk_rays=8192, names=None):
+    """Nanoseconds per cell and per ray of every model, PRISM direct and tabulated, on one batch.
+
+    The batch: rays of every ``stride``-th pixel of a ``width x height`` frame (focal ``focal_px``, principal
+    point at the centre) that sees ``n_bands`` planes at depths in ``depth_range_m`` (disparities rounded to
+    1/16 px); each ray gets cells of ``voxel_size_m`` (along the ray) from ``near_m`` to the largest
+    influence depth of the models. All models run on the same chunks of ``chunk_rays`` rays in turn after a
+    warm-up; direct PRISM (a quadrature, far slower) runs on about ``direct_rays`` rays spread evenly over
+    the batch and is reported per cell and ray of that subset.
+
+    Returns
+    -------
+    PerformanceTable
+    """
+    check_positive(focal_px, "focal_px")
+    if min(stride, direct_rays, chunk_rays, n_bands) < 1:
+        raise PrismapInputError("`stride`, `direct_rays`, `chunk_rays` and `n_bands` must be >= 1")
+    disparity, norm, band_depth = _band_scene(setup, focal_px, width=width, height=height, stride=stride,
+                                              depth_range_m=depth_range_m, n_bands=n_bands)
+    models = study_models(mixture, setup=setup, names=names, prism_method="table")
+    t0 = time.perf_counter()
+    end_depth = np.max([model.influence_depth(disparity, norm) for model in models.values()], axis=0)
+    table_build_s = time.perf_counter() - t0
+    timed = dict(models)
+    if "prism" in models:
+        timed = {("prism (table)" if k == "prism" else k): m for k, m in models.items()}
+        timed["prism (direct)"] = dataclasses.replace(models["prism"], method="direct")
+    seconds = dict.fromkeys(timed, 0.0)
+    cells = dict.fromkeys(timed, 0)
+    rays_done = dict.fromkeys(timed, 0)
+    every = max(1, disparity.size // direct_rays)
+    starts = range(0, disparity.size, chunk_rays)
+    warm = set()
+    for first in progress(starts, total=len(starts), desc="timing models"):
+        chunk = slice(first, first + chunk_rays)
+        batch = (disparity[chunk], norm[chunk], *_cells(setup, disparity[chunk], norm[chunk], end_depth[chunk]))
+        sub = np.arange((-first) % every, batch[0].size, every)
+        direct_batch = (batch[0][sub], batch[1][sub], *_cells(setup, batch[0][sub], batch[1][sub], end_depth[chunk][sub]))
+        for name, model in timed.items():
+            use = direct_batch if name == "prism (direct)" else batch
+            if use[0].size == 0:
+                continue
+            if name not in warm:  # compile the kernels outside the timing
+                model.cell_posteriors(use[0][:1], use[1][:1], *_cells(setup, use[0][:1], use[1][:1], use[3][:1] + 0.5))
+                warm.add(name)
+            t = time.perf_counter()
+            model.cell_posteriors(*use)
+            seconds[name] += time.perf_counter() - t
+            cells[name] += use[2].size
+            rays_done[name] += use[0].size
+    rows = tuple({"model": name, "seconds": seconds[name], "ns_per_cell": 1e9 * seconds[name] / cells[name],
+                  "ns_per_ray": 1e9 * seconds[name] / rays_done[name], "n_rays": rays_done[name],
+                  "n_cells": cells[name]} for name in timed)
+    scene = (f"{disparity.size} rays (every {stride}. pixel of a {width}x{height} frame, f = {focal_px:g} px, "
+             f"f*b = {setup.focal_baseline:.2f} px*m, doffs = {setup.doffs_px:g} px) on {n_bands} planes at "
+             f"{', '.join(f'{z:.2f}' for z in band_depth)} m; cells of {setup.voxel_size_m:g} m along each ray from "
+             f"{setup.near_m:g} m to the largest influence depth; p0 = {setup.p0:g}")
+    return PerformanceTable(rows, scene, table_build_s, int(np.unique(disparity).size))
