@@ -63,3 +63,17 @@ def test_characterisation_errors_are_raised_before_any_task(sequence_dir, client
         characterise_sequence(sequence_dir, "census", client=client)
     with pytest.raises(PrismapInputError, match="frames 9:7 select no frame"):
         characterise_sequence(sequence_dir, "bm", frames=(9, None), client=client)
+
+
+def test_map_cli_on_a_running_scheduler_writes_the_sequential_map(sequence_dir, client, tmp_path, capsys):
+    from prismap.cli import main
+
+    out = tmp_path / "map.npz"
+    argv = ["map", "--sequence", str(sequence_dir), "--model", "ideal", "--voxel", "0.2", "--max-range", "8",
+            "--disparity-dir", str(sequence_dir / "disp"), "--out", str(out)]
+    assert main([*argv, "--scheduler", client.scheduler.address, "--chunk-frames", "2"]) == 0
+    assert "7 frames" in capsys.readouterr().out
+    cfg = config(model="ideal", error_model=None)
+    assert_same_map(load_map(out), map_sequence(sequence_dir, cfg, progress=False), atol=MERGE_ATOL)
+    assert main([*argv, "--scheduler", "bogus://nowhere:1"]) == 2
+    assert "--scheduler bogus://nowhere:1: cannot connect" in capsys.readouterr().err
