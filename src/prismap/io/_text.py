@@ -52,14 +52,13 @@ def parse_numbers(text, path, line_no, field=None):
     -------
     (K,) float64
     """
+    where, shown = location(path, line_no, field), text.strip()[:60]
     try:
         values = np.array([float(token) for token in text.split()], dtype=np.float64)
     except ValueError:
-        raise PrismapInputError(f"{location(path, line_no, field)}: expected numbers; got {text.strip()[:60]!r}") from None
+        raise PrismapInputError(f"{where}: expected numbers; got {shown!r}") from None
     if not np.all(np.isfinite(values)):
-        raise PrismapInputError(
-            f"{location(path, line_no, field)}: numbers must be finite; got {text.strip()[:60]!r}"
-        )
+        raise PrismapInputError(f"{where}: numbers must be finite; got {shown!r}")
     return values
 
 
