@@ -213,3 +213,45 @@ def test_occupied_wins_without_positive_increments_takes_the_mean():
 def test_unknown_policy_is_an_error():
     with pytest.raises(PrismapInputError, match="policy"):
         one_ray([0.05, 0.05, 0.05], [1.0, 0.0, 0.0], 0.5, policy="median")
+
+
+def test_cast_into_registers_the_cells_of_cast_rays_while_growing_the_accumulator():
+    from prismap.grid import _integrate
+
+    rng = np.random.default_rng(2)
+    origin = rng.uniform(-1, 1, 3)
+    rays = rng.normal(size=(300, 3))
+    t_stop = rng.uniform(0.01, 3.0, 300)
+    exclusive = rng.random(300) < 0.5
+    ray_of, keys, t_in, t_out = cast_rays(origin, rays, t_stop, exclusive, 0.1)
+    acc = _integrate.new_accumulator((3, 3, 3))  # empty: the kernel stops short and is resumed many times
+    got_ray, rows, got_in, got_out = _integrate.cast_into(acc, origin, rays, t_stop, exclusive, 0.1)
+    np.testing.assert_array_equal(got_ray, ray_of)
+    np.testing.assert_array_equal(got_in, t_in)
+    np.testing.assert_array_equal(got_out, t_out)
+    # Row -> key through the accumulator's blocks: the same voxel keys as cast_rays.
+    voxel_keys = acc.voxel_keys().reshape(-1, 3)
+    np.testing.assert_array_equal(voxel_keys[rows], keys)
+    # Scattered increments land on their voxel: (sum, count, max, min) per row.
+    _integrate.scatter(acc, rows, np.arange(rows.size, dtype=np.float64))
+    flat = acc.payload["acc"].reshape(-1, 4)
+    counts = np.bincount(rows, minlength=flat.shape[0])
+    np.testing.assert_array_equal(flat[:, 1], counts)
+    np.testing.assert_allclose(flat[:, 0], np.bincount(rows, weights=np.arange(rows.size), minlength=flat.shape[0]), rtol=1e-6)
+
+
+def test_chunked_pipeline_gives_the_map_of_one_chunk(monkeypatch):
+    from prismap.grid import _integrate
+
+    rng = np.random.default_rng(4)
+    rays = np.column_stack([rng.uniform(-1, 1, (500, 2)), np.ones(500)])
+    disparity = FB / rng.uniform(0.3, 3.0, 500)
+    maps = []
+    for chunk in (10_000, 7):
+        monkeypatch.setattr(_integrate, "RAYS_PER_CHUNK", chunk)
+        grid = OccupancyMap(0.1, p0=0.5)
+        grid.integrate_rays([0.05, -0.3, 0.0], rays, disparity, HitMissModel(FB), policy="mean")
+        maps.append(as_dict(grid))
+    assert maps[0].keys() == maps[1].keys()
+    for k, v in maps[0].items():
+        assert maps[1][k] == pytest.approx(v, abs=1e-5)

@@ -5,6 +5,8 @@ disparity and ``|r|``, per cell the ray index and the cell's depth interval on t
 per-cell log-odds increments, which a numba accumulator combines per voxel (SENSOR_MODELS.md section 3).
 """
 
+from concurrent.futures import ThreadPoolExecutor
+
 import numpy as np
 
 from prismap.errors import PrismapInputError
@@ -71,17 +73,54 @@ def stop_depths(model, disparity, ray_norm, ranges):
     return t_stop, exclusive
 
 
-def accumulate_cells(accumulator, keys, increment):
-    """Add (key, increment) pairs to the accumulator, growing it whenever the kernel runs out of room."""
+def register_cells(accumulator, keys):
+    """(C,) int64 accumulator row of each voxel key, adding blocks and growing the accumulator as needed."""
+    rows = np.empty(keys.shape[0], dtype=np.int64)
     start = 0
-    while start < keys.shape[0]:
+    while True:
         table = accumulator
-        start = _kernels.accumulate(
-            table.table_keys, table.table_slots, table.block_keys, table.n_blocks, table.payload["acc"],
-            keys, increment, start, table.bits,
-        )
-        if start < keys.shape[0]:
-            accumulator.reserve(max(64, len(accumulator)))
+        start = _kernels.register_keys(table.table, table.block_keys, table.n_blocks, table.payload["acc"], keys,
+                                       start, table.bits, rows)
+        if start == keys.shape[0]:
+            return rows
+        accumulator.reserve(max(64, len(accumulator)))
+
+
+def cast_into(accumulator, origin, rays, t_stop, exclusive, voxel_size, *, grow=True):
+    """Cast rays, registering the voxels they cross in the accumulator.
+
+    Returns ``[ray_of_cell, cell_index (accumulator rows), t_in, t_out]`` as
+    :func:`_kernels.cast_rays_into`, and how many rays are done. With ``grow=False`` it never reallocates
+    the accumulator (safe beside a :func:`scatter` into it in another thread) and may stop short; call
+    :func:`finish_cast` afterwards.
+    """
+    table = accumulator
+    *cells, done = _kernels.cast_rays_into(table.table, table.block_keys, table.n_blocks, table.payload["acc"],
+                                           origin, rays, t_stop, exclusive, voxel_size, table.bits)
+    if grow:
+        return finish_cast(accumulator, origin, rays, t_stop, exclusive, voxel_size, (cells, done))
+    return cells, done
+
+
+def finish_cast(accumulator, origin, rays, t_stop, exclusive, voxel_size, partial):
+    """Complete a :func:`cast_into` that stopped short, growing the accumulator; returns the cells."""
+    cells, done = partial
+    parts = [cells]
+    while done < rays.shape[0]:
+        accumulator.reserve(max(64, len(accumulator)))
+        more, n = cast_into(accumulator, origin, rays[done:], t_stop[done:], exclusive[done:], voxel_size, grow=False)
+        more[0] += done
+        parts.append(more)
+        done += n
+    if len(parts) == 1:
+        return cells
+    return [np.concatenate(column) for column in zip(*parts)]
+
+
+def scatter(accumulator, cell_index, increment):
+    """Add the cells' increments to their accumulator rows."""
+    acc = accumulator.payload["acc"]
+    _kernels.scatter(acc.reshape(-1, acc.shape[2]), cell_index, increment)
 
 
 def cell_increments(model, disparity, ray_norm, ray_of_cell, t_in, t_out):
@@ -96,16 +135,36 @@ def cell_increments(model, disparity, ray_norm, ray_of_cell, t_in, t_out):
 
 
 def ray_mode(accumulator, origin, rays, disparity, ray_norm, groups, ranges, voxel_size):
-    """Cast every ray (Amanatides-Woo) and accumulate the model's increments of the voxels it crosses."""
+    """Cast every ray (Amanatides-Woo) and accumulate the model's increments of the voxels it crosses.
+
+    Rays go in chunks of :data:`RAYS_PER_CHUNK` through a two-stage pipeline: a worker thread casts
+    chunk k + 1 (the kernel releases the GIL) while this thread runs the model on chunk k and adds its
+    increments. The worker never grows the accumulator (this thread does, once the scatter is done), and
+    it only creates blocks and fills their rows while the scatter writes rows of blocks created before,
+    so the two never touch the same memory.
+    """
+    chunks = []
     for model, members in groups:
         idx = np.arange(disparity.size) if members is None else members
+        t_stop, exclusive = stop_depths(model, disparity[idx], ray_norm[idx], ranges)
         for begin in range(0, idx.size, RAYS_PER_CHUNK):
-            chunk = idx[begin : begin + RAYS_PER_CHUNK]
-            d, norm, r = disparity[chunk], ray_norm[chunk], np.ascontiguousarray(rays[chunk])
-            t_stop, exclusive = stop_depths(model, d, norm, ranges)
-            ray_of_cell, keys, t_in, t_out = _kernels.cast_rays(origin, r, t_stop, exclusive, voxel_size)
-            if keys.shape[0]:
-                accumulate_cells(accumulator, keys, cell_increments(model, d, norm, ray_of_cell, t_in, t_out))
+            part = slice(begin, begin + RAYS_PER_CHUNK)
+            chunk = idx[part]
+            chunks.append((model, disparity[chunk], ray_norm[chunk], np.ascontiguousarray(rays[chunk]),
+                           np.ascontiguousarray(t_stop[part]), np.ascontiguousarray(exclusive[part])))
+    if not chunks:
+        return
+    with ThreadPoolExecutor(max_workers=1) as worker:
+        cells = cast_into(accumulator, origin, *chunks[0][3:], voxel_size)
+        for k, (model, d, norm, *cast_args) in enumerate(chunks):
+            following = None
+            if k + 1 < len(chunks):
+                following = worker.submit(cast_into, accumulator, origin, *chunks[k + 1][3:], voxel_size, grow=False)
+            ray_of_cell, cell_index, t_in, t_out = cells
+            if cell_index.size:
+                scatter(accumulator, cell_index, cell_increments(model, d, norm, ray_of_cell, t_in, t_out))
+            if following is not None:
+                cells = finish_cast(accumulator, origin, *chunks[k + 1][3:], voxel_size, following.result())
 
 
 def projective_mode(accumulator, origin, rays, disparity, ray_norm, groups, ranges, voxel_size, projection):
@@ -130,17 +189,20 @@ def projective_mode(accumulator, origin, rays, disparity, ray_norm, groups, rang
     hi = np.floor(np.maximum(origin, (origin + far).max(axis=0)) / voxel_size).astype(np.int64) + 1
     shape = hi - lo + 1
     x_per_slab = max(1, VOXELS_PER_SLAB // int(shape[1] * shape[2]))
+    slabs = []
     for x0 in range(0, int(shape[0]), x_per_slab):
         slab_shape = np.array([min(x_per_slab, shape[0] - x0), shape[1], shape[2]], dtype=np.int64)
-        ray_of_cell, keys, t_in, t_out = _kernels.project_voxels(
+        slabs.append(_kernels.project_voxels(
             lo + np.array([x0, 0, 0]), slab_shape, origin, projection["R_cam_world"], projection["focal"],
             projection["cx"], projection["cy"], projection["subsample"], projection["ray_index"], rays,
             t_stop, exclusive, voxel_size,
-        )
-        cell_group = group_of_ray[ray_of_cell]
-        for g, (model, _) in enumerate(groups):
-            mine = cell_group == g if len(groups) > 1 else slice(None)
-            k = keys[mine]
-            if k.shape[0]:
-                inc = cell_increments(model, disparity, ray_norm, ray_of_cell[mine], t_in[mine], t_out[mine])
-                accumulate_cells(accumulator, np.ascontiguousarray(k), inc)
+        ))
+    ray_of_cell, keys, t_in, t_out = (np.concatenate(column) for column in zip(*slabs))
+    cell_group = group_of_ray[ray_of_cell]
+    for g, (model, _) in enumerate(groups):
+        mine = np.flatnonzero(cell_group == g) if len(groups) > 1 else slice(None)
+        if keys[mine].shape[0]:
+            # One model call per group and frame, on the rays some voxel uses (models cost per ray too).
+            used, local_ray = np.unique(ray_of_cell[mine], return_inverse=True)
+            inc = cell_increments(model, disparity[used], ray_norm[used], local_ray.reshape(-1), t_in[mine], t_out[mine])
+            scatter(accumulator, register_cells(accumulator, np.ascontiguousarray(keys[mine])), inc)

@@ -6,13 +6,17 @@ convert their inputs first (contiguous arrays, right dtypes, keys inside the lim
 Blocks: a voxel key ``(kx, ky, kz)`` lies in block ``(kx >> bx, ky >> by, kz >> bz)`` at local index
 ``(kx & mx) | (ky & my) << bx | (kz & mz) << (bx + by)``; ``bits = (bx, by, bz)``. A block key is packed
 into one int64 (21 bits per axis, offset ``2**20``) and found through an open-addressing hash table
-(linear probing, Fibonacci hashing) from packed key to block slot.
+(linear probing, Fibonacci hashing) of int32 block slots: a table entry is a slot ``s`` (the block's
+packed key is ``block_keys[s]``) or -1 when empty, so the table costs 4 bytes per entry.
+
+Every kernel releases the GIL (``nogil=True``) so that a caller may run them beside Python code.
 """
 
 import numba
 import numpy as np
 
 EMPTY = np.int64(-1)
+"""Empty table entry; also 'no block' in the last-block caches."""
 _OFFSET = 1 << 20
 _MASK21 = (1 << 21) - 1
 
@@ -20,78 +24,142 @@ POLICY_CODES = {"mean": 0, "max-abs": 1, "occupied-wins": 2, "max": 3, "sum": 4}
 """Per-frame policy name -> code used by :func:`apply_frame`."""
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def pack_block(bx, by, bz):
     """Packed int64 of a block coordinate triple (each in [-2**20, 2**20))."""
     return ((np.int64(bx) + _OFFSET) << 42) | ((np.int64(by) + _OFFSET) << 21) | (np.int64(bz) + _OFFSET)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _hash_index(key, mask):
     h = np.uint64(key) * np.uint64(0x9E3779B97F4A7C15)
     return np.int64((h >> np.uint64(29)) & np.uint64(mask))
 
 
-@numba.njit(cache=True)
-def find_block(table_keys, table_slots, key):
+@numba.njit(cache=True, nogil=True)
+def find_block(table, block_keys, key):
     """Slot of packed block ``key``, or -1 when absent."""
-    mask = table_keys.size - 1
+    mask = table.size - 1
     i = _hash_index(key, mask)
     while True:
-        k = table_keys[i]
-        if k == key:
-            return np.int64(table_slots[i])
-        if k == EMPTY:
+        s = table[i]
+        if s < 0:
             return np.int64(-1)
+        if block_keys[s] == key:
+            return np.int64(s)
         i = (i + 1) & mask
 
 
-@numba.njit(cache=True)
-def insert_block(table_keys, table_slots, block_keys, n_blocks, key):
+@numba.njit(cache=True, nogil=True)
+def insert_block(table, block_keys, n_blocks, key):
     """Slot of ``key``, adding it as block ``n_blocks[0]`` when absent (returns (slot, is_new)).
 
     The caller guarantees room: ``n_blocks[0] < block_keys.size`` and the table at most half full.
     """
-    mask = table_keys.size - 1
+    mask = table.size - 1
     i = _hash_index(key, mask)
     while True:
-        k = table_keys[i]
-        if k == key:
-            return np.int64(table_slots[i]), False
-        if k == EMPTY:
+        s = table[i]
+        if s < 0:
             slot = n_blocks[0]
-            table_keys[i] = key
-            table_slots[i] = slot
+            table[i] = slot
             block_keys[slot] = key
             n_blocks[0] = slot + 1
             return np.int64(slot), True
+        if block_keys[s] == key:
+            return np.int64(s), False
         i = (i + 1) & mask
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def rehash(block_keys, n_blocks, table_size):
     """A new hash table of ``table_size`` (a power of two) holding blocks ``0 .. n_blocks-1``."""
-    table_keys = np.full(table_size, EMPTY, dtype=np.int64)
-    table_slots = np.zeros(table_size, dtype=np.int32)
+    table = np.full(table_size, -1, dtype=np.int32)
     mask = table_size - 1
     for slot in range(n_blocks):
-        key = block_keys[slot]
-        i = _hash_index(key, mask)
-        while table_keys[i] != EMPTY:
+        i = _hash_index(block_keys[slot], mask)
+        while table[i] >= 0:
             i = (i + 1) & mask
-        table_keys[i] = key
-        table_slots[i] = slot
-    return table_keys, table_slots
+        table[i] = slot
+    return table
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True, inline="always")
 def _split_key(kx, ky, kz, bits):
     bx, by, bz = bits
     local = (kx & ((1 << bx) - 1)) | ((ky & ((1 << by) - 1)) << bx) | ((kz & ((1 << bz) - 1)) << (bx + by))
     return pack_block(kx >> bx, ky >> by, kz >> bz), local
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
+def _cell_limits(origin, rays, t_stop, voxel_size):
+    """Per ray, a bound on the voxels it visits (0 when it casts nothing); the traversal's length guard."""
+    inv = 1.0 / voxel_size
+    limits = np.zeros(rays.shape[0], dtype=np.int64)
+    for i in range(rays.shape[0]):
+        if t_stop[i] > 0.0:
+            limit = 3
+            for ax in range(3):
+                start = np.floor(origin[ax] * inv)
+                end = np.floor((origin[ax] + rays[i, ax] * t_stop[i]) * inv)
+                limit += abs(np.int64(end) - np.int64(start))
+            limits[i] = limit
+    return limits
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _axis_setup(o, r, voxel_size):
+    """Setup phase on one axis: (first key, key step, depth of the first border, depth per voxel)."""
+    k = np.floor(o / voxel_size)
+    if r > 0.0:
+        return np.int64(k), 1, ((k + 1) * voxel_size - o) / r, voxel_size / r
+    if r < 0.0:
+        return np.int64(k), -1, (k * voxel_size - o) / r, -voxel_size / r
+    return np.int64(k), 0, np.inf, np.inf
+
+
+@numba.njit(cache=True, nogil=True)
+def _walk(origin, ray, stop, exclusive, voxel_size, limit, keys, t_in_out, t_out_out, m):
+    """Amanatides-Woo traversal of one ray, writing its voxels from row ``m`` on; returns the next free row.
+
+    The rule of :func:`cast_rays`; ``limit`` (from :func:`_cell_limits`) bounds the steps. The state is
+    kept in scalars (one per axis) so that it stays in registers.
+    """
+    kx, sx, tx, dx = _axis_setup(origin[0], ray[0], voxel_size)
+    ky, sy, ty, dy = _axis_setup(origin[1], ray[1], voxel_size)
+    kz, sz, tz, dz = _axis_setup(origin[2], ray[2], voxel_size)
+    min_length = 1e-9 * voxel_size / np.sqrt(ray[0] * ray[0] + ray[1] * ray[1] + ray[2] * ray[2])
+    t_in = 0.0
+    # Step phase; the loop bound is the length guard against floating-point drift.
+    for _ in range(limit):
+        t_out = min(tx, min(ty, tz))
+        if exclusive:
+            if t_out > stop:
+                break
+        elif t_in > stop:
+            break
+        if t_out - t_in > min_length:
+            keys[m, 0] = kx
+            keys[m, 1] = ky
+            keys[m, 2] = kz
+            t_in_out[m] = t_in
+            t_out_out[m] = t_out
+            m += 1
+        # Step along the axis of the nearest border (x first on ties, then y, as min() above).
+        if tx <= ty and tx <= tz:
+            kx += sx
+            tx += dx
+        elif ty <= tz:
+            ky += sy
+            ty += dy
+        else:
+            kz += sz
+            tz += dz
+        t_in = t_out
+    return m
+
+
+@numba.njit(cache=True, nogil=True)
 def cast_rays(origin, rays, t_stop, exclusive, voxel_size):
     """Voxels crossed by each ray and their depth intervals (Amanatides & Woo traversal).
 
@@ -107,81 +175,53 @@ def cast_rays(origin, rays, t_stop, exclusive, voxel_size):
     References: J. Amanatides, A. Woo, "A fast voxel traversal algorithm for ray tracing",
     Eurographics 1987.
     """
-    n_rays = rays.shape[0]
-    inv = 1.0 / voxel_size
-    k0 = np.floor(origin * inv).astype(np.int64)
-    limits = np.empty(n_rays, dtype=np.int64)
-    total = 0
-    for i in range(n_rays):
-        limit = 0
-        if t_stop[i] > 0.0:
-            limit = 3
-            for ax in range(3):
-                end = np.floor((origin[ax] + rays[i, ax] * t_stop[i]) * inv)
-                limit += abs(np.int64(end) - k0[ax])
-        limits[i] = limit
-        total += limit
+    limits = _cell_limits(origin, rays, t_stop, voxel_size)
+    total = limits.sum()
     ray_of_cell = np.empty(total, dtype=np.int64)
     keys = np.empty((total, 3), dtype=np.int32)
-    t_in_out = np.empty(total, dtype=np.float64)
-    t_out_out = np.empty(total, dtype=np.float64)
-    key = np.empty(3, dtype=np.int64)
-    step = np.empty(3, dtype=np.int64)
-    t_max = np.empty(3, dtype=np.float64)
-    t_delta = np.empty(3, dtype=np.float64)
+    t_in = np.empty(total, dtype=np.float64)
+    t_out = np.empty(total, dtype=np.float64)
     m = 0
-    for i in range(n_rays):
+    for i in range(rays.shape[0]):
+        if limits[i] > 0:
+            end = _walk(origin, rays[i], t_stop[i], exclusive[i], voxel_size, limits[i], keys, t_in, t_out, m)
+            ray_of_cell[m:end] = i
+            m = end
+    return ray_of_cell[:m], keys[:m], t_in[:m], t_out[:m]
+
+
+@numba.njit(cache=True, nogil=True)
+def cast_rays_into(table, block_keys, n_blocks, acc, origin, rays, t_stop, exclusive, voxel_size, bits):
+    """:func:`cast_rays` fused with :func:`register_keys`: each crossed voxel's accumulator row, no keys.
+
+    Returns ``ray_of_cell (C,) int64, cell_index (C,) int64, t_in (C,), t_out (C,) float64`` and the
+    number of rays done: fewer than ``len(rays)`` when a new block found the accumulator full (that
+    ray's cells are left out; grow the accumulator and cast the remaining rays).
+    """
+    limits = _cell_limits(origin, rays, t_stop, voxel_size)
+    total = limits.sum()
+    ray_of_cell = np.empty(total, dtype=np.int64)
+    cell_index = np.empty(total, dtype=np.int64)
+    t_in = np.empty(total, dtype=np.float64)
+    t_out = np.empty(total, dtype=np.float64)
+    scratch = np.empty((limits.max() if limits.size else 0, 3), dtype=np.int32)
+    last_block, last_slot = EMPTY, np.int64(-1)
+    m = 0
+    for i in range(rays.shape[0]):
         if limits[i] == 0:
             continue
-        # Setup phase: first voxel border and voxel-to-voxel depth step on each axis.
-        norm = 0.0
-        for ax in range(3):
-            r = rays[i, ax]
-            norm += r * r
-            key[ax] = k0[ax]
-            if r > 0.0:
-                step[ax] = 1
-                t_max[ax] = ((k0[ax] + 1) * voxel_size - origin[ax]) / r
-                t_delta[ax] = voxel_size / r
-            elif r < 0.0:
-                step[ax] = -1
-                t_max[ax] = (k0[ax] * voxel_size - origin[ax]) / r
-                t_delta[ax] = -voxel_size / r
-            else:
-                step[ax] = 0
-                t_max[ax] = np.inf
-                t_delta[ax] = np.inf
-        min_length = 1e-9 * voxel_size / np.sqrt(norm)
-        stop = t_stop[i]
-        t_in = 0.0
-        # Step phase; the loop bound is the length guard against floating-point drift.
-        for _ in range(limits[i]):
-            ax = 0
-            if t_max[1] < t_max[ax]:
-                ax = 1
-            if t_max[2] < t_max[ax]:
-                ax = 2
-            t_out = t_max[ax]
-            if exclusive[i]:
-                if t_out > stop:
-                    break
-            elif t_in > stop:
-                break
-            if t_out - t_in > min_length:
-                ray_of_cell[m] = i
-                keys[m, 0] = key[0]
-                keys[m, 1] = key[1]
-                keys[m, 2] = key[2]
-                t_in_out[m] = t_in
-                t_out_out[m] = t_out
-                m += 1
-            key[ax] += step[ax]
-            t_max[ax] += t_delta[ax]
-            t_in = t_out
-    return ray_of_cell[:m], keys[:m], t_in_out[:m], t_out_out[:m]
+        n = _walk(origin, rays[i], t_stop[i], exclusive[i], voxel_size, limits[i], scratch, t_in[m:], t_out[m:], 0)
+        done, last_block, last_slot = _register(
+            table, block_keys, n_blocks, acc, scratch, 0, n, bits, cell_index[m:], last_block, last_slot
+        )
+        if done < n:
+            return ray_of_cell[:m], cell_index[:m], t_in[:m], t_out[:m], i
+        ray_of_cell[m : m + n] = i
+        m += n
+    return ray_of_cell[:m], cell_index[:m], t_in[:m], t_out[:m], rays.shape[0]
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def project_voxels(key_min, shape, origin, R_cam_world, focal, cx, cy, subsample, ray_index, rays, t_stop, exclusive, voxel_size):
     """Voxels of a key box seen by a pixel ray, with the voxel's depth interval on that ray.
 
@@ -256,42 +296,60 @@ def project_voxels(key_min, shape, origin, R_cam_world, focal, cx, cy, subsample
     return ray_of_cell[:m], keys[:m], t_in_out[:m], t_out_out[:m]
 
 
-@numba.njit(cache=True)
-def accumulate(table_keys, table_slots, block_keys, n_blocks, acc, keys, increment, start, bits):
-    """Add (key, increment) pairs from index ``start`` into the frame accumulator.
+@numba.njit(cache=True, nogil=True, inline="always")
+def _register(table, block_keys, n_blocks, acc, keys, start, stop, bits, out, last_block, last_slot):
+    """Accumulator row (``slot * V + local``) of ``keys[start:stop]`` into ``out[0:]``, adding blocks.
 
-    ``acc[slot, local]`` holds ``(sum, count, max, min)`` of the increments that fell on a voxel this
-    frame. Stops early, returning the index of the first pair not added, when a new block would
-    exceed the accumulator's room (the caller grows it and calls again); returns ``len(keys)`` when done.
+    A new block's rows start neutral: ``(0, 0, -inf, +inf)``. ``(last_block, last_slot)`` caches the
+    block of the previous key across calls. Returns ``(index of the first key not registered, last_block,
+    last_slot)``; the index is ``stop`` unless a new block would exceed the accumulator's room (the
+    table at most half full).
     """
-    capacity = min(block_keys.size, table_keys.size // 2)
-    last_key = EMPTY
-    slot = np.int64(-1)
-    for i in range(start, keys.shape[0]):
+    capacity = min(block_keys.size, table.size // 2)
+    voxels = acc.shape[1]
+    for i in range(start, stop):
         block, local = _split_key(np.int64(keys[i, 0]), np.int64(keys[i, 1]), np.int64(keys[i, 2]), bits)
-        if block != last_key:
-            slot = find_block(table_keys, table_slots, block)
+        if block != last_block:
+            slot = find_block(table, block_keys, block)
             if slot < 0:
                 if n_blocks[0] >= capacity:
-                    return i
-                slot, _ = insert_block(table_keys, table_slots, block_keys, n_blocks, block)
-                for v in range(acc.shape[1]):
+                    return i, last_block, last_slot
+                slot, _ = insert_block(table, block_keys, n_blocks, block)
+                for v in range(voxels):
                     acc[slot, v, 0] = 0.0
                     acc[slot, v, 1] = 0.0
                     acc[slot, v, 2] = -np.inf
                     acc[slot, v, 3] = np.inf
-            last_key = block
+            last_block = block
+            last_slot = slot
+        out[i - start] = last_slot * voxels + local
+    return stop, last_block, last_slot
+
+
+@numba.njit(cache=True, nogil=True)
+def register_keys(table, block_keys, n_blocks, acc, keys, start, bits, out):
+    """Accumulator rows of ``keys[start:]`` into ``out[start:]``; returns the first index not registered."""
+    return _register(table, block_keys, n_blocks, acc, keys, start, keys.shape[0], bits, out[start:], EMPTY, np.int64(-1))[0]
+
+
+@numba.njit(cache=True, nogil=True)
+def scatter(acc, cell_index, increment):
+    """Add each cell's increment to its accumulator row: ``(sum, count, max, min)``, float32.
+
+    ``acc`` is the accumulator payload seen as (rows, 4); ``cell_index`` from :func:`register_keys`.
+    """
+    for i in range(cell_index.size):
+        row = cell_index[i]
         x = np.float32(increment[i])
-        acc[slot, local, 0] += x
-        acc[slot, local, 1] += 1.0
-        if x > acc[slot, local, 2]:
-            acc[slot, local, 2] = x
-        if x < acc[slot, local, 3]:
-            acc[slot, local, 3] = x
-    return keys.shape[0]
+        acc[row, 0] += x
+        acc[row, 1] += 1.0
+        if x > acc[row, 2]:
+            acc[row, 2] = x
+        if x < acc[row, 3]:
+            acc[row, 3] = x
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _policy_increment(total, count, largest, smallest, policy):
     if policy == 0:
         return total / count
@@ -304,24 +362,24 @@ def _policy_increment(total, count, largest, smallest, policy):
     return total
 
 
-@numba.njit(cache=True)
-def _map_block(table_keys, table_slots, block_keys, n_blocks, log, count, key, prior_log):
+@numba.njit(cache=True, nogil=True)
+def _map_block(table, block_keys, n_blocks, log, count, key, prior_log):
     """Slot of map block ``key``, created with every voxel at the prior and count 0 when absent."""
-    slot, new = insert_block(table_keys, table_slots, block_keys, n_blocks, key)
+    slot, new = insert_block(table, block_keys, n_blocks, key)
     if new:
         log[slot, :] = prior_log
         count[slot, :] = 0
     return slot
 
 
-@numba.njit(cache=True)
-def apply_frame(table_keys, table_slots, block_keys, n_blocks, log, count, frame_keys, n_frame, acc, policy, clamp_lo, clamp_hi, prior_log):
+@numba.njit(cache=True, nogil=True)
+def apply_frame(table, block_keys, n_blocks, log, count, frame_keys, n_frame, acc, policy, clamp_lo, clamp_hi, prior_log):
     """One update per voxel the frame touched: ``log += policy(increments)``, clamped, ``count += 1``.
 
     The map must have room for ``n_frame`` new blocks. Counts saturate at 65535.
     """
     for s in range(n_frame):
-        slot = _map_block(table_keys, table_slots, block_keys, n_blocks, log, count, frame_keys[s], prior_log)
+        slot = _map_block(table, block_keys, n_blocks, log, count, frame_keys[s], prior_log)
         for v in range(acc.shape[1]):
             n = acc[s, v, 1]
             if n == 0.0:
@@ -332,11 +390,11 @@ def apply_frame(table_keys, table_slots, block_keys, n_blocks, log, count, frame
                 count[slot, v] += 1
 
 
-@numba.njit(cache=True)
-def merge_blocks(table_keys, table_slots, block_keys, n_blocks, log, count, other_keys, n_other, other_log, other_count, clamp_lo, clamp_hi, prior_log):
+@numba.njit(cache=True, nogil=True)
+def merge_blocks(table, block_keys, n_blocks, log, count, other_keys, n_other, other_log, other_count, clamp_lo, clamp_hi, prior_log):
     """Add another map's blocks: known in both -> ``l1 + l2 - l0`` (clamped); counts add (saturating)."""
     for s in range(n_other):
-        slot = _map_block(table_keys, table_slots, block_keys, n_blocks, log, count, other_keys[s], prior_log)
+        slot = _map_block(table, block_keys, n_blocks, log, count, other_keys[s], prior_log)
         for v in range(other_log.shape[1]):
             c = np.int64(other_count[s, v])
             if c == 0:
@@ -349,38 +407,48 @@ def merge_blocks(table_keys, table_slots, block_keys, n_blocks, log, count, othe
             count[slot, v] = min(mine + c, 65535)
 
 
-@numba.njit(cache=True)
-def set_voxels(table_keys, table_slots, block_keys, n_blocks, log, count, keys, values, counts, bits, prior_log):
+@numba.njit(cache=True, nogil=True)
+def set_voxels(table, block_keys, n_blocks, log, count, keys, values, counts, bits, prior_log):
     """Overwrite the log-odds and count of each key, creating blocks as needed (room must be reserved)."""
     for i in range(keys.shape[0]):
         block, local = _split_key(np.int64(keys[i, 0]), np.int64(keys[i, 1]), np.int64(keys[i, 2]), bits)
-        slot = _map_block(table_keys, table_slots, block_keys, n_blocks, log, count, block, prior_log)
+        slot = _map_block(table, block_keys, n_blocks, log, count, block, prior_log)
         log[slot, local] = values[i]
         count[slot, local] = counts[i]
 
 
-@numba.njit(cache=True)
-def count_new_blocks(table_keys, table_slots, keys, bits):
+@numba.njit(cache=True, nogil=True)
+def count_new_blocks(table, block_keys, keys, bits):
     """Upper bound on the blocks ``keys`` would add: keys whose block is absent and differs from the previous key's."""
     n = 0
     last = EMPTY
     for i in range(keys.shape[0]):
         block, _ = _split_key(np.int64(keys[i, 0]), np.int64(keys[i, 1]), np.int64(keys[i, 2]), bits)
-        if block != last and find_block(table_keys, table_slots, block) < 0:
+        if block != last and find_block(table, block_keys, block) < 0:
             n += 1
         last = block
     return n
 
 
-@numba.njit(cache=True)
-def lookup(table_keys, table_slots, log, count, keys, bits, prior_log):
+@numba.njit(cache=True, nogil=True)
+def count_absent_blocks(table, block_keys, packed, n_packed):
+    """How many of the packed block keys ``packed[:n_packed]`` (distinct) the table lacks."""
+    n = 0
+    for i in range(n_packed):
+        if find_block(table, block_keys, packed[i]) < 0:
+            n += 1
+    return n
+
+
+@numba.njit(cache=True, nogil=True)
+def lookup(table, block_keys, log, count, keys, bits, prior_log):
     """Log-odds and observation count at each key; ``(prior_log, 0)`` for voxels never stored."""
     n = keys.shape[0]
     out_log = np.empty(n, dtype=np.float32)
     out_count = np.empty(n, dtype=np.uint16)
     for i in range(n):
         block, local = _split_key(np.int64(keys[i, 0]), np.int64(keys[i, 1]), np.int64(keys[i, 2]), bits)
-        slot = find_block(table_keys, table_slots, block)
+        slot = find_block(table, block_keys, block)
         if slot < 0:
             out_log[i] = prior_log
             out_count[i] = 0

@@ -225,9 +225,9 @@ class OccupancyMap:
                     f"cannot merge maps of different grids: {attr} {getattr(self, attr)!r} != {getattr(other, attr)!r}"
                 )
         store, theirs = self._store, other._store
-        store.reserve(len(theirs))
+        store.reserve(store.count_absent(theirs.block_keys, len(theirs)))
         lo, hi = self._clamp_log()
-        _kernels.merge_blocks(store.table_keys, store.table_slots, store.block_keys, store.n_blocks,
+        _kernels.merge_blocks(store.table, store.block_keys, store.n_blocks,
                               store.payload["log"], store.payload["count"], theirs.block_keys, len(theirs),
                               theirs.payload["log"], theirs.payload["count"], lo, hi, self.prior_log)
         self.policies = (*self.policies, *(p for p in other.policies if p not in self.policies))
@@ -252,8 +252,8 @@ class OccupancyMap:
                 f"`counts` must be ({keys.shape[0]},) integers in [1, 65535]; got shape {count.shape}, dtype {count.dtype}"
             )
         store = self._store
-        store.reserve(_kernels.count_new_blocks(store.table_keys, store.table_slots, keys, store.bits))
-        _kernels.set_voxels(store.table_keys, store.table_slots, store.block_keys, store.n_blocks, store.payload["log"],
+        store.reserve(_kernels.count_new_blocks(store.table, store.block_keys, keys, store.bits))
+        _kernels.set_voxels(store.table, store.block_keys, store.n_blocks, store.payload["log"],
                             store.payload["count"], keys, log, count.astype(np.uint16), store.bits, self.prior_log)
 
     def copy(self):
@@ -288,7 +288,7 @@ class OccupancyMap:
         """
         keys = self._keys(keys)
         store = self._store
-        return _kernels.lookup(store.table_keys, store.table_slots, store.payload["log"], store.payload["count"],
+        return _kernels.lookup(store.table, store.block_keys, store.payload["log"], store.payload["count"],
                                keys, store.bits, np.float32(self.prior_log))
 
     def probability_at_keys(self, keys):
@@ -453,9 +453,9 @@ class OccupancyMap:
 
     def _apply_accumulator(self, code):
         acc, store = self._accumulator, self._store
-        store.reserve(len(acc))
+        store.reserve(store.count_absent(acc.block_keys, len(acc)))
         lo, hi = self._clamp_log()
-        _kernels.apply_frame(store.table_keys, store.table_slots, store.block_keys, store.n_blocks,
+        _kernels.apply_frame(store.table, store.block_keys, store.n_blocks,
                              store.payload["log"], store.payload["count"], acc.block_keys, len(acc),
                              acc.payload["acc"], code, lo, hi, self.prior_log)
 

@@ -21,8 +21,7 @@ class BlockTable:
         self.block_voxels = 1 << sum(self.bits)
         self.n_blocks = np.zeros(1, dtype=np.int64)
         self.block_keys = np.empty(0, dtype=np.int64)
-        self.table_keys = np.full(16, _kernels.EMPTY, dtype=np.int64)
-        self.table_slots = np.zeros(16, dtype=np.int32)
+        self.table = np.full(16, -1, dtype=np.int32)
         self.payload = {name: np.empty((0, *shape), dtype=dtype) for name, (shape, dtype) in payload.items()}
 
     def __len__(self):
@@ -31,19 +30,26 @@ class BlockTable:
     def clear(self):
         """Forget every block but keep the allocated memory (the frame accumulator is reused)."""
         self.n_blocks[0] = 0
-        self.table_keys.fill(_kernels.EMPTY)
+        self.table.fill(-1)
 
     def reserve(self, extra):
-        """Make room for ``extra`` more blocks (block arrays and a table at most half full)."""
+        """Make room for ``extra`` more blocks (block arrays and a table at most half full).
+
+        Block arrays grow to exactly what is needed, or by half when that is more (amortised O(1)
+        growth with at most a third of the capacity spare); the table doubles.
+        """
         n = len(self)
         need = n + int(extra)
         if need > self.block_keys.size:
-            capacity = max(need, 2 * self.block_keys.size, 64)
+            capacity = max(need, self.block_keys.size + self.block_keys.size // 2, 16)
             self.block_keys = _grown(self.block_keys, capacity, n)
             self.payload = {name: _grown(array, capacity, n) for name, array in self.payload.items()}
-        if 2 * need > self.table_keys.size:
-            size = 1 << int(np.ceil(np.log2(4 * need)))
-            self.table_keys, self.table_slots = _kernels.rehash(self.block_keys, n, size)
+        if 2 * need > self.table.size:
+            self.table = _kernels.rehash(self.block_keys, n, 1 << int(np.ceil(np.log2(2 * need))))
+
+    def count_absent(self, packed_keys, n):
+        """How many of the distinct packed block keys ``packed_keys[:n]`` this table lacks."""
+        return _kernels.count_absent_blocks(self.table, self.block_keys, packed_keys, n)
 
     def block_coords(self):
         """(B, 3) int64 block coordinates of the stored blocks."""
@@ -62,7 +68,7 @@ class BlockTable:
 
     def nbytes(self):
         """Bytes held by the table and the block arrays (allocated capacity, not just the used part)."""
-        arrays = [self.block_keys, self.table_keys, self.table_slots, *self.payload.values()]
+        arrays = [self.block_keys, self.table, *self.payload.values()]
         return int(sum(a.nbytes for a in arrays))
 
 
