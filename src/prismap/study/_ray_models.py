@@ -420,15 +420,15 @@ def _cells(setup, disparity, norm, end_depth):
 
 
 def time_models(mixture, *, setup, focal_px, width=640, height=480, stride=1, depth_range_m=(1.0, 20.0),
-                n_bands=8, direct_rays=16, chunk_rays=8192, names=None):
+                n_bands=8, direct_rays=16, chunk_rays=8192, seed=0, names=None):
     """Nanoseconds per cell and per ray of every model, PRISM direct and tabulated, on one batch.
 
     The batch: rays of every ``stride``-th pixel of a ``width x height`` frame (focal ``focal_px``, principal
     point at the centre) that sees ``n_bands`` planes at depths in ``depth_range_m`` (disparities rounded to
     1/16 px); each ray gets cells of ``voxel_size_m`` (along the ray) from ``near_m`` to the largest
     influence depth of the models. All models run on the same chunks of ``chunk_rays`` rays in turn after a
-    warm-up; direct PRISM (a quadrature, far slower) runs on about ``direct_rays`` rays spread evenly over
-    the batch and is reported per cell and ray of that subset.
+    warm-up; direct PRISM (a quadrature, far slower) runs on ``direct_rays`` rays drawn with ``seed`` and is
+    reported per cell and ray of that subset.
 
     Returns
     -------
@@ -450,13 +450,14 @@ def time_models(mixture, *, setup, focal_px, width=640, height=480, stride=1, de
     seconds = dict.fromkeys(timed, 0.0)
     cells = dict.fromkeys(timed, 0)
     rays_done = dict.fromkeys(timed, 0)
-    every = max(1, disparity.size // direct_rays)
+    direct = np.zeros(disparity.size, dtype=bool)
+    direct[np.random.default_rng(seed).choice(disparity.size, min(direct_rays, disparity.size), replace=False)] = True
     starts = range(0, disparity.size, chunk_rays)
     warm = set()
     for first in progress(starts, total=len(starts), desc="timing models"):
         chunk = slice(first, first + chunk_rays)
         batch = (disparity[chunk], norm[chunk], *_cells(setup, disparity[chunk], norm[chunk], end_depth[chunk]))
-        sub = np.arange((-first) % every, batch[0].size, every)
+        sub = np.nonzero(direct[chunk])[0]
         direct_batch = (batch[0][sub], batch[1][sub], *_cells(setup, batch[0][sub], batch[1][sub], end_depth[chunk][sub]))
         for name, model in timed.items():
             use = direct_batch if name == "prism (direct)" else batch
