@@ -2,7 +2,9 @@
 
 Scenes: (a) a 640x480 depth frame of planes at 1-10 m (tests/test_octomap_interop.planes_frame), 0.1 m voxels;
 (b) 100k random points at 2-20 m in a 90x60 degree frustum (seed 0), 0.1 m voxels. Same points, resolution and
-max range for both. Prints seconds (median of --repeat runs), throughput ratios and bytes per known voxel.
+max range for both. Prints wall seconds (median of --repeat runs) with the throughput ratio, CPU seconds
+(process time, both threads; steadier than wall time on a shared machine), the share of prismap's wall time
+spent inside the sensor model's own calls, and bytes per known voxel.
 Run: .venv/bin/python benchmarks/bench_grid.py [--repeat 3]
 """
 
@@ -37,12 +39,40 @@ def hitmiss(camera):
 
 
 def timed(fn, repeat):
-    times = []
+    """Median wall and CPU seconds of ``fn()`` over ``repeat`` runs, and its last result."""
+    wall, cpu = [], []
     for _ in range(repeat):
-        start = time.perf_counter()
+        start, start_cpu = time.perf_counter(), time.process_time()
         result = fn()
-        times.append(time.perf_counter() - start)
-    return statistics.median(times), result
+        wall.append(time.perf_counter() - start)
+        cpu.append(time.process_time() - start_cpu)
+    return statistics.median(wall), statistics.median(cpu), result
+
+
+class TimedModel:
+    """Wraps a sensor model and adds up the wall time of its ``cell_posteriors`` and ``influence_depth``."""
+
+    def __init__(self, model):
+        self.model, self.seconds = model, 0.0
+
+    def __getattr__(self, name):
+        return getattr(self.model, name)
+
+    def _timed(self, method, *args):
+        start = time.perf_counter()
+        try:
+            return method(*args)
+        finally:
+            self.seconds += time.perf_counter() - start
+
+    def cell_posteriors(self, *args):
+        return self._timed(self.model.cell_posteriors, *args)
+
+    def influence_depth(self, *args):
+        return self._timed(self.model.influence_depth, *args)
+
+    def with_extra_noise(self, sigma_px):
+        return TimedModel(self.model.with_extra_noise(sigma_px))
 
 
 def octomap_known_voxels(tree):
@@ -62,14 +92,16 @@ def frustum_scene():
 
 
 def run(name, octo_points, origin, prismap_runs, repeat, max_range):
-    t_octo, tree = timed(lambda: _octo(octo_points, origin, max_range), repeat)
+    t_octo, cpu_octo, tree = timed(lambda: _octo(octo_points, origin, max_range), repeat)
     octo_known = octomap_known_voxels(tree)
-    print(f"\n[{name}] OctoMap insertPointCloud: {t_octo * 1e3:.0f} ms, {octo_known} known voxels, "
-          f"{tree.memoryUsage() / octo_known:.2f} bytes/known voxel (memoryUsage() / known voxels, pruned tree)")
-    for label, fn in prismap_runs:
-        t, grid = timed(fn, repeat)
-        print(f"[{name}] prismap {label}: {t * 1e3:.0f} ms, {grid.n_known} known voxels, "
-              f"{grid.nbytes() / grid.n_known:.2f} bytes/known voxel (allocated), speed ratio vs OctoMap {t_octo / t:.2f}x")
+    print(f"\n[{name}] OctoMap insertPointCloud: {t_octo * 1e3:.0f} ms (CPU {cpu_octo * 1e3:.0f} ms), {octo_known} known "
+          f"voxels, {tree.memoryUsage() / octo_known:.2f} bytes/known voxel (memoryUsage() / known voxels, pruned tree)")
+    for label, model, fn in prismap_runs:
+        timer = TimedModel(model)
+        t, cpu, grid = timed(lambda: fn(timer), repeat)
+        print(f"[{name}] prismap {label}: {t * 1e3:.0f} ms (CPU {cpu * 1e3:.0f} ms), {grid.n_known} known voxels, "
+              f"{grid.nbytes() / grid.n_known:.2f} bytes/known voxel (allocated); speed ratio vs OctoMap "
+              f"{t_octo / t:.2f}x wall, {cpu_octo / cpu:.2f}x CPU; model calls {timer.seconds / repeat * 1e3:.0f} ms per run (mean, incl. first-run set-up)")
 
 
 def _octo(points, origin, max_range):
@@ -91,19 +123,19 @@ def main():
     for mode in ("ray", "projective"):
         warm.integrate_disparity(disparity[:40, :40], camera, pose, model, mode=mode, max_range_m=12.0)
 
-    def frame(mode, ism):
-        def go():
+    def frame(mode):
+        def go(ism):
             grid = OccupancyMap(VOXEL, p0=ism.p0 if hasattr(ism, "p0") else 0.5)
             grid.integrate_disparity(disparity, camera, pose, ism, mode=mode, max_range_m=12.0)
             return grid
         return go
 
-    runs = [("ray, hit/miss", frame("ray", model)), ("projective, hit/miss", frame("projective", model))]
+    runs = [("ray, hit/miss", model, frame("ray")), ("projective, hit/miss", model, frame("projective"))]
     if "prism" in model_names():
         try:
             prism = make_sensor_model("prism", focal_baseline=camera.focal_baseline, doffs_px=0.0, voxel_size_m=VOXEL,
                                       p0=0.05, error_model=GaussianMixture.gaussian(0.5))
-            runs.append(("projective, PRISM (p0 0.05, N(0, 0.5 px) errors)", frame("projective", prism)))
+            runs.append(("projective, PRISM (p0 0.05, N(0, 0.5 px) errors)", prism, frame("projective")))
         except Exception as exc:  # the other helper's constructor may still differ
             print(f"PRISM not run: {exc}")
     print("scene (a): 640x480 planes at 1-10 m (floor, walls, slanted box), camera yawed 20 deg, 0.1 m voxels, max range 12 m")
@@ -115,13 +147,13 @@ def main():
     fake = StereoCamera(500.0, 0.0, 0.0, 0.1)
     model_b, _ = hitmiss(fake)
 
-    def cloud():
+    def cloud(ism):
         grid = OccupancyMap(VOXEL, p0=0.5)
-        grid.integrate_rays(origin, rays, fake.focal_baseline / depth_b, model_b, max_range_m=25.0)
+        grid.integrate_rays(origin, rays, fake.focal_baseline / depth_b, ism, max_range_m=25.0)
         return grid
 
     print("\nscene (b): 100k uniform random points at 2-20 m in a 90x60 deg frustum (seed 0), 0.1 m voxels, max range 25 m")
-    run("b", points, origin, [("ray, hit/miss", cloud)], args.repeat, 25.0)
+    run("b", points, origin, [("ray, hit/miss", model_b, cloud)], args.repeat, 25.0)
 
 
 if __name__ == "__main__":

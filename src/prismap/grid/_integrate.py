@@ -137,11 +137,11 @@ def cell_increments(model, disparity, ray_norm, ray_of_cell, t_in, t_out):
 def ray_mode(accumulator, origin, rays, disparity, ray_norm, groups, ranges, voxel_size):
     """Cast every ray (Amanatides-Woo) and accumulate the model's increments of the voxels it crosses.
 
-    Rays go in chunks of :data:`RAYS_PER_CHUNK` through a two-stage pipeline: a worker thread casts
-    chunk k + 1 (the kernel releases the GIL) while this thread runs the model on chunk k and adds its
-    increments. The worker never grows the accumulator (this thread does, once the scatter is done), and
-    it only creates blocks and fills their rows while the scatter writes rows of blocks created before,
-    so the two never touch the same memory.
+    Rays go in chunks of :data:`RAYS_PER_CHUNK` through a two-stage pipeline: this thread casts chunk
+    k + 1 (the kernel releases the GIL) while a worker thread runs the model on chunk k and adds its
+    increments. The cast beside the scatter never grows the accumulator (it is grown once the scatter is
+    done), and it only creates blocks and fills their rows while the scatter writes rows of blocks
+    created before, so the two never touch the same memory.
     """
     chunks = []
     for model, members in groups:
@@ -156,15 +156,20 @@ def ray_mode(accumulator, origin, rays, disparity, ray_norm, groups, ranges, vox
         return
     with ThreadPoolExecutor(max_workers=1) as worker:
         cells = cast_into(accumulator, origin, *chunks[0][3:], voxel_size)
-        for k, (model, d, norm, *cast_args) in enumerate(chunks):
-            following = None
+        for k, (model, d, norm, *_) in enumerate(chunks):
+            job = worker.submit(_model_and_scatter, accumulator, model, d, norm, cells)
             if k + 1 < len(chunks):
-                following = worker.submit(cast_into, accumulator, origin, *chunks[k + 1][3:], voxel_size, grow=False)
-            ray_of_cell, cell_index, t_in, t_out = cells
-            if cell_index.size:
-                scatter(accumulator, cell_index, cell_increments(model, d, norm, ray_of_cell, t_in, t_out))
-            if following is not None:
-                cells = finish_cast(accumulator, origin, *chunks[k + 1][3:], voxel_size, following.result())
+                # This thread enters the GIL-free cast at once; the worker's model call may hold the GIL.
+                partial = cast_into(accumulator, origin, *chunks[k + 1][3:], voxel_size, grow=False)
+            job.result()
+            if k + 1 < len(chunks):
+                cells = finish_cast(accumulator, origin, *chunks[k + 1][3:], voxel_size, partial)
+
+
+def _model_and_scatter(accumulator, model, disparity, ray_norm, cells):
+    ray_of_cell, cell_index, t_in, t_out = cells
+    if cell_index.size:
+        scatter(accumulator, cell_index, cell_increments(model, disparity, ray_norm, ray_of_cell, t_in, t_out))
 
 
 def projective_mode(accumulator, origin, rays, disparity, ray_norm, groups, ranges, voxel_size, projection):
