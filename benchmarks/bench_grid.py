@@ -24,7 +24,7 @@ from prismap.camera import StereoCamera  # noqa: E402
 from prismap.gmm import GaussianMixture  # noqa: E402
 from prismap.grid import OccupancyMap  # noqa: E402
 from prismap.sensor_models import make_sensor_model, model_names  # noqa: E402
-from test_octomap_interop import planes_frame, world_points  # noqa: E402
+from support import planes_frame, world_points  # noqa: E402
 
 VOXEL = 0.1
 

@@ -18,7 +18,7 @@ from prismap.evaluate import align_to_ground_truth, score_map
 from prismap.gmm import fit_mixtures
 from prismap.io import load_map, read_ground_truth, write_ground_truth
 from prismap.pipeline import MappingConfig, characterise_sequence, map_sequence
-from test_pipeline import VOXEL, assert_same_map, synthetic_sequence
+from support import VOXEL, assert_same_map, synthetic_sequence
 
 PRISMAP = Path(sys.executable).parent / "prismap"
 

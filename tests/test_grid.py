@@ -4,48 +4,11 @@ queries, merging, pose noise and bad input."""
 import numpy as np
 import pytest
 
-from prismap.camera import StereoCamera
 from prismap.errors import PrismapInputError
-from prismap.grid import FREE, OCCUPIED, OCTOMAP_CLAMP, UNKNOWN, OccupancyMap, key_to_center, point_to_key, pose_noise_px
+from prismap.grid import OccupancyMap, key_to_center, point_to_key
 from prismap.grid._kernels import cast_rays
 from prismap.sensor_models import InverseSensorModel
-
-L_HIT = np.log(0.7 / 0.3)
-L_MISS = np.log(0.4 / 0.6)
-
-
-def logit(p):
-    return np.log(p / (1 - p))
-
-
-class HitMissModel(InverseSensorModel):
-    """OctoMap's hit/miss model on one ray, written here so the grid is tested without `sensor_models`.
-
-    ``p_hit`` in the cell whose depth interval contains the measured depth, ``p_miss`` before it.
-    """
-
-    name = "test-hitmiss"
-    default_policy = "occupied-wins"
-
-    def __init__(self, focal_baseline, *, doffs_px=0.0, p0=0.5, extra_noise_px=0.0):
-        self.focal_baseline, self.doffs_px, self.p0 = focal_baseline, doffs_px, p0
-        self.extra_noise_px = extra_noise_px
-
-    def depth(self, disparity_px):
-        return self.focal_baseline / (np.asarray(disparity_px) + self.doffs_px)
-
-    def cell_posteriors(self, disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m):
-        z = self.depth(disparity_px)[ray_of_cell]
-        hit = (depth_start_m <= z) & (z < depth_end_m)
-        post = np.where(hit, 0.7, np.where(depth_end_m <= z, 0.4, self.p0))
-        return post, logit(post) - logit(self.p0)
-
-    def influence_depth(self, disparity_px, ray_norm):
-        return self.depth(disparity_px)
-
-    def with_extra_noise(self, sigma_px):
-        return HitMissModel(self.focal_baseline, doffs_px=self.doffs_px, p0=self.p0, extra_noise_px=sigma_px)
-
+from support import FB, L_HIT, L_MISS, HitMissModel
 
 class ConstantModel(InverseSensorModel):
     """Every cell of ray i gets increment ``values[i]``; rays stop at depth ``depth_m``."""
@@ -65,9 +28,6 @@ class ConstantModel(InverseSensorModel):
 
     def with_extra_noise(self, sigma_px):
         return self
-
-
-FB = 10.0  # focal * baseline of the hand-made rays: disparity = FB / depth
 
 
 def one_ray(origin, ray, depth, *, voxel=0.1, max_range=np.inf, policy=None):

@@ -6,8 +6,8 @@ import pytest
 
 from prismap.errors import PrismapInputError
 from prismap.grid import FREE, OCCUPIED, OCTOMAP_CLAMP, UNKNOWN, OccupancyMap, pose_noise_px
-from test_grid import FB, HitMissModel
-from test_octomap_interop import planes_frame
+from support import FB, HitMissModel
+from support import planes_frame
 
 
 def small_frame():

@@ -1,6 +1,5 @@
 """The .npz map file and the PLY export: round trips, and clear errors for bad files with nothing overwritten."""
 
-import zipfile
 
 import numpy as np
 import pytest
@@ -9,7 +8,7 @@ from prismap.errors import PrismapInputError
 from prismap.grid import OCTOMAP_CLAMP, OccupancyMap
 from prismap.io._mapfile import load_map, save_map
 from prismap.io._ply import read_ply, write_ply
-from test_grid import FB, HitMissModel
+from support import FB, HitMissModel
 
 
 def small_map(**options):

@@ -4,39 +4,11 @@
 import numpy as np
 import pytest
 
-from prismap.camera import StereoCamera
 from prismap.grid import FREE, OCCUPIED, OccupancyMap
 from prismap.io._octomap import write_octomap
-from test_grid import HitMissModel
+from support import HitMissModel, planes_frame, world_points
 
 octomap = pytest.importorskip("octomap")
-
-
-def planes_frame(width=640, height=480):
-    """A 640x480 depth frame of planes at 1-10 m: floor, back wall, left wall, a slanted box face.
-
-    Returns ``camera, T_world_cam, depth (H, W) float64 metres``.
-    """
-    camera = StereoCamera(525.0, 319.5, 239.5, 0.1, width=width, height=height)
-    rays = camera.pixel_rays()
-    with np.errstate(divide="ignore", invalid="ignore"):
-        candidates = [
-            np.where(rays[..., 1] > 0, 1.5 / rays[..., 1], np.inf),  # floor 1.5 m below the camera
-            np.full(rays.shape[:2], 9.7),  # back wall
-            np.where(rays[..., 0] < 0, -2.93 / rays[..., 0], np.inf),  # left wall
-            np.where(np.abs(rays[..., 0] - 0.2) < 0.1, 4.0 + 2.0 * rays[..., 0], np.inf),  # slanted box face
-        ]
-    depth = np.clip(np.minimum.reduce(candidates), 1.0, 10.0)
-    angle = np.deg2rad(20.0)
-    pose = np.eye(4)
-    pose[:3, :3] = [[np.cos(angle), 0, np.sin(angle)], [0, 1, 0], [-np.sin(angle), 0, np.cos(angle)]]
-    pose[:3, 3] = [1.234, -0.517, 2.071]
-    return camera, pose, depth
-
-
-def world_points(camera, pose, depth):
-    points_cam = camera.pixel_rays(depth.shape) * depth[..., None]
-    return np.ascontiguousarray(points_cam.reshape(-1, 3) @ pose[:3, :3].T + pose[:3, 3])
 
 
 def octree_states(tree, centers):

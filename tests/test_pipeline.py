@@ -7,15 +7,12 @@ import cv2
 import numpy as np
 import pytest
 
-from prismap import sim
-from prismap.camera import StereoCamera
 from prismap.errors import PrismapInputError
 from prismap.gmm import GaussianMixture
 from prismap.grid import OccupancyMap
 from prismap.io import load_map, read_ground_truth, read_sequence, write_ground_truth, write_sequence
 from prismap.pipeline import (
     DisparitySource,
-    MappingConfig,
     build_sensor_model,
     dominant_sigma_px,
     ground_truth_from_map,
@@ -25,31 +22,11 @@ from prismap.pipeline import (
 )
 from prismap.sensor_models import AndertModel, ConvolutionModel, PrismModel
 from prismap.stereo import make_matcher
-
-CAMERA = StereoCamera(72.0, 47.5, 35.5, 0.1, width=96, height=72)
-VOXEL = 0.2
-MIXTURE = GaussianMixture([0.8, 0.2], [0.05, -0.3], [0.4, 2.5])
-
-
-def synthetic_sequence(path, n_frames=6, *, camera=CAMERA, seed=0, truth=True):
-    """Write ``n_frames`` of the seeded indoor scene (with disp/, and occupancy.npz at VOXEL) to ``path``."""
-    scene = sim.indoor_scene(seed=seed)
-    frames = list(scene.frames(camera, sim.indoor_trajectory(n_frames, seed=seed), seed=seed))
-    occupancy = scene.ground_truth(frames, VOXEL, max_range_m=8.0) if truth else None
-    write_sequence(frames, path, occupancy=occupancy)
-    return path
-
+from support import CAMERA, MIXTURE, assert_same_map, config, synthetic_sequence
 
 @pytest.fixture(scope="module")
 def sequence_dir(tmp_path_factory):
     return synthetic_sequence(tmp_path_factory.mktemp("pipeline") / "seq")
-
-
-def config(**changes):
-    options = dict(model="convolution", voxel_size_m=VOXEL, p0=0.05, error_model=MIXTURE, disparity_source="sequence",
-                   matcher_params={"num_disparities": 16}, max_range_m=8.0)
-    options.update(changes)
-    return MappingConfig(**options)
 
 
 def hand_map(sequence_dir, cfg, indices, disparity_of):
@@ -63,16 +40,6 @@ def hand_map(sequence_dir, cfg, indices, disparity_of):
         grid.integrate_disparity(disparity_of(frame), sequence.camera, frame.T_world_cam, model, mode=cfg.mode,
                                  policy=cfg.policy, max_range_m=cfg.max_range_m, subsample=cfg.subsample)
     return grid
-
-
-def assert_same_map(a, b, *, atol=0.0):
-    keys_a, log_a, count_a = a.known_voxels()
-    keys_b, log_b, count_b = b.known_voxels()
-    order_a, order_b = np.lexsort(keys_a.T), np.lexsort(keys_b.T)
-    np.testing.assert_array_equal(keys_a[order_a], keys_b[order_b])
-    np.testing.assert_array_equal(count_a[order_a], count_b[order_b])
-    np.testing.assert_allclose(log_a[order_a], log_b[order_b], rtol=0, atol=atol)
-    assert a.n_frames == b.n_frames and a.p0 == b.p0 and a.voxel_size_m == b.voxel_size_m
 
 
 # ------------------------------------------------------------------------------------ sensor models

@@ -6,7 +6,7 @@ import pytest
 from prismap.errors import PrismapInputError
 from prismap.io import load_map
 from prismap.pipeline import characterise_sequence, map_sequence
-from test_pipeline import assert_same_map, config, synthetic_sequence
+from support import assert_same_map, config, synthetic_sequence
 
 distributed = pytest.importorskip("distributed")
 

@@ -5,4 +5,14 @@ from prismap.plots._evaluate import plot_probability_histograms, plot_reliabilit
 from prismap.plots._models import plot_divergence, plot_influence, plot_prism_sweeps, plot_ray_profiles
 from prismap.plots._maps import plot_map_slices
 
-__all__ = ["plot_error_fits", "plot_error_tails", "plot_map_slices", "plot_probability_histograms", "plot_reliability"]
+__all__ = [
+    "plot_divergence",
+    "plot_error_fits",
+    "plot_error_tails",
+    "plot_influence",
+    "plot_map_slices",
+    "plot_prism_sweeps",
+    "plot_probability_histograms",
+    "plot_ray_profiles",
+    "plot_reliability",
+]

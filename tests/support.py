@@ -1,0 +1,108 @@
+"""Test support shared by several test files: a hand-written hit/miss model, synthetic frames and
+sequences, and map comparison. Imported as ``from support import ...`` (pytest puts tests/ on sys.path)."""
+
+import numpy as np
+
+from prismap import sim
+from prismap.camera import StereoCamera
+from prismap.gmm import GaussianMixture
+from prismap.io import write_sequence
+from prismap.pipeline import MappingConfig
+from prismap.sensor_models import InverseSensorModel
+
+L_HIT = np.log(0.7 / 0.3)
+L_MISS = np.log(0.4 / 0.6)
+
+
+def logit(p):
+    return np.log(p / (1 - p))
+
+
+class HitMissModel(InverseSensorModel):
+    """OctoMap's hit/miss model on one ray, written here so the grid is tested without `sensor_models`.
+
+    ``p_hit`` in the cell whose depth interval contains the measured depth, ``p_miss`` before it.
+    """
+
+    name = "test-hitmiss"
+    default_policy = "occupied-wins"
+
+    def __init__(self, focal_baseline, *, doffs_px=0.0, p0=0.5, extra_noise_px=0.0):
+        self.focal_baseline, self.doffs_px, self.p0 = focal_baseline, doffs_px, p0
+        self.extra_noise_px = extra_noise_px
+
+    def depth(self, disparity_px):
+        return self.focal_baseline / (np.asarray(disparity_px) + self.doffs_px)
+
+    def cell_posteriors(self, disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m):
+        z = self.depth(disparity_px)[ray_of_cell]
+        hit = (depth_start_m <= z) & (z < depth_end_m)
+        post = np.where(hit, 0.7, np.where(depth_end_m <= z, 0.4, self.p0))
+        return post, logit(post) - logit(self.p0)
+
+    def influence_depth(self, disparity_px, ray_norm):
+        return self.depth(disparity_px)
+
+    def with_extra_noise(self, sigma_px):
+        return HitMissModel(self.focal_baseline, doffs_px=self.doffs_px, p0=self.p0, extra_noise_px=sigma_px)
+
+
+FB = 10.0  # focal * baseline of the hand-made rays: disparity = FB / depth
+
+
+def planes_frame(width=640, height=480):
+    """A 640x480 depth frame of planes at 1-10 m: floor, back wall, left wall, a slanted box face.
+
+    Returns ``camera, T_world_cam, depth (H, W) float64 metres``.
+    """
+    camera = StereoCamera(525.0, 319.5, 239.5, 0.1, width=width, height=height)
+    rays = camera.pixel_rays()
+    with np.errstate(divide="ignore", invalid="ignore"):
+        candidates = [
+            np.where(rays[..., 1] > 0, 1.5 / rays[..., 1], np.inf),  # floor 1.5 m below the camera
+            np.full(rays.shape[:2], 9.7),  # back wall
+            np.where(rays[..., 0] < 0, -2.93 / rays[..., 0], np.inf),  # left wall
+            np.where(np.abs(rays[..., 0] - 0.2) < 0.1, 4.0 + 2.0 * rays[..., 0], np.inf),  # slanted box face
+        ]
+    depth = np.clip(np.minimum.reduce(candidates), 1.0, 10.0)
+    angle = np.deg2rad(20.0)
+    pose = np.eye(4)
+    pose[:3, :3] = [[np.cos(angle), 0, np.sin(angle)], [0, 1, 0], [-np.sin(angle), 0, np.cos(angle)]]
+    pose[:3, 3] = [1.234, -0.517, 2.071]
+    return camera, pose, depth
+
+
+def world_points(camera, pose, depth):
+    points_cam = camera.pixel_rays(depth.shape) * depth[..., None]
+    return np.ascontiguousarray(points_cam.reshape(-1, 3) @ pose[:3, :3].T + pose[:3, 3])
+
+
+CAMERA = StereoCamera(72.0, 47.5, 35.5, 0.1, width=96, height=72)
+VOXEL = 0.2
+MIXTURE = GaussianMixture([0.8, 0.2], [0.05, -0.3], [0.4, 2.5])
+
+
+def synthetic_sequence(path, n_frames=6, *, camera=CAMERA, seed=0, truth=True):
+    """Write ``n_frames`` of the seeded indoor scene (with disp/, and occupancy.npz at VOXEL) to ``path``."""
+    scene = sim.indoor_scene(seed=seed)
+    frames = list(scene.frames(camera, sim.indoor_trajectory(n_frames, seed=seed), seed=seed))
+    occupancy = scene.ground_truth(frames, VOXEL, max_range_m=8.0) if truth else None
+    write_sequence(frames, path, occupancy=occupancy)
+    return path
+
+
+def config(**changes):
+    options = dict(model="convolution", voxel_size_m=VOXEL, p0=0.05, error_model=MIXTURE, disparity_source="sequence",
+                   matcher_params={"num_disparities": 16}, max_range_m=8.0)
+    options.update(changes)
+    return MappingConfig(**options)
+
+
+def assert_same_map(a, b, *, atol=0.0):
+    keys_a, log_a, count_a = a.known_voxels()
+    keys_b, log_b, count_b = b.known_voxels()
+    order_a, order_b = np.lexsort(keys_a.T), np.lexsort(keys_b.T)
+    np.testing.assert_array_equal(keys_a[order_a], keys_b[order_b])
+    np.testing.assert_array_equal(count_a[order_a], count_b[order_b])
+    np.testing.assert_allclose(log_a[order_a], log_b[order_b], rtol=0, atol=atol)
+    assert a.n_frames == b.n_frames and a.p0 == b.p0 and a.voxel_size_m == b.voxel_size_m
