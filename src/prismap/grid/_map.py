@@ -1,6 +1,7 @@
 """The occupancy map: an unbounded sparse grid of hashed voxel blocks holding log-odds and counts."""
 
 import numpy as np
+from scipy.special import expit
 
 from prismap._validate import as_float_array, check_positive, check_probability
 from prismap.errors import PrismapInputError
@@ -25,8 +26,9 @@ def logit(p):
     return np.log(p) - np.log1p(-p)
 
 
-def _sigmoid(log):
-    return 1.0 / (1.0 + np.exp(-np.asarray(log, dtype=np.float64)))
+def _probability(log):
+    """Probability of float log-odds (float64; no overflow warning at large |log|)."""
+    return expit(np.asarray(log, dtype=np.float64))
 
 
 class OccupancyMap:
@@ -294,7 +296,7 @@ class OccupancyMap:
 
     def probability_at_keys(self, keys):
         """(N,) float64 occupancy probability at each key (``p0`` where unknown)."""
-        return _sigmoid(self.lookup_keys(keys)[0])
+        return _probability(self.lookup_keys(keys)[0])
 
     def state_at_keys(self, keys):
         """(N,) int8 state at each key: :data:`FREE`, :data:`OCCUPIED` or :data:`UNKNOWN`."""
@@ -342,7 +344,7 @@ class OccupancyMap:
         keys, log, count = self.known_voxels()
         mine = self._states(log, count) == OCCUPIED
         keys = keys[mine]
-        return keys, (keys + 0.5) * self.voxel_size_m, _sigmoid(log[mine])
+        return keys, (keys + 0.5) * self.voxel_size_m, _probability(log[mine])
 
     def bounding_box(self, *, occupied_only=False):
         """Axis-aligned box of the known (or occupied) voxels: ``(min_w, max_w)`` (3,) metres, or None if empty."""
@@ -385,7 +387,7 @@ class OccupancyMap:
             z_hi = int(np.ceil(z_max / self.voxel_size_m)) - 1
         keys, log, _ = self.known_voxels()
         inside = (keys[:, 2] >= z_lo) & (keys[:, 2] <= z_hi)
-        keys, prob = keys[inside], _sigmoid(log[inside])
+        keys, prob = keys[inside], _probability(log[inside])
         if keys.shape[0] == 0:
             return np.full((0, 0), np.nan), np.zeros(4)
         x0, y0 = keys[:, 0].min(), keys[:, 1].min()
@@ -434,7 +436,7 @@ class OccupancyMap:
 
     # ------------------------------------------------------------------------------------- internals
     def _states(self, log, count):
-        prob = _sigmoid(log)
+        prob = _probability(log)
         state = np.full(prob.shape, UNKNOWN, dtype=np.int8)
         known = count > 0
         state[known & (prob >= self.occupied_threshold)] = OCCUPIED
