@@ -197,24 +197,39 @@ def z_of_x(x, lam, ku):
 
 
 @nb.njit(cache=True)
-def _log_panel(z1, z2, lam, z0, fb, shift, log_wn, means, sigmas):
-    """Log of ``int_{z1}^{z2} q g dz`` by 8-point Gauss-Legendre (one panel)."""
+def _log_panel_moments(z1, z2, lam, z0, fb, shift, log_wn, means, sigmas):
+    """Logs of ``int_{z1}^{z2} (z - z0)^k q g dz``, k = 0, 1, 2, by 8-point Gauss-Legendre (one panel)."""
     half = 0.5 * (z2 - z1)
     if half <= 0.0:
-        return -np.inf
+        return -np.inf, -np.inf, -np.inf
     mid = 0.5 * (z1 + z2)
     best = -np.inf
-    total = 0.0
+    m0 = m1 = m2 = 0.0
     log_lam = math.log(lam)
     for i in range(8):
         z = mid + half * _GL_X[i]
-        v = _GL_LOG_W[i] + log_lam - lam * (z - z0) + log_likelihood(fb / z, shift, log_wn, means, sigmas)
+        s = z - z0
+        v = _GL_LOG_W[i] + log_lam - lam * s + log_likelihood(fb / z, shift, log_wn, means, sigmas)
         if v > best:
-            total = total * math.exp(best - v) + 1.0
+            scale = math.exp(best - v)
+            m0 *= scale
+            m1 *= scale
+            m2 *= scale
             best = v
+            e = 1.0
         else:
-            total += math.exp(v - best)
-    return best + math.log(total) + math.log(half)
+            e = math.exp(v - best)
+        m0 += e
+        m1 += e * s
+        m2 += e * s * s
+    base = best + math.log(half)
+    return base + math.log(m0), base + math.log(m1), base + math.log(m2)
+
+
+@nb.njit(cache=True)
+def _log_panel(z1, z2, lam, z0, fb, shift, log_wn, means, sigmas):
+    """Log of ``int_{z1}^{z2} q g dz`` by 8-point Gauss-Legendre (one panel)."""
+    return _log_panel_moments(z1, z2, lam, z0, fb, shift, log_wn, means, sigmas)[0]
 
 
 @nb.njit(cache=True)
@@ -235,53 +250,144 @@ def log_integral(z1, z2, lam, ku, hq, z0, fb, shift, log_wn, means, sigmas):
 
 
 @nb.njit(cache=True)
-def _log_q_g(z, lam, z0, fb, shift, log_wn, means, sigmas):
-    return math.log(lam) - lam * (z - z0) + log_likelihood(fb / z, shift, log_wn, means, sigmas)
-
-
-@nb.njit(cache=True)
-def prism_march(shift, lam, z0, z_max, fb, ku, hq, log_far, log_eps_bound, i_min, log_wn, means, sigmas):
+def prism_march(shift, lam, z0, z_max, fb, ku, hq, log_far, log_eps_bound, lam_slack, i_min, log_wn, means, sigmas):
     """Cumulative evidence of one (d^, lam) on the x-grid of spacing ``hq`` from ``z0``.
 
-    Returns ``z`` (nodes), ``log C`` and ``log D`` at the nodes (not normalised), ``log Z`` and the index of
-    the first node from which every later cell's increment is bounded by epsilon (``log_eps_bound`` =
-    ``log(expm1(epsilon))``). The march stops (not before node ``i_min``) once the remaining evidence is
-    below e^-40 of ``C``.
+    Returns ``z`` (nodes); ``log_c`` (n, 3): logs of ``C`` and of its moments ``int_{z0}^{z} (t - z0)^k q g dt``
+    (k = 1, 2) at the nodes, not normalised; ``log_d`` (n, 3): the same beyond ``z`` (the far measurement
+    counted as a mass at ``z_max``); ``log Z``; the log of the far term ``e^{-lam (z_max - z0)} g_far``
+    (-inf when the march stopped early); and the index of the first node from which every later cell's
+    increment is bounded by epsilon (``log_eps_bound`` = ``log(expm1(epsilon))``) for every rate within a
+    factor ``1 +- lam_slack`` of ``lam``. The march stops (not before node ``i_min``) once the remaining
+    evidence is below e^-40 of ``C``.
     """
     x0 = x_of_z(z0, lam, ku)
     x_end = x_of_z(z_max, lam, ku)
     n_max = max(1, int(math.ceil((x_end - x0) / hq)))
     z = np.empty(n_max + 1)
-    log_c = np.empty(n_max + 1)
-    panel = np.empty(n_max + 1)
+    log_c = np.full((n_max + 1, 3), -np.inf)
+    panel = np.full((n_max + 1, 3), -np.inf)
     z[0] = z0
-    log_c[0] = -np.inf
-    panel[0] = -np.inf
     i_infl = -1
     n = n_max
     tail = -np.inf
-    log_far_w = -lam * (z_max - z0) + log_far
+    slack = -math.log1p(-lam_slack)  # a rate lam (1 - s) has C(a) >= (1 - s) C(a; lam)
     for i in range(1, n_max + 1):
         z[i] = z_max if i == n_max else z_of_x(x0 + i * hq, lam, ku)
-        panel[i] = _log_panel(z[i - 1], z[i], lam, z0, fb, shift, log_wn, means, sigmas)
-        log_c[i] = logaddexp(log_c[i - 1], panel[i])
+        panel[i, 0], panel[i, 1], panel[i, 2] = _log_panel_moments(z[i - 1], z[i], lam, z0, fb, shift, log_wn,
+                                                                    means, sigmas)
+        for k in range(3):
+            log_c[i, k] = logaddexp(log_c[i - 1, k], panel[i, k])
         bound = -lam * (z[i] - z0) + max(_log_sup_tail(z[i], z_max, fb, shift, log_wn, means, sigmas), log_far)
-        if i_infl < 0 and bound - log_c[i] < log_eps_bound:
+        if i_infl < 0 and bound + lam_slack * lam * (z[i] - z0) + slack - log_c[i, 0] < log_eps_bound:
             i_infl = i
-        if i < n_max and i >= i_min and bound - log_c[i] < -40.0:
+        if i < n_max and i >= i_min and bound - log_c[i, 0] < -40.0:
             n = i
             tail = bound
             break
+    log_far_w = -np.inf
     if n == n_max:
-        tail = log_far_w
+        tail = log_far_w = -lam * (z_max - z0) + log_far
         if i_infl < 0:
             i_infl = n_max
-    log_d = np.empty(n + 1)
-    log_d[n] = tail
+    log_d = np.empty((n + 1, 3))
+    log_s = math.log(z[n] - z0)
+    for k in range(3):
+        log_d[n, k] = tail + k * log_s
     for i in range(n, 0, -1):
-        log_d[i - 1] = logaddexp(log_d[i], panel[i])
-    log_z = logaddexp(log_c[n], tail)
-    return z[: n + 1], log_c[: n + 1], log_d, log_z, i_infl
+        for k in range(3):
+            log_d[i - 1, k] = logaddexp(log_d[i, k], panel[i, k])
+    log_z = logaddexp(log_c[n, 0], tail)
+    return z[: n + 1], log_c[: n + 1], log_d, log_z, log_far_w, i_infl
+
+
+@nb.njit(cache=True)
+def _rate_derivatives(log_m, log_far, lam, z_far):
+    """First and second derivatives of ``log Q`` in ``log lam`` from the logs of Q's moments (``log_m`` (3,)).
+
+    ``Q = J + F``: ``J = int lam e^{-lam s} g`` has moments ``M_k``; the far term ``F = e^{-lam L} g_far``
+    (``L = z_far``, log -inf when absent) carries no factor ``lam``. For one mass at ``s``,
+    ``J' = J (1 - lam s)`` and ``J'' = J (1 - 3 lam s + lam^2 s^2)``; ``F' = -lam L F``,
+    ``F'' = (lam^2 L^2 - lam L) F``.
+    """
+    far = math.exp(log_far - log_m[0])
+    m1 = lam * math.exp(log_m[1] - log_m[0])
+    m2 = lam * lam * math.exp(log_m[2] - log_m[0])
+    lam_l = lam * z_far
+    j = 1.0 - far
+    m1 -= far * lam_l
+    m2 -= far * lam_l * lam_l
+    first = j - m1 - far * lam_l
+    second = j - 3.0 * m1 + m2 + far * (lam_l * lam_l - lam_l)
+    return first, second - first * first
+
+
+TABLE_COLUMNS = 8
+"""Columns of a PRISM table node: log(C/Z), its x-derivative, its first and second log(lambda)-derivatives,
+then the same four for ``D = Z - C`` (64 bytes: one cache line)."""
+
+
+@nb.njit(cache=True)
+def prism_table(shift, lam, z0, z_max, fb, ku, hq, log_far, log_eps_bound, lam_slack, step, coarse_ratio,
+                coarse_below, log_wn, means, sigmas):
+    """The table of one (d^, lam): nodes every ``step`` panels, every ``coarse_ratio``-th one where C/Z is tiny.
+
+    Node columns (see :data:`TABLE_COLUMNS`): ``log(C/Z)``, ``d log(C/Z)/dx``, the first and second
+    derivatives of ``log(C/Z)`` in ``log lam`` (from the moments, :func:`_rate_derivatives`), and the same
+    four for ``D = Z - C``. Nodes are uniform in x with spacing ``h = step hq`` from ``x_split`` on and
+    ``coarse_ratio h`` before it, where ``log(C/Z) < coarse_below``. There ``log g`` falls by hundreds per
+    panel, the quadrature is only good to a few units of ``log C`` (out of thousands) and ``q g / C`` is not
+    its slope: the coarse nodes take the central difference instead.
+
+    Returns
+    -------
+    nodes : (N, 8) float64
+    meta : (7,) float64
+        ``x0, x_split, n_coarse`` (coarse intervals), ``z_end`` (last node), ``z_infl``, ``log Z``, ``h``.
+    """
+    z, log_c, log_d, log_z, log_far_w, i_infl = prism_march(
+        shift, lam, z0, z_max, fb, ku, hq, log_far, log_eps_bound, lam_slack, 2 * step, log_wn, means, sigmas
+    )
+    n = z.size - 1
+    n_fine = n // step  # fine intervals
+    z_far = z_max - z0 if log_far_w > -np.inf else z[n] - z0
+    log_total = np.empty(3)
+    for k in range(3):
+        log_total[k] = logaddexp(log_c[n, k], log_d[n, k])
+    z1, z2 = _rate_derivatives(log_total, log_far_w, lam, z_far)
+    j_split = 0
+    while j_split + coarse_ratio < n_fine and log_c[(j_split + coarse_ratio) * step, 0] - log_z < coarse_below:
+        j_split += coarse_ratio
+    n_coarse = j_split // coarse_ratio
+    nodes = np.empty((n_coarse + 1 + n_fine - j_split, TABLE_COLUMNS))
+    for row in range(nodes.shape[0]):
+        j = row * coarse_ratio if row <= n_coarse else j_split + row - n_coarse
+        i = j * step
+        zi = z[i]
+        log_qg = math.log(lam) - lam * (zi - z0) + log_likelihood(fb / zi, shift, log_wn, means, sigmas)
+        dx_dz = lam + ku / (zi * zi)
+        nodes[row, 0] = log_c[i, 0] - log_z
+        if row == 0:
+            nodes[row, 1] = nodes[row, 2] = nodes[row, 3] = 0.0
+        else:
+            if row <= n_coarse:
+                nodes[row, 1] = (log_c[i + 1, 0] - log_c[i - 1, 0]) / (2.0 * hq)
+            else:
+                nodes[row, 1] = math.exp(log_qg - log_c[i, 0]) / dx_dz
+            c1, c2 = _rate_derivatives(log_c[i], -np.inf, lam, z_far)
+            nodes[row, 2] = c1 - z1
+            nodes[row, 3] = c2 - z2
+        d1, d2 = _rate_derivatives(log_d[i], log_far_w, lam, z_far)
+        nodes[row, 4] = log_d[i, 0] - log_z
+        nodes[row, 5] = -math.exp(log_qg - log_d[i, 0]) / dx_dz
+        nodes[row, 6] = d1 - z1
+        nodes[row, 7] = d2 - z2
+    nodes[0, 2] = nodes[1, 2]
+    nodes[0, 3] = nodes[1, 3]
+    h = step * hq
+    x0 = x_of_z(z0, lam, ku)
+    meta = np.array([x0, x0 + j_split * h, n_coarse, z[n_fine * step], z[i_infl], log_z, h])
+    return nodes, meta
 
 
 @nb.njit(cache=True)
@@ -376,117 +482,171 @@ def prism_direct_cells(
     return post, inc
 
 
-@nb.njit(cache=True)
-def _locate(z, lam, ku, x0, inv_h, length):
-    """Node index and fraction of depth ``z`` on a table's x-grid (scalars only: no array refcounts)."""
-    s = (x_of_z(z, lam, ku) - x0) * inv_h
-    i = min(max(int(s), 0), length - 2)
-    return i, min(max(s - i, 0.0), 1.0)
+META_COLUMNS = ("lam", "x0", "x_split", "n_coarse", "h", "z_end", "z_infl", "shift", "log_z", "log_far",
+                "offset", "length")
+"""Columns of the per-table metadata matrix that :func:`prism_table_cells` reads (one row per table)."""
+(_LAM, _X0, _X_SPLIT, _N_COARSE, _H, _Z_END, _Z_INFL, _SHIFT, _LOG_Z, _LOG_FAR, _OFFSET, _LENGTH) = range(12)
 
 
-@nb.njit(cache=True)
-def _hermite(f, h, v0, d0, v1, d1):
-    """Cubic Hermite on [0, 1] with node derivatives ``d0, d1`` per unit x (scaled by the step ``h``)."""
-    f2 = f * f
-    f3 = f2 * f
-    return ((2.0 * f3 - 3.0 * f2 + 1.0) * v0 + (f3 - 2.0 * f2 + f) * h * d0
-            + (3.0 * f2 - 2.0 * f3) * v1 + (f3 - f2) * h * d1)
-
-
-@nb.njit(cache=True)
-def _one_minus_exp_neg(x):
-    """``1 - exp(-x)`` for ``x >= 0``; a Taylor series below 0.1 (error < 3e-17 relative) saves an exp."""
-    if x >= 0.1:
-        return -math.expm1(-x)
-    term = x
-    total = x
-    for k in range(2, 10):
-        term *= -x / k
-        total += term
-    return total
-
-
-@nb.njit(cache=True)
-def combine_fast(l_ca, l_da, l_cc, l_dc, lam_len):
-    """:func:`combine` in linear space (4 transcendentals); falls back to it when a value nears underflow."""
-    if min(min(l_ca, l_da), min(l_cc, l_dc)) < -600.0:
-        return combine(l_ca, l_da, l_cc, l_dc, lam_len)
-    p_c = _one_minus_exp_neg(lam_len)
-    c_a = math.exp(l_ca)
-    d_c = math.exp(l_dc)
-    if l_cc < l_da:
-        delta = max(math.exp(l_cc) - c_a, 0.0)
+@nb.njit(cache=True, inline="always")
+def _locate(x, off, n_coarse, n_last, x0, x_split, inv_hc, inv_h):
+    """Row of the node left of ``x``, the fraction of the way to the next one, and their x-spacing."""
+    if x < x_split:
+        s = (x - x0) * inv_hc
+        k = min(max(int(s), 0), n_coarse - 1)
+        step = 1.0 / inv_hc
     else:
-        delta = max(math.exp(l_da) - d_c, 0.0)
-    num = p_c * c_a + delta
-    den = (1.0 - p_c) * c_a + d_c
-    if num <= 0.0 or den <= 0.0 or p_c <= 0.0:
-        return combine(l_ca, l_da, l_cc, l_dc, lam_len)
-    return num / (num + den), math.log((num * (1.0 - p_c)) / (den * p_c))
+        s = (x - x_split) * inv_h
+        k = min(max(int(s), 0), n_last - 1 - n_coarse)
+        step = 1.0 / inv_h
+        s += n_coarse
+        k += n_coarse
+    return off + k, min(max(s - k, 0.0), 1.0), step
+
+
+@nb.njit(cache=True, inline="always")
+def _interpolate(nodes, o, f, step, col, delta):
+    """Column ``col`` at fraction ``f`` between rows ``o`` and ``o + 1``, for a rate ``e^delta`` times the table's.
+
+    Cubic Hermite in x with the x-derivative (column ``col + 1``), plus the second-order Taylor term in
+    ``log lambda`` (columns ``col + 2``, ``col + 3``), interpolated linearly in x.
+    """
+    g = 1.0 - f
+    taylor_0 = delta * (nodes[o, col + 2] + 0.5 * delta * nodes[o, col + 3])
+    taylor_1 = delta * (nodes[o + 1, col + 2] + 0.5 * delta * nodes[o + 1, col + 3])
+    return ((1.0 + 2.0 * f) * g * g * nodes[o, col] + f * g * g * step * nodes[o, col + 1]
+            + f * f * (3.0 - 2.0 * f) * nodes[o + 1, col] - f * f * g * step * nodes[o + 1, col + 1]
+            + g * taylor_0 + f * taylor_1)
 
 
 @nb.njit(cache=True)
-def prism_table_cells(
-    lam, tab_a, tab_b, weight_b, ray_of_cell, start, end, z0, z_max, fb, hq,
-    t_lam, t_ku, t_x0, t_inv_h, t_off, t_len, t_z_end, t_z_infl, t_shift, t_log_z, t_log_far,
-    nodes, log_wn, means, sigmas,
-):
-    """Tabulated PRISM: per cell, Hermite look-ups at both ends, linear in log(lambda) between two tables.
+def _cell_prior(x):
+    """``(1 - e^-x, e^-x)`` for ``x >= 0``: a Horner series below 0.25 (relative error < 1e-15), else expm1."""
+    if x >= 0.25:
+        q = math.exp(-x)
+        return -math.expm1(-x), q
+    s = 1.0 - x * (1.0 / 13.0)
+    s = 1.0 - x * (1.0 / 12.0) * s
+    s = 1.0 - x * (1.0 / 11.0) * s
+    s = 1.0 - x * (1.0 / 10.0) * s
+    s = 1.0 - x * (1.0 / 9.0) * s
+    s = 1.0 - x * (1.0 / 8.0) * s
+    s = 1.0 - x * (1.0 / 7.0) * s
+    s = 1.0 - x * (1.0 / 6.0) * s
+    s = 1.0 - x * (1.0 / 5.0) * s
+    s = 1.0 - x * (1.0 / 4.0) * s
+    s = 1.0 - x * (1.0 / 3.0) * s
+    s = 1.0 - x * 0.5 * s
+    p = x * s
+    return p, 1.0 - p
 
-    ``nodes`` is (N, 4): normalised log C, its x-derivative, log D, its x-derivative (one cache line per
-    node pair).
 
+@nb.njit(cache=True)
+def combine_linear(l_ca, l_da, l_cc, l_dc, c_a, d_a, c_c, d_c, lam_len):
+    """:func:`combine` from ``C/Z`` and ``D/Z`` in linear space (one log); falls back near underflow.
+
+    ``c + d = 1`` at each end; the smaller of the two carries the relative accuracy, so the cell's share
+    ``C(c) - C(a)`` comes from C while ``C(c) < 1/2`` and from D beyond. A NaN log is one not looked up:
+    it is ``log(1 - e^other)``.
+    """
+    if min(min(l_ca, l_da), min(l_cc, l_dc)) < -600.0 or lam_len > 40.0:
+        return combine(l_ca if l_ca == l_ca else math.log1p(-d_a), l_da if l_da == l_da else math.log1p(-c_a),
+                       l_cc if l_cc == l_cc else math.log1p(-d_c), l_dc if l_dc == l_dc else math.log1p(-c_c),
+                       lam_len)
+    p_c, q_c = _cell_prior(lam_len)
+    delta = max(c_c - c_a, 0.0) if c_c < 0.5 else max(d_a - d_c, 0.0)
+    num = p_c * c_a + delta
+    den = q_c * c_a + d_c
+    if num <= 0.0 or den <= 0.0 or p_c <= 0.0:
+        return combine(l_ca if l_ca == l_ca else math.log1p(-d_a), l_da if l_da == l_da else math.log1p(-c_a),
+                       l_cc if l_cc == l_cc else math.log1p(-d_c), l_dc if l_dc == l_dc else math.log1p(-c_c),
+                       lam_len)
+    return num / (num + den), math.log((num * q_c) / (den * p_c))
+
+
+@nb.njit(cache=True)
+def prism_table_cells(lam, table, delta, ray_of_cell, start, end, z0, z_max, fb, ku, hq, meta, nodes,
+                      log_wn, means, sigmas):
+    """Tabulated PRISM: per ray one table (``table[r]``, rate ratio ``e^delta[r]``), per cell two look-ups.
+
+    A look-up interpolates ``log(C/Z)`` and, only where ``C/Z > 1/2``, ``log(D/Z)``, and exponentiates the
+    smaller one: ``C/Z + D/Z = 1``. A cell starting where the previous cell of the same ray ended reuses that
+    look-up (ray casting emits cells in order), so a cell usually costs one look-up, one exp and one log.
     Cells starting beyond the influence depth get increment 0; for a cell ending beyond the table (where
     the remaining evidence is below e^-40 of C), ``C(c) = Z`` and ``D(c)`` is integrated on the spot.
     """
     n = start.size
     post = np.empty(n)
     inc = np.empty(n)
+    r_prev = -1
+    c_prev = -1.0
+    lcc = ldc = ecc = edc = 0.0
+    lam_r = dl = lam_t = x0 = x_split = inv_hc = inv_h = z_end = z_infl = shift = log_z = log_far = 0.0
+    off = n_coarse = n_last = 0
     for i in range(n):
         r = ray_of_cell[i]
-        ta = tab_a[r]
-        tb = tab_b[r]
-        w = weight_b[r]
+        if r != r_prev:
+            r_prev = r
+            c_prev = -1.0
+            t = table[r]
+            lam_r = lam[r]
+            dl = delta[r]
+            lam_t = meta[t, _LAM]
+            x0 = meta[t, _X0]
+            x_split = meta[t, _X_SPLIT]
+            n_coarse = int(meta[t, _N_COARSE])
+            inv_h = 1.0 / meta[t, _H]
+            inv_hc = n_coarse / (x_split - x0) if n_coarse > 0 else inv_h
+            z_end = meta[t, _Z_END]
+            z_infl = meta[t, _Z_INFL]
+            shift = meta[t, _SHIFT]
+            log_z = meta[t, _LOG_Z]
+            log_far = meta[t, _LOG_FAR]
+            off = int(meta[t, _OFFSET])
+            n_last = int(meta[t, _LENGTH]) - 1
         a = max(start[i], z0)
         c = min(end[i], z_max)
-        z_end = min(t_z_end[ta], t_z_end[tb])
-        if c <= a or a >= max(t_z_infl[ta], t_z_infl[tb]):
-            post[i] = _one_minus_exp_neg(lam[r] * max(end[i] - start[i], 0.0))
+        if c <= a or a >= z_infl:
+            post[i] = -math.expm1(-lam_r * max(end[i] - start[i], 0.0))
             inc[i] = 0.0
+            c_prev = -1.0
             continue
-        beyond = c > z_end
-        c_in = min(c, z_end)
-        lca = lda = lcc = ldc = 0.0
-        for side in range(2):
-            t = ta if side == 0 else tb
-            wt = 1.0 - w if side == 0 else w
-            if wt == 0.0:
-                continue
-            h = 1.0 / t_inv_h[t]
-            k, f = _locate(a, t_lam[t], t_ku[t], t_x0[t], t_inv_h[t], t_len[t])
-            o = t_off[t] + k
-            lda += wt * _hermite(f, h, nodes[o, 2], nodes[o, 3], nodes[o + 1, 2], nodes[o + 1, 3])
-            if k == 0:  # log C is -inf at z0: integrate the first interval
+        if a == c_prev:
+            lca, lda, eca, eda = lcc, ldc, ecc, edc
+        else:
+            o, f, step = _locate(lam_t * a - ku / a, off, n_coarse, n_last, x0, x_split, inv_hc, inv_h)
+            if o == off:  # first interval: log C is -inf at z0, integrate
+                lca = -np.inf
                 if a > z0:
-                    lca += wt * (log_integral(z0, a, t_lam[t], t_ku[t], hq, z0, fb, t_shift[t], log_wn, means, sigmas)
-                                 - t_log_z[t])
-                else:
-                    lca = -np.inf
+                    lca = log_integral(z0, a, lam_t, ku, hq, z0, fb, shift, log_wn, means, sigmas) - log_z
             else:
-                lca += wt * _hermite(f, h, nodes[o, 0], nodes[o, 1], nodes[o + 1, 0], nodes[o + 1, 1])
-            k, f = _locate(c_in, t_lam[t], t_ku[t], t_x0[t], t_inv_h[t], t_len[t])
-            o = t_off[t] + k
-            ldc += wt * _hermite(f, h, nodes[o, 2], nodes[o, 3], nodes[o + 1, 2], nodes[o + 1, 3])
-            if k == 0:
-                lcc += wt * (log_integral(z0, c_in, t_lam[t], t_ku[t], hq, z0, fb, t_shift[t], log_wn, means, sigmas)
-                             - t_log_z[t])
+                lca = _interpolate(nodes, o, f, step, 0, dl)
+            if lca < -0.6931471805599453:
+                lda = np.nan
+                eca = math.exp(lca)
+                eda = 1.0 - eca
             else:
-                lcc += wt * _hermite(f, h, nodes[o, 0], nodes[o, 1], nodes[o + 1, 0], nodes[o + 1, 1])
-        if beyond:  # the rest is below e^-40 of C: integrate it on the spot (rate of table a)
+                lda = _interpolate(nodes, o, f, step, 4, dl)
+                eda = math.exp(lda)
+                eca = 1.0 - eda
+        if c > z_end:
             lcc = 0.0
-            ldc = log_tail(c, t_log_z[ta], t_lam[ta], t_ku[ta], hq, z0, z_max, fb, t_shift[ta], t_log_far[ta],
-                           log_wn, means, sigmas) - t_log_z[ta]
-        post[i], inc[i] = combine_fast(lca, lda, lcc, ldc, lam[r] * (c - a))
+            ldc = log_tail(c, log_z, lam_t, ku, hq, z0, z_max, fb, shift, log_far, log_wn, means, sigmas) - log_z
+        else:
+            o, f, step = _locate(lam_t * c - ku / c, off, n_coarse, n_last, x0, x_split, inv_hc, inv_h)
+            if o == off:
+                lcc = log_integral(z0, c, lam_t, ku, hq, z0, fb, shift, log_wn, means, sigmas) - log_z
+            else:
+                lcc = _interpolate(nodes, o, f, step, 0, dl)
+            ldc = np.nan if lcc < -0.6931471805599453 else _interpolate(nodes, o, f, step, 4, dl)
+        if ldc != ldc:
+            ecc = math.exp(lcc)
+            edc = 1.0 - ecc
+        else:
+            edc = math.exp(ldc)
+            ecc = 1.0 - edc
+        c_prev = c
+        post[i], inc[i] = combine_linear(lca, lda, lcc, ldc, eca, eda, ecc, edc, lam_r * (c - a))
     return post, inc
 
 
@@ -495,5 +655,6 @@ def prism_log_evidence(shift, lam, z0, z_max, fb, ku, hq, log_far, log_wn, means
     """``log Z`` (the marginal density of each measured disparity, 1/pixel) for every ray."""
     out = np.empty(shift.size)
     for r in range(shift.size):
-        out[r] = prism_march(shift[r], lam[r], z0, z_max, fb, ku, hq, log_far[r], 0.0, 0, log_wn, means, sigmas)[3]
+        out[r] = prism_march(shift[r], lam[r], z0, z_max, fb, ku, hq, log_far[r], 0.0, 0.0, 0, log_wn,
+                               means, sigmas)[3]
     return out

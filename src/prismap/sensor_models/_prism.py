@@ -36,7 +36,11 @@ the cut at the influence depth (``influence_epsilon``). Checked by ``tests/test_
 
 _QUAD_STEP = 0.25  # x-width of one Gauss-Legendre panel (x: one unit per prior e-fold or narrowest sigma)
 _NODES_PER_TABLE_STEP = 2  # table node spacing = 2 panels = 0.5 in x
-_LAMBDA_STEP = 0.05  # table grid in log(lambda_z): one table every 5 % of ray norm
+_COARSE_RATIO = 16  # node spacing 8 in x where log(C/Z) < _COARSE_BELOW (log C is near-quadratic in x there)
+_COARSE_BELOW = -60.0
+_LAMBDA_STEP = 0.1  # table grid in log(lambda_z): one table every ~10 % of ray norm, the nearest one per ray
+_LAMBDA_SLACK = float(np.expm1(_LAMBDA_STEP / 2))  # relative rate gap a table's influence depth covers
+_KEY_L_SPAN = 1 << 16  # table key = disparity key * span + rate key
 
 
 def _log_diff_ndtr(hi, lo):
@@ -117,12 +121,15 @@ class PrismModel(RayModel):
     one; ``d^ = f b / z* - doffs - e`` with ``e`` from ``error_model``; nothing before ``max_range_m``
     gives a far measurement. ``cell_posteriors`` uses ``method``:
 
-    - ``"table"`` (default): ``log C`` and ``log D`` tabulated per (``d^`` rounded to ``disparity_step_px``,
-      ``lambda_z`` on a 5 % grid) on a grid uniform in ``x = lambda_z z - f b / (sigma_min z)`` (one
-      node per prior e-fold or narrowest sigma), cubic Hermite in ``x`` with exact derivatives, linear in
-      ``log lambda_z``. Error against ``"direct"``: within :data:`TABLE_TOLERANCE` for disparities on the
-      step grid; off-grid disparities are rounded (a shift of at most half a step). Tables are cached on
-      the model (one model per error model and camera), so a sequence pays for each table once.
+    - ``"table"`` (default): ``log(C/Z)`` and ``log(D/Z)`` tabulated per (``d^`` rounded to
+      ``disparity_step_px``, ``lambda_z`` on a 10 % grid) on a grid uniform in
+      ``x = lambda_z z - f b / (sigma_min z)`` (a node every half prior e-fold or narrowest sigma; every
+      8 where ``C/Z < e^-60``), cubic Hermite in ``x`` with exact derivatives; each ray uses the table of
+      the nearest rate plus a second-order Taylor term in ``log lambda_z`` (stored moments). Error against
+      ``"direct"``: within :data:`TABLE_TOLERANCE` for disparities on the step grid; off-grid disparities
+      are rounded (a shift of at most half a step). Tables are cached on the model (one model per error
+      model and camera), least recently used ones dropped beyond ``table_memory_mb``, so a sequence pays
+      for each table about once.
     - ``"direct"``: quadrature ray by ray (8-point Gauss-Legendre panels of x-width 0.25) with every cell
       boundary a panel edge.
 
@@ -143,6 +150,9 @@ class PrismModel(RayModel):
     disparity_step_px : float, pixels, default 1/16
         Table key resolution (OpenCV's sub-pixel step).
     influence_epsilon : float, log-odds, default 1e-3
+    table_memory_mb : float, MiB, default 64
+        Table cache budget (about 20 KB per table at 0.1 m cells); the tables one call needs are kept even
+        beyond it.
     """
 
     name = "prism"
@@ -153,8 +163,8 @@ class PrismModel(RayModel):
     method: str = "table"
     disparity_step_px: float = 1.0 / 16.0
     influence_epsilon: float = INFLUENCE_EPSILON
-    _tables: dict = field(default_factory=dict, init=False, repr=False, compare=False)
-    _packed: dict = field(default_factory=dict, init=False, repr=False, compare=False)
+    table_memory_mb: float = 64.0
+    _cache: "_TableCache" = field(default=None, init=False, repr=False, compare=False)
     _widened: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     def __post_init__(self):
@@ -174,6 +184,9 @@ class PrismModel(RayModel):
         object.__setattr__(self, "max_range_m", far)
         object.__setattr__(self, "disparity_step_px", check_positive(self.disparity_step_px, "disparity_step_px"))
         object.__setattr__(self, "influence_epsilon", check_positive(self.influence_epsilon, "influence_epsilon"))
+        memory = check_positive(self.table_memory_mb, "table_memory_mb")
+        object.__setattr__(self, "table_memory_mb", memory)
+        object.__setattr__(self, "_cache", _TableCache(int(memory * 2**20)))
 
     # ------------------------------------------------------------------ derived constants
     @property
@@ -210,10 +223,11 @@ class PrismModel(RayModel):
             )
         if method != "table":
             raise PrismapInputError(f"prism: `method` must be 'table' or 'direct'; got {method!r}")
-        packed, tab_a, tab_b, weight_b = self._tables_for(disparity, norm)
+        table, delta = self._tables_for(disparity, norm)
+        cache = self._cache
         return _kernels.prism_table_cells(
-            lam, tab_a, tab_b, weight_b, rays, start, end, self.near_m, self.max_range_m, self.focal_baseline,
-            _QUAD_STEP, *packed, *self._mixture_arrays(),
+            lam, table, delta, rays, start, end, self.near_m, self.max_range_m, self.focal_baseline, self._ku(),
+            _QUAD_STEP, cache.meta, cache.nodes, *self._mixture_arrays(),
         )
 
     def influence_depth(self, disparity_px, ray_norm):
@@ -224,9 +238,8 @@ class PrismModel(RayModel):
         """
         disparity = as_float_array(disparity_px, "disparity_px", ndim=1, allow_nan=False)
         norm = as_float_array(ray_norm, "ray_norm", shape=(disparity.size,))
-        packed, tab_a, tab_b, _ = self._tables_for(disparity, norm)
-        z_infl = packed[7]
-        return np.maximum(z_infl[tab_a], z_infl[tab_b])
+        table, _ = self._tables_for(disparity, norm)
+        return self._cache.meta[table, _kernels.META_COLUMNS.index("z_infl")]
 
     def with_extra_noise(self, sigma_px):
         """A copy whose error model is ``error_model.widened(sigma_px)``.
@@ -240,78 +253,104 @@ class PrismModel(RayModel):
 
     # ------------------------------------------------------------------ tables
     def _tables_for(self, disparity, norm):
-        """Table ids (two per ray, bracketing its ``lambda_z``) and the packed tables, building missing ones."""
+        """Table row and ``delta = log(lambda_ray / lambda_table)`` of every ray, building missing tables."""
         key_d = np.rint(disparity / self.disparity_step_px).astype(np.int64)
-        k_real = np.log(np.maximum(norm, 1.0)) / _LAMBDA_STEP
-        key_l = np.floor(k_real).astype(np.int64)
-        weight_b = k_real - key_l
-        pairs = np.concatenate([np.stack([key_d, key_l], 1), np.stack([key_d, key_l + 1], 1)])
-        unique, inverse = np.unique(pairs, axis=0, return_inverse=True)
-        inverse = inverse.reshape(-1)
-        keys = [(int(kd), int(kl)) for kd, kl in unique]
-        missing = [key for key in keys if key not in self._tables]
-        for key in missing:
-            self._tables[key] = self._build_table(*key)
-        if missing or "packed" not in self._packed:
-            self._pack()
-        ids = np.array([self._packed["index"][key] for key in keys], dtype=np.int64)
-        packed = self._packed["packed"]
-        inverse = ids[inverse]
-        n = disparity.size
-        return packed, inverse[:n], inverse[n:], weight_b
+        log_norm = np.log(np.maximum(norm, 1.0))
+        key_l = np.minimum(np.rint(log_norm / _LAMBDA_STEP).astype(np.int64), _KEY_L_SPAN - 1)
+        unique, inverse = np.unique(key_d * _KEY_L_SPAN + key_l, return_inverse=True)
+        rows = self._cache.rows(unique, self._build_tables)
+        return rows[inverse.reshape(-1)], log_norm - key_l * _LAMBDA_STEP
 
-    def _pack(self):
-        """Concatenate every cached table into the flat arrays the kernel reads (redone when tables are added)."""
-        keys = list(self._tables)
-        tables = [self._tables[key] for key in keys]
-        lengths = np.array([t["nodes"].shape[0] for t in tables], dtype=np.int64)
-        offsets = np.concatenate(([0], np.cumsum(lengths)[:-1])).astype(np.int64)
-        scalars = {key: np.array([t[key] for t in tables], dtype=np.float64)
-                   for key in ("lam", "ku", "x0", "inv_h", "z_end", "shift", "log_z", "z_infl", "log_far")}
-        nodes = np.concatenate([t["nodes"] for t in tables])
-        for table, offset, length in zip(tables, offsets, lengths):
-            table["nodes"] = nodes[offset : offset + length]  # a view: the nodes are stored once
-        packed = (scalars["lam"], scalars["ku"], scalars["x0"], scalars["inv_h"], offsets, lengths,
-                  scalars["z_end"], scalars["z_infl"], scalars["shift"], scalars["log_z"], scalars["log_far"], nodes)
-        self._packed.clear()
-        self._packed.update(index={key: i for i, key in enumerate(keys)}, packed=packed)
-
-    def _build_table(self, key_d, key_l):
-        d = key_d * self.disparity_step_px
+    def _build_tables(self, keys):
+        """Nodes and metadata row (see ``_kernels.META_COLUMNS`` without offset, length) of each key."""
+        key_d, key_l = np.divmod(np.asarray(keys, dtype=np.int64), _KEY_L_SPAN)
+        disparity = key_d * self.disparity_step_px
         lam = self.rate_per_m * np.exp(key_l * _LAMBDA_STEP)
-        shift = d + self.doffs_px
-        ku = self._ku()
+        log_far = self._log_far(disparity)
         log_wn, means, sigmas = self._mixture_arrays()
-        log_far = float(self._log_far(d))
-        z, log_c, log_d, log_z, i_infl = _kernels.prism_march(
-            shift, lam, self.near_m, self.max_range_m, self.focal_baseline, ku, _QUAD_STEP,
-            log_far, float(np.log(np.expm1(self.influence_epsilon))), 2 * _NODES_PER_TABLE_STEP,
-            log_wn, means, sigmas,
-        )
-        step = _NODES_PER_TABLE_STEP
-        full_steps = (z.size - 1) // step
-        if full_steps < 1:
-            raise PrismapInputError(
-                f"prism: near_m={self.near_m} to max_range_m={self.max_range_m} is too short to tabulate"
+        log_eps_bound = float(np.log(np.expm1(self.influence_epsilon)))
+        built = []
+        for d, rate, far in zip(disparity, lam, log_far):
+            nodes, meta = _kernels.prism_table(
+                d + self.doffs_px, rate, self.near_m, self.max_range_m, self.focal_baseline, self._ku(),
+                _QUAD_STEP, far, log_eps_bound, _LAMBDA_SLACK, _NODES_PER_TABLE_STEP, _COARSE_RATIO,
+                _COARSE_BELOW, log_wn, means, sigmas,
             )
-        idx = np.arange(0, full_steps * step + 1, step)  # to where the remaining evidence is < e^-40 of C
-        zn = z[idx]
-        log_qg = np.log(lam) - lam * (zn - self.near_m) + _log_g(self.focal_baseline / zn, shift, log_wn, means, sigmas)
-        dx_dz = lam + ku / zn**2
-        with np.errstate(invalid="ignore"):
-            dlog_c = np.where(np.isfinite(log_c[idx]), np.exp(log_qg - log_c[idx]) / dx_dz, 0.0)
-        dlog_d = -np.exp(log_qg - log_d[idx]) / dx_dz
-        h = _QUAD_STEP * step
-        return {
-            "lam": lam, "ku": ku, "x0": _kernels.x_of_z(self.near_m, lam, ku), "inv_h": 1.0 / h,
-            "z_end": float(zn[-1]), "shift": shift, "log_z": log_z, "z_infl": float(z[i_infl]), "log_far": log_far,
-            "nodes": np.ascontiguousarray(np.stack([log_c[idx] - log_z, dlog_c, log_d[idx] - log_z, dlog_d], axis=1)),
-        }
+            if nodes.shape[0] < 2:
+                raise PrismapInputError(
+                    f"prism: near_m={self.near_m} to max_range_m={self.max_range_m} is too short to tabulate"
+                )
+            x0, x_split, n_coarse, z_end, z_infl, log_z, h = meta
+            built.append((nodes, (rate, x0, x_split, n_coarse, h, z_end, z_infl, d + self.doffs_px, log_z, far)))
+        return built
 
 
-def _log_g(u, shift, log_wn, means, sigmas):
-    t = (np.asarray(u)[..., None] - shift - means) / sigmas
-    return logsumexp(log_wn - 0.5 * t * t, axis=-1)
+class _TableCache:
+    """PRISM tables packed in one node array, least recently used ones evicted beyond a memory budget.
+
+    ``meta`` has one row per table (``_kernels.META_COLUMNS``), ``nodes`` the rows of every table back to
+    back. Tables used by the current call are never evicted, so one call may exceed the budget.
+    """
+
+    def __init__(self, budget_bytes):
+        self.budget_bytes = budget_bytes
+        self.index = {}
+        self.keys = np.empty(0, dtype=np.int64)
+        self.meta = np.empty((0, len(_kernels.META_COLUMNS)))
+        self.nodes = np.empty((0, _kernels.TABLE_COLUMNS))
+        self.last_used = np.empty(0, dtype=np.int64)
+        self.clock = 0
+
+    @property
+    def nbytes(self):
+        """Bytes held by the nodes and metadata."""
+        return self.nodes.nbytes + self.meta.nbytes
+
+    def __len__(self):
+        return len(self.index)
+
+    def rows(self, keys, build):
+        """Metadata row of each (distinct) key, calling ``build(missing keys)`` for absent ones."""
+        rows = np.array([self.index.get(int(key), -1) for key in keys], dtype=np.int64)
+        missing = keys[rows < 0]
+        if missing.size:
+            built = build(missing)
+            lengths = np.array([nodes.shape[0] for nodes, _ in built], dtype=np.float64)
+            offsets = self.nodes.shape[0] + np.concatenate(([0.0], np.cumsum(lengths)[:-1]))
+            extra = np.column_stack([np.array([row for _, row in built]), offsets, lengths])
+            first = len(self.index)
+            self.nodes = np.concatenate([self.nodes] + [nodes for nodes, _ in built])
+            self.meta = np.concatenate([self.meta, extra])
+            self.keys = np.concatenate([self.keys, missing])
+            self.last_used = np.concatenate([self.last_used, np.zeros(missing.size, dtype=np.int64)])
+            for k, key in enumerate(missing):
+                self.index[int(key)] = first + k
+            rows[rows < 0] = first + np.arange(missing.size)
+        self.clock += 1
+        self.last_used[rows] = self.clock
+        if self.nbytes > self.budget_bytes:
+            rows = self._evict(rows)
+        return rows
+
+    def _evict(self, rows):
+        """Drop the least recently used tables (never those of ``rows``) until within budget; new rows."""
+        size = self.meta[:, -1] * self.nodes.itemsize * _kernels.TABLE_COLUMNS + self.meta.itemsize * self.meta.shape[1]
+        order = np.argsort(self.last_used, kind="stable")
+        order = order[self.last_used[order] < self.clock]
+        excess = self.nbytes - self.budget_bytes
+        drop = order[: np.searchsorted(np.cumsum(size[order]), excess) + 1]
+        keep = np.setdiff1d(np.arange(len(self.index)), drop)
+        starts = self.meta[keep, -2].astype(np.int64)
+        lengths = self.meta[keep, -1].astype(np.int64)
+        self.nodes = np.concatenate([self.nodes[s : s + n] for s, n in zip(starts, lengths)])
+        self.meta = self.meta[keep]
+        self.meta[:, -2] = np.concatenate(([0], np.cumsum(lengths)[:-1]))
+        self.keys = self.keys[keep]
+        self.last_used = self.last_used[keep]
+        self.index = {int(key): row for row, key in enumerate(self.keys)}
+        new_row = np.full(len(keep) + len(drop), -1, dtype=np.int64)
+        new_row[keep] = np.arange(keep.size)
+        return new_row[rows]
 
 
 def prior_from_ground_truth(occupied):
