@@ -236,3 +236,47 @@ def test_bad_rays_are_named():
         model.cell_posteriors([5.0], [1.0], [3], [1.0], [1.1])
     with pytest.raises(PrismapInputError, match="increasing"):
         prism_discrete_posteriors(5.0, [2.0, 1.0], MIXTURE, focal_baseline=FB)
+
+
+def test_table_cache_evicts_least_recently_used_beyond_its_budget():
+    model = PrismModel(error_model=MIXTURE, focal_baseline=FB, table_memory_mb=0.05)  # room for ~2 tables
+    edges = np.linspace(0.5, 12.0, 60)
+    cells = _one_ray_cells(edges)
+    first = model.cell_posteriors(_on_grid([2.0]), [1.0], *cells)
+    assert len(model._cache) == 1
+    for depth in (3.0, 4.0, 5.0):
+        model.cell_posteriors(_on_grid([depth]), [1.0], *cells)
+        assert model._cache.nbytes <= model._cache.budget_bytes
+    assert len(model._cache) < 4  # the 2 m table went first
+    np.testing.assert_array_equal(model.cell_posteriors(_on_grid([2.0]), [1.0], *cells)[1], first[1])
+    # the tables one call needs stay, even beyond the budget
+    model.cell_posteriors(_on_grid([6.0, 7.0, 8.0, 9.0]), np.ones(4), np.repeat(np.arange(4), 59),
+                          np.tile(edges[:-1], 4), np.tile(edges[1:], 4))
+    assert len(model._cache) == 4
+    with pytest.raises(PrismapInputError, match="table_memory_mb"):
+        PrismModel(error_model=MIXTURE, focal_baseline=FB, table_memory_mb=0.0)
+
+
+@pytest.mark.parametrize(("depth", "max_range"), [(3.0, 200.0), (15.0, 20.0)])
+def test_rate_derivatives_of_the_evidence_match_finite_differences(depth, max_range):
+    """The tables' Taylor terms in log(lambda) come from moments; check them on log Z, far term included."""
+    from prismap.sensor_models import _kernels
+
+    model = PrismModel(error_model=MIXTURE, focal_baseline=FB, max_range_m=max_range)
+    shift = _on_grid([depth])[0]
+    log_wn, means, sigmas = model._mixture_arrays()
+    log_far = float(model._log_far(shift))
+
+    def march(lam):
+        return _kernels.prism_march(shift, lam, model.near_m, max_range, FB, model._ku(), 0.25, log_far,
+                                    -7.0, 0.0, 4, log_wn, means, sigmas)
+
+    lam, eps = 0.8, 1e-3
+    z, log_c, log_d, log_z, log_far_w, _ = march(lam)
+    if max_range == 20.0:
+        assert log_far_w - log_z > -12  # the far term matters here
+    total = np.logaddexp(log_c[-1], log_d[-1])
+    first, second = _kernels._rate_derivatives(total, log_far_w, lam, max_range - model.near_m)
+    lo, mid, hi = (march(lam * np.exp(k * eps))[3] for k in (-1, 0, 1))
+    assert first == pytest.approx((hi - lo) / (2 * eps), rel=1e-5, abs=1e-6)
+    assert second == pytest.approx((hi - 2 * mid + lo) / eps**2, rel=1e-3, abs=1e-3)

@@ -28,11 +28,12 @@ from prismap.sensor_models._params import RayModel
 INFLUENCE_EPSILON = 1e-3
 """Default log-odds bound beyond the influence depth: every later cell has ``|increment| < epsilon``."""
 
-TABLE_TOLERANCE = {"abs": 1e-2, "rel": 2e-3, "large": 50.0, "large_rel": 5e-2, "posterior": 1e-3}
-"""Error bound of ``method="table"`` against ``method="direct"`` (disparities on the ``disparity_step_px`` grid):
-``|inc_table - inc_direct| <= abs + rel |inc_direct|`` where ``|inc_direct| <= large`` (posterior within
-e^-50 of 0 or 1), ``<= large_rel |inc_direct|`` beyond, and ``|P_table - P_direct| <= posterior``. It includes
-the cut at the influence depth (``influence_epsilon``). Checked by ``tests/test_sensor_models_prism.py``."""
+TABLE_TOLERANCE = {"abs": 5e-3, "rel": 1e-3, "large": 50.0, "large_rel": 2e-2, "posterior": 5e-4}
+"""Error bound of ``method="table"`` against ``method="direct"`` (disparities on the ``disparity_step_px`` grid,
+any ray norm): ``|inc_table - inc_direct| <= abs + rel |inc_direct|`` where ``|inc_direct| <= large``
+(posterior within e^-50 of 0 or 1), ``<= large_rel |inc_direct|`` beyond, and ``|P_table - P_direct| <=
+posterior``. It includes the cut at the influence depth (``influence_epsilon``). Checked by
+``tests/test_sensor_models_prism.py``, where the worst cells use under half of each term."""
 
 _QUAD_STEP = 0.25  # x-width of one Gauss-Legendre panel (x: one unit per prior e-fold or narrowest sigma)
 _NODES_PER_TABLE_STEP = 2  # table node spacing = 2 panels = 0.5 in x
