@@ -262,13 +262,22 @@ def prism_march(shift, lam, z0, z_max, fb, ku, hq, log_far, log_eps_bound, lam_s
     factor ``1 +- lam_slack`` of ``lam``. The march stops (not before node ``i_min``) once the remaining
     evidence is below e^-40 of ``C``.
     """
-    x0 = x_of_z(z0, lam, ku)
+    return _march(shift, lam, z0, z0, np.full(3, -np.inf), z_max, fb, ku, hq, log_far, log_eps_bound, lam_slack,
+                  i_min, log_wn, means, sigmas)
+
+
+@nb.njit(cache=True)
+def _march(shift, lam, z0, z_start, log_c_start, z_max, fb, ku, hq, log_far, log_eps_bound, lam_slack, i_min,
+           log_wn, means, sigmas):
+    """:func:`prism_march` from ``z_start``, where the moments of C are ``log_c_start`` (3,)."""
+    x0 = x_of_z(z_start, lam, ku)
     x_end = x_of_z(z_max, lam, ku)
     n_max = max(1, int(math.ceil((x_end - x0) / hq)))
     z = np.empty(n_max + 1)
     log_c = np.full((n_max + 1, 3), -np.inf)
+    log_c[0] = log_c_start
     panel = np.full((n_max + 1, 3), -np.inf)
-    z[0] = z0
+    z[0] = z_start
     i_infl = -1
     n = n_max
     tail = -np.inf
@@ -336,9 +345,11 @@ def prism_table(shift, lam, z0, z_max, fb, ku, hq, log_far, log_eps_bound, lam_s
     Node columns (see :data:`TABLE_COLUMNS`): ``log(C/Z)``, ``d log(C/Z)/dx``, the first and second
     derivatives of ``log(C/Z)`` in ``log lam`` (from the moments, :func:`_rate_derivatives`), and the same
     four for ``D = Z - C``. Nodes are uniform in x with spacing ``h = step hq`` from ``x_split`` on and
-    ``coarse_ratio h`` before it, where ``log(C/Z) < coarse_below``. There ``log g`` falls by hundreds per
-    panel, the quadrature is only good to a few units of ``log C`` (out of thousands) and ``q g / C`` is not
-    its slope: the coarse nodes take the central difference instead.
+    ``H = coarse_ratio h`` before it, where ``log(C/Z) < coarse_below``. Two marches: panels of ``H / 4``
+    over the whole ray find ``x_split`` and give the coarse nodes, panels of ``hq`` go on from there. Before
+    ``x_split`` ``log g`` falls by up to hundreds per panel: the quadrature is good to a few units of
+    ``log C`` (out of thousands), and ``q g / C`` is not the slope of the marched values, so the coarse
+    nodes take their central difference instead.
 
     Returns
     -------
@@ -346,48 +357,63 @@ def prism_table(shift, lam, z0, z_max, fb, ku, hq, log_far, log_eps_bound, lam_s
     meta : (7,) float64
         ``x0, x_split, n_coarse`` (coarse intervals), ``z_end`` (last node), ``z_infl``, ``log Z``, ``h``.
     """
-    z, log_c, log_d, log_z, log_far_w, i_infl = prism_march(
-        shift, lam, z0, z_max, fb, ku, hq, log_far, log_eps_bound, lam_slack, 2 * step, log_wn, means, sigmas
+    sub = 4  # coarse panels per coarse node interval
+    hq_coarse = step * hq * coarse_ratio / sub
+    z1, log_c1, _, log_z1, _, _ = prism_march(shift, lam, z0, z_max, fb, ku, hq_coarse, log_far, log_eps_bound,
+                                              lam_slack, 2 * sub, log_wn, means, sigmas)
+    n_coarse = 0
+    while sub * (n_coarse + 1) < z1.size - 1 and log_c1[sub * (n_coarse + 1), 0] - log_z1 < coarse_below:
+        n_coarse += 1
+    i_split = sub * n_coarse
+    z, log_c, log_d, log_z, log_far_w, i_infl = _march(
+        shift, lam, z0, z1[i_split], log_c1[i_split], z_max, fb, ku, hq, log_far, log_eps_bound, lam_slack,
+        2 * step, log_wn, means, sigmas,
     )
-    n = z.size - 1
-    n_fine = n // step  # fine intervals
-    z_far = z_max - z0 if log_far_w > -np.inf else z[n] - z0
+    n_fine = (z.size - 1) // step
+    z_far = z_max - z0 if log_far_w > -np.inf else z[-1] - z0
     log_total = np.empty(3)
     for k in range(3):
-        log_total[k] = logaddexp(log_c[n, k], log_d[n, k])
-    z1, z2 = _rate_derivatives(log_total, log_far_w, lam, z_far)
-    j_split = 0
-    while j_split + coarse_ratio < n_fine and log_c[(j_split + coarse_ratio) * step, 0] - log_z < coarse_below:
-        j_split += coarse_ratio
-    n_coarse = j_split // coarse_ratio
-    nodes = np.empty((n_coarse + 1 + n_fine - j_split, TABLE_COLUMNS))
+        log_total[k] = logaddexp(log_c[-1, k], log_d[-1, k])
+    z_1, z_2 = _rate_derivatives(log_total, log_far_w, lam, z_far)
+    nodes = np.empty((n_coarse + 1 + n_fine, TABLE_COLUMNS))
+    row_c = np.empty(3)
+    row_d = np.empty(3)
     for row in range(nodes.shape[0]):
-        j = row * coarse_ratio if row <= n_coarse else j_split + row - n_coarse
-        i = j * step
-        zi = z[i]
+        if row < n_coarse:  # D = D(x_split) + the coarse panels up to x_split
+            i = sub * row
+            zi = z1[i]
+            for k in range(3):
+                row_c[k] = log_c1[i, k]
+                row_d[k] = logaddexp(log_d[0, k], log_c1[i_split, k] + log1mexp(log_c1[i, k] - log_c1[i_split, k]))
+        else:
+            i = (row - n_coarse) * step
+            zi = z[i]
+            row_c[:] = log_c[i]
+            row_d[:] = log_d[i]
         log_qg = math.log(lam) - lam * (zi - z0) + log_likelihood(fb / zi, shift, log_wn, means, sigmas)
         dx_dz = lam + ku / (zi * zi)
-        nodes[row, 0] = log_c[i, 0] - log_z
-        if row == 0:
+        nodes[row, 0] = row_c[0] - log_z
+        if row == 0 or row_c[0] == -np.inf:
             nodes[row, 1] = nodes[row, 2] = nodes[row, 3] = 0.0
         else:
             if row <= n_coarse:
-                nodes[row, 1] = (log_c[i + 1, 0] - log_c[i - 1, 0]) / (2.0 * hq)
+                i = sub * row
+                nodes[row, 1] = (log_c1[i + 1, 0] - log_c1[i - 1, 0]) / (2.0 * hq_coarse)
             else:
-                nodes[row, 1] = math.exp(log_qg - log_c[i, 0]) / dx_dz
-            c1, c2 = _rate_derivatives(log_c[i], -np.inf, lam, z_far)
-            nodes[row, 2] = c1 - z1
-            nodes[row, 3] = c2 - z2
-        d1, d2 = _rate_derivatives(log_d[i], log_far_w, lam, z_far)
-        nodes[row, 4] = log_d[i, 0] - log_z
-        nodes[row, 5] = -math.exp(log_qg - log_d[i, 0]) / dx_dz
-        nodes[row, 6] = d1 - z1
-        nodes[row, 7] = d2 - z2
+                nodes[row, 1] = math.exp(log_qg - row_c[0]) / dx_dz
+            c_1, c_2 = _rate_derivatives(row_c, -np.inf, lam, z_far)
+            nodes[row, 2] = c_1 - z_1
+            nodes[row, 3] = c_2 - z_2
+        d_1, d_2 = _rate_derivatives(row_d, log_far_w, lam, z_far)
+        nodes[row, 4] = row_d[0] - log_z
+        nodes[row, 5] = -math.exp(log_qg - row_d[0]) / dx_dz
+        nodes[row, 6] = d_1 - z_1
+        nodes[row, 7] = d_2 - z_2
     nodes[0, 2] = nodes[1, 2]
     nodes[0, 3] = nodes[1, 3]
     h = step * hq
     x0 = x_of_z(z0, lam, ku)
-    meta = np.array([x0, x0 + j_split * h, n_coarse, z[n_fine * step], z[i_infl], log_z, h])
+    meta = np.array([x0, x_of_z(z[0], lam, ku), n_coarse, z[n_fine * step], z[i_infl], log_z, h])
     return nodes, meta
 
 
