@@ -8,6 +8,10 @@ casting to the influence depth of the ideal model sees), each ending exactly whe
 
     .venv/bin/python benchmarks/bench_sensor_models.py            # 320x240 rays (~4 M cells)
     .venv/bin/python benchmarks/bench_sensor_models.py --full     # 640x480 rays (~17 M cells, ~1 GB)
+
+Then a 40-frame sequence (160x120 rays per frame, the depth field moving by 0.15 rad per frame): PRISM's
+total time with a fresh model (tables built as new disparities appear) against the same frames again
+(warm), and the ideal model's, to show what share of a sequence table building takes.
 """
 
 import argparse
@@ -23,11 +27,14 @@ FB = FOCAL * BASELINE
 MIXTURE = GaussianMixture([0.85, 0.15], [0.05, -0.3], [0.4, 2.5])
 
 
-def scene(step):
-    """Rays of every ``step``-th pixel: disparity, ray norm, and 0.1 m cells along each ray."""
+def scene(step, phase=0.0):
+    """Rays of every ``step``-th pixel: disparity, ray norm, and 0.1 m cells along each ray.
+
+    ``phase`` (radians) moves the depth field: the frames of the synthetic sequence.
+    """
     v, u = np.mgrid[0:HEIGHT:step, 0:WIDTH:step].astype(np.float64)
     x, y = (u - WIDTH / 2) / FOCAL, (v - HEIGHT / 2) / FOCAL
-    depth = 5.5 + 4.5 * np.sin(4 * x + 8 * y * y)  # 1..10 m
+    depth = 5.5 + 4.5 * np.sin(4 * x + 8 * y * y + phase)  # 1..10 m
     disparity = np.round(FB / depth * 16).ravel() / 16
     ray_norm = np.sqrt(1 + x * x + y * y).ravel()
     z_hat = FB / disparity
@@ -53,10 +60,23 @@ def time_call(model, batch, repeat=1, **kwargs):
     return best
 
 
+def sequence(frames, step):
+    """Seconds for ``frames`` frames: fresh PRISM, the same PRISM again (warm), ideal; and the PRISM model."""
+    common = {"focal_baseline": FB, "voxel_size_m": 0.1, "p0": 0.05}
+    batches = [scene(step, 0.15 * k) for k in range(frames)]
+    prism = make_sensor_model("prism", error_model=MIXTURE, **common)
+    ideal = make_sensor_model("ideal", **common)
+    cold = sum(time_call(prism, batch) for batch in batches)
+    warm = sum(time_call(prism, batch) for batch in batches)
+    base = sum(time_call(ideal, batch) for batch in batches)
+    return cold, warm, base, prism
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--full", action="store_true", help="all 640x480 rays instead of 320x240")
     parser.add_argument("--direct-rays", type=int, default=300, help="rays for the slow direct PRISM")
+    parser.add_argument("--frames", type=int, default=40, help="frames of the synthetic sequence (0: skip)")
     args = parser.parse_args()
     batch = scene(1 if args.full else 2)
     n_cells = batch[2].size
@@ -88,6 +108,11 @@ def main():
     print(f"PRISM tables cached: {len(prism._cache)} ({prism._cache.nbytes / 2**20:.1f} MB); "
           f"ratio tabulated PRISM (warm) / ideal = "
           f"{results['prism table (warm)'] / results['ideal']:.2f} (goal <= 1.5)")
+    if args.frames:
+        cold, warm, base, model = sequence(args.frames, 4)
+        print(f"sequence of {args.frames} frames (160x120 rays each): PRISM fresh {cold:.2f} s, again (warm) "
+              f"{warm:.2f} s, ideal {base:.2f} s; table building {(cold - warm) / cold:.0%} of the fresh run, "
+              f"{len(model._cache)} tables ({model._cache.nbytes / 2**20:.1f} MB)")
 
 
 if __name__ == "__main__":

@@ -344,9 +344,12 @@ def prism_table(shift, lam, z0, z_max, fb, ku, hq, log_far, log_eps_bound, lam_s
 
     Node columns (see :data:`TABLE_COLUMNS`): ``log(C/Z)``, ``d log(C/Z)/dx``, the first and second
     derivatives of ``log(C/Z)`` in ``log lam`` (from the moments, :func:`_rate_derivatives`), and the same
-    four for ``D = Z - C``. Nodes are uniform in x with spacing ``h = step hq`` from ``x_split`` on and
-    ``H = coarse_ratio h`` before it, where ``log(C/Z) < coarse_below``. Two marches: panels of ``H / 4``
-    over the whole ray find ``x_split`` and give the coarse nodes, panels of ``hq`` go on from there. Before
+    four for ``D = Z - C``. Nodes are uniform in x with spacing ``h = step hq`` from ``x_split`` to ``x_back``
+    (a node past the influence depth, beyond which only the cells that straddle it look up; then four equal
+    intervals ``H_back`` to the end of the march) and ``H = coarse_ratio h`` before ``x_split``, where
+    ``log(C/Z) < coarse_below``. Two
+    marches: panels of about ``4 h`` over the whole ray find ``x_split`` and give the coarse nodes before it,
+    panels of ``hq`` go on from there. Before
     ``x_split`` ``log g`` falls by up to hundreds per panel: the quadrature is good to a few units of
     ``log C`` (out of thousands), and ``q g / C`` is not the slope of the marched values, so the coarse
     nodes take their central difference instead.
@@ -354,11 +357,12 @@ def prism_table(shift, lam, z0, z_max, fb, ku, hq, log_far, log_eps_bound, lam_s
     Returns
     -------
     nodes : (N, 8) float64
-    meta : (7,) float64
-        ``x0, x_split, n_coarse`` (coarse intervals), ``z_end`` (last node), ``z_infl``, ``log Z``, ``h``.
+    meta : (11,) float64
+        ``x0, x_split, x_back, n_coarse, n_back`` (rows at ``x_split``, ``x_back``), ``z_end`` (last node),
+        ``z_infl``, ``log Z``, ``h``, ``H``, ``H_back``.
     """
-    sub = 4  # coarse panels per coarse node interval
-    hq_coarse = step * hq * coarse_ratio / sub
+    sub = max(coarse_ratio // 4, 1)  # panels of the first march per coarse interval (panels of 2 h)
+    hq_coarse = coarse_ratio * step * hq / sub
     z1, log_c1, _, log_z1, _, _ = prism_march(shift, lam, z0, z_max, fb, ku, hq_coarse, log_far, log_eps_bound,
                                               lam_slack, 2 * sub, log_wn, means, sigmas)
     n_coarse = 0
@@ -369,13 +373,18 @@ def prism_table(shift, lam, z0, z_max, fb, ku, hq, log_far, log_eps_bound, lam_s
         shift, lam, z0, z1[i_split], log_c1[i_split], z_max, fb, ku, hq, log_far, log_eps_bound, lam_slack,
         2 * step, log_wn, means, sigmas,
     )
-    n_fine = (z.size - 1) // step
+    n = (z.size - 1) // step * step
+    # fine up to a node past the influence depth, then 4 equal intervals to the end (on the march's nodes)
+    back = (n - min((i_infl // step + 1) * step, n)) // (4 * step) * step
+    n_back = 4 if back > 0 else 0
+    i_back = n - n_back * back
+    n_fine = i_back // step
     z_far = z_max - z0 if log_far_w > -np.inf else z[-1] - z0
     log_total = np.empty(3)
     for k in range(3):
         log_total[k] = logaddexp(log_c[-1, k], log_d[-1, k])
     z_1, z_2 = _rate_derivatives(log_total, log_far_w, lam, z_far)
-    nodes = np.empty((n_coarse + 1 + n_fine, TABLE_COLUMNS))
+    nodes = np.empty((n_coarse + n_fine + 1 + n_back, TABLE_COLUMNS))
     row_c = np.empty(3)
     row_d = np.empty(3)
     for row in range(nodes.shape[0]):
@@ -386,7 +395,7 @@ def prism_table(shift, lam, z0, z_max, fb, ku, hq, log_far, log_eps_bound, lam_s
                 row_c[k] = log_c1[i, k]
                 row_d[k] = logaddexp(log_d[0, k], log_c1[i_split, k] + log1mexp(log_c1[i, k] - log_c1[i_split, k]))
         else:
-            i = (row - n_coarse) * step
+            i = (row - n_coarse) * step if row <= n_coarse + n_fine else i_back + (row - n_coarse - n_fine) * back
             zi = z[i]
             row_c[:] = log_c[i]
             row_d[:] = log_d[i]
@@ -411,9 +420,10 @@ def prism_table(shift, lam, z0, z_max, fb, ku, hq, log_far, log_eps_bound, lam_s
         nodes[row, 7] = d_2 - z_2
     nodes[0, 2] = nodes[1, 2]
     nodes[0, 3] = nodes[1, 3]
-    h = step * hq
     x0 = x_of_z(z0, lam, ku)
-    meta = np.array([x0, x_of_z(z[0], lam, ku), n_coarse, z[n_fine * step], z[i_infl], log_z, h])
+    x_split = x_of_z(z[0], lam, ku)
+    meta = np.array([x0, x_split, x_of_z(z[i_back], lam, ku), n_coarse, n_coarse + n_fine, z[n], z[i_infl], log_z,
+                     step * hq, coarse_ratio * step * hq, max(back, step) * hq])
     return nodes, meta
 
 
@@ -509,22 +519,29 @@ def prism_direct_cells(
     return post, inc
 
 
-META_COLUMNS = ("lam", "x0", "x_split", "n_coarse", "h", "z_end", "z_infl", "shift", "log_z", "log_far",
-                "offset", "length")
-"""Columns of the per-table metadata matrix that :func:`prism_table_cells` reads (one row per table)."""
-(_LAM, _X0, _X_SPLIT, _N_COARSE, _H, _Z_END, _Z_INFL, _SHIFT, _LOG_Z, _LOG_FAR, _OFFSET, _LENGTH) = range(12)
+META_COLUMNS = ("lam", "x0", "x_split", "x_back", "n_coarse", "n_back", "z_end", "z_infl", "log_z", "h", "h_coarse",
+                "h_back", "shift", "log_far", "offset", "length")
+"""Columns of the per-table metadata matrix that :func:`prism_table_cells` reads (one row per table):
+:func:`prism_table`'s meta after the rate, then the shift, far term, first row and row count of its nodes."""
+(_LAM, _X0, _X_SPLIT, _X_BACK, _N_COARSE, _N_BACK, _Z_END, _Z_INFL, _LOG_Z, _H, _H_COARSE, _H_BACK, _SHIFT,
+ _LOG_FAR, _OFFSET, _LENGTH) = range(16)
 
 
 @nb.njit(cache=True, inline="always")
-def _locate(x, off, n_coarse, n_last, x0, x_split, inv_hc, inv_h):
-    """Row of the node left of ``x``, the fraction of the way to the next one, and whether it is coarse."""
+def _locate(x, x0, x_split, x_back, n_coarse, n_back, n_last, inv_hc, inv_h, inv_hb):
+    """Row (from the table's first) of the node left of ``x``, the fraction to the next, and the segment
+    (0: coarse front, 1: fine, 2: back)."""
     if x < x_split:
         s = (x - x0) * inv_hc
         k = min(max(int(s), 0), n_coarse - 1)
-        return off + k, min(max(s - k, 0.0), 1.0), True
-    s = (x - x_split) * inv_h
-    k = min(max(int(s), 0), n_last - 1 - n_coarse)
-    return off + n_coarse + k, min(max(s - k, 0.0), 1.0), False
+        return k, min(max(s - k, 0.0), 1.0), 0
+    if x < x_back or n_back == n_last:
+        s = (x - x_split) * inv_h
+        k = min(max(int(s), 0), n_back - n_coarse - 1)
+        return n_coarse + k, min(max(s - k, 0.0), 1.0), 1
+    s = (x - x_back) * inv_hb
+    k = min(max(int(s), 0), n_last - n_back - 1)
+    return n_back + k, min(max(s - k, 0.0), 1.0), 2
 
 
 @nb.njit(cache=True, inline="always")
@@ -599,8 +616,8 @@ def prism_table_cells(lam, table, delta, ray_of_cell, start, end, z0, z_max, fb,
     r_prev = -1
     c_prev = -1.0
     lcc = ldc = ecc = edc = 0.0
-    lam_r = dl = lam_t = x0 = x_split = h_c = h = inv_hc = inv_h = z_end = z_infl = shift = log_z = log_far = 0.0
-    off = n_coarse = n_last = 0
+    lam_r = dl = lam_t = x0 = x_split = x_back = h_c = h = h_b = inv_hb = inv_hc = inv_h = z_end = z_infl = shift = log_z = log_far = 0.0
+    off = n_coarse = n_back = n_last = 0
     for i in range(n):
         r = ray_of_cell[i]
         if r != r_prev:
@@ -612,11 +629,15 @@ def prism_table_cells(lam, table, delta, ray_of_cell, start, end, z0, z_max, fb,
             lam_t = meta[t, _LAM]
             x0 = meta[t, _X0]
             x_split = meta[t, _X_SPLIT]
+            x_back = meta[t, _X_BACK]
             n_coarse = int(meta[t, _N_COARSE])
+            n_back = int(meta[t, _N_BACK])
             h = meta[t, _H]
-            h_c = (x_split - x0) / n_coarse if n_coarse > 0 else h
+            h_c = meta[t, _H_COARSE]
             inv_h = 1.0 / h
             inv_hc = 1.0 / h_c
+            h_b = meta[t, _H_BACK]
+            inv_hb = 1.0 / h_b
             z_end = meta[t, _Z_END]
             z_infl = meta[t, _Z_INFL]
             shift = meta[t, _SHIFT]
@@ -634,9 +655,11 @@ def prism_table_cells(lam, table, delta, ray_of_cell, start, end, z0, z_max, fb,
         if a == c_prev:
             lca, lda, eca, eda = lcc, ldc, ecc, edc
         else:
-            o, f, coarse = _locate(lam_t * a - ku / a, off, n_coarse, n_last, x0, x_split, inv_hc, inv_h)
-            step = h_c if coarse else h
-            if o == off:  # first interval: log C is -inf at z0, integrate
+            k, f, segment = _locate(lam_t * a - ku / a, x0, x_split, x_back, n_coarse, n_back, n_last, inv_hc,
+                                    inv_h, inv_hb)
+            o = off + k
+            step = h if segment == 1 else (h_c if segment == 0 else h_b)
+            if k == 0:  # first interval: log C is -inf at z0, integrate
                 lca = -np.inf
                 if a > z0:
                     lca = log_integral(z0, a, lam_t, ku, hq, z0, fb, shift, log_wn, means, sigmas) - log_z
@@ -654,9 +677,11 @@ def prism_table_cells(lam, table, delta, ray_of_cell, start, end, z0, z_max, fb,
             lcc = 0.0
             ldc = log_tail(c, log_z, lam_t, ku, hq, z0, z_max, fb, shift, log_far, log_wn, means, sigmas) - log_z
         else:
-            o, f, coarse = _locate(lam_t * c - ku / c, off, n_coarse, n_last, x0, x_split, inv_hc, inv_h)
-            step = h_c if coarse else h
-            if o == off:
+            k, f, segment = _locate(lam_t * c - ku / c, x0, x_split, x_back, n_coarse, n_back, n_last, inv_hc,
+                                    inv_h, inv_hb)
+            o = off + k
+            step = h if segment == 1 else (h_c if segment == 0 else h_b)
+            if k == 0:
                 lcc = log_integral(z0, c, lam_t, ku, hq, z0, fb, shift, log_wn, means, sigmas) - log_z
             else:
                 lcc = _interpolate(nodes, o, f, step, 0, dl)

@@ -37,8 +37,8 @@ posterior``. It includes the cut at the influence depth (``influence_epsilon``).
 
 _QUAD_STEP = 0.25  # x-width of one Gauss-Legendre panel (x: one unit per prior e-fold or narrowest sigma)
 _NODES_PER_TABLE_STEP = 2  # table node spacing = 2 panels = 0.5 in x
-_COARSE_RATIO = 16  # node spacing 8 in x where log(C/Z) < _COARSE_BELOW (log C is near-quadratic in x there)
-_COARSE_BELOW = -60.0
+_COARSE_RATIO = 64  # node spacing 32 in x where log(C/Z) < _COARSE_BELOW (near-quadratic in x) and past influence
+_COARSE_BELOW = -40.0
 _LAMBDA_STEP = 0.1  # table grid in log(lambda_z): one table every ~10 % of ray norm, the nearest one per ray
 _LAMBDA_SLACK = float(np.expm1(_LAMBDA_STEP / 2))  # relative rate gap a table's influence depth covers
 _KEY_L_SPAN = 1 << 16  # table key = disparity key * span + rate key
@@ -281,8 +281,7 @@ class PrismModel(RayModel):
                 raise PrismapInputError(
                     f"prism: near_m={self.near_m} to max_range_m={self.max_range_m} is too short to tabulate"
                 )
-            x0, x_split, n_coarse, z_end, z_infl, log_z, h = meta
-            built.append((nodes, (rate, x0, x_split, n_coarse, h, z_end, z_infl, d + self.doffs_px, log_z, far)))
+            built.append((nodes, (rate, *meta, d + self.doffs_px, far)))
         return built
 
 
