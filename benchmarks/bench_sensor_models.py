@@ -9,7 +9,9 @@ casting to the influence depth of the ideal model sees), each ending exactly whe
     .venv/bin/python benchmarks/bench_sensor_models.py            # 320x240 rays (~4 M cells)
     .venv/bin/python benchmarks/bench_sensor_models.py --full     # 640x480 rays (~17 M cells, ~1 GB)
 
-Then a 40-frame sequence (160x120 rays per frame, the depth field moving by 0.15 rad per frame): PRISM's
+Large batches spill the cell arrays out of the caches, which slows the ideal model most (it only
+compares): the ratio is also printed for one call of the size the grid makes (~4096 rays). Then a
+40-frame sequence (160x120 rays per frame, the depth field moving by 0.15 rad per frame): PRISM's
 total time with a fresh model (tables built as new disparities appear) against the same frames again
 (warm), and the ideal model's, to show what share of a sequence table building takes.
 """
@@ -108,6 +110,12 @@ def main():
     print(f"PRISM tables cached: {len(prism._cache)} ({prism._cache.nbytes / 2**20:.1f} MB); "
           f"ratio tabulated PRISM (warm) / ideal = "
           f"{results['prism table (warm)'] / results['ideal']:.2f} (goal <= 1.5)")
+    chunk = scene(8)  # 80x60 rays: about the grid's RAYS_PER_CHUNK (4096) per model call
+    ideal = make_sensor_model("ideal", **common)
+    ns_ideal = time_call(ideal, chunk, repeat=5) / chunk[2].size * 1e9
+    ns_prism = time_call(prism, chunk, repeat=5) / chunk[2].size * 1e9
+    print(f"one grid-sized call ({chunk[0].size} rays, {chunk[2].size} cells, arrays in cache): ideal "
+          f"{ns_ideal:.1f} ns/cell, prism table (warm) {ns_prism:.1f} ns/cell, ratio {ns_prism / ns_ideal:.2f}")
     if args.frames:
         cold, warm, base, model = sequence(args.frames, 4)
         print(f"sequence of {args.frames} frames (160x120 rays each): PRISM fresh {cold:.2f} s, again (warm) "

@@ -521,7 +521,7 @@ def prism_direct_cells(
 
 META_COLUMNS = ("lam", "x0", "x_split", "x_back", "n_coarse", "n_back", "z_end", "z_infl", "log_z", "h", "h_coarse",
                 "h_back", "shift", "log_far", "offset", "length")
-"""Columns of the per-table metadata matrix that :func:`prism_table_cells` reads (one row per table):
+"""Columns of the per-table metadata matrix that :func:`prism_table_lookup` reads (one row per table):
 :func:`prism_table`'s meta after the rate, then the shift, far term, first row and row count of its nodes."""
 (_LAM, _X0, _X_SPLIT, _X_BACK, _N_COARSE, _N_BACK, _Z_END, _Z_INFL, _LOG_Z, _H, _H_COARSE, _H_BACK, _SHIFT,
  _LOG_FAR, _OFFSET, _LENGTH) = range(16)
@@ -572,59 +572,55 @@ def _cell_prior(x):
     return p, 1.0 - p
 
 
-@nb.njit(cache=True, inline="always")
-def combine_linear(l_ca, l_da, l_cc, l_dc, c_a, d_a, c_c, d_c, lam_len):
-    """:func:`combine` from ``C/Z`` and ``D/Z`` in linear space (one log); falls back near underflow.
+@nb.njit(cache=True)
+def combine_small(l_a, l_c, a_is_d, c_is_d, lam_len):
+    """:func:`combine` from the log of the smaller of ``C/Z``, ``D/Z`` at each end (``*_is_d``: it is D's).
 
-    ``c + d = 1`` at each end; the smaller of the two carries the relative accuracy, so the cell's share
-    ``C(c) - C(a)`` comes from C while ``C(c) < 1/2`` and from D beyond. A NaN log is one not looked up:
-    it is ``log(1 - e^other)``. Far in front of the measurement (``C(c)/Z < e^-600``, so ``D/Z = 1`` to
-    that precision) ``P Z = C(c) - e^{-lam_len} C(a)`` and ``(1 - P) Z = D(c)``, in log space.
+    The other one is ``log(1 - e^small)``. Far in front of the measurement (``C(c)/Z < e^-600``, so
+    ``D/Z = 1`` to that precision) ``P Z = C(c) - e^{-lam_len} C(a)`` and ``(1 - P) Z = D(c)``: two
+    transcendentals fewer than the general case.
     """
-    p_c, q_c = _cell_prior(lam_len)
-    if l_cc < -600.0 and p_c > 0.0:
-        log_num = l_cc + math.log1p(-q_c * math.exp(min(l_ca - l_cc, 0.0)))
-        return math.exp(log_num), log_num - lam_len - math.log(p_c)
-    if min(min(l_ca, l_da), min(l_cc, l_dc)) < -600.0 or lam_len > 40.0:
-        return combine(l_ca if l_ca == l_ca else math.log1p(-d_a), l_da if l_da == l_da else math.log1p(-c_a),
-                       l_cc if l_cc == l_cc else math.log1p(-d_c), l_dc if l_dc == l_dc else math.log1p(-c_c),
-                       lam_len)
-    delta = max(c_c - c_a, 0.0) if c_c < 0.5 else max(d_a - d_c, 0.0)
-    num = p_c * c_a + delta
-    den = q_c * c_a + d_c
-    if num <= 0.0 or den <= 0.0 or p_c <= 0.0:
-        return combine(l_ca if l_ca == l_ca else math.log1p(-d_a), l_da if l_da == l_da else math.log1p(-c_a),
-                       l_cc if l_cc == l_cc else math.log1p(-d_c), l_dc if l_dc == l_dc else math.log1p(-c_c),
-                       lam_len)
-    return num / (num + den), math.log((num * q_c) / (den * p_c))
+    if not c_is_d and l_c < -600.0 and lam_len > 0.0:
+        l_ca = log1mexp(l_a) if a_is_d else l_a
+        log_num = l_c + math.log1p(-math.exp(min(l_ca - l_c, 0.0) - lam_len))
+        return math.exp(log_num), log_num - lam_len - log1mexp(-lam_len)
+    other_a = log1mexp(l_a)
+    other_c = log1mexp(l_c)
+    return combine(other_a if a_is_d else l_a, l_a if a_is_d else other_a,
+                   other_c if c_is_d else l_c, l_c if c_is_d else other_c, lam_len)
+
+
+_SKIP = 4
+"""``side`` flag of a cell the measurement does not change (empty, or beyond the influence depth)."""
 
 
 @nb.njit(cache=True, fastmath=_FASTMATH)
-def prism_table_cells(lam, table, delta, ray_of_cell, start, end, z0, z_max, fb, ku, hq, meta, nodes,
-                      log_wn, means, sigmas):
-    """Tabulated PRISM: per ray one table (``table[r]``, rate ratio ``e^delta[r]``), per cell two look-ups.
+def prism_table_lookup(lam, table, delta, ray_of_cell, start, end, lo, hi, z0, z_max, fb, ku, hq, meta, nodes,
+                       log_wn, means, sigmas, l_a, l_c, side):
+    """First stage of tabulated PRISM on cells ``lo:hi``: per cell end, the log of the smaller of C/Z, D/Z.
 
-    A look-up interpolates ``log(C/Z)`` and, only where ``C/Z > 1/2``, ``log(D/Z)``, and exponentiates the
-    smaller one: ``C/Z + D/Z = 1``. A cell starting where the previous cell of the same ray ended reuses that
-    look-up (ray casting emits cells in order), so a cell usually costs one look-up, one exp and one log.
-    Cells starting beyond the influence depth get increment 0; for a cell ending beyond the table (where
-    the remaining evidence is below e^-40 of C), ``C(c) = Z`` and ``D(c)`` is integrated on the spot.
+    Per ray one table (``table[r]``, the ray's rate ``e^delta[r]`` times the table's). A look-up
+    interpolates ``log(C/Z)`` and, only where ``C/Z > 1/2``, ``log(D/Z)``: ``C/Z + D/Z = 1``. Writes
+    ``l_a[j], l_c[j]`` (cell ``lo + j``) and ``side[j]`` (bit 0: ``l_a`` is D's, bit 1: ``l_c`` is D's,
+    :data:`_SKIP`: no change). A cell starting where the previous one of the same ray ended reuses that
+    look-up (ray casting emits cells in order). Cells starting beyond the influence depth are skipped; for a
+    cell ending beyond the table (where the remaining evidence is below e^-40 of C), ``D(c)`` is integrated
+    on the spot.
     """
-    n = start.size
-    post = np.empty(n)
-    inc = np.empty(n)
     r_prev = -1
     c_prev = -1.0
-    lcc = ldc = ecc = edc = 0.0
-    lam_r = dl = lam_t = x0 = x_split = x_back = h_c = h = h_b = inv_hb = inv_hc = inv_h = z_end = z_infl = shift = log_z = log_far = 0.0
+    lcc = 0.0
+    c_is_d = 0
+    lam_t = x0 = x_split = x_back = h_c = h = h_b = inv_hb = inv_hc = inv_h = z_end = z_infl = 0.0
+    dl = shift = log_z = log_far = 0.0
     off = n_coarse = n_back = n_last = 0
-    for i in range(n):
+    for i in range(lo, hi):
+        j = i - lo
         r = ray_of_cell[i]
         if r != r_prev:
             r_prev = r
             c_prev = -1.0
             t = table[r]
-            lam_r = lam[r]
             dl = delta[r]
             lam_t = meta[t, _LAM]
             x0 = meta[t, _X0]
@@ -634,9 +630,9 @@ def prism_table_cells(lam, table, delta, ray_of_cell, start, end, z0, z_max, fb,
             n_back = int(meta[t, _N_BACK])
             h = meta[t, _H]
             h_c = meta[t, _H_COARSE]
+            h_b = meta[t, _H_BACK]
             inv_h = 1.0 / h
             inv_hc = 1.0 / h_c
-            h_b = meta[t, _H_BACK]
             inv_hb = 1.0 / h_b
             z_end = meta[t, _Z_END]
             z_infl = meta[t, _Z_INFL]
@@ -648,12 +644,13 @@ def prism_table_cells(lam, table, delta, ray_of_cell, start, end, z0, z_max, fb,
         a = max(start[i], z0)
         c = min(end[i], z_max)
         if c <= a or a >= z_infl:
-            post[i] = -math.expm1(-lam_r * max(end[i] - start[i], 0.0))
-            inc[i] = 0.0
+            side[j] = _SKIP
+            l_a[j] = l_c[j] = 0.0
             c_prev = -1.0
             continue
         if a == c_prev:
-            lca, lda, eca, eda = lcc, ldc, ecc, edc
+            l_a[j] = lcc
+            a_is_d = c_is_d
         else:
             k, f, segment = _locate(lam_t * a - ku / a, x0, x_split, x_back, n_coarse, n_back, n_last, inv_hc,
                                     inv_h, inv_hb)
@@ -665,17 +662,11 @@ def prism_table_cells(lam, table, delta, ray_of_cell, start, end, z0, z_max, fb,
                     lca = log_integral(z0, a, lam_t, ku, hq, z0, fb, shift, log_wn, means, sigmas) - log_z
             else:
                 lca = _interpolate(nodes, o, f, step, 0, dl)
-            if lca < -0.6931471805599453:
-                lda = np.nan
-                eca = math.exp(lca)
-                eda = 1.0 - eca
-            else:
-                lda = _interpolate(nodes, o, f, step, 4, dl)
-                eda = math.exp(lda)
-                eca = 1.0 - eda
+            a_is_d = 0 if lca < -0.6931471805599453 else 1
+            l_a[j] = lca if a_is_d == 0 else _interpolate(nodes, o, f, step, 4, dl)
         if c > z_end:
-            lcc = 0.0
-            ldc = log_tail(c, log_z, lam_t, ku, hq, z0, z_max, fb, shift, log_far, log_wn, means, sigmas) - log_z
+            lcc = log_tail(c, log_z, lam_t, ku, hq, z0, z_max, fb, shift, log_far, log_wn, means, sigmas) - log_z
+            c_is_d = 1
         else:
             k, f, segment = _locate(lam_t * c - ku / c, x0, x_split, x_back, n_coarse, n_back, n_last, inv_hc,
                                     inv_h, inv_hb)
@@ -685,16 +676,54 @@ def prism_table_cells(lam, table, delta, ray_of_cell, start, end, z0, z_max, fb,
                 lcc = log_integral(z0, c, lam_t, ku, hq, z0, fb, shift, log_wn, means, sigmas) - log_z
             else:
                 lcc = _interpolate(nodes, o, f, step, 0, dl)
-            ldc = np.nan if lcc < -0.6931471805599453 else _interpolate(nodes, o, f, step, 4, dl)
-        if ldc != ldc:
-            ecc = math.exp(lcc)
-            edc = 1.0 - ecc
-        else:
-            edc = math.exp(ldc)
-            ecc = 1.0 - edc
+            c_is_d = 0
+            if lcc >= -0.6931471805599453:
+                lcc = _interpolate(nodes, o, f, step, 4, dl)
+                c_is_d = 1
+        l_c[j] = lcc
+        side[j] = a_is_d + 2 * c_is_d
         c_prev = c
-        post[i], inc[i] = combine_linear(lca, lda, lcc, ldc, eca, eda, ecc, edc, lam_r * (c - a))
-    return post, inc
+
+
+@nb.njit(cache=True, fastmath=_FASTMATH)
+def prism_table_combine(lam, ray_of_cell, start, end, lo, hi, z0, z_max, l_a, l_c, e_a, e_c, side, post, ratio,
+                        fix_index, fix_value):
+    """Second stage on cells ``lo:hi``: posterior (into ``post[lo:hi]``) and ``ratio[j]``, the increment's exp.
+
+    ``e_a, e_c`` are ``exp(l_a), exp(l_c)`` of :func:`prism_table_lookup`, so ``C/Z`` and ``D/Z`` at both
+    ends are at hand in linear space: ``P Z = p_c C(a) + C(c) - C(a)``, ``(1 - P) Z = (1 - p_c) C(a) + D(c)``
+    and the increment is ``log(ratio)`` with ``ratio = P (1 - p_c) / ((1 - P) p_c)``. Cells near underflow
+    (a log below -600 or ``lam_len > 40``) go through :func:`combine_small` instead: ``ratio = 1``, listed
+    in ``fix_index`` (offset from ``lo``) and ``fix_value``; returns how many.
+    """
+    n_fix = 0
+    for j in range(hi - lo):
+        i = lo + j
+        r = ray_of_cell[i]
+        s = side[j]
+        if s == _SKIP:
+            post[i] = -math.expm1(-lam[r] * max(end[i] - start[i], 0.0))
+            ratio[j] = 1.0
+            continue
+        c_a = 1.0 - e_a[j] if s & 1 else e_a[j]
+        c_c = 1.0 - e_c[j] if s & 2 else e_c[j]
+        d_a = 1.0 - c_a
+        d_c = 1.0 - c_c
+        lam_len = lam[r] * (min(end[i], z_max) - max(start[i], z0))
+        p_c, q_c = _cell_prior(lam_len)
+        # the cell's share C(c) - C(a) from the side that is small (accurate) at c
+        delta = max(c_c - c_a, 0.0) if c_c < 0.5 else max(d_a - d_c, 0.0)
+        num = p_c * c_a + delta
+        den = q_c * c_a + d_c
+        if min(l_a[j], l_c[j]) >= -600.0 and lam_len <= 40.0 and num > 0.0 and den > 0.0 and p_c > 0.0:
+            post[i] = num / (num + den)
+            ratio[j] = (num * q_c) / (den * p_c)
+        else:  # near underflow: log space
+            post[i], fix_value[n_fix] = combine_small(l_a[j], l_c[j], s & 1, s & 2, lam_len)
+            ratio[j] = 1.0
+            fix_index[n_fix] = j
+            n_fix += 1
+    return n_fix
 
 
 @nb.njit(cache=True)

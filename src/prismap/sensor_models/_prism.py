@@ -42,6 +42,7 @@ _COARSE_BELOW = -40.0
 _LAMBDA_STEP = 0.1  # table grid in log(lambda_z): one table every ~10 % of ray norm, the nearest one per ray
 _LAMBDA_SLACK = float(np.expm1(_LAMBDA_STEP / 2))  # relative rate gap a table's influence depth covers
 _KEY_L_SPAN = 1 << 16  # table key = disparity key * span + rate key
+_CHUNK_CELLS = 1 << 15  # cells per look-up/exp/combine/log round: the scratch arrays stay in cache
 
 
 def _log_diff_ndtr(hi, lo):
@@ -224,12 +225,7 @@ class PrismModel(RayModel):
             )
         if method != "table":
             raise PrismapInputError(f"prism: `method` must be 'table' or 'direct'; got {method!r}")
-        table, delta = self._tables_for(disparity, norm)
-        cache = self._cache
-        return _kernels.prism_table_cells(
-            lam, table, delta, rays, start, end, self.near_m, self.max_range_m, self.focal_baseline, self._ku(),
-            _QUAD_STEP, cache.meta, cache.nodes, *self._mixture_arrays(),
-        )
+        return self._table_cells(lam, disparity, norm, rays, start, end)
 
     def influence_depth(self, disparity_px, ray_norm):
         """Depth beyond which every cell's ``|logit(P) - logit(p_c)| < influence_epsilon`` (metres), per ray.
@@ -253,6 +249,32 @@ class PrismModel(RayModel):
         return self._widened[extra]
 
     # ------------------------------------------------------------------ tables
+    def _table_cells(self, lam, disparity, norm, rays, start, end):
+        """Tabulated posteriors and increments, in chunks: table look-ups (numba), exp and log (numpy SIMD)."""
+        table, delta = self._tables_for(disparity, norm)
+        meta, nodes = self._cache.meta, self._cache.nodes
+        log_wn, means, sigmas = self._mixture_arrays()
+        n = start.size
+        post = np.empty(n)
+        inc = np.empty(n)
+        size = min(n, _CHUNK_CELLS)
+        l_a, l_c, e_a, e_c, ratio, fix_value = (np.empty(size) for _ in range(6))
+        side = np.empty(size, dtype=np.int8)
+        fix_index = np.empty(size, dtype=np.int64)
+        for lo in range(0, n, _CHUNK_CELLS):
+            hi = min(lo + _CHUNK_CELLS, n)
+            m = hi - lo
+            _kernels.prism_table_lookup(lam, table, delta, rays, start, end, lo, hi, self.near_m, self.max_range_m,
+                                        self.focal_baseline, self._ku(), _QUAD_STEP, meta, nodes, log_wn, means,
+                                        sigmas, l_a, l_c, side)
+            np.exp(l_a[:m], out=e_a[:m])
+            np.exp(l_c[:m], out=e_c[:m])
+            n_fix = _kernels.prism_table_combine(lam, rays, start, end, lo, hi, self.near_m, self.max_range_m, l_a,
+                                                 l_c, e_a, e_c, side, post, ratio, fix_index, fix_value)
+            np.log(ratio[:m], out=inc[lo:hi])
+            inc[lo + fix_index[:n_fix]] = fix_value[:n_fix]
+        return post, inc
+
     def _tables_for(self, disparity, norm):
         """Table row and ``delta = log(lambda_ray / lambda_table)`` of every ray, building missing tables."""
         key_d = np.rint(disparity / self.disparity_step_px).astype(np.int64)
