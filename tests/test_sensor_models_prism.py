@@ -280,3 +280,22 @@ def test_rate_derivatives_of_the_evidence_match_finite_differences(depth, max_ra
     lo, mid, hi = (march(lam * np.exp(k * eps))[3] for k in (-1, 0, 1))
     assert first == pytest.approx((hi - lo) / (2 * eps), rel=1e-5, abs=1e-6)
     assert second == pytest.approx((hi - 2 * mid + lo) / eps**2, rel=1e-3, abs=1e-3)
+
+
+def test_table_chunks_give_the_same_cells_as_one_chunk(monkeypatch):
+    """Chunk boundaries (look-up reuse restarts, near-underflow cells patched per chunk) change nothing."""
+    from prismap.sensor_models import _prism
+
+    rng = np.random.default_rng(8)
+    depths = np.exp(rng.uniform(np.log(0.5), np.log(30.0), 12))
+    edges = np.geomspace(0.1, 60.0, 200)
+    rays = np.repeat(np.arange(depths.size), edges.size - 1)
+    cells = (rays, np.tile(edges[:-1], depths.size), np.tile(edges[1:], depths.size))
+    args = (_on_grid(depths), rng.uniform(1.0, 1.3, depths.size), *cells)
+    model = PrismModel(error_model=MIXTURE, focal_baseline=FB)
+    whole = model.cell_posteriors(*args)
+    assert np.any(whole[1] < -600)  # cells near 0.1 m take the log-space path
+    monkeypatch.setattr(_prism, "_CHUNK_CELLS", 7)
+    chunked = model.cell_posteriors(*args)
+    np.testing.assert_array_equal(chunked[0], whole[0])
+    np.testing.assert_array_equal(chunked[1], whole[1])
