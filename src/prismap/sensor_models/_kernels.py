@@ -332,9 +332,43 @@ def _rate_derivatives(log_m, log_far, lam, z_far):
     return first, second - first * first
 
 
+_STEEP = 0.02
+"""Bound on ``|phi''| / phi'^2`` (``phi = log(q g)``), the relative error of the endpoint asymptotic of C that
+a table's coarse front uses."""
+
 TABLE_COLUMNS = 8
 """Columns of a PRISM table node: log(C/Z), its x-derivative, its first and second log(lambda)-derivatives,
 then the same four for ``D = Z - C`` (64 bytes: one cache line)."""
+
+
+@nb.njit(cache=True)
+def _log_qg_slope(z, lam, z0, fb, shift, log_wn, means, sigmas):
+    """``log(q g)`` at depth ``z`` and its derivative in z (1/metre)."""
+    u = fb / z
+    best = -np.inf
+    total = 0.0
+    slope = 0.0  # sum of weights times d log N_j / du
+    for j in range(means.size):
+        t = (u - shift - means[j]) / sigmas[j]
+        v = log_wn[j] - 0.5 * t * t
+        if v > best:
+            scale = math.exp(best - v)
+            total *= scale
+            slope *= scale
+            best = v
+            e = 1.0
+        else:
+            e = math.exp(v - best)
+        total += e
+        slope -= e * t / sigmas[j]
+    return math.log(lam) - lam * (z - z0) + best + math.log(total), -lam - slope / total * fb / (z * z)
+
+
+@nb.njit(cache=True)
+def _log_c_asymptotic(z, lam, z0, fb, shift, log_wn, means, sigmas):
+    """``log C(z)`` where ``q g`` rises steeply: ``C = q g / (d log(q g)/dz) (1 + O(phi''/phi'^2))``."""
+    phi, phi_z = _log_qg_slope(z, lam, z0, fb, shift, log_wn, means, sigmas)
+    return phi - math.log(phi_z)
 
 
 @nb.njit(cache=True)
@@ -344,15 +378,13 @@ def prism_table(shift, lam, z0, z_max, fb, ku, hq, log_far, log_eps_bound, lam_s
 
     Node columns (see :data:`TABLE_COLUMNS`): ``log(C/Z)``, ``d log(C/Z)/dx``, the first and second
     derivatives of ``log(C/Z)`` in ``log lam`` (from the moments, :func:`_rate_derivatives`), and the same
-    four for ``D = Z - C``. Nodes are uniform in x with spacing ``h = step hq`` from ``x_split`` to ``x_back``
-    (a node past the influence depth, beyond which only the cells that straddle it look up; then four equal
-    intervals ``H_back`` to the end of the march) and ``H = coarse_ratio h`` before ``x_split``, where
-    ``log(C/Z) < coarse_below``. Two
-    marches: panels of about ``4 h`` over the whole ray find ``x_split`` and give the coarse nodes before it,
-    panels of ``hq`` go on from there. Before
-    ``x_split`` ``log g`` falls by up to hundreds per panel: the quadrature is good to a few units of
-    ``log C`` (out of thousands), and ``q g / C`` is not the slope of the marched values, so the coarse
-    nodes take their central difference instead.
+    four for ``D = Z - C``. Nodes are uniform in x: spacing ``H = coarse_ratio h`` up to ``x_split``, then
+    ``h = step hq`` up to ``x_back`` (a node past the influence depth, beyond which only the cells that
+    straddle it look up), then four equal intervals ``H_back`` to the end of the march.
+
+    Before ``x_split`` ``q g`` rises steeply (``|phi''| / phi'^2 < _STEEP``, ``phi = log(q g)``) and
+    ``C/Z < e^coarse_below``: there ``C`` is its endpoint (Laplace) asymptotic ``q g / (q g)'`` (relative
+    error about ``phi''/phi'^2``), all its mass at ``z``; quadrature (panels of ``hq``) starts at ``x_split``.
 
     Returns
     -------
@@ -361,18 +393,40 @@ def prism_table(shift, lam, z0, z_max, fb, ku, hq, log_far, log_eps_bound, lam_s
         ``x0, x_split, x_back, n_coarse, n_back`` (rows at ``x_split``, ``x_back``), ``z_end`` (last node),
         ``z_infl``, ``log Z``, ``h``, ``H``, ``H_back``.
     """
-    sub = max(coarse_ratio // 4, 1)  # panels of the first march per coarse interval (panels of 2 h)
-    hq_coarse = coarse_ratio * step * hq / sub
-    z1, log_c1, _, log_z1, _, _ = prism_march(shift, lam, z0, z_max, fb, ku, hq_coarse, log_far, log_eps_bound,
-                                              lam_slack, 2 * sub, log_wn, means, sigmas)
-    n_coarse = 0
-    while sub * (n_coarse + 1) < z1.size - 1 and log_c1[sub * (n_coarse + 1), 0] - log_z1 < coarse_below:
-        n_coarse += 1
-    i_split = sub * n_coarse
-    z, log_c, log_d, log_z, log_far_w, i_infl = _march(
-        shift, lam, z0, z1[i_split], log_c1[i_split], z_max, fb, ku, hq, log_far, log_eps_bound, lam_slack,
-        2 * step, log_wn, means, sigmas,
-    )
+    h = step * hq
+    h_coarse = coarse_ratio * h
+    x0 = x_of_z(z0, lam, ku)
+    x_end = x_of_z(z_max, lam, ku)
+    n_steep = 0  # coarse nodes after z0 where q g is steep
+    while x0 + (n_steep + 2) * h_coarse < x_end:
+        z = z_of_x(x0 + (n_steep + 1) * h_coarse, lam, ku)
+        slope = _log_qg_slope(z, lam, z0, fb, shift, log_wn, means, sigmas)[1]
+        curvature = (_log_qg_slope(z * (1.0 + 1e-5), lam, z0, fb, shift, log_wn, means, sigmas)[1]
+                     - _log_qg_slope(z * (1.0 - 1e-5), lam, z0, fb, shift, log_wn, means, sigmas)[1]) / (2e-5 * z)
+        if not slope > 0.0 or abs(curvature) > _STEEP * slope * slope:
+            break
+        n_steep += 1
+    log_c_start = np.full(3, -np.inf)
+    n_coarse = n_steep
+    log_z = np.nan
+    while True:  # once, or twice if the first Z shows the steep part reaching above e^coarse_below
+        z_split = z_of_x(x0 + n_coarse * h_coarse, lam, ku) if n_coarse > 0 else z0
+        if n_coarse > 0:
+            log_c = _log_c_asymptotic(z_split, lam, z0, fb, shift, log_wn, means, sigmas)
+            log_s = math.log(z_split - z0)
+            for k in range(3):
+                log_c_start[k] = log_c + k * log_s
+        z, log_c, log_d, log_z, log_far_w, i_infl = _march(
+            shift, lam, z0, z_split, log_c_start, z_max, fb, ku, hq, log_far, log_eps_bound, lam_slack, 2 * step,
+            log_wn, means, sigmas,
+        )
+        fit = n_coarse
+        while fit > 0 and _log_c_asymptotic(z_of_x(x0 + fit * h_coarse, lam, ku), lam, z0, fb, shift, log_wn,
+                                            means, sigmas) - log_z >= coarse_below:
+            fit -= 1
+        if fit == n_coarse:
+            break
+        n_coarse = fit
     n = (z.size - 1) // step * step
     # fine up to a node past the influence depth, then 4 equal intervals to the end (on the march's nodes)
     back = (n - min((i_infl // step + 1) * step, n)) // (4 * step) * step
@@ -388,12 +442,22 @@ def prism_table(shift, lam, z0, z_max, fb, ku, hq, log_far, log_eps_bound, lam_s
     row_c = np.empty(3)
     row_d = np.empty(3)
     for row in range(nodes.shape[0]):
-        if row < n_coarse:  # D = D(x_split) + the coarse panels up to x_split
-            i = sub * row
-            zi = z1[i]
-            for k in range(3):
-                row_c[k] = log_c1[i, k]
-                row_d[k] = logaddexp(log_d[0, k], log_c1[i_split, k] + log1mexp(log_c1[i, k] - log_c1[i_split, k]))
+        slope_c = np.nan
+        xi = x0 + row * h_coarse
+        if 0 < row <= n_coarse:  # the slope of the asymptotic, also at x_split (the end of a coarse interval)
+            slope_c = (_log_c_asymptotic(z_of_x(xi + 0.5 * hq, lam, ku), lam, z0, fb, shift, log_wn, means, sigmas)
+                       - _log_c_asymptotic(z_of_x(xi - 0.5 * hq, lam, ku), lam, z0, fb, shift, log_wn, means,
+                                           sigmas)) / hq
+        if row < n_coarse:
+            zi = z_of_x(xi, lam, ku) if row > 0 else z0
+            row_c[:] = -np.inf
+            if row > 0:
+                log_c_z = _log_c_asymptotic(zi, lam, z0, fb, shift, log_wn, means, sigmas)
+                log_s = math.log(zi - z0)
+                for k in range(3):
+                    row_c[k] = log_c_z + k * log_s
+            for k in range(3):  # D = everything minus the (tiny) C
+                row_d[k] = log_total[k] + log1mexp(row_c[k] - log_total[k])
         else:
             i = (row - n_coarse) * step if row <= n_coarse + n_fine else i_back + (row - n_coarse - n_fine) * back
             zi = z[i]
@@ -402,14 +466,10 @@ def prism_table(shift, lam, z0, z_max, fb, ku, hq, log_far, log_eps_bound, lam_s
         log_qg = math.log(lam) - lam * (zi - z0) + log_likelihood(fb / zi, shift, log_wn, means, sigmas)
         dx_dz = lam + ku / (zi * zi)
         nodes[row, 0] = row_c[0] - log_z
-        if row == 0 or row_c[0] == -np.inf:
+        if row_c[0] == -np.inf:
             nodes[row, 1] = nodes[row, 2] = nodes[row, 3] = 0.0
         else:
-            if row <= n_coarse:
-                i = sub * row
-                nodes[row, 1] = (log_c1[i + 1, 0] - log_c1[i - 1, 0]) / (2.0 * hq_coarse)
-            else:
-                nodes[row, 1] = math.exp(log_qg - row_c[0]) / dx_dz
+            nodes[row, 1] = slope_c if slope_c == slope_c else math.exp(log_qg - row_c[0]) / dx_dz
             c_1, c_2 = _rate_derivatives(row_c, -np.inf, lam, z_far)
             nodes[row, 2] = c_1 - z_1
             nodes[row, 3] = c_2 - z_2
@@ -420,10 +480,9 @@ def prism_table(shift, lam, z0, z_max, fb, ku, hq, log_far, log_eps_bound, lam_s
         nodes[row, 7] = d_2 - z_2
     nodes[0, 2] = nodes[1, 2]
     nodes[0, 3] = nodes[1, 3]
-    x0 = x_of_z(z0, lam, ku)
     x_split = x_of_z(z[0], lam, ku)
     meta = np.array([x0, x_split, x_of_z(z[i_back], lam, ku), n_coarse, n_coarse + n_fine, z[n], z[i_infl], log_z,
-                     step * hq, coarse_ratio * step * hq, max(back, step) * hq])
+                     h, h_coarse, max(back, step) * hq])
     return nodes, meta
 
 
