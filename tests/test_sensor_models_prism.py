@@ -299,3 +299,24 @@ def test_table_chunks_give_the_same_cells_as_one_chunk(monkeypatch):
     chunked = model.cell_posteriors(*args)
     np.testing.assert_array_equal(chunked[0], whole[0])
     np.testing.assert_array_equal(chunked[1], whole[1])
+
+
+def test_endpoint_asymptotic_of_the_evidence_matches_fine_quadrature_where_steep():
+    """The coarse front of a table uses C = q g / (q g)'; check it against quadrature with fine panels."""
+    from prismap.sensor_models import _kernels
+
+    model = PrismModel(error_model=MIXTURE, focal_baseline=FB)
+    log_wn, means, sigmas = model._mixture_arrays()
+    shift, lam = _on_grid([3.0])[0], model.rate_per_m
+    for depth in (0.3, 0.8, 1.5):  # measured at 3 m
+        slope = _kernels._log_qg_slope(depth, lam, 0.1, FB, shift, log_wn, means, sigmas)[1]
+        hi, lo = (_kernels._log_qg_slope(depth * (1 + e), lam, 0.1, FB, shift, log_wn, means, sigmas)[0]
+                  for e in (1e-5, -1e-5))
+        assert (hi - lo) / (2e-5 * depth) == pytest.approx(slope, rel=1e-6)  # the slope is d phi / dz
+        asymptotic = _kernels._log_c_asymptotic(depth, lam, 0.1, FB, shift, log_wn, means, sigmas)
+        quadrature = _kernels.log_integral(0.1, depth, lam, model._ku(), 0.01, 0.1, FB, shift, log_wn, means, sigmas)
+        curvature = (_kernels._log_qg_slope(depth * (1 + 1e-5), lam, 0.1, FB, shift, log_wn, means, sigmas)[1]
+                     - _kernels._log_qg_slope(depth * (1 - 1e-5), lam, 0.1, FB, shift, log_wn, means, sigmas)[1]
+                     ) / (2e-5 * depth)
+        correction = abs(curvature) / slope**2  # the first neglected term, relative
+        assert asymptotic < -40 and abs(asymptotic - quadrature) < 2 * correction + 1e-4
