@@ -1,8 +1,9 @@
 """numba kernels of the inverse sensor models; called only by the wrappers in this package.
 
-The wrappers validate and convert (contiguous float64 / int64); the kernels assume. PRISM works in log
-space throughout: ``log C`` and ``log D = log(Z - C)`` are carried as logarithms so that nothing
-underflows from 0.1 m to 200 m with surface rates up to 50 per metre.
+The wrappers validate and convert (contiguous float64 / int64); the kernels assume. PRISM carries
+``log C`` and ``log D = log(Z - C)`` as logarithms so that nothing underflows from 0.1 m to 200 m with
+surface rates up to 50 per metre; the tabulated cell update exponentiates the smaller of the two (in
+numpy, vectorised) and combines in linear space, except near underflow.
 """
 
 import math
@@ -469,7 +470,7 @@ def prism_table(shift, lam, z0, z_max, fb, ku, hq, log_far, log_eps_bound, lam_s
         if row_c[0] == -np.inf:
             nodes[row, 1] = nodes[row, 2] = nodes[row, 3] = 0.0
         else:
-            nodes[row, 1] = slope_c if slope_c == slope_c else math.exp(log_qg - row_c[0]) / dx_dz
+            nodes[row, 1] = slope_c if not math.isnan(slope_c) else math.exp(log_qg - row_c[0]) / dx_dz
             c_1, c_2 = _rate_derivatives(row_c, -np.inf, lam, z_far)
             nodes[row, 2] = c_1 - z_1
             nodes[row, 3] = c_2 - z_2
