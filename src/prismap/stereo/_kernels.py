@@ -124,15 +124,18 @@ def add_prolonged(x, coarse):
 
 
 @numba.njit(cache=True)
-def linearise_data_term(left, right, right_dx, disparity, out_a, out_b):
-    """Data term of one warp: coefficients of ``(I_r(x - d) - I_l(x))^2`` linearised at ``d0``.
+def linearise_data_term(left, right, right_dx, disparity, eps2, out_a, out_b):
+    """Data term of one warp: normal-equation coefficients of ``sum_k psi_k(r_k^2)`` linearised at ``d0``.
 
-    With ``I_w = I_r(x - d0)`` and ``g = dI_r/dx (x - d0)`` (linear interpolation along the row),
-    ``I_r(x - d) ~ I_w - g (d - d0)``, whose squared residual has normal-equation coefficients
-    ``a = g^2`` and ``b = g^2 d0 + g (I_w - I_l)``. Pixels whose match falls outside the right image
-    get ``a = b = 0``: the smoothness term fills them in.
+    ``left``, ``right``, ``right_dx`` are (K, H, W) feature stacks (brightness, gradients, ...) and
+    the right stack's x-derivative. Per channel, with ``w = F_r(x - d0)`` and ``g = dF_r/dx (x - d0)``
+    (linear interpolation along the row), ``F_r(x - d) ~ w - g (d - d0)``: the residual
+    ``r = w - F_l`` enters with weight ``psi'(r^2)`` lagged at ``d0``, so ``a += psi' g^2`` and
+    ``b += psi' (g^2 d0 + g r)``. ``psi'`` is ``1 / sqrt(1 + r^2 / eps2)`` (Charbonnier), or 1 when
+    ``eps2`` is 0 (quadratic). Pixels whose match falls outside the right image get ``a = b = 0``:
+    the smoothness term fills them in.
     """
-    height, width = left.shape
+    channels, height, width = left.shape
     for i in range(height):
         for j in range(width):
             d0 = disparity[i, j]
@@ -143,10 +146,17 @@ def linearise_data_term(left, right, right_dx, disparity, out_a, out_b):
                 continue
             k = min(int(np.floor(u)), width - 2)
             t = u - k
-            warped = (1.0 - t) * right[i, k] + t * right[i, k + 1]
-            grad = (1.0 - t) * right_dx[i, k] + t * right_dx[i, k + 1]
-            out_a[i, j] = grad * grad
-            out_b[i, j] = grad * grad * d0 + grad * (warped - left[i, j])
+            a = 0.0
+            b = 0.0
+            for c in range(channels):
+                warped = (1.0 - t) * right[c, i, k] + t * right[c, i, k + 1]
+                grad = (1.0 - t) * right_dx[c, i, k] + t * right_dx[c, i, k + 1]
+                r = warped - left[c, i, j]
+                weight = 1.0 if eps2 == 0.0 else 1.0 / np.sqrt(1.0 + r * r / eps2)
+                a += weight * grad * grad
+                b += weight * (grad * grad * d0 + grad * r)
+            out_a[i, j] = a
+            out_b[i, j] = b
 
 
 @numba.njit(cache=True)
@@ -182,50 +192,113 @@ def smoothness_weights(disparity, fi, lam, penalty, out_wh, out_wv):
 
 
 @numba.njit(cache=True)
-def block_matching_search(left, right, d_min, d_max, radius):
-    """Winner-take-all disparity over integer ``d`` in [d_min, d_max] by box-summed absolute difference.
+def census_transform(image, radius):
+    """Census signature of each pixel: one bit per window neighbour, set where it is darker than the centre.
 
-    The cost of ``d`` at (i, j) is the mean of ``|I_l(x) - I_r(x - d)|`` over the ``(2 radius + 1)^2``
-    window, counting only window pixels whose match lies inside the right image. Used once, on the
-    coarsest pyramid level, to start the variational refinement near the right basin.
+    The window is ``(2 radius + 1)^2`` (``radius <= 3``, so the bits fit an int64); neighbours outside
+    the image count as the edge pixel (replicated border).
     """
-    height, width = left.shape
-    best_cost = np.full((height, width), np.inf, dtype=np.float32)
-    best = np.full((height, width), np.float32(d_min), dtype=np.float32)
-    diff = np.empty((height, width), dtype=np.float32)
-    valid = np.empty((height, width), dtype=np.float32)
-    col_d = np.empty((height, width), dtype=np.float32)
-    col_v = np.empty((height, width), dtype=np.float32)
-    for d in range(d_min, d_max + 1):
-        for i in range(height):
-            for j in range(width):
-                k = j - d
-                if 0 <= k < width:
-                    diff[i, j] = abs(left[i, j] - right[i, k])
-                    valid[i, j] = 1.0
-                else:
-                    diff[i, j] = 0.0
-                    valid[i, j] = 0.0
-        # box sum: vertical pass, then horizontal pass with the cost comparison
+    height, width = image.shape
+    out = np.zeros((height, width), dtype=np.int64)
+    for i in range(height):
         for j in range(width):
-            for i in range(height):
-                sd = 0.0
-                sv = 0.0
-                for k in range(max(i - radius, 0), min(i + radius + 1, height)):
-                    sd += diff[k, j]
-                    sv += valid[k, j]
-                col_d[i, j] = sd
-                col_v[i, j] = sv
-        for i in range(height):
-            for j in range(width):
-                sd = 0.0
-                sv = 0.0
-                for k in range(max(j - radius, 0), min(j + radius + 1, width)):
-                    sd += col_d[i, k]
-                    sv += col_v[i, k]
-                if sv > 0.0:
-                    cost = sd / sv
-                    if cost < best_cost[i, j]:
-                        best_cost[i, j] = cost
-                        best[i, j] = d
-    return best
+            centre = image[i, j]
+            code = 0
+            for di in range(-radius, radius + 1):
+                ii = min(max(i + di, 0), height - 1)
+                for dj in range(-radius, radius + 1):
+                    if di == 0 and dj == 0:
+                        continue
+                    jj = min(max(j + dj, 0), width - 1)
+                    code = (code << 1) | (1 if image[ii, jj] < centre else 0)
+            out[i, j] = code
+    return out
+
+
+@numba.njit(cache=True)
+def _popcount(value):
+    count = 0
+    while value:
+        value &= value - 1
+        count += 1
+    return count
+
+
+@numba.njit(cache=True)
+def census_cost_volume(census_left, census_right, d_min, n_disp, outside_cost):
+    """(H, W, D) float32 Hamming distance between left census at x and right census at x - d.
+
+    ``d = d_min + k`` for ``k < n_disp``; matches outside the right image cost ``outside_cost``.
+    """
+    height, width = census_left.shape
+    cost = np.empty((height, width, n_disp), dtype=np.float32)
+    for i in range(height):
+        for j in range(width):
+            for k in range(n_disp):
+                jj = j - (d_min + k)
+                if 0 <= jj < width:
+                    cost[i, j, k] = _popcount(census_left[i, j] ^ census_right[i, jj])
+                else:
+                    cost[i, j, k] = outside_cost
+    return cost
+
+
+@numba.njit(cache=True)
+def aggregate_paths(cost, p1, p2):
+    """Semi-global aggregation (Hirschmuller 2008) of a (H, W, D) cost volume along 8 straight paths.
+
+    Along each path direction ``r``: ``L(p, d) = C(p, d) + min(L(p-r, d), L(p-r, d+-1) + p1,
+    min_k L(p-r, k) + p2) - min_k L(p-r, k)``; the result is the sum over the paths.
+    """
+    height, width, n_disp = cost.shape
+    total = np.zeros_like(cost)
+    path = np.empty_like(cost)
+    for di in range(-1, 2):
+        for dj in range(-1, 2):
+            if di == 0 and dj == 0:
+                continue
+            for step_i in range(height):
+                i = step_i if di >= 0 else height - 1 - step_i
+                for step_j in range(width):
+                    j = step_j if dj >= 0 else width - 1 - step_j
+                    pi = i - di
+                    pj = j - dj
+                    if pi < 0 or pi >= height or pj < 0 or pj >= width:
+                        for k in range(n_disp):
+                            path[i, j, k] = cost[i, j, k]
+                    else:
+                        best_prev = path[pi, pj, 0]
+                        for k in range(1, n_disp):
+                            best_prev = min(best_prev, path[pi, pj, k])
+                        for k in range(n_disp):
+                            value = min(path[pi, pj, k], best_prev + p2)
+                            if k > 0:
+                                value = min(value, path[pi, pj, k - 1] + p1)
+                            if k < n_disp - 1:
+                                value = min(value, path[pi, pj, k + 1] + p1)
+                            path[i, j, k] = cost[i, j, k] + value - best_prev
+                    for k in range(n_disp):
+                        total[i, j, k] += path[i, j, k]
+    return total
+
+
+@numba.njit(cache=True)
+def winner_take_all(cost, d_min):
+    """Disparity of least cost per pixel, refined by the parabola through it and its two neighbours."""
+    height, width, n_disp = cost.shape
+    out = np.empty((height, width), dtype=np.float32)
+    for i in range(height):
+        for j in range(width):
+            best = 0
+            for k in range(1, n_disp):
+                if cost[i, j, k] < cost[i, j, best]:
+                    best = k
+            offset = 0.0
+            if 0 < best < n_disp - 1:
+                before = cost[i, j, best - 1]
+                after = cost[i, j, best + 1]
+                curvature = before - 2.0 * cost[i, j, best] + after
+                if curvature > 0.0:
+                    offset = 0.5 * (before - after) / curvature
+            out[i, j] = d_min + best + offset
+    return out
