@@ -8,7 +8,7 @@ from prismap.errors import PrismapInputError
 from prismap.grid import OccupancyMap, key_to_center, point_to_key
 from prismap.grid._kernels import cast_rays
 from prismap.sensor_models import InverseSensorModel
-from support import FB, L_HIT, L_MISS, HitMissModel
+from support import FB, L_HIT, L_MISS, HitMissModel, assert_same_map
 
 class ConstantModel(InverseSensorModel):
     """Every cell of ray i gets increment ``values[i]``; rays stop at depth ``depth_m``."""
@@ -215,3 +215,30 @@ def test_chunked_pipeline_gives_the_map_of_one_chunk(monkeypatch):
     assert maps[0].keys() == maps[1].keys()
     for k, v in maps[0].items():
         assert maps[1][k] == pytest.approx(v, abs=1e-5)
+
+
+@pytest.mark.parametrize("policy", ["mean", "max-abs", "occupied-wins", "max", "sum"])
+def test_hit_miss_cast_gives_the_map_of_the_cell_path(policy):
+    """A model with hit_miss_increments is added while casting; hiding them takes the generic path
+    (cells -> cell_posteriors -> scatter): same voxels, counts and log-odds, with rays cut at max range,
+    rays from noise groups and an accumulator grown from empty many times (rays of up to ~40 blocks)."""
+    from prismap.sensor_models import HitMissModel as LibraryHitMiss
+
+    class CellPath(LibraryHitMiss):
+        def hit_miss_increments(self):
+            return None
+
+    rng = np.random.default_rng(7)
+    rays = np.column_stack([rng.uniform(-1, 1, (2000, 2)), np.ones(2000)])
+    disparity = FB / rng.uniform(0.05, 12.0, 2000)
+    noise = np.where(rng.random(2000) < 0.5, 0.0, rng.uniform(0.02, 1.0, 2000))
+    maps = []
+    for cls in (LibraryHitMiss, CellPath):
+        model = cls(focal_baseline=FB, voxel_size_m=0.1, p0=0.3)
+        assert (model.hit_miss_increments() is None) == (cls is CellPath)
+        grid = OccupancyMap(0.1, p0=0.3)
+        grid.integrate_rays([0.05, -0.3, 0.02], rays, disparity, model, policy=policy, max_range_m=8.0,
+                            extra_noise_px=noise)
+        maps.append(grid)
+    assert maps[0].n_known > 50_000
+    assert_same_map(*maps)

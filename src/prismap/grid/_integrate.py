@@ -143,6 +143,12 @@ def ray_mode(accumulator, origin, rays, disparity, ray_norm, groups, ranges, vox
     done), and it only creates blocks and fills their rows while the scatter writes rows of blocks
     created before, so the two never touch the same memory.
     """
+    if all(model.hit_miss_increments() is not None for model, _ in groups):
+        for model, members in groups:
+            idx = np.arange(disparity.size) if members is None else members
+            cast_hit_miss(accumulator, origin, np.ascontiguousarray(rays[idx]), disparity[idx], ray_norm[idx], model,
+                          ranges, voxel_size)
+        return
     chunks = []
     for model, members in groups:
         idx = np.arange(disparity.size) if members is None else members
@@ -164,6 +170,23 @@ def ray_mode(accumulator, origin, rays, disparity, ray_norm, groups, ranges, vox
             job.result()
             if k + 1 < len(chunks):
                 cells = finish_cast(accumulator, origin, *chunks[k + 1][3:], voxel_size, partial)
+
+
+def cast_hit_miss(accumulator, origin, rays, disparity, ray_norm, model, ranges, voxel_size):
+    """Ray mode for a model with :meth:`~InverseSensorModel.hit_miss_increments`: the increments are added
+    while casting, one kernel call per accumulator size (it stops when the accumulator needs to grow)."""
+    l_hit, l_miss = model.hit_miss_increments()
+    t_stop, exclusive = stop_depths(model, disparity, ray_norm, ranges)
+    z_hit = np.where(exclusive, np.inf, t_stop)  # a ray cut at max range ends in misses
+    done = 0
+    while done < rays.shape[0]:
+        table = accumulator
+        n, blocks = _kernels.cast_hit_miss(table.table, table.block_keys, table.n_blocks, table.payload["acc"], origin,
+                                           rays[done:], t_stop[done:], exclusive[done:], z_hit[done:], l_hit, l_miss,
+                                           voxel_size, table.bits)
+        done += n
+        if done < rays.shape[0]:
+            accumulator.reserve(max(64, len(accumulator), blocks))
 
 
 def _model_and_scatter(accumulator, model, disparity, ray_norm, cells):

@@ -32,8 +32,10 @@ def pack_block(bx, by, bz):
 
 @numba.njit(cache=True, nogil=True)
 def _hash_index(key, mask):
-    h = np.uint64(key) * np.uint64(0x9E3779B97F4A7C15)
-    return np.int64((h >> np.uint64(29)) & np.uint64(mask))
+    """Table index of a packed block key: the axes folded together, then Fibonacci hashing (high bits)."""
+    k = np.uint64(key)
+    h = (k ^ (k >> np.uint64(21)) ^ (k >> np.uint64(42))) * np.uint64(0x9E3779B97F4A7C15)
+    return np.int64((h >> np.uint64(32)) & np.uint64(mask))
 
 
 @numba.njit(cache=True, nogil=True)
@@ -94,17 +96,23 @@ def _split_key(kx, ky, kz, bits):
 @numba.njit(cache=True, nogil=True)
 def _cell_limits(origin, rays, t_stop, voxel_size):
     """Per ray, a bound on the voxels it visits (0 when it casts nothing); the traversal's length guard."""
-    inv = 1.0 / voxel_size
     limits = np.zeros(rays.shape[0], dtype=np.int64)
     for i in range(rays.shape[0]):
         if t_stop[i] > 0.0:
-            limit = 3
-            for ax in range(3):
-                start = np.floor(origin[ax] * inv)
-                end = np.floor((origin[ax] + rays[i, ax] * t_stop[i]) * inv)
-                limit += abs(np.int64(end) - np.int64(start))
-            limits[i] = limit
+            limits[i] = _span(origin, rays[i], t_stop[i], voxel_size, (0, 0, 0))
     return limits
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _span(origin, ray, stop, voxel_size, bits):
+    """A bound on the voxels (``bits = (0, 0, 0)``) or blocks a ray visits up to depth ``stop``."""
+    inv = 1.0 / voxel_size
+    limit = 3
+    for ax in range(3):
+        start = np.int64(np.floor(origin[ax] * inv)) >> bits[ax]
+        end = np.int64(np.floor((origin[ax] + ray[ax] * stop) * inv)) >> bits[ax]
+        limit += abs(end - start)
+    return limit
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
@@ -133,10 +141,7 @@ def _walk(origin, ray, stop, exclusive, voxel_size, limit, keys, t_in_out, t_out
     # Step phase; the loop bound is the length guard against floating-point drift.
     for _ in range(limit):
         t_out = min(tx, min(ty, tz))
-        if exclusive:
-            if t_out > stop:
-                break
-        elif t_in > stop:
+        if _past_stop(t_in, t_out, stop, exclusive):
             break
         if t_out - t_in > min_length:
             keys[m, 0] = kx
@@ -145,18 +150,27 @@ def _walk(origin, ray, stop, exclusive, voxel_size, limit, keys, t_in_out, t_out
             t_in_out[m] = t_in
             t_out_out[m] = t_out
             m += 1
-        # Step along the axis of the nearest border (x first on ties, then y, as min() above).
-        if tx <= ty and tx <= tz:
-            kx += sx
-            tx += dx
-        elif ty <= tz:
-            ky += sy
-            ty += dy
-        else:
-            kz += sz
-            tz += dz
+        kx, ky, kz, tx, ty, tz = _step(kx, ky, kz, tx, ty, tz, sx, sy, sz, dx, dy, dz)
         t_in = t_out
     return m
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _past_stop(t_in, t_out, stop, exclusive):
+    """Whether the voxel ``[t_in, t_out]`` lies past the ray's stop (the rule of :func:`cast_rays`)."""
+    if exclusive:
+        return t_out > stop
+    return t_in > stop
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _step(kx, ky, kz, tx, ty, tz, sx, sy, sz, dx, dy, dz):
+    """One traversal step along the axis of the nearest border (x first on ties, then y)."""
+    if tx <= ty and tx <= tz:
+        return kx + sx, ky, kz, tx + dx, ty, tz
+    if ty <= tz:
+        return kx, ky + sy, kz, tx, ty + dy, tz
+    return kx, ky, kz + sz, tx, ty, tz + dz
 
 
 @numba.njit(cache=True, nogil=True)
@@ -219,6 +233,74 @@ def cast_rays_into(table, block_keys, n_blocks, acc, origin, rays, t_stop, exclu
         ray_of_cell[m : m + n] = i
         m += n
     return ray_of_cell[:m], cell_index[:m], t_in[:m], t_out[:m], rays.shape[0]
+
+
+@numba.njit(cache=True, nogil=True)
+def cast_hit_miss(table, block_keys, n_blocks, acc, origin, rays, t_stop, exclusive, z_hit, l_hit, l_miss, voxel_size,
+                  bits):
+    """Cast rays and add hit/miss increments straight into the accumulator (no per-cell arrays).
+
+    Voxels as :func:`cast_rays` keeps them; one of interval ``[t_in, t_out)`` on ray ``i`` gets ``l_hit``
+    if it holds ``z_hit[i]``, ``l_miss`` if it ends at or before it, 0 beyond (the rule of
+    ``sensor_models._kernels.hitmiss_cells``), added as :func:`scatter` adds. Returns the number of rays
+    done and the blocks the next ray may need: a ray starts only when the accumulator has room for every
+    block it may cross, so when it stops short, grow the accumulator and cast the remaining rays.
+    """
+    limits = _cell_limits(origin, rays, t_stop, voxel_size)
+    capacity = min(block_keys.size, table.size // 2)
+    hit = np.float32(l_hit)
+    miss = np.float32(l_miss)
+    zero = np.float32(0.0)
+    last_block, last_slot = EMPTY, np.int64(-1)
+    for i in range(rays.shape[0]):
+        if limits[i] == 0:
+            continue
+        blocks = _span(origin, rays[i], t_stop[i], voxel_size, bits)
+        if n_blocks[0] + blocks > capacity:
+            return i, blocks
+        ray = rays[i]
+        stop = t_stop[i]
+        excl = exclusive[i]
+        z = z_hit[i]
+        kx, sx, tx, dx = _axis_setup(origin[0], ray[0], voxel_size)
+        ky, sy, ty, dy = _axis_setup(origin[1], ray[1], voxel_size)
+        kz, sz, tz, dz = _axis_setup(origin[2], ray[2], voxel_size)
+        min_length = 1e-9 * voxel_size / np.sqrt(ray[0] * ray[0] + ray[1] * ray[1] + ray[2] * ray[2])
+        t_in = 0.0
+        for _ in range(limits[i]):
+            t_out = min(tx, min(ty, tz))
+            if _past_stop(t_in, t_out, stop, excl):
+                break
+            if t_out - t_in > min_length:
+                block, local = _split_key(kx, ky, kz, bits)
+                if block != last_block:
+                    last_slot = find_block(table, block_keys, block)
+                    if last_slot < 0:
+                        last_slot = _accumulator_block(table, block_keys, n_blocks, acc, block)
+                    last_block = block
+                x = miss if t_out <= z else (hit if t_in <= z else zero)
+                acc[last_slot, local, 0] += x
+                acc[last_slot, local, 1] += 1.0
+                if x > acc[last_slot, local, 2]:
+                    acc[last_slot, local, 2] = x
+                if x < acc[last_slot, local, 3]:
+                    acc[last_slot, local, 3] = x
+            kx, ky, kz, tx, ty, tz = _step(kx, ky, kz, tx, ty, tz, sx, sy, sz, dx, dy, dz)
+            t_in = t_out
+    return rays.shape[0], 0
+
+
+@numba.njit(cache=True, nogil=True)
+def _accumulator_block(table, block_keys, n_blocks, acc, block):
+    """Slot of accumulator block ``block``, added with neutral rows ``(0, 0, -inf, +inf)`` when absent (room reserved)."""
+    slot, new = insert_block(table, block_keys, n_blocks, block)
+    if new:
+        for v in range(acc.shape[1]):
+            acc[slot, v, 0] = 0.0
+            acc[slot, v, 1] = 0.0
+            acc[slot, v, 2] = -np.inf
+            acc[slot, v, 3] = np.inf
+    return slot
 
 
 @numba.njit(cache=True, nogil=True)
@@ -314,12 +396,7 @@ def _register(table, block_keys, n_blocks, acc, keys, start, stop, bits, out, la
             if slot < 0:
                 if n_blocks[0] >= capacity:
                     return i, last_block, last_slot
-                slot, _ = insert_block(table, block_keys, n_blocks, block)
-                for v in range(voxels):
-                    acc[slot, v, 0] = 0.0
-                    acc[slot, v, 1] = 0.0
-                    acc[slot, v, 2] = -np.inf
-                    acc[slot, v, 3] = np.inf
+                slot = _accumulator_block(table, block_keys, n_blocks, acc, block)
             last_block = block
             last_slot = slot
         out[i - start] = last_slot * voxels + local

@@ -60,6 +60,16 @@ class InverseSensorModel(ABC):
     def with_extra_noise(self, sigma_px):
         """A copy whose disparity noise is widened by ``N(0, sigma_px^2)`` (robot pose uncertainty)."""
 
+    def hit_miss_increments(self):
+        """``(l_hit, l_miss)`` log-odds if this model is a hit/miss model, else None (the default).
+
+        A hit/miss model gives ``l_miss`` to every cell ending at or before the ray's
+        :meth:`influence_depth`, ``l_hit`` to the cell holding it, and nothing beyond. The grid then adds
+        these increments while it casts the rays, without calling :meth:`cell_posteriors` (no per-cell
+        arrays); every other model returns None.
+        """
+        return None
+
 
 def check_cell_arrays(disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m):
     """Validate and convert the arguments of :meth:`InverseSensorModel.cell_posteriors`."""

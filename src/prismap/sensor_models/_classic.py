@@ -128,6 +128,10 @@ class HitMissModel(RayModel):
         check_positive(sigma_px, "sigma_px")
         return self
 
+    def hit_miss_increments(self):
+        """``(logit(p_hit), logit(p_miss))``: the grid adds them while casting (see the base class)."""
+        return float(logit(self.p_hit)), float(logit(self.p_miss))
+
 
 @register_model
 @dataclass(frozen=True, kw_only=True)
