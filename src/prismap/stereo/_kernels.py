@@ -124,12 +124,26 @@ def add_prolonged(x, coarse):
 
 
 @numba.njit(cache=True)
+def _cubic_weights(t):
+    """Keys' cubic convolution weights (a = -0.5, Catmull-Rom) of the samples at -1, 0, 1, 2 for offset t."""
+    t2 = t * t
+    t3 = t2 * t
+    return (
+        -0.5 * t3 + t2 - 0.5 * t,
+        1.5 * t3 - 2.5 * t2 + 1.0,
+        -1.5 * t3 + 2.0 * t2 + 0.5 * t,
+        0.5 * t3 - 0.5 * t2,
+    )
+
+
+@numba.njit(cache=True)
 def linearise_data_term(left, right, right_dx, disparity, eps2, out_a, out_b):
     """Data term of one warp: normal-equation coefficients of ``sum_k psi_k(r_k^2)`` linearised at ``d0``.
 
     ``left``, ``right``, ``right_dx`` are (K, H, W) feature stacks (brightness, gradients, ...) and
     the right stack's x-derivative. Per channel, with ``w = F_r(x - d0)`` and ``g = dF_r/dx (x - d0)``
-    (linear interpolation along the row), ``F_r(x - d) ~ w - g (d - d0)``: the residual
+    (cubic convolution along the row, edge samples replicated: linear interpolation would bias
+    sub-pixel disparities towards integers), ``F_r(x - d) ~ w - g (d - d0)``: the residual
     ``r = w - F_l`` enters with weight ``psi'(r^2)`` lagged at ``d0``, so ``a += psi' g^2`` and
     ``b += psi' (g^2 d0 + g r)``. ``psi'`` is ``1 / sqrt(1 + r^2 / eps2)`` (Charbonnier), or 1 when
     ``eps2`` is 0 (quadratic). Pixels whose match falls outside the right image get ``a = b = 0``:
@@ -145,12 +159,15 @@ def linearise_data_term(left, right, right_dx, disparity, eps2, out_a, out_b):
                 out_b[i, j] = 0.0
                 continue
             k = min(int(np.floor(u)), width - 2)
-            t = u - k
+            c0, c1, c2, c3 = _cubic_weights(u - k)
+            k0 = max(k - 1, 0)
+            k3 = min(k + 2, width - 1)
             a = 0.0
             b = 0.0
             for c in range(channels):
-                warped = (1.0 - t) * right[c, i, k] + t * right[c, i, k + 1]
-                grad = (1.0 - t) * right_dx[c, i, k] + t * right_dx[c, i, k + 1]
+                warped = c0 * right[c, i, k0] + c1 * right[c, i, k] + c2 * right[c, i, k + 1] + c3 * right[c, i, k3]
+                grad = (c0 * right_dx[c, i, k0] + c1 * right_dx[c, i, k] + c2 * right_dx[c, i, k + 1]
+                        + c3 * right_dx[c, i, k3])
                 r = warped - left[c, i, j]
                 weight = 1.0 if eps2 == 0.0 else 1.0 / np.sqrt(1.0 + r * r / eps2)
                 a += weight * grad * grad
