@@ -221,8 +221,8 @@ class VariationalMatcher(StereoMatcher):
         for level in range(self.levels):
             if level > 0:
                 size = (
-                    max(int(round(left.shape[1] * self.pyr_scale**level)), 2),
-                    max(int(round(left.shape[0] * self.pyr_scale**level)), 2),
+                    max(round(left.shape[1] * self.pyr_scale**level), 2),
+                    max(round(left.shape[0] * self.pyr_scale**level), 2),
                 )
                 current_left = cv2.resize(current_left, size, interpolation=cv2.INTER_AREA)
                 current_right = cv2.resize(current_right, size, interpolation=cv2.INTER_AREA)
