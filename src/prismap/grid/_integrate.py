@@ -27,8 +27,9 @@ MIN_NOISE_PX = 0.01
 
 
 def new_accumulator(bits):
-    """A frame accumulator: per touched voxel ``(sum, count, max, min)`` of its increments, float32."""
-    return BlockTable(bits, {"acc": ((1 << sum(bits), 4), np.float32)})
+    """A frame accumulator: per touched voxel ``(sum, count, max, min)`` of its increments, float32, and per
+    block the slots of its six face neighbours (``links``, see ``_kernels.cast_hit_miss``)."""
+    return BlockTable(bits, {"acc": ((1 << sum(bits), 4), np.float32), "links": ((6,), np.int32)})
 
 
 def noise_groups(model, extra_noise_px):
@@ -79,8 +80,8 @@ def register_cells(accumulator, keys):
     start = 0
     while True:
         table = accumulator
-        start = _kernels.register_keys(table.table, table.block_keys, table.n_blocks, table.payload["acc"], keys,
-                                       start, table.bits, rows)
+        start = _kernels.register_keys(table.table, table.block_keys, table.n_blocks, table.payload["acc"],
+                                       table.payload["links"], keys, start, table.bits, rows)
         if start == keys.shape[0]:
             return rows
         accumulator.reserve(max(64, len(accumulator)))
@@ -96,7 +97,8 @@ def cast_into(accumulator, origin, rays, t_stop, exclusive, voxel_size, *, grow=
     """
     table = accumulator
     *cells, done = _kernels.cast_rays_into(table.table, table.block_keys, table.n_blocks, table.payload["acc"],
-                                           origin, rays, t_stop, exclusive, voxel_size, table.bits)
+                                           table.payload["links"], origin, rays, t_stop, exclusive, voxel_size,
+                                           table.bits)
     if grow:
         return finish_cast(accumulator, origin, rays, t_stop, exclusive, voxel_size, (cells, done))
     return cells, done
@@ -181,7 +183,8 @@ def cast_hit_miss(accumulator, origin, rays, disparity, ray_norm, model, ranges,
     done = 0
     while done < rays.shape[0]:
         table = accumulator
-        n, blocks = _kernels.cast_hit_miss(table.table, table.block_keys, table.n_blocks, table.payload["acc"], origin,
+        n, blocks = _kernels.cast_hit_miss(table.table, table.block_keys, table.n_blocks, table.payload["acc"],
+                                           table.payload["links"], origin,
                                            rays[done:], t_stop[done:], exclusive[done:], z_hit[done:], l_hit, l_miss,
                                            voxel_size, table.bits)
         done += n

@@ -205,7 +205,7 @@ def cast_rays(origin, rays, t_stop, exclusive, voxel_size):
 
 
 @numba.njit(cache=True, nogil=True)
-def cast_rays_into(table, block_keys, n_blocks, acc, origin, rays, t_stop, exclusive, voxel_size, bits):
+def cast_rays_into(table, block_keys, n_blocks, acc, links, origin, rays, t_stop, exclusive, voxel_size, bits):
     """:func:`cast_rays` fused with :func:`register_keys`: each crossed voxel's accumulator row, no keys.
 
     Returns ``ray_of_cell (C,) int64, cell_index (C,) int64, t_in (C,), t_out (C,) float64`` and the
@@ -226,7 +226,7 @@ def cast_rays_into(table, block_keys, n_blocks, acc, origin, rays, t_stop, exclu
             continue
         n = _walk(origin, rays[i], t_stop[i], exclusive[i], voxel_size, limits[i], scratch, t_in[m:], t_out[m:], 0)
         done, last_block, last_slot = _register(
-            table, block_keys, n_blocks, acc, scratch, 0, n, bits, cell_index[m:], last_block, last_slot
+            table, block_keys, n_blocks, acc, links, scratch, 0, n, bits, cell_index[m:], last_block, last_slot
         )
         if done < n:
             return ray_of_cell[:m], cell_index[:m], t_in[:m], t_out[:m], i
@@ -236,8 +236,8 @@ def cast_rays_into(table, block_keys, n_blocks, acc, origin, rays, t_stop, exclu
 
 
 @numba.njit(cache=True, nogil=True)
-def cast_hit_miss(table, block_keys, n_blocks, acc, origin, rays, t_stop, exclusive, z_hit, l_hit, l_miss, voxel_size,
-                  bits):
+def cast_hit_miss(table, block_keys, n_blocks, acc, links, origin, rays, t_stop, exclusive, z_hit, l_hit, l_miss,
+                  voxel_size, bits):
     """Cast rays and add hit/miss increments straight into the accumulator (no per-cell arrays).
 
     Voxels as :func:`cast_rays` keeps them; one of interval ``[t_in, t_out)`` on ray ``i`` gets ``l_hit``
@@ -245,6 +245,9 @@ def cast_hit_miss(table, block_keys, n_blocks, acc, origin, rays, t_stop, exclus
     ``sensor_models._kernels.hitmiss_cells``), added as :func:`scatter` adds. Returns the number of rays
     done and the blocks the next ray may need: a ray starts only when the accumulator has room for every
     block it may cross, so when it stops short, grow the accumulator and cast the remaining rays.
+
+    ``links[slot]`` caches the slots of a block's six face neighbours (order of :func:`_side`; -1 = not
+    yet known): a ray entering the next block reads it instead of hashing.
     """
     limits = _cell_limits(origin, rays, t_stop, voxel_size)
     capacity = min(block_keys.size, table.size // 2)
@@ -274,10 +277,16 @@ def cast_hit_miss(table, block_keys, n_blocks, acc, origin, rays, t_stop, exclus
             if t_out - t_in > min_length:
                 block, local = _split_key(kx, ky, kz, bits)
                 if block != last_block:
-                    last_slot = find_block(table, block_keys, block)
-                    if last_slot < 0:
-                        last_slot = _accumulator_block(table, block_keys, n_blocks, acc, block)
-                    last_block = block
+                    side = _side(block - last_block)
+                    slot = links[last_slot, side] if side >= 0 else -1
+                    if slot < 0:
+                        slot = find_block(table, block_keys, block)
+                        if slot < 0:
+                            slot = _accumulator_block(table, block_keys, n_blocks, acc, links, block)
+                        if side >= 0:
+                            links[last_slot, side] = slot
+                            links[slot, side ^ 1] = last_slot
+                    last_block, last_slot = block, np.int64(slot)
                 x = miss if t_out <= z else (hit if t_in <= z else zero)
                 acc[last_slot, local, 0] += x
                 acc[last_slot, local, 1] += 1.0
@@ -290,11 +299,32 @@ def cast_hit_miss(table, block_keys, n_blocks, acc, origin, rays, t_stop, exclus
     return rays.shape[0], 0
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _side(step):
+    """Face of a block that a packed block-key difference crosses: 0/1 for +x/-x, 2/3 for +y/-y, 4/5 for
+    +z/-z, -1 when the blocks are not face neighbours (``side ^ 1`` is the opposite face)."""
+    if step == 1 << 42:
+        return 0
+    if step == -(1 << 42):
+        return 1
+    if step == 1 << 21:
+        return 2
+    if step == -(1 << 21):
+        return 3
+    if step == 1:
+        return 4
+    if step == -1:
+        return 5
+    return -1
+
+
 @numba.njit(cache=True, nogil=True)
-def _accumulator_block(table, block_keys, n_blocks, acc, block):
-    """Slot of accumulator block ``block``, added with neutral rows ``(0, 0, -inf, +inf)`` when absent (room reserved)."""
+def _accumulator_block(table, block_keys, n_blocks, acc, links, block):
+    """Slot of accumulator block ``block``, added with neutral rows ``(0, 0, -inf, +inf)`` and no links
+    when absent (room reserved)."""
     slot, new = insert_block(table, block_keys, n_blocks, block)
     if new:
+        links[slot, :] = -1
         for v in range(acc.shape[1]):
             acc[slot, v, 0] = 0.0
             acc[slot, v, 1] = 0.0
@@ -379,7 +409,7 @@ def project_voxels(key_min, shape, origin, R_cam_world, focal, cx, cy, subsample
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _register(table, block_keys, n_blocks, acc, keys, start, stop, bits, out, last_block, last_slot):
+def _register(table, block_keys, n_blocks, acc, links, keys, start, stop, bits, out, last_block, last_slot):
     """Accumulator row (``slot * V + local``) of ``keys[start:stop]`` into ``out[0:]``, adding blocks.
 
     A new block's rows start neutral: ``(0, 0, -inf, +inf)``. ``(last_block, last_slot)`` caches the
@@ -396,7 +426,7 @@ def _register(table, block_keys, n_blocks, acc, keys, start, stop, bits, out, la
             if slot < 0:
                 if n_blocks[0] >= capacity:
                     return i, last_block, last_slot
-                slot = _accumulator_block(table, block_keys, n_blocks, acc, block)
+                slot = _accumulator_block(table, block_keys, n_blocks, acc, links, block)
             last_block = block
             last_slot = slot
         out[i - start] = last_slot * voxels + local
@@ -404,9 +434,9 @@ def _register(table, block_keys, n_blocks, acc, keys, start, stop, bits, out, la
 
 
 @numba.njit(cache=True, nogil=True)
-def register_keys(table, block_keys, n_blocks, acc, keys, start, bits, out):
+def register_keys(table, block_keys, n_blocks, acc, links, keys, start, bits, out):
     """Accumulator rows of ``keys[start:]`` into ``out[start:]``; returns the first index not registered."""
-    return _register(table, block_keys, n_blocks, acc, keys, start, keys.shape[0], bits, out[start:], EMPTY, np.int64(-1))[0]
+    return _register(table, block_keys, n_blocks, acc, links, keys, start, keys.shape[0], bits, out[start:], EMPTY, np.int64(-1))[0]
 
 
 @numba.njit(cache=True, nogil=True)
