@@ -168,9 +168,9 @@ def test_bad_images_are_named():
     grey = np.zeros((40, 60), dtype=np.uint8)
     with pytest.raises(PrismapInputError, match=r"one shape; got \(40, 60\) and \(40, 50\)"):
         matcher.compute(grey, grey[:, :50])
-    with pytest.raises(PrismapInputError, match=r"`right` must be a uint8 image; got dtype float32"):
+    with pytest.raises(PrismapInputError, match=r"`right` must be an \(H, W\) grey or \(H, W, 3\) RGB uint8 image; got shape \(\d+, \d+\), dtype float32"):
         matcher.compute(grey, grey.astype(np.float32))
-    with pytest.raises(PrismapInputError, match=r"`left` must be an \(H, W\) grey or \(H, W, 3\) RGB image; got shape"):
+    with pytest.raises(PrismapInputError, match=r"`left` must be an \(H, W\) grey or \(H, W, 3\) RGB uint8 image; got shape"):
         matcher.compute(grey[0], grey[0])
     with pytest.raises(PrismapInputError, match=r"got shape \(40, 60, 4\)"):
         matcher.compute(np.zeros((40, 60, 4), np.uint8), np.zeros((40, 60, 4), np.uint8))

@@ -136,10 +136,10 @@ def test_bad_parameters_are_named(options, message):
     [
         (np.zeros((20, 30), np.uint8), np.zeros((20, 31), np.uint8), "`left` and `right` must have one shape"),
         (np.zeros((20, 30), np.float32), np.zeros((20, 30), np.uint8),
-         "`left` must be a (H, W) or (H, W, 3) uint8 image; got shape (20, 30), dtype float32"),
+         "`left` must be an (H, W) grey or (H, W, 3) RGB uint8 image; got shape (20, 30), dtype float32"),
         (np.zeros((20, 30), np.uint8), np.zeros((2, 20, 30), np.uint8),
-         "`right` must be a (H, W) or (H, W, 3) uint8 image; got shape (2, 20, 30), dtype uint8"),
-        (np.zeros(30, np.uint8), np.zeros(30, np.uint8), "`left` must be a (H, W) or (H, W, 3) uint8 image"),
+         "`right` must be an (H, W) grey or (H, W, 3) RGB uint8 image; got shape (2, 20, 30), dtype uint8"),
+        (np.zeros(30, np.uint8), np.zeros(30, np.uint8), "`left` must be an (H, W) grey or (H, W, 3) RGB uint8 image"),
     ],
 )
 def test_bad_images_are_named(left, right, message):

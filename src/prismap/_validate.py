@@ -47,3 +47,30 @@ def check_probability(value, name, *, open_interval=True):
         interval = "(0, 1)" if open_interval else "[0, 1]"
         raise PrismapInputError(f"`{name}` must lie in {interval}; got {value!r}")
     return number
+
+
+def check_integer(value, name, *, expected="an integer", condition=None):
+    """Return ``int(value)`` if ``value`` is an integer (not a bool) meeting ``condition``, else raise.
+
+    ``expected`` words the requirement in the message, e.g. ``"a positive multiple of 16"``.
+    """
+    try:
+        number = int(value)
+    except (TypeError, ValueError, OverflowError):
+        number = None
+    if (number is None or isinstance(value, (bool, np.bool_)) or number != value
+            or (condition is not None and not condition(number))):
+        raise PrismapInputError(f"`{name}` must be {expected}; got {value!r}")
+    return number
+
+
+def check_real(value, name, *, minimum=-np.inf):
+    """Return ``float(value)`` if it is a finite real number >= ``minimum``, else raise naming ``name``."""
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        number = np.nan
+    if isinstance(value, (bool, np.bool_, str)) or not np.isfinite(number) or number < minimum:
+        expected = "a finite number" + ("" if minimum == -np.inf else f" >= {minimum:g}")
+        raise PrismapInputError(f"`{name}` must be {expected}; got {value!r}")
+    return number

@@ -3,6 +3,7 @@
 import importlib
 from abc import ABC, abstractmethod
 
+import cv2
 import numpy as np
 
 from prismap.errors import PrismapInputError
@@ -78,3 +79,23 @@ def left_right_check(disparity_left, disparity_right, *, max_difference_px=1.0):
     back[inside] = right[rows[inside], target[inside]]
     keep = inside & (np.abs(back - left) <= max_difference_px)
     return np.where(keep, left, np.float32(np.nan)).astype(np.float32)
+
+
+def check_stereo_pair(left, right):
+    """Both images as contiguous uint8 arrays of one (H, W) or (H, W, 3) shape, else raise naming the image."""
+    pair = []
+    for name, image in (("left", left), ("right", right)):
+        image = np.asarray(image)
+        if image.dtype != np.uint8 or not (image.ndim == 2 or (image.ndim == 3 and image.shape[2] == 3)):
+            raise PrismapInputError(
+                f"`{name}` must be an (H, W) grey or (H, W, 3) RGB uint8 image; got shape {image.shape}, dtype {image.dtype}"
+            )
+        pair.append(np.ascontiguousarray(image))
+    if pair[0].shape != pair[1].shape:
+        raise PrismapInputError(f"`left` and `right` must have one shape; got {pair[0].shape} and {pair[1].shape}")
+    return tuple(pair)
+
+
+def to_grey(image):
+    """(H, W) uint8 grey of a grey or RGB uint8 image (RGB through OpenCV's luma weights)."""
+    return cv2.cvtColor(image, cv2.COLOR_RGB2GRAY) if image.ndim == 3 else image

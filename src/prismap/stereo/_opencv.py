@@ -6,7 +6,8 @@ import cv2
 import numpy as np
 
 from prismap.errors import PrismapInputError
-from prismap.stereo._base import StereoMatcher, left_right_check
+from prismap._validate import check_integer, check_real
+from prismap.stereo._base import StereoMatcher, check_stereo_pair, left_right_check, to_grey
 
 
 class _OpenCVMatcher(StereoMatcher):
@@ -18,19 +19,12 @@ class _OpenCVMatcher(StereoMatcher):
     """
 
     def __init__(self, *, min_disparity, num_disparities, block_size, left_right_check, lr_max_difference_px):
-        try:
-            lr_max = float(lr_max_difference_px)
-        except (TypeError, ValueError):
-            lr_max = np.nan
-        if not np.isfinite(lr_max) or lr_max < 0:
-            raise PrismapInputError(
-                f"`lr_max_difference_px` must be a finite number >= 0; got {lr_max_difference_px!r}"
-            )
-        self.min_disparity = _integer(min_disparity, "min_disparity", "an integer")
-        self.num_disparities = _integer(
-            num_disparities, "num_disparities", "a positive multiple of 16", lambda n: n > 0 and n % 16 == 0
-        )
-        self.block_size = _integer(block_size, "block_size", "an odd positive integer", lambda n: n > 0 and n % 2)
+        lr_max = check_real(lr_max_difference_px, "lr_max_difference_px", minimum=0.0)
+        self.min_disparity = check_integer(min_disparity, "min_disparity")
+        self.num_disparities = check_integer(num_disparities, "num_disparities", expected="a positive multiple of 16",
+                                             condition=lambda n: n > 0 and n % 16 == 0)
+        self.block_size = check_integer(block_size, "block_size", expected="an odd positive integer",
+                                        condition=lambda n: n > 0 and n % 2)
         self.left_right_check = bool(left_right_check)
         self.lr_max_difference_px = lr_max
 
@@ -48,7 +42,7 @@ class _OpenCVMatcher(StereoMatcher):
             With ``left_right_check=True``, pixels whose match does not map back within
             ``lr_max_difference_px`` are NaN too.
         """
-        left, right = self._prepare(_check_pair(left, right))
+        left, right = self._prepare(check_stereo_pair(left, right))
         matcher = self._create(channels=1 if left.ndim == 2 else left.shape[2])
         disparity = self._to_float(matcher.compute(left, right))
         if self.left_right_check:
@@ -151,23 +145,23 @@ class BlockMatcher(_OpenCVMatcher):
             left_right_check=left_right_check,
             lr_max_difference_px=lr_max_difference_px,
         )
-        _integer(block_size, "block_size", "odd in 5..255 for block matching", lambda n: 5 <= n <= 255)
+        check_integer(block_size, "block_size", expected="odd in 5..255 for block matching", condition=lambda n: 5 <= n <= 255)
         if pre_filter_type not in self._PRE_FILTERS:
             raise PrismapInputError(
                 f"`pre_filter_type` must be one of {list(self._PRE_FILTERS)}; got {pre_filter_type!r}"
             )
         self.pre_filter_type = pre_filter_type
-        self.pre_filter_size = _integer(
-            pre_filter_size, "pre_filter_size", "odd in 5..255", lambda n: 5 <= n <= 255 and n % 2
-        )
-        self.pre_filter_cap = _integer(pre_filter_cap, "pre_filter_cap", "an integer in 1..63", lambda n: 1 <= n <= 63)
-        self.texture_threshold = _non_negative_int(texture_threshold, "texture_threshold")
-        self.uniqueness_ratio = _non_negative_int(uniqueness_ratio, "uniqueness_ratio")
-        self.speckle_window_size = _non_negative_int(speckle_window_size, "speckle_window_size")
-        self.speckle_range = _non_negative_int(speckle_range, "speckle_range")
+        self.pre_filter_size = check_integer(pre_filter_size, "pre_filter_size", expected="odd in 5..255",
+                                             condition=lambda n: 5 <= n <= 255 and n % 2)
+        self.pre_filter_cap = check_integer(pre_filter_cap, "pre_filter_cap", expected="an integer in 1..63",
+                                            condition=lambda n: 1 <= n <= 63)
+        self.texture_threshold = _non_negative(texture_threshold, "texture_threshold")
+        self.uniqueness_ratio = _non_negative(uniqueness_ratio, "uniqueness_ratio")
+        self.speckle_window_size = _non_negative(speckle_window_size, "speckle_window_size")
+        self.speckle_range = _non_negative(speckle_range, "speckle_range")
 
     def _prepare(self, pair):
-        return tuple(cv2.cvtColor(image, cv2.COLOR_RGB2GRAY) if image.ndim == 3 else image for image in pair)
+        return tuple(to_grey(image) for image in pair)
 
     def _create(self, *, channels):
         matcher = cv2.StereoBM_create(numDisparities=self.num_disparities, blockSize=self.block_size)
@@ -252,15 +246,15 @@ class SemiGlobalMatcher(_OpenCVMatcher):
         )
         if mode not in self._MODES:
             raise PrismapInputError(f"`mode` must be one of {list(self._MODES)}; got {mode!r}")
-        self.p1 = None if p1 is None else _non_negative_int(p1, "p1")
-        self.p2 = None if p2 is None else _non_negative_int(p2, "p2")
+        self.p1 = None if p1 is None else _non_negative(p1, "p1")
+        self.p2 = None if p2 is None else _non_negative(p2, "p2")
         if self.p1 is not None and self.p2 is not None and self.p2 <= self.p1:
             raise PrismapInputError(f"`p2` must exceed `p1`; got p1={p1!r}, p2={p2!r}")
         self.mode = mode
-        self.pre_filter_cap = _non_negative_int(pre_filter_cap, "pre_filter_cap")
-        self.uniqueness_ratio = _non_negative_int(uniqueness_ratio, "uniqueness_ratio")
-        self.speckle_window_size = _non_negative_int(speckle_window_size, "speckle_window_size")
-        self.speckle_range = _non_negative_int(speckle_range, "speckle_range")
+        self.pre_filter_cap = _non_negative(pre_filter_cap, "pre_filter_cap")
+        self.uniqueness_ratio = _non_negative(uniqueness_ratio, "uniqueness_ratio")
+        self.speckle_window_size = _non_negative(speckle_window_size, "speckle_window_size")
+        self.speckle_range = _non_negative(speckle_range, "speckle_range")
 
     def _create(self, *, channels):
         area = channels * self.block_size**2
@@ -283,31 +277,5 @@ class SemiGlobalMatcher(_OpenCVMatcher):
         )
 
 
-def _check_pair(left, right):
-    """Both images as contiguous uint8 arrays of one (H, W) or (H, W, 3) shape, else raise."""
-    pair = []
-    for name, image in (("left", left), ("right", right)):
-        image = np.asarray(image)
-        if image.dtype != np.uint8:
-            raise PrismapInputError(f"`{name}` must be a uint8 image; got dtype {image.dtype}")
-        if not (image.ndim == 2 or (image.ndim == 3 and image.shape[2] == 3)):
-            raise PrismapInputError(f"`{name}` must be an (H, W) grey or (H, W, 3) RGB image; got shape {image.shape}")
-        pair.append(np.ascontiguousarray(image))
-    if pair[0].shape != pair[1].shape:
-        raise PrismapInputError(f"`left` and `right` must have one shape; got {pair[0].shape} and {pair[1].shape}")
-    return tuple(pair)
-
-
-def _integer(value, name, expected, condition=lambda n: True):
-    """``int(value)`` if ``value`` is an integer meeting ``condition``, else raise with ``expected``."""
-    try:
-        number = int(value)
-    except (TypeError, ValueError, OverflowError):
-        number = None
-    if number is None or isinstance(value, (bool, np.bool_)) or number != value or not condition(number):
-        raise PrismapInputError(f"`{name}` must be {expected}; got {value!r}")
-    return number
-
-
-def _non_negative_int(value, name):
-    return _integer(value, name, "a non-negative integer", lambda n: n >= 0)
+def _non_negative(value, name):
+    return check_integer(value, name, expected="a non-negative integer", condition=lambda n: n >= 0)

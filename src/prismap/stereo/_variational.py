@@ -3,10 +3,10 @@
 import cv2
 import numpy as np
 
-from prismap._validate import check_positive
+from prismap._validate import check_integer, check_positive, check_real
 from prismap.errors import PrismapInputError
 from prismap.stereo import _kernels
-from prismap.stereo._base import StereoMatcher
+from prismap.stereo._base import StereoMatcher, check_stereo_pair, to_grey
 
 _PENALTIES = {
     "tichonov": _kernels.PENALTY_TICHONOV,
@@ -121,23 +121,23 @@ class VariationalMatcher(StereoMatcher):
         sgm_p1=3.0,
         sgm_p2=24.0,
     ):
-        self.levels = _check_int(levels, "levels", minimum=1)
-        pyr_scale = _check_float(pyr_scale, "pyr_scale")
+        self.levels = _check_count(levels, "levels", minimum=1)
+        pyr_scale = check_real(pyr_scale, "pyr_scale")
         if not 0.0 < pyr_scale < 1.0:
             raise PrismapInputError(f"`pyr_scale` must lie in (0, 1); got {pyr_scale!r}")
         self.pyr_scale = pyr_scale
-        self.n_iter = _check_int(n_iter, "n_iter", minimum=1)
-        self.n_sweeps = _check_int(n_sweeps, "n_sweeps", minimum=1)
-        self.min_disparity = _check_float(min_disparity, "min_disparity")
-        self.max_disparity = _check_float(max_disparity, "max_disparity")
+        self.n_iter = _check_count(n_iter, "n_iter", minimum=1)
+        self.n_sweeps = _check_count(n_sweeps, "n_sweeps", minimum=1)
+        self.min_disparity = check_real(min_disparity, "min_disparity")
+        self.max_disparity = check_real(max_disparity, "max_disparity")
         if self.min_disparity >= self.max_disparity:
             raise PrismapInputError(
                 f"`min_disparity` must be below `max_disparity`; got {min_disparity!r} >= {max_disparity!r}"
             )
-        self.poly_n = _check_int(poly_n, "poly_n", minimum=1)
+        self.poly_n = _check_count(poly_n, "poly_n", minimum=1)
         if self.poly_n % 2 == 0:
             raise PrismapInputError(f"`poly_n` must be odd; got {poly_n!r}")
-        self.poly_sigma = _check_float(poly_sigma, "poly_sigma", minimum=0.0)
+        self.poly_sigma = check_real(poly_sigma, "poly_sigma", minimum=0.0)
         self.fi = check_positive(fi, "fi")
         self.lambda_ = check_positive(lambda_, "lambda_")
         if penalization not in _PENALTIES:
@@ -146,16 +146,16 @@ class VariationalMatcher(StereoMatcher):
         if cycle not in _CYCLES:
             raise PrismapInputError(f"`cycle` must be one of {list(_CYCLES)}; got {cycle!r}")
         self.cycle = cycle
-        self.median_radius = _check_int(median_radius, "median_radius", minimum=0)
+        self.median_radius = _check_count(median_radius, "median_radius", minimum=0)
         if self.median_radius > 2:
             raise PrismapInputError(f"`median_radius` must be 0, 1 or 2; got {median_radius!r}")
-        self.gamma = _check_float(gamma, "gamma", minimum=0.0)
-        self.data_epsilon = _check_float(data_epsilon, "data_epsilon", minimum=0.0)
-        self.census_radius = _check_int(census_radius, "census_radius", minimum=1)
+        self.gamma = check_real(gamma, "gamma", minimum=0.0)
+        self.data_epsilon = check_real(data_epsilon, "data_epsilon", minimum=0.0)
+        self.census_radius = _check_count(census_radius, "census_radius", minimum=1)
         if self.census_radius > 3:
             raise PrismapInputError(f"`census_radius` must be 1, 2 or 3; got {census_radius!r}")
-        self.sgm_p1 = _check_float(sgm_p1, "sgm_p1", minimum=0.0)
-        self.sgm_p2 = _check_float(sgm_p2, "sgm_p2", minimum=0.0)
+        self.sgm_p1 = check_real(sgm_p1, "sgm_p1", minimum=0.0)
+        self.sgm_p2 = check_real(sgm_p2, "sgm_p2", minimum=0.0)
         if self.sgm_p2 > 0.0 and self.sgm_p1 > self.sgm_p2:
             raise PrismapInputError(f"`sgm_p1` must not exceed `sgm_p2`; got {sgm_p1!r} > {sgm_p2!r}")
 
@@ -179,12 +179,8 @@ class VariationalMatcher(StereoMatcher):
         (H, W) float32, pixels
             Dense disparity of the left image (every pixel finite, within the disparity range).
         """
-        left_grey = _as_grey(left, "left")
-        right_grey = _as_grey(right, "right")
-        if left_grey.shape != right_grey.shape:
-            raise PrismapInputError(
-                f"`left` and `right` must have one shape; got {np.shape(left)} and {np.shape(right)}"
-            )
+        left, right = check_stereo_pair(left, right)
+        left_grey, right_grey = _grey_float(left), _grey_float(right)
         height, width = left_grey.shape
         start = None
         if initial_disparity is not None:
@@ -301,24 +297,6 @@ def _v_cycle(x, a, b, wh, wv, n_sweeps):
     return _kernels.jacobi(x, a, b, wh, wv, post, _SMOOTHING_OMEGA)
 
 
-def _check_float(value, name, *, minimum=-np.inf):
-    """``float(value)`` if it is a finite real number >= ``minimum``, else raise naming ``name``."""
-    try:
-        number = float(value)
-    except (TypeError, ValueError):
-        number = np.nan
-    if isinstance(value, (bool, np.bool_, str)) or not np.isfinite(number) or number < minimum:
-        expected = "a finite number" + ("" if minimum == -np.inf else f" >= {minimum:g}")
-        raise PrismapInputError(f"`{name}` must be {expected}; got {value!r}")
-    return number
-
-
-def _check_int(value, name, *, minimum):
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or value < minimum:
-        raise PrismapInputError(f"`{name}` must be an integer >= {minimum}; got {value!r}")
-    return int(value)
-
-
 def _derivative(array, axis):
     """Central difference of ``array`` along ``axis`` (one-sided at the ends), same shape."""
     out = np.empty_like(array)
@@ -334,15 +312,12 @@ def _derivative(array, axis):
     return out
 
 
-def _as_grey(image, name):
-    """(H, W) float32 grey 0-255 from a grey or RGB uint8 image, or raise naming ``name``."""
-    array = np.asarray(image)
-    if array.dtype != np.uint8 or not (array.ndim == 2 or (array.ndim == 3 and array.shape[2] == 3)):
-        raise PrismapInputError(
-            f"`{name}` must be a (H, W) or (H, W, 3) uint8 image; got shape {array.shape}, dtype {array.dtype}"
-        )
-    if min(array.shape[:2]) < 2:
-        raise PrismapInputError(f"`{name}` must be at least 2x2 pixels; got shape {array.shape}")
-    if array.ndim == 3:
-        array = cv2.cvtColor(np.ascontiguousarray(array), cv2.COLOR_RGB2GRAY)
-    return np.ascontiguousarray(array, dtype=np.float32)
+def _check_count(value, name, *, minimum):
+    return check_integer(value, name, expected=f"an integer >= {minimum}", condition=lambda n: n >= minimum)
+
+
+def _grey_float(image):
+    """(H, W) float32 grey 0-255 of a validated uint8 image, at least 2x2 pixels."""
+    if min(image.shape[:2]) < 2:
+        raise PrismapInputError(f"images must be at least 2x2 pixels; got shape {image.shape}")
+    return to_grey(image).astype(np.float32)
