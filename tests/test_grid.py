@@ -242,3 +242,32 @@ def test_hit_miss_cast_gives_the_map_of_the_cell_path(policy):
         maps.append(grid)
     assert maps[0].n_known > 50_000
     assert_same_map(*maps)
+
+
+def test_group_by_ray_is_a_stable_sort_with_used_rays_and_their_ranks():
+    from prismap.grid._kernels import group_by_ray
+
+    rng = np.random.default_rng(11)
+    ray_of_cell = rng.integers(0, 50, 400) * 2  # odd rays and some even ones have no cell
+    order, used, local = group_by_ray(ray_of_cell, 103)
+    np.testing.assert_array_equal(order, np.argsort(ray_of_cell, kind="stable"))
+    np.testing.assert_array_equal(used, np.unique(ray_of_cell))
+    np.testing.assert_array_equal(used[local], ray_of_cell[order])
+    assert group_by_ray(np.empty(0, dtype=np.int64), 5)[1].size == 0
+
+
+def test_frustum_box_holds_the_origin_and_every_stop_point_with_a_voxel_margin():
+    from prismap.grid._kernels import frustum_box
+
+    rng = np.random.default_rng(12)
+    origin = rng.uniform(-1, 1, 3)
+    rays = rng.normal(size=(200, 3))
+    t_stop = np.where(rng.random(200) < 0.3, 0.0, rng.uniform(0.1, 5.0, 200))
+    t_stop[0] = np.nan
+    key_min, shape, n = frustum_box(origin, rays, t_stop, 0.1)
+    casting = t_stop > 0
+    points = np.vstack([origin, origin + rays[casting] * t_stop[casting, None]])
+    keys = np.floor(points / 0.1).astype(np.int64)
+    assert n == casting.sum()
+    np.testing.assert_array_equal(key_min, keys.min(axis=0) - 1)
+    np.testing.assert_array_equal(key_min + shape - 1, keys.max(axis=0) + 1)

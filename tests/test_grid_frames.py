@@ -6,7 +6,7 @@ import pytest
 
 from prismap.errors import PrismapInputError
 from prismap.grid import FREE, OCCUPIED, OCTOMAP_CLAMP, UNKNOWN, OccupancyMap, pose_noise_px
-from support import FB, HitMissModel
+from support import FB, HitMissModel, assert_same_map
 from support import planes_frame
 
 
@@ -123,6 +123,27 @@ def test_pose_noise_formula_and_grouping():
     grid.integrate_disparity(disp, camera, pose, Spy(camera.focal_baseline), pose_covariance=np.eye(3) * 0.05**2,
                              max_range_m=12.0)
     assert len(seen) >= 2 and all(s > 0 for s in seen)
+
+
+def test_projective_noise_groups_give_each_cell_its_own_rays_measurement():
+    """Pose noise splits the rays into groups, each its own model call on its rays; with models that ignore
+    the noise, the map equals the one without groups (a cell handed another ray's disparity would differ)."""
+    seen = []
+
+    class Spy(HitMissModel):
+        def with_extra_noise(self, sigma_px):
+            seen.append(sigma_px)
+            return super().with_extra_noise(sigma_px)
+
+    camera, pose, disp = small_frame()
+    maps = []
+    for cov in (None, np.eye(3) * 0.05**2):
+        grid = OccupancyMap(0.1, p0=0.5)
+        grid.integrate_disparity(disp, camera, pose, Spy(camera.focal_baseline), mode="projective",
+                                 pose_covariance=cov, max_range_m=12.0)
+        maps.append(grid)
+    assert len(seen) >= 3
+    assert_same_map(*maps)
 
 
 def test_nan_disparities_are_skipped_and_bad_poses_are_errors():

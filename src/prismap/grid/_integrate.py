@@ -16,9 +16,6 @@ from prismap.grid._storage import BlockTable
 RAYS_PER_CHUNK = 4096
 """Rays cast per model call in ray mode: bounds the memory of one chunk's cell arrays."""
 
-VOXELS_PER_SLAB = 1 << 21
-"""Candidate voxels per projection call in projective mode."""
-
 NOISE_BIN_RATIO = 1.25
 """Rays whose pose-induced disparity noise falls in one geometric bin share one widened model."""
 
@@ -212,28 +209,25 @@ def projective_mode(accumulator, origin, rays, disparity, ray_norm, groups, rang
         idx = np.arange(n) if members is None else members
         t_stop[idx], exclusive[idx] = stop_depths(model, disparity[idx], ray_norm[idx], ranges)
         group_of_ray[idx] = g
-    valid = t_stop > 0
-    if not valid.any():
+    key_min, shape, n_casting = _kernels.frustum_box(origin, rays, t_stop, voxel_size)
+    if n_casting == 0:
         return
-    far = (rays[valid] * t_stop[valid, None]).reshape(-1, 3)
-    lo = np.floor(np.minimum(origin, (origin + far).min(axis=0)) / voxel_size).astype(np.int64) - 1
-    hi = np.floor(np.maximum(origin, (origin + far).max(axis=0)) / voxel_size).astype(np.int64) + 1
-    shape = hi - lo + 1
-    x_per_slab = max(1, VOXELS_PER_SLAB // int(shape[1] * shape[2]))
-    slabs = []
-    for x0 in range(0, int(shape[0]), x_per_slab):
-        slab_shape = np.array([min(x_per_slab, shape[0] - x0), shape[1], shape[2]], dtype=np.int64)
-        slabs.append(_kernels.project_voxels(
-            lo + np.array([x0, 0, 0]), slab_shape, origin, projection["R_cam_world"], projection["focal"],
-            projection["cx"], projection["cy"], projection["subsample"], projection["ray_index"], rays,
-            t_stop, exclusive, voxel_size,
-        ))
-    ray_of_cell, keys, t_in, t_out = (np.concatenate(column) for column in zip(*slabs))
-    cell_group = group_of_ray[ray_of_cell]
+    ray_of_cell, keys, t_in, t_out = _kernels.project_voxels(
+        key_min, shape, origin, projection["R_cam_world"], projection["focal"], projection["cx"], projection["cy"],
+        projection["subsample"], projection["ray_index"], rays, t_stop, exclusive, voxel_size,
+    )
+    # Cells grouped by ray (models keep per-ray state from cell to cell); one model call per group and
+    # frame, on the rays some voxel uses (models cost per ray too).
+    order, used, local = _kernels.group_by_ray(ray_of_cell, n)
+    keys, t_in, t_out = keys[order], t_in[order], t_out[order]
+    rows = register_cells(accumulator, keys)
+    group_of_used = group_of_ray[used]
+    group_of_cell = group_of_used[local]
     for g, (model, _) in enumerate(groups):
-        mine = np.flatnonzero(cell_group == g) if len(groups) > 1 else slice(None)
-        if keys[mine].shape[0]:
-            # One model call per group and frame, on the rays some voxel uses (models cost per ray too).
-            used, local_ray = np.unique(ray_of_cell[mine], return_inverse=True)
-            inc = cell_increments(model, disparity[used], ray_norm[used], local_ray.reshape(-1), t_in[mine], t_out[mine])
-            scatter(accumulator, register_cells(accumulator, np.ascontiguousarray(keys[mine])), inc)
+        in_group = group_of_used == g
+        mine = np.flatnonzero(group_of_cell == g) if len(groups) > 1 else slice(None)
+        if in_group.any():
+            rank = np.cumsum(in_group) - 1  # index of each used ray among the group's used rays
+            rays_g = used[in_group]
+            inc = cell_increments(model, disparity[rays_g], ray_norm[rays_g], rank[local[mine]], t_in[mine], t_out[mine])
+            scatter(accumulator, rows[mine], inc)

@@ -341,10 +341,11 @@ def project_voxels(key_min, shape, origin, R_cam_world, focal, cx, cy, subsample
     ray (``ray_index >= 0``) is the voxel's ray. The interval is the slab intersection of that ray with
     the voxel's box; if the ray misses the box (it passes up to half a pixel beside the centre), the
     interval is the centre's depth +- half a voxel. The voxel is kept by the same rule as
-    :func:`cast_rays`. Returns ``ray_of_cell, keys, t_in, t_out`` as :func:`cast_rays` does.
+    :func:`cast_rays`. Returns ``ray_of_cell, keys, t_in, t_out`` as :func:`cast_rays` does, in the
+    order of the box (x, then y, then z).
     """
     nx, ny, nz = shape[0], shape[1], shape[2]
-    capacity = nx * ny * nz
+    capacity = min(nx * ny * nz, 1 << 16)
     ray_of_cell = np.empty(capacity, dtype=np.int64)
     keys = np.empty((capacity, 3), dtype=np.int32)
     t_in_out = np.empty(capacity, dtype=np.float64)
@@ -398,6 +399,12 @@ def project_voxels(key_min, shape, origin, R_cam_world, focal, cx, cy, subsample
                         continue
                 elif t0 > t_stop[ray]:
                     continue
+                if m == capacity:  # grow the outputs by half (few voxels of the box are kept)
+                    capacity += capacity // 2
+                    ray_of_cell = _grown(ray_of_cell, capacity)
+                    keys = _grown(keys, capacity)
+                    t_in_out = _grown(t_in_out, capacity)
+                    t_out_out = _grown(t_out_out, capacity)
                 ray_of_cell[m] = ray
                 keys[m, 0] = kx
                 keys[m, 1] = ky
@@ -406,6 +413,60 @@ def project_voxels(key_min, shape, origin, R_cam_world, focal, cx, cy, subsample
                 t_out_out[m] = t1
                 m += 1
     return ray_of_cell[:m], keys[:m], t_in_out[:m], t_out_out[:m]
+
+
+@numba.njit(cache=True, nogil=True)
+def _grown(array, capacity):
+    """A copy of ``array`` with ``capacity`` rows (the first rows copied)."""
+    out = np.empty((capacity, *array.shape[1:]), dtype=array.dtype)
+    out[: array.shape[0]] = array
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def frustum_box(origin, rays, t_stop, voxel_size):
+    """Key box of the origin and every ray's stop point, one voxel of margin: ``(key_min (3,), shape (3,))``
+    int64 and the number of rays that cast anything (``t_stop > 0``)."""
+    lo = np.floor(origin / voxel_size)
+    hi = lo.copy()
+    n = 0
+    for i in range(rays.shape[0]):
+        if t_stop[i] > 0.0:
+            n += 1
+            for ax in range(3):
+                k = np.floor((origin[ax] + rays[i, ax] * t_stop[i]) / voxel_size)
+                lo[ax] = min(lo[ax], k)
+                hi[ax] = max(hi[ax], k)
+    key_min = lo.astype(np.int64) - 1
+    return key_min, hi.astype(np.int64) + 2 - key_min, n
+
+
+@numba.njit(cache=True, nogil=True)
+def group_by_ray(ray_of_cell, n_rays):
+    """Counting sort of cells by ray (stable): ``order (C,)``, the rays that have cells ``used (U,)``
+    (increasing) and, per sorted cell, the index of its ray in ``used`` (C,)."""
+    counts = np.zeros(n_rays + 1, dtype=np.int64)
+    for i in range(ray_of_cell.size):
+        counts[ray_of_cell[i] + 1] += 1
+    n_used = 0
+    for r in range(n_rays):
+        if counts[r + 1] > 0:
+            n_used += 1
+        counts[r + 1] += counts[r]
+    used = np.empty(n_used, dtype=np.int64)
+    local = np.empty(ray_of_cell.size, dtype=np.int64)
+    u = 0
+    for r in range(n_rays):
+        if counts[r + 1] > counts[r]:
+            used[u] = r
+            local[counts[r] : counts[r + 1]] = u
+            u += 1
+    order = np.empty(ray_of_cell.size, dtype=np.int64)
+    for i in range(ray_of_cell.size):
+        r = ray_of_cell[i]
+        order[counts[r]] = i
+        counts[r] += 1
+    return order, used, local
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
