@@ -5,16 +5,10 @@ from pathlib import Path
 
 from prismap.errors import PrismapInputError
 
-_ROWS = (
+_COUNT_ROWS = (
     ("voxels scored", "n_voxels", "{:d}"),
     ("truly occupied", "n_occupied", "{:d}"),
     ("truly free", "n_free", "{:d}"),
-    ("Brier score", "brier", "{:.4f}"),
-    ("log-loss (nats)", "log_loss", "{:.4f}"),
-    ("ECE", "ece", "{:.4f}"),
-    ("ROC AUC", "roc_auc", "{:.4f}"),
-    ("occupied called free", "occupied_called_free", "{:.4f}"),
-    ("free called occupied", "free_called_occupied", "{:.4f}"),
 )
 
 
@@ -76,8 +70,10 @@ def run(args):
 
 def format_scores(scores, *, title):
     """The scores as a two-column Markdown table."""
+    from prismap.evaluate import SCORE_COLUMNS
+
     lines = [f"{title}", "", "| score | value |", "|---|---|"]
-    for label, name, fmt in _ROWS:
+    for label, name, fmt in (*_COUNT_ROWS, *SCORE_COLUMNS):
         value = getattr(scores, name)
         text = "n/a" if isinstance(value, float) and value != value else fmt.format(value)
         lines.append(f"| {label} | {text} |")

@@ -12,6 +12,17 @@ LOG_LOSS_EPS = 1e-6
 """Probabilities are clipped to ``[LOG_LOSS_EPS, 1 - LOG_LOSS_EPS]`` before the log-loss."""
 
 
+SCORE_COLUMNS = (
+    ("Brier score", "brier", "{:.4f}"),
+    ("log-loss (nats)", "log_loss", "{:.4f}"),
+    ("ECE", "ece", "{:.4f}"),
+    ("ROC AUC", "roc_auc", "{:.4f}"),
+    ("occupied called free", "occupied_called_free", "{:.4f}"),
+    ("free called occupied", "free_called_occupied", "{:.4f}"),
+)
+"""(label, :class:`MapScores` attribute, format) of the scores every table shows, in order."""
+
+
 @dataclass(frozen=True)
 class MapScores:
     """Per-voxel scores of predicted occupancy probabilities against the truth.

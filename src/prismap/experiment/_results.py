@@ -8,7 +8,7 @@ import numpy as np
 
 from prismap._files import write_text_atomic
 from prismap.errors import PrismapInputError
-from prismap.evaluate import MapScores, align_to_ground_truth, score_map
+from prismap.evaluate import SCORE_COLUMNS, MapScores, align_to_ground_truth, score_map
 from prismap.sensor_models import prior_from_ground_truth
 
 MODELS = ("ideal", "hitmiss", "convolution", "andert", "prism")
@@ -17,15 +17,6 @@ MODELS = ("ideal", "hitmiss", "convolution", "andert", "prism")
 RESULTS_FORMAT = "prismap-experiment-results"
 RESULTS_VERSION = 1
 
-COLUMNS = (
-    ("Brier", "brier", "{:.4f}"),
-    ("log-loss (nats)", "log_loss", "{:.4f}"),
-    ("ECE", "ece", "{:.4f}"),
-    ("ROC AUC", "roc_auc", "{:.3f}"),
-    ("occupied called free", "occupied_called_free", "{:.3f}"),
-    ("free called occupied", "free_called_occupied", "{:.3f}"),
-)
-"""(header, MapScores attribute, format) of the score columns of the results table."""
 
 
 @dataclass(frozen=True)
@@ -139,13 +130,13 @@ def _plain(value):
 
 def format_results_table(results, *, title, notes=()):
     """Markdown: one row per (matcher, model) with every score, the voxel counts and the mapping time."""
-    header = ["matcher", "model", *(c[0] for c in COLUMNS), "time (s)"]
+    header = ["matcher", "model", *(c[0] for c in SCORE_COLUMNS), "time (s)"]
     lines = [f"# {title}", "", *notes, *([""] if notes else []),
              "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     best = best_models(results)
     for result in results:
         cells = [result.matcher, result.model]
-        for _, name, fmt in COLUMNS:
+        for _, name, fmt in SCORE_COLUMNS:
             value = getattr(result.scores, name)
             text = "n/a" if value != value else fmt.format(value)
             if best.get((result.matcher, name)) == result.model:
@@ -163,7 +154,7 @@ def format_results_table(results, *, title, notes=()):
 def best_models(results):
     """``{(matcher, score name): model}``: each matcher's best model per score (highest AUC, else lowest)."""
     best = {}
-    for _, name, _ in COLUMNS:
+    for _, name, _ in SCORE_COLUMNS:
         sign = -1.0 if name == "roc_auc" else 1.0
         for result in results:
             value = getattr(result.scores, name)
