@@ -352,6 +352,9 @@ def project_voxels(key_min, shape, origin, R_cam_world, focal, cx, cy, subsample
     t_out_out = np.empty(capacity, dtype=np.float64)
     rows, cols = ray_index.shape
     half = 0.5 * voxel_size
+    reach = np.sqrt(0.75) * voxel_size  # centre to corner: no point of the voxel is nearer in depth
+    col_offset = cx / subsample + 0.5
+    row_offset = cy / subsample + 0.5
     m = 0
     for ix in range(nx):
         kx = key_min[0] + ix
@@ -367,37 +370,28 @@ def project_voxels(key_min, shape, origin, R_cam_world, focal, cx, cy, subsample
                     continue
                 px = R_cam_world[0, 0] * wx + R_cam_world[0, 1] * wy + R_cam_world[0, 2] * wz
                 py = R_cam_world[1, 0] * wx + R_cam_world[1, 1] * wy + R_cam_world[1, 2] * wz
-                col = np.floor((focal * px / pz + cx) / subsample + 0.5)
-                row = np.floor((focal * py / pz + cy) / subsample + 0.5)
+                scale = focal / (pz * subsample)
+                col = np.floor(px * scale + col_offset)
+                row = np.floor(py * scale + row_offset)
                 if col < 0 or row < 0 or col >= cols or row >= rows:
                     continue
                 ray = ray_index[np.int64(row), np.int64(col)]
                 if ray < 0:
                     continue
+                stop = t_stop[ray]
+                if pz - reach > stop:  # the whole voxel lies beyond the ray's stop depth
+                    continue
                 # Slab intersection of the ray with the voxel box, in depth units.
-                t0 = -np.inf
-                t1 = np.inf
-                corner = (kx * voxel_size, ky * voxel_size, kz * voxel_size)
-                for ax in range(3):
-                    r = rays[ray, ax]
-                    lo = corner[ax] - origin[ax]
-                    if r != 0.0:
-                        ta = lo / r
-                        tb = (lo + voxel_size) / r
-                        if ta > tb:
-                            ta, tb = tb, ta
-                        t0 = max(t0, ta)
-                        t1 = min(t1, tb)
-                    elif lo > 0.0 or lo + voxel_size <= 0.0:
-                        t1 = -np.inf
+                t0, t1 = _slab(rays[ray, 0], rays[ray, 1], rays[ray, 2], kx * voxel_size - origin[0],
+                               ky * voxel_size - origin[1], kz * voxel_size - origin[2], voxel_size)
                 t0 = max(t0, 0.0)
                 if t1 <= t0:
                     t0 = max(pz - half, 0.0)
                     t1 = pz + half
                 if exclusive[ray]:
-                    if t1 > t_stop[ray]:
+                    if t1 > stop:
                         continue
-                elif t0 > t_stop[ray]:
+                elif t0 > stop:
                     continue
                 if m == capacity:  # grow the outputs by half (few voxels of the box are kept)
                     capacity += capacity // 2
@@ -413,6 +407,27 @@ def project_voxels(key_min, shape, origin, R_cam_world, focal, cx, cy, subsample
                 t_out_out[m] = t1
                 m += 1
     return ray_of_cell[:m], keys[:m], t_in_out[:m], t_out_out[:m]
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _slab_axis(r, lo, size, t0, t1):
+    """Clip the depth interval ``[t0, t1]`` to where ``lo <= t r < lo + size`` on one axis."""
+    if r != 0.0:
+        inv = 1.0 / r
+        ta = lo * inv
+        tb = (lo + size) * inv
+        return max(t0, min(ta, tb)), min(t1, max(ta, tb))
+    if lo > 0.0 or lo + size <= 0.0:
+        return t0, -np.inf
+    return t0, t1
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _slab(rx, ry, rz, lx, ly, lz, size):
+    """Depth interval of the ray ``t (rx, ry, rz)`` inside the box ``[l, l + size)`` (empty: t1 <= t0)."""
+    t0, t1 = _slab_axis(rx, lx, size, -np.inf, np.inf)
+    t0, t1 = _slab_axis(ry, ly, size, t0, t1)
+    return _slab_axis(rz, lz, size, t0, t1)
 
 
 @numba.njit(cache=True, nogil=True)
