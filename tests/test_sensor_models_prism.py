@@ -320,3 +320,16 @@ def test_endpoint_asymptotic_of_the_evidence_matches_fine_quadrature_where_steep
                      ) / (2e-5 * depth)
         correction = abs(curvature) / slope**2  # the first neglected term, relative
         assert asymptotic < -40 and abs(asymptotic - quadrature) < 2 * correction + 1e-4
+
+
+def test_table_keys_match_numpy_unique_of_the_packed_keys():
+    from prismap.sensor_models import _kernels, _prism
+
+    rng = np.random.default_rng(21)
+    disparity = np.round(rng.uniform(0.5, 80.0, 5000), 1)  # repeated disparities: few distinct keys
+    log_norm = np.log(rng.choice([1.0, 1.02, 1.3, 1.9], 5000))
+    unique, inverse = _kernels.table_keys(disparity, log_norm, 1 / 16, _prism._LAMBDA_STEP, _prism._KEY_L_SPAN)
+    key = (np.rint(disparity * 16).astype(np.int64) * _prism._KEY_L_SPAN
+           + np.minimum(np.rint(log_norm / _prism._LAMBDA_STEP).astype(np.int64), _prism._KEY_L_SPAN - 1))
+    np.testing.assert_array_equal(unique[inverse], key)
+    np.testing.assert_array_equal(np.sort(unique), np.unique(key))

@@ -1,6 +1,7 @@
 """numba kernels of the inverse sensor models; called only by the wrappers in this package.
 
-The wrappers validate and convert (contiguous float64 / int64); the kernels assume. PRISM carries
+The wrappers validate and convert (contiguous float64 / int64); the kernels assume. Every kernel releases
+the GIL (``nogil=True``), so the grid's model calls run beside its GIL-free casting. PRISM carries
 ``log C`` and ``log D = log(Z - C)`` as logarithms so that nothing underflows from 0.1 m to 200 m with
 surface rates up to 50 per metre; the tabulated cell update exponentiates the smaller of the two (in
 numpy, vectorised) and combines in linear space, except near underflow.
@@ -20,7 +21,7 @@ _FASTMATH = {"nsz", "arcp", "contract", "afn", "reassoc"}  # never nnan/ninf: Na
 # --------------------------------------------------------------------------------------------- helpers
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def logaddexp(a, b):
     """``log(exp(a) + exp(b))``, exact for -inf arguments."""
     if a < b:
@@ -30,7 +31,7 @@ def logaddexp(a, b):
     return a + math.log1p(math.exp(b - a))
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def log1mexp(t):
     """``log(1 - exp(t))`` for ``t <= 0`` (``t > 0`` is treated as 0, giving -inf)."""
     if t >= 0.0:
@@ -40,18 +41,18 @@ def log1mexp(t):
     return math.log1p(-math.exp(t))
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def normal_cdf(x):
     """Standard normal CDF."""
     return 0.5 * math.erfc(-x * _SQRT_HALF)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _logit(p):
     return math.log(p) - math.log1p(-p)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _sigmoid(x):
     if x >= 0.0:
         return 1.0 / (1.0 + math.exp(-x))
@@ -62,7 +63,7 @@ def _sigmoid(x):
 # ------------------------------------------------------------------------------------- classic models
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def ideal_cells(depth_hat, ray_norm, ray_of_cell, start, end, half_alpha, p_free, p_occ, p0):
     """Thrun's ideal model at the cell centre; distances along the ray."""
     n = start.size
@@ -83,7 +84,7 @@ def ideal_cells(depth_hat, ray_norm, ray_of_cell, start, end, half_alpha, p_free
     return post, inc
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def hitmiss_cells(depth_hat, ray_of_cell, start, end, l_hit, l_miss, p0):
     """OctoMap: hit at the cell whose interval holds the measured depth, miss before, nothing after."""
     n = start.size
@@ -102,7 +103,7 @@ def hitmiss_cells(depth_hat, ray_of_cell, start, end, l_hit, l_miss, p0):
     return post, inc
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def convolution_cells(depth_hat, sigma_depth, ray_norm, ray_of_cell, start, end, half_alpha, p_free, p_occ, p0):
     """Ideal profile convolved with N(0, sigma_s^2) along the ray, at the cell centre."""
     n = start.size
@@ -122,7 +123,7 @@ def convolution_cells(depth_hat, sigma_depth, ray_norm, ray_of_cell, start, end,
     return post, inc
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def andert_cells(depth_hat, sigma_depth, ray_norm, ray_of_cell, start, end, eta, p_min, p_max, p0):
     """Andert's profile evaluated at ``clip(s^, a, c)``; increments on the even-odds scale."""
     n = start.size
@@ -150,7 +151,7 @@ def andert_cells(depth_hat, sigma_depth, ray_norm, ray_of_cell, start, end, eta,
 # e-fold of the prior ``q`` and per narrowest sigma of disparity, so panels of fixed x-width resolve both.
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def log_likelihood(u, shift, log_wn, means, sigmas):
     """``log g``: the mixture density of the error ``u - shift`` (``u`` = true disparity + 0, pixels)."""
     best = -np.inf
@@ -166,7 +167,7 @@ def log_likelihood(u, shift, log_wn, means, sigmas):
     return best + math.log(total)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _log_sup_tail(z, z_max, fb, shift, log_wn, means, sigmas):
     """Log of an upper bound of ``g`` on true depths ``[z, z_max]`` (sum of per-component maxima)."""
     u_hi = fb / z
@@ -185,12 +186,12 @@ def _log_sup_tail(z, z_max, fb, shift, log_wn, means, sigmas):
     return best + math.log(total)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def x_of_z(z, lam, ku):
     return lam * z - ku / z
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def z_of_x(x, lam, ku):
     root = math.sqrt(x * x + 4.0 * lam * ku)
     if x >= 0.0:
@@ -198,7 +199,7 @@ def z_of_x(x, lam, ku):
     return 2.0 * ku / (root - x)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _log_panel_moments(z1, z2, lam, z0, fb, shift, log_wn, means, sigmas):
     """Logs of ``int_{z1}^{z2} (z - z0)^k q g dz``, k = 0, 1, 2, by 8-point Gauss-Legendre (one panel)."""
     half = 0.5 * (z2 - z1)
@@ -228,13 +229,13 @@ def _log_panel_moments(z1, z2, lam, z0, fb, shift, log_wn, means, sigmas):
     return base + math.log(m0), base + math.log(m1), base + math.log(m2)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _log_panel(z1, z2, lam, z0, fb, shift, log_wn, means, sigmas):
     """Log of ``int_{z1}^{z2} q g dz`` by 8-point Gauss-Legendre (one panel)."""
     return _log_panel_moments(z1, z2, lam, z0, fb, shift, log_wn, means, sigmas)[0]
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def log_integral(z1, z2, lam, ku, hq, z0, fb, shift, log_wn, means, sigmas):
     """Log of ``int_{z1}^{z2} q g dz`` with panels of x-width at most ``hq``."""
     if z2 <= z1:
@@ -251,7 +252,7 @@ def log_integral(z1, z2, lam, ku, hq, z0, fb, shift, log_wn, means, sigmas):
     return out
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def prism_march(shift, lam, z0, z_max, fb, ku, hq, log_far, log_eps_bound, lam_slack, i_min, log_wn, means, sigmas):
     """Cumulative evidence of one (d^, lam) on the x-grid of spacing ``hq`` from ``z0``.
 
@@ -267,7 +268,7 @@ def prism_march(shift, lam, z0, z_max, fb, ku, hq, log_far, log_eps_bound, lam_s
                   i_min, log_wn, means, sigmas)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _march(shift, lam, z0, z_start, log_c_start, z_max, fb, ku, hq, log_far, log_eps_bound, lam_slack, i_min,
            log_wn, means, sigmas):
     """:func:`prism_march` from ``z_start``, where the moments of C are ``log_c_start`` (3,)."""
@@ -312,7 +313,7 @@ def _march(shift, lam, z0, z_start, log_c_start, z_max, fb, ku, hq, log_far, log
     return z[: n + 1], log_c[: n + 1], log_d, log_z, log_far_w, i_infl
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _rate_derivatives(log_m, log_far, lam, z_far):
     """First and second derivatives of ``log Q`` in ``log lam`` from the logs of Q's moments (``log_m`` (3,)).
 
@@ -342,7 +343,7 @@ TABLE_COLUMNS = 8
 then the same four for ``D = Z - C`` (64 bytes: one cache line)."""
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _log_qg_slope(z, lam, z0, fb, shift, log_wn, means, sigmas):
     """``log(q g)`` at depth ``z`` and its derivative in z (1/metre)."""
     u = fb / z
@@ -365,14 +366,14 @@ def _log_qg_slope(z, lam, z0, fb, shift, log_wn, means, sigmas):
     return math.log(lam) - lam * (z - z0) + best + math.log(total), -lam - slope / total * fb / (z * z)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _log_c_asymptotic(z, lam, z0, fb, shift, log_wn, means, sigmas):
     """``log C(z)`` where ``q g`` rises steeply: ``C = q g / (d log(q g)/dz) (1 + O(phi''/phi'^2))``."""
     phi, phi_z = _log_qg_slope(z, lam, z0, fb, shift, log_wn, means, sigmas)
     return phi - math.log(phi_z)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def prism_table(shift, lam, z0, z_max, fb, ku, hq, log_far, log_eps_bound, lam_slack, step, coarse_ratio,
                 coarse_below, log_wn, means, sigmas):
     """The table of one (d^, lam): nodes every ``step`` panels, every ``coarse_ratio``-th one where C/Z is tiny.
@@ -487,7 +488,7 @@ def prism_table(shift, lam, z0, z_max, fb, ku, hq, log_far, log_eps_bound, lam_s
     return nodes, meta
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def combine(l_ca, l_da, l_cc, l_dc, lam_len):
     """Posterior and increment of a cell [a, c] from log C, log D at both ends (any common scale).
 
@@ -506,7 +507,7 @@ def combine(l_ca, l_da, l_cc, l_dc, lam_len):
     return _sigmoid(l_num - l_den), inc
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def log_tail(z, log_c_z, lam, ku, hq, z0, z_max, fb, shift, log_far, log_wn, means, sigmas):
     """``log D(z)``: evidence beyond ``z`` (far measurement included), marched until the rest is < e^-40."""
     tail = -np.inf
@@ -529,7 +530,7 @@ def log_tail(z, log_c_z, lam, ku, hq, z0, z_max, fb, shift, log_far, log_wn, mea
     return logaddexp(tail, -lam * (z_max - z0) + log_far)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def prism_direct_cells(
     shift, lam, order, ray_start, start, end, z0, z_max, fb, ku, hq, log_far, log_wn, means, sigmas
 ):
@@ -587,7 +588,7 @@ META_COLUMNS = ("lam", "x0", "x_split", "x_back", "n_coarse", "n_back", "z_end",
  _LOG_FAR, _OFFSET, _LENGTH) = range(16)
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, nogil=True, inline="always")
 def _locate(x, x0, x_split, x_back, n_coarse, n_back, n_last, inv_hc, inv_h, inv_hb):
     """Row (from the table's first) of the node left of ``x``, the fraction to the next, and the segment
     (0: coarse front, 1: fine, 2: back)."""
@@ -604,7 +605,7 @@ def _locate(x, x0, x_split, x_back, n_coarse, n_back, n_last, inv_hc, inv_h, inv
     return n_back + k, min(max(s - k, 0.0), 1.0), 2
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, nogil=True, inline="always")
 def _interpolate(nodes, o, f, step, col, delta):
     """Column ``col`` at fraction ``f`` between rows ``o`` and ``o + 1``, for a rate ``e^delta`` times the table's.
 
@@ -619,7 +620,7 @@ def _interpolate(nodes, o, f, step, col, delta):
             + g * taylor_0 + f * taylor_1)
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, nogil=True, inline="always")
 def _cell_prior(x):
     """``(1 - e^-x, e^-x)`` for ``x >= 0``: below 0.2 a degree-8 series in Estrin form (relative error
     < 1e-11, no dependency chain), else through exp."""
@@ -632,7 +633,7 @@ def _cell_prior(x):
     return p, 1.0 - p
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def combine_small(l_a, l_c, a_is_d, c_is_d, lam_len):
     """:func:`combine` from the log of the smaller of ``C/Z``, ``D/Z`` at each end (``*_is_d``: it is D's).
 
@@ -654,7 +655,7 @@ _SKIP = 4
 """``side`` flag of a cell the measurement does not change (empty, or beyond the influence depth)."""
 
 
-@nb.njit(cache=True, fastmath=_FASTMATH)
+@nb.njit(cache=True, nogil=True, fastmath=_FASTMATH)
 def prism_table_lookup(lam, table, delta, ray_of_cell, start, end, lo, hi, z0, z_max, fb, ku, hq, meta, nodes,
                        log_wn, means, sigmas, l_a, l_c, side):
     """First stage of tabulated PRISM on cells ``lo:hi``: per cell end, the log of the smaller of C/Z, D/Z.
@@ -745,7 +746,7 @@ def prism_table_lookup(lam, table, delta, ray_of_cell, start, end, lo, hi, z0, z
         c_prev = c
 
 
-@nb.njit(cache=True, fastmath=_FASTMATH)
+@nb.njit(cache=True, nogil=True, fastmath=_FASTMATH)
 def prism_table_combine(lam, ray_of_cell, start, end, lo, hi, z0, z_max, l_a, l_c, e_a, e_c, side, post, ratio,
                         fix_index, fix_value):
     """Second stage on cells ``lo:hi``: posterior (into ``post[lo:hi]``) and ``ratio[j]``, the increment's exp.
@@ -786,7 +787,7 @@ def prism_table_combine(lam, ray_of_cell, start, end, lo, hi, z0, z_max, l_a, l_
     return n_fix
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def prism_log_evidence(shift, lam, z0, z_max, fb, ku, hq, log_far, log_wn, means, sigmas):
     """``log Z`` (the marginal density of each measured disparity, 1/pixel) for every ray."""
     out = np.empty(shift.size)
@@ -794,3 +795,34 @@ def prism_log_evidence(shift, lam, z0, z_max, fb, ku, hq, log_far, log_wn, means
         out[r] = prism_march(shift[r], lam[r], z0, z_max, fb, ku, hq, log_far[r], 0.0, 0.0, 0, log_wn,
                                means, sigmas)[3]
     return out
+
+
+@nb.njit(cache=True, nogil=True)
+def table_keys(disparity, log_norm, disparity_step, lambda_step, key_l_span):
+    """PRISM's table key of every ray and the distinct keys (first-seen order), by open addressing.
+
+    ``key = rint(d / disparity_step) * key_l_span + min(rint(log|r| / lambda_step), key_l_span - 1)``.
+    Returns ``unique (K,) int64`` and ``inverse (R,) int64`` (``unique[inverse] = key``); a hash table
+    instead of a sort: O(R) for the ~300 k rays of a frame and their ~2 k keys.
+    """
+    n = disparity.size
+    size = 64
+    while size < 2 * n:
+        size *= 2
+    mask = size - 1
+    slots = np.full(size, -1, dtype=np.int64)
+    unique = np.empty(n, dtype=np.int64)
+    inverse = np.empty(n, dtype=np.int64)
+    k = 0
+    for i in range(n):
+        key = np.int64(np.rint(disparity[i] / disparity_step)) * key_l_span + min(
+            np.int64(np.rint(log_norm[i] / lambda_step)), key_l_span - 1)
+        h = np.int64((np.uint64(key) * np.uint64(0x9E3779B97F4A7C15)) >> np.uint64(32)) & mask
+        while slots[h] >= 0 and unique[slots[h]] != key:
+            h = (h + 1) & mask
+        if slots[h] < 0:
+            slots[h] = k
+            unique[k] = key
+            k += 1
+        inverse[i] = slots[h]
+    return unique[:k], inverse

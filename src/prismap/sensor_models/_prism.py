@@ -281,12 +281,11 @@ class PrismModel(RayModel):
 
     def _tables_for(self, disparity, norm):
         """Table row and ``delta = log(lambda_ray / lambda_table)`` of every ray, building missing tables."""
-        key_d = np.rint(disparity / self.disparity_step_px).astype(np.int64)
         log_norm = np.log(np.maximum(norm, 1.0))
-        key_l = np.minimum(np.rint(log_norm / _LAMBDA_STEP).astype(np.int64), _KEY_L_SPAN - 1)
-        unique, inverse = np.unique(key_d * _KEY_L_SPAN + key_l, return_inverse=True)
+        unique, inverse = _kernels.table_keys(disparity, log_norm, self.disparity_step_px, _LAMBDA_STEP, _KEY_L_SPAN)
         rows = self._cache.rows(unique, self._build_tables)
-        return rows[inverse.reshape(-1)], log_norm - key_l * _LAMBDA_STEP
+        key_l = np.minimum(np.rint(log_norm / _LAMBDA_STEP), _KEY_L_SPAN - 1)
+        return rows[inverse], log_norm - key_l * _LAMBDA_STEP
 
     def _build_tables(self, keys):
         """Nodes and metadata row (see ``_kernels.META_COLUMNS`` without offset, length) of each key."""
