@@ -218,8 +218,7 @@ def projective_mode(accumulator, origin, rays, disparity, ray_norm, groups, rang
     )
     # Cells grouped by ray (models keep per-ray state from cell to cell); one model call per group and
     # frame, on the rays some voxel uses (models cost per ray too).
-    order, used, local = _kernels.group_by_ray(ray_of_cell, n)
-    keys, t_in, t_out = keys[order], t_in[order], t_out[order]
+    keys, t_in, t_out, used, local = _kernels.sort_by_ray(ray_of_cell, n, keys, t_in, t_out)
     rows = register_cells(accumulator, keys)
     group_of_used = group_of_ray[used]
     group_of_cell = group_of_used[local]

@@ -345,7 +345,7 @@ def project_voxels(key_min, shape, origin, R_cam_world, focal, cx, cy, subsample
     order of the box (x, then y, then z).
     """
     nx, ny, nz = shape[0], shape[1], shape[2]
-    capacity = min(nx * ny * nz, 1 << 16)
+    capacity = min(nx * ny * nz, max(1 << 16, 2 * rays.shape[0]))  # rarely grown: fresh pages cost
     ray_of_cell = np.empty(capacity, dtype=np.int64)
     keys = np.empty((capacity, 3), dtype=np.int32)
     t_in_out = np.empty(capacity, dtype=np.float64)
@@ -393,7 +393,7 @@ def project_voxels(key_min, shape, origin, R_cam_world, focal, cx, cy, subsample
                         continue
                 elif t0 > stop:
                     continue
-                if m == capacity:  # grow the outputs by half (few voxels of the box are kept)
+                if m == capacity:  # grow the outputs by half
                     capacity += capacity // 2
                     ray_of_cell = _grown(ray_of_cell, capacity)
                     keys = _grown(keys, capacity)
@@ -457,9 +457,12 @@ def frustum_box(origin, rays, t_stop, voxel_size):
 
 
 @numba.njit(cache=True, nogil=True)
-def group_by_ray(ray_of_cell, n_rays):
-    """Counting sort of cells by ray (stable): ``order (C,)``, the rays that have cells ``used (U,)``
-    (increasing) and, per sorted cell, the index of its ray in ``used`` (C,)."""
+def sort_by_ray(ray_of_cell, n_rays, keys, t_in, t_out):
+    """Cells grouped by ray, in their order within a ray (a counting sort).
+
+    Returns the sorted ``keys (C, 3), t_in (C,), t_out (C,)``, the rays that have cells ``used (U,)``
+    (increasing) and, per sorted cell, the index of its ray in ``used`` (C,).
+    """
     counts = np.zeros(n_rays + 1, dtype=np.int64)
     for i in range(ray_of_cell.size):
         counts[ray_of_cell[i] + 1] += 1
@@ -476,12 +479,17 @@ def group_by_ray(ray_of_cell, n_rays):
             used[u] = r
             local[counts[r] : counts[r + 1]] = u
             u += 1
-    order = np.empty(ray_of_cell.size, dtype=np.int64)
+    sorted_keys = np.empty_like(keys)
+    sorted_in = np.empty_like(t_in)
+    sorted_out = np.empty_like(t_out)
     for i in range(ray_of_cell.size):
         r = ray_of_cell[i]
-        order[counts[r]] = i
-        counts[r] += 1
-    return order, used, local
+        j = counts[r]
+        counts[r] = j + 1
+        sorted_keys[j] = keys[i]
+        sorted_in[j] = t_in[i]
+        sorted_out[j] = t_out[i]
+    return sorted_keys, sorted_in, sorted_out, used, local
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
