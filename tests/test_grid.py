@@ -277,3 +277,11 @@ def test_frustum_box_holds_the_origin_and_every_stop_point_with_a_voxel_margin()
     assert n == casting.sum()
     np.testing.assert_array_equal(key_min, keys.min(axis=0) - 1)
     np.testing.assert_array_equal(key_min + shape - 1, keys.max(axis=0) + 1)
+
+
+def test_rotate_rays_equals_the_matrix_product():
+    from prismap.grid._kernels import rotate_rays
+
+    rng = np.random.default_rng(13)
+    rays, rotation = rng.normal(size=(50, 3)), np.linalg.qr(rng.normal(size=(3, 3)))[0]
+    np.testing.assert_allclose(rotate_rays(rays, rotation), rays @ rotation.T, rtol=1e-14, atol=1e-15)
