@@ -285,3 +285,21 @@ def test_rotate_rays_equals_the_matrix_product():
     rng = np.random.default_rng(13)
     rays, rotation = rng.normal(size=(50, 3)), np.linalg.qr(rng.normal(size=(3, 3)))[0]
     np.testing.assert_allclose(rotate_rays(rays, rotation), rays @ rotation.T, rtol=1e-14, atol=1e-15)
+
+
+def test_project_voxels_with_too_little_room_returns_a_prefix_and_the_full_count():
+    from prismap.grid._kernels import frustum_box, project_voxels
+
+    rng = np.random.default_rng(14)
+    ray_index = np.arange(48).reshape(6, 8)
+    rays = np.column_stack([(np.arange(48) % 8 - 3.5) / 8, (np.arange(48) // 8 - 2.5) / 8, np.ones(48)])
+    t_stop = rng.uniform(0.3, 2.0, 48)
+    exclusive = rng.random(48) < 0.5
+    origin = np.array([0.01, -0.02, 0.03])
+    key_min, shape, _ = frustum_box(origin, rays, t_stop, 0.1)
+    args = (key_min, shape, origin, np.eye(3), 8.0, 3.5, 2.5, 1.0, ray_index, rays, t_stop, exclusive, 0.1)
+    *full, n = project_voxels(*args, int(np.prod(shape)))
+    *part, n_part = project_voxels(*args, 7)
+    assert n == n_part == full[0].size > 7
+    for a, b in zip(full, part):
+        np.testing.assert_array_equal(a[:7], b)

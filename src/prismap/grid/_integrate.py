@@ -212,10 +212,17 @@ def projective_mode(accumulator, origin, rays, disparity, ray_norm, groups, rang
     key_min, shape, n_casting = _kernels.frustum_box(origin, rays, t_stop, voxel_size)
     if n_casting == 0:
         return
-    ray_of_cell, keys, t_in, t_out = _kernels.project_voxels(
-        key_min, shape, origin, projection["R_cam_world"], projection["focal"], projection["cx"], projection["cy"],
-        projection["subsample"], projection["ray_index"], rays, t_stop, exclusive, voxel_size,
-    )
+    capacity = min(int(np.prod(shape)), max(1 << 16, 2 * n))  # about one kept voxel per ray: rarely repeated
+    while True:
+        *cells, n_kept = _kernels.project_voxels(
+            key_min, shape, origin, projection["R_cam_world"], projection["focal"], projection["cx"],
+            projection["cy"], projection["subsample"], projection["ray_index"], rays, t_stop, exclusive, voxel_size,
+            capacity,
+        )
+        if n_kept <= capacity:
+            break
+        capacity = n_kept
+    ray_of_cell, keys, t_in, t_out = cells
     # Cells grouped by ray (models keep per-ray state from cell to cell); one model call per group and
     # frame, on the rays some voxel uses (models cost per ray too).
     keys, t_in, t_out, used, local = _kernels.sort_by_ray(ray_of_cell, n, keys, t_in, t_out)

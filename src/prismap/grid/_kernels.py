@@ -334,7 +334,8 @@ def _accumulator_block(table, block_keys, n_blocks, acc, links, block):
 
 
 @numba.njit(cache=True, nogil=True)
-def project_voxels(key_min, shape, origin, R_cam_world, focal, cx, cy, subsample, ray_index, rays, t_stop, exclusive, voxel_size):
+def project_voxels(key_min, shape, origin, R_cam_world, focal, cx, cy, subsample, ray_index, rays, t_stop, exclusive,
+                   voxel_size, capacity):
     """Voxels of a key box seen by a pixel ray, with the voxel's depth interval on that ray.
 
     Each voxel centre is projected into the (subsampled) image; the nearest grid pixel with a valid
@@ -342,10 +343,10 @@ def project_voxels(key_min, shape, origin, R_cam_world, focal, cx, cy, subsample
     the voxel's box; if the ray misses the box (it passes up to half a pixel beside the centre), the
     interval is the centre's depth +- half a voxel. The voxel is kept by the same rule as
     :func:`cast_rays`. Returns ``ray_of_cell, keys, t_in, t_out`` as :func:`cast_rays` does, in the
-    order of the box (x, then y, then z).
+    order of the box (x, then y, then z), and how many voxels are kept: when that exceeds ``capacity``
+    (the outputs' size) only the first ``capacity`` are returned; call again with room for all.
     """
     nx, ny, nz = shape[0], shape[1], shape[2]
-    capacity = min(nx * ny * nz, max(1 << 16, 2 * rays.shape[0]))  # rarely grown: fresh pages cost
     ray_of_cell = np.empty(capacity, dtype=np.int64)
     keys = np.empty((capacity, 3), dtype=np.int32)
     t_in_out = np.empty(capacity, dtype=np.float64)
@@ -393,12 +394,9 @@ def project_voxels(key_min, shape, origin, R_cam_world, focal, cx, cy, subsample
                         continue
                 elif t0 > stop:
                     continue
-                if m == capacity:  # grow the outputs by half
-                    capacity += capacity // 2
-                    ray_of_cell = _grown(ray_of_cell, capacity)
-                    keys = _grown(keys, capacity)
-                    t_in_out = _grown(t_in_out, capacity)
-                    t_out_out = _grown(t_out_out, capacity)
+                if m >= capacity:  # full: only count (the caller repeats with room for all)
+                    m += 1
+                    continue
                 ray_of_cell[m] = ray
                 keys[m, 0] = kx
                 keys[m, 1] = ky
@@ -406,7 +404,8 @@ def project_voxels(key_min, shape, origin, R_cam_world, focal, cx, cy, subsample
                 t_in_out[m] = t0
                 t_out_out[m] = t1
                 m += 1
-    return ray_of_cell[:m], keys[:m], t_in_out[:m], t_out_out[:m]
+    n = min(m, capacity)
+    return ray_of_cell[:n], keys[:n], t_in_out[:n], t_out_out[:n], m
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
@@ -428,14 +427,6 @@ def _slab(rx, ry, rz, lx, ly, lz, size):
     t0, t1 = _slab_axis(rx, lx, size, -np.inf, np.inf)
     t0, t1 = _slab_axis(ry, ly, size, t0, t1)
     return _slab_axis(rz, lz, size, t0, t1)
-
-
-@numba.njit(cache=True, nogil=True)
-def _grown(array, capacity):
-    """A copy of ``array`` with ``capacity`` rows (the first rows copied)."""
-    out = np.empty((capacity, *array.shape[1:]), dtype=array.dtype)
-    out[: array.shape[0]] = array
-    return out
 
 
 @numba.njit(cache=True, nogil=True)
@@ -490,14 +481,15 @@ def sort_by_ray(ray_of_cell, n_rays, keys, t_in, t_out):
             used[u] = r
             local[counts[r] : counts[r + 1]] = u
             u += 1
-    sorted_keys = np.empty_like(keys)
-    sorted_in = np.empty_like(t_in)
-    sorted_out = np.empty_like(t_out)
+    sorted_keys = np.empty((keys.shape[0], 3), dtype=np.int32)
+    sorted_in = np.empty(t_in.size)
+    sorted_out = np.empty(t_out.size)
     for i in range(ray_of_cell.size):
         r = ray_of_cell[i]
         j = counts[r]
         counts[r] = j + 1
-        sorted_keys[j] = keys[i]
+        for ax in range(3):
+            sorted_keys[j, ax] = keys[i, ax]
         sorted_in[j] = t_in[i]
         sorted_out[j] = t_out[i]
     return sorted_keys, sorted_in, sorted_out, used, local
