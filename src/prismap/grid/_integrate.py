@@ -225,8 +225,8 @@ def projective_mode(accumulator, origin, rays, disparity, ray_norm, groups, rang
     ray_of_cell, keys, t_in, t_out = cells
     # Cells grouped by ray (models keep per-ray state from cell to cell); one model call per group and
     # frame, on the rays some voxel uses (models cost per ray too).
-    keys, t_in, t_out, used, local = _kernels.sort_by_ray(ray_of_cell, n, keys, t_in, t_out)
-    rows = register_cells(accumulator, keys)
+    rows = register_cells(accumulator, keys)  # in box order: runs of voxels in one block
+    rows, t_in, t_out, used, local = _kernels.sort_by_ray(ray_of_cell, n, rows, t_in, t_out)
     group_of_used = group_of_ray[used]
     group_of_cell = group_of_used[local]
     for g, (model, _) in enumerate(groups):

@@ -247,7 +247,7 @@ def cast_hit_miss(table, block_keys, n_blocks, acc, links, origin, rays, t_stop,
     block it may cross, so when it stops short, grow the accumulator and cast the remaining rays.
 
     ``links[slot]`` caches the slots of a block's six face neighbours (order of :func:`_side`; -1 = not
-    yet known): a ray entering the next block reads it instead of hashing.
+    yet known): a ray entering the next block reads it instead of hashing (:func:`_next_block`).
     """
     limits = _cell_limits(origin, rays, t_stop, voxel_size)
     capacity = min(block_keys.size, table.size // 2)
@@ -277,16 +277,9 @@ def cast_hit_miss(table, block_keys, n_blocks, acc, links, origin, rays, t_stop,
             if t_out - t_in > min_length:
                 block, local = _split_key(kx, ky, kz, bits)
                 if block != last_block:
-                    side = _side(block - last_block)
-                    slot = links[last_slot, side] if side >= 0 else -1
-                    if slot < 0:
-                        slot = find_block(table, block_keys, block)
-                        if slot < 0:
-                            slot = _accumulator_block(table, block_keys, n_blocks, acc, links, block)
-                        if side >= 0:
-                            links[last_slot, side] = slot
-                            links[slot, side ^ 1] = last_slot
-                    last_block, last_slot = block, np.int64(slot)
+                    last_slot = _next_block(table, block_keys, n_blocks, acc, links, block, last_block, last_slot,
+                                            capacity)
+                    last_block = block
                 x = miss if t_out <= z else (hit if t_in <= z else zero)
                 acc[last_slot, local, 0] += x
                 acc[last_slot, local, 1] += 1.0
@@ -316,6 +309,25 @@ def _side(step):
     if step == -1:
         return 5
     return -1
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _next_block(table, block_keys, n_blocks, acc, links, block, last_block, last_slot, capacity):
+    """Slot of accumulator block ``block`` reached from ``(last_block, last_slot)``: through their link when
+    they are face neighbours and it is known, else by hashing (adding the block, and linking the two).
+    -1 when the block is absent and the accumulator holds ``capacity`` blocks."""
+    side = _side(block - last_block)
+    slot = np.int64(links[last_slot, side]) if side >= 0 else np.int64(-1)
+    if slot < 0:
+        slot = find_block(table, block_keys, block)
+        if slot < 0:
+            if n_blocks[0] >= capacity:
+                return np.int64(-1)
+            slot = _accumulator_block(table, block_keys, n_blocks, acc, links, block)
+        if side >= 0:
+            links[last_slot, side] = slot
+            links[slot, side ^ 1] = last_slot
+    return slot
 
 
 @numba.njit(cache=True, nogil=True)
@@ -459,10 +471,10 @@ def frustum_box(origin, rays, t_stop, voxel_size):
 
 
 @numba.njit(cache=True, nogil=True)
-def sort_by_ray(ray_of_cell, n_rays, keys, t_in, t_out):
+def sort_by_ray(ray_of_cell, n_rays, cell_index, t_in, t_out):
     """Cells grouped by ray, in their order within a ray (a counting sort).
 
-    Returns the sorted ``keys (C, 3), t_in (C,), t_out (C,)``, the rays that have cells ``used (U,)``
+    Returns the sorted ``cell_index, t_in, t_out`` (C,), the rays that have cells ``used (U,)``
     (increasing) and, per sorted cell, the index of its ray in ``used`` (C,).
     """
     counts = np.zeros(n_rays + 1, dtype=np.int64)
@@ -481,18 +493,17 @@ def sort_by_ray(ray_of_cell, n_rays, keys, t_in, t_out):
             used[u] = r
             local[counts[r] : counts[r + 1]] = u
             u += 1
-    sorted_keys = np.empty((keys.shape[0], 3), dtype=np.int32)
+    sorted_index = np.empty(cell_index.size, dtype=np.int64)
     sorted_in = np.empty(t_in.size)
     sorted_out = np.empty(t_out.size)
     for i in range(ray_of_cell.size):
         r = ray_of_cell[i]
         j = counts[r]
         counts[r] = j + 1
-        for ax in range(3):
-            sorted_keys[j, ax] = keys[i, ax]
+        sorted_index[j] = cell_index[i]
         sorted_in[j] = t_in[i]
         sorted_out[j] = t_out[i]
-    return sorted_keys, sorted_in, sorted_out, used, local
+    return sorted_index, sorted_in, sorted_out, used, local
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
@@ -509,11 +520,9 @@ def _register(table, block_keys, n_blocks, acc, links, keys, start, stop, bits, 
     for i in range(start, stop):
         block, local = _split_key(np.int64(keys[i, 0]), np.int64(keys[i, 1]), np.int64(keys[i, 2]), bits)
         if block != last_block:
-            slot = find_block(table, block_keys, block)
+            slot = _next_block(table, block_keys, n_blocks, acc, links, block, last_block, last_slot, capacity)
             if slot < 0:
-                if n_blocks[0] >= capacity:
-                    return i, last_block, last_slot
-                slot = _accumulator_block(table, block_keys, n_blocks, acc, links, block)
+                return i, last_block, last_slot
             last_block = block
             last_slot = slot
         out[i - start] = last_slot * voxels + local
