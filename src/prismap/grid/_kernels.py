@@ -247,7 +247,7 @@ def cast_hit_miss(table, block_keys, n_blocks, acc, links, origin, rays, t_stop,
     block it may cross, so when it stops short, grow the accumulator and cast the remaining rays.
 
     ``links[slot]`` caches the slots of a block's six face neighbours (order of :func:`_side`; -1 = not
-    yet known): a ray entering the next block reads it instead of hashing (:func:`_next_block`).
+    yet known): a ray entering the next block reads it instead of hashing (:func:`_link_block`).
     """
     limits = _cell_limits(origin, rays, t_stop, voxel_size)
     capacity = min(block_keys.size, table.size // 2)
@@ -277,9 +277,11 @@ def cast_hit_miss(table, block_keys, n_blocks, acc, links, origin, rays, t_stop,
             if t_out - t_in > min_length:
                 block, local = _split_key(kx, ky, kz, bits)
                 if block != last_block:
-                    last_slot = _next_block(table, block_keys, n_blocks, acc, links, block, last_block, last_slot,
-                                            capacity)
-                    last_block = block
+                    side = _side(block - last_block)
+                    slot = np.int64(links[last_slot, side]) if side >= 0 else np.int64(-1)
+                    if slot < 0:
+                        slot = _link_block(table, block_keys, n_blocks, acc, links, block, side, last_slot, capacity)
+                    last_block, last_slot = block, slot
                 x = miss if t_out <= z else (hit if t_in <= z else zero)
                 acc[last_slot, local, 0] += x
                 acc[last_slot, local, 1] += 1.0
@@ -311,22 +313,20 @@ def _side(step):
     return -1
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
-def _next_block(table, block_keys, n_blocks, acc, links, block, last_block, last_slot, capacity):
-    """Slot of accumulator block ``block`` reached from ``(last_block, last_slot)``: through their link when
-    they are face neighbours and it is known, else by hashing (adding the block, and linking the two).
-    -1 when the block is absent and the accumulator holds ``capacity`` blocks."""
-    side = _side(block - last_block)
-    slot = np.int64(links[last_slot, side]) if side >= 0 else np.int64(-1)
+@numba.njit(cache=True, nogil=True)
+def _link_block(table, block_keys, n_blocks, acc, links, block, side, last_slot, capacity):
+    """Slot of accumulator block ``block`` by hashing (adding it when absent), linked to ``last_slot`` on
+    face ``side`` (if >= 0); -1 when absent and the accumulator holds ``capacity`` blocks. The slow path
+    of a block change: the caller first tries ``links[last_slot, side]`` (inline: a call per block
+    change costs ~3x the whole cast)."""
+    slot = find_block(table, block_keys, block)
     if slot < 0:
-        slot = find_block(table, block_keys, block)
-        if slot < 0:
-            if n_blocks[0] >= capacity:
-                return np.int64(-1)
-            slot = _accumulator_block(table, block_keys, n_blocks, acc, links, block)
-        if side >= 0:
-            links[last_slot, side] = slot
-            links[slot, side ^ 1] = last_slot
+        if n_blocks[0] >= capacity:
+            return np.int64(-1)
+        slot = _accumulator_block(table, block_keys, n_blocks, acc, links, block)
+    if side >= 0:
+        links[last_slot, side] = slot
+        links[slot, side ^ 1] = last_slot
     return slot
 
 
@@ -520,9 +520,12 @@ def _register(table, block_keys, n_blocks, acc, links, keys, start, stop, bits, 
     for i in range(start, stop):
         block, local = _split_key(np.int64(keys[i, 0]), np.int64(keys[i, 1]), np.int64(keys[i, 2]), bits)
         if block != last_block:
-            slot = _next_block(table, block_keys, n_blocks, acc, links, block, last_block, last_slot, capacity)
+            side = _side(block - last_block)
+            slot = np.int64(links[last_slot, side]) if side >= 0 else np.int64(-1)
             if slot < 0:
-                return i, last_block, last_slot
+                slot = _link_block(table, block_keys, n_blocks, acc, links, block, side, last_slot, capacity)
+                if slot < 0:
+                    return i, last_block, last_slot
             last_block = block
             last_slot = slot
         out[i - start] = last_slot * voxels + local
