@@ -1,5 +1,7 @@
 """Reference occupancy from LiDAR scans (thesis sec. 6.3.3): noise-free rays, OctoMap's hit/miss rule."""
 
+from collections.abc import Sequence
+
 import numpy as np
 
 from prismap._progress import progress as progress_bar
@@ -91,3 +93,108 @@ def ground_truth_from_map(grid):
     keys, log, _ = grid.known_voxels()
     occupied = log > 0.0  # P > 0.5
     return GroundTruthOccupancy(grid.voxel_size_m, keys[occupied].astype(np.int64), keys.astype(np.int64))
+
+
+class KittiLidarScans(Sequence):
+    """The Velodyne scans of a KITTI sequence as lazy ``(points, T_world_sensor)`` pairs.
+
+    Made by :func:`kitti_lidar_scans`; ``scans[i]`` reads the i-th chosen frame's scan from disk, so a
+    long drive is never held in memory. Feed it to :func:`lidar_reference_map`.
+    """
+
+    def __init__(self, sequence, frames, poses, camera):
+        self._sequence = sequence
+        self._frames = frames
+        self._poses = poses
+        self._camera = camera
+        self._T_cam_sensor = np.eye(4)
+        self._T_cam_sensor[:3, 3] = sequence.T_cam_velo[:3, 3]  # the Velodyne's origin, the camera's axes
+
+    def __len__(self):
+        return len(self._frames)
+
+    def __getitem__(self, index):
+        if isinstance(index, slice):
+            return [self[i] for i in range(*index.indices(len(self)))]
+        frame = self._frames[index]
+        points_cam = self._sequence.velodyne(frame)
+        if self._camera is not None:
+            points_cam = points_cam[in_camera_view(points_cam, self._camera)]
+        return points_cam - self._T_cam_sensor[:3, 3], self._poses[frame] @ self._T_cam_sensor
+
+
+def kitti_lidar_scans(sequence, *, frames=None, poses=None, camera_view=True):
+    """The Velodyne scans of a KITTI odometry sequence or raw drive, posed in the colour camera's world.
+
+    Parameters
+    ----------
+    sequence : KittiOdometry or KittiRaw
+        Needs its Velodyne transform (``T_cam_velo``) and the ``velodyne/`` scans of the chosen frames.
+    frames : sequence of int or None, keyword-only
+        Frame indices to use (default every frame).
+    poses : (N, 4, 4) float or None, metres, keyword-only
+        ``T_world_cam`` of the left colour camera for every frame of ``sequence`` (prismap's
+        ``poses.txt`` convention); default ``sequence.poses`` (odometry ``poses/NN.txt``, converted
+        from camera 0). Raw drives have no poses, so they need this.
+    camera_view : bool, keyword-only
+        Keep only the points in front of the colour camera that project into its image (see
+        :func:`in_camera_view`), i.e. the part of the 360-degree scan a stereo map can observe.
+
+    Returns
+    -------
+    KittiLidarScans
+        ``scans[i] = (points (M, 3) float64, metres, sensor frame; T_world_sensor (4, 4))``. The sensor
+        frame has the camera's axes and the Velodyne's origin (``points_cam - t_cam_velo``), so
+        :func:`lidar_reference_map` casts each ray from the laser, not from the camera.
+    """
+    count = len(sequence)
+    if poses is None:
+        poses = sequence.poses
+        if poses is None:
+            raise PrismapInputError(
+                "the KITTI sequence has no poses (raw drives carry none; odometry has poses/NN.txt for 00-10): "
+                "give `poses`, T_world_cam of the left colour camera per frame"
+            )
+    poses = as_float_array(poses, "poses", ndim=3, allow_nan=False)
+    if poses.shape != (count, 4, 4):
+        raise PrismapInputError(f"`poses` must be ({count}, 4, 4), one pose per frame of the sequence; got {poses.shape}")
+    frames = list(range(count)) if frames is None else [int(i) for i in frames]
+    if not frames:
+        raise PrismapInputError("`frames` is empty: a reference map needs at least one scan")
+    bad = [i for i in frames if not 0 <= i < count]
+    if bad:
+        raise PrismapInputError(f"`frames` must lie in 0..{count - 1} (the sequence's frames); got {bad[0]}")
+    camera = None
+    if camera_view:
+        camera = sequence.camera
+        if camera.width is None or camera.height is None:
+            camera = sequence[frames[0]].camera  # the image size comes with the images
+    return KittiLidarScans(sequence, frames, poses, camera)
+
+
+def in_camera_view(points_cam, camera):
+    """Which points lie in front of a camera and project into its image.
+
+    Parameters
+    ----------
+    points_cam : (N, 3) float, metres, camera frame
+    camera : StereoCamera
+        With ``width`` and ``height``; its left (reference) image is used.
+
+    Returns
+    -------
+    (N,) bool
+        ``z > 0`` and the projection ``(u, v)`` within ``[-0.5, W - 0.5) x [-0.5, H - 0.5)`` pixels
+        (pixel centres at integers, as in :meth:`StereoCamera.pixel_rays`).
+    """
+    points = as_float_array(points_cam, "points_cam", ndim=2)
+    if points.shape[1] != 3:
+        raise PrismapInputError(f"`points_cam` must be (N, 3); got {points.shape}")
+    if camera.width is None or camera.height is None:
+        raise PrismapInputError("`camera` needs its image size (width, height) to decide what it sees")
+    x, y, z = points.T
+    in_front = z > 0
+    safe_z = np.where(in_front, z, 1.0)
+    u = camera.focal_px * x / safe_z + camera.cx_px
+    v = camera.focal_px * y / safe_z + camera.cy_px
+    return in_front & (u >= -0.5) & (u < camera.width - 0.5) & (v >= -0.5) & (v < camera.height - 0.5)
