@@ -177,6 +177,10 @@ def test_raw_drive_with_colour_camera_poses_equals_the_odometry_truth(kitti_root
     raw = _truth(["--raw", str(raw_drive), "--poses", str(raw_drive.parent / "poses.txt")], tmp_path, capsys)
     np.testing.assert_array_equal(raw.occupied_keys, odometry.occupied_keys)
     np.testing.assert_array_equal(raw.observed_keys, odometry.observed_keys)
+    # the same colour-camera poses given to the odometry sequence replace its camera-0 poses/07.txt
+    kitti = _truth(["--kitti", str(kitti_root), "--sequence", "07", "--poses", str(raw_drive.parent / "poses.txt")],
+                   tmp_path, capsys, "kitti_poses.npz")
+    np.testing.assert_array_equal(kitti.observed_keys, odometry.observed_keys)
 
 
 def test_evaluate_scores_a_map_against_the_lidar_truth(kitti_root, tmp_path, capsys):
@@ -223,6 +227,8 @@ def test_errors_are_one_line_with_exit_status_2(kitti_root, raw_drive, tmp_path,
     assert "`--voxel` must be a finite number > 0; got 0.0" in _error([*kitti, "--voxel", "0"], capsys)
     assert "no frame of the 3" in _error([*kitti, "--voxel", "0.1", "--frames", "5:"], capsys)
     assert "range is empty" in _error([*kitti, "--voxel", "0.1", "--frames", "2:1"], capsys)
+    assert "`--max-range` must be a finite number > 0" in _error([*kitti, "--voxel", "0.1", "--max-range", "-1"],
+                                                                 capsys)
     assert "--every must be >= 1" in _error([*kitti, "--voxel", "0.1", "--every", "0"], capsys)
     assert "a raw drive has no camera poses; give --poses" in _error(["--raw", str(raw_drive), "--voxel", "0.1", *out],
                                                                      capsys)

@@ -22,7 +22,7 @@ def register(subparsers):
             "prior 0.5). By default only the points in front of the colour camera that project into its image "
             "are used, the part of the 360-degree scan a stereo map can see (--full-scan keeps all). Scored "
             "voxels are the ones these rays reached: occupied where the accumulated probability exceeds 0.5, "
-            "free where it is below; voxels no ray touched (behind surfaces, beyond --max-range, outside the "
+            "free otherwise; voxels no ray touched (behind surfaces, beyond --max-range, outside the "
             "view) are not scored."
         ),
     )
@@ -54,7 +54,7 @@ def run(args):
     from prismap.pipeline._lidar import kitti_lidar_scans
 
     voxel = check_positive(args.voxel, "--voxel")
-    max_range = check_positive(args.max_range, "--max-range") if math.isfinite(args.max_range) else math.inf
+    max_range = math.inf if args.max_range == math.inf else check_positive(args.max_range, "--max-range")
     if args.every < 1:
         raise PrismapInputError(f"--every must be >= 1; got {args.every}")
     start, stop = parse_frames(args.frames)
