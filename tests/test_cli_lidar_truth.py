@@ -250,3 +250,24 @@ def test_errors_are_one_line_with_exit_status_2(kitti_root, raw_drive, tmp_path,
     finally:
         velodyne.with_name("hidden").rename(velodyne)
     assert not (tmp_path / "t.npz").exists()
+
+
+def test_kitti_lidar_scans_input_errors(kitti_root):
+    from prismap.errors import PrismapInputError
+
+    sequence = KittiOdometry(kitti_root, 7)
+    with pytest.raises(PrismapInputError, match=r"`frames` must lie in 0..2 \(the sequence's frames\); got 3"):
+        kitti_lidar_scans(sequence, frames=[0, 3])
+    with pytest.raises(PrismapInputError, match="`frames` is empty"):
+        kitti_lidar_scans(sequence, frames=[])
+    with pytest.raises(PrismapInputError, match=r"`poses` must be \(3, 4, 4\), one pose per frame .* got \(2, 4, 4\)"):
+        kitti_lidar_scans(sequence, poses=np.stack(POSES_CAM2[:2]))
+    with pytest.raises(PrismapInputError, match="the KITTI sequence has no poses"):
+        kitti_lidar_scans(KittiOdometry(kitti_root, 7, load_poses=False))
+    scans = kitti_lidar_scans(sequence, frames=[2], camera_view=False)
+    points, T_world_sensor = scans[0]
+    # the sensor frame: the laser's origin, the colour camera's axes
+    np.testing.assert_allclose(T_world_sensor[:3, 3], _T_world_velo(2)[:3, 3], atol=1e-12)
+    np.testing.assert_allclose(T_world_sensor[:3, :3], POSES_CAM2[2][:3, :3], atol=1e-12)
+    world = points @ T_world_sensor[:3, :3].T + T_world_sensor[:3, 3]
+    np.testing.assert_allclose(world, np.vstack([_wall_points(2), _behind_points(2)]), atol=1e-5)  # float32 scan
