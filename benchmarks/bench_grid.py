@@ -1,10 +1,11 @@
 """OctoMap's insertPointCloud versus prismap's map, side by side in one process (ANCHORS.md).
 
-Scenes: (a) a 640x480 depth frame of planes at 1-10 m (tests/test_octomap_interop.planes_frame), 0.1 m voxels;
+Scenes: (a) a 640x480 depth frame of planes at 1-10 m (tests/support.planes_frame), 0.1 m voxels;
 (b) 100k random points at 2-20 m in a 90x60 degree frustum (seed 0), 0.1 m voxels. Same points, resolution and
 max range for both. Prints wall seconds (median of --repeat runs) with the throughput ratio, CPU seconds
-(process time, both threads; steadier than wall time on a shared machine), the share of prismap's wall time
-spent inside the sensor model's own calls, and bytes per known voxel.
+(process time, both threads; steadier than wall time on a shared machine), the time spent inside the sensor
+model's own calls (hit/miss in ray mode is added while casting: no model calls), and bytes per known voxel.
+The first of the --repeat runs of PRISM builds its tables (cold); the median is a warm run.
 Run: .venv/bin/python benchmarks/bench_grid.py [--repeat 3]
 """
 
@@ -23,19 +24,15 @@ import octomap  # noqa: E402
 from prismap.camera import StereoCamera  # noqa: E402
 from prismap.gmm import GaussianMixture  # noqa: E402
 from prismap.grid import OccupancyMap  # noqa: E402
-from prismap.sensor_models import make_sensor_model, model_names  # noqa: E402
+from prismap.sensor_models import make_sensor_model  # noqa: E402
 from support import planes_frame, world_points  # noqa: E402
 
 VOXEL = 0.1
 
 
 def hitmiss(camera):
-    if "hitmiss" in model_names():
-        return make_sensor_model("hitmiss", focal_baseline=camera.focal_baseline, doffs_px=camera.doffs_px,
-                                 voxel_size_m=VOXEL, p0=0.5), "hitmiss"
-    from test_grid import HitMissModel
-
-    return HitMissModel(camera.focal_baseline), "test hit/miss (sensor_models has no 'hitmiss' yet)"
+    return make_sensor_model("hitmiss", focal_baseline=camera.focal_baseline, doffs_px=camera.doffs_px,
+                             voxel_size_m=VOXEL, p0=0.5)
 
 
 def timed(fn, repeat):
@@ -116,8 +113,7 @@ def main():
     args = parser.parse_args()
 
     camera, pose, depth = planes_frame()
-    model, model_label = hitmiss(camera)
-    print(f"hit/miss model: {model_label}; PRISM available: {'prism' in model_names()}")
+    model = hitmiss(camera)
     disparity = camera.focal_baseline / depth
     warm = OccupancyMap(VOXEL, p0=0.5)
     for mode in ("ray", "projective"):
@@ -130,14 +126,10 @@ def main():
             return grid
         return go
 
-    runs = [("ray, hit/miss", model, frame("ray")), ("projective, hit/miss", model, frame("projective"))]
-    if "prism" in model_names():
-        try:
-            prism = make_sensor_model("prism", focal_baseline=camera.focal_baseline, doffs_px=0.0, voxel_size_m=VOXEL,
-                                      p0=0.05, error_model=GaussianMixture.gaussian(0.5))
-            runs.append(("projective, PRISM (p0 0.05, N(0, 0.5 px) errors)", prism, frame("projective")))
-        except Exception as exc:  # the other helper's constructor may still differ
-            print(f"PRISM not run: {exc}")
+    prism = make_sensor_model("prism", focal_baseline=camera.focal_baseline, doffs_px=0.0, voxel_size_m=VOXEL,
+                              p0=0.05, error_model=GaussianMixture.gaussian(0.5))
+    runs = [("ray, hit/miss", model, frame("ray")), ("projective, hit/miss", model, frame("projective")),
+            ("projective, PRISM (p0 0.05, N(0, 0.5 px) errors)", prism, frame("projective"))]
     print("scene (a): 640x480 planes at 1-10 m (floor, walls, slanted box), camera yawed 20 deg, 0.1 m voxels, max range 12 m")
     run("a", world_points(camera, pose, depth), pose[:3, 3].copy(), runs, args.repeat, 12.0)
 
@@ -145,7 +137,7 @@ def main():
     origin = np.zeros(3)
     points = np.ascontiguousarray(rays * depth_b[:, None])
     fake = StereoCamera(500.0, 0.0, 0.0, 0.1)
-    model_b, _ = hitmiss(fake)
+    model_b = hitmiss(fake)
 
     def cloud(ism):
         grid = OccupancyMap(VOXEL, p0=0.5)
