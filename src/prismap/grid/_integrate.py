@@ -3,6 +3,8 @@
 The grid never knows which sensor model it runs: it hands the model flat arrays (per ray the measured
 disparity and ``|r|``, per cell the ray index and the cell's depth interval on that ray) and gets back
 per-cell log-odds increments, which a numba accumulator combines per voxel (SENSOR_MODELS.md section 3).
+The one exception: a model that states hit/miss increments (``hit_miss_increments``) is applied while
+casting, without cell arrays.
 """
 
 from concurrent.futures import ThreadPoolExecutor
@@ -136,9 +138,9 @@ def cell_increments(model, disparity, ray_norm, ray_of_cell, t_in, t_out):
 def ray_mode(accumulator, origin, rays, disparity, ray_norm, groups, ranges, voxel_size):
     """Cast every ray (Amanatides-Woo) and accumulate the model's increments of the voxels it crosses.
 
-    Rays go in chunks of :data:`RAYS_PER_CHUNK` through a two-stage pipeline: this thread casts chunk
-    k + 1 (the kernel releases the GIL) while a worker thread runs the model on chunk k and adds its
-    increments. The cast beside the scatter never grows the accumulator (it is grown once the scatter is
+    Hit/miss models go through :func:`cast_hit_miss`. For the others, rays go in chunks of
+    :data:`RAYS_PER_CHUNK` through a two-stage pipeline: this thread casts chunk k + 1 (the kernel
+    releases the GIL) while a worker thread runs the model on chunk k and adds its increments. The cast beside the scatter never grows the accumulator (it is grown once the scatter is
     done), and it only creates blocks and fills their rows while the scatter writes rows of blocks
     created before, so the two never touch the same memory.
     """

@@ -7,7 +7,14 @@ Blocks: a voxel key ``(kx, ky, kz)`` lies in block ``(kx >> bx, ky >> by, kz >> 
 ``(kx & mx) | (ky & my) << bx | (kz & mz) << (bx + by)``; ``bits = (bx, by, bz)``. A block key is packed
 into one int64 (21 bits per axis, offset ``2**20``) and found through an open-addressing hash table
 (linear probing, Fibonacci hashing) of int32 block slots: a table entry is a slot ``s`` (the block's
-packed key is ``block_keys[s]``) or -1 when empty, so the table costs 4 bytes per entry.
+packed key is ``block_keys[s]``) or -1 when empty, so the table costs 4 bytes per entry. The frame
+accumulator also links each block to its six face neighbours, so that a ray stepping into the next
+block reads one int32 instead of hashing (~8.5 M block changes on a 640x480 frame at 0.1 m).
+
+Speed notes (each measured): the hot loops inline everything on their common path; a call per block
+change with array arguments (reference-counted) made a cast 3x slower. Kernels never grow arrays with
+a generic helper (each dtype specialises it: seconds of first-call compile); they count and let the
+caller retry with room.
 
 Every kernel releases the GIL (``nogil=True``) so that a caller may run them beside Python code.
 """
