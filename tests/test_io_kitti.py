@@ -5,7 +5,9 @@ import pytest
 import cv2
 
 from prismap.errors import PrismapInputError
+from prismap.io._images import with_image_size
 from prismap.io._kitti import KittiOdometry, KittiRaw, read_kitti_calib, read_kitti_disparity, read_kitti_poses
+from prismap.io._sequence import read_sequence
 from prismap.io._velodyne import read_velodyne_bin, velodyne_to_camera
 
 F, CX, CY = 700.0, 600.0, 180.0
@@ -260,3 +262,56 @@ def test_disparity_and_velodyne_errors(tmp_path):
         read_velodyne_bin(tmp_path / "scan.bin")
     with pytest.raises(PrismapInputError, match=r"`points_velo` must have shape \(N, 3\) or \(N, 4\)"):
         velodyne_to_camera(np.zeros((2, 2)), np.eye(4))
+
+
+# ----------------------------------------------------------------------------- read_sequence on a KITTI download
+
+
+def test_read_sequence_opens_a_kitti_odometry_sequence_with_kittiodometrys_poses(odometry):
+    root, left_bgr, _ = odometry
+    seq = read_sequence(root / "sequences" / "04")
+    kitti = KittiOdometry(root, 4)
+    assert seq.pose_path == root / "poses" / "04.txt"
+    np.testing.assert_array_equal(seq.poses, kitti.poses)  # one conversion, shared
+    for T_world_cam0, T_world_cam in zip(POSES, seq.poses):  # the colour camera sits at t2 in camera 0
+        np.testing.assert_allclose(T_world_cam[:3, :3], T_world_cam0[:, :3], atol=1e-15)
+        np.testing.assert_allclose(T_world_cam[:3, 3], T_world_cam0[:, 3] - T_world_cam0[:, :3] @ T2, atol=1e-12)
+    assert seq.camera == with_image_size(kitti.camera, left_bgr[0])
+    frame = seq[2]
+    np.testing.assert_array_equal(frame.T_world_cam, kitti.poses[2])
+    np.testing.assert_array_equal(frame.left, kitti[2].left)
+
+
+def test_read_sequence_prefers_poses_txt_and_recognises_only_a_kitti_tree(odometry):
+    root, _, _ = odometry
+    seq_dir = root / "sequences" / "04"
+    own = np.tile(np.eye(4), (3, 1, 1))
+    own[:, :3, 3] = [[1.0, 2.0, 3.0], [4.0, 5.0, 6.0], [7.0, 8.0, 9.0]]
+    (seq_dir / "poses.txt").write_text("".join(" ".join(map(str, p[:3].ravel())) + "\n" for p in own))
+    seq = read_sequence(seq_dir)
+    assert seq.pose_path == seq_dir / "poses.txt"
+    np.testing.assert_array_equal(seq.poses, own)  # prismap's own file holds image_2 poses: no conversion
+    (seq_dir / "poses.txt").unlink()
+    renamed = root / "sequences" / "04a"  # not a KITTI sequence number: poses/04.txt is not looked up
+    seq_dir.rename(renamed)
+    (root / "poses" / "04a.txt").write_text((root / "poses" / "04.txt").read_text())
+    assert read_sequence(renamed).poses is None and read_sequence(renamed).pose_path is None
+
+
+def test_read_sequence_of_a_kitti_sequence_without_poses(odometry):
+    root, _, _ = odometry
+    (root / "poses" / "04.txt").rename(root / "poses" / "11.txt")
+    seq = read_sequence(root / "sequences" / "04")  # like sequences 11-21: no pose file published
+    assert seq.poses is None and seq.pose_path is None and seq[0].T_world_cam is None
+
+
+@pytest.mark.parametrize(("lines", "match"), [
+    (lambda lines: lines[:2], r"poses[/\\]04\.txt: 2 poses for 3 frames"),
+    (lambda lines: [lines[0], "1 0 0 0 0 2 0 0 0 0 1 0\n", lines[2]], r"04\.txt line 2: rotation is not orthonormal"),
+])
+def test_read_sequence_kitti_pose_errors_name_the_pose_file(odometry, lines, match):
+    root, _, _ = odometry
+    path = root / "poses" / "04.txt"
+    path.write_text("".join(lines(path.read_text().splitlines(True))))
+    with pytest.raises(PrismapInputError, match=match):
+        read_sequence(root / "sequences" / "04")

@@ -112,6 +112,26 @@ def read_kitti_poses(path):
     return poses
 
 
+def _camera_poses(T_world_cam0, P_camera):
+    """Odometry poses of camera 0 as poses of the rectified camera whose projection is ``P_camera``.
+
+    Parameters
+    ----------
+    T_world_cam0 : (N, 4, 4) float64
+        ``poses/NN.txt`` as read by :func:`read_kitti_poses`, metres.
+    P_camera : (3, 4) float64
+        The camera's row of ``calib.txt`` (``P2`` for the left colour camera), pixels / pixel-metres.
+
+    Returns
+    -------
+    (N, 4, 4) float64
+        ``T_world_cam = T_world_cam0 @ [I | -t]`` with ``t = K^-1 P_camera[:, 3]``, metres; the world stays
+        camera 0 of the first frame. The one conversion used by :class:`KittiOdometry` and
+        :func:`prismap.io.read_sequence`.
+    """
+    return T_world_cam0 @ np.linalg.inv(_T_left_cam0(P_camera))
+
+
 def _check_rotation(R, path, line_no):
     error = np.abs(R.T @ R - np.eye(3)).max()
     if not error <= _ROTATION_TOLERANCE or np.linalg.det(R) < 0:
@@ -234,7 +254,7 @@ class KittiOdometry(_KittiSequence):
         poses = None
         pose_path = root / "poses" / f"{number:02d}.txt"
         if load_poses and pose_path.exists():
-            poses = read_kitti_poses(pose_path) @ np.linalg.inv(T_cam2_cam0)
+            poses = _camera_poses(read_kitti_poses(pose_path), P2)
         super().__init__(
             seq_dir / "image_2", seq_dir / "image_3", seq_dir / "velodyne", camera, T_cam_velo, poses, str(seq_dir)
         )

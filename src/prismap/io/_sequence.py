@@ -14,6 +14,11 @@ shifted by the disparity offset ``doffs``; so ``f = P2[0, 0]``, ``baseline = (P2
 ``doffs = P3[0, 2] - P2[0, 2]``. ``P0``/``P1`` are written equal to ``P2``/``P3`` (KITTI's grey pair) and ignored
 on reading. Unlike KITTI's ``poses/NN.txt`` (poses of the grey camera P0), ``poses.txt`` here holds the poses
 of the image_2 camera itself.
+
+A KITTI odometry download is read as it is: a directory ``ROOT/sequences/NN`` (a name of digits in a folder
+named ``sequences``) without ``poses.txt`` takes its poses from ``ROOT/poses/NN.txt`` when that file exists,
+converted from camera 0 to the image_2 camera exactly as :class:`prismap.io.KittiOdometry` does. ``times.txt``
+and ``velodyne/`` are ignored. Sequences 11-21 ship without poses and open without them.
 """
 
 import os
@@ -30,7 +35,7 @@ from prismap._validate import check_positive
 from prismap.errors import PrismapInputError
 from prismap.io._frame import StereoFrame
 from prismap.io._images import paired_names, png_size, read_disparity_png, read_pair
-from prismap.io._kitti import _rectified_pair, read_kitti_calib
+from prismap.io._kitti import _camera_poses, _rectified_pair, read_kitti_calib, read_kitti_poses
 from prismap.io._text import homogeneous, read_number_rows
 
 GROUND_TRUTH_FORMAT = "prismap-ground-truth-occupancy"
@@ -276,7 +281,10 @@ class Sequence:
     camera : StereoCamera
         From ``calib.txt``, with the image size.
     poses : (N, 4, 4) float64 or None
-        ``T_world_cam`` of each frame, metres; None without ``poses.txt``.
+        ``T_world_cam`` of the image_2 camera in each frame, metres; None without a pose file.
+    pose_path : Path or None
+        The file the poses came from: ``poses.txt``, else ``ROOT/poses/NN.txt`` of a KITTI odometry tree
+        (see the module docstring); None without either.
     ground_truth : GroundTruthOccupancy or None
         From ``occupancy.npz``, read on first access.
     names : list of str
@@ -301,16 +309,20 @@ class Sequence:
                         f"{left_dir / self.names[0]} ({size[1]}x{size[0]})"
                     )
         calib_path = self.path / "calib.txt"
-        self.camera, _ = _rectified_pair(
+        self.camera, P_left = _rectified_pair(
             read_kitti_calib(calib_path), calib_path, "P2", "P3", width=size[1], height=size[0]
         )
-        poses_path = self.path / "poses.txt"
         self.poses = None
-        if poses_path.is_file():
-            rows = read_number_rows(poses_path, "pose file", 12, layout="3x4 pose")
-            if len(rows) != len(self.names):
-                raise PrismapInputError(f"{poses_path}: {len(rows)} poses for {len(self.names)} frames")
+        self.pose_path = self.path / "poses.txt"
+        if self.pose_path.is_file():
+            rows = read_number_rows(self.pose_path, "pose file", 12, layout="3x4 pose")
             self.poses = homogeneous(rows.reshape(-1, 3, 4))
+        else:
+            self.pose_path = _kitti_odometry_pose_path(self.path)
+            if self.pose_path is not None:
+                self.poses = _camera_poses(read_kitti_poses(self.pose_path), P_left)
+        if self.poses is not None and len(self.poses) != len(self.names):
+            raise PrismapInputError(f"{self.pose_path}: {len(self.poses)} poses for {len(self.names)} frames")
         self._ground_truth = None
 
     @property
@@ -349,11 +361,27 @@ class Sequence:
         return StereoFrame(left, right, self.camera, disparity, pose, name=f"{self.path.name}/{name}")
 
 
-def read_sequence(path):
-    """Open a sequence directory written by :func:`write_sequence` (or a KITTI-like one); see :class:`Sequence`.
+def _kitti_odometry_pose_path(path):
+    """``ROOT/poses/NN.txt`` if ``path`` is ``ROOT/sequences/NN`` and that file exists, else None.
 
-    Checks eagerly: the images exist in pairs with one size (PNG headers only), ``calib.txt`` has P2 and P3,
-    ``poses.txt`` (if present) has 12 finite numbers per line and one line per frame. Images are decoded when a
-    frame is accessed. Errors are :class:`PrismapInputError` naming the file (and line).
+    The path is made absolute without resolving symbolic links, so it is recognised as the user wrote it.
+    """
+    path = Path(os.path.abspath(path))
+    if path.parent.name != "sequences" or not path.name.isdigit():
+        return None
+    pose_path = path.parent.parent / "poses" / f"{path.name}.txt"
+    return pose_path if pose_path.is_file() else None
+
+
+def read_sequence(path):
+    """Open a sequence directory written by :func:`write_sequence`, or a KITTI odometry ``ROOT/sequences/NN``.
+
+    Poses come from ``poses.txt`` (image_2 camera), else, in a KITTI odometry tree, from ``ROOT/poses/NN.txt``
+    (camera 0, converted to the image_2 camera); see the module docstring and :class:`Sequence`.
+
+    Checks eagerly: the images exist in pairs with one size (PNG headers only), ``calib.txt`` has P2 and P3, the
+    pose file (if any) has 12 finite numbers per line and one line per frame (KITTI's also orthonormal
+    rotations). Images are decoded when a frame is accessed. Errors are :class:`PrismapInputError` naming the
+    file (and line).
     """
     return Sequence(path)

@@ -4,18 +4,28 @@ LiDAR reference maps."""
 from prismap.pipeline._characterise import characterise_sequence
 from prismap.pipeline._checkpoint import open_checkpoint, remove_checkpoint, run_fingerprint, save_checkpoint
 from prismap.pipeline._config import MappingConfig, build_sensor_model, dominant_sigma_px
-from prismap.pipeline._lidar import LIDAR_P0, ground_truth_from_map, lidar_reference_map
+from prismap.pipeline._lidar import (
+    LIDAR_P0,
+    KittiLidarScans,
+    ground_truth_from_map,
+    in_camera_view,
+    kitti_lidar_scans,
+    lidar_reference_map,
+)
 from prismap.pipeline._run import DisparitySource, integrate_frames, map_sequence
 
 __all__ = [
     "LIDAR_P0",
     "DisparitySource",
+    "KittiLidarScans",
     "MappingConfig",
     "build_sensor_model",
     "characterise_sequence",
     "dominant_sigma_px",
     "ground_truth_from_map",
+    "in_camera_view",
     "integrate_frames",
+    "kitti_lidar_scans",
     "lidar_reference_map",
     "map_sequence",
     "open_checkpoint",
