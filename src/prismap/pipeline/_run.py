@@ -1,6 +1,7 @@
 """Frames in, map out: a sequence integrated frame by frame, here or on Dask workers, resumably."""
 
 import math
+import os
 from pathlib import Path
 
 from prismap._progress import progress as progress_bar
@@ -60,7 +61,10 @@ class DisparitySource:
         """``(disparity, T_world_cam)`` of frame ``index``: (H, W) float32 pixels (NaN = invalid), (4, 4) metres."""
         frame = self.sequence[index]
         if frame.T_world_cam is None:
-            raise PrismapInputError(f"{self.sequence.path}: no poses.txt; mapping needs the pose of every frame")
+            raise PrismapInputError(
+                f"{self.sequence.path}: no poses.txt; mapping needs the pose of every frame (a KITTI odometry "
+                "sequence ROOT/sequences/NN takes ROOT/poses/NN.txt, published for sequences 00-10 only)"
+            )
         if self.matcher is not None:
             return self.matcher.compute(frame.left, frame.right), frame.T_world_cam
         if self.kind == DISPARITY_FROM_SEQUENCE:
@@ -124,7 +128,8 @@ def map_sequence(sequence, config, *, progress=True, checkpoint=None, checkpoint
     Parameters
     ----------
     sequence : str or Path or Sequence
-        A KITTI-layout sequence directory (:func:`prismap.io.read_sequence`) with ``poses.txt``.
+        A sequence directory with poses (:func:`prismap.io.read_sequence`: prismap's layout with ``poses.txt``,
+        or a KITTI odometry ``ROOT/sequences/NN`` with ``ROOT/poses/NN.txt``).
     config : MappingConfig
     progress : bool
         Show a progress bar (when stderr is a terminal, see :func:`prismap._progress.progress`).
@@ -199,7 +204,7 @@ def _map_on_dask(grid, sequence, config, todo, client, chunk_frames, checkpoint_
     elif isinstance(chunk_frames, bool) or int(chunk_frames) != chunk_frames or chunk_frames < 1:
         raise PrismapInputError(f"`chunk_frames` must be an integer >= 1; got {chunk_frames!r}")
     chunks = [(todo[i], todo[min(i + int(chunk_frames), len(todo)) - 1] + 1) for i in range(0, len(todo), int(chunk_frames))]
-    path = str(sequence.path.resolve())
+    path = os.path.abspath(sequence.path)  # symbolic links kept: a KITTI tree is recognised by its path
     pending = []
     for start, stop in chunks:
         pending.append(client.submit(map_chunk, path, config, start, stop, pure=False))
