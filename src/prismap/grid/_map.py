@@ -133,9 +133,10 @@ class OccupancyMap:
             noise = as_float_array(extra_noise_px, "extra_noise_px", shape=(rays.shape[0],))[valid]
             if not np.all(noise >= 0) or not np.all(np.isfinite(noise)):
                 raise PrismapInputError("`extra_noise_px` must be finite and >= 0 at every valid ray")
-        if _projection is not None:
-            _projection = dict(_projection, ray_index=_reindex(_projection["ray_index"], valid))
-        rays, disparity, ray_norm = np.ascontiguousarray(rays[valid]), disparity[valid], ray_norm[valid]
+        if not valid.all():  # a dense frame skips these copies
+            if _projection is not None:
+                _projection = dict(_projection, ray_index=_reindex(_projection["ray_index"], valid))
+            rays, disparity, ray_norm = np.ascontiguousarray(rays[valid]), disparity[valid], ray_norm[valid]
         groups = _integrate.noise_groups(model, noise)
         ranges = (max_range, (KEY_LIMIT - 2 - np.abs(np.floor(origin / self.voxel_size_m)).max()) * self.voxel_size_m)
         if ranges[1] <= 0:
