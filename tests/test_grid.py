@@ -217,11 +217,13 @@ def test_chunked_pipeline_gives_the_map_of_one_chunk(monkeypatch):
         assert maps[1][k] == pytest.approx(v, abs=1e-5)
 
 
+@pytest.mark.parametrize("ndim", [3, 2])
 @pytest.mark.parametrize("policy", ["mean", "max-abs", "occupied-wins", "max", "sum"])
-def test_hit_miss_cast_gives_the_map_of_the_cell_path(policy):
+def test_hit_miss_cast_gives_the_map_of_the_cell_path(policy, ndim):
     """A model with hit_miss_increments is added while casting; hiding them takes the generic path
     (cells -> cell_posteriors -> scatter): same voxels, counts and log-odds, with rays cut at max range,
-    rays from noise groups and an accumulator grown from empty many times (rays of up to ~40 blocks)."""
+    rays from noise groups and an accumulator grown from empty many times (rays of up to ~40 blocks);
+    in 3-D and in a 2-D map (8x8x1 blocks)."""
     from prismap.sensor_models import HitMissModel as LibraryHitMiss
 
     class CellPath(LibraryHitMiss):
@@ -229,18 +231,18 @@ def test_hit_miss_cast_gives_the_map_of_the_cell_path(policy):
             return None
 
     rng = np.random.default_rng(7)
-    rays = np.column_stack([rng.uniform(-1, 1, (2000, 2)), np.ones(2000)])
+    rays = np.column_stack([rng.uniform(-1, 1, (2000, 2)), np.ones(2000)])[:, -ndim:]
     disparity = FB / rng.uniform(0.05, 12.0, 2000)
     noise = np.where(rng.random(2000) < 0.5, 0.0, rng.uniform(0.02, 1.0, 2000))
     maps = []
     for cls in (LibraryHitMiss, CellPath):
         model = cls(focal_baseline=FB, voxel_size_m=0.1, p0=0.3)
         assert (model.hit_miss_increments() is None) == (cls is CellPath)
-        grid = OccupancyMap(0.1, p0=0.3)
-        grid.integrate_rays([0.05, -0.3, 0.02], rays, disparity, model, policy=policy, max_range_m=8.0,
+        grid = OccupancyMap(0.1, p0=0.3, ndim=ndim)
+        grid.integrate_rays([0.05, -0.3, 0.02][:ndim], rays, disparity, model, policy=policy, max_range_m=8.0,
                             extra_noise_px=noise)
         maps.append(grid)
-    assert maps[0].n_known > 50_000
+    assert maps[0].n_known > (50_000 if ndim == 3 else 2_000)
     assert_same_map(*maps)
 
 
