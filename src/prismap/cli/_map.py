@@ -18,7 +18,8 @@ def register(subparsers):
         "map",
         help="build an occupancy map from a stereo sequence",
         description=(
-            "Integrate the frames of a KITTI-layout stereo sequence (image_2, image_3, calib.txt, poses.txt) "
+            "Integrate the frames of a KITTI-layout stereo sequence (image_2, image_3, calib.txt, poses.txt; or a "
+            "KITTI odometry ROOT/sequences/NN with its poses in ROOT/poses/NN.txt) "
             "into a sparse voxel occupancy map and write it to --out (.npz, atomically, only when complete). "
             "Disparities come from --matcher, or from --disparity-dir (uint16 PNG, value / 256 = px, 0 = "
             "invalid; SEQ/disp for the sequence's ground truth). With --checkpoint-every K the partial map is "

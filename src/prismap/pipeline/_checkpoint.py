@@ -23,14 +23,14 @@ FORMAT_VERSION = 1
 def run_fingerprint(sequence, config):
     """SHA-256 (hex) of the config and of the inputs it reads from ``sequence``.
 
-    Inputs are fingerprinted cheaply: ``calib.txt`` and ``poses.txt`` by content, every selected image
+    Inputs are fingerprinted cheaply: ``calib.txt`` and the pose file (``poses.txt``, or a KITTI
+    tree's ``ROOT/poses/NN.txt``) by content, every selected image
     (and disparity file, when those are the source) by name and size. Rewriting a frame with an image
     of the same byte size is not detected.
     """
     digest = hashlib.sha256(config.fingerprint().encode())
-    for name in ("calib.txt", "poses.txt"):
-        path = sequence.path / name
-        digest.update(name.encode() + (path.read_bytes() if path.is_file() else b"<absent>"))
+    for name, path in (("calib.txt", sequence.path / "calib.txt"), ("poses.txt", sequence.pose_path)):
+        digest.update(name.encode() + (path.read_bytes() if path is not None and path.is_file() else b"<absent>"))
     folders = [sequence.path / "image_2", sequence.path / "image_3"]
     if config.disparity_source == DISPARITY_FROM_SEQUENCE:
         folders.append(sequence.path / "disp")
