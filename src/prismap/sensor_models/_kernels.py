@@ -151,6 +151,14 @@ def andert_cells(depth_hat, sigma_depth, ray_norm, ray_of_cell, start, end, eta,
 # e-fold of the prior ``q`` and per narrowest sigma of disparity, so panels of fixed x-width resolve both.
 
 
+@nb.njit(cache=True, nogil=True, inline="always")
+def _log_sum_exp_add(best, total, v):
+    """One step of a streaming log-sum-exp: the sum so far is ``exp(best) * total``; add ``exp(v)``."""
+    if v > best:
+        return v, total * math.exp(best - v) + 1.0
+    return best, total + math.exp(v - best)
+
+
 @nb.njit(cache=True, nogil=True)
 def log_likelihood(u, shift, log_wn, means, sigmas):
     """``log g``: the mixture density of the error ``u - shift`` (``u`` = true disparity + 0, pixels)."""
@@ -158,12 +166,7 @@ def log_likelihood(u, shift, log_wn, means, sigmas):
     total = 0.0
     for j in range(means.size):
         t = (u - shift - means[j]) / sigmas[j]
-        v = log_wn[j] - 0.5 * t * t
-        if v > best:
-            total = total * math.exp(best - v) + 1.0
-            best = v
-        else:
-            total += math.exp(v - best)
+        best, total = _log_sum_exp_add(best, total, log_wn[j] - 0.5 * t * t)
     return best + math.log(total)
 
 
@@ -177,12 +180,7 @@ def _log_sup_tail(z, z_max, fb, shift, log_wn, means, sigmas):
     for j in range(means.size):
         mode = min(max(shift + means[j], u_lo), u_hi)
         t = (mode - shift - means[j]) / sigmas[j]
-        v = log_wn[j] - 0.5 * t * t
-        if v > best:
-            total = total * math.exp(best - v) + 1.0
-            best = v
-        else:
-            total += math.exp(v - best)
+        best, total = _log_sum_exp_add(best, total, log_wn[j] - 0.5 * t * t)
     return best + math.log(total)
 
 
