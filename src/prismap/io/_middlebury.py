@@ -17,7 +17,9 @@ from prismap.io._pfm import read_pfm
 from prismap.io._text import location, parse_numbers, read_text
 
 # Quarter-resolution Motorcycle (Middlebury 2014) as scikit-image ships it; calibration from DESIGN.md.
-_MOTORCYCLE_CAMERA = dict(focal_px=994.978, cx_px=311.193, cy_px=254.877, baseline_m=0.193001, doffs_px=31.086)
+MOTORCYCLE_CAMERA = StereoCamera(focal_px=994.978, cx_px=311.193, cy_px=254.877, baseline_m=0.193001, doffs_px=31.086,
+                                  width=741, height=500)
+"""The quarter-resolution Middlebury 2014 Motorcycle rig bundled in scikit-image (DESIGN.md)."""
 
 
 def read_middlebury_calib(path):
@@ -92,8 +94,7 @@ def load_middlebury_motorcycle():
     from skimage import data
 
     left, right, disparity = data.stereo_motorcycle()
-    height, width = disparity.shape
-    camera = StereoCamera(**_MOTORCYCLE_CAMERA, width=width, height=height)
+    camera = MOTORCYCLE_CAMERA
     disparity_gt = np.where(np.isfinite(disparity), disparity, np.nan).astype(np.float32)
     return StereoFrame(left, right, camera, disparity_gt=disparity_gt, name="middlebury-2014/Motorcycle (quarter)")
 

@@ -21,12 +21,17 @@ from prismap._progress import progress
 from prismap._validate import check_positive, check_probability
 from prismap.errors import PrismapInputError
 from prismap.gmm import GaussianMixture
+from prismap.io import MOTORCYCLE_CAMERA, TSUKUBA_CAMERA
 from prismap.sensor_models import make_sensor_model, model_names
 
+def _rig(camera):
+    return {"focal_px": camera.focal_px, "baseline_m": camera.baseline_m, "doffs_px": camera.doffs_px}
+
+
 CAMERAS = {
-    "middlebury-motorcycle": {"focal_px": 994.978, "baseline_m": 0.193001, "doffs_px": 31.086},
+    "middlebury-motorcycle": _rig(MOTORCYCLE_CAMERA),
     "kitti": {"focal_px": 721.5377, "baseline_m": 0.5327, "doffs_px": 0.0},
-    "tsukuba": {"focal_px": 615.0, "baseline_m": 0.10, "doffs_px": 0.0},
+    "tsukuba": _rig(TSUKUBA_CAMERA),
 }
 """Rigs of the study: Middlebury 2014 Motorcycle at scikit-image's quarter resolution, KITTI 2011_09_26
 (cameras 2 and 3, as in KITTI stereo 2015), New Tsukuba."""
