@@ -305,3 +305,68 @@ def test_project_voxels_with_too_little_room_returns_a_prefix_and_the_full_count
     assert n == n_part == full[0].size > 7
     for a, b in zip(full, part):
         np.testing.assert_array_equal(a[:7], b)
+
+
+def _project_voxels_reference(key_min, shape, origin, R_cam_world, focal, cx, cy, ray_index, rays, t_stop, exclusive,
+                              voxel_size):
+    """Every voxel of the box by the rule of ``project_voxels`` (numpy, subsample 1): (ray, key, t_in, t_out)."""
+    grid = np.stack(np.meshgrid(*(np.arange(s) for s in shape), indexing="ij"), -1).reshape(-1, 3) + key_min
+    p = ((grid + 0.5) * voxel_size - origin) @ R_cam_world.T
+    with np.errstate(divide="ignore", invalid="ignore"):
+        col = np.floor(p[:, 0] * focal / p[:, 2] + cx + 0.5)
+        row = np.floor(p[:, 1] * focal / p[:, 2] + cy + 0.5)
+        seen = (p[:, 2] > 0) & (col >= 0) & (row >= 0) & (col < ray_index.shape[1]) & (row < ray_index.shape[0])
+    ray = np.full(len(grid), -1)
+    ray[seen] = ray_index[row[seen].astype(int), col[seen].astype(int)]
+    keep = (ray >= 0) & (p[:, 2] - np.sqrt(0.75) * voxel_size <= t_stop[ray])
+    grid, p, ray = grid[keep], p[keep], ray[keep]
+    lo, r = grid * voxel_size - origin, rays[ray]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ta, tb = lo / r, (lo + voxel_size) / r
+    inside = (lo <= 0) & (lo + voxel_size > 0)  # axis with r == 0: no limit if the ray lies in the slab
+    t0 = np.max(np.where(r != 0, np.minimum(ta, tb), np.where(inside, -np.inf, np.inf)), axis=1)
+    t1 = np.min(np.where(r != 0, np.maximum(ta, tb), np.where(inside, np.inf, -np.inf)), axis=1)
+    t0 = np.maximum(t0, 0.0)
+    miss = t1 <= t0
+    t0 = np.where(miss, np.maximum(p[:, 2] - 0.5 * voxel_size, 0.0), t0)
+    t1 = np.where(miss, p[:, 2] + 0.5 * voxel_size, t1)
+    stop = t_stop[ray]
+    keep = np.where(exclusive[ray], t1 <= stop, t0 <= stop)
+    return ray[keep], grid[keep], t0[keep], t1[keep]
+
+
+def test_project_voxels_equals_visiting_every_voxel_of_the_box():
+    # The kernel skips the parts of each key column that cannot project into the image; the result must be
+    # that of testing every voxel (rotated camera, invalid pixels, rays cut at random depths).
+    from prismap.grid._kernels import frustum_box, project_voxels
+
+    rng = np.random.default_rng(15)
+    rows, cols, focal, cx, cy = 12, 16, 14.0, 7.5, 5.5
+    pixel = np.stack(np.meshgrid(np.arange(cols), np.arange(rows)), -1).reshape(-1, 2)
+    valid = rng.random(rows * cols) < 0.8
+    ray_index = np.full(rows * cols, -1)
+    ray_index[valid] = np.arange(valid.sum())
+    ray_index = ray_index.reshape(rows, cols)
+    R_world_cam = np.linalg.qr(rng.normal(size=(3, 3)))[0]
+    rays_cam = np.column_stack([(pixel[valid, 0] - cx) / focal, (pixel[valid, 1] - cy) / focal, np.ones(valid.sum())])
+    rays = rays_cam @ R_world_cam.T
+    t_stop = rng.uniform(0.2, 1.5, valid.sum())
+    exclusive = rng.random(valid.sum()) < 0.5
+    origin = np.array([0.013, -0.027, 0.031])
+    key_min, shape, _ = frustum_box(origin, rays, t_stop, 0.1)
+    R_cam_world = np.ascontiguousarray(R_world_cam.T)
+    *got, n = project_voxels(key_min, shape, origin, R_cam_world, focal, cx, cy, 1.0, ray_index, rays, t_stop,
+                             exclusive, 0.1, int(np.prod(shape)))
+    want = _project_voxels_reference(key_min, shape, origin, R_cam_world, focal, cx, cy, ray_index, rays, t_stop,
+                                     exclusive, 0.1)
+    assert n == want[0].size > 100
+
+    def ordered(ray, keys, t0, t1):
+        order = np.lexsort(keys.T[::-1])
+        return ray[order], keys[order], t0[order], t1[order]
+
+    got, want = ordered(*got), ordered(*want)
+    np.testing.assert_array_equal(got[0], want[0])
+    np.testing.assert_array_equal(got[1], want[1])
+    np.testing.assert_allclose(got[2], want[2], rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(got[3], want[3], rtol=1e-12, atol=1e-12)

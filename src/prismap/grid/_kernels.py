@@ -382,7 +382,9 @@ def project_voxels(key_min, shape, origin, R_cam_world, focal, cx, cy, subsample
         for iy in range(ny):
             ky = key_min[1] + iy
             wy = (ky + 0.5) * voxel_size - origin[1]
-            for iz in range(nz):
+            z_lo, z_hi = _column_in_image(R_cam_world, wx, wy, key_min[2], nz, origin[2], voxel_size, focal / subsample,
+                                          col_offset, row_offset, cols, rows)
+            for iz in range(z_lo, z_hi):
                 kz = key_min[2] + iz
                 wz = (kz + 0.5) * voxel_size - origin[2]
                 pz = R_cam_world[2, 0] * wx + R_cam_world[2, 1] * wy + R_cam_world[2, 2] * wz
@@ -425,6 +427,47 @@ def project_voxels(key_min, shape, origin, R_cam_world, focal, cx, cy, subsample
                 m += 1
     n = min(m, capacity)
     return ray_of_cell[:n], keys[:n], t_in_out[:n], t_out_out[:n], m
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _half_line(slope, value, lo, hi):
+    """Narrow ``[lo, hi)`` (indices ``i``) to where ``value + i slope >= 0`` may hold, one index of margin.
+
+    The margin absorbs rounding: the caller still tests each index exactly, so this only skips
+    indices that surely fail. A zero slope leaves the range alone (the exact test decides).
+    """
+    if slope > 0.0:
+        bound = -value / slope
+        if bound > lo:
+            lo = max(lo, np.int64(np.floor(min(bound, hi + 1.0))) - 1)
+    elif slope < 0.0:
+        bound = -value / slope
+        if bound < hi:
+            hi = min(hi, np.int64(np.ceil(max(bound, lo - 1.0))) + 2)
+    return lo, hi
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _column_in_image(R_cam_world, wx, wy, kz_min, nz, oz, voxel_size, scale, col_offset, row_offset, cols, rows):
+    """Index range ``[lo, hi)`` of the voxels ``iz`` of one key column (centre ``(wx, wy, (kz_min + iz +
+    0.5) voxel_size - oz)`` relative to the origin) that may be in front of the camera and project into
+    the image, a superset of those that do.
+
+    Each condition is linear in ``iz`` once multiplied by the (positive) depth ``pz``: ``pz > 0``,
+    ``px scale + col_offset pz >= 0``, ``px scale + (col_offset - cols) pz < 0`` and the same for rows.
+    """
+    wz = (kz_min + 0.5) * voxel_size - oz
+    px = R_cam_world[0, 0] * wx + R_cam_world[0, 1] * wy + R_cam_world[0, 2] * wz
+    py = R_cam_world[1, 0] * wx + R_cam_world[1, 1] * wy + R_cam_world[1, 2] * wz
+    pz = R_cam_world[2, 0] * wx + R_cam_world[2, 1] * wy + R_cam_world[2, 2] * wz
+    dx, dy, dz = R_cam_world[0, 2] * voxel_size, R_cam_world[1, 2] * voxel_size, R_cam_world[2, 2] * voxel_size
+    lo, hi = np.int64(0), np.int64(nz)
+    lo, hi = _half_line(dz, pz, lo, hi)
+    lo, hi = _half_line(dx * scale + col_offset * dz, px * scale + col_offset * pz, lo, hi)
+    lo, hi = _half_line(-(dx * scale + (col_offset - cols) * dz), -(px * scale + (col_offset - cols) * pz), lo, hi)
+    lo, hi = _half_line(dy * scale + row_offset * dz, py * scale + row_offset * pz, lo, hi)
+    lo, hi = _half_line(-(dy * scale + (row_offset - rows) * dz), -(py * scale + (row_offset - rows) * pz), lo, hi)
+    return lo, max(lo, hi)
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
