@@ -293,7 +293,7 @@ def test_project_voxels_with_too_little_room_returns_a_prefix_and_the_full_count
     from prismap.grid._kernels import frustum_box, project_voxels
 
     rng = np.random.default_rng(14)
-    ray_index = np.arange(48).reshape(6, 8)
+    ray_index = np.arange(48, dtype=np.int32).reshape(6, 8)
     rays = np.column_stack([(np.arange(48) % 8 - 3.5) / 8, (np.arange(48) // 8 - 2.5) / 8, np.ones(48)])
     t_stop = rng.uniform(0.3, 2.0, 48)
     exclusive = rng.random(48) < 0.5
@@ -344,7 +344,7 @@ def test_project_voxels_equals_visiting_every_voxel_of_the_box():
     rows, cols, focal, cx, cy = 12, 16, 14.0, 7.5, 5.5
     pixel = np.stack(np.meshgrid(np.arange(cols), np.arange(rows)), -1).reshape(-1, 2)
     valid = rng.random(rows * cols) < 0.8
-    ray_index = np.full(rows * cols, -1)
+    ray_index = np.full(rows * cols, -1, dtype=np.int32)
     ray_index[valid] = np.arange(valid.sum())
     ray_index = ray_index.reshape(rows, cols)
     R_world_cam = np.linalg.qr(rng.normal(size=(3, 3)))[0]

@@ -201,7 +201,7 @@ def projective_mode(accumulator, origin, rays, disparity, ray_norm, groups, rang
     """Visit the voxels of the frustum, give each the ray of the pixel its centre projects to, one update each.
 
     ``projection`` holds ``R_cam_world (3, 3)``, ``focal``, ``cx``, ``cy``, ``subsample`` and
-    ``ray_index`` ((rows, cols) int64 ray of each subsampled pixel, -1 = none).
+    ``ray_index`` ((rows, cols) int32 ray of each subsampled pixel, -1 = none).
     """
     n = disparity.size
     t_stop = np.empty(n)

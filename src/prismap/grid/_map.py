@@ -207,7 +207,7 @@ class OccupancyMap:
             noise = pose_noise_px(d, rays_cam, rotation, pose_covariance, camera.focal_baseline, camera.doffs_px)
         projection = None
         if mode == "projective":
-            ray_index = np.arange(d.size, dtype=np.int64).reshape(disparity.shape)
+            ray_index = np.arange(d.size, dtype=np.int32).reshape(disparity.shape)
             projection = {"R_cam_world": np.ascontiguousarray(rotation.T), "focal": camera.focal_px,
                           "cx": camera.cx_px, "cy": camera.cy_px, "subsample": float(step), "ray_index": ray_index}
         rays_w = _kernels.rotate_rays(np.ascontiguousarray(rays_cam), np.ascontiguousarray(rotation))
@@ -488,7 +488,7 @@ class OccupancyMap:
 
 def _reindex(ray_index, valid):
     """Ray index image after dropping invalid rays: -1 where the ray was dropped."""
-    new = np.full(valid.size, -1, dtype=np.int64)
+    new = np.full(valid.size, -1, dtype=np.int32)
     new[valid] = np.arange(int(valid.sum()))
     flat = ray_index.reshape(-1)
     return np.where(flat >= 0, new[np.maximum(flat, 0)], -1).reshape(ray_index.shape)
