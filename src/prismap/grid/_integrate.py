@@ -208,7 +208,7 @@ def projective_mode(accumulator, origin, rays, disparity, ray_norm, groups, rang
     exclusive = np.empty(n, dtype=np.bool_)
     group_of_ray = np.zeros(n, dtype=np.int64)
     for g, (model, members) in enumerate(groups):
-        idx = np.arange(n) if members is None else members
+        idx = slice(None) if members is None else members  # one group: views, no copies
         t_stop[idx], exclusive[idx] = stop_depths(model, disparity[idx], ray_norm[idx], ranges)
         group_of_ray[idx] = g
     key_min, shape, n_casting = _kernels.frustum_box(origin, rays, t_stop, voxel_size)
@@ -229,11 +229,14 @@ def projective_mode(accumulator, origin, rays, disparity, ray_norm, groups, rang
     # frame, on the rays some voxel uses (models cost per ray too).
     rows = register_cells(accumulator, keys)  # in box order: runs of voxels in one block
     rows, t_in, t_out, used, local = _kernels.sort_by_ray(ray_of_cell, n, rows, t_in, t_out)
+    if len(groups) == 1:  # no pose noise: the loop below with every used ray in the group, minus its copies
+        scatter(accumulator, rows, cell_increments(groups[0][0], disparity[used], ray_norm[used], local, t_in, t_out))
+        return
     group_of_used = group_of_ray[used]
     group_of_cell = group_of_used[local]
     for g, (model, _) in enumerate(groups):
         in_group = group_of_used == g
-        mine = np.flatnonzero(group_of_cell == g) if len(groups) > 1 else slice(None)
+        mine = np.flatnonzero(group_of_cell == g)
         if in_group.any():
             rank = np.cumsum(in_group) - 1  # index of each used ray among the group's used rays
             rays_g = used[in_group]
