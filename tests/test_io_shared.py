@@ -155,3 +155,27 @@ def test_homogeneous_single_and_stacked():
     stacked = homogeneous(np.stack([top, 2 * top]))
     assert stacked.shape == (2, 4, 4)
     np.testing.assert_array_equal(stacked[1], homogeneous(2 * top))
+
+
+def test_write_disparity_png_round_trips_through_the_reader(tmp_path):
+    from prismap.io import write_disparity_png
+    from prismap.io._images import read_disparity_png
+
+    disparity = np.array([[0.5, np.nan, 255.99], [-1.0, 0.001, 17.25]])
+    path = tmp_path / "disp" / "000000.png"
+    write_disparity_png(path, disparity, "test disparity")
+    back = read_disparity_png(path, "test disparity", dtype=np.uint16, scale=256.0)
+    np.testing.assert_array_equal(np.isnan(back), [[False, True, False], [True, False, False]])
+    np.testing.assert_allclose(back[[0, 0, 1], [0, 2, 2]], [0.5, 255.98828125, 17.25])
+    assert back[1, 1] == np.float32(1 / 256)  # a valid disparity never rounds to "invalid"
+
+
+def test_write_disparity_png_refuses_values_beyond_the_format_and_keeps_the_old_file(tmp_path):
+    from prismap.io import write_disparity_png
+
+    path = tmp_path / "000000.png"
+    write_disparity_png(path, np.full((2, 2), 3.0), "old")
+    before = path.read_bytes()
+    with pytest.raises(PrismapInputError, match=r"`new` reaches 300.00 px; the uint16 x 256 format stores at most 255.99"):
+        write_disparity_png(path, np.full((2, 2), 300.0), "new")
+    assert path.read_bytes() == before and sorted(p.name for p in tmp_path.iterdir()) == ["000000.png"]

@@ -197,13 +197,13 @@ def _characterise(out_dir, frames, matcher, dataset):
 
 def _match(out_dir, frames, matcher):
     """Write the matcher's disparity of each mapping frame as ``NNNNNN.png`` (uint16, value / 256 px, 0 = invalid)."""
-    from prismap.io._sequence import _encode_disparity, _write_image
+    from prismap.io import write_disparity_png
 
     out_dir = Path(out_dir)
     for index, frame in enumerate(progress(frames, total=len(frames), desc=f"match {matcher.name}", unit="frame")):
         path = out_dir / f"{index:06d}.png"
         if not path.is_file():
-            _write_image(path, _encode_disparity(matcher.compute(frame.left, frame.right), index), "disparity")
+            write_disparity_png(path, matcher.compute(frame.left, frame.right), f"{matcher.name} disparity of frame {index}")
     return out_dir
 
 

@@ -1,6 +1,7 @@
 """Dataset readers, map files and exports."""
 
 from prismap.io._frame import StereoFrame
+from prismap.io._images import write_disparity_png
 from prismap.io._kitti import KittiOdometry, KittiRaw, read_kitti_calib, read_kitti_disparity, read_kitti_poses
 from prismap.io._mapfile import load_map, save_map
 from prismap.io._middlebury import MOTORCYCLE_CAMERA, load_middlebury_folder, load_middlebury_motorcycle, read_middlebury_calib
@@ -51,6 +52,7 @@ __all__ = [
     "save_map",
     "to_octree",
     "velodyne_to_camera",
+    "write_disparity_png",
     "write_ground_truth",
     "write_octomap",
     "write_pfm",

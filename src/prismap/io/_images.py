@@ -12,6 +12,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from prismap._files import atomic_path
 from prismap.errors import PrismapInputError
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -110,6 +111,36 @@ def read_disparity_png(path, what, *, dtype, scale):
     disparity[raw == 0] = np.nan
     return disparity
 
+
+
+def write_disparity_png(path, disparity_px, what, *, scale=256.0):
+    """Write a disparity map as KITTI's uint16 PNG (``round(scale * d)``, 0 = invalid), atomically.
+
+    The inverse of ``read_disparity_png(path, what, dtype=np.uint16, scale=scale)``. Non-finite and
+    non-positive disparities become 0; a valid disparity never rounds to 0 (it is stored as at least 1).
+
+    Parameters
+    ----------
+    path : str or Path, ``.png``
+    disparity_px : (H, W) float, pixels, NaN = invalid
+    what : str
+        The array's role in messages.
+    scale : float, keyword-only
+        Stored value per pixel of disparity (256 for KITTI and prismap sequences: at most 255.99 px).
+    """
+    d = np.asarray(disparity_px, dtype=np.float64)
+    if d.ndim != 2:
+        raise PrismapInputError(f"`{what}` must be (H, W); got shape {d.shape}")
+    valid = np.isfinite(d) & (d > 0)
+    if np.any(d[valid] > 65535 / scale):
+        raise PrismapInputError(
+            f"`{what}` reaches {d[valid].max():.2f} px; the uint16 x {scale:g} format stores at most "
+            f"{np.floor(65535 / scale * 100) / 100:.2f}"
+        )
+    encoded = np.where(valid, np.maximum(np.round(d * scale), 1), 0).astype(np.uint16)
+    with atomic_path(path) as tmp:
+        if not cv2.imwrite(str(tmp), encoded):
+            raise PrismapInputError(f"{path}: OpenCV could not write the image")
 
 def png_size(path, what):
     """``(height, width)`` in pixels from a PNG header, without decoding the image."""

@@ -34,7 +34,7 @@ from prismap._files import atomic_path
 from prismap._validate import check_positive
 from prismap.errors import PrismapInputError
 from prismap.io._frame import StereoFrame
-from prismap.io._images import paired_names, png_size, read_disparity_png, read_pair
+from prismap.io._images import paired_names, png_size, read_disparity_png, read_pair, write_disparity_png
 from prismap.io._kitti import _camera_poses, _rectified_pair, read_kitti_calib, read_kitti_poses
 from prismap.io._text import homogeneous, read_number_rows
 
@@ -206,7 +206,8 @@ def _write_files(frames, out_dir, occupancy):
         _write_image(out_dir / "image_2" / stem, frame.left, f"frames[{index}].left")
         _write_image(out_dir / "image_3" / stem, frame.right, f"frames[{index}].right")
         if has_disparity:
-            _write_image(out_dir / "disp" / stem, _encode_disparity(frame.disparity_gt, index), "disp")
+            write_disparity_png(out_dir / "disp" / stem, frame.disparity_gt, f"frames[{index}].disparity_gt",
+                                scale=_DISPARITY_SCALE)
         count += 1
     if count == 0:
         raise PrismapInputError("`frames` is empty: a sequence needs at least one frame")
@@ -249,17 +250,6 @@ def _write_image(path, image, name):
     path.parent.mkdir(exist_ok=True)
     if not cv2.imwrite(str(path), image):
         raise PrismapInputError(f"{path}: OpenCV could not write the image")
-
-
-def _encode_disparity(disparity, index):
-    d = np.asarray(disparity, dtype=np.float64)
-    valid = np.isfinite(d) & (d > 0)
-    if np.any(d[valid] > 65535 / _DISPARITY_SCALE):
-        raise PrismapInputError(
-            f"`frames[{index}].disparity_gt` reaches {d[valid].max():.2f} px; "
-            "the uint16 x 256 format stores at most 255.99"
-        )
-    return np.where(valid, np.maximum(np.round(d * _DISPARITY_SCALE), 1), 0).astype(np.uint16)
 
 
 def _calib_text(camera):
