@@ -108,12 +108,7 @@ class HitMissModel(RayModel):
 
     def __post_init__(self):
         super().__post_init__()
-        p_hit = check_probability(self.p_hit, "p_hit")
-        p_miss = check_probability(self.p_miss, "p_miss")
-        if not p_miss < 0.5 < p_hit:
-            raise PrismapInputError(f"hitmiss: need p_miss < 0.5 < p_hit; got p_miss={p_miss}, p_hit={p_hit}")
-        object.__setattr__(self, "p_hit", p_hit)
-        object.__setattr__(self, "p_miss", p_miss)
+        _set_probabilities_around_half(self, "p_miss", "p_hit")
 
     def cell_posteriors(self, disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m):
         _, _, rays, start, end, z_hat = self._prepare(disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m)
@@ -212,12 +207,7 @@ class AndertModel(RayModel):
         super().__post_init__()
         object.__setattr__(self, "sigma_px", check_positive(self.sigma_px, "sigma_px"))
         object.__setattr__(self, "eta", check_positive(self.eta, "eta"))
-        p_min = check_probability(self.p_min, "p_min")
-        p_max = check_probability(self.p_max, "p_max")
-        if not p_min < 0.5 < p_max:
-            raise PrismapInputError(f"andert: need p_min < 0.5 < p_max; got p_min={p_min}, p_max={p_max}")
-        object.__setattr__(self, "p_min", p_min)
-        object.__setattr__(self, "p_max", p_max)
+        _set_probabilities_around_half(self, "p_min", "p_max")
 
     def cell_posteriors(self, disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m):
         _, norm, rays, start, end, z_hat = self._prepare(
@@ -240,3 +230,13 @@ class AndertModel(RayModel):
         """A copy whose ``sigma_px`` grows in quadrature by ``sigma_px``."""
         extra = check_positive(sigma_px, "sigma_px")
         return dataclasses.replace(self, sigma_px=float(np.hypot(self.sigma_px, extra)))
+
+
+def _set_probabilities_around_half(model, low, high):
+    """Check that fields ``low`` < 0.5 < ``high`` of ``model`` are probabilities, and store them as floats."""
+    p_low = check_probability(getattr(model, low), low)
+    p_high = check_probability(getattr(model, high), high)
+    if not p_low < 0.5 < p_high:
+        raise PrismapInputError(f"{model.name}: need {low} < 0.5 < {high}; got {low}={p_low}, {high}={p_high}")
+    object.__setattr__(model, low, p_low)
+    object.__setattr__(model, high, p_high)
