@@ -20,7 +20,6 @@ KITTI odometry and raw drives have no disparity maps: the ground truth is the Ve
 the left colour camera (:func:`points_to_disparity`, the thesis's fig. 3.16), sparse, NaN elsewhere.
 """
 
-from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
 
@@ -29,6 +28,7 @@ import numpy as np
 from prismap._progress import progress as progress_bar
 from prismap._validate import check_integer
 from prismap.errors import PrismapInputError
+from prismap.io._frame import LazyFrames
 from prismap.io._kitti import KITTI_DISPARITIES, KittiOdometry, KittiRaw, KittiStereo
 from prismap.io._middlebury import MiddleburyScenes, load_middlebury_motorcycle
 from prismap.io._sequence import read_sequence
@@ -85,7 +85,7 @@ def open_ground_truth(dataset, *, frames=None, every=1, kitti_disparity="noc"):
     return GroundTruthFrames(reader, kind, str(dataset), indices)
 
 
-class GroundTruthFrames(Sequence):
+class GroundTruthFrames(LazyFrames):
     """Selected frames of a dataset, each a :class:`StereoFrame` with ``disparity_gt``, read on access.
 
     Made by :func:`open_ground_truth`. Only the frame asked for is in memory, so characterising over
@@ -111,9 +111,7 @@ class GroundTruthFrames(Sequence):
     def __len__(self):
         return len(self.indices)
 
-    def __getitem__(self, position):
-        if isinstance(position, slice):
-            return [self[i] for i in range(*position.indices(len(self)))]
+    def _frame(self, position):
         index = self.indices[position]
         frame = self._reader[index]
         _check_bound(frame.disparity_gt, self._where(index))

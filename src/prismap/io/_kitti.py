@@ -5,14 +5,13 @@ Every failure becomes a :class:`PrismapInputError` naming the file (and line or 
 
 import dataclasses
 import os
-from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 
 from prismap.camera import StereoCamera
 from prismap.errors import PrismapInputError
-from prismap.io._frame import StereoFrame
+from prismap.io._frame import LazyFrames, StereoFrame
 from prismap.io._images import (
     paired_names,
     png_size,
@@ -176,7 +175,7 @@ def read_kitti_disparity(path):
 # ----------------------------------------------------------------------------- sequences
 
 
-class _KittiSequence(Sequence):
+class _KittiSequence(LazyFrames):
     """Frames of a folder pair read lazily: ``len(seq)``, ``seq[i] -> StereoFrame``."""
 
     def __init__(self, left_dir, right_dir, velodyne_dir, camera, T_cam_velo, poses, source):
@@ -194,10 +193,7 @@ class _KittiSequence(Sequence):
     def __len__(self):
         return len(self._names)
 
-    def __getitem__(self, index):
-        if isinstance(index, slice):
-            return [self[i] for i in range(*index.indices(len(self)))]
-        index = range(len(self))[index]
+    def _frame(self, index):
         name = self._names[index]
         left, right = read_pair(self._left_dir / name, self._right_dir / name, colour=True)
         return StereoFrame(
@@ -217,7 +213,7 @@ class _KittiSequence(Sequence):
 
     def velodyne_path(self, index):
         """Path of frame ``index``'s Velodyne scan (``velodyne/NNNNNN.bin``), whether or not it exists."""
-        return self._velodyne_dir / f"{Path(self._names[range(len(self))[index]]).stem}.bin"
+        return self._velodyne_dir / f"{Path(self._names[self._index(index)]).stem}.bin"
 
     def velodyne(self, index):
         """Velodyne points of frame ``index`` in the left camera frame: (N, 3) float64, metres."""
@@ -232,7 +228,7 @@ class _KittiSequence(Sequence):
             :func:`prismap.io.points_to_disparity` of :meth:`velodyne` in the left colour camera; the
             image size comes from the left PNG's header, the images are not decoded.
         """
-        height, width = png_size(self._left_dir / self._names[range(len(self))[index]], "left image")
+        height, width = png_size(self._left_dir / self._names[self._index(index)], "left image")
         camera = dataclasses.replace(self.camera, width=width, height=height)
         return points_to_disparity(self.velodyne(index), camera)
 
@@ -348,7 +344,7 @@ _STEREO_LAYOUTS = {
 KITTI_DISPARITIES = ("noc", "occ")
 
 
-class KittiStereo(Sequence):
+class KittiStereo(LazyFrames):
     """A KITTI stereo 2012 or 2015 training folder: the ``NNNNNN_10`` pairs with their ground truth.
 
     Parameters
@@ -409,10 +405,7 @@ class KittiStereo(Sequence):
     def __len__(self):
         return len(self.names)
 
-    def __getitem__(self, index):
-        if isinstance(index, slice):
-            return [self[i] for i in range(*index.indices(len(self)))]
-        index = range(len(self))[index]
+    def _frame(self, index):
         name = self.names[index]
         left, right = read_pair(self._left_dir / name, self._right_dir / name, colour=True)
         calib_path = self._calib_paths[index]
@@ -423,7 +416,7 @@ class KittiStereo(Sequence):
 
     def ground_truth_path(self, index):
         """Path of frame ``index``'s ground-truth disparity PNG, whether or not it exists."""
-        return self._disparity_dir / self.names[range(len(self))[index]]
+        return self._disparity_dir / self.names[self._index(index)]
 
     def disparity_gt(self, index):
         """Frame ``index``'s ground truth, (H, W) float32, pixels, NaN = unknown; its size must be the image's."""

@@ -5,14 +5,13 @@
 scalars (``isint``, ``vmin``, ``vmax``, ``dyavg``, ``dymax``).
 """
 
-from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 
 from prismap.camera import StereoCamera
 from prismap.errors import PrismapInputError
-from prismap.io._frame import StereoFrame
+from prismap.io._frame import LazyFrames, StereoFrame
 from prismap.io._images import png_size, read_pair
 from prismap.io._pfm import read_pfm
 from prismap.io._text import location, parse_numbers, read_text
@@ -85,7 +84,7 @@ def _read_disparity(folder, size):
     return np.where(np.isinf(disparity), np.float32(np.nan), disparity)
 
 
-class MiddleburyScenes(Sequence):
+class MiddleburyScenes(LazyFrames):
     """Middlebury scene folders as a sequence of frames: ``len(scenes)``, ``scenes[i] -> StereoFrame``.
 
     Parameters
@@ -112,18 +111,16 @@ class MiddleburyScenes(Sequence):
     def __len__(self):
         return len(self.folders)
 
-    def __getitem__(self, index):
-        if isinstance(index, slice):
-            return [self[i] for i in range(*index.indices(len(self)))]
-        return load_middlebury_folder(self.folders[range(len(self))[index]])
+    def _frame(self, index):
+        return load_middlebury_folder(self.folders[index])
 
     def ground_truth_path(self, index):
         """Path of scene ``index``'s ``disp0.pfm``, whether or not it exists."""
-        return self.folders[range(len(self))[index]] / "disp0.pfm"
+        return self.folders[self._index(index)] / "disp0.pfm"
 
     def disparity_gt(self, index):
         """Scene ``index``'s ground truth, (H, W) float32, pixels, NaN = unknown; the images are not decoded."""
-        folder = self.folders[range(len(self))[index]]
+        folder = self.folders[self._index(index)]
         return _read_disparity(folder, png_size(folder / "im0.png", "left image"))
 
 

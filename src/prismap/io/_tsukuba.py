@@ -11,7 +11,6 @@ with ``<name>`` one of daylight, flashlight, fluorescent, lamps; frames are numb
 """
 
 import re
-from collections.abc import Sequence
 from pathlib import Path
 
 import cv2
@@ -19,7 +18,7 @@ import numpy as np
 
 from prismap.camera import StereoCamera
 from prismap.errors import PrismapInputError
-from prismap.io._frame import StereoFrame
+from prismap.io._frame import LazyFrames, StereoFrame
 from prismap.io._images import png_size, read_disparity_png, read_pair, with_image_size
 from prismap.io._text import read_number_rows
 
@@ -155,7 +154,7 @@ def read_tsukuba_disparity(path):
     return read_disparity_png(path, "Tsukuba disparity", dtype=np.uint8, scale=1.0)
 
 
-class NewTsukuba(Sequence):
+class NewTsukuba(LazyFrames):
     """The New Tsukuba sequence under one illumination: ``len(seq)``, ``seq[i] -> StereoFrame``.
 
     Parameters
@@ -213,10 +212,7 @@ class NewTsukuba(Sequence):
     def __len__(self):
         return len(self._numbers)
 
-    def __getitem__(self, index):
-        if isinstance(index, slice):
-            return [self[i] for i in range(*index.indices(len(self)))]
-        index = range(len(self))[index]
+    def _frame(self, index):
         number = self._numbers[index]
         left, right = read_pair(self._image_path("L", number), self._image_path("R", number), colour=True)
         return StereoFrame(
@@ -230,7 +226,7 @@ class NewTsukuba(Sequence):
 
     def ground_truth_path(self, index):
         """Path of frame ``index``'s ground-truth file (disparity PNG or depth XML), whether or not it exists."""
-        number = self._numbers[range(len(self))[index]]
+        number = self._numbers[self._index(index)]
         truth = self._root / "groundtruth"
         if self._ground_truth == "depth":
             return truth / "depth_maps" / "left" / f"tsukuba_depth_L_{number:05d}.xml"
@@ -249,7 +245,7 @@ class NewTsukuba(Sequence):
             disparity = self.camera.disparity_from_depth(read_tsukuba_depth(path)).astype(np.float32)
         else:
             disparity = read_tsukuba_disparity(path)
-        size = png_size(self._image_path("L", self._numbers[range(len(self))[index]]), "left image")
+        size = png_size(self._image_path("L", self._numbers[self._index(index)]), "left image")
         if disparity.shape != size:
             raise PrismapInputError(f"{path}: ground truth has shape {disparity.shape}, the image {size}")
         return disparity
