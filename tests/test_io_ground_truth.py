@@ -311,6 +311,8 @@ def test_a_sequence_without_ground_truth_and_an_unknown_layout(tmp_path):
         open_ground_truth(tmp_path / "nowhere")
     with pytest.raises(PrismapInputError, match="calib.txt: not a folder"):
         open_ground_truth(tmp_path / "seq" / "calib.txt")
+    with pytest.raises(PrismapInputError, match="`dataset` must be 'middlebury-motorcycle' or a folder path; got list"):
+        open_ground_truth([tmp_path / "seq"])
 
 
 def _write_xml(path, depth_cm):

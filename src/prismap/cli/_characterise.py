@@ -28,7 +28,8 @@ def register(subparsers):
                              "folder, a KITTI-layout sequence with disp/, a KITTI odometry sequence or raw drive "
                              "(Velodyne scans projected into the left camera), New Tsukuba")
     parser.add_argument("--frames", metavar="A:B", default=None,
-                        help="frames A up to (excluding) B of the dataset, Python-style (default all)")
+                        help="frames A up to (excluding) B of the dataset, Python-style (default all; "
+                             "negative A as --frames=-10:)")
     parser.add_argument("--every", type=int, default=1, metavar="K", help="every K-th of those frames (default 1)")
     parser.add_argument("--kitti-disparity", choices=("noc", "occ"), default="noc",
                         help="KITTI stereo ground truth: non-occluded pixels only (noc, default) or also "

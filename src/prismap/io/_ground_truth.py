@@ -249,6 +249,8 @@ class _VelodyneTruth:
 
 def _open(dataset, kitti_disparity):
     """``(kind, reader)`` of a dataset name or folder; see the module docstring for the layouts."""
+    if not isinstance(dataset, (str, Path)):
+        raise PrismapInputError(f"`dataset` must be '{MOTORCYCLE}' or a folder path; got {type(dataset).__name__}")
     if str(dataset) == MOTORCYCLE:
         return MOTORCYCLE, _Motorcycle()
     path = Path(dataset)
