@@ -106,3 +106,62 @@ def assert_same_map(a, b, *, atol=0.0):
     np.testing.assert_array_equal(count_a[order_a], count_b[order_b])
     np.testing.assert_allclose(log_a[order_a], log_b[order_b], rtol=0, atol=atol)
     assert a.n_frames == b.n_frames and a.p0 == b.p0 and a.voxel_size_m == b.voxel_size_m
+
+
+def kitti_line(name, matrix):
+    """One ``name: numbers`` line of a KITTI calibration file."""
+    return f"{name}: " + " ".join(f"{v:.12e}" for v in np.ravel(matrix)) + "\n"
+
+
+def kitti_projection(focal_px, cx_px, cy_px, t):
+    """``K [I | t]`` of a rectified KITTI camera, t in metres of rectified camera 0."""
+    K = np.array([[focal_px, 0, cx_px], [0, focal_px, cy_px], [0, 0, 1.0]])
+    return K @ np.hstack([np.eye(3), np.asarray(t, float)[:, None]])
+
+
+def shifted_pair(rng, height, width, disparity_px):
+    """A random-texture RGB pair whose right view is the left shifted by a whole ``disparity_px``.
+
+    Returns ``left, right (H, W, 3) uint8, disparity_gt (H, W) float32`` with NaN in the first
+    ``disparity_px`` columns, whose match falls outside the right image.
+    """
+    left = rng.integers(0, 256, (height, width, 3), dtype=np.uint8)
+    right = rng.integers(0, 256, (height, width, 3), dtype=np.uint8)
+    right[:, : width - disparity_px] = left[:, disparity_px:]
+    truth = np.full((height, width), float(disparity_px), np.float32)
+    truth[:, :disparity_px] = np.nan
+    return left, right, truth
+
+
+def write_kitti_stereo(root, pairs, *, year=2015, focal_px=20.0, baseline_m=0.54, disparities=("noc",)):
+    """Write a KITTI stereo 2012 or 2015 training folder of ``pairs`` ``(left, right, disparity_gt)``.
+
+    Frame ``i`` is ``NNNNNN_10.png`` (with a ``_11`` image that has no ground truth, as in KITTI); 2012
+    stores grey images (the mean of the RGB channels), 2015 colour ones. Calibration per frame, principal
+    point at the image centre. Returns ``root``.
+    """
+    import cv2
+
+    from prismap.io import write_disparity_png
+
+    left_dir, right_dir, disp = ("image_0", "image_1", "disp_{}") if year == 2012 else ("image_2", "image_3", "disp_{}_0")
+    for index, (left, right, truth) in enumerate(pairs):
+        height, width = truth.shape
+        for folder, image in ((left_dir, left), (right_dir, right)):
+            (root / folder).mkdir(parents=True, exist_ok=True)
+            image = image.mean(axis=2).astype(np.uint8) if year == 2012 else cv2.cvtColor(image, cv2.COLOR_RGB2BGR)
+            for suffix in ("_10", "_11"):
+                cv2.imwrite(str(root / folder / f"{index:06d}{suffix}.png"), image)
+        for kind in disparities:
+            write_disparity_png(root / disp.format(kind) / f"{index:06d}_10.png", truth, "disparity")
+        P_left = kitti_projection(focal_px, (width - 1) / 2, (height - 1) / 2, [0.06, 0, 0])
+        P_right = kitti_projection(focal_px, (width - 1) / 2, (height - 1) / 2, [0.06 - baseline_m, 0, 0])
+        if year == 2012:
+            folder, text = "calib", kitti_line("P0", P_left) + kitti_line("P1", P_right)
+        else:
+            folder = "calib_cam_to_cam"
+            text = ("calib_time: 09-Jan-2012 13:57:47\n" + kitti_line("R_rect_00", np.eye(3))
+                    + kitti_line("P_rect_02", P_left) + kitti_line("P_rect_03", P_right))
+        (root / folder).mkdir(parents=True, exist_ok=True)
+        (root / folder / f"{index:06d}.txt").write_text(text)
+    return root

@@ -3,8 +3,7 @@
 import math
 from pathlib import Path
 
-import numpy as np
-
+from prismap._files import check_output_dir
 from prismap._validate import check_positive
 from prismap.errors import PrismapInputError
 
@@ -24,7 +23,17 @@ def register(subparsers):
         ),
     )
     parser.add_argument("--dataset", required=True, metavar="NAME|PATH",
-                        help=f"'{MOTORCYCLE}' (bundled with scikit-image) or a Middlebury 2014 folder")
+                        help=f"'{MOTORCYCLE}' (bundled with scikit-image) or a folder, its kind recognised from "
+                             "the layout: a Middlebury scene or folder of scenes, a KITTI stereo 2012/2015 training "
+                             "folder, a KITTI-layout sequence with disp/, a KITTI odometry sequence or raw drive "
+                             "(Velodyne scans projected into the left camera), New Tsukuba")
+    parser.add_argument("--frames", metavar="A:B", default=None,
+                        help="frames A up to (excluding) B of the dataset, Python-style (default all; "
+                             "negative A as --frames=-10:)")
+    parser.add_argument("--every", type=int, default=1, metavar="K", help="every K-th of those frames (default 1)")
+    parser.add_argument("--kitti-disparity", choices=("noc", "occ"), default="noc",
+                        help="KITTI stereo ground truth: non-occluded pixels only (noc, default) or also "
+                             "occluded ones (occ)")
     parser.add_argument("--matcher", required=True, choices=("bm", "sgbm", "variational"))
     parser.add_argument("--max-components", type=int, default=4, metavar="G", help="largest G fitted (default 4)")
     parser.add_argument("--out", required=True, type=Path, metavar="DIR", help="output directory")
@@ -46,7 +55,8 @@ def run(args):
     bin_width = check_positive(args.bin_width, "--bin-width")
     if args.max_components < 1:
         raise PrismapInputError(f"`--max-components` must be >= 1; got {args.max_components}")
-    frames = _load_frames(args.dataset)
+    check_output_dir(args.out, "--out")
+    frames = _load_frames(args)
     options = {"left_right_check": True} if args.lr_check else {}
     options.update(_search_range(args.matcher, frames))
     try:
@@ -69,24 +79,20 @@ def run(args):
     return 0
 
 
-def _load_frames(dataset):
-    import prismap.io
+def _load_frames(args):
+    """The selected frames of ``--dataset`` (a lazy :class:`prismap.io.GroundTruthFrames`)."""
+    from prismap.io import open_ground_truth
 
-    if dataset == MOTORCYCLE:
-        return [prismap.io.load_middlebury_motorcycle()]
-    path = Path(dataset)
-    if not path.exists():
-        raise PrismapInputError(f"--dataset {dataset}: no such file or directory "
-                                f"(expected '{MOTORCYCLE}' or a Middlebury 2014 folder)")
-    return [prismap.io.load_middlebury_folder(path)]
+    return open_ground_truth(args.dataset, frames=args.frames, every=args.every, kitti_disparity=args.kitti_disparity)
 
 
 def _search_range(matcher_name, frames):
-    """Matcher options whose disparity range covers every frame's largest ground-truth disparity."""
-    largest = max((np.nanmax(np.where(np.isfinite(f.disparity_gt), f.disparity_gt, np.nan))
-                   for f in frames if f.disparity_gt is not None and np.isfinite(f.disparity_gt).any()), default=None)
-    if largest is None:
-        raise PrismapInputError("the dataset has no valid ground-truth disparity to characterise against")
+    """Matcher options whose disparity range covers the largest ground-truth disparity of the frames.
+
+    The largest disparity comes from a pass over the ground truth alone (no frame is kept), bounded by
+    each image's width.
+    """
+    largest = frames.max_disparity_px()
     if matcher_name == "variational":
         return {"max_disparity": float(math.ceil(largest) + 1)}
     return {"num_disparities": 16 * math.ceil((largest + 1) / 16)}

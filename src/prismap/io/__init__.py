@@ -1,10 +1,24 @@
 """Dataset readers, map files and exports."""
 
 from prismap.io._frame import StereoFrame
+from prismap.io._ground_truth import GroundTruthFrames, open_ground_truth
 from prismap.io._images import write_disparity_png
-from prismap.io._kitti import KittiOdometry, KittiRaw, read_kitti_calib, read_kitti_disparity, read_kitti_poses
+from prismap.io._kitti import (
+    KittiOdometry,
+    KittiRaw,
+    KittiStereo,
+    read_kitti_calib,
+    read_kitti_disparity,
+    read_kitti_poses,
+)
 from prismap.io._mapfile import load_map, save_map
-from prismap.io._middlebury import MOTORCYCLE_CAMERA, load_middlebury_folder, load_middlebury_motorcycle, read_middlebury_calib
+from prismap.io._middlebury import (
+    MOTORCYCLE_CAMERA,
+    MiddleburyScenes,
+    load_middlebury_folder,
+    load_middlebury_motorcycle,
+    read_middlebury_calib,
+)
 from prismap.io._octomap import to_octree, write_octomap
 from prismap.io._pfm import read_pfm, write_pfm
 from prismap.io._ply import read_ply, write_ply
@@ -23,20 +37,29 @@ from prismap.io._tsukuba import (
     read_tsukuba_disparity,
     read_tsukuba_track,
 )
-from prismap.io._velodyne import read_velodyne_bin, velodyne_to_camera
+from prismap.io._velodyne import (
+    points_to_disparity,
+    read_velodyne_bin,
+    velodyne_to_camera,
+)
 
 __all__ = [
+    "MOTORCYCLE_CAMERA",
+    "TSUKUBA_CAMERA",
+    "GroundTruthFrames",
     "GroundTruthOccupancy",
     "KittiOdometry",
     "KittiRaw",
-    "MOTORCYCLE_CAMERA",
+    "KittiStereo",
+    "MiddleburyScenes",
     "NewTsukuba",
     "Sequence",
     "StereoFrame",
-    "TSUKUBA_CAMERA",
     "load_map",
     "load_middlebury_folder",
     "load_middlebury_motorcycle",
+    "open_ground_truth",
+    "points_to_disparity",
     "read_ground_truth",
     "read_kitti_calib",
     "read_kitti_disparity",

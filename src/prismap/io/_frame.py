@@ -1,5 +1,7 @@
 """One rectified stereo frame with its calibration and, when known, its ground truth and pose."""
 
+from abc import abstractmethod
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -31,3 +33,24 @@ class StereoFrame:
     T_world_cam: np.ndarray | None = None
     name: str = ""
     extras: dict = field(default_factory=dict)
+
+
+class LazyFrames(Sequence):
+    """Base of the readers whose frames are read from disk on access: ``len(seq)``, ``seq[i]``, ``seq[a:b]``.
+
+    Subclasses define ``__len__`` and ``_frame(index)``, which receives an index already checked and made
+    non-negative; ``_index`` does the same for their other per-frame methods.
+    """
+
+    def __getitem__(self, index):
+        if isinstance(index, slice):
+            return [self._frame(i) for i in range(*index.indices(len(self)))]
+        return self._frame(self._index(index))
+
+    def _index(self, index):
+        """``index`` as a position in ``0..len - 1`` (negative counts from the end); IndexError beyond."""
+        return range(len(self))[index]
+
+    @abstractmethod
+    def _frame(self, index):
+        """The :class:`StereoFrame` at ``index`` (``0 <= index < len``)."""

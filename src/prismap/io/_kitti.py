@@ -3,17 +3,28 @@
 Every failure becomes a :class:`PrismapInputError` naming the file (and line or field) and the problem.
 """
 
-from collections.abc import Sequence
+import dataclasses
+import os
 from pathlib import Path
 
 import numpy as np
 
 from prismap.camera import StereoCamera
 from prismap.errors import PrismapInputError
-from prismap.io._frame import StereoFrame
-from prismap.io._images import paired_names, read_disparity_png, read_pair, with_image_size
+from prismap.io._frame import LazyFrames, StereoFrame
+from prismap.io._images import (
+    paired_names,
+    png_size,
+    read_disparity_png,
+    read_pair,
+    with_image_size,
+)
 from prismap.io._text import homogeneous, parse_numbers, read_number_rows, read_text
-from prismap.io._velodyne import read_velodyne_bin, velodyne_to_camera
+from prismap.io._velodyne import (
+    points_to_disparity,
+    read_velodyne_bin,
+    velodyne_to_camera,
+)
 
 _TEXT_FIELDS = frozenset({"calib_time"})
 _ROTATION_TOLERANCE = 1e-3
@@ -164,7 +175,7 @@ def read_kitti_disparity(path):
 # ----------------------------------------------------------------------------- sequences
 
 
-class _KittiSequence(Sequence):
+class _KittiSequence(LazyFrames):
     """Frames of a folder pair read lazily: ``len(seq)``, ``seq[i] -> StereoFrame``."""
 
     def __init__(self, left_dir, right_dir, velodyne_dir, camera, T_cam_velo, poses, source):
@@ -182,10 +193,7 @@ class _KittiSequence(Sequence):
     def __len__(self):
         return len(self._names)
 
-    def __getitem__(self, index):
-        if isinstance(index, slice):
-            return [self[i] for i in range(*index.indices(len(self)))]
-        index = range(len(self))[index]
+    def _frame(self, index):
         name = self._names[index]
         left, right = read_pair(self._left_dir / name, self._right_dir / name, colour=True)
         return StereoFrame(
@@ -203,11 +211,26 @@ class _KittiSequence(Sequence):
             raise PrismapInputError(f"{self._source}: the calibration has no Velodyne transform (Tr)")
         return self._T_cam_velo.copy()
 
+    def velodyne_path(self, index):
+        """Path of frame ``index``'s Velodyne scan (``velodyne/NNNNNN.bin``), whether or not it exists."""
+        return self._velodyne_dir / f"{Path(self._names[self._index(index)]).stem}.bin"
+
     def velodyne(self, index):
         """Velodyne points of frame ``index`` in the left camera frame: (N, 3) float64, metres."""
-        stem = Path(self._names[range(len(self))[index]]).stem
-        points = read_velodyne_bin(self._velodyne_dir / f"{stem}.bin")
-        return velodyne_to_camera(points, self.T_cam_velo)
+        return velodyne_to_camera(read_velodyne_bin(self.velodyne_path(index)), self.T_cam_velo)
+
+    def velodyne_disparity(self, index):
+        """Sparse ground-truth disparity of frame ``index`` from its Velodyne scan (thesis fig. 3.16).
+
+        Returns
+        -------
+        (H, W) float32, pixels, NaN where no laser point projects
+            :func:`prismap.io.points_to_disparity` of :meth:`velodyne` in the left colour camera; the
+            image size comes from the left PNG's header, the images are not decoded.
+        """
+        height, width = png_size(self._left_dir / self._names[self._index(index)], "left image")
+        camera = dataclasses.replace(self.camera, width=width, height=height)
+        return points_to_disparity(self.velodyne(index), camera)
 
 
 class KittiOdometry(_KittiSequence):
@@ -217,9 +240,10 @@ class KittiOdometry(_KittiSequence):
     ----------
     root : str or Path
         Folder holding ``sequences/NN/{image_2,image_3,velodyne,calib.txt}`` and, for sequences
-        00-10, ``poses/NN.txt``.
-    sequence : int or str
-        Sequence number (``3`` or ``"03"``).
+        00-10, ``poses/NN.txt``; or, with ``sequence=None``, the sequence folder itself (poses from
+        ``../../poses/NN.txt`` when it sits at ``ROOT/sequences/NN``).
+    sequence : int or str or None
+        Sequence number (``3`` or ``"03"``); None = ``root`` is the sequence folder.
 
     Attributes
     ----------
@@ -239,11 +263,17 @@ class KittiOdometry(_KittiSequence):
 
     def __init__(self, root, sequence, *, load_poses=True):
         root = Path(root)
-        try:
-            number = int(sequence)
-        except (TypeError, ValueError):
-            raise PrismapInputError(f"`sequence` must be a sequence number like 3 or '03'; got {sequence!r}") from None
-        seq_dir = root / "sequences" / f"{number:02d}"
+        if sequence is None:
+            absolute = Path(os.path.abspath(root))  # as the user wrote it, links unresolved
+            seq_dir, root, number = root, absolute.parent.parent, absolute.name
+        else:
+            try:
+                number = f"{int(sequence):02d}"
+            except (TypeError, ValueError):
+                raise PrismapInputError(
+                    f"`sequence` must be a sequence number like 3 or '03'; got {sequence!r}"
+                ) from None
+            seq_dir = root / "sequences" / number
         calib_path = seq_dir / "calib.txt"
         calib = read_kitti_calib(calib_path)
         camera, P2 = _rectified_pair(calib, calib_path, "P2", "P3")
@@ -252,8 +282,9 @@ class KittiOdometry(_KittiSequence):
         if "Tr" in calib:
             T_cam_velo = T_cam2_cam0 @ homogeneous(_calib_matrix(calib, calib_path, "Tr", (3, 4)))
         poses = None
-        pose_path = root / "poses" / f"{number:02d}.txt"
-        if load_poses and pose_path.exists():
+        pose_path = root / "poses" / f"{number}.txt"
+        in_tree = Path(os.path.abspath(seq_dir)).parent.name == "sequences"
+        if load_poses and in_tree and pose_path.exists():
             poses = _camera_poses(read_kitti_poses(pose_path), P2)
         super().__init__(
             seq_dir / "image_2", seq_dir / "image_3", seq_dir / "velodyne", camera, T_cam_velo, poses, str(seq_dir)
@@ -302,3 +333,96 @@ class KittiRaw(_KittiSequence):
             None,
             str(drive_dir),
         )
+
+
+_STEREO_LAYOUTS = {
+    # year: left, right, (calibration folder, left field, right field) in order of preference, (noc, occ)
+    2012: ("image_0", "image_1", (("calib", "P0", "P1"),), ("disp_noc", "disp_occ")),
+    2015: ("image_2", "image_3", (("calib_cam_to_cam", "P_rect_02", "P_rect_03"), ("calib", "P2", "P3")),
+           ("disp_noc_0", "disp_occ_0")),
+}
+KITTI_DISPARITIES = ("noc", "occ")
+
+
+class KittiStereo(LazyFrames):
+    """A KITTI stereo 2012 or 2015 training folder: the ``NNNNNN_10`` pairs with their ground truth.
+
+    Parameters
+    ----------
+    root : str or Path
+        ``training/`` of the 2012 download (``image_0``, ``image_1``, ``calib``, ``disp_noc``,
+        ``disp_occ``; grey images) or of the 2015 download (``image_2``, ``image_3``,
+        ``calib_cam_to_cam`` or ``calib``, ``disp_noc_0``, ``disp_occ_0``; colour images).
+    disparity : {"noc", "occ"}, keyword-only
+        ``noc``: ground truth only where the pixel is visible in both views (the default: an
+        occluded pixel has no correct match); ``occ``: also at occluded pixels.
+
+    Attributes
+    ----------
+    year : int
+        2012 or 2015, from the image folders.
+    names : list of str
+        Left image names (``NNNNNN_10.png``), sorted; the ``_11`` frames have no ground truth.
+
+    Notes
+    -----
+    Every frame has its own calibration file ``NNNNNN.txt`` (``P0``/``P1`` of the grey pair in 2012,
+    ``P_rect_02``/``P_rect_03`` of the colour pair in 2015) and image size, so each frame carries its
+    own camera. Opening checks that every calibration and disparity file exists; files are read when a
+    frame is accessed.
+    """
+
+    def __init__(self, root, *, disparity="noc"):
+        if disparity not in KITTI_DISPARITIES:
+            raise PrismapInputError(f"`disparity` must be one of {KITTI_DISPARITIES}; got {disparity!r}")
+        self.root = Path(root)
+        years = [y for y, layout in _STEREO_LAYOUTS.items() if all((self.root / d).is_dir() for d in layout[:2])]
+        if not years:
+            raise PrismapInputError(
+                f"{self.root}: not a KITTI stereo folder (expected image_0/ and image_1/ of 2012, or image_2/ "
+                "and image_3/ of 2015)"
+            )
+        self.year = years[0]
+        left, right, calibrations, disparities = _STEREO_LAYOUTS[self.year]
+        self._left_dir, self._right_dir = self.root / left, self.root / right
+        self.names = paired_names(self._left_dir, self._right_dir, "*_10.png")
+        found = [c for c in calibrations if (self.root / c[0]).is_dir()]
+        if not found:
+            expected = " or ".join(f"{c[0]}/" for c in calibrations)
+            raise PrismapInputError(f"{self.root}: KITTI stereo {self.year} folder without calibration: no {expected}")
+        calib_dir, self._fields = self.root / found[0][0], found[0][1:]
+        self._disparity_dir = self.root / disparities[KITTI_DISPARITIES.index(disparity)]
+        if not self._disparity_dir.is_dir():
+            raise PrismapInputError(
+                f"{self.root}: KITTI stereo {self.year} folder without ground-truth disparities: no "
+                f"{self._disparity_dir.name}/ (the testing split has none)"
+            )
+        self._calib_paths = [calib_dir / f"{name.removesuffix('_10.png')}.txt" for name in self.names]
+        missing = [p for p in self._calib_paths if not p.is_file()]
+        if missing:
+            raise PrismapInputError(f"{calib_dir}: missing {len(missing)} calibration file(s), first {missing[0].name}")
+
+    def __len__(self):
+        return len(self.names)
+
+    def _frame(self, index):
+        name = self.names[index]
+        left, right = read_pair(self._left_dir / name, self._right_dir / name, colour=True)
+        calib_path = self._calib_paths[index]
+        camera, _ = _rectified_pair(read_kitti_calib(calib_path), calib_path, *self._fields,
+                                    width=left.shape[1], height=left.shape[0])
+        return StereoFrame(left, right, camera, disparity_gt=self.disparity_gt(index),
+                           name=f"kitti-stereo-{self.year}/{name.removesuffix('.png')}")
+
+    def ground_truth_path(self, index):
+        """Path of frame ``index``'s ground-truth disparity PNG, whether or not it exists."""
+        return self._disparity_dir / self.names[self._index(index)]
+
+    def disparity_gt(self, index):
+        """Frame ``index``'s ground truth, (H, W) float32, pixels, NaN = unknown; its size must be the image's."""
+        path = self.ground_truth_path(index)
+        disparity = read_kitti_disparity(path)
+        size = png_size(self._left_dir / path.name, "left image")
+        if disparity.shape != size:
+            raise PrismapInputError(f"{path}: disparity size {disparity.shape} differs from the left image's {size}")
+        return disparity

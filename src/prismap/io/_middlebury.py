@@ -11,8 +11,8 @@ import numpy as np
 
 from prismap.camera import StereoCamera
 from prismap.errors import PrismapInputError
-from prismap.io._frame import StereoFrame
-from prismap.io._images import read_pair
+from prismap.io._frame import LazyFrames, StereoFrame
+from prismap.io._images import png_size, read_pair
 from prismap.io._pfm import read_pfm
 from prismap.io._text import location, parse_numbers, read_text
 
@@ -69,17 +69,59 @@ def load_middlebury_folder(path):
             f"{folder}: calib.txt says width={camera.width}, height={camera.height}; "
             f"im0.png is {left.shape[1]}x{left.shape[0]}"
         )
-    disparity_gt = None
-    if (folder / "disp0.pfm").exists():
-        disparity_gt = read_pfm(folder / "disp0.pfm")
-        if disparity_gt.shape != left.shape[:2]:
-            raise PrismapInputError(
-                f"{folder}: disp0.pfm must be one-channel of the images' size {left.shape[:2]}; "
-                f"got shape {disparity_gt.shape}"
-            )
-        disparity_gt = np.where(np.isinf(disparity_gt), np.float32(np.nan), disparity_gt)
+    disparity_gt = _read_disparity(folder, left.shape[:2]) if (folder / "disp0.pfm").exists() else None
     extras = {"calib": {key: value for key, value in fields.items() if key not in ("cam0", "cam1")}}
     return StereoFrame(left, right, camera, disparity_gt=disparity_gt, name=folder.name, extras=extras)
+
+
+def _read_disparity(folder, size):
+    """``folder/disp0.pfm`` as (H, W) float32 pixels, ``inf`` -> NaN; it must have the images' ``size``."""
+    disparity = read_pfm(folder / "disp0.pfm")
+    if disparity.shape != tuple(size):
+        raise PrismapInputError(
+            f"{folder}: disp0.pfm must be one-channel of the images' size {tuple(size)}; got shape {disparity.shape}"
+        )
+    return np.where(np.isinf(disparity), np.float32(np.nan), disparity)
+
+
+class MiddleburyScenes(LazyFrames):
+    """Middlebury scene folders as a sequence of frames: ``len(scenes)``, ``scenes[i] -> StereoFrame``.
+
+    Parameters
+    ----------
+    path : str or Path
+        One scene folder (with ``im0.png``), or a folder whose sub-folders with ``im0.png`` are
+        scenes (e.g. ``MiddEval3/trainingQ`` or an unpacked Middlebury 2014 set), taken in name order.
+
+    Notes
+    -----
+    Every scene has its own camera and image size. A scene is read with
+    :func:`load_middlebury_folder` when accessed.
+    """
+
+    def __init__(self, path):
+        path = Path(path)
+        if (path / "im0.png").is_file():
+            self.folders = [path]
+        else:
+            self.folders = sorted(p for p in path.iterdir() if (p / "im0.png").is_file()) if path.is_dir() else []
+        if not self.folders:
+            raise PrismapInputError(f"{path}: no Middlebury scene (a folder with im0.png, im1.png, calib.txt)")
+
+    def __len__(self):
+        return len(self.folders)
+
+    def _frame(self, index):
+        return load_middlebury_folder(self.folders[index])
+
+    def ground_truth_path(self, index):
+        """Path of scene ``index``'s ``disp0.pfm``, whether or not it exists."""
+        return self.folders[self._index(index)] / "disp0.pfm"
+
+    def disparity_gt(self, index):
+        """Scene ``index``'s ground truth, (H, W) float32, pixels, NaN = unknown; the images are not decoded."""
+        folder = self.folders[self._index(index)]
+        return _read_disparity(folder, png_size(folder / "im0.png", "left image"))
 
 
 def load_middlebury_motorcycle():

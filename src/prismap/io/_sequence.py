@@ -34,8 +34,19 @@ from prismap._files import atomic_path
 from prismap._validate import check_positive
 from prismap.errors import PrismapInputError
 from prismap.io._frame import StereoFrame
-from prismap.io._images import paired_names, png_size, read_disparity_png, read_pair, write_disparity_png
-from prismap.io._kitti import _camera_poses, _rectified_pair, read_kitti_calib, read_kitti_poses
+from prismap.io._images import (
+    paired_names,
+    png_size,
+    read_disparity_png,
+    read_pair,
+    write_disparity_png,
+)
+from prismap.io._kitti import (
+    _camera_poses,
+    _rectified_pair,
+    read_kitti_calib,
+    read_kitti_poses,
+)
 from prismap.io._text import homogeneous, read_number_rows
 
 GROUND_TRUTH_FORMAT = "prismap-ground-truth-occupancy"
@@ -337,18 +348,25 @@ class Sequence:
         index = int(index) % len(self)
         name = self.names[index]
         left, right = read_pair(self.path / "image_2" / name, self.path / "image_3" / name, colour=False)
-        disparity = None
-        disparity_path = self.path / "disp" / name
-        if disparity_path.is_file():
-            disparity = read_disparity_png(
-                disparity_path, "ground-truth disparity", dtype=np.uint16, scale=_DISPARITY_SCALE
-            )
-            if disparity.shape != left.shape[:2]:
-                raise PrismapInputError(
-                    f"{disparity_path}: size {disparity.shape} differs from the images' {left.shape[:2]}"
-                )
+        disparity = self.disparity_gt(index) if self.ground_truth_path(index).is_file() else None
         pose = None if self.poses is None else self.poses[index].copy()
         return StereoFrame(left, right, self.camera, disparity, pose, name=f"{self.path.name}/{name}")
+
+    def ground_truth_path(self, index):
+        """Path of frame ``index``'s ground-truth disparity ``disp/NNNNNN.png``, whether or not it exists."""
+        return self.path / "disp" / self.names[range(len(self))[index]]
+
+    def disparity_gt(self, index):
+        """Frame ``index``'s ground truth from ``disp/``: (H, W) float32, pixels, NaN = unknown.
+
+        Its size must be the images' (checked on opening); the images are not decoded.
+        """
+        path = self.ground_truth_path(index)
+        disparity = read_disparity_png(path, "ground-truth disparity", dtype=np.uint16, scale=_DISPARITY_SCALE)
+        size = (self.camera.height, self.camera.width)
+        if disparity.shape != size:
+            raise PrismapInputError(f"{path}: size {disparity.shape} differs from the images' {size}")
+        return disparity
 
 
 def _kitti_odometry_pose_path(path):

@@ -11,7 +11,6 @@ with ``<name>`` one of daylight, flashlight, fluorescent, lamps; frames are numb
 """
 
 import re
-from collections.abc import Sequence
 from pathlib import Path
 
 import cv2
@@ -19,8 +18,8 @@ import numpy as np
 
 from prismap.camera import StereoCamera
 from prismap.errors import PrismapInputError
-from prismap.io._frame import StereoFrame
-from prismap.io._images import read_disparity_png, read_pair, with_image_size
+from prismap.io._frame import LazyFrames, StereoFrame
+from prismap.io._images import png_size, read_disparity_png, read_pair, with_image_size
 from prismap.io._text import read_number_rows
 
 TSUKUBA_CAMERA = StereoCamera(focal_px=615.0, cx_px=320.0, cy_px=240.0, baseline_m=0.10, width=640, height=480)
@@ -155,7 +154,7 @@ def read_tsukuba_disparity(path):
     return read_disparity_png(path, "Tsukuba disparity", dtype=np.uint8, scale=1.0)
 
 
-class NewTsukuba(Sequence):
+class NewTsukuba(LazyFrames):
     """The New Tsukuba sequence under one illumination: ``len(seq)``, ``seq[i] -> StereoFrame``.
 
     Parameters
@@ -213,29 +212,40 @@ class NewTsukuba(Sequence):
     def __len__(self):
         return len(self._numbers)
 
-    def __getitem__(self, index):
-        if isinstance(index, slice):
-            return [self[i] for i in range(*index.indices(len(self)))]
-        index = range(len(self))[index]
+    def _frame(self, index):
         number = self._numbers[index]
         left, right = read_pair(self._image_path("L", number), self._image_path("R", number), colour=True)
-        truth = self._root / "groundtruth"
-        if self._ground_truth == "disparity":
-            disparity = read_tsukuba_disparity(truth / "disparity_maps/left" / f"tsukuba_disparity_L_{number:05d}.png")
-        elif self._ground_truth == "depth":
-            depth = read_tsukuba_depth(truth / "depth_maps" / "left" / f"tsukuba_depth_L_{number:05d}.xml")
-            disparity = self.camera.disparity_from_depth(depth).astype(np.float32)
-        else:
-            disparity = None
-        if disparity is not None and disparity.shape != left.shape[:2]:
-            raise PrismapInputError(
-                f"{truth}: ground truth of frame {number} has shape {disparity.shape}, the image {left.shape[:2]}"
-            )
         return StereoFrame(
             left=left,
             right=right,
             camera=with_image_size(self.camera, left),
-            disparity_gt=disparity,
+            disparity_gt=None if self._ground_truth is None else self.disparity_gt(index),
             T_world_cam=None if self.poses is None else self.poses[index].copy(),
             name=f"tsukuba/{self._illumination}/{number:05d}",
         )
+
+    def ground_truth_path(self, index):
+        """Path of frame ``index``'s ground-truth file (disparity PNG or depth XML), whether or not it exists."""
+        number = self._numbers[self._index(index)]
+        truth = self._root / "groundtruth"
+        if self._ground_truth == "depth":
+            return truth / "depth_maps" / "left" / f"tsukuba_depth_L_{number:05d}.xml"
+        return truth / "disparity_maps" / "left" / f"tsukuba_disparity_L_{number:05d}.png"
+
+    def disparity_gt(self, index):
+        """Frame ``index``'s ground-truth disparity, (H, W) float32, pixels; the images are not decoded.
+
+        From the integer PNG (``ground_truth="disparity"``) or ``f b / z`` of the depth map (``"depth"``);
+        its size must be the left image's.
+        """
+        if self._ground_truth is None:
+            raise PrismapInputError("this NewTsukuba was opened with ground_truth=None: it has no ground truth")
+        path = self.ground_truth_path(index)
+        if self._ground_truth == "depth":
+            disparity = self.camera.disparity_from_depth(read_tsukuba_depth(path)).astype(np.float32)
+        else:
+            disparity = read_tsukuba_disparity(path)
+        size = png_size(self._image_path("L", self._numbers[self._index(index)]), "left image")
+        if disparity.shape != size:
+            raise PrismapInputError(f"{path}: ground truth has shape {disparity.shape}, the image {size}")
+        return disparity

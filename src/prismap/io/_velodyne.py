@@ -60,3 +60,34 @@ def velodyne_to_camera(points_velo, T_cam_velo):
         raise PrismapInputError(f"`points_velo` must have shape (N, 3) or (N, 4); got {points.shape}")
     T = as_float_array(T_cam_velo, "T_cam_velo", shape=(4, 4), allow_nan=False)
     return points[:, :3] @ T[:3, :3].T + T[:3, 3]
+
+
+def points_to_disparity(points_cam, camera):
+    """Sparse ground-truth disparity of the left image from 3-D points, e.g. a Velodyne scan (thesis fig. 3.16).
+
+    Every point in front of the camera is projected with the pinhole model to the pixel whose centre is
+    nearest (centres at integer ``(u, v)``, as in :meth:`StereoCamera.pixel_rays`); where several points
+    fall into one pixel the nearest one (smallest depth) is kept, since it hides the others. Its disparity is
+    ``f b / z - doffs``.
+
+    Parameters
+    ----------
+    points_cam : (N, 3) float, metres, left camera frame (OpenCV axes)
+        E.g. ``KittiOdometry.velodyne(i)``.
+    camera : StereoCamera
+        With ``width`` and ``height``.
+
+    Returns
+    -------
+    (H, W) float32, pixels, NaN where no point projects.
+    """
+    points = as_float_array(points_cam, "points_cam", shape=(None, 3), allow_nan=False)
+    if camera.width is None or camera.height is None:
+        raise PrismapInputError("`camera` needs its image size (width, height) to project points into its image")
+    x, y, z = points[points[:, 2] > 0].T
+    col = np.floor(camera.focal_px * x / z + camera.cx_px + 0.5)
+    row = np.floor(camera.focal_px * y / z + camera.cy_px + 0.5)
+    inside = (col >= 0) & (col < camera.width) & (row >= 0) & (row < camera.height)
+    depth = np.full(camera.height * camera.width, np.inf)
+    np.minimum.at(depth, (row[inside] * camera.width + col[inside]).astype(np.int64), z[inside])
+    return camera.disparity_from_depth(depth.reshape(camera.height, camera.width)).astype(np.float32)
