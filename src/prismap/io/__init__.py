@@ -1,4 +1,4 @@
-"""Dataset readers, map files and exports."""
+"""Dataset readers (folders and ROS bags), map files and exports."""
 
 from prismap.io._frame import StereoFrame
 from prismap.io._images import write_disparity_png
@@ -8,6 +8,7 @@ from prismap.io._middlebury import MOTORCYCLE_CAMERA, load_middlebury_folder, lo
 from prismap.io._octomap import to_octree, write_octomap
 from prismap.io._pfm import read_pfm, write_pfm
 from prismap.io._ply import read_ply, write_ply
+from prismap.io._rosbag import BagSequence, is_bag, read_bag
 from prismap.io._sequence import (
     GroundTruthOccupancy,
     Sequence,
@@ -26,6 +27,7 @@ from prismap.io._tsukuba import (
 from prismap.io._velodyne import read_velodyne_bin, velodyne_to_camera
 
 __all__ = [
+    "BagSequence",
     "GroundTruthOccupancy",
     "KittiOdometry",
     "KittiRaw",
@@ -34,9 +36,11 @@ __all__ = [
     "Sequence",
     "StereoFrame",
     "TSUKUBA_CAMERA",
+    "is_bag",
     "load_map",
     "load_middlebury_folder",
     "load_middlebury_motorcycle",
+    "read_bag",
     "read_ground_truth",
     "read_kitti_calib",
     "read_kitti_disparity",
