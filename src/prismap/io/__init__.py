@@ -8,6 +8,7 @@ from prismap.io._middlebury import MOTORCYCLE_CAMERA, load_middlebury_folder, lo
 from prismap.io._octomap import to_octree, write_octomap
 from prismap.io._pfm import read_pfm, write_pfm
 from prismap.io._ply import read_ply, write_ply
+from prismap.io._pointcloud2 import write_pointcloud2
 from prismap.io._rosbag import BagSequence, is_bag, read_bag
 from prismap.io._sequence import (
     GroundTruthOccupancy,
@@ -61,5 +62,6 @@ __all__ = [
     "write_octomap",
     "write_pfm",
     "write_ply",
+    "write_pointcloud2",
     "write_sequence",
 ]

@@ -271,13 +271,20 @@ class _open:
         return False
 
 
+def require_rosbags():
+    """Raise a clear :class:`PrismapInputError` when the optional ``rosbags`` module is missing."""
+    try:
+        import rosbags  # noqa: F401
+    except ImportError:
+        raise PrismapInputError("ROS bags need the optional `rosbags` module: pip install 'prismap[ros]'") from None
+
+
 def _rosbags():
     """``rosbags.highlevel.AnyReader`` and the ROS 2 Humble typestore (for bags without message definitions)."""
-    try:
-        from rosbags.highlevel import AnyReader
-        from rosbags.typesys import Stores, get_typestore
-    except ImportError:
-        raise PrismapInputError("reading ROS bags needs the optional `rosbags` module: pip install 'prismap[ros]'") from None
+    require_rosbags()
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_typestore
+
     return AnyReader, get_typestore(Stores.ROS2_HUMBLE)
 
 
