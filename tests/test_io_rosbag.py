@@ -331,3 +331,18 @@ def test_late_right_images_pair_within_a_wider_tolerance(frames, tmp_path):
     path = write_bag(frames, tmp_path / "late", "sqlite3", right_jitter_ns=7_000_000, truth=False)
     sequence = open_bag(path, pair_tolerance_s=0.01)
     np.testing.assert_array_equal(sequence[2].right, frames[2].right)
+
+
+def test_cli_characterise_bag_fits_the_ground_truth_topic_like_the_library(bags, frames, tmp_path):
+    from prismap.characterise import characterise_matcher, write_characterisation
+    from prismap.stereo import make_matcher
+
+    argv = ["characterise", "--bag", str(bags["sqlite3"]), "--left", LEFT, "--right", RIGHT, "--matcher", "bm",
+            "--max-components", "1", "--out", str(tmp_path / "cli")]
+    assert main(argv) == 2  # without --truth-topic there is nothing to characterise against
+    assert main([*argv, "--truth-topic", "/stereo/disparity"]) == 0
+    largest = max(np.nanmax(f.disparity_gt) for f in frames)
+    matcher = make_matcher("bm", num_disparities=16 * int(np.ceil((largest + 1) / 16)))
+    result = characterise_matcher(frames, matcher, max_components=1, dataset=str(bags["sqlite3"]))
+    write_characterisation(result, tmp_path / "lib")
+    assert (tmp_path / "cli" / "error_model.json").read_text() == (tmp_path / "lib" / "error_model.json").read_text()

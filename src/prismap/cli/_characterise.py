@@ -6,6 +6,7 @@ from pathlib import Path
 import numpy as np
 
 from prismap._validate import check_positive
+from prismap.cli._bag import add_bag_arguments, open_bag_argument
 from prismap.errors import PrismapInputError
 
 MOTORCYCLE = "middlebury-motorcycle"
@@ -23,8 +24,8 @@ def register(subparsers):
             "search range is set to cover the largest ground-truth disparity."
         ),
     )
-    parser.add_argument("--dataset", required=True, metavar="NAME|PATH",
-                        help=f"'{MOTORCYCLE}' (bundled with scikit-image) or a Middlebury 2014 folder")
+    parser.add_argument("--dataset", metavar="NAME|PATH",
+                        help=f"'{MOTORCYCLE}' (bundled with scikit-image) or a Middlebury 2014 folder (or --bag)")
     parser.add_argument("--matcher", required=True, choices=("bm", "sgbm", "variational"))
     parser.add_argument("--max-components", type=int, default=4, metavar="G", help="largest G fitted (default 4)")
     parser.add_argument("--out", required=True, type=Path, metavar="DIR", help="output directory")
@@ -35,6 +36,7 @@ def register(subparsers):
     parser.add_argument("--tolerance", type=float, default=0.01, metavar="NATS",
                         help="select the smallest G within this many nats per error of the best (default 0.01)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the EM restarts (default 0)")
+    add_bag_arguments(parser, poses=False)
     parser.set_defaults(func=run)
 
 
@@ -46,7 +48,12 @@ def run(args):
     bin_width = check_positive(args.bin_width, "--bin-width")
     if args.max_components < 1:
         raise PrismapInputError(f"`--max-components` must be >= 1; got {args.max_components}")
-    frames = _load_frames(args.dataset)
+    if (args.dataset is None) == (args.bag is None):
+        raise PrismapInputError("give exactly one of --dataset NAME|PATH and --bag PATH")
+    if args.bag is not None and not args.truth_topic:
+        raise PrismapInputError("--bag: characterising needs ground truth; give --truth-topic TOPIC")
+    frames = _load_frames(args.dataset) if args.bag is None else list(open_bag_argument(args))
+    args.dataset = args.dataset or str(args.bag)
     options = {"left_right_check": True} if args.lr_check else {}
     options.update(_search_range(args.matcher, frames))
     try:
