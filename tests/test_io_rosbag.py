@@ -149,15 +149,28 @@ def write_bag(frames, path, storage, *, poses="odom", encoding="rgb8", compresse
                     array = image[..., ::-1] if encoding == "bgr8" else image
                     msg = bag.image(t + jitter, array, encoding)
                 bag.write(topic, msg, t + jitter)
-            if truth:
+            if truth is True:
                 bag.write("/stereo/disparity", bag.disparity(t, frame.disparity_gt), t)
+            elif truth:
+                bag.write("/stereo/depth", bag.image(t, depth_image(frame, truth), truth), t)
             for ts in (pose_stamps(i) if pose_stamps else [t]):
                 T = frame.T_world_cam if pose_stamps is None else pose_at(ts)
                 if poses == "odom":
                     bag.write("/odom", bag.odometry(ts, T), ts)
+                elif poses == "pose":
+                    bag.write("/pose", bag.T("geometry_msgs/msg/PoseStamped")(header=bag.header(ts, "map"),
+                                                                            pose=bag.pose(T)), ts)
                 elif poses == "tf":
                     bag.write("/tf", bag.tf(ts, "odom", "base_link", T @ np.linalg.inv(T_BASE_CAM)), ts)
     return path
+
+
+def depth_image(frame, encoding):
+    """The frame's ground-truth depth as a 32FC1 (metres, NaN invalid) or 16UC1 (millimetres, 0 invalid) image."""
+    depth = CAMERA.depth_from_disparity(frame.disparity_gt)
+    if encoding == "32FC1":
+        return depth.astype(np.float32)
+    return np.where(np.isfinite(depth), np.round(depth * 1000), 0).astype(np.uint16)
 
 
 def pose_at(t_ns):
@@ -241,6 +254,20 @@ def test_poses_between_samples_are_interpolated_with_slerp(frames, tmp_path):
     sequence = open_bag(path)
     for i, pose in enumerate(sequence.poses):
         np.testing.assert_allclose(pose, pose_at(stamp(i)), atol=1e-12)  # linear motion, constant rate: exact
+
+
+@pytest.mark.parametrize("encoding", ["32FC1", "16UC1"])
+def test_depth_truth_and_pose_stamped_topics(frames, tmp_path, encoding):
+    path = write_bag(frames, tmp_path / "depth", "mcap", poses="pose", truth=encoding)
+    sequence = open_bag(path, pose_topic="/pose", truth_topic="/stereo/depth")
+    np.testing.assert_allclose(sequence.poses, [f.T_world_cam for f in frames], atol=1e-12)
+    for got, want in zip(sequence, frames):
+        depth = depth_image(want, encoding).astype(np.float64) * (1.0 if encoding == "32FC1" else 1e-3)
+        expected = CAMERA.disparity_from_depth(np.where(depth > 0, depth, np.nan))
+        assert np.isfinite(expected).sum() > 1000
+        np.testing.assert_allclose(got.disparity_gt, expected, rtol=1e-6, equal_nan=True)
+        if encoding == "32FC1":
+            np.testing.assert_allclose(got.disparity_gt, want.disparity_gt, rtol=1e-5, equal_nan=True)
 
 
 def test_bgr8_mono8_and_compressed_images_arrive_as_written(frames, tmp_path):

@@ -125,6 +125,7 @@ class BagSequence:
     def __init__(self, path, *, left, right, left_info=None, right_info=None, pose_topic=None, tf_frames=None,
                  truth_topic=None, rectified=None, pair_tolerance_s=PAIR_TOLERANCE_S, max_pose_gap_s=MAX_POSE_GAP_S):
         self.path = Path(path)
+        self._access = None
         if pose_topic is not None and tf_frames is not None:
             raise PrismapInputError("give a pose topic or tf frames (WORLD:CAMERA), not both")
         left_info = left_info or _info_topic(left)
@@ -198,9 +199,10 @@ class BagSequence:
         wanted = [("left", self._left[index]), ("right", self._right[index])]
         if self._truth is not None:
             wanted.append(("truth", self._truth[index]))
-        with _open(self.path) as reader:
-            connections = _connections(reader, self.path)
-            found = {}
+        reader = self._reader()
+        connections = _connections(reader, self.path)
+        found = {}
+        try:
             for role, (stamp, bag_time, _) in wanted:
                 topic = self._topics[role]
                 for connection, _, raw in reader.messages([connections[topic]], start=bag_time, stop=bag_time + 1):
@@ -208,6 +210,10 @@ class BagSequence:
                     if _stamp_ns(msg.header) == stamp:
                         found[role] = msg
                         break
+        except _damage() as exc:
+            if isinstance(exc, PrismapInputError):
+                raise
+            raise _unreadable(self.path, exc) from None
         left = self._remap(_decode(found["left"], self._topics["left"]), 0)
         right = self._remap(_decode(found["right"], self._topics["right"]), 1)
         if right.shape != left.shape:
@@ -218,6 +224,31 @@ class BagSequence:
         pose = None if self.poses is None else self.poses[index].copy()
         return StereoFrame(left, right, self.camera, disparity, pose,
                            name=f"{self.path.name}@{_seconds(self.stamps_ns[index])}")
+
+    def _reader(self):
+        """The reader frames are read with, opened on first access and kept open (see :meth:`close`)."""
+        if self._access is None:
+            access = _open(self.path)
+            access.__enter__()
+            self._access = access
+        return self._access.reader
+
+    def close(self):
+        """Close the bag file kept open for frame access (reopened if a frame is read again)."""
+        if self._access is not None:
+            self._access.__exit__(None, None, None)
+            self._access = None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc_info):
+        self.close()
+
+    def __getstate__(self):
+        state = dict(self.__dict__)
+        state["_access"] = None  # an open file does not cross processes
+        return state
 
     def _remap(self, image, which):
         if self._maps is None:
