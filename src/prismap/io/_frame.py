@@ -1,4 +1,4 @@
-"""One rectified stereo frame with its calibration and, when known, its ground truth and pose."""
+"""One rectified stereo frame with its calibration and, when known, its ground truth and pose; frame indexing."""
 
 from dataclasses import dataclass, field
 
@@ -31,3 +31,15 @@ class StereoFrame:
     T_world_cam: np.ndarray | None = None
     name: str = ""
     extras: dict = field(default_factory=dict)
+
+
+def frame_index(index, length, where):
+    """``index`` as a frame number in ``[0, length)`` (negative counts from the end), as sequences index frames.
+
+    Raises TypeError for a non-integer and IndexError out of range, naming ``where`` (the sequence's path).
+    """
+    if not isinstance(index, (int, np.integer)):
+        raise TypeError(f"sequence indices must be integers; got {type(index).__name__}")
+    if not -length <= index < length:
+        raise IndexError(f"frame {index} out of range for {length} frames in {where}")
+    return int(index) % length

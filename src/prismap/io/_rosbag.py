@@ -33,7 +33,7 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from prismap.camera import StereoCamera
 from prismap.errors import PrismapInputError
-from prismap.io._frame import StereoFrame
+from prismap.io._frame import StereoFrame, frame_index
 
 PAIR_TOLERANCE_S = 0.005
 """Default largest |stamp difference| of a left and a right image of one frame, seconds."""
@@ -191,11 +191,7 @@ class BagSequence:
         return (self[i] for i in range(len(self)))
 
     def __getitem__(self, index):
-        if not isinstance(index, (int, np.integer)):
-            raise TypeError(f"sequence indices must be integers; got {type(index).__name__}")
-        if not -len(self) <= index < len(self):
-            raise IndexError(f"frame {index} out of range for {len(self)} frames in {self.path}")
-        index = int(index) % len(self)
+        index = frame_index(index, len(self), self.path)
         wanted = [("left", self._left[index]), ("right", self._right[index])]
         if self._truth is not None:
             wanted.append(("truth", self._truth[index]))

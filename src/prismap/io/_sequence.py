@@ -33,7 +33,7 @@ import numpy as np
 from prismap._files import atomic_path
 from prismap._validate import check_positive
 from prismap.errors import PrismapInputError
-from prismap.io._frame import StereoFrame
+from prismap.io._frame import StereoFrame, frame_index
 from prismap.io._images import paired_names, png_size, read_disparity_png, read_pair, write_disparity_png
 from prismap.io._kitti import _camera_poses, _rectified_pair, read_kitti_calib, read_kitti_poses
 from prismap.io._text import homogeneous, read_number_rows
@@ -330,11 +330,7 @@ class Sequence:
         return (self[i] for i in range(len(self)))
 
     def __getitem__(self, index):
-        if not isinstance(index, (int, np.integer)):
-            raise TypeError(f"sequence indices must be integers; got {type(index).__name__}")
-        if not -len(self) <= index < len(self):
-            raise IndexError(f"frame {index} out of range for {len(self)} frames in {self.path}")
-        index = int(index) % len(self)
+        index = frame_index(index, len(self), self.path)
         name = self.names[index]
         left, right = read_pair(self.path / "image_2" / name, self.path / "image_3" / name, colour=False)
         disparity = None
