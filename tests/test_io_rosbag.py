@@ -361,7 +361,7 @@ def test_late_right_images_pair_within_a_wider_tolerance(frames, tmp_path):
 
 
 def test_cli_characterise_bag_fits_the_ground_truth_topic_like_the_library(bags, frames, tmp_path):
-    from prismap.characterise import characterise_matcher, write_characterisation
+    from prismap.characterise import characterise_matcher, write_error_model
     from prismap.stereo import make_matcher
 
     argv = ["characterise", "--bag", str(bags["sqlite3"]), "--left", LEFT, "--right", RIGHT, "--matcher", "bm",
@@ -371,5 +371,20 @@ def test_cli_characterise_bag_fits_the_ground_truth_topic_like_the_library(bags,
     largest = max(np.nanmax(f.disparity_gt) for f in frames)
     matcher = make_matcher("bm", num_disparities=16 * int(np.ceil((largest + 1) / 16)))
     result = characterise_matcher(frames, matcher, max_components=1, dataset=str(bags["sqlite3"]))
-    write_characterisation(result, tmp_path / "lib")
-    assert (tmp_path / "cli" / "error_model.json").read_text() == (tmp_path / "lib" / "error_model.json").read_text()
+    write_error_model(result.model, tmp_path / "lib.json")
+    assert (tmp_path / "cli" / "error_model.json").read_text() == (tmp_path / "lib.json").read_text()
+
+
+@pytest.mark.parametrize("extra, message", [
+    ([], "--bag: mapping needs poses; give --pose-topic TOPIC or --tf-frames WORLD:CAMERA"),
+    (["--tf-frames", "odom"], "--tf-frames 'odom': expected WORLD:CAMERA frame ids"),
+    (["--pose-topic", "/odom", "--workers", "2"], "--bag runs here, without checkpoints"),
+    (["--pose-topic", "/odom", "--sequence", "seq"], "give exactly one of --sequence DIR and --bag PATH"),
+    (["--pose-topic", "/odom", "--pair-tolerance", "0"], "--pair-tolerance must be > 0 seconds; got 0.0"),
+])
+def test_cli_map_bag_option_errors(bags, tmp_path, capsys, extra, message):
+    out = tmp_path / "map.npz"
+    assert main(["map", "--bag", str(bags["rosbag1"]), "--left", LEFT, "--right", RIGHT, "--voxel", "0.2",
+                 "--model", "hitmiss", "--out", str(out), *extra]) == 2
+    assert message in capsys.readouterr().err
+    assert not out.exists()
