@@ -10,7 +10,7 @@ import pytest
 from rosbags.rosbag1 import Writer as Writer1
 from rosbags.rosbag2 import StoragePlugin
 from rosbags.rosbag2 import Writer as Writer2
-from rosbags.typesys import Stores, get_typestore
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from scipy.spatial.transform import Rotation
 from support import CAMERA, assert_same_map, config
 
@@ -33,6 +33,8 @@ class BagWriter:
     def __init__(self, path, storage):
         self.ros1 = storage == "rosbag1"
         self.ts = get_typestore(Stores.ROS1_NOETIC if self.ros1 else Stores.ROS2_HUMBLE)
+        if self.ros1:  # rosbags' Noetic store lacks tf2_msgs: the message is one line, registered here
+            self.ts.register(get_types_from_msg("geometry_msgs/TransformStamped[] transforms", "tf2_msgs/msg/TFMessage"))
         if self.ros1:
             self.writer = Writer1(path)
         else:
@@ -50,11 +52,14 @@ class BagWriter:
     def T(self, name):
         return self.ts.types[name]
 
-    def write(self, topic, msg, stamp_ns):
-        if topic not in self.connections:
-            self.connections[topic] = self.writer.add_connection(topic, msg.__msgtype__, typestore=self.ts)
+    def write(self, topic, msg, stamp_ns, *, publisher=None):
+        """Write ``msg``; a ROS 1 bag gets one connection per ``publisher`` (callerid) of a topic."""
+        key = (topic, publisher if self.ros1 else None)
+        if key not in self.connections:
+            extra = {"callerid": publisher} if key[1] else {}
+            self.connections[key] = self.writer.add_connection(topic, msg.__msgtype__, typestore=self.ts, **extra)
         serialize = self.ts.serialize_ros1 if self.ros1 else self.ts.serialize_cdr
-        self.writer.write(self.connections[topic], stamp_ns, serialize(msg, msg.__msgtype__))
+        self.writer.write(self.connections[key], stamp_ns, serialize(msg, msg.__msgtype__))
 
     def header(self, stamp_ns, frame_id):
         time = self.T("builtin_interfaces/msg/Time")(sec=stamp_ns // 10**9, nanosec=stamp_ns % 10**9)
@@ -161,7 +166,8 @@ def write_bag(frames, path, storage, *, poses="odom", encoding="rgb8", compresse
                     bag.write("/pose", bag.T("geometry_msgs/msg/PoseStamped")(header=bag.header(ts, "map"),
                                                                             pose=bag.pose(T)), ts)
                 elif poses == "tf":
-                    bag.write("/tf", bag.tf(ts, "odom", "base_link", T @ np.linalg.inv(T_BASE_CAM)), ts)
+                    bag.write("/tf", bag.tf(ts, "odom", "base_link", T @ np.linalg.inv(T_BASE_CAM)), ts,
+                              publisher=f"/localiser{i % 2}")
     return path
 
 
@@ -240,8 +246,9 @@ def test_cli_map_bag_writes_the_kitti_sequences_map(bags, frames, tmp_path):
     assert_same_map(load_map(tmp_path / "b.npz"), load_map(tmp_path / "a.npz"), atol=1e-6)
 
 
-def test_tf_chain_with_a_static_edge_gives_the_camera_pose(frames, tmp_path):
-    path = write_bag(frames, tmp_path / "tf", "sqlite3", poses="tf", truth=False)
+@pytest.mark.parametrize("storage", ["sqlite3", "rosbag1"])  # ROS 1: /tf from two publishers, two connections
+def test_tf_chain_with_a_static_edge_gives_the_camera_pose(frames, tmp_path, storage):
+    path = write_bag(frames, bag_path(tmp_path, storage, "tf"), storage, poses="tf", truth=False)
     sequence = open_bag(path, pose_topic=None, tf_frames=("odom", "camera_optical"))
     np.testing.assert_allclose(sequence.poses, [f.T_world_cam for f in frames], atol=1e-9)
     inverse = open_bag(path, pose_topic=None, tf_frames=("camera_optical", "odom"))  # the chain walked upwards

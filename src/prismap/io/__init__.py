@@ -9,7 +9,7 @@ from prismap.io._octomap import to_octree, write_octomap
 from prismap.io._pfm import read_pfm, write_pfm
 from prismap.io._ply import read_ply, write_ply
 from prismap.io._pointcloud2 import write_pointcloud2
-from prismap.io._rosbag import BagSequence, is_bag, read_bag
+from prismap.io._rosbag import BagSequence, read_bag
 from prismap.io._sequence import (
     GroundTruthOccupancy,
     Sequence,
@@ -37,7 +37,6 @@ __all__ = [
     "Sequence",
     "StereoFrame",
     "TSUKUBA_CAMERA",
-    "is_bag",
     "load_map",
     "load_middlebury_folder",
     "load_middlebury_motorcycle",

@@ -95,12 +95,6 @@ def read_bag(path, *, left, right, left_info=None, right_info=None, pose_topic=N
                        pair_tolerance_s=pair_tolerance_s, max_pose_gap_s=max_pose_gap_s)
 
 
-def is_bag(path):
-    """Whether ``path`` looks like a bag ``read_bag`` opens: a ``.bag``/``.mcap``/``.db3`` file or a ROS 2 bag directory."""
-    path = Path(path)
-    return (path.is_file() and path.suffix in (".bag", ".mcap", ".db3")) or (path / "metadata.yaml").is_file()
-
-
 class BagSequence:
     """A stereo recording opened by :func:`read_bag`; images are read from the bag on access.
 
@@ -143,9 +137,9 @@ class BagSequence:
             for topic, types in wanted.items():
                 _check_topic(connections, topic, types, self.path)
             topics = list(wanted) + (["/tf_static"] if "/tf_static" in connections and tf_frames else [])
-            messages = _scan(reader, [connections[t] for t in topics], self.path)
+            messages = _scan(reader, [c for t in topics for c in connections[t]], self.path)
         self._topics = {"left": left, "right": right, "truth": truth_topic}
-        self._types = {topic: connections[topic].msgtype for topic in topics}
+        self._types = {topic: connections[topic][0].msgtype for topic in topics}
         self._left, self._right = messages[left], messages[right]
         if not self._left:
             raise PrismapInputError(f"{self.path}: topic {left} has no images")
@@ -201,7 +195,7 @@ class BagSequence:
         try:
             for role, (stamp, bag_time, _) in wanted:
                 topic = self._topics[role]
-                for connection, _, raw in reader.messages([connections[topic]], start=bag_time, stop=bag_time + 1):
+                for connection, _, raw in reader.messages(connections[topic], start=bag_time, stop=bag_time + 1):
                     msg = _deserialize(reader, raw, connection, self.path)
                     if _stamp_ns(msg.header) == stamp:
                         found[role] = msg
@@ -329,19 +323,19 @@ def _unreadable(path, exc):
 
 
 def _connections(reader, path):
+    """``{topic: [connections]}``: a ROS 1 topic has one connection per publisher (``/tf`` often several)."""
     connections = {}
     for connection in reader.connections:
-        connections.setdefault(connection.topic, connection)
+        connections.setdefault(connection.topic, []).append(connection)
     return connections
 
 
 def _check_topic(connections, topic, types, path):
     if topic not in connections:
         raise PrismapInputError(f"{path}: topic {topic} not in the bag; it has {sorted(connections)}")
-    if connections[topic].msgtype not in types:
-        raise PrismapInputError(
-            f"{path}: topic {topic} holds {connections[topic].msgtype}; expected {' or '.join(types)}"
-        )
+    held = sorted({connection.msgtype for connection in connections[topic]})
+    if any(msgtype not in types for msgtype in held):
+        raise PrismapInputError(f"{path}: topic {topic} holds {' and '.join(held)}; expected {' or '.join(types)}")
 
 
 def _deserialize(reader, raw, connection, path):
