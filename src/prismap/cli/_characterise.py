@@ -5,6 +5,7 @@ from pathlib import Path
 
 from prismap._files import check_output_dir
 from prismap._validate import check_positive
+from prismap.cli._bag import add_bag_arguments, open_bag_argument
 from prismap.errors import PrismapInputError
 
 MOTORCYCLE = "middlebury-motorcycle"
@@ -22,11 +23,11 @@ def register(subparsers):
             "search range is set to cover the largest ground-truth disparity."
         ),
     )
-    parser.add_argument("--dataset", required=True, metavar="NAME|PATH",
+    parser.add_argument("--dataset", metavar="NAME|PATH",
                         help=f"'{MOTORCYCLE}' (bundled with scikit-image) or a folder, its kind recognised from "
                              "the layout: a Middlebury scene or folder of scenes, a KITTI stereo 2012/2015 training "
                              "folder, a KITTI-layout sequence with disp/, a KITTI odometry sequence or raw drive "
-                             "(Velodyne scans projected into the left camera), New Tsukuba")
+                             "(Velodyne scans projected into the left camera), New Tsukuba (or --bag)")
     parser.add_argument("--frames", metavar="A:B", default=None,
                         help="frames A up to (excluding) B of the dataset, Python-style (default all; "
                              "negative A as --frames=-10:)")
@@ -44,6 +45,7 @@ def register(subparsers):
     parser.add_argument("--tolerance", type=float, default=0.01, metavar="NATS",
                         help="select the smallest G within this many nats per error of the best (default 0.01)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the EM restarts (default 0)")
+    add_bag_arguments(parser, poses=False)
     parser.set_defaults(func=run)
 
 
@@ -55,8 +57,13 @@ def run(args):
     bin_width = check_positive(args.bin_width, "--bin-width")
     if args.max_components < 1:
         raise PrismapInputError(f"`--max-components` must be >= 1; got {args.max_components}")
+    if (args.dataset is None) == (args.bag is None):
+        raise PrismapInputError("give exactly one of --dataset NAME|PATH and --bag PATH")
+    if args.bag is not None and not args.truth_topic:
+        raise PrismapInputError("--bag: characterising needs ground truth; give --truth-topic TOPIC")
     check_output_dir(args.out, "--out")
     frames = _load_frames(args)
+    args.dataset = args.dataset or str(args.bag)
     options = {"left_right_check": True} if args.lr_check else {}
     options.update(_search_range(args.matcher, frames))
     try:
@@ -80,9 +87,12 @@ def run(args):
 
 
 def _load_frames(args):
-    """The selected frames of ``--dataset`` (a lazy :class:`prismap.io.GroundTruthFrames`)."""
-    from prismap.io import open_ground_truth
+    """The selected frames of ``--dataset`` or ``--bag`` (a lazy :class:`prismap.io.GroundTruthFrames`)."""
+    from prismap.io import GroundTruthFrames, open_ground_truth
 
+    if args.bag is not None:
+        bag = open_bag_argument(args)
+        return GroundTruthFrames(bag, "rosbag", str(args.bag), range(len(bag)))
     return open_ground_truth(args.dataset, frames=args.frames, every=args.every, kitti_disparity=args.kitti_disparity)
 
 

@@ -6,6 +6,7 @@ import math
 from pathlib import Path
 
 from prismap._validate import check_positive, check_probability
+from prismap.cli._bag import add_bag_arguments, open_bag_argument
 from prismap.errors import PrismapInputError
 
 
@@ -24,10 +25,12 @@ def register(subparsers):
             "Disparities come from --matcher, or from --disparity-dir (uint16 PNG, value / 256 = px, 0 = "
             "invalid; SEQ/disp for the sequence's ground truth). With --checkpoint-every K the partial map is "
             "saved beside --out every K frames (OUT.checkpoint.npz/.json); the same command run again resumes "
-            "from it, and refuses a checkpoint written with other options or inputs."
+            "from it, and refuses a checkpoint written with other options or inputs. A ROS bag is read with --bag "
+            "(see the ROS bag options)."
         ),
     )
-    parser.add_argument("--sequence", required=True, type=Path, metavar="DIR", help="sequence directory")
+    parser.add_argument("--sequence", type=Path, metavar="DIR", help="sequence directory (or --bag)")
+    add_bag_arguments(parser, poses=True)
     parser.add_argument("--matcher", default="sgbm", choices=matcher_names(), help="stereo matcher (default sgbm)")
     parser.add_argument("--matcher-param", action="append", default=[], metavar="KEY=VALUE",
                         help="matcher parameter, repeatable (e.g. num_disparities=64)")
@@ -65,9 +68,7 @@ def run(args):
         raise PrismapInputError(f"--checkpoint-every must be >= 0; got {args.checkpoint_every}")
     if args.workers is not None and args.workers < 1:
         raise PrismapInputError(f"--workers must be >= 1; got {args.workers}")
-    if not args.sequence.is_dir():
-        raise PrismapInputError(f"--sequence {args.sequence}: sequence directory not found")
-    sequence = read_sequence(args.sequence)
+    sequence = _open_input(args, read_sequence)
     config = MappingConfig(
         model=args.model, voxel_size_m=check_positive(args.voxel, "--voxel"), p0=check_probability(args.p0, "--p0"),
         error_model=_error_model(args.error_model), model_params=parse_params(args.model_param, "--model-param"),
@@ -89,6 +90,21 @@ def run(args):
     print(f"{grid.n_frames} frames, {grid.n_known} known voxels, {len(grid.occupied_voxels()[0])} occupied "
           f"({config.model}, voxel {config.voxel_size_m} m); wrote {args.out}")
     return 0
+
+
+def _open_input(args, read_sequence):
+    """The sequence of ``--sequence`` or of ``--bag`` (with poses; not on Dask or with checkpoints)."""
+    if (args.sequence is None) == (args.bag is None):
+        raise PrismapInputError("give exactly one of --sequence DIR and --bag PATH")
+    if args.bag is None:
+        if not args.sequence.is_dir():
+            raise PrismapInputError(f"--sequence {args.sequence}: sequence directory not found")
+        return read_sequence(args.sequence)
+    if not (args.pose_topic or args.tf_frames):
+        raise PrismapInputError("--bag: mapping needs poses; give --pose-topic TOPIC or --tf-frames WORLD:CAMERA")
+    if args.workers is not None or args.scheduler is not None or args.checkpoint_every:
+        raise PrismapInputError("--bag runs here, without checkpoints: drop --workers/--scheduler/--checkpoint-every")
+    return open_bag_argument(args)
 
 
 def parse_params(items, option):

@@ -1,4 +1,4 @@
-"""Dataset readers, map files and exports."""
+"""Dataset readers (folders and ROS bags), map files and exports."""
 
 from prismap.io._frame import StereoFrame
 from prismap.io._ground_truth import GroundTruthFrames, open_ground_truth
@@ -22,6 +22,8 @@ from prismap.io._middlebury import (
 from prismap.io._octomap import to_octree, write_octomap
 from prismap.io._pfm import read_pfm, write_pfm
 from prismap.io._ply import read_ply, write_ply
+from prismap.io._pointcloud2 import write_pointcloud2
+from prismap.io._rosbag import BagSequence, read_bag
 from prismap.io._sequence import (
     GroundTruthOccupancy,
     Sequence,
@@ -46,6 +48,7 @@ from prismap.io._velodyne import (
 __all__ = [
     "MOTORCYCLE_CAMERA",
     "TSUKUBA_CAMERA",
+    "BagSequence",
     "GroundTruthFrames",
     "GroundTruthOccupancy",
     "KittiOdometry",
@@ -60,6 +63,7 @@ __all__ = [
     "load_middlebury_motorcycle",
     "open_ground_truth",
     "points_to_disparity",
+    "read_bag",
     "read_ground_truth",
     "read_kitti_calib",
     "read_kitti_disparity",
@@ -80,5 +84,6 @@ __all__ = [
     "write_octomap",
     "write_pfm",
     "write_ply",
+    "write_pointcloud2",
     "write_sequence",
 ]

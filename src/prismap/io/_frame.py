@@ -1,4 +1,4 @@
-"""One rectified stereo frame with its calibration and, when known, its ground truth and pose."""
+"""One rectified stereo frame with its calibration and, when known, its ground truth and pose; frame indexing."""
 
 from abc import abstractmethod
 from collections.abc import Sequence
@@ -49,8 +49,20 @@ class LazyFrames(Sequence):
 
     def _index(self, index):
         """``index`` as a position in ``0..len - 1`` (negative counts from the end); IndexError beyond."""
-        return range(len(self))[index]
+        return frame_index(index, len(self), getattr(self, "path", type(self).__name__))
 
     @abstractmethod
     def _frame(self, index):
         """The :class:`StereoFrame` at ``index`` (``0 <= index < len``)."""
+
+
+def frame_index(index, length, where):
+    """``index`` as a frame number in ``[0, length)`` (negative counts from the end), as sequences index frames.
+
+    Raises TypeError for a non-integer and IndexError out of range, naming ``where`` (the sequence's path).
+    """
+    if not isinstance(index, (int, np.integer)):
+        raise TypeError(f"sequence indices must be integers; got {type(index).__name__}")
+    if not -length <= index < length:
+        raise IndexError(f"frame {index} out of range for {length} frames in {where}")
+    return int(index) % length

@@ -33,7 +33,7 @@ import numpy as np
 from prismap._files import atomic_path
 from prismap._validate import check_positive
 from prismap.errors import PrismapInputError
-from prismap.io._frame import StereoFrame
+from prismap.io._frame import StereoFrame, frame_index
 from prismap.io._images import (
     paired_names,
     png_size,
@@ -341,11 +341,7 @@ class Sequence:
         return (self[i] for i in range(len(self)))
 
     def __getitem__(self, index):
-        if not isinstance(index, (int, np.integer)):
-            raise TypeError(f"sequence indices must be integers; got {type(index).__name__}")
-        if not -len(self) <= index < len(self):
-            raise IndexError(f"frame {index} out of range for {len(self)} frames in {self.path}")
-        index = int(index) % len(self)
+        index = frame_index(index, len(self), self.path)
         name = self.names[index]
         left, right = read_pair(self.path / "image_2" / name, self.path / "image_3" / name, colour=False)
         disparity = self.disparity_gt(index) if self.ground_truth_path(index).is_file() else None

@@ -7,7 +7,7 @@ from pathlib import Path
 from prismap._progress import progress as progress_bar
 from prismap.errors import PrismapInputError
 from prismap.grid import OccupancyMap
-from prismap.io import Sequence, read_kitti_disparity, read_sequence
+from prismap.io import BagSequence, Sequence, read_kitti_disparity, read_sequence
 from prismap.pipeline._checkpoint import open_checkpoint, run_fingerprint, save_checkpoint
 from prismap.pipeline._config import DISPARITY_FROM_MATCHER, DISPARITY_FROM_SEQUENCE, MappingConfig
 from prismap.stereo import make_matcher
@@ -18,8 +18,8 @@ maps many chunks with one model, and PRISM's tables are built once per model."""
 
 
 def open_sequence(sequence):
-    """A :class:`~prismap.io.Sequence` from itself or from its directory path."""
-    return sequence if isinstance(sequence, Sequence) else read_sequence(sequence)
+    """A :class:`~prismap.io.Sequence` (or an opened :class:`~prismap.io.BagSequence`) from itself or its directory path."""
+    return sequence if isinstance(sequence, (Sequence, BagSequence)) else read_sequence(sequence)
 
 
 def new_map(config, ndim=3):
