@@ -1,5 +1,11 @@
 """Errors of a stereo matcher against ground truth, their histograms, fitted error models and tables."""
 
+from prismap.characterise._features import (
+    FEATURE_UNITS,
+    PixelFeatures,
+    compute_features,
+    discontinuity_mask,
+)
 from prismap.characterise._histogram import ErrorHistogram
 from prismap.characterise._model import ErrorModel, format_table, load_error_model, write_error_model
 from prismap.characterise._run import Characterisation, characterise_matcher, write_characterisation
@@ -7,8 +13,12 @@ from prismap.characterise._run import Characterisation, characterise_matcher, wr
 __all__ = [
     "Characterisation",
     "ErrorHistogram",
+    "FEATURE_UNITS",
+    "PixelFeatures",
     "ErrorModel",
     "characterise_matcher",
+    "compute_features",
+    "discontinuity_mask",
     "format_table",
     "load_error_model",
     "write_characterisation",
