@@ -202,7 +202,7 @@ def test_table_follows_the_thesis_layout_and_hides_light_components_beyond_three
 
 def test_characterisation_recovers_the_error_mixture_of_a_known_matcher():
     frames = [_oracle_frame(seed) for seed in range(3)]
-    result = characterise_matcher(frames, NoisyOracle(seed=5), max_components=3, dataset="oracle")
+    result = characterise_matcher(frames, NoisyOracle(seed=5), max_components=3, dataset="oracle", conditioned=False)
     hist = result.histogram
     gt_known = sum(int(np.isfinite(f.disparity_gt).sum()) for f in frames)
     computed = sum(int((np.isfinite(f.disparity_gt) & (f.right != 0)).sum()) for f in frames)
@@ -221,7 +221,7 @@ def test_characterisation_recovers_the_error_mixture_of_a_known_matcher():
 def test_sgbm_on_a_shifted_texture_has_a_narrow_unbiased_dominant_component(tmp_path):
     frames = [_shifted_texture_frame(seed) for seed in range(2)]
     matcher = make_matcher("sgbm", num_disparities=16, block_size=5)
-    result = characterise_matcher(frames, matcher, max_components=3, dataset="shifted texture")
+    result = characterise_matcher(frames, matcher, max_components=3, dataset="shifted texture", conditioned=False)
     heaviest = int(np.argmax(result.mixture.weights))
     assert result.histogram.coverage > 0.8
     assert abs(result.mixture.means[heaviest]) < 0.2

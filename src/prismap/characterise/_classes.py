@@ -79,7 +79,7 @@ class ErrorClasses:
         bins = []
         for interior in edges:
             bounds = np.concatenate(([-np.inf], np.asarray(interior, dtype=np.float64).ravel(), [np.inf]))
-            bins.append(list(zip(bounds[:-1], bounds[1:])))
+            bins.append(list(itertools.pairwise(bounds)))
         cells = list(itertools.product(*bins))  # row-major: the last feature varies fastest
         lower = np.array([[low for low, _ in cell] for cell in cells]).reshape(len(cells), len(features))
         upper = np.array([[high for _, high in cell] for cell in cells]).reshape(len(cells), len(features))

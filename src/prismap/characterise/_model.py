@@ -369,14 +369,19 @@ def _classes_from_dict(data, source):
             high.append(np.inf if pair[1] is None else _number(pair[1], f"{at}: upper bound of {name!r}"))
         lower.append(low)
         upper.append(high)
-        models.append(ClassModel(
-            _fits_from_list(entry["models"], f"{at}: models"),
-            _integer(entry["selected_components"], f"{at}: `selected_components`", 1, MAX_COMPONENTS),
-            _number(entry["share"], f"{at}: `share`", low=0.0, high=1.0),
-            _object(entry.get("statistics", {}), f"{at}: `statistics`"),
-        ))
-    classes = ErrorClasses(tuple(names), np.array(lower).reshape(len(entries), len(names)),
-                           np.array(upper).reshape(len(entries), len(names)))
+        fits = _fits_from_list(entry["models"], f"{at}: models")
+        selected = _integer(entry["selected_components"], f"{at}: `selected_components`", 1, MAX_COMPONENTS)
+        share = _number(entry["share"], f"{at}: `share`", low=0.0, high=1.0)
+        statistics = _object(entry.get("statistics", {}), f"{at}: `statistics`")
+        try:
+            models.append(ClassModel(fits, selected, share, statistics))
+        except PrismapInputError as exc:
+            raise PrismapInputError(f"{at}: {exc}") from None
+    try:
+        classes = ErrorClasses(tuple(names), np.array(lower).reshape(len(entries), len(names)),
+                               np.array(upper).reshape(len(entries), len(names)))
+    except PrismapInputError as exc:
+        raise PrismapInputError(f"{source}: {exc}") from None
     return {"classes": classes, "class_models": tuple(models), "feature_settings": settings,
             "class_selection": _object(data.get("class_selection", {}), f"{source}: `class_selection`")}
 
@@ -518,10 +523,10 @@ def _class_lines(model):
     lines = []
     if record:
         lines += ["", "## Error classes", "",
-                  f"Chosen by held-out log-likelihood ({record.get('held_out', '?')}): plain "
-                  f"{_decimal(record.get('plain_nats_per_error'))} nats per error, chosen classes "
-                  f"{_decimal(record.get('conditioned_nats_per_error'))} nats per error over "
-                  f"{record.get('n_held_out_errors', '?')} held-out errors."]
+                  (f"Chosen by held-out log-likelihood ({record.get('held_out', '?')}): plain "
+                   f"{_decimal(record.get('plain_nats_per_error'))} nats per error, chosen classes "
+                   f"{_decimal(record.get('conditioned_nats_per_error'))} nats per error over "
+                   f"{record.get('n_held_out_errors', '?')} held-out errors.")]
     if not model.conditioned:
         return lines + (["", "The plain model predicts held-out errors best: one class."] if record else [])
     units = {name: FEATURE_UNITS[name] for name in model.classes.features}

@@ -7,8 +7,16 @@ import numpy as np
 
 from prismap._files import write_text_atomic
 from prismap._progress import progress
-from prismap.characterise._features import DEFAULT_EDGE_THRESHOLD_PX, DEFAULT_TEXTURE_WINDOW_PX, compute_features
-from prismap.characterise._histogram import DEFAULT_BIN_WIDTH, DEFAULT_LIMIT_PX, ErrorHistogram
+from prismap.characterise._features import (
+    DEFAULT_EDGE_THRESHOLD_PX,
+    DEFAULT_TEXTURE_WINDOW_PX,
+    compute_features,
+)
+from prismap.characterise._histogram import (
+    DEFAULT_BIN_WIDTH,
+    DEFAULT_LIMIT_PX,
+    ErrorHistogram,
+)
 from prismap.characterise._model import ErrorModel, format_table, write_error_model
 from prismap.characterise._select import choose_classes, fit_classes
 from prismap.errors import PrismapInputError

@@ -147,7 +147,7 @@ def choose_classes(values, errors, fold, *, bin_edges, max_classes, max_componen
     width = bin_edges[1] - bin_edges[0]
     index = np.floor((errors - bin_edges[0]) / width).astype(np.int64)
     binned = (index >= 0) & (index < bin_edges.size - 1)
-    factor = max(1, int(round(SEARCH_BIN_WIDTH_PX / width)))
+    factor = max(1, round(SEARCH_BIN_WIDTH_PX / width))
     while (bin_edges.size - 1) % factor:
         factor -= 1
     index //= factor
