@@ -201,13 +201,16 @@ def _conditioning(samples, histogram, *, max_classes, max_components, criterion,
 
 
 def write_characterisation(result, out_dir):
-    """Write ``error_model.json``, ``table.md``, ``errors.png`` and ``errors_wide.png`` into ``out_dir``.
+    """Write ``error_model.json``, ``table.md``, ``errors.png``, ``errors_wide.png`` into ``out_dir``.
+
+    A conditioned model adds ``errors_classes.png`` (one panel per class).
 
     Returns
     -------
-    dict of str -> Path: the written files by role (``model``, ``table``, ``figure``, ``figure_wide``).
+    dict of str -> Path: the written files by role (``model``, ``table``, ``figure``, ``figure_wide``,
+    and ``figure_classes`` for a conditioned model).
     """
-    from prismap.plots import plot_error_fits, plot_error_tails
+    from prismap.plots import plot_class_fits, plot_error_fits, plot_error_tails
 
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
@@ -218,8 +221,12 @@ def write_characterisation(result, out_dir):
         "figure": out / "errors.png",
         "figure_wide": out / "errors_wide.png",
     }
+    if result.model.conditioned:
+        paths["figure_classes"] = out / "errors_classes.png"
     write_error_model(result.model, paths["model"])
     write_text_atomic(paths["table"], format_table(result.model))
     plot_error_fits(result.histogram, result.model, path=paths["figure"])
     plot_error_tails(result.histogram, result.model, path=paths["figure_wide"])
+    if result.model.conditioned:
+        plot_class_fits(result.class_histograms, result.model, path=paths["figure_classes"])
     return paths
