@@ -1,5 +1,6 @@
 """``prismap characterise`` end to end: Motorcycle with SGBM, and clear errors for unusable input."""
 
+import itertools
 import json
 
 import cv2
@@ -62,7 +63,7 @@ def test_sgbm_on_motorcycle_has_a_sub_pixel_core_and_a_wide_outlier_component(mo
     assert model.statistics["coverage"] > 0.7
     # more components fit at least as well; one Gaussian is far worse (the heavy tails)
     lls = [fit.log_likelihood for fit in model.fits]
-    assert all(b >= a - 1e-6 * abs(a) for a, b in zip(lls, lls[1:]))
+    assert all(b >= a - 1e-6 * abs(a) for a, b in itertools.pairwise(lls))
     assert model.fit(2).mean_log_likelihood - model.fit(1).mean_log_likelihood > 1.0
 
 

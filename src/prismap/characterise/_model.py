@@ -480,16 +480,16 @@ def format_table(model):
     lines = [
         f"# Disparity error model: {model.matcher} on {model.dataset}",
         "",
-        f"Errors e = d_true - d_computed (px): {stats.get('n_errors', '?')} from {stats.get('n_frames', '?')} "
-        f"frame(s); coverage {_percent(stats.get('coverage'))}, bad-1px {_percent(stats.get('bad_1px'))}, "
-        f"bad-2px {_percent(stats.get('bad_2px'))}, mean |e| {_decimal(stats.get('mean_abs_error_px'))} px; "
-        f"histogram bin width {model.bin_width:g} px.",
+        (f"Errors e = d_true - d_computed (px): {stats.get('n_errors', '?')} from {stats.get('n_frames', '?')} "
+         f"frame(s); coverage {_percent(stats.get('coverage'))}, bad-1px {_percent(stats.get('bad_1px'))}, "
+         f"bad-2px {_percent(stats.get('bad_2px'))}, mean |e| {_decimal(stats.get('mean_abs_error_px'))} px; "
+         f"histogram bin width {model.bin_width:g} px."),
         "",
-        f"Selected G = {model.selected_components} (marked *): the smallest G whose "
-        f"{model.selection.get('criterion', 'bic').upper()} is within "
-        f"{model.selection.get('tolerance_nats_per_error', 0)} nats per error of the best. "
-        "AIC = 2k - 2 ln L and BIC = k ln N - 2 ln L with k = 3G - 1 (the thesis printed 2G as the AIC "
-        f"penalty). Rows with G > 3 list only components with weight > {TABLE_MIN_WEIGHT}, as in the thesis.",
+        (f"Selected G = {model.selected_components} (marked *): the smallest G whose "
+         f"{model.selection.get('criterion', 'bic').upper()} is within "
+         f"{model.selection.get('tolerance_nats_per_error', 0)} nats per error of the best. "
+         "AIC = 2k - 2 ln L and BIC = k ln N - 2 ln L with k = 3G - 1 (the thesis printed 2G as the AIC "
+         f"penalty). Rows with G > 3 list only components with weight > {TABLE_MIN_WEIGHT}, as in the thesis."),
         "",
     ]
     shown = []

@@ -38,7 +38,7 @@ def plot_error_fits(histogram, model, *, path=None, half_width_px=None):
     fig = Figure(figsize=(4.2 * columns, 3.2 * rows), layout="constrained")
     axes = np.atleast_1d(fig.subplots(rows, columns, squeeze=False).ravel())
     low, high = centre - half, centre + half
-    factor = max(1, int(round(2 * half / histogram.bin_width / 256)))
+    factor = max(1, round(2 * half / histogram.bin_width / 256))
     edges, values = _rebin(density_edges, density, factor, low, high)
     x = np.linspace(low, high, 2001)
     for ax, g in zip(axes, panels):
@@ -79,7 +79,7 @@ def plot_error_tails(histogram, model, *, path=None):
     occupied = np.flatnonzero(histogram.counts)
     low = float(edges[occupied[0]]) - 1.0
     high = float(edges[occupied[-1] + 1]) + 1.0
-    factor = max(1, int(round(0.25 / histogram.bin_width)))
+    factor = max(1, round(0.25 / histogram.bin_width))
     edges, values = _rebin(edges, density, factor, low, high)
     fig = Figure(figsize=(8, 3.6), layout="constrained")
     ax = fig.subplots()
@@ -136,7 +136,7 @@ def plot_class_fits(class_histograms, model, *, path=None, half_width_px=8.0):
     axes = np.atleast_1d(fig.subplots(rows, columns, squeeze=False).ravel())
     half = float(half_width_px)
     x = np.linspace(-half, half, 2001)
-    factor = max(1, int(round(0.125 / class_histograms[0].bin_width)))
+    factor = max(1, round(0.125 / class_histograms[0].bin_width))
     for k, (ax, histogram, class_model) in enumerate(zip(axes, class_histograms, model.class_models)):
         density_edges, density, total = _display_density(histogram)
         edges, values = _rebin(density_edges, density, factor, -half, half)
