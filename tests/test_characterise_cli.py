@@ -1,5 +1,6 @@
 """``prismap characterise`` end to end: Motorcycle with SGBM, and clear errors for unusable input."""
 
+import itertools
 import json
 
 import cv2
@@ -22,8 +23,9 @@ def motorcycle_sgbm(tmp_path_factory):
 def test_cli_writes_the_model_table_and_figures(motorcycle_sgbm):
     status, out = motorcycle_sgbm
     assert status == 0
-    assert sorted(p.name for p in out.iterdir()) == ["error_model.json", "errors.png", "errors_wide.png", "table.md"]
-    for name in ("errors.png", "errors_wide.png"):
+    assert sorted(p.name for p in out.iterdir()) == ["error_model.json", "errors.png", "errors_classes.png",
+                                                     "errors_wide.png", "table.md"]
+    for name in ("errors.png", "errors_classes.png", "errors_wide.png"):
         assert (out / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     data = json.loads((out / "error_model.json").read_text())
     assert [m["n_components"] for m in data["models"]] == [1, 2, 3, 4]
@@ -31,6 +33,22 @@ def test_cli_writes_the_model_table_and_figures(motorcycle_sgbm):
     assert data["matcher"]["params"]["num_disparities"] % 16 == 0
     table = (out / "table.md").read_text()
     assert f"| {data['selected_components']}* |" in table
+    assert "## Error classes" in table and len(data["classes"]) >= 2
+
+
+def test_conditioned_model_of_sgbm_on_motorcycle_predicts_held_out_errors_better(motorcycle_sgbm):
+    # The errors crowd at the depth edges of the computed disparity (issue 10): conditioning must win.
+    _, out = motorcycle_sgbm
+    model = load_error_model(out / "error_model.json")
+    record = model.class_selection
+    assert model.conditioned and record["held_out"] == "two folds: left / right image halves (one frame)"
+    assert record["conditioned_nats_per_error"] > record["plain_nats_per_error"] + 0.03
+    assert "edge_distance_px" in model.classes.features
+    column = list(model.classes.features).index("edge_distance_px")
+    nearest = [k for k in range(model.n_classes) if model.classes.lower[k, column] == -np.inf]
+    farthest = [k for k in range(model.n_classes) if model.classes.upper[k, column] == np.inf]
+    bad = [model.class_models[k].statistics["bad_2px"] for k in range(model.n_classes)]
+    assert min(bad[k] for k in nearest) > 3 * max(bad[k] for k in farthest)
 
 
 def test_sgbm_on_motorcycle_has_a_sub_pixel_core_and_a_wide_outlier_component(motorcycle_sgbm):
@@ -45,7 +63,7 @@ def test_sgbm_on_motorcycle_has_a_sub_pixel_core_and_a_wide_outlier_component(mo
     assert model.statistics["coverage"] > 0.7
     # more components fit at least as well; one Gaussian is far worse (the heavy tails)
     lls = [fit.log_likelihood for fit in model.fits]
-    assert all(b >= a - 1e-6 * abs(a) for a, b in zip(lls, lls[1:]))
+    assert all(b >= a - 1e-6 * abs(a) for a, b in itertools.pairwise(lls))
     assert model.fit(2).mean_log_likelihood - model.fit(1).mean_log_likelihood > 1.0
 
 
@@ -100,3 +118,16 @@ def test_bad_options_are_clear_errors(capsys, tmp_path):
     err = _run_failing(capsys, ["characterise", "--dataset", "middlebury-motorcycle", "--matcher", "sgbm",
                                 "--max-components", "0", "--out", str(tmp_path / "out")])
     assert "--max-components" in err
+    err = _run_failing(capsys, ["characterise", "--dataset", "middlebury-motorcycle", "--matcher", "sgbm",
+                                "--max-classes", "0", "--out", str(tmp_path / "out")])
+    assert "--max-classes" in err
+
+
+def test_plain_option_writes_one_class(tmp_path):
+    texture = np.random.default_rng(1).integers(0, 256, (64, 128, 3)).astype(np.uint8)
+    folder = _middlebury_folder(tmp_path / "tex", image=texture, disparity=np.full((64, 128), 10, np.float32))
+    assert main(["characterise", "--dataset", str(folder), "--matcher", "sgbm", "--plain", "--max-components", "1",
+                 "--out", str(tmp_path / "out")]) == 0
+    model = load_error_model(tmp_path / "out" / "error_model.json")
+    assert not model.conditioned and model.n_classes == 1 and not model.class_selection
+    assert not (tmp_path / "out" / "errors_classes.png").exists()

@@ -21,7 +21,7 @@ def kitti_2015(tmp_path_factory):
 def test_characterise_a_kitti_stereo_selection_with_sgbm(kitti_2015, tmp_path, capsys):
     out = tmp_path / "out"
     status = main(["characterise", "--dataset", str(kitti_2015), "--frames", "0:4", "--every", "2",
-                   "--matcher", "sgbm", "--max-components", "2", "--out", str(out)])
+                   "--matcher", "sgbm", "--max-components", "2", "--plain", "--out", str(out)])
     assert status == 0, capsys.readouterr().err
     assert sorted(p.name for p in out.iterdir()) == ["error_model.json", "errors.png", "errors_wide.png", "table.md"]
     model = json.loads((out / "error_model.json").read_text())

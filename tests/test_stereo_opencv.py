@@ -6,7 +6,7 @@ import pytest
 import scipy.ndimage as ndi
 
 from prismap import PrismapInputError
-from prismap.stereo import make_matcher
+from prismap.stereo import left_right_disagreement, make_matcher
 from prismap.stereo._opencv import BlockMatcher, SemiGlobalMatcher
 
 MATCHERS = {"bm": {"block_size": 9}, "sgbm": {"block_size": 5}}
@@ -109,6 +109,38 @@ def test_left_right_check_keeps_the_last_columns(name):
     last = checked[10:-10, -40:-6]
     assert np.isfinite(last).mean() > 0.99
     assert np.nanmax(np.abs(last - 12.0)) <= 0.5
+
+
+@pytest.mark.parametrize("name", MATCHERS)
+def test_compute_with_confidence_returns_compute_and_the_disagreement_behind_the_check(name):
+    left, right, (band_start, band_end) = _occluding_strip()
+    lenient = {"uniqueness_ratio": 0, "speckle_window_size": 0}
+    checking = make_matcher(name, num_disparities=32, left_right_check=True, lr_max_difference_px=1.0, **lenient,
+                            **MATCHERS[name])
+    disparity, disagreement = checking.compute_with_confidence(left, right)
+    np.testing.assert_array_equal(disparity, checking.compute(left, right))
+    assert disagreement.shape == left.shape and disagreement.dtype == np.float32
+    # Kept pixels are exactly those that agree within the tolerance; the occluded band disagrees.
+    np.testing.assert_array_equal(np.isfinite(disparity), disagreement <= 1.0)
+    assert np.nanmedian(disagreement[10:-10, band_start + 3:band_end - 3]) > 1.0
+    plain, none = make_matcher(name, num_disparities=32, **MATCHERS[name]).compute_with_confidence(left, right)
+    assert none is None and plain.shape == left.shape
+
+
+def test_left_right_disagreement_against_a_loop_reference():
+    rng = np.random.default_rng(3)
+    left = rng.uniform(0, 6, (5, 9)).astype(np.float32)
+    right = rng.uniform(0, 6, (5, 9)).astype(np.float32)
+    left[1, 2] = np.nan
+    right[2, 3] = np.nan
+    ours = left_right_disagreement(left, right)
+    for v in range(5):
+        for u in range(9):
+            target = int(np.rint(u - left[v, u])) if np.isfinite(left[v, u]) else -1
+            expected = abs(right[v, target] - left[v, u]) if 0 <= target < 9 else np.nan
+            np.testing.assert_equal(ours[v, u], np.float32(expected))
+    with pytest.raises(PrismapInputError, match="one shape"):
+        left_right_disagreement(left, right[:, :4])
 
 
 def test_invalid_marker_becomes_nan_and_fixed_point_is_divided_by_16():

@@ -1,14 +1,40 @@
 """Errors of a stereo matcher against ground truth, their histograms, fitted error models and tables."""
 
+from prismap.characterise._classes import NO_CLASS, ErrorClasses
+from prismap.characterise._features import (
+    FEATURE_UNITS,
+    PixelFeatures,
+    compute_features,
+    discontinuity_mask,
+)
 from prismap.characterise._histogram import ErrorHistogram
-from prismap.characterise._model import ErrorModel, format_table, load_error_model, write_error_model
-from prismap.characterise._run import Characterisation, characterise_matcher, write_characterisation
+from prismap.characterise._model import (
+    ClassModel,
+    ErrorModel,
+    format_table,
+    load_error_model,
+    write_error_model,
+)
+from prismap.characterise._run import (
+    Characterisation,
+    characterise_matcher,
+    write_characterisation,
+)
+from prismap.characterise._select import choose_classes
 
 __all__ = [
+    "FEATURE_UNITS",
+    "NO_CLASS",
     "Characterisation",
+    "ClassModel",
+    "ErrorClasses",
     "ErrorHistogram",
     "ErrorModel",
+    "PixelFeatures",
     "characterise_matcher",
+    "choose_classes",
+    "compute_features",
+    "discontinuity_mask",
     "format_table",
     "load_error_model",
     "write_characterisation",

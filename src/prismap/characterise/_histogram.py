@@ -56,8 +56,8 @@ class ErrorHistogram:
         if abs(n_bins - round(n_bins)) > 1e-9 * n_bins:
             raise PrismapInputError(f"`limit_px` ({limit}) must be a multiple of `bin_width` ({width})")
         counts = np.asarray(self.counts, dtype=np.int64).copy()
-        if counts.shape != (int(round(n_bins)),):
-            raise PrismapInputError(f"`counts` must have shape ({int(round(n_bins))},); got {counts.shape}")
+        if counts.shape != (round(n_bins),):
+            raise PrismapInputError(f"`counts` must have shape ({round(n_bins)},); got {counts.shape}")
         counts.setflags(write=False)
         object.__setattr__(self, "counts", counts)
         object.__setattr__(self, "bin_width", width)
@@ -66,7 +66,7 @@ class ErrorHistogram:
     @classmethod
     def empty(cls, *, bin_width=DEFAULT_BIN_WIDTH, limit_px=DEFAULT_LIMIT_PX):
         """A histogram with no errors, to add frames to."""
-        n_bins = int(round(2.0 * check_positive(limit_px, "limit_px") / check_positive(bin_width, "bin_width")))
+        n_bins = round(2.0 * check_positive(limit_px, "limit_px") / check_positive(bin_width, "bin_width"))
         return cls(np.zeros(n_bins, dtype=np.int64), bin_width, limit_px)
 
     @classmethod

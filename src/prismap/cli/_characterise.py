@@ -19,7 +19,8 @@ def register(subparsers):
         description=(
             "Run a stereo matcher on frames with ground-truth disparity, histogram its errors "
             "e = d_true - d_computed, fit Gaussian mixtures with G = 1..max-components by EM and write "
-            "error_model.json, table.md, errors.png and errors_wide.png into --out. The matcher's disparity "
+            "error_model.json, table.md, errors.png and errors_wide.png (and errors_classes.png for a conditioned "
+            "model) into --out. The matcher's disparity "
             "search range is set to cover the largest ground-truth disparity."
         ),
     )
@@ -45,6 +46,11 @@ def register(subparsers):
     parser.add_argument("--tolerance", type=float, default=0.01, metavar="NATS",
                         help="select the smallest G within this many nats per error of the best (default 0.01)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the EM restarts (default 0)")
+    parser.add_argument("--plain", dest="conditioned", action="store_false",
+                        help="one whole-image mixture; default: classes of pixels by confidence features, chosen by "
+                             "held-out log-likelihood (the plain model is one candidate), one mixture per class")
+    parser.add_argument("--max-classes", type=int, default=6, metavar="K",
+                        help="most error classes of a conditioned model (default 6)")
     add_bag_arguments(parser, poses=False)
     parser.set_defaults(func=run)
 
@@ -57,6 +63,8 @@ def run(args):
     bin_width = check_positive(args.bin_width, "--bin-width")
     if args.max_components < 1:
         raise PrismapInputError(f"`--max-components` must be >= 1; got {args.max_components}")
+    if args.max_classes < 1:
+        raise PrismapInputError(f"`--max-classes` must be >= 1; got {args.max_classes}")
     if (args.dataset is None) == (args.bag is None):
         raise PrismapInputError("give exactly one of --dataset NAME|PATH and --bag PATH")
     if args.bag is not None and not args.truth_topic:
@@ -72,7 +80,8 @@ def run(args):
         raise PrismapInputError(f"--lr-check: matcher {args.matcher!r} has no left-right check option") from None
     result = characterise_matcher(
         frames, matcher, max_components=args.max_components, bin_width=bin_width, dataset=args.dataset,
-        criterion=args.criterion, tolerance=args.tolerance, seed=args.seed,
+        criterion=args.criterion, tolerance=args.tolerance, seed=args.seed, conditioned=args.conditioned,
+        max_classes=args.max_classes,
     )
     paths = write_characterisation(result, args.out)
     stats = result.histogram.statistics()
@@ -81,6 +90,11 @@ def run(args):
           f"bad-2px {stats['bad_2px']:.3f}; selected G = {result.model.selected_components}")
     for weight, mean, sigma in zip(mixture.weights, mixture.means, mixture.sigmas):
         print(f"  w = {weight:.3f}  mu = {mean:+.3f} px  sigma = {sigma:.3f} px")
+    record = result.model.class_selection
+    if record:
+        print(f"held-out log-likelihood ({record['held_out']}): plain {record['plain_nats_per_error']:.4f}, "
+              f"chosen {record['conditioned_nats_per_error']:.4f} nats per error; "
+              f"{result.model.n_classes} class(es) on {list(result.model.classes.features) or 'no feature'}")
     for path in paths.values():
         print(f"wrote {path}")
     return 0

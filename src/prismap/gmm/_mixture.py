@@ -100,6 +100,14 @@ class GaussianMixture:
         second = self.weights @ (self.sigmas**2 + self.means**2)
         return float(np.sqrt(second - self.mean() ** 2))
 
+    def dominant_sigma(self):
+        """Standard deviation (pixels) of the heaviest component: the core most pixels follow.
+
+        Models with one Gaussian disparity noise (convolution, Andert) take it; the mixture's overall std
+        would be inflated by the gross-error components.
+        """
+        return float(self.sigmas[int(np.argmax(self.weights))])
+
     def widened(self, extra_sigma):
         """The mixture convolved with ``N(0, extra_sigma^2)`` (pixels): every sigma grows in quadrature."""
         extra = float(extra_sigma)

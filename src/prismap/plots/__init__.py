@@ -1,11 +1,12 @@
 """Figures (matplotlib, no pyplot state): each module draws the results of one part of prismap."""
 
-from prismap.plots._characterise import plot_error_fits, plot_error_tails
+from prismap.plots._characterise import plot_class_fits, plot_error_fits, plot_error_tails
 from prismap.plots._evaluate import plot_probability_histograms, plot_reliability
 from prismap.plots._models import plot_divergence, plot_influence, plot_prism_sweeps, plot_ray_profiles
 from prismap.plots._maps import plot_map_slices
 
 __all__ = [
+    "plot_class_fits",
     "plot_divergence",
     "plot_error_fits",
     "plot_error_tails",

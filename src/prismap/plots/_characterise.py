@@ -1,4 +1,4 @@
-"""Figures of a matcher's disparity errors with the fitted mixtures (after thesis figs. 3.8-3.10)."""
+"""Figures of a matcher's disparity errors with the fitted mixtures (after thesis figs. 3.8-3.10), whole and per class."""
 
 import numpy as np
 
@@ -38,7 +38,7 @@ def plot_error_fits(histogram, model, *, path=None, half_width_px=None):
     fig = Figure(figsize=(4.2 * columns, 3.2 * rows), layout="constrained")
     axes = np.atleast_1d(fig.subplots(rows, columns, squeeze=False).ravel())
     low, high = centre - half, centre + half
-    factor = max(1, int(round(2 * half / histogram.bin_width / 256)))
+    factor = max(1, round(2 * half / histogram.bin_width / 256))
     edges, values = _rebin(density_edges, density, factor, low, high)
     x = np.linspace(low, high, 2001)
     for ax, g in zip(axes, panels):
@@ -79,7 +79,7 @@ def plot_error_tails(histogram, model, *, path=None):
     occupied = np.flatnonzero(histogram.counts)
     low = float(edges[occupied[0]]) - 1.0
     high = float(edges[occupied[-1] + 1]) + 1.0
-    factor = max(1, int(round(0.25 / histogram.bin_width)))
+    factor = max(1, round(0.25 / histogram.bin_width))
     edges, values = _rebin(edges, density, factor, low, high)
     fig = Figure(figsize=(8, 3.6), layout="constrained")
     ax = fig.subplots()
@@ -103,6 +103,58 @@ def plot_error_tails(histogram, model, *, path=None):
         fontsize=10,
     )
     ax.legend(fontsize=8)
+    return _finish(fig, path)
+
+
+def plot_class_fits(class_histograms, model, *, path=None, half_width_px=8.0):
+    """One panel per error class: its errors as a log density with its selected mixture and the plain one.
+
+    The per-class view of a conditioned error model: how the error spreads from the class nearest the
+    failures to the most reliable one, against the whole-image mixture every pixel would get otherwise.
+
+    Parameters
+    ----------
+    class_histograms : sequence of prismap.characterise.ErrorHistogram
+        The errors of each class, in class order (``Characterisation.class_histograms``).
+    model : prismap.characterise.ErrorModel
+    path : str or Path or None, keyword-only
+        Where to save the figure, written atomically.
+    half_width_px : float, pixels, keyword-only
+        Half-width of the error range shown, around 0.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    from matplotlib.figure import Figure
+
+    if len(class_histograms) != model.n_classes:
+        raise PrismapInputError(f"{model.n_classes} class(es) need as many histograms; got {len(class_histograms)}")
+    columns = min(3, model.n_classes)
+    rows = -(-model.n_classes // columns)
+    fig = Figure(figsize=(4.2 * columns, 3.2 * rows), layout="constrained")
+    axes = np.atleast_1d(fig.subplots(rows, columns, squeeze=False).ravel())
+    half = float(half_width_px)
+    x = np.linspace(-half, half, 2001)
+    factor = max(1, round(0.125 / class_histograms[0].bin_width))
+    for k, (ax, histogram, class_model) in enumerate(zip(axes, class_histograms, model.class_models)):
+        density_edges, density, total = _display_density(histogram)
+        edges, values = _rebin(density_edges, density, factor, -half, half)
+        ax.stairs(values, edges, fill=True, alpha=0.45, color="0.45", label="error hist")
+        ax.plot(x, class_model.mixture.pdf(x), color="C3", lw=1.4, label=f"class GMM, G = {class_model.selected_components}")
+        ax.plot(x, model.mixture.pdf(x), color="C0", lw=1.0, ls="--", label="plain GMM")
+        ax.set_yscale("log")
+        positive = values[values > 0]
+        ax.set_ylim(0.3 * (positive.min() if positive.size else 1e-6), 2.0 * max(values.max(), 1e-6))
+        ax.set_xlim(-half, half)
+        bounds = "; ".join(f"{name} [{lo:.3g}, {hi:.3g})" for name, (lo, hi) in model.classes.bounds(k).items())
+        ax.set_title(f"class {k}: {bounds}\n{100 * class_model.share:.1f} % of pixels, {total} errors", fontsize=9)
+        ax.set_xlabel("error e = d_true - d_computed (px)")
+        ax.set_ylabel("probability density")
+        ax.legend(fontsize=7, loc="upper right")
+    for ax in axes[model.n_classes:]:
+        ax.set_visible(False)
+    fig.suptitle(f"{model.matcher} on {model.dataset or 'data'}: errors by class", fontsize=11)
     return _finish(fig, path)
 
 

@@ -8,6 +8,7 @@ from prismap.sensor_models._base import (
     register_model,
 )
 from prismap.sensor_models._classic import AndertModel, ConvolutionModel, HitMissModel, IdealModel
+from prismap.sensor_models._conditioned import ConditionedModel, conditioned_sensor_model, model_for_mixture
 from prismap.sensor_models._prism import (
     PrismModel,
     estimate_prior_from_likelihood,
@@ -19,14 +20,17 @@ from prismap.sensor_models._prism import (
 __all__ = [
     "POLICIES",
     "AndertModel",
+    "ConditionedModel",
     "ConvolutionModel",
     "HitMissModel",
     "IdealModel",
     "InverseSensorModel",
     "PrismModel",
+    "conditioned_sensor_model",
     "estimate_prior_from_likelihood",
     "log_mean_likelihood",
     "make_sensor_model",
+    "model_for_mixture",
     "model_names",
     "prior_from_ground_truth",
     "prism_discrete_posteriors",

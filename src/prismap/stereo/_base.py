@@ -23,6 +23,19 @@ class StereoMatcher(ABC):
     def compute(self, left, right):
         """Disparity of ``left`` against ``right``: (H, W) float32, pixels, NaN = invalid."""
 
+    def compute_with_confidence(self, left, right):
+        """Disparity of ``left`` and the left-right disagreement behind it, when the matcher checks it.
+
+        Returns
+        -------
+        disparity : (H, W) float32, pixels, NaN = invalid
+            Exactly what :meth:`compute` returns.
+        lr_disagreement : (H, W) float32, pixels, or None
+            See :func:`left_right_disagreement`; None for matchers that run no left-right check (the
+            default here).
+        """
+        return self.compute(left, right), None
+
     @abstractmethod
     def params(self):
         """The matcher's parameters as a JSON-serialisable dict."""
@@ -49,11 +62,11 @@ def make_matcher(name, **params):
     return getattr(importlib.import_module(module_name), class_name)(**params)
 
 
-def left_right_check(disparity_left, disparity_right, *, max_difference_px=1.0):
-    """Invalidate pixels whose match does not map back (dual matching, thesis sec. 3.2.2).
+def left_right_disagreement(disparity_left, disparity_right):
+    """How far each left pixel's match is from mapping back (dual matching, thesis sec. 3.2.2).
 
-    A left pixel ``(v, u)`` with disparity ``d`` is kept when the right image's disparity at
-    ``(v, round(u - d))`` differs from ``d`` by at most ``max_difference_px``. Occlusions fail it.
+    A left pixel ``(v, u)`` with disparity ``d`` looks up the right image's disparity at
+    ``(v, round(u - d))``; the disagreement is the absolute difference of the two.
 
     Parameters
     ----------
@@ -62,7 +75,8 @@ def left_right_check(disparity_left, disparity_right, *, max_difference_px=1.0):
 
     Returns
     -------
-    (H, W) float32: ``disparity_left`` with failing pixels set to NaN.
+    (H, W) float32, pixels: ``|d_right(v, round(u - d)) - d|``; NaN where the left disparity is invalid,
+    the match falls outside the image or the right disparity there is invalid.
     """
     left = np.asarray(disparity_left, dtype=np.float32)
     right = np.asarray(disparity_right, dtype=np.float32)
@@ -77,8 +91,25 @@ def left_right_check(disparity_left, disparity_right, *, max_difference_px=1.0):
     rows = np.broadcast_to(np.arange(height)[:, None], left.shape)
     back = np.full(left.shape, np.nan, dtype=np.float32)
     back[inside] = right[rows[inside], target[inside]]
-    keep = inside & (np.abs(back - left) <= max_difference_px)
-    return np.where(keep, left, np.float32(np.nan)).astype(np.float32)
+    return np.abs(back - left)
+
+
+def left_right_check(disparity_left, disparity_right, *, max_difference_px=1.0):
+    """Invalidate pixels whose match does not map back within ``max_difference_px`` (occlusions fail it).
+
+    Parameters
+    ----------
+    disparity_left, disparity_right : (H, W) float32, pixels, NaN = invalid
+        As in :func:`left_right_disagreement`.
+    max_difference_px : float, pixels
+
+    Returns
+    -------
+    (H, W) float32: ``disparity_left`` with failing pixels set to NaN.
+    """
+    disagreement = left_right_disagreement(disparity_left, disparity_right)
+    keep = disagreement <= max_difference_px
+    return np.where(keep, np.asarray(disparity_left, dtype=np.float32), np.float32(np.nan)).astype(np.float32)
 
 
 def check_stereo_pair(left, right):

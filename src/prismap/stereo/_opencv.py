@@ -7,7 +7,7 @@ import numpy as np
 
 from prismap.errors import PrismapInputError
 from prismap._validate import check_integer, check_real
-from prismap.stereo._base import StereoMatcher, check_stereo_pair, left_right_check, to_grey
+from prismap.stereo._base import StereoMatcher, check_stereo_pair, left_right_disagreement, to_grey
 
 
 class _OpenCVMatcher(StereoMatcher):
@@ -42,13 +42,25 @@ class _OpenCVMatcher(StereoMatcher):
             With ``left_right_check=True``, pixels whose match does not map back within
             ``lr_max_difference_px`` are NaN too.
         """
+        return self.compute_with_confidence(left, right)[0]
+
+    def compute_with_confidence(self, left, right):
+        """:meth:`compute` and, with ``left_right_check=True``, the left-right disagreement (pixels).
+
+        Returns
+        -------
+        disparity : (H, W) float32, pixels, NaN = invalid
+        lr_disagreement : (H, W) float32, pixels, NaN where not measurable; or None without the check
+            (:func:`prismap.stereo.left_right_disagreement`, before pixels beyond the tolerance are dropped).
+        """
         left, right = self._prepare(check_stereo_pair(left, right))
         matcher = self._create(channels=1 if left.ndim == 2 else left.shape[2])
         disparity = self._to_float(matcher.compute(left, right))
-        if self.left_right_check:
-            disparity_right = self._right_disparity(matcher, left, right)
-            disparity = left_right_check(disparity, disparity_right, max_difference_px=self.lr_max_difference_px)
-        return disparity
+        if not self.left_right_check:
+            return disparity, None
+        disagreement = left_right_disagreement(disparity, self._right_disparity(matcher, left, right))
+        keep = disagreement <= self.lr_max_difference_px
+        return np.where(keep, disparity, np.float32(np.nan)).astype(np.float32), disagreement
 
     def _right_disparity(self, matcher, left, right):
         """Disparity of the right image against the left (positive), from the flipped pair.

@@ -1,0 +1,149 @@
+"""Per-pixel confidence features of a computed disparity: what a run knows about where its matcher fails.
+
+Every feature is computed from the rectified images and the computed disparity alone (no ground truth),
+so a mapping run can compute it for each frame and pick the error mixture of each pixel's class.
+
+- ``edge_distance_px`` (pixels): Euclidean distance to the nearest discontinuity of the computed
+  disparity. A pixel is a discontinuity when the disparity jumps by more than ``edge_threshold_px``
+  to one of its 4-neighbours (both pixels of the pair are marked) or when it is invalid itself
+  (NaN): invalid pixels are where matching failed (occlusions, no texture) and border the depth edges,
+  so they count as edges. A frame with no edge at all has ``+inf`` everywhere.
+- ``texture`` (grey levels per pixel): ``sqrt`` of the mean squared Sobel gradient magnitude of the
+  left grey image over a ``texture_window_px`` square window (Sobel normalised by 1/8 so it estimates
+  the derivative; borders reflected as OpenCV's ``BORDER_REFLECT_101``).
+- ``lr_disagreement_px`` (pixels): the left-right disagreement of the matcher's check
+  (:func:`prismap.stereo.left_right_disagreement`); only when the check runs.
+- ``disparity_px`` (pixels): the computed disparity itself.
+"""
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+from scipy import ndimage
+
+from prismap._validate import as_float_array, check_positive
+from prismap.errors import PrismapInputError
+
+FEATURE_UNITS = {
+    "edge_distance_px": "px",
+    "texture": "grey levels / px",
+    "lr_disagreement_px": "px",
+    "disparity_px": "px",
+}
+"""Every feature name and its unit, in the order they are tried as class splits."""
+
+LR_FEATURE = "lr_disagreement_px"
+DEFAULT_EDGE_THRESHOLD_PX = 1.0
+DEFAULT_TEXTURE_WINDOW_PX = 7
+
+
+@dataclass(frozen=True, eq=False)
+class PixelFeatures:
+    """The confidence features of one frame.
+
+    Attributes
+    ----------
+    values : dict of str -> (H, W) float64
+        One array per feature name of :data:`FEATURE_UNITS` that could be computed (units there).
+    valid : (H, W) bool
+        Pixels with a finite computed disparity.
+    settings : dict
+        ``edge_threshold_px`` and ``texture_window_px``: a model fitted on features made with other
+        settings refuses these (see :meth:`prismap.characterise.ErrorModel.classify`).
+    """
+
+    values: dict
+    valid: np.ndarray
+    settings: dict = field(default_factory=dict)
+
+    @property
+    def names(self):
+        """Names of the features present."""
+        return tuple(self.values)
+
+    @property
+    def shape(self):
+        """``(H, W)`` of the frame."""
+        return self.valid.shape
+
+
+def discontinuity_mask(disparity, *, edge_threshold_px=DEFAULT_EDGE_THRESHOLD_PX):
+    """(H, W) bool: pixels on a disparity discontinuity (a 4-neighbour jump above the threshold, or invalid)."""
+    d = as_float_array(disparity, "disparity", ndim=2)
+    threshold = check_positive(edge_threshold_px, "edge_threshold_px")
+    edges = ~np.isfinite(d)
+    with np.errstate(invalid="ignore"):
+        jump_x = np.abs(np.diff(d, axis=1)) > threshold
+        jump_y = np.abs(np.diff(d, axis=0)) > threshold
+    edges[:, 1:] |= jump_x
+    edges[:, :-1] |= jump_x
+    edges[1:, :] |= jump_y
+    edges[:-1, :] |= jump_y
+    return edges
+
+
+def edge_distance(disparity, *, edge_threshold_px=DEFAULT_EDGE_THRESHOLD_PX):
+    """(H, W) float64, pixels: Euclidean distance to the nearest pixel of :func:`discontinuity_mask`."""
+    edges = discontinuity_mask(disparity, edge_threshold_px=edge_threshold_px)
+    if not edges.any():
+        return np.full(edges.shape, np.inf)
+    return ndimage.distance_transform_edt(~edges)
+
+
+def texture_strength(grey, *, window_px=DEFAULT_TEXTURE_WINDOW_PX):
+    """(H, W) float64, grey levels per pixel: RMS Sobel gradient magnitude over a square window.
+
+    Parameters
+    ----------
+    grey : (H, W) uint8 or float, grey levels
+    window_px : int, odd, >= 1
+    """
+    image = as_float_array(grey, "left_grey", ndim=2, allow_nan=False)
+    window = int(window_px)
+    if window != window_px or window < 1 or window % 2 == 0:
+        raise PrismapInputError(f"`texture_window_px` must be an odd integer >= 1; got {window_px!r}")
+    gx = cv2.Sobel(image, cv2.CV_64F, 1, 0, ksize=3, scale=0.125, borderType=cv2.BORDER_REFLECT_101)
+    gy = cv2.Sobel(image, cv2.CV_64F, 0, 1, ksize=3, scale=0.125, borderType=cv2.BORDER_REFLECT_101)
+    energy = cv2.boxFilter(gx * gx + gy * gy, cv2.CV_64F, (window, window), normalize=True,
+                           borderType=cv2.BORDER_REFLECT_101)
+    return np.sqrt(np.maximum(energy, 0.0))
+
+
+def compute_features(left_grey, right_grey, disparity, lr_disagreement=None, *,
+                     edge_threshold_px=DEFAULT_EDGE_THRESHOLD_PX, texture_window_px=DEFAULT_TEXTURE_WINDOW_PX):
+    """The confidence features of one frame (see the module docstring for each).
+
+    Parameters
+    ----------
+    left_grey : (H, W) uint8 or float, grey levels
+        Rectified left image (RGB: convert first, e.g. ``cv2.cvtColor``).
+    right_grey : (H, W) uint8 or float or None, grey levels
+        Rectified right image; checked for shape only (no feature uses it yet).
+    disparity : (H, W) float, pixels, NaN = invalid
+        Computed disparity of the left image.
+    lr_disagreement : (H, W) float, pixels, NaN = not measurable, or None
+        From :meth:`prismap.stereo.StereoMatcher.compute_with_confidence`; None when the matcher
+        ran no left-right check (the feature is then absent).
+    edge_threshold_px : float, pixels
+    texture_window_px : int, pixels, odd
+
+    Returns
+    -------
+    PixelFeatures
+    """
+    d = as_float_array(disparity, "disparity", ndim=2)
+    left = np.asarray(left_grey)
+    if left.shape != d.shape:
+        raise PrismapInputError(f"`left_grey` must be 2-D of the disparity's shape {d.shape}; got {left.shape}")
+    if right_grey is not None and np.shape(right_grey) != d.shape:
+        raise PrismapInputError(f"`right_grey` must have the disparity's shape {d.shape}; got {np.shape(right_grey)}")
+    values = {
+        "edge_distance_px": edge_distance(d, edge_threshold_px=edge_threshold_px),
+        "texture": texture_strength(left, window_px=texture_window_px),
+    }
+    if lr_disagreement is not None:
+        values[LR_FEATURE] = as_float_array(lr_disagreement, "lr_disagreement", shape=d.shape)
+    values["disparity_px"] = d
+    settings = {"edge_threshold_px": float(edge_threshold_px), "texture_window_px": int(texture_window_px)}
+    return PixelFeatures(values, np.isfinite(d), settings)

@@ -1,0 +1,200 @@
+"""Choosing error classes by the log-likelihood of held-out errors.
+
+Candidates are the plain model (one class) and quantile bins of one feature (2 .. ``max_classes`` bins);
+then grids of quantile bins of the best single feature and each other one (at most ``max_classes``
+cells), a greedy small tree. Each is scored by two-fold
+cross-validation: fit one mixture per class (EM, G by the criterion) on one fold, add up the
+log-density of the other fold's errors under its class's mixture, swap the folds. The score is nats per
+held-out error; the candidate with the highest score wins, the plain model included, so conditioning
+is only chosen where it predicts unseen errors better. Quantile edges come from the features of all
+samples (no error enters them). Errors beyond the histogram's ``+-limit_px`` are left out of every
+score, as they are of every fit. Scoring fits histograms of :data:`SEARCH_BIN_WIDTH_PX` bins (EM costs
+O(bins)); the held-out log-densities are those of bin centres, the same for every candidate.
+"""
+
+import dataclasses
+
+import numpy as np
+
+from prismap.characterise._classes import ErrorClasses
+from prismap.characterise._histogram import ErrorHistogram
+from prismap.characterise._model import ClassModel
+from prismap.errors import PrismapInputError
+from prismap.gmm import fit_mixtures, select_components
+
+MIN_CLASS_ERRORS = 1000
+"""Fewest errors a class may hold in a training fold (fewer: the candidate is not tried)."""
+SEARCH_FIT = {"restarts": 2, "tol": 1e-7, "max_iter": 300}
+"""EM options while scoring candidates (the final fits use the caller's)."""
+SEARCH_BIN_WIDTH_PX = 0.125
+"""Bins of the held-out scoring (a whole multiple of the histogram's bins); the final fits use the histogram's."""
+
+
+def quantile_edges(values, n_bins):
+    """Interior edges of ``n_bins`` quantile bins of the finite ``values`` (duplicates merged).
+
+    Each edge lies midway between the quantile (a value of the data) and the next smaller value, so
+    no sample sits on an edge and float32 / float64 copies of one feature fall in the same bin.
+    """
+    finite = np.unique(values[np.isfinite(values)])
+    if finite.size < 2:
+        return np.empty(0)
+    quantiles = np.unique(np.quantile(values[np.isfinite(values)], np.arange(1, n_bins) / n_bins,
+                                      method="inverted_cdf"))
+    position = np.searchsorted(finite, quantiles)
+    position = position[position > 0]
+    return np.unique(0.5 * (finite[position - 1] + finite[position]))
+
+
+def candidate_classes(values, *, max_classes, pair_with=None):
+    """Candidate :class:`ErrorClasses` (duplicates and empty splits dropped).
+
+    ``pair_with=None``: the plain model and quantile bins of each feature (2 .. ``max_classes`` bins).
+    ``pair_with=name``: grids of quantile bins of ``name`` and each other feature, at most
+    ``max_classes`` cells.
+    """
+    names = list(values)
+    edges = {(name, n): tuple(quantile_edges(values[name], n)) for name in names for n in range(2, max_classes + 1)}
+    if pair_with is None:
+        specs = [((), ())] + [((name,), (edges[name, n],)) for name in names for n in range(2, max_classes + 1)]
+    else:
+        specs = [((pair_with, other), (edges[pair_with, n1], edges[other, n2]))
+                 for other in names if other != pair_with
+                 for n1 in range(2, max_classes // 2 + 1) for n2 in range(2, max_classes // n1 + 1)]
+    seen, candidates = set(), []
+    for features, feature_edges in specs:
+        key = (features, feature_edges)
+        if key in seen or any(len(e) == 0 for e in feature_edges):
+            continue
+        seen.add(key)
+        candidates.append(ErrorClasses.from_edges(features, feature_edges))
+    return candidates
+
+
+def fit_class(counts, edges, *, max_components, criterion, tolerance, **em_options):
+    """Fits for G = 1 .. min(max_components, occupied bins) of one class's histogram, and the selected G."""
+    largest = int(min(max_components, np.count_nonzero(counts)))
+    fits = fit_mixtures(edges, counts, max_components=largest, **em_options)
+    return fits, select_components(fits, criterion=criterion, tolerance=tolerance)
+
+
+def fit_classes(classes, values, errors, *, bin_width, limit_px, n_frames=1, max_components, criterion, tolerance,
+                restarts=4, seed=0):
+    """One mixture per class: each class's errors histogrammed and fitted by EM, G by the criterion.
+
+    Parameters
+    ----------
+    classes : ErrorClasses
+    values : dict of str -> (N,) float, units of each feature
+    errors : (N,) float64, pixels
+    bin_width, limit_px : float, pixels
+        The histogram bins (see :class:`~prismap.characterise.ErrorHistogram`).
+    n_frames : int
+        Frames the samples came from (recorded in each class's histogram).
+    max_components, criterion, tolerance, restarts, seed
+        As in :func:`prismap.characterise.characterise_matcher`.
+
+    Returns
+    -------
+    class_models : tuple of ClassModel
+        Shares are of the samples that fall in a class.
+    histograms : tuple of ErrorHistogram
+    """
+    label = classes.assign(values, np.ones(np.shape(errors), bool))
+    n_classified = int((label >= 0).sum())
+    models, histograms = [], []
+    for k in range(classes.n_classes):
+        part = dataclasses.replace(
+            ErrorHistogram.from_errors(errors[label == k], bin_width=bin_width, limit_px=limit_px), n_frames=n_frames,
+        )
+        if part.counts.sum() == 0:
+            raise PrismapInputError(f"error class {k} ({classes.bounds(k)}) has no error to fit")
+        fits, selected = fit_class(part.counts.astype(np.float64), part.edges, max_components=max_components,
+                                   criterion=criterion, tolerance=tolerance, restarts=restarts, seed=seed)
+        models.append(ClassModel(tuple(fits), selected, part.n_errors / n_classified, part.statistics()))
+        histograms.append(part)
+    return tuple(models), tuple(histograms)
+
+
+def choose_classes(values, errors, fold, *, bin_edges, max_classes, max_components, criterion, tolerance,
+                   seed=0, min_class_errors=MIN_CLASS_ERRORS):
+    """The candidate classes with the highest held-out log-likelihood, and the record of the search.
+
+    Parameters
+    ----------
+    values : dict of str -> (N,) float, units of each feature
+        Features of the characterised pixels (no NaN).
+    errors : (N,) float64, pixels
+        Their errors ``e = d_true - d_computed``.
+    fold : (N,) int, 0 or 1
+        Which held-out fold each pixel belongs to.
+    bin_edges : (B + 1,) float64, pixels
+        Histogram bins (as :attr:`ErrorHistogram.edges`).
+    max_classes : int, >= 1
+    max_components, criterion, tolerance
+        As for the final fits (see :func:`prismap.gmm.select_components`).
+
+    Returns
+    -------
+    classes : ErrorClasses
+    record : dict
+        ``plain_nats_per_error``, ``conditioned_nats_per_error`` (the winner's), ``n_held_out_errors`` and
+        every candidate's features, edges, number of classes and score (None when a class of it had
+        fewer than ``min_class_errors`` training errors).
+    """
+    if isinstance(max_classes, bool) or int(max_classes) != max_classes or max_classes < 1:
+        raise PrismapInputError(f"`max_classes` must be an integer >= 1; got {max_classes!r}")
+    width = bin_edges[1] - bin_edges[0]
+    index = np.floor((errors - bin_edges[0]) / width).astype(np.int64)
+    binned = (index >= 0) & (index < bin_edges.size - 1)
+    factor = max(1, round(SEARCH_BIN_WIDTH_PX / width))
+    while (bin_edges.size - 1) % factor:
+        factor -= 1
+    index //= factor
+    bin_edges = bin_edges[::factor]
+    centres = 0.5 * (bin_edges[:-1] + bin_edges[1:])
+    fold = np.asarray(fold)
+    options = {"max_components": max_components, "criterion": criterion, "tolerance": tolerance, "seed": seed,
+               **SEARCH_FIT}
+    record = []
+    best, best_score = None, -np.inf
+    for stage in ("single", "pairs"):
+        pair_with = None
+        if stage == "pairs":
+            if best is None or not best.features:
+                break
+            pair_with = best.features[0]
+        for classes in candidate_classes(values, max_classes=int(max_classes), pair_with=pair_with):
+            label = classes.assign(values, np.ones(errors.shape, bool))
+            score = _held_out_score(label, classes.n_classes, index, binned, fold, bin_edges, centres,
+                                    min_class_errors, options)
+            record.append({"features": list(classes.features),
+                           "edges": [sorted({b for b in classes.upper[:, f] if np.isfinite(b)})
+                                     for f in range(len(classes.features))],
+                           "n_classes": classes.n_classes, "nats_per_error": score})
+            if score is not None and score > best_score + 1e-12:
+                best, best_score = classes, score
+    if best is None:
+        raise PrismapInputError(
+            f"too few errors to compare error classes: each fold needs at least {min_class_errors} errors"
+        )
+    n_held_out = int(binned.sum())
+    return best, {"plain_nats_per_error": record[0]["nats_per_error"], "conditioned_nats_per_error": best_score,
+                  "n_held_out_errors": n_held_out, "min_class_errors": int(min_class_errors), "candidates": record}
+
+
+def _held_out_score(label, n_classes, index, binned, fold, bin_edges, centres, min_class_errors, options):
+    n_bins = centres.size
+    total, count = 0.0, 0
+    for test_fold in (0, 1):
+        for k in range(n_classes):
+            in_class = binned & (label == k)
+            train = np.bincount(index[in_class & (fold != test_fold)], minlength=n_bins).astype(np.float64)
+            test = np.bincount(index[in_class & (fold == test_fold)], minlength=n_bins)
+            if train.sum() < min_class_errors:
+                return None
+            fits, selected = fit_class(train, bin_edges, **options)
+            occupied = np.flatnonzero(test)
+            total += float(test[occupied] @ fits[selected - 1].mixture.logpdf(centres[occupied]))
+            count += int(test.sum())
+    return total / count if count else None

@@ -1,0 +1,195 @@
+"""A sensor model conditioned on each pixel's error class: one sub-model per class of a conditioned error model.
+
+A conditioned error model (:class:`prismap.characterise.ErrorModel` with classes) gives every pixel a class
+from its confidence features and one error mixture per class. :class:`ConditionedModel` holds one
+inverse sensor model per class (PRISM with that class's mixture, so tables per class; Andert and
+convolution with that class's dominant sigma) and the plain model of the whole-image mixture for pixels
+without a class (``-1``). Each ray is handed to the sub-model of its class, so on those rays the result
+is exactly that sub-model's. Ideal and hit/miss do not use the error model and are never wrapped.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from prismap.errors import PrismapInputError
+from prismap.gmm import GaussianMixture
+from prismap.sensor_models._base import (
+    InverseSensorModel,
+    check_cell_arrays,
+    make_sensor_model,
+)
+
+USES_MIXTURE = "prism"
+USES_SIGMA = ("convolution", "andert")
+"""Models built from a class's mixture (PRISM) or from its dominant sigma; others ignore the error model."""
+
+
+@dataclass(frozen=True, eq=False)
+class ConditionedModel(InverseSensorModel):
+    """Dispatch rays by class to one sub-model per class; class ``-1`` (and no classes) to ``plain``.
+
+    Parameters
+    ----------
+    plain : InverseSensorModel
+        The model of the whole-image mixture.
+    class_models : tuple of InverseSensorModel
+        One per class, of ``plain``'s type (same camera, voxel size and prior).
+    """
+
+    plain: InverseSensorModel
+    class_models: tuple
+
+    def __post_init__(self):
+        models = tuple(self.class_models)
+        if not models:
+            raise PrismapInputError("ConditionedModel needs at least one class model")
+        for k, model in enumerate(models):
+            if type(model) is not type(self.plain):
+                raise PrismapInputError(
+                    f"ConditionedModel: class model {k} is {type(model).__name__}; expected {type(self.plain).__name__}"
+                )
+            shared = ("focal_baseline", "doffs_px", "voxel_size_m", "p0")
+            if any(getattr(model, name, None) != getattr(self.plain, name, None) for name in shared):
+                raise PrismapInputError(f"ConditionedModel: class model {k} differs from the plain model in {shared}")
+        object.__setattr__(self, "class_models", models)
+
+    @property
+    def name(self):
+        """The sub-models' name (``prism``, ``andert``, ``convolution``)."""
+        return self.plain.name
+
+    @property
+    def default_policy(self):
+        """The sub-models' per-frame policy."""
+        return self.plain.default_policy
+
+    @property
+    def n_classes(self):
+        """Number of classes (the plain model not counted)."""
+        return len(self.class_models)
+
+    def _model(self, k):
+        return self.plain if k < 0 else self.class_models[k]
+
+    def _check_classes(self, ray_class, n_rays):
+        classes = np.asarray(ray_class)
+        if classes.shape != (n_rays,) or not (np.issubdtype(classes.dtype, np.integer) or classes.size == 0):
+            raise PrismapInputError(
+                f"`ray_class` must be ({n_rays},) integers; got shape {classes.shape}, dtype {classes.dtype}"
+            )
+        if classes.size and (classes.min() < -1 or classes.max() >= self.n_classes):
+            raise PrismapInputError(
+                f"`ray_class` must lie in [-1, {self.n_classes - 1}]; got values in [{classes.min()}, {classes.max()}]"
+            )
+        return classes.astype(np.int64)
+
+    def cell_posteriors(self, disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m, *, ray_class=None):
+        """Posterior and increment per cell (see :class:`InverseSensorModel`), each ray by its class's model.
+
+        Parameters
+        ----------
+        ray_class : (R,) int or None, keyword-only
+            Class of each ray (:meth:`prismap.characterise.ErrorModel.classify` of its pixel), ``-1`` =
+            no class (the plain model); None = every ray plain.
+        """
+        if ray_class is None:
+            return self.plain.cell_posteriors(disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m)
+        disparity, norm, rays, start, end = check_cell_arrays(
+            disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m
+        )
+        classes = self._check_classes(ray_class, disparity.size)
+        cell_class = classes[rays]
+        posterior = np.empty(start.size)
+        increment = np.empty(start.size)
+        local = np.empty(disparity.size, dtype=np.int64)
+        for k in np.unique(classes):
+            ray_index = np.flatnonzero(classes == k)
+            cells = np.flatnonzero(cell_class == k)
+            local[ray_index] = np.arange(ray_index.size)
+            posterior[cells], increment[cells] = self._model(int(k)).cell_posteriors(
+                disparity[ray_index], norm[ray_index], local[rays[cells]], start[cells], end[cells]
+            )
+        return posterior, increment
+
+    def influence_depth(self, disparity_px, ray_norm, *, ray_class=None):
+        """Depth (metres) beyond which a ray's measurement changes no cell, by its class's model: (R,) float64."""
+        if ray_class is None:
+            return self.plain.influence_depth(disparity_px, ray_norm)
+        disparity = np.asarray(disparity_px, dtype=np.float64)
+        norm = np.asarray(ray_norm, dtype=np.float64)
+        if disparity.ndim != 1 or norm.shape != disparity.shape:
+            raise PrismapInputError(
+                f"`disparity_px` and `ray_norm` must be 1-D of one length; got {disparity.shape} and {norm.shape}"
+            )
+        classes = self._check_classes(ray_class, disparity.size)
+        depth = np.empty(disparity.size)
+        for k in np.unique(classes):
+            rays = np.flatnonzero(classes == k)
+            depth[rays] = self._model(int(k)).influence_depth(disparity[rays], norm[rays])
+        return depth
+
+    def with_extra_noise(self, sigma_px):
+        """A copy whose every sub-model (the plain one included) is widened by ``N(0, sigma_px^2)``."""
+        return ConditionedModel(self.plain.with_extra_noise(sigma_px),
+                                tuple(model.with_extra_noise(sigma_px) for model in self.class_models))
+
+
+def model_for_mixture(name, mixture, *, focal_baseline, doffs_px, voxel_size_m, p0, **params):
+    """The sensor model ``name`` for one error mixture: PRISM with it, convolution/Andert with its dominant sigma.
+
+    ``params`` (the model's own parameters) win over what the mixture would set (``error_model``,
+    ``sigma_px``); other models ignore the mixture.
+    """
+    params = dict(params)
+    if name == USES_MIXTURE:
+        params.setdefault("error_model", mixture)
+    elif name in USES_SIGMA:
+        params.setdefault("sigma_px", mixture.dominant_sigma())
+    try:
+        return make_sensor_model(name, focal_baseline=focal_baseline, doffs_px=doffs_px, voxel_size_m=voxel_size_m,
+                                 p0=p0, **params)
+    except TypeError as exc:
+        raise PrismapInputError(f"sensor model {name!r}: bad parameter(s) {sorted(params)}: {exc}") from None
+
+
+def conditioned_sensor_model(name, camera, *, voxel_size_m, p0, error_model, **params):
+    """The sensor model ``name`` for a (possibly conditioned) error model: what a mapping run builds.
+
+    Parameters
+    ----------
+    name : str
+        A name of :func:`prismap.sensor_models.model_names`.
+    camera : StereoCamera
+        Supplies ``focal_baseline`` (pixel-metres) and ``doffs_px``.
+    voxel_size_m : float, metres
+    p0 : float in (0, 1)
+        Prior occupancy; must equal the map's.
+    error_model : prismap.characterise.ErrorModel or GaussianMixture
+        The matcher's characterised error. A conditioned model (with classes) gives a
+        :class:`ConditionedModel` for ``prism``, ``convolution`` and ``andert``; a plain one, a mixture,
+        or the models that ignore the error (``ideal``, ``hitmiss``) give the plain model.
+    **params
+        The model's own parameters (as for :func:`prismap.pipeline.build_sensor_model`).
+
+    Returns
+    -------
+    InverseSensorModel
+        A :class:`ConditionedModel` takes ``ray_class=`` in :meth:`~ConditionedModel.cell_posteriors` and
+        :meth:`~ConditionedModel.influence_depth`; the plain models do not.
+    """
+    if isinstance(error_model, GaussianMixture):
+        whole, class_mixtures = error_model, ()
+    elif isinstance(getattr(error_model, "mixture", None), GaussianMixture):
+        whole = error_model.mixture
+        class_mixtures = error_model.class_mixtures if getattr(error_model, "conditioned", False) else ()
+    else:
+        raise PrismapInputError(
+            f"`error_model` must be an ErrorModel or a GaussianMixture; got {type(error_model).__name__}"
+        )
+    build = {"focal_baseline": camera.focal_baseline, "doffs_px": camera.doffs_px, "voxel_size_m": voxel_size_m,
+             "p0": p0, **params}
+    plain = model_for_mixture(name, whole, **build)
+    if not class_mixtures or (name != USES_MIXTURE and name not in USES_SIGMA):
+        return plain
+    return ConditionedModel(plain, tuple(model_for_mixture(name, mixture, **build) for mixture in class_mixtures))

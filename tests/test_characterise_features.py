@@ -1,0 +1,97 @@
+"""Confidence features of a computed disparity against brute-force numpy references on small images."""
+
+import numpy as np
+import pytest
+
+from prismap.characterise import FEATURE_UNITS, compute_features, discontinuity_mask
+from prismap.errors import PrismapInputError
+
+
+def _disparity(seed=0, shape=(11, 13)):
+    rng = np.random.default_rng(seed)
+    d = np.full(shape, 10.0)
+    d[:, 7:] = 20.0  # a vertical depth edge
+    d += rng.uniform(-0.3, 0.3, shape)  # sub-threshold ripples
+    d[2, 3] = np.nan  # one invalid pixel
+    return d
+
+
+def _edges_by_loops(d, threshold):
+    h, w = d.shape
+    edges = np.zeros((h, w), bool)
+    for v in range(h):
+        for u in range(w):
+            if not np.isfinite(d[v, u]):
+                edges[v, u] = True
+                continue
+            for dv, du in ((0, 1), (0, -1), (1, 0), (-1, 0)):
+                q = (v + dv, u + du)
+                if 0 <= q[0] < h and 0 <= q[1] < w and abs(d[q] - d[v, u]) > threshold:
+                    edges[v, u] = True
+    return edges
+
+
+def test_discontinuities_and_edge_distance_match_brute_force():
+    d = _disparity()
+    edges = _edges_by_loops(d, 1.0)
+    np.testing.assert_array_equal(discontinuity_mask(d, edge_threshold_px=1.0), edges)
+    assert edges[:, 6].all() and edges[:, 7].all() and edges[2, 3] and edges.sum() == 2 * 11 + 1
+    features = compute_features(np.zeros(d.shape, np.uint8), None, d)
+    edge_pixels = np.argwhere(edges)
+    for v, u in np.ndindex(d.shape):
+        expected = np.sqrt(((edge_pixels - (v, u)) ** 2).sum(axis=1)).min()
+        assert features.values["edge_distance_px"][v, u] == pytest.approx(expected, abs=1e-12)
+
+
+def test_a_frame_without_edges_is_infinitely_far_from_one():
+    features = compute_features(np.zeros((4, 5), np.uint8), None, np.full((4, 5), 3.0))
+    assert np.isposinf(features.values["edge_distance_px"]).all()
+
+
+def test_texture_is_the_windowed_rms_sobel_gradient():
+    rng = np.random.default_rng(1)
+    grey = rng.integers(0, 256, (9, 12)).astype(np.uint8)
+    window = 5
+    image = np.pad(grey.astype(float), 1, mode="reflect")  # numpy "reflect" is OpenCV's REFLECT_101
+    smooth, diff = np.array([1.0, 2.0, 1.0]), np.array([-1.0, 0.0, 1.0])
+    gx = np.zeros(grey.shape)
+    gy = np.zeros(grey.shape)
+    for v, u in np.ndindex(grey.shape):
+        patch = image[v:v + 3, u:u + 3]
+        gx[v, u] = smooth @ patch @ diff / 8.0
+        gy[v, u] = diff @ patch @ smooth / 8.0
+    energy = np.pad(gx**2 + gy**2, window // 2, mode="reflect")
+    expected = np.array([[np.sqrt(energy[v:v + window, u:u + window].mean()) for u in range(12)] for v in range(9)])
+    features = compute_features(grey, grey, np.ones(grey.shape), texture_window_px=window)
+    np.testing.assert_allclose(features.values["texture"], expected, rtol=1e-10, atol=1e-10)
+    # A linear ramp of slope 3 grey levels per pixel has texture 3 away from the border.
+    ramp = np.tile(3.0 * np.arange(20), (10, 1))
+    texture = compute_features(ramp, None, np.ones(ramp.shape)).values["texture"]
+    np.testing.assert_allclose(texture[4:-4, 4:-4], 3.0, rtol=1e-12)
+
+
+def test_features_carry_names_units_validity_and_the_optional_lr_disagreement():
+    d = _disparity()
+    lr = np.abs(np.random.default_rng(2).normal(size=d.shape))
+    plain = compute_features(np.zeros(d.shape), None, d)
+    checked = compute_features(np.zeros(d.shape), None, d, lr)
+    assert plain.names == ("edge_distance_px", "texture", "disparity_px")
+    assert checked.names == ("edge_distance_px", "texture", "lr_disagreement_px", "disparity_px")
+    assert set(checked.names) <= set(FEATURE_UNITS)
+    np.testing.assert_array_equal(checked.values["lr_disagreement_px"], lr)
+    np.testing.assert_array_equal(checked.values["disparity_px"], d)
+    np.testing.assert_array_equal(checked.valid, np.isfinite(d))
+    assert checked.settings == {"edge_threshold_px": 1.0, "texture_window_px": 7}
+
+
+@pytest.mark.parametrize("call, message", [
+    (lambda d: compute_features(np.zeros((3, 3)), None, d), "left_grey"),
+    (lambda d: compute_features(np.zeros(d.shape), np.zeros((2, 2)), d), "right_grey"),
+    (lambda d: compute_features(np.zeros(d.shape), None, d, np.zeros((2, 2))), "lr_disagreement"),
+    (lambda d: compute_features(np.zeros(d.shape), None, d, texture_window_px=4), "texture_window_px"),
+    (lambda d: compute_features(np.zeros(d.shape), None, d, edge_threshold_px=0), "edge_threshold_px"),
+    (lambda d: compute_features(np.zeros(d.shape), None, d[0]), "disparity"),
+])
+def test_bad_input_names_the_argument(call, message):
+    with pytest.raises(PrismapInputError, match=message):
+        call(_disparity())

@@ -1,0 +1,122 @@
+"""ConditionedModel: rays by class to per-class sub-models, equal to calling those sub-models by hand."""
+
+import numpy as np
+import pytest
+
+from prismap.camera import StereoCamera
+from prismap.characterise import ClassModel, ErrorClasses, ErrorModel
+from prismap.errors import PrismapInputError
+from prismap.gmm import GaussianMixture, MixtureFit
+from prismap.sensor_models import (
+    ConditionedModel,
+    conditioned_sensor_model,
+    make_sensor_model,
+)
+
+CAMERA = StereoCamera(500.0, 320.0, 240.0, 0.2)
+WHOLE = GaussianMixture([0.8, 0.2], [0.0, -0.5], [0.3, 3.0])
+CLASS_MIXTURES = (GaussianMixture([0.6, 0.4], [0.0, -2.0], [0.6, 5.0]), GaussianMixture([0.95, 0.05], [0.0, 0.1], [0.15, 1.0]),
+                  GaussianMixture.gaussian(0.25, 0.05))
+SETTINGS = {"voxel_size_m": 0.2, "p0": 0.05}
+
+
+def _fit(mixture):
+    return MixtureFit(mixture, -1.0, 1.0, 1.0, 100.0, 3, True)
+
+
+def _error_model():
+    inf = np.inf
+    classes = ErrorClasses(("edge_distance_px",), [[-inf], [2.5], [10.0]], [[2.5], [10.0], [inf]])
+    class_models = tuple(ClassModel((_fit(m),), m.n_components, share, {"n_errors": 100})
+                         for m, share in zip(CLASS_MIXTURES, (0.2, 0.5, 0.3)))
+    return ErrorModel("sgbm", {}, "test", 1 / 32, (_fit(WHOLE),), 2, classes=classes, class_models=class_models,
+                      feature_settings={"edge_threshold_px": 1.0, "texture_window_px": 7})
+
+
+def _rays(seed=0, n_rays=40, cells_per_ray=30):
+    rng = np.random.default_rng(seed)
+    disparity = np.round(rng.uniform(5.0, 60.0, n_rays) * 16) / 16
+    norm = 1.0 + rng.uniform(0.0, 0.2, n_rays)
+    ray_class = rng.integers(-1, 3, n_rays)
+    rays = np.repeat(np.arange(n_rays), cells_per_ray)
+    z_hat = CAMERA.focal_baseline / disparity
+    offsets = np.tile(np.linspace(-0.6, 0.6, cells_per_ray), n_rays)
+    start = np.maximum(z_hat[rays] * (1 + offsets), 0.2)
+    order = rng.permutation(rays.size)  # cells of several rays interleaved, as a grid hands them over
+    return disparity, norm, ray_class, rays[order], start[order], start[order] + 0.15
+
+
+@pytest.mark.parametrize("name", ["prism", "andert", "convolution"])
+def test_conditioned_model_equals_each_sub_model_on_its_rays(name):
+    model = conditioned_sensor_model(name, CAMERA, error_model=_error_model(), **SETTINGS)
+    assert isinstance(model, ConditionedModel) and model.n_classes == 3 and model.name == name
+    disparity, norm, ray_class, rays, start, end = _rays()
+    posterior, increment = model.cell_posteriors(disparity, norm, rays, start, end, ray_class=ray_class)
+    depth = model.influence_depth(disparity, norm, ray_class=ray_class)
+    for k in (-1, 0, 1, 2):
+        by_hand = conditioned_sensor_model(name, CAMERA, error_model=WHOLE if k < 0 else CLASS_MIXTURES[k], **SETTINGS)
+        assert not isinstance(by_hand, ConditionedModel)
+        mine = np.flatnonzero(ray_class == k)
+        local = np.full(disparity.size, -1)
+        local[mine] = np.arange(mine.size)
+        cells = np.flatnonzero(np.isin(rays, mine))
+        p, inc = by_hand.cell_posteriors(disparity[mine], norm[mine], local[rays[cells]], start[cells], end[cells])
+        np.testing.assert_array_equal(posterior[cells], p)
+        np.testing.assert_array_equal(increment[cells], inc)
+        np.testing.assert_array_equal(depth[mine], by_hand.influence_depth(disparity[mine], norm[mine]))
+    # The classes differ: the model is not the plain one in disguise.
+    plain_p, _ = model.cell_posteriors(disparity, norm, rays, start, end)
+    assert np.abs(plain_p - posterior).max() > 1e-3
+    np.testing.assert_array_equal(plain_p, model.plain.cell_posteriors(disparity, norm, rays, start, end)[0])
+
+
+@pytest.mark.parametrize("name", ["andert", "convolution"])
+def test_sigma_models_take_each_class_dominant_sigma_and_extra_noise_widens_every_one(name):
+    model = conditioned_sensor_model(name, CAMERA, error_model=_error_model(), **SETTINGS)
+    assert [m.sigma_px for m in model.class_models] == [0.6, 0.15, 0.25]
+    assert model.plain.sigma_px == 0.3
+    wide = model.with_extra_noise(0.4)
+    assert isinstance(wide, ConditionedModel)
+    np.testing.assert_allclose([m.sigma_px for m in wide.class_models], np.hypot([0.6, 0.15, 0.25], 0.4))
+    assert wide.plain.sigma_px == pytest.approx(0.5)
+
+
+def test_prism_sub_models_hold_each_class_mixture_and_widen_it():
+    model = conditioned_sensor_model("prism", CAMERA, error_model=_error_model(), near_m=0.5, **SETTINGS)
+    for sub, mixture in zip(model.class_models, CLASS_MIXTURES):
+        np.testing.assert_array_equal(sub.error_model.sigmas, mixture.sigmas)
+        assert sub.near_m == 0.5
+    wide = model.with_extra_noise(0.2)
+    for sub, mixture in zip(wide.class_models, CLASS_MIXTURES):
+        np.testing.assert_allclose(sub.error_model.sigmas, np.hypot(mixture.sigmas, 0.2))
+
+
+@pytest.mark.parametrize("name", ["ideal", "hitmiss"])
+def test_models_that_ignore_the_error_are_not_wrapped(name):
+    model = conditioned_sensor_model(name, CAMERA, error_model=_error_model(), **SETTINGS)
+    assert type(model) is type(make_sensor_model(name, focal_baseline=CAMERA.focal_baseline, **SETTINGS))
+
+
+def test_a_plain_error_model_gives_the_plain_model():
+    plain = ErrorModel("sgbm", {}, "test", 1 / 32, (_fit(WHOLE),), 2)
+    model = conditioned_sensor_model("prism", CAMERA, error_model=plain, **SETTINGS)
+    assert not isinstance(model, ConditionedModel)
+    np.testing.assert_array_equal(model.error_model.sigmas, WHOLE.sigmas)
+
+
+def test_bad_classes_and_arguments_are_named():
+    model = conditioned_sensor_model("andert", CAMERA, error_model=_error_model(), **SETTINGS)
+    disparity, norm, _, rays, start, end = _rays(n_rays=5, cells_per_ray=3)
+    with pytest.raises(PrismapInputError, match=r"`ray_class` must lie in \[-1, 2\]"):
+        model.cell_posteriors(disparity, norm, rays, start, end, ray_class=np.full(5, 3))
+    with pytest.raises(PrismapInputError, match=r"`ray_class` must be \(5,\) integers"):
+        model.influence_depth(disparity, norm, ray_class=np.zeros(5))
+    with pytest.raises(PrismapInputError, match=r"`ray_class` must be \(5,\) integers"):
+        model.cell_posteriors(disparity, norm, rays, start, end, ray_class=np.zeros(4, int))
+    with pytest.raises(PrismapInputError, match="`error_model` must be an ErrorModel or a GaussianMixture"):
+        conditioned_sensor_model("prism", CAMERA, error_model="model.json", **SETTINGS)
+    other = make_sensor_model("andert", focal_baseline=CAMERA.focal_baseline, voxel_size_m=0.1, p0=0.05)
+    with pytest.raises(PrismapInputError, match="differs from the plain model"):
+        ConditionedModel(model.plain, (other,))
+    with pytest.raises(PrismapInputError, match="is ConvolutionModel; expected AndertModel"):
+        ConditionedModel(model.plain, (make_sensor_model("convolution", focal_baseline=1.0, **SETTINGS),))
