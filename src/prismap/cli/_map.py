@@ -6,6 +6,7 @@ import math
 from pathlib import Path
 
 from prismap._validate import check_positive, check_probability
+from prismap.cli._args import add_out
 from prismap.errors import PrismapInputError
 
 
@@ -52,7 +53,7 @@ def register(subparsers):
     parser.add_argument("--chunk-frames", type=int, metavar="C", help="frames per Dask task (default: automatic)")
     parser.add_argument("--checkpoint-every", type=int, default=0, metavar="K",
                         help="save a resumable checkpoint every K frames (default 0 = never)")
-    parser.add_argument("--out", required=True, type=Path, metavar="MAP.npz", help="output map file")
+    add_out(parser, file=True, required=True, metavar="MAP.npz", help="output map file")
     parser.set_defaults(func=run)
 
 

@@ -8,6 +8,7 @@ import numpy as np
 from prismap._files import write_text_atomic
 from prismap._progress import progress
 from prismap._validate import check_positive, check_probability
+from prismap.cli._args import add_out
 from prismap.errors import PrismapInputError
 
 FILES = {
@@ -35,7 +36,7 @@ def register(subparsers):
     )
     compare.add_argument("--error-model", required=True, type=Path, metavar="MODEL.json",
                          help="error model written by `prismap characterise`")
-    compare.add_argument("--out", required=True, type=Path, metavar="DIR", help="output directory")
+    add_out(compare, file=False, required=True, metavar="DIR", help="output directory")
     compare.add_argument("--camera", choices=sorted(_cameras()), default=None,
                          help="rig (default middlebury-motorcycle unless --focal-px/--baseline-m are given)")
     compare.add_argument("--focal-px", type=float, default=None, metavar="F", help="focal length (pixels)")
@@ -83,8 +84,19 @@ def _camera(args):
 def run(args):
     """Run the study and write figures and tables; return the exit status."""
     from prismap.characterise import load_error_model
-    from prismap.plots import plot_divergence, plot_influence, plot_prism_sweeps, plot_ray_profiles
-    from prismap.study import RaySetup, compare_models, influence_distances, prism_sweeps, time_models
+    from prismap.plots import (
+        plot_divergence,
+        plot_influence,
+        plot_prism_sweeps,
+        plot_ray_profiles,
+    )
+    from prismap.study import (
+        RaySetup,
+        compare_models,
+        influence_distances,
+        prism_sweeps,
+        time_models,
+    )
 
     distances = parse_distances(args.distances)
     voxel = check_positive(args.voxel, "--voxel")
