@@ -2,9 +2,20 @@
 
 from prismap.io._frame import StereoFrame
 from prismap.io._images import write_disparity_png
-from prismap.io._kitti import KittiOdometry, KittiRaw, read_kitti_calib, read_kitti_disparity, read_kitti_poses
+from prismap.io._kitti import (
+    KittiOdometry,
+    KittiRaw,
+    read_kitti_calib,
+    read_kitti_disparity,
+    read_kitti_poses,
+)
 from prismap.io._mapfile import load_map, save_map
-from prismap.io._middlebury import MOTORCYCLE_CAMERA, load_middlebury_folder, load_middlebury_motorcycle, read_middlebury_calib
+from prismap.io._middlebury import (
+    MOTORCYCLE_CAMERA,
+    load_middlebury_folder,
+    load_middlebury_motorcycle,
+    read_middlebury_calib,
+)
 from prismap.io._octomap import to_octree, write_octomap
 from prismap.io._pfm import read_pfm, write_pfm
 from prismap.io._ply import read_ply, write_ply
