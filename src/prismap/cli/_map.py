@@ -2,6 +2,7 @@
 
 import ast
 import contextlib
+import logging
 import math
 from pathlib import Path
 
@@ -133,6 +134,18 @@ def _disparity_dir(path):
     return str(path.resolve())
 
 
+class _DropInputErrors(logging.Filter):
+    """Drops a worker's "Compute Failed" report of a PrismapInputError: the CLI prints it once, on one line."""
+
+    def filter(self, record):
+        return "PrismapInputError" not in record.getMessage()
+
+
+def quiet_input_errors():
+    """Run on each Dask worker: its logger no longer prints tracebacks of bad input."""
+    logging.getLogger("distributed.worker").addFilter(_DropInputErrors())
+
+
 @contextlib.contextmanager
 def _dask_client(workers, scheduler):
     """A Dask client for ``--workers`` (a local cluster of processes) or ``--scheduler``, else None."""
@@ -148,8 +161,10 @@ def _dask_client(workers, scheduler):
         except (OSError, TimeoutError, ValueError) as exc:
             raise PrismapInputError(f"--scheduler {scheduler}: cannot connect ({exc})") from None
     else:
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None)
+        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0",
+                               silence_logs=logging.ERROR)
         client = Client(cluster)
+    client.run(quiet_input_errors)
     try:
         yield client
     finally:

@@ -43,6 +43,12 @@ class _OpenCVMatcher(StereoMatcher):
             ``lr_max_difference_px`` are NaN too.
         """
         left, right = self._prepare(check_stereo_pair(left, right))
+        reach = self.min_disparity + self.num_disparities
+        if reach >= left.shape[1]:
+            raise PrismapInputError(
+                f"{self.name}: min_disparity + num_disparities = {reach} px must be below the image width "
+                f"{left.shape[1]} px (no pixel could be matched)"
+            )
         matcher = self._create(channels=1 if left.ndim == 2 else left.shape[2])
         disparity = self._to_float(matcher.compute(left, right))
         if self.left_right_check:
