@@ -57,10 +57,9 @@ def check_memory(nbytes, what, fix=""):
 
 
 def _size(nbytes):
-    for unit in ("B", "KiB", "MiB", "GiB", "TiB"):
-        if abs(nbytes) < 1024:
-            break
+    units = ("B", "KiB", "MiB", "GiB", "TiB", "PiB")
+    power = 0
+    while abs(nbytes) >= 1024 and power < len(units) - 1:
         nbytes /= 1024
-    else:
-        unit = "PiB"
-    return f"{nbytes:.3g} {unit}"
+        power += 1
+    return f"{nbytes:.3g} {units[power]}"

@@ -3,10 +3,10 @@
 from dataclasses import dataclass
 from pathlib import Path
 
+from prismap._files import write_text_atomic
 from prismap._progress import progress
 from prismap.characterise._histogram import DEFAULT_BIN_WIDTH, DEFAULT_LIMIT_PX, ErrorHistogram
 from prismap.characterise._model import ErrorModel, format_table, write_error_model
-from prismap._files import write_text_atomic
 from prismap.errors import PrismapInputError
 from prismap.gmm import fit_mixtures, select_components
 

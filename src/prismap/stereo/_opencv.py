@@ -5,8 +5,8 @@ from abc import abstractmethod
 import cv2
 import numpy as np
 
-from prismap.errors import PrismapInputError
 from prismap._validate import check_integer, check_real
+from prismap.errors import PrismapInputError
 from prismap.stereo._base import StereoMatcher, check_stereo_pair, left_right_check, to_grey
 
 

@@ -24,6 +24,7 @@ from prismap.gmm import GaussianMixture
 from prismap.io import MOTORCYCLE_CAMERA, TSUKUBA_CAMERA
 from prismap.sensor_models import make_sensor_model, model_names
 
+
 def _rig(camera):
     return {"focal_px": camera.focal_px, "baseline_m": camera.baseline_m, "doffs_px": camera.doffs_px}
 
