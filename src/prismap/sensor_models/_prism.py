@@ -131,7 +131,7 @@ class PrismModel(RayModel):
       where ``C/Z > e^-40`` to the influence depth; every 32 before (``C`` from its endpoint asymptotic
       there) and 4 nodes beyond. Cubic Hermite in ``x`` with exact derivatives; each ray uses the table of
       the nearest rate plus a second-order Taylor term in ``log lambda_z`` (from stored moments). About
-      14 KB and 0.3 ms per table. Error against ``"direct"``: within :data:`TABLE_TOLERANCE` for
+      14 KB per table. Error against ``"direct"``: within :data:`TABLE_TOLERANCE` for
       disparities on the step grid; off-grid disparities are rounded (a shift of at most half a step).
       Tables are cached on the model (one model per error model and camera; each
       :meth:`with_extra_noise` copy has its own), least recently used ones dropped beyond
@@ -151,7 +151,7 @@ class PrismModel(RayModel):
     near_m : float, metres, default 0.1
         ``z0``: no surface before this depth. Table size and build time grow like ``1 / near_m`` (the
         likelihood term of ``x``): setting it to the matcher's nearest depth ``f b / max_disparity`` saves
-        most of both (0.5 m instead of 0.1 m: 5x less memory, ~2.5x faster builds).
+        most of both (0.5 m instead of 0.1 m: 5x fewer nodes).
     max_range_m : float, metres, default 200
         ``z_max``: beyond it, the far measurement.
     method : {"table", "direct"}
