@@ -22,9 +22,16 @@ from prismap.errors import PrismapInputError
 COMMANDS = ("characterise", "map", "evaluate", "lidar_truth", "experiment", "demo", "models")
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse, with a bad option reported on one line (the usage is one ``--help`` away)."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def build_parser():
     """The argument parser with every registered sub-command."""
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="prismap",
         description="Dense 3-D occupancy mapping from stereo cameras with measured error models (PRISM).",
     )

@@ -30,7 +30,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from prismap._files import atomic_path
+from prismap._files import atomic_path, umask_mode
 from prismap._validate import check_pose, check_positive
 from prismap.errors import PrismapInputError
 from prismap.io._frame import StereoFrame
@@ -181,6 +181,7 @@ def write_sequence(frames, out_dir, *, occupancy=None):
         raise PrismapInputError(f"{out_dir}: exists and is not a directory; expected a sequence directory")
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(dir=out_dir.parent, prefix=f".{out_dir.name}.", suffix=".tmp"))
+    os.chmod(staging, umask_mode(0o777))  # mkdtemp makes it 0700; the sequence follows the umask
     try:
         count = _write_files(frames, staging, occupancy)
         _move_into(staging, out_dir)
