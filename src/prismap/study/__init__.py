@@ -1,6 +1,6 @@
 """Studies of the inverse sensor models along one ray: profiles, PRISM sweeps, divergences, and the ``models compare`` workflow."""
 
-from prismap.study._compare import FILES, ModelsCompareRun, run_models_compare
+from prismap.study._compare import COMPARE_FILES, ModelsCompareRun, run_models_compare
 from prismap.study._ray_models import (
     CAMERAS,
     ModelComparison,
@@ -17,7 +17,7 @@ from prismap.study._ray_models import (
 
 __all__ = [
     "CAMERAS",
-    "FILES",
+    "COMPARE_FILES",
     "ModelComparison",
     "ModelsCompareRun",
     "RayProfile",

@@ -13,7 +13,7 @@ from prismap.camera import StereoCamera
 from prismap.errors import PrismapInputError
 from prismap.study._ray_models import CAMERAS, RaySetup, compare_models, influence_distances, prism_sweeps
 
-FILES = {
+COMPARE_FILES = {
     "profiles": "profiles.png",
     "sweeps": "prism_sweeps.png",
     "influence": "influence.png",
@@ -31,7 +31,7 @@ class ModelsCompareRun:
     Attributes
     ----------
     paths : dict
-        ``FILES`` key -> Path of each written file.
+        ``COMPARE_FILES`` key -> Path of each written file.
     header : str
         One paragraph: error model, camera, cell size, prior, single-noise sigma.
     comparison : ModelComparison
@@ -51,7 +51,7 @@ def run_models_compare(error_model, out_dir, *, camera="middlebury-motorcycle", 
     error_model : ErrorModel
         From :func:`prismap.characterise.load_error_model` (its selected mixture and its fits by G).
     out_dir : str or Path
-        Receives :data:`FILES` (each written atomically).
+        Receives :data:`COMPARE_FILES` (each written atomically).
     camera : str or StereoCamera, keyword-only
         A rig of :data:`CAMERAS` by name, or a camera (labelled ``custom``).
     voxel_size_m : float, metres
@@ -85,7 +85,7 @@ def run_models_compare(error_model, out_dir, *, camera="middlebury-motorcycle", 
     for s in distances:
         setup.disparity_at(s)  # fail early on distances the camera cannot resolve
     out = Path(out_dir)
-    paths = {key: out / name for key, name in FILES.items()}
+    paths = {key: out / name for key, name in COMPARE_FILES.items()}
 
     steps = progress(total=4, desc="models compare", unit="step")
     comparison = compare_models(mixture, distances, setup=setup)
