@@ -95,10 +95,11 @@ def run(name, octo_points, origin, prismap_runs, repeat, max_range):
           f"voxels, {tree.memoryUsage() / octo_known:.2f} bytes/known voxel (memoryUsage() / known voxels, pruned tree)")
     for label, model, fn in prismap_runs:
         timer = TimedModel(model)
-        t, cpu, grid = timed(lambda: fn(timer), repeat)
+        t, cpu, grid = timed(lambda fn=fn, timer=timer: fn(timer), repeat)
         print(f"[{name}] prismap {label}: {t * 1e3:.0f} ms (CPU {cpu * 1e3:.0f} ms), {grid.n_known} known voxels, "
               f"{grid.nbytes() / grid.n_known:.2f} bytes/known voxel (allocated); speed ratio vs OctoMap "
-              f"{t_octo / t:.2f}x wall, {cpu_octo / cpu:.2f}x CPU; model calls {timer.seconds / repeat * 1e3:.0f} ms per run (mean, incl. first-run set-up)")
+              f"{t_octo / t:.2f}x wall, {cpu_octo / cpu:.2f}x CPU; model calls {timer.seconds / repeat * 1e3:.0f} ms per run "
+              "(mean, incl. first-run set-up)")
 
 
 def _octo(points, origin, max_range):

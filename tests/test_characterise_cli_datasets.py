@@ -5,10 +5,10 @@ import json
 
 import numpy as np
 import pytest
-from support import shifted_pair, write_kitti_stereo
 
 from prismap.cli import main
 from prismap.io import write_disparity_png
+from support import shifted_pair, write_kitti_stereo
 
 
 @pytest.fixture(scope="module")
@@ -66,7 +66,7 @@ def test_bad_datasets_exit_2_and_write_nothing(tmp_path, capsys):
 
 def test_an_unusable_out_is_refused_before_any_work(kitti_2015, tmp_path, capsys):
     (tmp_path / "file").write_text("x")
-    _fails(capsys, ["--dataset", str(kitti_2015)], "is a file, not a directory", tmp_path / "file" / "out")
+    _fails(capsys, ["--dataset", str(kitti_2015)], "file is not a directory", tmp_path / "file" / "out")
     status = main(["characterise", "--dataset", str(kitti_2015), "--matcher", "sgbm", "--out", str(tmp_path / "file")])
     assert status == 2 and "exists and is not a directory" in capsys.readouterr().err
     assert (tmp_path / "file").read_text() == "x"

@@ -4,7 +4,6 @@ the Velodyne projection against a hand-computed point, and one clear error per k
 import cv2
 import numpy as np
 import pytest
-from support import kitti_line, kitti_projection, shifted_pair, write_kitti_stereo
 
 from prismap.camera import StereoCamera
 from prismap.errors import PrismapInputError
@@ -18,6 +17,7 @@ from prismap.io import (
     write_sequence,
 )
 from prismap.io._frame import StereoFrame
+from support import kitti_line, kitti_projection, shifted_pair, write_kitti_stereo
 
 H, W = 6, 10
 F_PX, CX, CY, BASELINE = 20.0, 4.2, 2.3, 0.54

@@ -1,8 +1,8 @@
 """KITTI readers on small files written in the exact KITTI layouts, and their error messages."""
 
+import cv2
 import numpy as np
 import pytest
-import cv2
 
 from prismap.errors import PrismapInputError
 from prismap.io._images import with_image_size

@@ -62,8 +62,8 @@ def write_fields(path, **changes):
         (lambda p: write_fields(p, format_version=np.array(2)), "version 2 is not supported"),
         (lambda p: write_fields(p, counts=None), r"lacks field\(s\) \['counts'\]"),
         (lambda p: write_fields(p, format=np.array("something-else")), "not a prismap map file"),
-        (lambda p: np.save(open(p, "wb"), np.zeros(3)), "single .npy array"),
-        (lambda p: write_fields(p, keys=np.zeros((3, 2), np.int32)), r"`keys` must be an \(N, 3\)"),
+        (lambda p: np.save(open(p, "wb"), np.zeros(3)), "not a readable .npz"),
+        (lambda p: write_fields(p, keys=np.zeros((3, 2), np.int32)), r"`keys` must be an \(N, 3\) integer array"),
     ],
 )
 def test_bad_map_files_give_clear_errors(tmp_path, make, message):
@@ -88,7 +88,7 @@ def test_failed_write_leaves_the_old_file(tmp_path, monkeypatch):
         raise OSError("disk full")
 
     monkeypatch.setattr(np, "savez_compressed", broken)
-    with pytest.raises(OSError):
+    with pytest.raises(PrismapInputError, match=r"m.npz: cannot write \(disk full\)"):
         save_map(small_map(), path)
     assert path.read_bytes() == before
     assert [p.name for p in tmp_path.iterdir()] == ["m.npz"]

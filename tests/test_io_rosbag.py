@@ -12,13 +12,13 @@ from rosbags.rosbag2 import StoragePlugin
 from rosbags.rosbag2 import Writer as Writer2
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from scipy.spatial.transform import Rotation
-from support import CAMERA, assert_same_map, config
 
 from prismap import sim
 from prismap.cli import main
 from prismap.errors import PrismapInputError
 from prismap.io import load_map, read_bag, read_sequence, write_sequence
 from prismap.pipeline import map_sequence
+from support import CAMERA, assert_same_map, config
 
 STORAGES = ("rosbag1", "sqlite3", "mcap")
 T0_NS = 1_700_000_000_000_000_000

@@ -191,7 +191,6 @@ def _streamed(frames, bad_index, bad):
 
 
 BAD_LATER_FRAMES = {
-    "NaN pose": lambda f: StereoFrame(f.left, f.right, CAMERA, f.disparity_gt, np.full((4, 4), np.nan)),
     "4-channel image": lambda f: StereoFrame(np.dstack([f.left, f.left[:, :, :1]]), f.right, CAMERA, f.disparity_gt, f.T_world_cam),
     "disparity too large": lambda f: StereoFrame(f.left, f.right, CAMERA, np.full((20, 32), 300.0, np.float32), f.T_world_cam),
     "other camera": lambda f: StereoFrame(f.left, f.right, StereoCamera(99.0, 15.25, 9.75, 0.25), f.disparity_gt, f.T_world_cam),

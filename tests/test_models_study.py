@@ -17,7 +17,6 @@ from prismap.study import (
     ray_profile,
     single_noise_sigma,
     study_models,
-    time_models,
 )
 
 # Close to SGBM on Middlebury Motorcycle (quarter resolution), as `prismap characterise` fits it.
@@ -161,20 +160,6 @@ def test_prism_sweeps_vary_one_thing_at_a_time():
     assert np.array_equal(sweeps["noise"][0][1].posterior["prism"], sweeps["components"][1][1].posterior["prism"])
 
 
-def test_time_models_runs_every_model_on_one_batch():
-    table = time_models(MOTORCYCLE_SGBM, setup=SETUP, focal_px=RIG["focal_px"], width=64, height=48, stride=8,
-                        n_bands=2, direct_rays=2, chunk_rays=20)
-    rows = {row["model"]: row for row in table.rows}
-    assert set(rows) == {*CLASSIC, "prism (table)", "prism (direct)"}
-    batch = {(r["n_rays"], r["n_cells"]) for name, r in rows.items() if name != "prism (direct)"}
-    assert len(batch) == 1 and batch.pop()[0] == 48
-    assert rows["prism (direct)"]["n_rays"] == 2
-    for row in table.rows:
-        assert row["ns_per_cell"] > 0 and row["ns_per_ray"] >= row["ns_per_cell"]
-    assert table.n_disparities == 2
-    assert "48 rays" in table.scene and "| prism (direct) |" in table.to_markdown()
-
-
 @pytest.mark.parametrize(
     ("call", "message"),
     [
@@ -185,7 +170,6 @@ def test_time_models_runs_every_model_on_one_batch():
         (lambda: RaySetup(focal_baseline=10.0, p0=1.0), "`p0` must lie in"),
         (lambda: RaySetup(focal_baseline=-1.0), "focal_baseline"),
         (lambda: study_models(MOTORCYCLE_SGBM, setup=SETUP, names=["nope"]), "unknown sensor model 'nope'"),
-        (lambda: time_models(MOTORCYCLE_SGBM, setup=SETUP, focal_px=600.0, stride=0), "must be >= 1"),
     ],
 )
 def test_bad_input_is_named(call, message):

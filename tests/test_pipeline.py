@@ -24,6 +24,7 @@ from prismap.sensor_models import AndertModel, ConvolutionModel, PrismModel
 from prismap.stereo import make_matcher
 from support import CAMERA, MIXTURE, assert_same_map, config, synthetic_sequence
 
+
 @pytest.fixture(scope="module")
 def sequence_dir(tmp_path_factory):
     return synthetic_sequence(tmp_path_factory.mktemp("pipeline") / "seq")

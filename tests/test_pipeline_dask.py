@@ -2,11 +2,11 @@
 
 import numpy as np
 import pytest
-from support import assert_same_map, config, synthetic_sequence
 
 from prismap.errors import PrismapInputError
 from prismap.io import load_map
 from prismap.pipeline import characterise_sequence, map_sequence
+from support import assert_same_map, config, synthetic_sequence
 
 distributed = pytest.importorskip("distributed")
 

@@ -37,7 +37,9 @@ def _pair(offset_px, slope_x, slope_y, seed=0):
     source = (cols + offset_px + slope_y * rows) / (1.0 - slope_x)
     right = ndimage.map_coordinates(texture, [rows, source + pad], order=3)
     truth = offset_px + slope_x * cols + slope_y * rows
-    as_uint8 = lambda image: np.clip(np.rint(image), 0, 255).astype(np.uint8)
+    def as_uint8(image):
+        return np.clip(np.rint(image), 0, 255).astype(np.uint8)
+
     return as_uint8(left), as_uint8(right), truth
 
 

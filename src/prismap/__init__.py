@@ -11,7 +11,9 @@ Subpackages (imported on first use, so ``import prismap`` stays cheap):
 - :mod:`prismap.io`            dataset readers and map files
 - :mod:`prismap.sim`           synthetic worlds with exact ground truth
 - :mod:`prismap.evaluate`      scores of maps against ground truth
+- :mod:`prismap.study`         the sensor models side by side along one ray (``models compare``)
 - :mod:`prismap.pipeline`      frames in, map out
+- :mod:`prismap.experiment`    end-to-end workflows on worlds with exact ground truth, and the demo
 """
 
 import importlib
@@ -22,7 +24,7 @@ __version__ = "0.1.0"
 
 _SUBPACKAGES = (
     "camera", "stereo", "gmm", "characterise", "sensor_models", "grid", "io", "sim",
-    "evaluate", "pipeline", "plots", "cli",
+    "evaluate", "study", "pipeline", "experiment", "plots", "cli",
 )
 
 __all__ = ["PrismapInputError", "__version__", *_SUBPACKAGES]

@@ -1,11 +1,57 @@
-"""Atomic file writing: results appear whole or not at all, and existing files survive errors."""
+"""Output files: atomic writes, permissions, stale temporaries, output checks and run locks.
+
+Results appear whole or not at all and existing files survive errors. A temporary file is named
+``.NAME.<pid>.<random>.tmp<suffix>`` beside its target; one whose process is gone (killed during a save)
+is removed by the next save of the same target. A replaced file keeps its mode; a new one gets
+``0666 & ~umask``, as ``open`` would give it.
+"""
 
 import contextlib
+import errno
+import fcntl
 import os
+import stat
 import tempfile
 from pathlib import Path
 
 from prismap.errors import PrismapInputError
+
+
+def umask_mode(mode=0o666):
+    """``mode`` with the process's umask applied (0o666 for files, 0o777 for directories)."""
+    current = os.umask(0)
+    os.umask(current)
+    return mode & ~current
+
+
+def _pid_alive(pid):
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def remove_stale_temporaries(path):
+    """Delete the temporaries of ``path`` left by processes that no longer run; the number removed."""
+    path = Path(path)
+    removed = 0
+    for candidate in path.parent.glob(f".{path.name}.*.tmp{path.suffix}"):
+        pid_text = candidate.name[len(path.name) + 2:].split(".", 1)[0]
+        if pid_text.isdigit() and not _pid_alive(int(pid_text)):
+            with contextlib.suppress(FileNotFoundError):
+                candidate.unlink()
+                removed += 1
+    return removed
+
+
+def _os_message(exc):
+    reason = exc.strerror or str(exc)
+    if exc.errno == errno.EFBIG:
+        reason += " (the file-size limit, ulimit -f)"
+    return reason
 
 
 @contextlib.contextmanager
@@ -14,17 +60,36 @@ def atomic_path(path):
 
     The temporary file keeps the target's suffix, so writers that pick a format by suffix
     (``np.savez`` adds ``.npz``, matplotlib chooses by extension) behave as for the real name.
+
+    Raises
+    ------
+    PrismapInputError
+        The file cannot be written (no such directory, a full disk, a file-size limit, permissions);
+        the message names ``path`` and the operating system's reason, and ``path`` is left as it was.
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=path.suffix + ".tmp" + path.suffix)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        remove_stale_temporaries(path)
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.{os.getpid()}.",
+                                   suffix=".tmp" + path.suffix)
+    except OSError as exc:
+        raise PrismapInputError(f"{path}: cannot write ({_os_message(exc)})") from None
     os.close(fd)
     tmp = Path(tmp)
     try:
-        yield tmp
-        os.replace(tmp, path)
+        try:
+            yield tmp
+            try:
+                mode = stat.S_IMODE(path.stat().st_mode)
+            except FileNotFoundError:
+                mode = umask_mode()
+            os.chmod(tmp, mode)
+            os.replace(tmp, path)
+        except OSError as exc:
+            raise PrismapInputError(f"{path}: cannot write ({_os_message(exc)})") from None
     finally:
-        if tmp.exists():
+        with contextlib.suppress(FileNotFoundError):
             tmp.unlink()
 
 
@@ -34,17 +99,77 @@ def write_text_atomic(path, text):
         tmp.write_text(text, encoding="utf-8")
 
 
-def check_output_dir(path, option):
-    """Raise a :class:`PrismapInputError` unless ``path`` is, or can be made, a writable directory.
+def check_output(path, option="--out", *, directory=False):
+    """Refuse, before any work, an output that cannot be written.
 
-    Called before a long run, so a bad ``--out`` fails at once rather than after the work. Nothing is
-    created: a missing directory passes when its nearest existing ancestor is a writable directory.
+    Parameters
+    ----------
+    path : str or Path
+        The output file (``directory=False``) or directory.
+    option : str
+        The argument's name in messages.
+    directory : bool, keyword-only
+        Whether ``path`` is a directory the command writes into.
+
+    Raises
+    ------
+    PrismapInputError
+        ``path`` names a directory where a file is expected (or a file where a directory is), lies under a
+        regular file, or in a directory this process may not write to.
     """
     path = Path(path)
-    if path.exists() and not path.is_dir():
-        raise PrismapInputError(f"{option} {path}: exists and is not a directory")
-    existing = next(p for p in (path.absolute(), *path.absolute().parents) if p.exists())
-    if not existing.is_dir():
-        raise PrismapInputError(f"{option} {path}: {existing} is a file, not a directory")
-    if not os.access(existing, os.W_OK | os.X_OK):
-        raise PrismapInputError(f"{option} {path}: {existing} is not writable")
+    if path.exists():
+        if directory and not path.is_dir():
+            raise PrismapInputError(f"{option} {path}: exists and is not a directory")
+        if not directory and path.is_dir():
+            raise PrismapInputError(f"{option} {path}: is a directory; expected a file name")
+    ancestor = path if directory and path.is_dir() else path.parent
+    while not ancestor.exists():
+        ancestor = ancestor.parent
+    if not ancestor.is_dir():
+        raise PrismapInputError(f"{option} {path}: {ancestor} is not a directory")
+    if not os.access(ancestor, os.W_OK | os.X_OK):
+        raise PrismapInputError(f"{option} {path}: no permission to write in {ancestor}")
+    return path
+
+
+@contextlib.contextmanager
+def exclusive_lock(path, option="--out"):
+    """Hold an exclusive ``fcntl`` lock on ``path`` (via ``.NAME.lock`` beside it) for the block.
+
+    A second process asking for the same lock while the first holds it gets a
+    :class:`PrismapInputError` at once instead of sharing (and corrupting) the file. The lock file is
+    removed when the block ends.
+    """
+    path = Path(path)
+    lock_path = path.parent / f".{path.name}.lock"
+    try:
+        lock_path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise PrismapInputError(f"{option} {path}: cannot create its directory ({_os_message(exc)})") from None
+    while True:
+        try:
+            fd = os.open(lock_path, os.O_RDWR | os.O_CREAT, umask_mode())
+        except OSError as exc:
+            raise PrismapInputError(f"{option} {path}: cannot create the lock {lock_path} ({_os_message(exc)})") from None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(fd)
+            raise PrismapInputError(
+                f"{option} {path}: another prismap run is using it (lock {lock_path}); wait for it to finish "
+                "or choose another output"
+            ) from None
+        try:
+            same = os.stat(lock_path).st_ino == os.fstat(fd).st_ino
+        except FileNotFoundError:
+            same = False
+        if same:
+            break
+        os.close(fd)  # the holder removed the file between our open and flock: lock the new one
+    try:
+        yield lock_path
+    finally:
+        with contextlib.suppress(FileNotFoundError):
+            lock_path.unlink()
+        os.close(fd)

@@ -74,3 +74,34 @@ def check_real(value, name, *, minimum=-np.inf):
         expected = "a finite number" + ("" if minimum == -np.inf else f" >= {minimum:g}")
         raise PrismapInputError(f"`{name}` must be {expected}; got {value!r}")
     return number
+
+
+#: Largest ``max |R^T R - I|`` a pose's rotation may show (text files round to ~1e-6; KITTI to ~1e-9).
+ROTATION_TOLERANCE = 1e-3
+
+
+def check_pose(value, name):
+    """Return ``value`` as a (4, 4) float64 rigid transform, or raise naming ``name``.
+
+    The one pose check of prismap: every pose source (``poses.txt``, KITTI ``poses/NN.txt``,
+    :class:`prismap.io.StereoFrame`) calls it. The rotation must be orthonormal within
+    :data:`ROTATION_TOLERANCE` with det +1 (a scaled matrix or a reflection is refused), the translation
+    finite and the last row ``[0, 0, 0, 1]``.
+
+    Parameters
+    ----------
+    value : (4, 4) array_like, metres
+    name : str
+        The pose's name in messages, e.g. ``"poses.txt line 3"`` or ``"`T_world_cam`"``.
+    """
+    pose = as_float_array(value, name, shape=(4, 4), allow_nan=False)
+    rotation = pose[:3, :3]
+    error = float(np.abs(rotation.T @ rotation - np.eye(3)).max())
+    if not error <= ROTATION_TOLERANCE or np.linalg.det(rotation) < 0:
+        raise PrismapInputError(
+            f"{name}: rotation is not orthonormal with det +1 (max |R^T R - I| = {error:.3g}, "
+            f"det = {np.linalg.det(rotation):.3g})"
+        )
+    if not np.array_equal(pose[3], [0.0, 0.0, 0.0, 1.0]):
+        raise PrismapInputError(f"{name}: the last row of a pose must be [0, 0, 0, 1]; got {pose[3].tolist()}")
+    return pose

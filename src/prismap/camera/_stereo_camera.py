@@ -7,6 +7,14 @@ import numpy as np
 from prismap._validate import as_float_array, check_positive
 from prismap.errors import PrismapInputError
 
+#: Focal lengths a camera may have, pixels: beyond them the depth of a pixel cannot be represented.
+FOCAL_RANGE_PX = (1e-2, 1e6)
+#: Baselines a camera may have, metres.
+BASELINE_RANGE_M = (1e-6, 1e4)
+#: ``focal_px * baseline_m``, the depth of a 1 px disparity, metres: depths from a sub-millimetre near
+#: range to 1000 km at 1 px, so that depths, voxel keys and disparity search ranges stay finite and bounded.
+DEPTH_AT_ONE_PIXEL_RANGE_M = (1e-6, 1e6)
+
 
 @dataclass(frozen=True)
 class StereoCamera:
@@ -33,8 +41,10 @@ class StereoCamera:
     height: int | None = None
 
     def __post_init__(self):
-        object.__setattr__(self, "focal_px", check_positive(self.focal_px, "focal_px"))
-        object.__setattr__(self, "baseline_m", check_positive(self.baseline_m, "baseline_m"))
+        object.__setattr__(self, "focal_px", _check_range(self.focal_px, "focal_px", FOCAL_RANGE_PX, "px"))
+        object.__setattr__(self, "baseline_m", _check_range(self.baseline_m, "baseline_m", BASELINE_RANGE_M, "m"))
+        _check_range(self.focal_px * self.baseline_m, "focal_px * baseline_m (the depth of a 1 px disparity)",
+                     DEPTH_AT_ONE_PIXEL_RANGE_M, "m")
         for name in ("cx_px", "cy_px", "doffs_px"):
             value = float(getattr(self, name))
             if not np.isfinite(value):
@@ -200,3 +210,13 @@ class StereoCamera:
             return self.height, self.width
         height, width = (int(s) for s in shape)
         return height, width
+
+
+def _check_range(value, name, bounds, unit):
+    """``check_positive(value)`` within ``bounds`` (inclusive), else raise naming ``name`` and the bounds."""
+    number = check_positive(value, name)
+    low, high = bounds
+    if not low <= number <= high:
+        raise PrismapInputError(f"`{name}` must lie in [{low:g}, {high:g}] {unit} (a representable depth range); "
+                                f"got {number:g}")
+    return number

@@ -1,10 +1,9 @@
 """``prismap characterise``: measure a matcher's disparity errors on data with ground truth, fit mixtures."""
 
 import math
-from pathlib import Path
 
-from prismap._files import check_output_dir
 from prismap._validate import check_positive
+from prismap.cli._args import add_out, seed
 from prismap.cli._bag import add_bag_arguments, open_bag_argument
 from prismap.errors import PrismapInputError
 
@@ -38,14 +37,14 @@ def register(subparsers):
                              "occluded ones (occ)")
     parser.add_argument("--matcher", required=True, choices=("bm", "sgbm", "variational"))
     parser.add_argument("--max-components", type=int, default=4, metavar="G", help="largest G fitted (default 4)")
-    parser.add_argument("--out", required=True, type=Path, metavar="DIR", help="output directory")
+    add_out(parser, file=False, required=True, metavar="DIR", help="output directory")
     parser.add_argument("--bin-width", type=float, default=1 / 32, metavar="PX",
                         help="histogram bin width in pixels (default 1/32)")
     parser.add_argument("--lr-check", action="store_true", help="invalidate pixels failing the left-right check")
     parser.add_argument("--criterion", choices=("bic", "aic"), default="bic", help="selection criterion (default bic)")
     parser.add_argument("--tolerance", type=float, default=0.01, metavar="NATS",
                         help="select the smallest G within this many nats per error of the best (default 0.01)")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the EM restarts (default 0)")
+    parser.add_argument("--seed", type=seed, default=0, help="seed of the EM restarts (default 0)")
     parser.add_argument("--plain", dest="conditioned", action="store_false",
                         help="one whole-image mixture; default: classes of pixels by confidence features, chosen by "
                              "held-out log-likelihood (the plain model is one candidate), one mixture per class")
@@ -69,7 +68,6 @@ def run(args):
         raise PrismapInputError("give exactly one of --dataset NAME|PATH and --bag PATH")
     if args.bag is not None and not args.truth_topic:
         raise PrismapInputError("--bag: characterising needs ground truth; give --truth-topic TOPIC")
-    check_output_dir(args.out, "--out")
     frames = _load_frames(args)
     args.dataset = args.dataset or str(args.bag)
     options = {"left_right_check": True} if args.lr_check else {}

@@ -2,6 +2,8 @@
 
 from pathlib import Path
 
+from prismap.cli._args import add_out, seed
+
 
 def register(subparsers):
     """Add the ``demo`` parser."""
@@ -15,9 +17,9 @@ def register(subparsers):
             "are reused when the command is run again."
         ),
     )
-    parser.add_argument("--out", type=Path, default=Path("outputs"), metavar="DIR", help="output directory")
+    add_out(parser, file=False, default=Path("outputs"), metavar="DIR", help="output directory")
     parser.add_argument("--quick", action="store_true", help="tiny sizes: a smoke run, numbers not meaningful")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the experiments (default 0)")
+    parser.add_argument("--seed", type=seed, default=0, help="seed of the experiments (default 0)")
     parser.set_defaults(func=run)
 
 

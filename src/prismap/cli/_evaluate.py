@@ -3,6 +3,7 @@
 import json
 from pathlib import Path
 
+from prismap.cli._args import add_out
 from prismap.errors import PrismapInputError
 
 _COUNT_ROWS = (
@@ -27,7 +28,7 @@ def register(subparsers):
     )
     parser.add_argument("--map", required=True, type=Path, metavar="MAP.npz", help="map file")
     parser.add_argument("--gt", required=True, type=Path, metavar="DIR|FILE", help="ground-truth occupancy")
-    parser.add_argument("--out", type=Path, metavar="DIR", help="directory for scores.json and reliability.png")
+    add_out(parser, file=False, metavar="DIR", help="directory for scores.json and reliability.png")
     parser.set_defaults(func=run)
 
 

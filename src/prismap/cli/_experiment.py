@@ -1,6 +1,7 @@
 """``prismap experiment``: map a synthetic world with every sensor model and score the maps against exact truth."""
 
-from pathlib import Path
+
+from prismap.cli._args import add_out, seed
 
 
 def register(subparsers):
@@ -19,10 +20,10 @@ def register(subparsers):
         ),
     )
     parser.add_argument("--world", required=True, choices=("office2d", "scene3d"), help="which experiment")
-    parser.add_argument("--out", required=True, type=Path, metavar="DIR", help="output directory")
+    add_out(parser, file=False, required=True, metavar="DIR", help="output directory")
     parser.add_argument("--frames", type=int, metavar="N", help="number of frames (default: the size's)")
     parser.add_argument("--voxel", type=float, metavar="M", help="voxel size in metres (default 0.1; 0.2 quick)")
-    parser.add_argument("--seed", type=int, default=0, help="seed of errors, scene and trajectory (default 0)")
+    parser.add_argument("--seed", type=seed, default=0, help="seed of errors, scene and trajectory (default 0)")
     parser.add_argument("--quick", action="store_true", help="small sizes (seconds to a minute)")
     parser.set_defaults(func=run)
 

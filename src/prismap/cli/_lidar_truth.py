@@ -4,6 +4,7 @@ import math
 from pathlib import Path
 
 from prismap._validate import check_positive
+from prismap.cli._args import add_out
 from prismap.errors import PrismapInputError
 
 
@@ -42,7 +43,7 @@ def register(subparsers):
     parser.add_argument("--max-range", type=float, default=math.inf, metavar="M",
                         help="points farther from the laser only clear free space up to this range (default: none)")
     parser.add_argument("--full-scan", action="store_true", help="use the whole scan, not only the camera's view")
-    parser.add_argument("--out", required=True, type=Path, metavar="TRUTH.npz", help="output ground-truth file")
+    add_out(parser, file=True, required=True, metavar="TRUTH.npz", help="output ground-truth file")
     parser.set_defaults(func=run)
 
 

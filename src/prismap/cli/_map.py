@@ -2,10 +2,12 @@
 
 import ast
 import contextlib
+import logging
 import math
 from pathlib import Path
 
 from prismap._validate import check_positive, check_probability
+from prismap.cli._args import add_out
 from prismap.cli._bag import add_bag_arguments, open_bag_argument
 from prismap.errors import PrismapInputError
 
@@ -55,7 +57,7 @@ def register(subparsers):
     parser.add_argument("--chunk-frames", type=int, metavar="C", help="frames per Dask task (default: automatic)")
     parser.add_argument("--checkpoint-every", type=int, default=0, metavar="K",
                         help="save a resumable checkpoint every K frames (default 0 = never)")
-    parser.add_argument("--out", required=True, type=Path, metavar="MAP.npz", help="output map file")
+    add_out(parser, file=True, required=True, metavar="MAP.npz", help="output map file")
     parser.set_defaults(func=run)
 
 
@@ -148,6 +150,18 @@ def _disparity_dir(path):
     return str(path.resolve())
 
 
+class _DropInputErrors(logging.Filter):
+    """Drops a worker's "Compute Failed" report of a PrismapInputError: the CLI prints it once, on one line."""
+
+    def filter(self, record):
+        return "PrismapInputError" not in record.getMessage()
+
+
+def quiet_input_errors():
+    """Run on each Dask worker: its logger no longer prints tracebacks of bad input."""
+    logging.getLogger("distributed.worker").addFilter(_DropInputErrors())
+
+
 @contextlib.contextmanager
 def _dask_client(workers, scheduler):
     """A Dask client for ``--workers`` (a local cluster of processes) or ``--scheduler``, else None."""
@@ -163,8 +177,10 @@ def _dask_client(workers, scheduler):
         except (OSError, TimeoutError, ValueError) as exc:
             raise PrismapInputError(f"--scheduler {scheduler}: cannot connect ({exc})") from None
     else:
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None)
+        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0",
+                               silence_logs=logging.ERROR)
         client = Client(cluster)
+    client.run(quiet_input_errors)
     try:
         yield client
     finally:

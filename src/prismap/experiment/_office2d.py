@@ -79,12 +79,15 @@ def run_office2d(out_dir, *, n_frames=None, voxel_size_m=None, seed=0, quick=Fal
 
     settings = office2d_settings(n_frames=n_frames, voxel_size_m=voxel_size_m, seed=seed, quick=quick,
                                  error_model=error_model, max_range_m=max_range_m)
-    out = claim_out_dir(out_dir, settings)
-    voxel = settings["voxel_size_m"]
     world = sim.office_world()
     poses = sim.waypoint_path(world.waypoints, step_m=settings["path_step_m"], turn_step_deg=settings["turn_step_deg"])
     if n_frames is not None:
-        poses = poses[np.unique(np.linspace(0, len(poses) - 1, min(int(n_frames), len(poses))).round().astype(int))]
+        if n_frames > len(poses):
+            raise PrismapInputError(f"`n_frames` must be at most {len(poses)} (the scans of the office tour); "
+                                    f"got {n_frames}")
+        poses = poses[np.unique(np.linspace(0, len(poses) - 1, int(n_frames)).round().astype(int))]
+    out = claim_out_dir(out_dir, settings)
+    voxel = settings["voxel_size_m"]
     scanner = sim.StereoScanner2D(n_rays=settings["n_rays"], fov_deg=settings["fov_deg"],
                                   baseline_m=settings["baseline_m"], max_range_m=settings["max_range_m"],
                                   error_model=error_model)

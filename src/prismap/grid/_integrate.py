@@ -140,9 +140,9 @@ def ray_mode(accumulator, origin, rays, disparity, ray_norm, groups, ranges, vox
 
     Hit/miss models go through :func:`cast_hit_miss`. For the others, rays go in chunks of
     :data:`RAYS_PER_CHUNK` through a two-stage pipeline: this thread casts chunk k + 1 (the kernel
-    releases the GIL) while a worker thread runs the model on chunk k and adds its increments. The cast beside the scatter never grows the accumulator (it is grown once the scatter is
-    done), and it only creates blocks and fills their rows while the scatter writes rows of blocks
-    created before, so the two never touch the same memory.
+    releases the GIL) while a worker thread runs the model on chunk k and adds its increments. The cast
+    beside the scatter never grows the accumulator (it is grown once the scatter is done), and it only
+    creates blocks and fills their rows while the scatter writes rows of blocks created before, so the two never touch the same memory.
     """
     if all(model.hit_miss_increments() is not None for model, _ in groups):
         for model, members in groups:

@@ -7,19 +7,28 @@ its role, and RGB channel order.
 
 import dataclasses
 import struct
+import zlib
 from pathlib import Path
 
 import cv2
 import numpy as np
 
 from prismap._files import atomic_path
+from prismap._memory import check_memory
 from prismap.errors import PrismapInputError
+from prismap.io._text import read_bytes
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+#: Most pixels an image may declare (16384 x 8192): a PNG of a few hundred KB can declare 20000 x 20000.
+MAX_IMAGE_PIXELS = 2**27
 
 
 def read_png(path, what, flags=cv2.IMREAD_UNCHANGED):
-    """Decode a PNG with ``cv2.imread(path, flags)``; channels stay in OpenCV's BGR(A) order.
+    """Decode a PNG with ``cv2.imdecode(data, flags)``; channels stay in OpenCV's BGR(A) order.
+
+    Before decoding, the file's chunk structure is checked (:func:`_png_header`): a truncated or corrupt
+    file is refused with one message (libpng never gets to print its own), and so is an image whose
+    declared size exceeds :data:`MAX_IMAGE_PIXELS` or the memory budget, which a small file can declare.
 
     Parameters
     ----------
@@ -34,15 +43,37 @@ def read_png(path, what, flags=cv2.IMREAD_UNCHANGED):
     (H, W) or (H, W, C) ndarray
     """
     path = Path(path)
-    if not path.is_file():
-        raise PrismapInputError(f"{path}: {what} not found")
-    with open(path, "rb") as handle:
-        if handle.read(len(PNG_SIGNATURE)) != PNG_SIGNATURE:
-            raise PrismapInputError(f"{path}: {what} is not a PNG file (wrong signature)")
-    image = cv2.imread(str(path), flags)
+    data = read_bytes(path, what)
+    height, width, bytes_per_pixel = _png_header(data, path, what)
+    if width * height > MAX_IMAGE_PIXELS:
+        raise PrismapInputError(f"{path}: {what} declares {width}x{height} pixels, more than the limit of "
+                                f"{MAX_IMAGE_PIXELS} pixels (MAX_IMAGE_PIXELS)")
+    check_memory(width * height * bytes_per_pixel, f"{path}: decoding the {width}x{height} {what}")
+    image = cv2.imdecode(np.frombuffer(data, np.uint8), flags)
     if image is None:
         raise PrismapInputError(f"{path}: {what} cannot be decoded (truncated or corrupt PNG)")
     return image
+
+
+def _png_header(data, path, what):
+    """``(height, width, decoded bytes per pixel)`` of the PNG ``data``, after checking every chunk's CRC."""
+    if data[:len(PNG_SIGNATURE)] != PNG_SIGNATURE:
+        raise PrismapInputError(f"{path}: {what} is not a PNG file (wrong signature)")
+    offset, header, ended = len(PNG_SIGNATURE), None, False
+    while offset + 12 <= len(data) and not ended:
+        length, kind = struct.unpack(">I4s", data[offset:offset + 8])
+        end = offset + 12 + length
+        if end > len(data) or zlib.crc32(data[offset + 4:end - 4]) != struct.unpack(">I", data[end - 4:end])[0]:
+            break
+        if header is None and kind == b"IHDR" and length == 13:
+            header = struct.unpack(">IIBB", data[offset + 8:offset + 18])
+        ended = kind == b"IEND"
+        offset = end
+    if header is None or not ended:
+        raise PrismapInputError(f"{path}: {what} cannot be decoded (truncated or corrupt PNG)")
+    width, height, bit_depth, colour_type = header
+    channels = {0: 1, 2: 3, 3: 3, 4: 2, 6: 4}.get(colour_type, 4)
+    return height, width, channels * (2 if bit_depth == 16 else 1)
 
 
 def read_image(path, what, *, colour):

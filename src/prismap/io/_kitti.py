@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from prismap._validate import check_pose
 from prismap.camera import StereoCamera
 from prismap.errors import PrismapInputError
 from prismap.io._frame import LazyFrames, StereoFrame
@@ -27,7 +28,6 @@ from prismap.io._velodyne import (
 )
 
 _TEXT_FIELDS = frozenset({"calib_time"})
-_ROTATION_TOLERANCE = 1e-3
 
 
 # ----------------------------------------------------------------------------- KITTI files
@@ -119,7 +119,7 @@ def read_kitti_poses(path):
     """
     poses = homogeneous(read_number_rows(path, "KITTI pose file", 12, layout="3x4 pose").reshape(-1, 3, 4))
     for index, pose in enumerate(poses):
-        _check_rotation(pose[:3, :3], path, index + 1)
+        check_pose(pose, f"{path} line {index + 1}")
     return poses
 
 
@@ -141,14 +141,6 @@ def _camera_poses(T_world_cam0, P_camera):
         :func:`prismap.io.read_sequence`.
     """
     return T_world_cam0 @ np.linalg.inv(_T_left_cam0(P_camera))
-
-
-def _check_rotation(R, path, line_no):
-    error = np.abs(R.T @ R - np.eye(3)).max()
-    if not error <= _ROTATION_TOLERANCE or np.linalg.det(R) < 0:
-        raise PrismapInputError(
-            f"{path} line {line_no}: rotation is not orthonormal with det +1 (max |R^T R - I| = {error:.3g})"
-        )
 
 
 def read_kitti_disparity(path):

@@ -7,7 +7,6 @@ Fields: ``format`` ("prismap-map"), ``format_version`` (1), ``voxel_size_m``, ``
 each voxel). Only observed voxels are stored.
 """
 
-import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -15,11 +14,19 @@ import numpy as np
 from prismap._files import atomic_path
 from prismap.errors import PrismapInputError
 from prismap.grid import OccupancyMap
+from prismap.io._npz import INTEGER, REAL, TEXT, array_field, read_npz
 
 FORMAT = "prismap-map"
 FORMAT_VERSION = 1
-_FIELDS = ("format", "format_version", "voxel_size_m", "p0", "ndim", "policy", "clamp", "occupied_threshold",
-           "free_threshold", "n_frames", "keys", "log_odds", "counts")
+_SPEC = {
+    "format": TEXT, "format_version": INTEGER, "voxel_size_m": REAL, "p0": REAL, "ndim": INTEGER, "policy": TEXT,
+    "clamp": array_field((2,), "float"), "occupied_threshold": REAL, "free_threshold": REAL, "n_frames": INTEGER,
+    "keys": array_field((None, 3), "integer"), "log_odds": array_field((None,), "float"),
+    "counts": array_field((None,), "integer"),
+}
+#: Memory per stored voxel while loading: the arrays (12 + 4 + 2 bytes), the map's storage and the
+#: duplicate check's sorted copy, rounded up.
+_BYTES_PER_VOXEL = 64
 
 
 def save_map(grid, path):
@@ -48,44 +55,41 @@ def save_map(grid, path):
 def load_map(path):
     """Read a map written by :func:`save_map`.
 
+    Every field's type and rank, and the memory the declared voxels need, are checked from the archive's
+    headers before any array is loaded.
+
     Raises
     ------
     PrismapInputError
-        The file is missing, not an ``.npz`` archive, truncated, of another format or version, or
-        lacks a field; the message names the file and the problem.
+        The file is missing, not an ``.npz`` archive, truncated, of another format or version, lacks a
+        field, holds a field of the wrong type or rank, a negative ``n_frames``, a key twice, or declares
+        more voxels than the memory budget holds; the message names the file and the problem.
     """
     path = Path(path)
     if not path.is_file():
         raise PrismapInputError(f"{path}: no such map file")
-    try:
-        data = np.load(path, allow_pickle=False)
-        if not isinstance(data, np.lib.npyio.NpzFile):
-            raise PrismapInputError(f"{path}: not a prismap map (.npz archive); got a single .npy array")
-        with data:
-            missing = [f for f in _FIELDS if f not in data.files]
-            if "format" in missing or ("format" in data.files and str(data["format"]) != FORMAT):
-                raise PrismapInputError(f"{path}: not a prismap map file (no format field {FORMAT!r})")
-            version = int(data["format_version"]) if "format_version" in data.files else None
-            if version != FORMAT_VERSION:
-                raise PrismapInputError(f"{path}: map format version {version} is not supported; expected {FORMAT_VERSION}")
-            if missing:
-                raise PrismapInputError(f"{path}: map file lacks field(s) {missing}")
-            fields = {name: data[name] for name in _FIELDS}
-    except (zipfile.BadZipFile, EOFError, OSError, ValueError) as exc:
-        if isinstance(exc, PrismapInputError):
-            raise
-        raise PrismapInputError(f"{path}: not a readable .npz map file (truncated or corrupt?): {exc}") from None
+    fields = read_npz(path, "map file", _SPEC, loaded_bytes_per_row=_BYTES_PER_VOXEL)
+    if fields["format"] != FORMAT:
+        raise PrismapInputError(f"{path}: not a prismap map file (format {fields['format']!r}, expected {FORMAT!r})")
+    if fields["format_version"] != FORMAT_VERSION:
+        raise PrismapInputError(
+            f"{path}: map format version {fields['format_version']} is not supported; expected {FORMAT_VERSION}"
+        )
+    if fields["n_frames"] < 0:
+        raise PrismapInputError(f"{path}: `n_frames` must be >= 0; got {fields['n_frames']}")
+    keys = fields["keys"]
+    if len(np.unique(keys, axis=0)) != len(keys):
+        raise PrismapInputError(f"{path}: `keys` holds {len(keys) - len(np.unique(keys, axis=0))} duplicate voxel keys")
     clamp = fields["clamp"]
-    grid = OccupancyMap(
-        float(fields["voxel_size_m"]), p0=float(fields["p0"]), ndim=int(fields["ndim"]),
-        clamp=None if np.isnan(clamp).any() else tuple(float(c) for c in clamp),
-        occupied_threshold=float(fields["occupied_threshold"]), free_threshold=float(fields["free_threshold"]),
-    )
     try:
-        grid.set_voxels(fields["keys"], fields["log_odds"], fields["counts"])
+        grid = OccupancyMap(
+            fields["voxel_size_m"], p0=fields["p0"], ndim=fields["ndim"],
+            clamp=None if np.isnan(clamp).any() else tuple(float(c) for c in clamp),
+            occupied_threshold=fields["occupied_threshold"], free_threshold=fields["free_threshold"],
+        )
+        grid.set_voxels(keys, fields["log_odds"], fields["counts"])
     except PrismapInputError as exc:
         raise PrismapInputError(f"{path}: {exc}") from None
-    policy = str(fields["policy"])
-    grid.policies = tuple(policy.split("+")) if policy else ()
-    grid.n_frames = int(fields["n_frames"])
+    grid.policies = tuple(fields["policy"].split("+")) if fields["policy"] else ()
+    grid.n_frames = fields["n_frames"]
     return grid

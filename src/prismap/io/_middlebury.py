@@ -9,17 +9,12 @@ from pathlib import Path
 
 import numpy as np
 
-from prismap.camera import StereoCamera
+from prismap.camera import MOTORCYCLE_CAMERA, StereoCamera
 from prismap.errors import PrismapInputError
 from prismap.io._frame import LazyFrames, StereoFrame
 from prismap.io._images import png_size, read_pair
 from prismap.io._pfm import read_pfm
 from prismap.io._text import location, parse_numbers, read_text
-
-# Quarter-resolution Motorcycle (Middlebury 2014) as scikit-image ships it; calibration from DESIGN.md.
-MOTORCYCLE_CAMERA = StereoCamera(focal_px=994.978, cx_px=311.193, cy_px=254.877, baseline_m=0.193001, doffs_px=31.086,
-                                  width=741, height=500)
-"""The quarter-resolution Middlebury 2014 Motorcycle rig bundled in scikit-image (DESIGN.md)."""
 
 
 def read_middlebury_calib(path):

@@ -30,8 +30,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from prismap._files import atomic_path
-from prismap._validate import check_positive
+from prismap._files import atomic_path, umask_mode
+from prismap._validate import check_pose, check_positive
 from prismap.errors import PrismapInputError
 from prismap.io._frame import StereoFrame, frame_index
 from prismap.io._images import (
@@ -47,6 +47,7 @@ from prismap.io._kitti import (
     read_kitti_calib,
     read_kitti_poses,
 )
+from prismap.io._npz import INTEGER, REAL, TEXT, array_field, read_npz
 from prismap.io._text import homogeneous, read_number_rows
 
 GROUND_TRUTH_FORMAT = "prismap-ground-truth-occupancy"
@@ -113,6 +114,12 @@ def _packed(keys):
     return (k[:, 0] << 42) | (k[:, 1] << 21) | k[:, 2]
 
 
+_GROUND_TRUTH_SPEC = {
+    "format": TEXT, "version": INTEGER, "voxel_size_m": REAL,
+    "occupied_keys": array_field((None, 3), "integer"), "observed_keys": array_field((None, 3), "integer"),
+}
+
+
 def write_ground_truth(path, truth):
     """Write ``truth`` (:class:`GroundTruthOccupancy`) to ``path`` (``.npz``) atomically.
 
@@ -133,23 +140,16 @@ def write_ground_truth(path, truth):
 def read_ground_truth(path):
     """Read a file written by :func:`write_ground_truth`; clear errors name the file and the field."""
     path = Path(path)
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            fields = {name: data[name] for name in data.files}
-    except FileNotFoundError:
-        raise PrismapInputError(f"{path}: ground-truth occupancy file not found") from None
-    except (OSError, ValueError, EOFError) as exc:
-        raise PrismapInputError(f"{path}: not a readable .npz file ({exc})") from None
-    missing = [n for n in ("format", "version", "voxel_size_m", "occupied_keys", "observed_keys") if n not in fields]
-    if missing:
-        raise PrismapInputError(f"{path}: ground-truth occupancy file lacks field(s) {missing}")
-    if str(fields["format"]) != GROUND_TRUTH_FORMAT or int(fields["version"]) != GROUND_TRUTH_VERSION:
+    if not path.is_file():
+        raise PrismapInputError(f"{path}: ground-truth occupancy file not found")
+    fields = read_npz(path, "ground-truth occupancy file", _GROUND_TRUTH_SPEC)
+    if fields["format"] != GROUND_TRUTH_FORMAT or fields["version"] != GROUND_TRUTH_VERSION:
         raise PrismapInputError(
             f"{path}: expected format {GROUND_TRUTH_FORMAT!r} version {GROUND_TRUTH_VERSION}; "
-            f"got {str(fields['format'])!r} version {fields['version']}"
+            f"got {fields['format']!r} version {fields['version']}"
         )
     try:
-        return GroundTruthOccupancy(float(fields["voxel_size_m"]), fields["occupied_keys"], fields["observed_keys"])
+        return GroundTruthOccupancy(fields["voxel_size_m"], fields["occupied_keys"], fields["observed_keys"])
     except PrismapInputError as exc:
         raise PrismapInputError(f"{path}: {exc}") from None
 
@@ -181,6 +181,7 @@ def write_sequence(frames, out_dir, *, occupancy=None):
         raise PrismapInputError(f"{out_dir}: exists and is not a directory; expected a sequence directory")
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(dir=out_dir.parent, prefix=f".{out_dir.name}.", suffix=".tmp"))
+    os.chmod(staging, umask_mode(0o777))  # mkdtemp makes it 0700; the sequence follows the umask
     try:
         count = _write_files(frames, staging, occupancy)
         _move_into(staging, out_dir)
@@ -209,10 +210,7 @@ def _write_files(frames, out_dir, occupancy):
                 f"`frames[{index}]`: poses and ground-truth disparities must be given for every frame or for none"
             )
         if has_pose:
-            pose = np.asarray(frame.T_world_cam, dtype=np.float64)
-            if pose.shape != (4, 4) or not np.all(np.isfinite(pose)):
-                raise PrismapInputError(f"`frames[{index}].T_world_cam` must be a finite (4, 4) array; got {pose}")
-            poses.append(pose[:3].ravel())
+            poses.append(frame.T_world_cam[:3].ravel())
         stem = f"{index:06d}.png"
         _write_image(out_dir / "image_2" / stem, frame.left, f"frames[{index}].left")
         _write_image(out_dir / "image_3" / stem, frame.right, f"frames[{index}].right")
@@ -318,6 +316,8 @@ class Sequence:
         if self.pose_path.is_file():
             rows = read_number_rows(self.pose_path, "pose file", 12, layout="3x4 pose")
             self.poses = homogeneous(rows.reshape(-1, 3, 4))
+            for index, pose in enumerate(self.poses):
+                check_pose(pose, f"{self.pose_path} line {index + 1}")
         else:
             self.pose_path = _kitti_odometry_pose_path(self.path)
             if self.pose_path is not None:

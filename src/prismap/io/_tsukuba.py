@@ -16,14 +16,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from prismap.camera import StereoCamera
+from prismap.camera import TSUKUBA_CAMERA
 from prismap.errors import PrismapInputError
 from prismap.io._frame import LazyFrames, StereoFrame
 from prismap.io._images import png_size, read_disparity_png, read_pair, with_image_size
 from prismap.io._text import read_number_rows
-
-TSUKUBA_CAMERA = StereoCamera(focal_px=615.0, cx_px=320.0, cy_px=240.0, baseline_m=0.10, width=640, height=480)
-"""The dataset's rectified rig: f = 615 px, principal point (320, 240), baseline 10 cm, 640x480."""
 
 _OPENGL_TO_OPENCV = np.diag([1.0, -1.0, -1.0, 1.0])
 _GROUND_TRUTH = (None, "disparity", "depth")

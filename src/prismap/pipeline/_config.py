@@ -18,6 +18,19 @@ DISPARITY_FROM_MATCHER = "matcher"
 DISPARITY_FROM_SEQUENCE = "sequence"
 NEEDS_SIGMA = ("convolution", "andert")
 """Models parametrised by one disparity noise ``sigma_px``: taken from the error model unless given."""
+RESERVED_MODEL_PARAMS = {
+    "voxel_size_m": "the map's voxel size (--voxel)", "p0": "the map's prior (--p0)",
+    "error_model": "--error-model", "focal_baseline": "the camera", "doffs_px": "the camera",
+}
+"""Sensor model arguments the run sets itself, with where they come from; a model parameter may not set them."""
+
+
+def _check_model_params(params, option):
+    reserved = sorted(set(params) & set(RESERVED_MODEL_PARAMS))
+    if reserved:
+        name = reserved[0]
+        raise PrismapInputError(f"{option} {name}: cannot be set as a model parameter; it comes from "
+                                f"{RESERVED_MODEL_PARAMS[name]}")
 
 
 def dominant_sigma_px(mixture):
@@ -69,7 +82,8 @@ def build_sensor_model(name, camera, *, voxel_size_m, p0, error_model=None, **pa
         raise PrismapInputError(f"unknown sensor model {name!r}; expected one of {list(model_names())}")
     mixture = _as_mixture(error_model)
     params = dict(params)
-    if name == "prism" and "error_model" not in params:
+    _check_model_params(params, "model parameter")
+    if name == "prism":
         if mixture is None:
             raise PrismapInputError("sensor model 'prism' needs an error model (--error-model MODEL.json)")
         params["error_model"] = mixture
@@ -167,6 +181,7 @@ class MappingConfig:
         set_("p0", check_probability(self.p0, "p0"))
         set_("error_model", _as_mixture(self.error_model))
         set_("model_params", _frozen_params(self.model_params, "model_params"))
+        _check_model_params(dict(self.model_params), "model_params")
         set_("matcher_params", _frozen_params(self.matcher_params, "matcher_params"))
         if not isinstance(self.disparity_source, str) or not self.disparity_source:
             raise PrismapInputError(f"`disparity_source` must be 'matcher', 'sequence' or a directory; got {self.disparity_source!r}")

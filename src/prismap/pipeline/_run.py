@@ -4,9 +4,12 @@ import math
 import os
 from pathlib import Path
 
+import numpy as np
+
+from prismap._files import exclusive_lock
 from prismap._progress import progress as progress_bar
 from prismap.errors import PrismapInputError
-from prismap.grid import OccupancyMap
+from prismap.grid import KEY_LIMIT, OccupancyMap
 from prismap.io import BagSequence, Sequence, read_kitti_disparity, read_sequence
 from prismap.pipeline._checkpoint import open_checkpoint, run_fingerprint, save_checkpoint
 from prismap.pipeline._config import DISPARITY_FROM_MATCHER, DISPARITY_FROM_SEQUENCE, MappingConfig
@@ -103,6 +106,28 @@ def integrate_frames(grid, sequence, config, indices, *, on_frame=None):
     return grid
 
 
+def check_key_reach(sequence, config, indices):
+    """Refuse, before any work, a voxel size whose key range cannot hold the rays of ``sequence``.
+
+    The rays reach at most the farthest camera position plus the longest depth: ``config.max_range_m``,
+    else the model's ``max_range_m`` (PRISM), else the depth of a 1 px disparity (``f b``).
+    """
+    if sequence.poses is None:
+        return
+    depth = config.max_range_m
+    if math.isinf(depth):
+        depth = getattr(sensor_model_for(config, sequence.camera), "max_range_m", sequence.camera.focal_baseline)
+    positions = np.abs(sequence.poses[list(indices)][:, :3, 3]).max()
+    reach_m = float(positions + depth)
+    span_m = KEY_LIMIT * config.voxel_size_m
+    if reach_m >= span_m:
+        raise PrismapInputError(
+            f"voxel size {config.voxel_size_m:g} m: the map's keys span +-{KEY_LIMIT} voxels = +-{span_m:.4g} m, "
+            f"but the rays reach {reach_m:.4g} m (camera positions up to {positions:.4g} m plus depths up to "
+            f"{depth:.4g} m); use a voxel size of at least {reach_m / KEY_LIMIT:.3g} m or a shorter --max-range"
+        )
+
+
 def map_chunk(sequence_path, config, start, stop):
     """Map frames ``start <= i < stop`` into a fresh map (what a Dask worker runs).
 
@@ -166,6 +191,15 @@ def map_sequence(sequence, config, *, progress=True, checkpoint=None, checkpoint
         raise PrismapInputError(f"`checkpoint_every` must be an integer >= 0; got {checkpoint_every!r}")
     sequence = open_sequence(sequence)
     indices = config.frame_indices(len(sequence))
+    check_key_reach(sequence, config, indices)
+    if checkpoint is None:
+        return _map_frames(sequence, config, indices, progress, None, checkpoint_every, client, chunk_frames)
+    with exclusive_lock(checkpoint, "checkpoint"):
+        return _map_frames(sequence, config, indices, progress, checkpoint, checkpoint_every, client, chunk_frames)
+
+
+def _map_frames(sequence, config, indices, progress, checkpoint, checkpoint_every, client, chunk_frames):
+    """:func:`map_sequence` after its checks, with the checkpoint (if any) locked."""
     grid = None
     fingerprint = None
     if checkpoint is not None:

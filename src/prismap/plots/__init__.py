@@ -2,8 +2,8 @@
 
 from prismap.plots._characterise import plot_class_fits, plot_error_fits, plot_error_tails
 from prismap.plots._evaluate import plot_probability_histograms, plot_reliability
-from prismap.plots._models import plot_divergence, plot_influence, plot_prism_sweeps, plot_ray_profiles
 from prismap.plots._maps import plot_map_slices
+from prismap.plots._models import plot_divergence, plot_influence, plot_prism_sweeps, plot_ray_profiles
 
 __all__ = [
     "plot_class_fits",

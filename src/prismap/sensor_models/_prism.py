@@ -39,6 +39,8 @@ _QUAD_STEP = 0.25  # x-width of one Gauss-Legendre panel (x: one unit per prior 
 _NODES_PER_TABLE_STEP = 2  # table node spacing = 2 panels = 0.5 in x
 _COARSE_RATIO = 64  # node spacing 32 in x where log(C/Z) < _COARSE_BELOW (near-quadratic in x) and past influence
 _COARSE_BELOW = -40.0
+MAX_TABLE_NODES = 1 << 20
+"""Most nodes one table may need (64 MiB of float64 rows; see ``PrismModel._check_table_size``)."""
 _LAMBDA_STEP = 0.1  # table grid in log(lambda_z): one table every ~10 % of ray norm, the nearest one per ray
 _LAMBDA_SLACK = float(np.expm1(_LAMBDA_STEP / 2))  # relative rate gap a table's influence depth covers
 _KEY_L_SPAN = 1 << 16  # table key = disparity key * span + rate key
@@ -129,7 +131,7 @@ class PrismModel(RayModel):
       where ``C/Z > e^-40`` to the influence depth; every 32 before (``C`` from its endpoint asymptotic
       there) and 4 nodes beyond. Cubic Hermite in ``x`` with exact derivatives; each ray uses the table of
       the nearest rate plus a second-order Taylor term in ``log lambda_z`` (from stored moments). About
-      14 KB and 0.3 ms per table. Error against ``"direct"``: within :data:`TABLE_TOLERANCE` for
+      14 KB per table. Error against ``"direct"``: within :data:`TABLE_TOLERANCE` for
       disparities on the step grid; off-grid disparities are rounded (a shift of at most half a step).
       Tables are cached on the model (one model per error model and camera; each
       :meth:`with_extra_noise` copy has its own), least recently used ones dropped beyond
@@ -149,7 +151,7 @@ class PrismModel(RayModel):
     near_m : float, metres, default 0.1
         ``z0``: no surface before this depth. Table size and build time grow like ``1 / near_m`` (the
         likelihood term of ``x``): setting it to the matcher's nearest depth ``f b / max_disparity`` saves
-        most of both (0.5 m instead of 0.1 m: 5x less memory, ~2.5x faster builds).
+        most of both (0.5 m instead of 0.1 m: 5x fewer nodes).
     max_range_m : float, metres, default 200
         ``z_max``: beyond it, the far measurement.
     method : {"table", "direct"}
@@ -158,7 +160,8 @@ class PrismModel(RayModel):
     influence_epsilon : float, log-odds, default 1e-3
     table_memory_mb : float, MiB, default 64
         Table cache budget (about 20 KB per table at 0.1 m cells); the tables one call needs are kept even
-        beyond it.
+        beyond it. A model whose tables could exceed :data:`MAX_TABLE_NODES` nodes (an error sigma far below
+        the matcher's sub-pixel step, or a tiny ``near_m``) is refused on construction.
     """
 
     name = "prism"
@@ -193,6 +196,26 @@ class PrismModel(RayModel):
         memory = check_positive(self.table_memory_mb, "table_memory_mb")
         object.__setattr__(self, "table_memory_mb", memory)
         object.__setattr__(self, "_cache", _TableCache(int(memory * 2**20)))
+        self._check_table_size()
+
+    def _check_table_size(self):
+        """Refuse, before any table is built, a model whose tables could exceed :data:`MAX_TABLE_NODES`.
+
+        A table's grid runs in ``x = lambda_z z - f b / (sigma_min z)`` with a node every
+        ``_QUAD_STEP * _NODES_PER_TABLE_STEP`` in ``x``, so it holds at most ``x_span / 0.5`` nodes with
+        ``x_span = f b / (sigma_min near_m) + lambda |r| max_range_m`` (|r| <= 2, a 120 degree view). Without the
+        bound an error sigma of 1e-4 px or a sub-millimetre ``near_m`` asks for gigabytes and minutes per table.
+        """
+        x_span = self._ku() / self.near_m + 2.0 * self.rate_per_m * self.max_range_m
+        max_nodes = x_span / (_QUAD_STEP * _NODES_PER_TABLE_STEP)
+        if max_nodes > MAX_TABLE_NODES:
+            sigma_min = float(self.error_model.sigmas.min())
+            smallest = self.focal_baseline / (self.near_m * MAX_TABLE_NODES * _QUAD_STEP * _NODES_PER_TABLE_STEP)
+            raise PrismapInputError(
+                f"prism: an error sigma of {sigma_min:.3g} px with near_m {self.near_m:g} m and f*b "
+                f"{self.focal_baseline:.4g} px*m allows tables of up to {max_nodes:.3g} nodes, more than "
+                f"MAX_TABLE_NODES = {MAX_TABLE_NODES}; sigmas must be >= {smallest:.3g} px here (or raise near_m)"
+            )
 
     # ------------------------------------------------------------------ derived constants
     @property

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from prismap._validate import as_float_array
-from prismap.camera import StereoCamera
+from prismap.camera import TSUKUBA_CAMERA
 from prismap.errors import PrismapInputError
 from prismap.io._frame import StereoFrame
 from prismap.sim._kernels import cast_view, shade_view
@@ -22,8 +22,8 @@ _SHADE = np.array([[0.80, 0.90], [0.70, 0.85], [0.55, 1.00]])
 
 
 def tsukuba_camera():
-    """The New Tsukuba rig: 640x480, f = 615 px, principal point (320, 240), baseline 0.10 m."""
-    return StereoCamera(615.0, 320.0, 240.0, 0.10, width=640, height=480)
+    """The New Tsukuba rig (:data:`prismap.camera.TSUKUBA_CAMERA`): 640x480, f = 615 px, baseline 0.10 m."""
+    return TSUKUBA_CAMERA
 
 
 @dataclass(frozen=True)

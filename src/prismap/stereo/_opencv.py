@@ -5,8 +5,8 @@ from abc import abstractmethod
 import cv2
 import numpy as np
 
-from prismap.errors import PrismapInputError
 from prismap._validate import check_integer, check_real
+from prismap.errors import PrismapInputError
 from prismap.stereo._base import StereoMatcher, check_stereo_pair, left_right_disagreement, to_grey
 
 
@@ -54,6 +54,12 @@ class _OpenCVMatcher(StereoMatcher):
             (:func:`prismap.stereo.left_right_disagreement`, before pixels beyond the tolerance are dropped).
         """
         left, right = self._prepare(check_stereo_pair(left, right))
+        reach = self.min_disparity + self.num_disparities
+        if reach >= left.shape[1]:
+            raise PrismapInputError(
+                f"{self.name}: min_disparity + num_disparities = {reach} px must be below the image width "
+                f"{left.shape[1]} px (no pixel could be matched)"
+            )
         matcher = self._create(channels=1 if left.ndim == 2 else left.shape[2])
         disparity = self._to_float(matcher.compute(left, right))
         if not self.left_right_check:

@@ -1,9 +1,9 @@
-"""Studies of the inverse sensor models along one ray: profiles, PRISM sweeps, divergences, timings."""
+"""Studies of the inverse sensor models along one ray: profiles, PRISM sweeps, divergences, and the ``models compare`` workflow."""
 
+from prismap.study._compare import COMPARE_FILES, ModelsCompareRun, run_models_compare
 from prismap.study._ray_models import (
     CAMERAS,
     ModelComparison,
-    PerformanceTable,
     RayProfile,
     RaySetup,
     compare_models,
@@ -13,13 +13,13 @@ from prismap.study._ray_models import (
     ray_profile,
     single_noise_sigma,
     study_models,
-    time_models,
 )
 
 __all__ = [
     "CAMERAS",
+    "COMPARE_FILES",
     "ModelComparison",
-    "PerformanceTable",
+    "ModelsCompareRun",
     "RayProfile",
     "RaySetup",
     "compare_models",
@@ -27,7 +27,7 @@ __all__ = [
     "influence_distances",
     "prism_sweeps",
     "ray_profile",
+    "run_models_compare",
     "single_noise_sigma",
     "study_models",
-    "time_models",
 ]

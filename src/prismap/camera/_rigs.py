@@ -1,0 +1,13 @@
+"""The stereo rigs prismap knows by name: one definition each, imported by readers, simulators and studies."""
+
+from prismap.camera._stereo_camera import StereoCamera
+
+MOTORCYCLE_CAMERA = StereoCamera(focal_px=994.978, cx_px=311.193, cy_px=254.877, baseline_m=0.193001, doffs_px=31.086,
+                                 width=741, height=500)
+"""The quarter-resolution Middlebury 2014 Motorcycle rig bundled in scikit-image (DESIGN.md)."""
+
+TSUKUBA_CAMERA = StereoCamera(focal_px=615.0, cx_px=320.0, cy_px=240.0, baseline_m=0.10, width=640, height=480)
+"""New Tsukuba's rectified rig: f = 615 px, principal point (320, 240), baseline 10 cm, 640x480."""
+
+KITTI_CAMERA = StereoCamera(focal_px=721.5377, cx_px=609.5593, cy_px=172.854, baseline_m=0.5327, width=1242, height=375)
+"""KITTI 2011_09_26 colour cameras 2 and 3 (``P_rect_02``/``P_rect_03``, as in KITTI stereo 2015), 1242x375."""
