@@ -2,7 +2,8 @@
 
 import numpy as np
 
-from prismap.grid import _kernels
+from prismap.grid import _kernels_hash
+from prismap.grid._keys import block_voxel_keys, unpack_keys
 
 
 class BlockTable:
@@ -45,26 +46,19 @@ class BlockTable:
             self.block_keys = _grown(self.block_keys, capacity, n)
             self.payload = {name: _grown(array, capacity, n) for name, array in self.payload.items()}
         if 2 * need > self.table.size:
-            self.table = _kernels.rehash(self.block_keys, n, 1 << int(np.ceil(np.log2(2 * need))))
+            self.table = _kernels_hash.rehash(self.block_keys, n, 1 << int(np.ceil(np.log2(2 * need))))
 
     def count_absent(self, packed_keys, n):
         """How many of the distinct packed block keys ``packed_keys[:n]`` this table lacks."""
-        return _kernels.count_absent_blocks(self.table, self.block_keys, packed_keys, n)
+        return _kernels_hash.count_absent_blocks(self.table, self.block_keys, packed_keys, n)
 
     def block_coords(self):
         """(B, 3) int64 block coordinates of the stored blocks."""
-        packed = self.block_keys[: len(self)]
-        shifts = np.array([42, 21, 0], dtype=np.int64)
-        return ((packed[:, None] >> shifts) & _kernels._MASK21) - _kernels._OFFSET
+        return unpack_keys(self.block_keys[: len(self)])
 
     def voxel_keys(self):
         """(B, V, 3) int64 voxel keys of every voxel of every stored block (V = voxels per block)."""
-        bx, by, bz = self.bits
-        local = np.arange(self.block_voxels, dtype=np.int64)
-        offsets = np.stack(
-            [local & ((1 << bx) - 1), (local >> bx) & ((1 << by) - 1), (local >> (bx + by)) & ((1 << bz) - 1)], axis=1
-        )
-        return (self.block_coords()[:, None, :] << np.array(self.bits, dtype=np.int64)) + offsets[None, :, :]
+        return block_voxel_keys(self.block_coords(), self.bits)
 
     def nbytes(self):
         """Bytes held by the table and the block arrays (allocated capacity, not just the used part)."""

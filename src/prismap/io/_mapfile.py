@@ -1,10 +1,11 @@
 """The versioned ``.npz`` map file (DESIGN.md): everything needed to resume, merge or compare a map.
 
-Fields: ``format`` ("prismap-map"), ``format_version`` (1), ``voxel_size_m``, ``p0``, ``ndim``,
+Fields: ``format`` ("prismap-map"), ``format_version`` (2), ``voxel_size_m``, ``p0``, ``ndim``,
 ``policy`` (the per-frame policies used, "+"-joined), ``clamp`` ((2,) probabilities, NaN = off),
 ``occupied_threshold``, ``free_threshold``, ``n_frames``, ``keys`` ((N, 3) int32 voxel keys,
-``floor(x / voxel_size)``), ``log_odds`` ((N,) float32) and ``counts`` ((N,) uint16, frames that observed
-each voxel). Only observed voxels are stored.
+``floor(x / voxel_size)``), ``log_odds`` ((N,) float64, multiples of ``2**-20``: the map's fixed-point
+log-odds, exact) and ``counts`` ((N,) uint16, frames that observed each voxel). Only observed voxels are
+stored. Version 1 files (float32 log-odds) are still read; their values are rounded to the fixed point.
 """
 
 import zipfile
@@ -17,7 +18,9 @@ from prismap.errors import PrismapInputError
 from prismap.grid import OccupancyMap
 
 FORMAT = "prismap-map"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+READABLE_VERSIONS = (1, 2)
+"""Version 1 held float32 log-odds; version 2 the map's fixed-point log-odds as exact float64."""
 _FIELDS = ("format", "format_version", "voxel_size_m", "p0", "ndim", "policy", "clamp", "occupied_threshold",
            "free_threshold", "n_frames", "keys", "log_odds", "counts")
 
@@ -66,8 +69,9 @@ def load_map(path):
             if "format" in missing or ("format" in data.files and str(data["format"]) != FORMAT):
                 raise PrismapInputError(f"{path}: not a prismap map file (no format field {FORMAT!r})")
             version = int(data["format_version"]) if "format_version" in data.files else None
-            if version != FORMAT_VERSION:
-                raise PrismapInputError(f"{path}: map format version {version} is not supported; expected {FORMAT_VERSION}")
+            if version not in READABLE_VERSIONS:
+                raise PrismapInputError(f"{path}: map format version {version} is not supported; expected one of "
+                                        f"{list(READABLE_VERSIONS)}")
             if missing:
                 raise PrismapInputError(f"{path}: map file lacks field(s) {missing}")
             fields = {name: data[name] for name in _FIELDS}

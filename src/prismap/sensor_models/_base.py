@@ -18,10 +18,6 @@ import numpy as np
 from prismap._validate import as_float_array
 from prismap.errors import PrismapInputError
 
-POLICIES = ("mean", "max-abs", "occupied-wins", "max", "sum")
-"""Per-frame policies that combine the increments of the several rays of one frame that hit one cell."""
-
-
 class InverseSensorModel(ABC):
     """Base class: ``cell_posteriors`` on flat cell arrays, ``influence_depth`` per ray.
 
@@ -31,6 +27,7 @@ class InverseSensorModel(ABC):
 
     name = "base"
     default_policy = "mean"
+    """Name of the per-frame policy the map uses with this model by default (the grid owns the policies)."""
 
     @abstractmethod
     def cell_posteriors(self, disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m):
