@@ -5,6 +5,9 @@ face neighbours. Its size is bounded (:data:`MAX_FRAME_BYTES`): a frame that wou
 refused with an error naming what to change, instead of exhausting memory.
 """
 
+import os
+import resource
+
 import numpy as np
 
 from prismap.errors import PrismapInputError
@@ -12,7 +15,31 @@ from prismap.grid import _kernels_accumulate, _kernels_traverse
 from prismap.grid._storage import BlockTable
 
 MAX_FRAME_BYTES = 2 << 30
-"""Memory the frame accumulator may hold (bytes): about 2 M blocks of 4^3 voxels, 128 M voxels in 3-D."""
+"""Memory the frame accumulator may hold (bytes), at most: about 2 M blocks of 4^3 voxels (128 M voxels).
+Lowered to a quarter of the physical memory and a third of what the address-space limit (``RLIMIT_AS``)
+leaves free when those are smaller (:func:`frame_budget_bytes`)."""
+
+
+def frame_budget_bytes():
+    """The frame accumulator's memory bound (bytes) on this machine and under this process's limits."""
+    budget = MAX_FRAME_BYTES
+    try:
+        budget = min(budget, os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") // 4)
+    except (ValueError, OSError, AttributeError):
+        pass
+    soft = resource.getrlimit(resource.RLIMIT_AS)[0]
+    if soft != resource.RLIM_INFINITY:
+        budget = min(budget, max(soft - _address_space_used(), 0) // 3)  # growing copies: old + new arrays
+    return budget
+
+
+def _address_space_used():
+    """Bytes of address space this process maps now (Linux ``/proc/self/statm``; 0 where unknown)."""
+    try:
+        with open("/proc/self/statm") as handle:
+            return int(handle.read().split()[0]) * os.sysconf("SC_PAGE_SIZE")
+    except (OSError, ValueError, IndexError):
+        return 0
 
 
 def new_accumulator(bits):
@@ -23,18 +50,17 @@ def new_accumulator(bits):
 
 
 def grow(accumulator, blocks):
-    """Make room for ``blocks`` more blocks (at least 64, or as many as held), within :data:`MAX_FRAME_BYTES`."""
-    extra = max(64, len(accumulator), int(blocks))
-    per_block = sum(a.itemsize * int(np.prod(a.shape[1:])) for a in accumulator.payload.values()) + 8 + 8
-    if (len(accumulator) + extra) * per_block > MAX_FRAME_BYTES:
-        extra = max(int(blocks), MAX_FRAME_BYTES // per_block - len(accumulator))
-        if extra <= 0 or (len(accumulator) + extra) * per_block > MAX_FRAME_BYTES:
-            raise PrismapInputError(
-                f"one frame touches more than {MAX_FRAME_BYTES // per_block} voxel blocks ({MAX_FRAME_BYTES >> 30} GiB, "
-                "the frame accumulator's bound; docs/errors.md): lower `max_range_m`, raise `voxel_size_m`, or "
-                "subsample the rays"
-            )
-    accumulator.reserve(extra)
+    """Make room for ``max(blocks, 1)`` more blocks (at least 64, or as many as held), within
+    :func:`frame_budget_bytes`; a frame that needs more is refused."""
+    budget = frame_budget_bytes()
+    max_blocks = budget // accumulator.bytes_per_block()
+    held = len(accumulator)
+    if held + max(int(blocks), 1) > max_blocks:
+        raise PrismapInputError(
+            f"one frame touches more than {max_blocks} voxel blocks ({budget / 2**30:.3g} GiB, the frame "
+            "accumulator's bound; docs/errors.md): lower `max_range_m`, raise `voxel_size_m`, or subsample the rays"
+        )
+    accumulator.reserve(min(max(64, held, int(blocks)), max_blocks - held), max_blocks=max_blocks)
 
 
 def register_cells(accumulator, keys):

@@ -15,7 +15,7 @@ per-cell log-odds increments (SENSOR_MODELS.md section 3). A model that states h
 (``RayBatch.ray_class``) reaches the model as the keyword ``ray_class`` only when the batch has one.
 
 Work per frame is bounded before it starts (:data:`MAX_FRAME_CELLS`, :data:`MAX_RAY_CELLS`) and the
-accumulator's memory while it runs (``_accumulator.MAX_FRAME_BYTES``); docs/errors.md lists the bounds.
+accumulator's memory while it runs (``_accumulator.frame_budget_bytes``); docs/errors.md lists the bounds.
 """
 
 from abc import ABC, abstractmethod
@@ -37,8 +37,8 @@ MAX_FRAME_CELLS = 1 << 30
 """Voxel visits one frame may ask for: the sum over rays of the voxels between the origin and the stop depth
 (ray mode), or the voxels of the frustum's key box (projective mode)."""
 
-MAX_RAY_CELLS = 1 << 22
-"""Voxels one ray may cross (4.2 M: 419 km at 0.1 m voxels, 4.2 km at 1 mm)."""
+MAX_RAY_CELLS = 1 << 20
+"""Voxels one ray may cross (1 M: 105 km at 0.1 m voxels, 1 km at 1 mm)."""
 
 NOISE_BIN_RATIO = 1.25
 """Rays whose pose-induced disparity noise falls in one geometric bin share one widened model."""
@@ -106,9 +106,10 @@ class RayBatch:
         return RayBatch(self.origin_w, np.ascontiguousarray(self.rays_w[keep]), self.disparity_px[keep],
                         self.ray_norm[keep], _take(self.extra_noise_px, keep), _take(self.ray_class, keep), image)
 
-    def class_kwargs(self, idx):
-        """``{"ray_class": classes of rays idx}`` for a model call, or ``{}`` when the batch has no classes."""
-        if self.ray_class is None:
+    def class_kwargs(self, idx, model):
+        """``{"ray_class": classes of rays idx}`` for a call of ``model``, or ``{}`` when the batch has no
+        classes or the model is a hit/miss model (those ignore classes)."""
+        if self.ray_class is None or model.hit_miss_increments() is not None:
             return {}
         return {"ray_class": self.ray_class if idx is None else self.ray_class[idx]}
 
@@ -169,7 +170,7 @@ class Integrator(ABC):
     def stop_depths(self, model, batch, idx):
         """Depth at which each ray of ``idx`` stops and whether that stop excludes its voxel (cut by max range)."""
         disparity, ray_norm = _rows(batch.disparity_px, idx), _rows(batch.ray_norm, idx)
-        influence = np.asarray(model.influence_depth(disparity, ray_norm, **batch.class_kwargs(idx)), dtype=np.float64)
+        influence = np.asarray(model.influence_depth(disparity, ray_norm, **batch.class_kwargs(idx, model)), dtype=np.float64)
         if influence.shape != disparity.shape:
             raise PrismapInputError(
                 f"sensor model {model.name!r}: influence_depth returned shape {influence.shape}; expected {disparity.shape}"
@@ -188,7 +189,7 @@ class Integrator(ABC):
     def cell_increments(self, model, batch, idx, ray_of_cell, t_in, t_out):
         """The model's log-odds increments of the cells of rays ``idx``, checked for shape."""
         _, increment = model.cell_posteriors(_rows(batch.disparity_px, idx), _rows(batch.ray_norm, idx), ray_of_cell,
-                                             t_in, t_out, **batch.class_kwargs(idx))
+                                             t_in, t_out, **batch.class_kwargs(idx, model))
         increment = np.asarray(increment, dtype=np.float64)
         if increment.shape != t_in.shape:
             raise PrismapInputError(
@@ -335,9 +336,9 @@ class ProjectiveIntegrator(Integrator):
             )
             if n_kept <= capacity:
                 break
-            if n_kept * 40 > _accumulator.MAX_FRAME_BYTES:
+            if n_kept * 40 > _accumulator.frame_budget_bytes():  # 40 bytes per kept cell
                 raise PrismapInputError(
-                    f"the frame projects onto {n_kept} voxels, more than {_accumulator.MAX_FRAME_BYTES // 40} (docs/errors.md) "
+                    f"the frame projects onto {n_kept} voxels, more than {_accumulator.frame_budget_bytes() // 40} (docs/errors.md) "
                     f"at `voxel_size_m`={voxel:g}: lower `max_range_m` (now {self.max_range_m:g} m) or raise the voxel size"
                 )
             capacity = n_kept

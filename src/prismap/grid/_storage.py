@@ -33,16 +33,19 @@ class BlockTable:
         self.n_blocks[0] = 0
         self.table.fill(-1)
 
-    def reserve(self, extra):
+    def reserve(self, extra, *, max_blocks=None):
         """Make room for ``extra`` more blocks (block arrays and a table at most half full).
 
         Block arrays grow to exactly what is needed, or by half when that is more (amortised O(1)
-        growth with at most a third of the capacity spare); the table doubles.
+        growth with at most a third of the capacity spare), but never beyond ``max_blocks`` when given
+        (the caller keeps ``len(self) + extra <= max_blocks``); the table doubles.
         """
         n = len(self)
         need = n + int(extra)
         if need > self.block_keys.size:
             capacity = max(need, self.block_keys.size + self.block_keys.size // 2, 16)
+            if max_blocks is not None:
+                capacity = max(need, min(capacity, int(max_blocks)))
             self.block_keys = _grown(self.block_keys, capacity, n)
             self.payload = {name: _grown(array, capacity, n) for name, array in self.payload.items()}
         if 2 * need > self.table.size:
@@ -59,6 +62,10 @@ class BlockTable:
     def voxel_keys(self):
         """(B, V, 3) int64 voxel keys of every voxel of every stored block (V = voxels per block)."""
         return block_voxel_keys(self.block_coords(), self.bits)
+
+    def bytes_per_block(self):
+        """Bytes one more block costs: its payload rows, its packed key and its table entries (at most 4)."""
+        return sum(a.itemsize * int(np.prod(a.shape[1:])) for a in self.payload.values()) + 8 + 16
 
     def nbytes(self):
         """Bytes held by the table and the block arrays (allocated capacity, not just the used part)."""
