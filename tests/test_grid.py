@@ -10,6 +10,7 @@ from prismap.grid._kernels_traverse import cast_rays
 from prismap.sensor_models import InverseSensorModel
 from support import FB, L_HIT, L_MISS, HitMissModel, assert_same_map
 
+
 class ConstantModel(InverseSensorModel):
     """Every cell of ray i gets increment ``values[i]``; rays stop at depth ``depth_m``."""
 

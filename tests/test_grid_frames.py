@@ -6,8 +6,7 @@ import pytest
 
 from prismap.errors import PrismapInputError
 from prismap.grid import FREE, OCCUPIED, OCTOMAP_CLAMP, UNKNOWN, OccupancyMap, pose_noise_px
-from support import FB, HitMissModel, assert_same_map
-from support import planes_frame
+from support import FB, HitMissModel, assert_same_map, planes_frame
 
 
 def small_frame():
@@ -38,7 +37,7 @@ def test_merge_of_any_split_equals_sequential_integration():
     model = HitMissModel(camera.focal_baseline)
     rng = np.random.default_rng(7)
     poses = []
-    for i in range(4):
+    for _ in range(4):
         p = pose.copy()
         p[:3, 3] += rng.normal(scale=0.3, size=3)
         poses.append(p)

@@ -225,7 +225,7 @@ _CAPPED = textwrap.dedent("""
 
 def test_frames_beyond_the_bounds_are_refused_up_front_under_a_memory_cap():
     tests = Path(__file__).resolve().parent
-    run = subprocess.run([sys.executable, "-c", _CAPPED, str(tests)], capture_output=True, text=True, timeout=600)
+    run = subprocess.run([sys.executable, "-c", _CAPPED, str(tests)], capture_output=True, text=True, timeout=600, check=False)
     assert run.returncode == 0, run.stderr[-2000:]
     lines = dict(line.split(" | ", 1) for line in run.stdout.strip().splitlines())
     assert "a ray would cross" in lines["tiny pixel"] and "1048576" in lines["tiny pixel"]

@@ -114,9 +114,9 @@ def scatter(acc, cell_index, increment):
         x = np.float32(increment[i])
         acc[row, 0] += x
         acc[row, 1] += 1.0
-        if x > acc[row, 2]:
+        if x > acc[row, 2]:  # noqa: PLR1730 (a comparison, not max(): a NaN increment leaves the row alone)
             acc[row, 2] = x
-        if x < acc[row, 3]:
+        if x < acc[row, 3]:  # noqa: PLR1730
             acc[row, 3] = x
 
 

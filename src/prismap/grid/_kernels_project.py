@@ -6,6 +6,8 @@ Called only by the grid's wrappers, which check and convert first. Every kernel 
 import numba
 import numpy as np
 
+from prismap.grid._kernels_traverse import write_cell
+
 
 @numba.njit(cache=True, nogil=True)
 def project_voxels(key_min, shape, origin, R_cam_world, focal, cx, cy, subsample, ray_index, rays, t_stop, exclusive,
@@ -74,12 +76,7 @@ def project_voxels(key_min, shape, origin, R_cam_world, focal, cx, cy, subsample
                     m += 1
                     continue
                 ray_of_cell[m] = ray
-                keys[m, 0] = kx
-                keys[m, 1] = ky
-                keys[m, 2] = kz
-                t_in_out[m] = t0
-                t_out_out[m] = t1
-                m += 1
+                m = write_cell(keys, t_in_out, t_out_out, m, kx, ky, kz, t0, t1)
     n = min(m, capacity)
     return ray_of_cell[:n], keys[:n], t_in_out[:n], t_out_out[:n], m
 

@@ -67,15 +67,21 @@ def _walk(origin, ray, stop, exclusive, voxel_size, limit, keys, t_in_out, t_out
         if _past_stop(t_in, t_out, stop, exclusive):
             break
         if t_out - t_in > min_length:
-            keys[m, 0] = kx
-            keys[m, 1] = ky
-            keys[m, 2] = kz
-            t_in_out[m] = t_in
-            t_out_out[m] = t_out
-            m += 1
+            m = write_cell(keys, t_in_out, t_out_out, m, kx, ky, kz, t_in, t_out)
         kx, ky, kz, tx, ty, tz = _step(kx, ky, kz, tx, ty, tz, sx, sy, sz, dx, dy, dz)
         t_in = t_out
     return m
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def write_cell(keys, t_in_out, t_out_out, m, kx, ky, kz, t_in, t_out):
+    """Write voxel ``(kx, ky, kz)`` and its depth interval as cell row ``m``; returns the next free row."""
+    keys[m, 0] = kx
+    keys[m, 1] = ky
+    keys[m, 2] = kz
+    t_in_out[m] = t_in
+    t_out_out[m] = t_out
+    return m + 1
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
@@ -208,9 +214,9 @@ def cast_hit_miss(table, block_keys, n_blocks, acc, links, origin, rays, t_stop,
                 x = miss if t_out <= z else (hit if t_in <= z else zero)
                 acc[last_slot, local, 0] += x
                 acc[last_slot, local, 1] += 1.0
-                if x > acc[last_slot, local, 2]:
+                if x > acc[last_slot, local, 2]:  # noqa: PLR1730 (as in _kernels_accumulate.scatter)
                     acc[last_slot, local, 2] = x
-                if x < acc[last_slot, local, 3]:
+                if x < acc[last_slot, local, 3]:  # noqa: PLR1730
                     acc[last_slot, local, 3] = x
             kx, ky, kz, tx, ty, tz = _step(kx, ky, kz, tx, ty, tz, sx, sy, sz, dx, dy, dz)
             t_in = t_out
