@@ -271,3 +271,25 @@ def test_kitti_lidar_scans_input_errors(kitti_root):
     np.testing.assert_allclose(T_world_sensor[:3, :3], POSES_CAM2[2][:3, :3], atol=1e-12)
     world = points @ T_world_sensor[:3, :3].T + T_world_sensor[:3, 3]
     np.testing.assert_allclose(world, np.vstack([_wall_points(2), _behind_points(2)]), atol=1e-5)  # float32 scan
+
+
+def test_a_voxel_of_0_1_mm_is_refused_in_bounded_memory(kitti_root, tmp_path):
+    """``--voxel 1e-4``: every laser ray crosses ~5e4 voxels; under a 3 GB address-space cap the frame
+    accumulator's bound refuses the frame (exit 2, one line) instead of running out of memory."""
+    import subprocess
+    import sys
+    import textwrap
+
+    out = tmp_path / "t.npz"
+    script = textwrap.dedent(f"""
+        import resource, sys
+        resource.setrlimit(resource.RLIMIT_AS, (3 << 30, 3 << 30))
+        from prismap.cli import main
+        sys.exit(main(["lidar-truth", "--kitti", {str(kitti_root)!r}, "--sequence", "07", "--voxel", "1e-4",
+                       "--out", {str(out)!r}]))
+    """)
+    run = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=600, check=False)
+    err = run.stderr.strip()
+    assert run.returncode == 2, err[-2000:]
+    assert err.count("\n") == 0 and "the frame accumulator's bound" in err and "`voxel_size_m`" in err
+    assert not out.exists()

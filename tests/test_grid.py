@@ -6,7 +6,7 @@ import pytest
 
 from prismap.errors import PrismapInputError
 from prismap.grid import OccupancyMap, key_to_center, point_to_key
-from prismap.grid._kernels import cast_rays
+from prismap.grid._kernels_traverse import cast_rays
 from prismap.sensor_models import InverseSensorModel
 from support import FB, L_HIT, L_MISS, HitMissModel, assert_same_map
 
@@ -177,7 +177,7 @@ def test_unknown_policy_is_an_error():
 
 
 def test_cast_into_registers_the_cells_of_cast_rays_while_growing_the_accumulator():
-    from prismap.grid import _integrate
+    from prismap.grid import _accumulator
 
     rng = np.random.default_rng(2)
     origin = rng.uniform(-1, 1, 3)
@@ -185,8 +185,8 @@ def test_cast_into_registers_the_cells_of_cast_rays_while_growing_the_accumulato
     t_stop = rng.uniform(0.01, 3.0, 300)
     exclusive = rng.random(300) < 0.5
     ray_of, keys, t_in, t_out = cast_rays(origin, rays, t_stop, exclusive, 0.1)
-    acc = _integrate.new_accumulator((3, 3, 3))  # empty: the kernel stops short and is resumed many times
-    got_ray, rows, got_in, got_out = _integrate.cast_into(acc, origin, rays, t_stop, exclusive, 0.1)
+    acc = _accumulator.new_accumulator((3, 3, 3))  # empty: the kernel stops short and is resumed many times
+    got_ray, rows, got_in, got_out = _accumulator.cast_into(acc, origin, rays, t_stop, exclusive, 0.1)
     np.testing.assert_array_equal(got_ray, ray_of)
     np.testing.assert_array_equal(got_in, t_in)
     np.testing.assert_array_equal(got_out, t_out)
@@ -194,22 +194,22 @@ def test_cast_into_registers_the_cells_of_cast_rays_while_growing_the_accumulato
     voxel_keys = acc.voxel_keys().reshape(-1, 3)
     np.testing.assert_array_equal(voxel_keys[rows], keys)
     # Scattered increments land on their voxel: (sum, count, max, min) per row.
-    _integrate.scatter(acc, rows, np.arange(rows.size, dtype=np.float64))
-    flat = acc.payload["acc"].reshape(-1, 4)
+    _accumulator.scatter(acc, rows, np.arange(rows.size, dtype=np.float64))
+    flat = acc.payload["acc"][: len(acc)].reshape(-1, 4)  # the rows of the blocks in use (spare capacity is garbage)
     counts = np.bincount(rows, minlength=flat.shape[0])
     np.testing.assert_array_equal(flat[:, 1], counts)
     np.testing.assert_allclose(flat[:, 0], np.bincount(rows, weights=np.arange(rows.size), minlength=flat.shape[0]), rtol=1e-6)
 
 
 def test_chunked_pipeline_gives_the_map_of_one_chunk(monkeypatch):
-    from prismap.grid import _integrate
+    from prismap.grid import _integrators
 
     rng = np.random.default_rng(4)
     rays = np.column_stack([rng.uniform(-1, 1, (500, 2)), np.ones(500)])
     disparity = FB / rng.uniform(0.3, 3.0, 500)
     maps = []
     for chunk in (10_000, 7):
-        monkeypatch.setattr(_integrate, "RAYS_PER_CHUNK", chunk)
+        monkeypatch.setattr(_integrators, "RAYS_PER_CHUNK", chunk)
         grid = OccupancyMap(0.1, p0=0.5)
         grid.integrate_rays([0.05, -0.3, 0.0], rays, disparity, HitMissModel(FB), policy="mean")
         maps.append(as_dict(grid))
@@ -248,7 +248,7 @@ def test_hit_miss_cast_gives_the_map_of_the_cell_path(policy, ndim):
 
 
 def test_sort_by_ray_is_a_stable_sort_with_used_rays_and_their_ranks():
-    from prismap.grid._kernels import sort_by_ray
+    from prismap.grid._kernels_project import sort_by_ray
 
     rng = np.random.default_rng(11)
     ray_of_cell = rng.integers(0, 50, 400) * 2  # odd rays and some even ones have no cell
@@ -266,7 +266,7 @@ def test_sort_by_ray_is_a_stable_sort_with_used_rays_and_their_ranks():
 
 
 def test_frustum_box_holds_the_origin_and_every_stop_point_with_a_voxel_margin():
-    from prismap.grid._kernels import frustum_box
+    from prismap.grid._kernels_project import frustum_box
 
     rng = np.random.default_rng(12)
     origin = rng.uniform(-1, 1, 3)
@@ -283,7 +283,7 @@ def test_frustum_box_holds_the_origin_and_every_stop_point_with_a_voxel_margin()
 
 
 def test_rotate_rays_equals_the_matrix_product():
-    from prismap.grid._kernels import rotate_rays
+    from prismap.grid._kernels_project import rotate_rays
 
     rng = np.random.default_rng(13)
     rays, rotation = rng.normal(size=(50, 3)), np.linalg.qr(rng.normal(size=(3, 3)))[0]
@@ -291,7 +291,7 @@ def test_rotate_rays_equals_the_matrix_product():
 
 
 def test_project_voxels_with_too_little_room_returns_a_prefix_and_the_full_count():
-    from prismap.grid._kernels import frustum_box, project_voxels
+    from prismap.grid._kernels_project import frustum_box, project_voxels
 
     rng = np.random.default_rng(14)
     ray_index = np.arange(48, dtype=np.int32).reshape(6, 8)
@@ -339,7 +339,7 @@ def _project_voxels_reference(key_min, shape, origin, R_cam_world, focal, cx, cy
 def test_project_voxels_equals_visiting_every_voxel_of_the_box():
     # The kernel skips the parts of each key column that cannot project into the image; the result must be
     # that of testing every voxel (rotated camera, invalid pixels, rays cut at random depths).
-    from prismap.grid._kernels import frustum_box, project_voxels
+    from prismap.grid._kernels_project import frustum_box, project_voxels
 
     rng = np.random.default_rng(15)
     rows, cols, focal, cx, cy = 12, 16, 14.0, 7.5, 5.5

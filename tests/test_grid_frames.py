@@ -51,8 +51,8 @@ def test_merge_of_any_split_equals_sequential_integration():
         merged = b.merge(a)
         keys, log, count = whole.known_voxels()
         got_log, got_count = merged.lookup_keys(keys)
-        # float32 log-odds: sums in another order differ by rounding only (< 1e-5 here).
-        np.testing.assert_allclose(got_log, log, atol=1e-5)
+        # fixed-point log-odds: sums in another order are the same integers
+        np.testing.assert_array_equal(got_log, log)
         np.testing.assert_array_equal(got_count, count)
         assert merged.n_known == whole.n_known and merged.n_frames == 4
 

@@ -97,7 +97,7 @@ def test_ground_truth_file_round_trip_and_errors(tmp_path):
         read_ground_truth(tmp_path / "junk.npz")
     with pytest.raises(PrismapInputError, match="`occupied_keys` must be an \\(N, 3\\) integer array"):
         GroundTruthOccupancy(0.1, np.zeros((2, 2), int), np.zeros((0, 3), int))
-    with pytest.raises(PrismapInputError, match="`observed_keys` must lie within \\+-1048576; got 1048576"):
+    with pytest.raises(PrismapInputError, match=r"`observed_keys` must lie in \[-1048576, 1048576\) \(\+-104858 m at 0.1 m voxels\); got values in \[0, 1048576\]"):
         GroundTruthOccupancy(0.1, np.zeros((0, 3), int), np.array([[0, 1 << 20, 0]]))
 
 

@@ -1,4 +1,5 @@
-"""Mapping and characterisation on a local Dask cluster of 2 worker processes equal the sequential runs."""
+"""Mapping and characterisation on local Dask clusters of 1-3 worker processes equal the sequential runs,
+bit for bit (the grid's fixed-point log-odds make the merge order irrelevant)."""
 
 import numpy as np
 import pytest
@@ -6,12 +7,9 @@ import pytest
 from prismap.errors import PrismapInputError
 from prismap.io import load_map
 from prismap.pipeline import characterise_sequence, map_sequence
-from support import assert_same_map, config, synthetic_sequence
+from support import config, synthetic_sequence
 
 distributed = pytest.importorskip("distributed")
-
-MERGE_ATOL = 2e-5
-"""Log-odds tolerance of chunked merges against one sequential sum (float32 rounding, a few 1e-6 per merge)."""
 
 
 @pytest.fixture(scope="module")
@@ -21,17 +19,40 @@ def client():
         yield dask_client
 
 
+def assert_identical_maps(a, b):
+    """Every array of the two maps equal with np.array_equal (voxels in key order), and the same metadata."""
+    keys_a, log_a, count_a = a.known_voxels()
+    keys_b, log_b, count_b = b.known_voxels()
+    order_a, order_b = np.lexsort(keys_a.T), np.lexsort(keys_b.T)
+    for x, y in ((keys_a, keys_b), (log_a, log_b), (count_a, count_b)):
+        assert x.dtype == y.dtype and np.array_equal(x[order_a], y[order_b])
+    assert (a.n_frames, a.policies, a.p0, a.voxel_size_m) == (b.n_frames, b.policies, b.p0, b.voxel_size_m)
+
+
 @pytest.fixture(scope="module")
 def sequence_dir(tmp_path_factory):
     return synthetic_sequence(tmp_path_factory.mktemp("dask") / "seq", n_frames=7)
 
 
-def test_dask_map_equals_the_sequential_map(sequence_dir, client):
+def test_dask_map_is_bit_identical_to_the_sequential_map_for_any_workers_and_chunks(sequence_dir, client):
     cfg = config(model="convolution")
     sequential = map_sequence(sequence_dir, cfg, progress=False)
-    parallel = map_sequence(sequence_dir, cfg, progress=False, client=client, chunk_frames=3)
-    assert parallel.n_frames == 7 and parallel.policies == sequential.policies
-    assert_same_map(parallel, sequential, atol=MERGE_ATOL)
+    assert sequential.n_known > 1000
+    for chunk_frames in (1, 3):  # 7 frames: chunks of 1, and 3+3+1, on 2 worker processes
+        assert_identical_maps(map_sequence(sequence_dir, cfg, progress=False, client=client, chunk_frames=chunk_frames),
+                              sequential)
+    for n_workers in (1, 3):  # thread workers: the merge order differs, the arithmetic is the same as processes'
+        with distributed.LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=False,
+                                      dashboard_address=None) as cluster, distributed.Client(cluster) as other:
+            assert_identical_maps(map_sequence(sequence_dir, cfg, progress=False, client=other, chunk_frames=2),
+                                  sequential)
+
+
+def test_dask_prism_map_is_bit_identical_to_the_sequential_map(sequence_dir, client):
+    """PRISM's table caches differ between worker processes; the maps must not."""
+    cfg = config(model="prism")
+    assert_identical_maps(map_sequence(sequence_dir, cfg, progress=False, client=client, chunk_frames=3),
+                          map_sequence(sequence_dir, cfg, progress=False))
 
 
 def test_dask_map_with_matcher_and_checkpoints(sequence_dir, client, tmp_path):
@@ -40,9 +61,9 @@ def test_dask_map_with_matcher_and_checkpoints(sequence_dir, client, tmp_path):
     parallel = map_sequence(sequence_dir, cfg, progress=False, client=client, checkpoint=checkpoint,
                             checkpoint_every=2)
     assert load_map(checkpoint).n_frames == 4  # chunks of 2 frames: saved after 2 and 4, not after the last
-    assert_same_map(parallel, map_sequence(sequence_dir, cfg, progress=False), atol=MERGE_ATOL)
+    assert_identical_maps(parallel, map_sequence(sequence_dir, cfg, progress=False))
     resumed = map_sequence(sequence_dir, cfg, progress=False, client=client, checkpoint=checkpoint)
-    assert_same_map(resumed, parallel, atol=MERGE_ATOL)
+    assert_identical_maps(resumed, parallel)
 
 
 def test_dask_characterisation_equals_the_sequential_histogram(sequence_dir, client):
@@ -74,6 +95,6 @@ def test_map_cli_on_a_running_scheduler_writes_the_sequential_map(sequence_dir, 
     assert main([*argv, "--scheduler", client.scheduler.address, "--chunk-frames", "2"]) == 0
     assert "7 frames" in capsys.readouterr().out
     cfg = config(model="ideal", error_model=None)
-    assert_same_map(load_map(out), map_sequence(sequence_dir, cfg, progress=False), atol=MERGE_ATOL)
+    assert_identical_maps(load_map(out), map_sequence(sequence_dir, cfg, progress=False))
     assert main([*argv, "--scheduler", "bogus://nowhere:1"]) == 2
     assert "--scheduler bogus://nowhere:1: cannot connect" in capsys.readouterr().err

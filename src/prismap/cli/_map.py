@@ -14,7 +14,8 @@ from prismap.errors import PrismapInputError
 
 def register(subparsers):
     """Add the ``map`` parser."""
-    from prismap.sensor_models import POLICIES, model_names
+    from prismap.grid import POLICIES
+    from prismap.sensor_models import model_names
     from prismap.stereo import matcher_names
 
     parser = subparsers.add_parser(

@@ -1,9 +1,10 @@
-"""Line a map's voxels up with a ground truth, by integer key, for any number of axes."""
+"""Line a map's voxels up with a ground truth, by integer key, in 2-D or 3-D."""
 
 import numpy as np
 
 from prismap._validate import as_float_array, check_probability
 from prismap.errors import PrismapInputError
+from prismap.grid import pack_key_sets
 
 
 def align_to_ground_truth(keys, probability, occupied_keys, region_keys, *, p0):
@@ -12,7 +13,7 @@ def align_to_ground_truth(keys, probability, occupied_keys, region_keys, *, p0):
     Parameters
     ----------
     keys : (N, D) int
-        Keys ``floor(p / voxel_size)`` of the voxels the map knows (D = 2 or 3, any D works).
+        Keys ``floor(p / voxel_size)`` of the voxels the map knows (D = 2 or 3).
     probability : (N,) float, in [0, 1]
         The map's ``P(occupied)`` of those voxels.
     occupied_keys : (M, D) int
@@ -39,8 +40,8 @@ def align_to_ground_truth(keys, probability, occupied_keys, region_keys, *, p0):
 
     Notes
     -----
-    Keys are packed into one int64 per voxel (offset by the smallest key on each axis, mixed
-    radix), then matched with ``np.searchsorted`` and ``np.isin``: O((N + M + K) log) and
+    Keys are packed into one int64 per voxel by the grid's key module (``pack_key_sets``: offset by the
+    smallest key on each axis, 21 bits per axis), then matched with ``np.searchsorted`` and ``np.isin``: O((N + M + K) log) and
     independent of the grid's storage.
     """
     p0 = check_probability(p0, "p0")
@@ -54,7 +55,7 @@ def align_to_ground_truth(keys, probability, occupied_keys, region_keys, *, p0):
     if p.size and (p.min() < 0.0 or p.max() > 1.0):
         raise PrismapInputError(f"`probability` must lie in [0, 1]; got values in [{p.min()}, {p.max()}]")
 
-    packed, packed_occupied, packed_region = _pack(keys, occupied_keys, region_keys)
+    packed, packed_occupied, packed_region = pack_key_sets(keys, occupied_keys, region_keys)
     order = np.argsort(packed)
     sorted_keys = packed[order]
     _check_unique(sorted_keys, "keys")
@@ -83,22 +84,3 @@ def _check_unique(sorted_codes, name):
     repeats = int(np.count_nonzero(sorted_codes[1:] == sorted_codes[:-1]))
     if repeats:
         raise PrismapInputError(f"`{name}` must not repeat a key; got {repeats} repeats")
-
-
-def _pack(*key_arrays):
-    """One int64 per key, the same code for equal keys across all arrays."""
-    stacked = np.concatenate(key_arrays, axis=0)
-    dims = stacked.shape[1]
-    if stacked.shape[0] == 0:
-        return tuple(np.zeros(0, np.int64) for _ in key_arrays)
-    low = stacked.min(axis=0)
-    span = stacked.max(axis=0).astype(object) - low.astype(object) + 1
-    total = 1
-    for s in span:
-        total *= int(s)
-    if total >= 2**63:
-        raise PrismapInputError(f"keys span {[int(s) for s in span]} voxels per axis: too far apart to pack into int64")
-    strides = np.ones(dims, dtype=np.int64)
-    for axis in range(dims - 2, -1, -1):
-        strides[axis] = strides[axis + 1] * int(span[axis + 1])
-    return tuple((array - low) @ strides for array in key_arrays)

@@ -1,16 +1,53 @@
-"""The sparse voxel occupancy map: keys, hashed block storage, ray casting, per-frame policies, queries, merge."""
+"""The sparse voxel occupancy map: keys, hashed block storage, integrators, per-frame policies, queries, merge.
 
-from prismap.grid._keys import KEY_LIMIT, key_to_center, point_to_key
+Design notes (one owner per concept):
+
+- ``_keys``: the voxel key (``floor(p / voxel)``), the block split, the packing and the limit derived from
+  them (:data:`KEY_LIMIT`); keys beyond it are refused with the limit in metres, never wrapped.
+- ``_logodds``: log-odds are stored in fixed point (int32 units of 2**-20), as Bonxai does, rather than
+  summed in a fixed order: a fixed order would tie every merge to the sequence's frame order and still
+  round differently from one sequential sum, whereas integer sums are exact in any order, so a map
+  merged from chunks (Dask, any workers, any chunking) equals the sequential map bit for bit.
+- ``_policies``: the per-frame policies (names, codes, combining rule).
+- ``_integrators``: :class:`RayBatch` in, ``make_integrator("ray" | "projective")`` out; the per-frame
+  bounds on work and memory (docs/errors.md).
+- ``_kernels_hash``, ``_kernels_traverse``, ``_kernels_project``, ``_kernels_accumulate``: numba kernels,
+  called only by the wrappers of this package.
+"""
+
+from prismap.grid._integrators import INTEGRATOR_NAMES, ImageProjection, Integrator, RayBatch, make_integrator
+from prismap.grid._keys import (
+    KEY_LIMIT,
+    PACK_OFFSET,
+    key_limit_m,
+    key_to_center,
+    pack_key_sets,
+    pack_keys,
+    point_to_key,
+    unpack_keys,
+)
 from prismap.grid._map import FREE, OCCUPIED, OCTOMAP_CLAMP, UNKNOWN, OccupancyMap, pose_noise_px
+from prismap.grid._policies import POLICIES
 
 __all__ = [
     "FREE",
+    "INTEGRATOR_NAMES",
     "KEY_LIMIT",
     "OCCUPIED",
     "OCTOMAP_CLAMP",
+    "PACK_OFFSET",
+    "POLICIES",
     "UNKNOWN",
+    "ImageProjection",
+    "Integrator",
     "OccupancyMap",
+    "RayBatch",
+    "key_limit_m",
     "key_to_center",
+    "make_integrator",
+    "pack_key_sets",
+    "pack_keys",
     "point_to_key",
     "pose_noise_px",
+    "unpack_keys",
 ]

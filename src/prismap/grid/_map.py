@@ -5,10 +5,12 @@ from scipy.special import expit
 
 from prismap._validate import as_float_array, check_positive, check_probability
 from prismap.errors import PrismapInputError
-from prismap.grid import _integrate, _kernels
-from prismap.grid._keys import KEY_LIMIT, check_keys, point_to_key
+from prismap.grid import _accumulator, _kernels_accumulate, _kernels_hash, _kernels_project, _kernels_traverse
+from prismap.grid._integrators import ImageProjection, RayBatch, make_integrator
+from prismap.grid._keys import BLOCK_BITS, KEY_LIMIT, check_keys, key_range_text, point_to_key
+from prismap.grid._logodds import LOG_ODDS_STEP, Q_MAX, Q_MIN, from_fixed, logit, to_fixed
+from prismap.grid._policies import policy_code, policy_name
 from prismap.grid._storage import BlockTable
-from prismap.sensor_models import POLICIES
 
 FREE, OCCUPIED, UNKNOWN = 0, 1, -1
 """Voxel states returned by :meth:`OccupancyMap.state`."""
@@ -16,27 +18,19 @@ FREE, OCCUPIED, UNKNOWN = 0, 1, -1
 OCTOMAP_CLAMP = (0.1192, 0.971)
 """OctoMap's default clamping thresholds (probabilities)."""
 
-BLOCK_BITS = {3: (2, 2, 2), 2: (3, 3, 0)}
-"""log2 block sizes: 4x4x4 voxels for 3-D maps, 8x8x1 for 2-D maps (small blocks: less unobserved space
-stored; 8^3 blocks cost 10.8 bytes per known voxel on a 640x480 frame, 4^3 blocks 8.2, at ~15 % more CPU)."""
-
-
-def logit(p):
-    """``ln(p / (1 - p))``."""
-    return np.log(p) - np.log1p(-p)
-
-
 def _probability(log):
     """Probability of float log-odds (float64; no overflow warning at large |log|)."""
     return expit(np.asarray(log, dtype=np.float64))
 
 
 class OccupancyMap:
-    """Unbounded sparse voxel map of float32 log-odds and per-voxel observation counts.
+    """Sparse voxel map of fixed-point log-odds and per-voxel observation counts.
 
-    Voxels live in hashed blocks (4^3 in 3-D; 8x8x1 in 2-D) created when first observed. A voxel
-    stores its full log-odds ``l`` (``logit(p0)`` before any update) and how many frames observed it
-    (uint16, saturating at 65535). A voxel no frame observed is *unknown*, whatever its probability.
+    Voxels live in hashed blocks (4^3 in 3-D; 8x8x1 in 2-D) created when first observed, with keys inside
+    :data:`~prismap.grid.KEY_LIMIT` on every axis. A voxel stores its full log-odds ``l`` (``logit(p0)``
+    before any update) in int32 units of ``2**-20`` (order-free sums, see ``prismap.grid._logodds``) and
+    how many frames observed it (uint16, saturating at 65535). A voxel no frame observed is *unknown*,
+    whatever its probability.
 
     Parameters
     ----------
@@ -74,16 +68,17 @@ class OccupancyMap:
             raise PrismapInputError(
                 f"`free_threshold` ({free_threshold}) must not exceed `occupied_threshold` ({occupied_threshold})"
             )
-        self.prior_log = float(np.float32(logit(self.p0)))
+        self.prior_q = int(to_fixed(logit(self.p0)))
+        self.prior_log = float(from_fixed(self.prior_q))
         self.policies = ()
         self.n_frames = 0
-        self._store = BlockTable(BLOCK_BITS[self.ndim], {"log": ((1 << sum(BLOCK_BITS[self.ndim]),), np.float32),
-                                                          "count": ((1 << sum(BLOCK_BITS[self.ndim]),), np.uint16)})
-        self._accumulator = _integrate.new_accumulator(self._store.bits)
+        voxels = 1 << sum(BLOCK_BITS[self.ndim])
+        self._store = BlockTable(BLOCK_BITS[self.ndim], {"log": ((voxels,), np.int32), "count": ((voxels,), np.uint16)})
+        self._accumulator = _accumulator.new_accumulator(self._store.bits)
 
     # ----------------------------------------------------------------------------------- integration
     def integrate_rays(self, origin_w, rays_w, disparity_px, model, *, mode="ray", policy=None,
-                       max_range_m=np.inf, extra_noise_px=None, _projection=None):
+                       max_range_m=np.inf, extra_noise_px=None, ray_class=None):
         """Integrate one frame given as rays from one origin (ray mode).
 
         Parameters
@@ -95,70 +90,32 @@ class OccupancyMap:
             depth ``z`` is ``origin_w + z * rays_w``; its norm is the ray's ``|r| >= 1``.
         disparity_px : (R,) float, pixels, NaN = invalid (skipped)
         model : InverseSensorModel
+            Built for this map: its ``p0`` and ``voxel_size_m`` (when it has them) must equal the map's.
+        mode : {"ray"}
+            ``projective`` needs the camera image: :meth:`integrate_disparity`.
         policy : str or None
-            Per-frame policy (``mean``, ``max-abs``, ``occupied-wins``, ``max``, ``sum``); None = the
-            model's ``default_policy``.
+            Per-frame policy (``mean``, ``max-abs``, ``occupied-wins``, ``max``, ``sum``, see
+            :data:`~prismap.grid.POLICIES`); None = the model's ``default_policy``.
         max_range_m : float, metres, > 0
             Distance along a ray beyond which nothing is updated. A ray whose measurement lies
             beyond it only clears free space up to it, excluding the voxel that contains the
             max-range point (as OctoMap does).
         extra_noise_px : (R,) float, pixels, or None
             Extra disparity noise per ray (robot pose uncertainty, see :meth:`integrate_disparity`).
+        ray_class : (R,) int or None
+            Error-model class of each ray (-1 = no class), passed to the model's ``cell_posteriors`` and
+            ``influence_depth`` as the keyword ``ray_class`` (only when given). Hit/miss models ignore it.
 
         Notes
         -----
-        Each ray is traversed (Amanatides & Woo [1]_) from the origin to
-        ``min(model.influence_depth, max range)``, including the voxel that contains the stop depth.
-        Several rays of the frame that cross one voxel give it ONE update, combined by ``policy``:
-        ``mean`` of their increments, ``max-abs`` (the one of largest magnitude), ``occupied-wins``
-        (the largest increment if any is positive, i.e. some ray says occupied, else the mean: with
-        the hit/miss model this is OctoMap's rule), ``max``, or ``sum``.
-
-        References
-        ----------
-        .. [1] J. Amanatides, A. Woo, "A fast voxel traversal algorithm for ray tracing",
-           Eurographics 1987.
+        The integrators (:func:`~prismap.grid.make_integrator`) say how rays become voxel updates.
+        Several rays of the frame that cross one voxel give it ONE update, combined by ``policy``.
         """
-        origin = self._points(origin_w, "origin_w", single=True)
-        rays = self._points(rays_w, "rays_w", as_direction=True)
-        disparity = as_float_array(disparity_px, "disparity_px", shape=(rays.shape[0],))
-        code = self._policy_code(policy, model)
-        max_range = check_positive(max_range_m, "max_range_m") if np.isfinite(max_range_m) else np.inf
-        ray_norm = np.sqrt(np.einsum("ri,ri->r", rays, rays))
-        valid = np.isfinite(disparity) & np.isfinite(ray_norm)  # a non-finite ray has a non-finite norm
-        if np.any(ray_norm[valid] < 1.0 - 1e-9):
-            raise PrismapInputError("`rays_w` must have norm >= 1 (camera rays (x/z, y/z, 1) rotated into the world)")
-        noise = None
-        if extra_noise_px is not None:
-            noise = as_float_array(extra_noise_px, "extra_noise_px", shape=(rays.shape[0],))[valid]
-            if not np.all(noise >= 0) or not np.all(np.isfinite(noise)):
-                raise PrismapInputError("`extra_noise_px` must be finite and >= 0 at every valid ray")
-        if not valid.all():  # a dense frame skips these copies
-            if _projection is not None:
-                _projection = dict(_projection, ray_index=_reindex(_projection["ray_index"], valid))
-            rays, disparity, ray_norm = np.ascontiguousarray(rays[valid]), disparity[valid], ray_norm[valid]
-        groups = _integrate.noise_groups(model, noise)
-        ranges = (max_range, (KEY_LIMIT - 2 - np.abs(np.floor(origin / self.voxel_size_m)).max()) * self.voxel_size_m)
-        if ranges[1] <= 0:
-            raise PrismapInputError(f"`origin_w` {origin.tolist()} lies outside the map's key range")
-        self._accumulator.clear()
-        if mode == "ray":
-            _integrate.ray_mode(self._accumulator, origin, rays, disparity, ray_norm, groups, ranges, self.voxel_size_m)
-        elif mode == "projective":
-            if _projection is None:
-                raise PrismapInputError("projective mode needs a camera image: use `integrate_disparity(..., mode='projective')`")
-            _integrate.projective_mode(self._accumulator, origin, rays, disparity, ray_norm, groups, ranges,
-                                       self.voxel_size_m, _projection)
-        else:
-            raise PrismapInputError(f"`mode` must be 'ray' or 'projective'; got {mode!r}")
-        self._apply_accumulator(code)
-        name = policy or model.default_policy
-        if name not in self.policies:
-            self.policies = (*self.policies, name)
-        self.n_frames += 1
+        batch = self._batch(origin_w, rays_w, disparity_px, extra_noise_px, ray_class, None)
+        self._integrate(batch, model, mode, policy, max_range_m)
 
     def integrate_disparity(self, disparity_px, camera, T_world_cam, model, *, mode="ray", policy=None,
-                            max_range_m=np.inf, subsample=1, pose_covariance=None):
+                            max_range_m=np.inf, subsample=1, pose_covariance=None, ray_class=None):
         """Integrate one disparity image seen from pose ``T_world_cam``.
 
         Parameters
@@ -178,6 +135,8 @@ class OccupancyMap:
         pose_covariance : (3, 3) or (6, 6) float or None
             Covariance of the camera position (m^2, world axes) or of (position, rotation vector)
             (m^2, rad^2, world axes). Widens each ray's disparity noise, see Notes.
+        ray_class : (H, W) int or None
+            Error-model class of each pixel (-1 = no class), see :meth:`integrate_rays`.
 
         Notes
         -----
@@ -197,6 +156,9 @@ class OccupancyMap:
         if int(subsample) != subsample or subsample < 1:
             raise PrismapInputError(f"`subsample` must be an integer >= 1; got {subsample!r}")
         step = int(subsample)
+        classes = None
+        if ray_class is not None:
+            classes = _class_array(ray_class, "ray_class", disparity.shape)[::step, ::step].reshape(-1)
         disparity = disparity[::step, ::step]
         rays_cam = camera.pixel_rays(np.shape(disparity_px))[::step, ::step].reshape(-1, 3)
         d = disparity.reshape(-1).copy()
@@ -205,14 +167,62 @@ class OccupancyMap:
         noise = None
         if pose_covariance is not None:
             noise = pose_noise_px(d, rays_cam, rotation, pose_covariance, camera.focal_baseline, camera.doffs_px)
-        projection = None
+        image = None
         if mode == "projective":
             ray_index = np.arange(d.size, dtype=np.int32).reshape(disparity.shape)
-            projection = {"R_cam_world": np.ascontiguousarray(rotation.T), "focal": camera.focal_px,
-                          "cx": camera.cx_px, "cy": camera.cy_px, "subsample": float(step), "ray_index": ray_index}
-        rays_w = _kernels.rotate_rays(np.ascontiguousarray(rays_cam), np.ascontiguousarray(rotation))
-        self.integrate_rays(origin, rays_w, d, model, mode=mode, policy=policy,
-                            max_range_m=max_range_m, extra_noise_px=noise, _projection=projection)
+            image = ImageProjection(np.ascontiguousarray(rotation.T), camera.focal_px, camera.cx_px, camera.cy_px,
+                                    step, ray_index)
+        rays_w = _kernels_project.rotate_rays(np.ascontiguousarray(rays_cam), np.ascontiguousarray(rotation))
+        batch = self._batch(origin, rays_w, d, noise, classes, image)
+        self._integrate(batch, model, mode, policy, max_range_m)
+
+    def _batch(self, origin_w, rays_w, disparity_px, extra_noise_px, ray_class, image):
+        """The checked :class:`RayBatch` of a frame, its invalid rays dropped."""
+        origin = self._points(origin_w, "origin_w", single=True)
+        rays = self._points(rays_w, "rays_w", as_direction=True)
+        n = rays.shape[0]
+        disparity = as_float_array(disparity_px, "disparity_px", shape=(n,))
+        ray_norm = np.sqrt(np.einsum("ri,ri->r", rays, rays))
+        valid = np.isfinite(disparity) & np.isfinite(ray_norm)  # a non-finite ray has a non-finite norm
+        if np.any(ray_norm[valid] < 1.0 - 1e-9):
+            raise PrismapInputError("`rays_w` must have norm >= 1 (camera rays (x/z, y/z, 1) rotated into the world)")
+        noise = None
+        if extra_noise_px is not None:
+            noise = as_float_array(extra_noise_px, "extra_noise_px", shape=(n,))
+            if not np.all(noise[valid] >= 0) or not np.all(np.isfinite(noise[valid])):
+                raise PrismapInputError("`extra_noise_px` must be finite and >= 0 at every valid ray")
+        classes = None if ray_class is None else _class_array(ray_class, "ray_class", (n,))
+        batch = RayBatch(origin, rays, disparity, ray_norm, noise, classes, image)
+        return batch if valid.all() else batch.subset(valid)  # a dense frame skips these copies
+
+    def _integrate(self, batch, model, mode, policy, max_range_m):
+        """One frame: the model checked against the map, the integrator of ``mode``, one update per voxel."""
+        self._check_model(model)
+        code = policy_code(policy, model)
+        max_range = check_positive(max_range_m, "max_range_m") if np.isfinite(max_range_m) else np.inf
+        origin_key = np.abs(np.floor(batch.origin_w / self.voxel_size_m)).max()
+        reach = (KEY_LIMIT - 2 - origin_key) * self.voxel_size_m
+        if reach <= 0:
+            raise PrismapInputError(f"`origin_w` {batch.origin_w.tolist()} lies outside the map's key range "
+                                    f"{key_range_text(self.voxel_size_m)}")
+        integrator = make_integrator(mode, voxel_size_m=self.voxel_size_m, max_range_m=max_range, reach_m=reach)
+        self._accumulator.clear()
+        integrator.integrate(self._accumulator, batch, model)
+        self._apply_accumulator(code)
+        name = policy_name(policy, model)
+        if name not in self.policies:
+            self.policies = (*self.policies, name)
+        self.n_frames += 1
+
+    def _check_model(self, model):
+        """Refuse a sensor model built for another prior or voxel size (models without them are not checked)."""
+        for attr, mine in (("p0", self.p0), ("voxel_size_m", self.voxel_size_m)):
+            theirs = getattr(model, attr, None)
+            if theirs is not None and not np.isclose(float(theirs), mine, rtol=1e-9, atol=0.0):
+                raise PrismapInputError(
+                    f"sensor model {getattr(model, 'name', type(model).__name__)!r} was built with {attr}={theirs!r} "
+                    f"but the map has {attr}={mine!r}: build the model with the map's {attr}"
+                )
 
     def merge(self, other):
         """Add another map of the same grid into this one (in place); returns ``self``.
@@ -220,7 +230,7 @@ class OccupancyMap:
         Voxels known to both get ``l1 + l2 - logit(p0)`` (the sum of both maps' evidence; clamped if
         this map clamps) and the sum of the counts; voxels known to one map keep its value. With
         clamping off, integrating frames 1..n into one map equals merging maps of any split of them up
-        to float32 rounding (a few 1e-6 in log-odds; the test states the bound).
+        bit for bit (fixed-point log-odds: integer sums do not depend on their order).
         """
         if not isinstance(other, OccupancyMap):
             raise PrismapInputError(f"can only merge an OccupancyMap; got {type(other).__name__}")
@@ -231,10 +241,10 @@ class OccupancyMap:
                 )
         store, theirs = self._store, other._store
         store.reserve(store.count_absent(theirs.block_keys, len(theirs)))
-        lo, hi = self._clamp_log()
-        _kernels.merge_blocks(store.table, store.block_keys, store.n_blocks,
-                              store.payload["log"], store.payload["count"], theirs.block_keys, len(theirs),
-                              theirs.payload["log"], theirs.payload["count"], lo, hi, self.prior_log)
+        lo, hi = self._clamp_q()
+        _kernels_accumulate.merge_blocks(store.table, store.block_keys, store.n_blocks,
+                                         store.payload["log"], store.payload["count"], theirs.block_keys, len(theirs),
+                                         theirs.payload["log"], theirs.payload["count"], lo, hi, self.prior_q)
         self.policies = (*self.policies, *(p for p in other.policies if p not in self.policies))
         self.n_frames += other.n_frames
         return self
@@ -245,11 +255,13 @@ class OccupancyMap:
         Parameters
         ----------
         keys : (N, 3) int, voxel keys (z key 0 in a 2-D map)
-        log_odds : (N,) float, log-odds
+        log_odds : (N,) float, log-odds (stored rounded to the nearest ``2**-20``)
         counts : (N,) int in [1, 65535], frames that observed each voxel
         """
         keys = self._keys(keys)
-        log = as_float_array(log_odds, "log_odds", shape=(keys.shape[0],), dtype=np.float32, allow_nan=False)
+        log = as_float_array(log_odds, "log_odds", shape=(keys.shape[0],), allow_nan=False)
+        if log.size and np.abs(log).max() > Q_MAX * LOG_ODDS_STEP:
+            raise PrismapInputError(f"`log_odds` must lie within +-{Q_MAX * LOG_ODDS_STEP:.6g}; got up to {np.abs(log).max():.6g}")
         count = np.asarray(counts)
         if (count.shape != (keys.shape[0],) or not np.issubdtype(count.dtype, np.integer)
                 or (count.size and (count.min() < 1 or count.max() > 65535))):
@@ -257,9 +269,10 @@ class OccupancyMap:
                 f"`counts` must be ({keys.shape[0]},) integers in [1, 65535]; got shape {count.shape}, dtype {count.dtype}"
             )
         store = self._store
-        store.reserve(_kernels.count_new_blocks(store.table, store.block_keys, keys, store.bits))
-        _kernels.set_voxels(store.table, store.block_keys, store.n_blocks, store.payload["log"],
-                            store.payload["count"], keys, log, count.astype(np.uint16), store.bits, self.prior_log)
+        store.reserve(_kernels_hash.count_new_blocks(store.table, store.block_keys, keys, store.bits))
+        _kernels_accumulate.set_voxels(store.table, store.block_keys, store.n_blocks, store.payload["log"],
+                                       store.payload["count"], keys, to_fixed(log).astype(np.int32),
+                                       count.astype(np.uint16), store.bits, self.prior_q)
 
     def copy(self):
         """An independent copy of the map."""
@@ -288,13 +301,14 @@ class OccupancyMap:
 
         Returns
         -------
-        log_odds : (N,) float32, ``logit(p0)`` where never observed
+        log_odds : (N,) float64, multiples of ``2**-20``; ``logit(p0)`` (so rounded) where never observed
         counts : (N,) uint16, 0 = unknown
         """
         keys = self._keys(keys)
         store = self._store
-        return _kernels.lookup(store.table, store.block_keys, store.payload["log"], store.payload["count"],
-                               keys, store.bits, np.float32(self.prior_log))
+        q, count = _kernels_accumulate.lookup(store.table, store.block_keys, store.payload["log"],
+                                              store.payload["count"], keys, store.bits, np.int32(self.prior_q))
+        return from_fixed(q), count
 
     def probability_at_keys(self, keys):
         """(N,) float64 occupancy probability at each key (``p0`` where unknown)."""
@@ -324,7 +338,7 @@ class OccupancyMap:
         Returns
         -------
         keys : (N, 3) int32, voxel keys
-        log_odds : (N,) float32
+        log_odds : (N,) float64, multiples of ``2**-20``
         counts : (N,) uint16, >= 1
         """
         store = self._store
@@ -332,7 +346,7 @@ class OccupancyMap:
         count = store.payload["count"][:n]
         known = count > 0
         keys = store.voxel_keys()[known].astype(np.int32)
-        return keys, store.payload["log"][:n][known], count[known]
+        return keys, from_fixed(store.payload["log"][:n][known]), count[known]
 
     def occupied_voxels(self):
         """Voxels in the occupied state.
@@ -423,7 +437,7 @@ class OccupancyMap:
         reach = check_positive(max_range_m, "max_range_m")
         unit = directions / norm[:, None]
         t_stop = np.full(unit.shape[0], reach)
-        ray, keys, t_in, _ = _kernels.cast_rays(origin, np.ascontiguousarray(unit), t_stop,
+        ray, keys, t_in, _ = _kernels_traverse.cast_rays(origin, np.ascontiguousarray(unit), t_stop,
                                                 np.zeros(unit.shape[0], dtype=np.bool_), self.voxel_size_m)
         occupied = self.state_at_keys(keys) == OCCUPIED
         hit = np.zeros(unit.shape[0], dtype=bool)
@@ -445,24 +459,19 @@ class OccupancyMap:
         state[known & (prob < self.free_threshold)] = FREE
         return state
 
-    def _clamp_log(self):
+    def _clamp_q(self):
+        """Clamping bounds in fixed-point units (int64), the int32 range when clamping is off."""
         if self.clamp is None:
-            return -np.inf, np.inf
-        return float(logit(self.clamp[0])), float(logit(self.clamp[1]))
-
-    def _policy_code(self, policy, model):
-        name = model.default_policy if policy is None else policy
-        if name not in POLICIES:
-            raise PrismapInputError(f"`policy` must be one of {list(POLICIES)}; got {name!r}")
-        return _kernels.POLICY_CODES[name]
+            return Q_MIN, Q_MAX
+        return int(to_fixed(logit(self.clamp[0]))), int(to_fixed(logit(self.clamp[1])))
 
     def _apply_accumulator(self, code):
         acc, store = self._accumulator, self._store
         store.reserve(store.count_absent(acc.block_keys, len(acc)))
-        lo, hi = self._clamp_log()
-        _kernels.apply_frame(store.table, store.block_keys, store.n_blocks,
-                             store.payload["log"], store.payload["count"], acc.block_keys, len(acc),
-                             acc.payload["acc"], code, lo, hi, self.prior_log)
+        lo, hi = self._clamp_q()
+        _kernels_accumulate.apply_frame(store.table, store.block_keys, store.n_blocks,
+                                        store.payload["log"], store.payload["count"], acc.block_keys, len(acc),
+                                        acc.payload["acc"], code, lo, hi, self.prior_q)
 
     def _points(self, value, name, *, single=False, as_direction=False):
         """(N, 3) (or (3,) if ``single``) float64 world coordinates; a 2-D map takes (.., 2) and pads z."""
@@ -476,7 +485,7 @@ class OccupancyMap:
         return np.ascontiguousarray(array)
 
     def _keys(self, keys):
-        keys = check_keys(keys)
+        keys = check_keys(keys, self.voxel_size_m)
         if self.ndim == 2 and np.any(keys[:, 2] != 0):
             raise PrismapInputError("a 2-D map has one layer: `keys` must have z key 0")
         return keys
@@ -486,12 +495,14 @@ class OccupancyMap:
                 f"clamp={self.clamp}, known={self.n_known}, frames={self.n_frames})")
 
 
-def _reindex(ray_index, valid):
-    """Ray index image after dropping invalid rays: -1 where the ray was dropped."""
-    new = np.full(valid.size, -1, dtype=np.int32)
-    new[valid] = np.arange(int(valid.sum()))
-    flat = ray_index.reshape(-1)
-    return np.where(flat >= 0, new[np.maximum(flat, 0)], -1).reshape(ray_index.shape)
+def _class_array(value, name, shape):
+    """``value`` as a contiguous int32 array of ``shape``, every class >= -1 (-1 = no class), or raise."""
+    array = np.asarray(value)
+    if array.shape != tuple(shape) or not np.issubdtype(array.dtype, np.integer):
+        raise PrismapInputError(f"`{name}` must be an integer array of shape {tuple(shape)}; got {array.dtype} {array.shape}")
+    if array.size and (array.min() < -1 or array.max() > np.iinfo(np.int32).max):
+        raise PrismapInputError(f"`{name}` must hold classes >= 0 or -1 (no class); got values in [{array.min()}, {array.max()}]")
+    return np.ascontiguousarray(array, dtype=np.int32)
 
 
 def pose_noise_px(disparity, rays_cam, R_world_cam, pose_covariance, focal_baseline, doffs_px):

@@ -2,7 +2,8 @@
 
 import numpy as np
 
-from prismap.grid import _kernels
+from prismap.grid import _kernels_hash
+from prismap.grid._keys import block_voxel_keys, unpack_keys
 
 
 class BlockTable:
@@ -32,39 +33,39 @@ class BlockTable:
         self.n_blocks[0] = 0
         self.table.fill(-1)
 
-    def reserve(self, extra):
+    def reserve(self, extra, *, max_blocks=None):
         """Make room for ``extra`` more blocks (block arrays and a table at most half full).
 
         Block arrays grow to exactly what is needed, or by half when that is more (amortised O(1)
-        growth with at most a third of the capacity spare); the table doubles.
+        growth with at most a third of the capacity spare), but never beyond ``max_blocks`` when given
+        (the caller keeps ``len(self) + extra <= max_blocks``); the table doubles.
         """
         n = len(self)
         need = n + int(extra)
         if need > self.block_keys.size:
             capacity = max(need, self.block_keys.size + self.block_keys.size // 2, 16)
+            if max_blocks is not None:
+                capacity = max(need, min(capacity, int(max_blocks)))
             self.block_keys = _grown(self.block_keys, capacity, n)
             self.payload = {name: _grown(array, capacity, n) for name, array in self.payload.items()}
         if 2 * need > self.table.size:
-            self.table = _kernels.rehash(self.block_keys, n, 1 << int(np.ceil(np.log2(2 * need))))
+            self.table = _kernels_hash.rehash(self.block_keys, n, 1 << int(np.ceil(np.log2(2 * need))))
 
     def count_absent(self, packed_keys, n):
         """How many of the distinct packed block keys ``packed_keys[:n]`` this table lacks."""
-        return _kernels.count_absent_blocks(self.table, self.block_keys, packed_keys, n)
+        return _kernels_hash.count_absent_blocks(self.table, self.block_keys, packed_keys, n)
 
     def block_coords(self):
         """(B, 3) int64 block coordinates of the stored blocks."""
-        packed = self.block_keys[: len(self)]
-        shifts = np.array([42, 21, 0], dtype=np.int64)
-        return ((packed[:, None] >> shifts) & _kernels._MASK21) - _kernels._OFFSET
+        return unpack_keys(self.block_keys[: len(self)])
 
     def voxel_keys(self):
         """(B, V, 3) int64 voxel keys of every voxel of every stored block (V = voxels per block)."""
-        bx, by, bz = self.bits
-        local = np.arange(self.block_voxels, dtype=np.int64)
-        offsets = np.stack(
-            [local & ((1 << bx) - 1), (local >> bx) & ((1 << by) - 1), (local >> (bx + by)) & ((1 << bz) - 1)], axis=1
-        )
-        return (self.block_coords()[:, None, :] << np.array(self.bits, dtype=np.int64)) + offsets[None, :, :]
+        return block_voxel_keys(self.block_coords(), self.bits)
+
+    def bytes_per_block(self):
+        """Bytes one more block costs: its payload rows, its packed key and its table entries (at most 4)."""
+        return sum(a.itemsize * int(np.prod(a.shape[1:])) for a in self.payload.values()) + 8 + 16
 
     def nbytes(self):
         """Bytes held by the table and the block arrays (allocated capacity, not just the used part)."""

@@ -1,10 +1,11 @@
 """The versioned ``.npz`` map file (DESIGN.md): everything needed to resume, merge or compare a map.
 
-Fields: ``format`` ("prismap-map"), ``format_version`` (1), ``voxel_size_m``, ``p0``, ``ndim``,
+Fields: ``format`` ("prismap-map"), ``format_version`` (2), ``voxel_size_m``, ``p0``, ``ndim``,
 ``policy`` (the per-frame policies used, "+"-joined), ``clamp`` ((2,) probabilities, NaN = off),
 ``occupied_threshold``, ``free_threshold``, ``n_frames``, ``keys`` ((N, 3) int32 voxel keys,
-``floor(x / voxel_size)``), ``log_odds`` ((N,) float32) and ``counts`` ((N,) uint16, frames that observed
-each voxel). Only observed voxels are stored.
+``floor(x / voxel_size)``), ``log_odds`` ((N,) float64, multiples of ``2**-20``: the map's fixed-point
+log-odds, exact) and ``counts`` ((N,) uint16, frames that observed each voxel). Only observed voxels are
+stored. Version 1 files (float32 log-odds) are still read; their values are rounded to the fixed point.
 """
 
 from pathlib import Path
@@ -17,14 +18,16 @@ from prismap.grid import OccupancyMap
 from prismap.io._npz import INTEGER, REAL, TEXT, array_field, read_npz
 
 FORMAT = "prismap-map"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+READABLE_VERSIONS = (1, 2)
+"""Version 1 held float32 log-odds; version 2 the map's fixed-point log-odds as exact float64."""
 _SPEC = {
     "format": TEXT, "format_version": INTEGER, "voxel_size_m": REAL, "p0": REAL, "ndim": INTEGER, "policy": TEXT,
     "clamp": array_field((2,), "float"), "occupied_threshold": REAL, "free_threshold": REAL, "n_frames": INTEGER,
     "keys": array_field((None, 3), "integer"), "log_odds": array_field((None,), "float"),
     "counts": array_field((None,), "integer"),
 }
-#: Memory per stored voxel while loading: the arrays (12 + 4 + 2 bytes), the map's storage and the
+#: Memory per stored voxel while loading: the arrays (12 + 8 + 2 bytes), the map's storage and the
 #: duplicate check's sorted copy, rounded up.
 _BYTES_PER_VOXEL = 64
 
@@ -71,9 +74,10 @@ def load_map(path):
     fields = read_npz(path, "map file", _SPEC, loaded_bytes_per_row=_BYTES_PER_VOXEL)
     if fields["format"] != FORMAT:
         raise PrismapInputError(f"{path}: not a prismap map file (format {fields['format']!r}, expected {FORMAT!r})")
-    if fields["format_version"] != FORMAT_VERSION:
+    if fields["format_version"] not in READABLE_VERSIONS:
         raise PrismapInputError(
-            f"{path}: map format version {fields['format_version']} is not supported; expected {FORMAT_VERSION}"
+            f"{path}: map format version {fields['format_version']} is not supported; expected one of "
+            f"{list(READABLE_VERSIONS)}"
         )
     if fields["n_frames"] < 0:
         raise PrismapInputError(f"{path}: `n_frames` must be >= 0; got {fields['n_frames']}")

@@ -33,6 +33,7 @@ import numpy as np
 from prismap._files import atomic_path, umask_mode
 from prismap._validate import check_pose, check_positive
 from prismap.errors import PrismapInputError
+from prismap.grid import PACK_OFFSET, pack_keys
 from prismap.io._frame import StereoFrame, frame_index
 from prismap.io._images import (
     paired_names,
@@ -53,7 +54,6 @@ from prismap.io._text import homogeneous, read_number_rows
 GROUND_TRUTH_FORMAT = "prismap-ground-truth-occupancy"
 GROUND_TRUTH_VERSION = 1
 _DISPARITY_SCALE = 256.0
-_KEY_LIMIT = 1 << 20  # |key| bound of the ground-truth file: 10 km at 1 cm voxels
 
 
 @dataclass(frozen=True)
@@ -66,10 +66,10 @@ class GroundTruthOccupancy:
     Attributes
     ----------
     voxel_size_m : float, metres
-    occupied_keys : (N, 3) int64, sorted, unique, |key| < 2**20
+    occupied_keys : (N, 3) int64, sorted, unique, in [-2**20, 2**20) (``grid.pack_keys``)
         Keys ``floor(p / voxel_size_m)`` of every voxel containing a point of a solid (observed or not);
         2-D worlds use the layer z key 0.
-    observed_keys : (M, 3) int64, sorted, unique, |key| < 2**20
+    observed_keys : (M, 3) int64, sorted, unique, in [-2**20, 2**20) (``grid.pack_keys``)
         Keys of the voxels a noise-free sensor saw along the frames: free space in front of the surfaces
         and the voxels holding the visible surface points (see ``prismap.sim``).
     """
@@ -85,9 +85,12 @@ class GroundTruthOccupancy:
             if keys.ndim != 2 or keys.shape[1] != 3 or not np.issubdtype(keys.dtype, np.integer):
                 raise PrismapInputError(f"`{name}` must be an (N, 3) integer array; got {keys.dtype} {keys.shape}")
             keys = keys.astype(np.int64)
-            if keys.size and np.abs(keys).max() >= _KEY_LIMIT:
-                raise PrismapInputError(f"`{name}` must lie within +-{_KEY_LIMIT}; got {np.abs(keys).max()}")
-            packed = _packed(keys)
+            if keys.size and (keys.min() < -PACK_OFFSET or keys.max() >= PACK_OFFSET):
+                raise PrismapInputError(
+                    f"`{name}` must lie in [-{PACK_OFFSET}, {PACK_OFFSET}) (+-{PACK_OFFSET * self.voxel_size_m:.6g} m at "
+                    f"{self.voxel_size_m:g} m voxels); got values in [{keys.min()}, {keys.max()}]"
+                )
+            packed = pack_keys(keys)
             if np.any(np.diff(packed) <= 0):  # not yet sorted and unique
                 keys = keys[np.unique(packed, return_index=True)[1]]
             keys.setflags(write=False)
@@ -105,13 +108,7 @@ class GroundTruthOccupancy:
 
     def _observed_is_occupied(self):
         """(M,) bool: whether each observed key is also an occupied key."""
-        return np.isin(_packed(self.observed_keys), _packed(self.occupied_keys), assume_unique=True)
-
-
-def _packed(keys):
-    """One int64 per (x, y, z) key, ordered like the keys lexicographically; keys lie within +-2**20."""
-    k = np.asarray(keys, dtype=np.int64) + _KEY_LIMIT
-    return (k[:, 0] << 42) | (k[:, 1] << 21) | k[:, 2]
+        return np.isin(pack_keys(self.observed_keys), pack_keys(self.occupied_keys), assume_unique=True)
 
 
 _GROUND_TRUTH_SPEC = {

@@ -10,7 +10,8 @@ import numpy as np
 from prismap._validate import check_positive, check_probability
 from prismap.errors import PrismapInputError
 from prismap.gmm import GaussianMixture
-from prismap.sensor_models import POLICIES, make_sensor_model, model_names
+from prismap.grid import POLICIES
+from prismap.sensor_models import make_sensor_model, model_names
 from prismap.stereo import matcher_names
 
 MODES = ("ray", "projective")

@@ -1,7 +1,6 @@
 """Inverse sensor models: measured disparities in, per-cell occupancy posteriors out (SENSOR_MODELS.md 4-5)."""
 
 from prismap.sensor_models._base import (
-    POLICIES,
     InverseSensorModel,
     make_sensor_model,
     model_names,
@@ -18,7 +17,6 @@ from prismap.sensor_models._prism import (
 )
 
 __all__ = [
-    "POLICIES",
     "AndertModel",
     "ConditionedModel",
     "ConvolutionModel",

@@ -18,19 +18,21 @@ import numpy as np
 from prismap._validate import as_float_array
 from prismap.errors import PrismapInputError
 
-POLICIES = ("mean", "max-abs", "occupied-wins", "max", "sum")
-"""Per-frame policies that combine the increments of the several rays of one frame that hit one cell."""
-
 
 class InverseSensorModel(ABC):
     """Base class: ``cell_posteriors`` on flat cell arrays, ``influence_depth`` per ray.
 
     Subclasses are built from the camera's ``focal_baseline`` (f*b, pixel-metres) and ``doffs_px``,
-    the map's voxel size and prior ``p0``, plus their own parameters.
+    the map's voxel size and prior ``p0``, plus their own parameters; the map refuses a model whose
+    ``p0`` or ``voxel_size_m`` differ from its own. A model conditioned on a per-ray class accepts the
+    keyword ``ray_class`` ((R,) int32, -1 = no class) in :meth:`cell_posteriors` and
+    :meth:`influence_depth`; the grid passes it only when the frame has classes, and never to a hit/miss
+    model.
     """
 
     name = "base"
     default_policy = "mean"
+    """Name of the per-frame policy the map uses with this model by default (the grid owns the policies)."""
 
     @abstractmethod
     def cell_posteriors(self, disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m):

@@ -1,0 +1,115 @@
+"""The frame accumulator: per voxel a frame touches, ``(sum, count, max, min)`` of its increments.
+
+A :class:`~prismap.grid._storage.BlockTable` of the map's block shape whose blocks also link to their six
+face neighbours. Its size is bounded (:data:`MAX_FRAME_BYTES`): a frame that would touch more blocks is
+refused with an error naming what to change, instead of exhausting memory.
+"""
+
+import os
+import resource
+
+import numpy as np
+
+from prismap.errors import PrismapInputError
+from prismap.grid import _kernels_accumulate, _kernels_traverse
+from prismap.grid._storage import BlockTable
+
+MAX_FRAME_BYTES = 2 << 30
+"""Memory the frame accumulator may hold (bytes), at most: about 2 M blocks of 4^3 voxels (128 M voxels).
+Lowered to a quarter of the physical memory and a third of what the address-space limit (``RLIMIT_AS``)
+leaves free when those are smaller (:func:`frame_budget_bytes`)."""
+
+
+def frame_budget_bytes():
+    """The frame accumulator's memory bound (bytes) on this machine and under this process's limits."""
+    budget = MAX_FRAME_BYTES
+    try:
+        budget = min(budget, os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") // 4)
+    except (ValueError, OSError, AttributeError):
+        pass
+    soft = resource.getrlimit(resource.RLIMIT_AS)[0]
+    if soft != resource.RLIM_INFINITY:
+        budget = min(budget, max(soft - _address_space_used(), 0) // 3)  # growing copies: old + new arrays
+    return budget
+
+
+def _address_space_used():
+    """Bytes of address space this process maps now (Linux ``/proc/self/statm``; 0 where unknown)."""
+    try:
+        with open("/proc/self/statm") as handle:
+            return int(handle.read().split()[0]) * os.sysconf("SC_PAGE_SIZE")
+    except (OSError, ValueError, IndexError):
+        return 0
+
+
+def new_accumulator(bits):
+    """An empty frame accumulator for blocks of ``bits`` (see :mod:`prismap.grid._keys`): per voxel
+    ``(sum, count, max, min)`` of its increments, float32, and per block the slots of its six face
+    neighbours (``links``, see ``_kernels_traverse.cast_hit_miss``)."""
+    return BlockTable(bits, {"acc": ((1 << sum(bits), 4), np.float32), "links": ((6,), np.int32)})
+
+
+def grow(accumulator, blocks):
+    """Make room for ``max(blocks, 1)`` more blocks (at least 64, or as many as held), within
+    :func:`frame_budget_bytes`; a frame that needs more is refused."""
+    budget = frame_budget_bytes()
+    max_blocks = budget // accumulator.bytes_per_block()
+    held = len(accumulator)
+    if held + max(int(blocks), 1) > max_blocks:
+        raise PrismapInputError(
+            f"one frame touches more than {max_blocks} voxel blocks ({budget / 2**30:.3g} GiB, the frame "
+            "accumulator's bound; docs/errors.md): lower `max_range_m`, raise `voxel_size_m`, or subsample the rays"
+        )
+    accumulator.reserve(min(max(64, held, int(blocks)), max_blocks - held), max_blocks=max_blocks)
+
+
+def register_cells(accumulator, keys):
+    """(C,) int64 accumulator row of each voxel key, adding blocks and growing the accumulator as needed."""
+    rows = np.empty(keys.shape[0], dtype=np.int64)
+    start = 0
+    while True:
+        table = accumulator
+        start = _kernels_accumulate.register_keys(table.table, table.block_keys, table.n_blocks, table.payload["acc"],
+                                                  table.payload["links"], keys, start, table.bits, rows)
+        if start == keys.shape[0]:
+            return rows
+        grow(accumulator, 0)
+
+
+def cast_into(accumulator, origin, rays, t_stop, exclusive, voxel_size, *, grow_room=True):
+    """Cast rays, registering the voxels they cross in the accumulator.
+
+    Returns ``[ray_of_cell, cell_index (accumulator rows), t_in, t_out]`` as
+    ``_kernels_traverse.cast_rays_into``, and how many rays are done. With ``grow_room=False`` it never
+    reallocates the accumulator (safe beside a :func:`scatter` into it in another thread) and may stop
+    short; call :func:`finish_cast` afterwards.
+    """
+    table = accumulator
+    *cells, done = _kernels_traverse.cast_rays_into(table.table, table.block_keys, table.n_blocks, table.payload["acc"],
+                                                    table.payload["links"], origin, rays, t_stop, exclusive, voxel_size,
+                                                    table.bits)
+    if grow_room:
+        return finish_cast(accumulator, origin, rays, t_stop, exclusive, voxel_size, (cells, done))
+    return cells, done
+
+
+def finish_cast(accumulator, origin, rays, t_stop, exclusive, voxel_size, partial):
+    """Complete a :func:`cast_into` that stopped short, growing the accumulator; returns the cells."""
+    cells, done = partial
+    parts = [cells]
+    while done < rays.shape[0]:
+        grow(accumulator, 0)
+        more, n = cast_into(accumulator, origin, rays[done:], t_stop[done:], exclusive[done:], voxel_size,
+                            grow_room=False)
+        more[0] += done
+        parts.append(more)
+        done += n
+    if len(parts) == 1:
+        return cells
+    return [np.concatenate(column) for column in zip(*parts)]
+
+
+def scatter(accumulator, cell_index, increment):
+    """Add the cells' increments to their accumulator rows."""
+    acc = accumulator.payload["acc"]
+    _kernels_accumulate.scatter(acc.reshape(-1, acc.shape[2]), cell_index, increment)

@@ -1,0 +1,376 @@
+"""Integrators, as Voxblox has them: one frame's rays -> (voxel, increment) pairs in the frame accumulator.
+
+Two variants behind one base class, built by :func:`make_integrator`:
+
+- ``"ray"`` (:class:`RayIntegrator`): casts every ray through the grid (Amanatides & Woo); exact per ray,
+  costs per crossed voxel and ray, so near voxels crossed by many rays are visited many times.
+- ``"projective"`` (:class:`ProjectiveIntegrator`): visits each voxel of the frustum once, projects its
+  centre into the image and takes the ray of that pixel; one visit per voxel, needs the frame's image
+  geometry (:class:`ImageProjection`).
+
+The grid never knows which sensor model it runs: it hands the model flat arrays (per ray the measured
+disparity and ``|r|``, per cell the ray index and the cell's depth interval on that ray) and gets back
+per-cell log-odds increments (SENSOR_MODELS.md section 3). A model that states hit/miss increments
+(``hit_miss_increments``) is applied while casting, without cell arrays. A per-ray class
+(``RayBatch.ray_class``) reaches the model as the keyword ``ray_class`` only when the batch has one.
+
+Work per frame is bounded before it starts (:data:`MAX_FRAME_CELLS`, :data:`MAX_RAY_CELLS`) and the
+accumulator's memory while it runs (``_accumulator.frame_budget_bytes``); docs/errors.md lists the bounds.
+"""
+
+from abc import ABC, abstractmethod
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from prismap.errors import PrismapInputError
+from prismap.grid import _accumulator, _kernels_project, _kernels_traverse
+
+RAYS_PER_CHUNK = 4096
+"""Rays cast per model call in ray mode (fewer when they cross more than :data:`CELLS_PER_CHUNK` voxels)."""
+
+CELLS_PER_CHUNK = 1 << 22
+"""Voxel visits per ray-mode chunk: bounds the chunk's cell arrays (32 bytes a cell, 128 MiB)."""
+
+MAX_FRAME_CELLS = 1 << 30
+"""Voxel visits one frame may ask for: the sum over rays of the voxels between the origin and the stop depth
+(ray mode), or the voxels of the frustum's key box (projective mode)."""
+
+MAX_RAY_CELLS = 1 << 20
+"""Voxels one ray may cross (1 M: 105 km at 0.1 m voxels, 1 km at 1 mm)."""
+
+NOISE_BIN_RATIO = 1.25
+"""Rays whose pose-induced disparity noise falls in one geometric bin share one widened model."""
+
+MIN_NOISE_PX = 0.01
+"""Pose-induced disparity noise below this (pixels) leaves the model unchanged."""
+
+
+@dataclass(frozen=True)
+class ImageProjection:
+    """Where the frame's image sees the world, for projective integration.
+
+    Attributes
+    ----------
+    R_cam_world : (3, 3) float64, rotation world -> camera
+    focal_px, cx_px, cy_px : float, pixels, of the full-resolution image
+    subsample : int >= 1, pixel step of the rays
+    ray_index : (rows, cols) int32, ray of each subsampled pixel, -1 = none
+    """
+
+    R_cam_world: np.ndarray
+    focal_px: float
+    cx_px: float
+    cy_px: float
+    subsample: int
+    ray_index: np.ndarray
+
+
+@dataclass(frozen=True)
+class RayBatch:
+    """One frame's rays, all from one origin.
+
+    Attributes
+    ----------
+    origin_w : (3,) float64, metres, world frame, the optical centre
+    rays_w : (R, 3) float64, world frame, camera rays ``(x/z, y/z, 1)`` rotated into the world (the point at
+        camera depth ``z`` is ``origin_w + z * rays_w``)
+    disparity_px : (R,) float64, pixels, finite
+    ray_norm : (R,) float64, ``|rays_w|`` >= 1
+    extra_noise_px : (R,) float64, pixels, or None; extra disparity noise per ray (pose uncertainty)
+    ray_class : (R,) int32 or None; the error-model class of each ray, -1 = no class
+    image : ImageProjection or None; needed by the projective integrator
+    """
+
+    origin_w: np.ndarray
+    rays_w: np.ndarray
+    disparity_px: np.ndarray
+    ray_norm: np.ndarray
+    extra_noise_px: np.ndarray | None = None
+    ray_class: np.ndarray | None = None
+    image: ImageProjection | None = None
+
+    def __len__(self):
+        return self.disparity_px.size
+
+    def subset(self, keep):
+        """The batch of the rays where ``keep`` ((R,) bool) holds; the image's ray index follows."""
+        image = self.image
+        if image is not None:
+            new = np.full(keep.size, -1, dtype=np.int32)
+            new[keep] = np.arange(int(keep.sum()), dtype=np.int32)
+            flat = image.ray_index.reshape(-1)
+            ray_index = np.where(flat >= 0, new[np.maximum(flat, 0)], -1).astype(np.int32).reshape(image.ray_index.shape)
+            image = replace(image, ray_index=ray_index)
+        return RayBatch(self.origin_w, np.ascontiguousarray(self.rays_w[keep]), self.disparity_px[keep],
+                        self.ray_norm[keep], _take(self.extra_noise_px, keep), _take(self.ray_class, keep), image)
+
+    def class_kwargs(self, idx, model):
+        """``{"ray_class": classes of rays idx}`` for a call of ``model``, or ``{}`` when the batch has no
+        classes or the model is a hit/miss model (those ignore classes)."""
+        if self.ray_class is None or model.hit_miss_increments() is not None:
+            return {}
+        return {"ray_class": self.ray_class if idx is None else self.ray_class[idx]}
+
+
+def _take(array, idx):
+    return None if array is None else array[idx]
+
+
+def noise_groups(model, extra_noise_px):
+    """Split rays by pose-induced noise: list of ``(model, ray indices or None for all)``.
+
+    Rays below :data:`MIN_NOISE_PX` use ``model`` itself; the others are binned geometrically
+    (ratio :data:`NOISE_BIN_RATIO`) and each bin uses ``model.with_extra_noise(bin value)``.
+    """
+    if extra_noise_px is None:
+        return [(model, None)]
+    sigma = np.asarray(extra_noise_px, dtype=np.float64)
+    small = ~(sigma >= MIN_NOISE_PX)
+    groups = [(model, np.flatnonzero(small))] if small.any() else []
+    bins = np.round(np.log(np.where(small, MIN_NOISE_PX, sigma) / MIN_NOISE_PX) / np.log(NOISE_BIN_RATIO)).astype(np.int64)
+    for b in np.unique(bins[~small]):
+        members = np.flatnonzero(~small & (bins == b))
+        groups.append((model.with_extra_noise(MIN_NOISE_PX * NOISE_BIN_RATIO**b), members))
+    return groups
+
+
+class Integrator(ABC):
+    """Base of the integrators: the shared maths (stop depths, model calls, bounds); subclasses override
+    only :meth:`_integrate`.
+
+    Parameters
+    ----------
+    voxel_size_m : float, metres
+    max_range_m : float, metres, > 0 or inf
+        Distance along a ray beyond which nothing is updated; a ray whose measurement lies beyond it
+        only clears free space up to it, excluding the voxel that contains the max-range point (as
+        OctoMap does).
+    reach_m : float, metres
+        Distance from the origin to the edge of the key space: a ray that would run further is an error.
+    """
+
+    name = "base"
+
+    def __init__(self, *, voxel_size_m, max_range_m=np.inf, reach_m=np.inf):
+        self.voxel_size_m = float(voxel_size_m)
+        self.max_range_m = float(max_range_m)
+        self.reach_m = float(reach_m)
+
+    def integrate(self, accumulator, batch, model):
+        """Add the batch's (voxel, increment) pairs of ``model`` to ``accumulator`` (cleared by the caller)."""
+        if len(batch):
+            self._integrate(accumulator, batch, noise_groups(model, batch.extra_noise_px))
+
+    @abstractmethod
+    def _integrate(self, accumulator, batch, groups):
+        """Fill ``accumulator`` from ``batch``; ``groups`` from :func:`noise_groups`."""
+
+    def stop_depths(self, model, batch, idx):
+        """Depth at which each ray of ``idx`` stops and whether that stop excludes its voxel (cut by max range)."""
+        disparity, ray_norm = _rows(batch.disparity_px, idx), _rows(batch.ray_norm, idx)
+        influence = np.asarray(model.influence_depth(disparity, ray_norm, **batch.class_kwargs(idx, model)), dtype=np.float64)
+        if influence.shape != disparity.shape:
+            raise PrismapInputError(
+                f"sensor model {model.name!r}: influence_depth returned shape {influence.shape}; expected {disparity.shape}"
+            )
+        range_depth = self.max_range_m / ray_norm
+        exclusive = range_depth < influence
+        t_stop = np.where(exclusive, range_depth, influence)
+        too_far = ~(t_stop * ray_norm <= self.reach_m) & ~(t_stop <= 0)
+        if too_far.any():
+            raise PrismapInputError(
+                f"rays would run beyond the map's key range ({self.reach_m:.4g} m from the origin; influence depths up to "
+                f"{np.nanmax(influence):.4g} m): pass a finite `max_range_m`"
+            )
+        return t_stop, exclusive
+
+    def cell_increments(self, model, batch, idx, ray_of_cell, t_in, t_out):
+        """The model's log-odds increments of the cells of rays ``idx``, checked for shape."""
+        _, increment = model.cell_posteriors(_rows(batch.disparity_px, idx), _rows(batch.ray_norm, idx), ray_of_cell,
+                                             t_in, t_out, **batch.class_kwargs(idx, model))
+        increment = np.asarray(increment, dtype=np.float64)
+        if increment.shape != t_in.shape:
+            raise PrismapInputError(
+                f"sensor model {model.name!r}: cell_posteriors returned {increment.shape} increments for {t_in.shape} cells"
+            )
+        return increment
+
+    def _check_work(self, cells, what):
+        if cells > MAX_FRAME_CELLS:
+            raise PrismapInputError(
+                f"the frame asks for {cells:.3g} voxel visits ({what}), more than the bound {MAX_FRAME_CELLS} "
+                f"(docs/errors.md) at `voxel_size_m`={self.voxel_size_m:g}: lower `max_range_m` (now {self.max_range_m:g} m), "
+                "raise the voxel size, or subsample the rays"
+            )
+
+
+def _rows(array, idx):
+    return array if idx is None else array[idx]
+
+
+class RayIntegrator(Integrator):
+    """Ray casting: every ray is traversed (Amanatides & Woo [1]_) from the origin to
+    ``min(model.influence_depth, max range)``, including the voxel that contains the stop depth.
+
+    Hit/miss models go through ``cast_hit_miss`` (increments added while casting). For the others, rays go
+    in chunks (:data:`RAYS_PER_CHUNK`, :data:`CELLS_PER_CHUNK`) through a two-stage pipeline: this thread
+    casts chunk k + 1 (the kernel releases the GIL) while a worker thread runs the model on chunk k and adds
+    its increments. The cast beside the scatter never grows the accumulator (it is grown once the scatter is
+    done), and it only creates blocks and fills their rows while the scatter writes rows of blocks created
+    before, so the two never touch the same memory.
+
+    References
+    ----------
+    .. [1] J. Amanatides, A. Woo, "A fast voxel traversal algorithm for ray tracing", Eurographics 1987.
+    """
+
+    name = "ray"
+
+    def _integrate(self, accumulator, batch, groups):
+        origin, voxel = batch.origin_w, self.voxel_size_m
+        stops = [(model, members, *self.stop_depths(model, batch, members)) for model, members in groups]
+        limits = [_kernels_traverse.cell_limits(origin, np.ascontiguousarray(_rows(batch.rays_w, members)), t_stop, voxel)
+                  for _, members, t_stop, _ in stops]
+        longest = max((int(lim.max()) for lim in limits if lim.size), default=0)
+        if longest > MAX_RAY_CELLS:
+            raise PrismapInputError(
+                f"a ray would cross {longest} voxels, more than the bound {MAX_RAY_CELLS} (docs/errors.md) at "
+                f"`voxel_size_m`={voxel:g}: lower `max_range_m` (now {self.max_range_m:g} m) or check the disparities "
+                "(one near 0 px reaches very far)"
+            )
+        self._check_work(sum(int(lim.sum()) for lim in limits), "the sum over rays of the voxels each crosses")
+        if all(model.hit_miss_increments() is not None for model, _ in groups):
+            for model, members, t_stop, exclusive in stops:
+                _cast_hit_miss(accumulator, origin, np.ascontiguousarray(_rows(batch.rays_w, members)), t_stop,
+                               exclusive, model, voxel)
+            return
+        chunks = []
+        for (model, members, t_stop, exclusive), limit in zip(stops, limits):
+            idx = np.arange(len(batch)) if members is None else members
+            for part in _chunks(limit):
+                chunk = idx[part]
+                chunks.append((model, chunk, np.ascontiguousarray(batch.rays_w[chunk]),
+                               np.ascontiguousarray(t_stop[part]), np.ascontiguousarray(exclusive[part])))
+        with ThreadPoolExecutor(max_workers=1) as worker:
+            cells = _accumulator.cast_into(accumulator, origin, *chunks[0][2:], voxel)
+            for k, (model, chunk, *_) in enumerate(chunks):
+                job = worker.submit(self._model_and_scatter, accumulator, model, batch, chunk, cells)
+                if k + 1 < len(chunks):
+                    # This thread enters the GIL-free cast at once; the worker's model call may hold the GIL.
+                    partial = _accumulator.cast_into(accumulator, origin, *chunks[k + 1][2:], voxel, grow_room=False)
+                job.result()
+                if k + 1 < len(chunks):
+                    cells = _accumulator.finish_cast(accumulator, origin, *chunks[k + 1][2:], voxel, partial)
+
+    def _model_and_scatter(self, accumulator, model, batch, chunk, cells):
+        ray_of_cell, cell_index, t_in, t_out = cells
+        if cell_index.size:
+            _accumulator.scatter(accumulator, cell_index, self.cell_increments(model, batch, chunk, ray_of_cell, t_in, t_out))
+
+
+def _chunks(limits):
+    """Slices of consecutive rays of at most :data:`RAYS_PER_CHUNK` rays and :data:`CELLS_PER_CHUNK` voxel
+    visits (a ray of more visits is a chunk of its own)."""
+    n = limits.size
+    if n and int(limits.sum()) <= CELLS_PER_CHUNK:  # the common case: split by ray count only
+        return [slice(b, b + RAYS_PER_CHUNK) for b in range(0, n, RAYS_PER_CHUNK)]
+    total = np.cumsum(limits)
+    parts, begin = [], 0
+    while begin < n:
+        base = total[begin - 1] if begin else 0
+        end = int(np.searchsorted(total, base + CELLS_PER_CHUNK, side="right"))
+        end = min(max(end, begin + 1), begin + RAYS_PER_CHUNK, n)
+        parts.append(slice(begin, end))
+        begin = end
+    return parts
+
+
+def _cast_hit_miss(accumulator, origin, rays, t_stop, exclusive, model, voxel_size):
+    """Ray mode for a model with ``hit_miss_increments``: the increments are added while casting, one kernel
+    call per accumulator size (it stops when the accumulator needs to grow). Per-ray classes do not apply."""
+    l_hit, l_miss = model.hit_miss_increments()
+    z_hit = np.where(exclusive, np.inf, t_stop)  # a ray cut at max range ends in misses
+    done = 0
+    while done < rays.shape[0]:
+        table = accumulator
+        n, blocks = _kernels_traverse.cast_hit_miss(table.table, table.block_keys, table.n_blocks, table.payload["acc"],
+                                                    table.payload["links"], origin, rays[done:], t_stop[done:],
+                                                    exclusive[done:], z_hit[done:], l_hit, l_miss, voxel_size, table.bits)
+        done += n
+        if done < rays.shape[0]:
+            _accumulator.grow(accumulator, blocks)
+
+
+class ProjectiveIntegrator(Integrator):
+    """Projective integration: visit the voxels of the frustum (up to where the measurements stop
+    influencing), give each the ray of the pixel its centre projects to, one update each. Needs the
+    batch's :class:`ImageProjection`."""
+
+    name = "projective"
+
+    def _integrate(self, accumulator, batch, groups):
+        image = batch.image
+        if image is None:
+            raise PrismapInputError("projective mode needs a camera image: use `integrate_disparity(..., mode='projective')`")
+        n = len(batch)
+        origin, rays, voxel = batch.origin_w, batch.rays_w, self.voxel_size_m
+        t_stop = np.empty(n)
+        exclusive = np.empty(n, dtype=np.bool_)
+        group_of_ray = np.zeros(n, dtype=np.int64)
+        for g, (model, members) in enumerate(groups):
+            idx = slice(None) if members is None else members  # one group: views, no copies
+            t_stop[idx], exclusive[idx] = self.stop_depths(model, batch, members)
+            group_of_ray[idx] = g
+        key_min, shape, n_casting = _kernels_project.frustum_box(origin, rays, t_stop, voxel)
+        if n_casting == 0:
+            return
+        box = float(np.prod(shape.astype(np.float64)))
+        self._check_work(box, f"the frustum's key box of {shape[0]} x {shape[1]} x {shape[2]} voxels")
+        capacity = min(int(box), max(1 << 16, 2 * n))  # about one kept voxel per ray: rarely repeated
+        while True:
+            *cells, n_kept = _kernels_project.project_voxels(
+                key_min, shape, origin, image.R_cam_world, image.focal_px, image.cx_px, image.cy_px,
+                float(image.subsample), image.ray_index, rays, t_stop, exclusive, voxel, capacity,
+            )
+            if n_kept <= capacity:
+                break
+            if n_kept * 40 > _accumulator.frame_budget_bytes():  # 40 bytes per kept cell
+                raise PrismapInputError(
+                    f"the frame projects onto {n_kept} voxels, more than {_accumulator.frame_budget_bytes() // 40} (docs/errors.md) "
+                    f"at `voxel_size_m`={voxel:g}: lower `max_range_m` (now {self.max_range_m:g} m) or raise the voxel size"
+                )
+            capacity = n_kept
+        ray_of_cell, keys, t_in, t_out = cells
+        # Cells grouped by ray (models keep per-ray state from cell to cell); one model call per group and
+        # frame, on the rays some voxel uses (models cost per ray too).
+        rows = _accumulator.register_cells(accumulator, keys)  # in box order: runs of voxels in one block
+        rows, t_in, t_out, used, local = _kernels_project.sort_by_ray(ray_of_cell, n, rows, t_in, t_out)
+        if len(groups) == 1:  # no pose noise: the loop below with every used ray in the group, minus its copies
+            inc = self.cell_increments(groups[0][0], batch, used, local, t_in, t_out)
+            _accumulator.scatter(accumulator, rows, inc)
+            return
+        group_of_used = group_of_ray[used]
+        group_of_cell = group_of_used[local]
+        for g, (model, _) in enumerate(groups):
+            in_group = group_of_used == g
+            mine = np.flatnonzero(group_of_cell == g)
+            if in_group.any():
+                rank = np.cumsum(in_group) - 1  # index of each used ray among the group's used rays
+                inc = self.cell_increments(model, batch, used[in_group], rank[local[mine]], t_in[mine], t_out[mine])
+                _accumulator.scatter(accumulator, rows[mine], inc)
+
+
+_INTEGRATORS = {cls.name: cls for cls in (RayIntegrator, ProjectiveIntegrator)}
+INTEGRATOR_NAMES = tuple(_INTEGRATORS)
+"""Names accepted by :func:`make_integrator` (the grid's ``mode``)."""
+
+
+def make_integrator(name, **config):
+    """The integrator called ``name`` (``"ray"`` or ``"projective"``), built from ``config`` (see :class:`Integrator`)."""
+    try:
+        cls = _INTEGRATORS[name]
+    except (KeyError, TypeError):
+        raise PrismapInputError(f"`mode` must be one of {list(_INTEGRATORS)}; got {name!r}") from None
+    return cls(**config)

@@ -1,0 +1,201 @@
+"""numba kernels of accumulation: a frame's per-voxel statistics, and the map updates from them.
+
+The frame accumulator holds, per touched voxel, ``(sum, count, max, min)`` of its increments (float32) and
+per block the slots of its six face neighbours, so that a ray stepping into the next block reads one int32
+instead of hashing (~8.5 M block changes on a 640x480 frame at 0.1 m). The map holds fixed-point log-odds
+(int32 units of ``_logodds.LOG_ODDS_STEP``) and uint16 counts; a frame adds one rounded integer per voxel
+(``_policies.combine``), a merge adds integers, so both are exact and independent of order.
+Called only by the grid's wrappers. Every kernel releases the GIL.
+"""
+
+import numba
+import numpy as np
+
+from prismap.grid._kernels_hash import EMPTY, find_block, insert_block
+from prismap.grid._keys import PACKED_STEPS, split_key
+from prismap.grid._logodds import LOG_ODDS_STEP, Q_MAX, Q_MIN
+from prismap.grid._policies import combine
+
+_STEP_X, _STEP_Y, _STEP_Z = PACKED_STEPS
+_INV_STEP = 1.0 / LOG_ODDS_STEP
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def face(step):
+    """Face of a block that a packed block-key difference crosses: 0/1 for +x/-x, 2/3 for +y/-y, 4/5 for
+    +z/-z, -1 when the blocks are not face neighbours (``side ^ 1`` is the opposite face)."""
+    if step == _STEP_X:
+        return 0
+    if step == -_STEP_X:
+        return 1
+    if step == _STEP_Y:
+        return 2
+    if step == -_STEP_Y:
+        return 3
+    if step == _STEP_Z:
+        return 4
+    if step == -_STEP_Z:
+        return 5
+    return -1
+
+
+@numba.njit(cache=True, nogil=True)
+def link_block(table, block_keys, n_blocks, acc, links, block, side, last_slot, capacity):
+    """Slot of accumulator block ``block`` by hashing (adding it when absent), linked to ``last_slot`` on
+    face ``side`` (if >= 0); -1 when absent and the accumulator holds ``capacity`` blocks. The slow path
+    of a block change: the caller first tries ``links[last_slot, side]`` (inline: a call per block
+    change costs ~3x the whole cast)."""
+    slot = find_block(table, block_keys, block)
+    if slot < 0:
+        if n_blocks[0] >= capacity:
+            return np.int64(-1)
+        slot = accumulator_block(table, block_keys, n_blocks, acc, links, block)
+    if side >= 0:
+        links[last_slot, side] = slot
+        links[slot, side ^ 1] = last_slot
+    return slot
+
+
+@numba.njit(cache=True, nogil=True)
+def accumulator_block(table, block_keys, n_blocks, acc, links, block):
+    """Slot of accumulator block ``block``, added with neutral rows ``(0, 0, -inf, +inf)`` and no links
+    when absent (room reserved)."""
+    slot, new = insert_block(table, block_keys, n_blocks, block)
+    if new:
+        links[slot, :] = -1
+        for v in range(acc.shape[1]):
+            acc[slot, v, 0] = 0.0
+            acc[slot, v, 1] = 0.0
+            acc[slot, v, 2] = -np.inf
+            acc[slot, v, 3] = np.inf
+    return slot
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def register_run(table, block_keys, n_blocks, acc, links, keys, start, stop, bits, out, last_block, last_slot):
+    """Accumulator row (``slot * V + local``) of ``keys[start:stop]`` into ``out[0:]``, adding blocks.
+
+    A new block's rows start neutral: ``(0, 0, -inf, +inf)``. ``(last_block, last_slot)`` caches the
+    block of the previous key across calls. Returns ``(index of the first key not registered, last_block,
+    last_slot)``; the index is ``stop`` unless a new block would exceed the accumulator's room (the
+    table at most half full).
+    """
+    capacity = min(block_keys.size, table.size // 2)
+    voxels = acc.shape[1]
+    for i in range(start, stop):
+        block, local = split_key(np.int64(keys[i, 0]), np.int64(keys[i, 1]), np.int64(keys[i, 2]), bits)
+        if block != last_block:
+            side = face(block - last_block)
+            slot = np.int64(links[last_slot, side]) if side >= 0 else np.int64(-1)
+            if slot < 0:
+                slot = link_block(table, block_keys, n_blocks, acc, links, block, side, last_slot, capacity)
+                if slot < 0:
+                    return i, last_block, last_slot
+            last_block = block
+            last_slot = slot
+        out[i - start] = last_slot * voxels + local
+    return stop, last_block, last_slot
+
+
+@numba.njit(cache=True, nogil=True)
+def register_keys(table, block_keys, n_blocks, acc, links, keys, start, bits, out):
+    """Accumulator rows of ``keys[start:]`` into ``out[start:]``; returns the first index not registered."""
+    return register_run(table, block_keys, n_blocks, acc, links, keys, start, keys.shape[0], bits, out[start:], EMPTY, np.int64(-1))[0]
+
+
+@numba.njit(cache=True, nogil=True)
+def scatter(acc, cell_index, increment):
+    """Add each cell's increment to its accumulator row: ``(sum, count, max, min)``, float32.
+
+    ``acc`` is the accumulator payload seen as (rows, 4); ``cell_index`` from :func:`register_keys`.
+    """
+    for i in range(cell_index.size):
+        row = cell_index[i]
+        x = np.float32(increment[i])
+        acc[row, 0] += x
+        acc[row, 1] += 1.0
+        if x > acc[row, 2]:  # noqa: PLR1730 (a comparison, not max(): a NaN increment leaves the row alone)
+            acc[row, 2] = x
+        if x < acc[row, 3]:  # noqa: PLR1730
+            acc[row, 3] = x
+
+
+@numba.njit(cache=True, nogil=True)
+def _map_block(table, block_keys, n_blocks, log, count, key, prior_q):
+    """Slot of map block ``key``, created with every voxel at the prior and count 0 when absent."""
+    slot, new = insert_block(table, block_keys, n_blocks, key)
+    if new:
+        log[slot, :] = prior_q
+        count[slot, :] = 0
+    return slot
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _bounded(q, lo, hi):
+    """``q`` (int64 units) clamped to ``[lo, hi]`` and saturated to the int32 range."""
+    return min(max(q, max(lo, Q_MIN)), min(hi, Q_MAX))
+
+
+@numba.njit(cache=True, nogil=True)
+def apply_frame(table, block_keys, n_blocks, log, count, frame_keys, n_frame, acc, policy, clamp_lo, clamp_hi, prior_q):
+    """One update per voxel the frame touched: ``q += round(policy(increments) / LOG_ODDS_STEP)``, clamped
+    to ``[clamp_lo, clamp_hi]`` (int64 units), ``count += 1``.
+
+    The map must have room for ``n_frame`` new blocks. Counts saturate at 65535.
+    """
+    for s in range(n_frame):
+        slot = _map_block(table, block_keys, n_blocks, log, count, frame_keys[s], prior_q)
+        for v in range(acc.shape[1]):
+            n = acc[s, v, 1]
+            if n == 0.0:
+                continue
+            inc = combine(acc[s, v, 0], n, acc[s, v, 2], acc[s, v, 3], policy)
+            step = np.int64(np.rint(np.float64(inc) * _INV_STEP))
+            log[slot, v] = _bounded(np.int64(log[slot, v]) + step, clamp_lo, clamp_hi)
+            if count[slot, v] < 65535:
+                count[slot, v] += 1
+
+
+@numba.njit(cache=True, nogil=True)
+def merge_blocks(table, block_keys, n_blocks, log, count, other_keys, n_other, other_log, other_count, clamp_lo, clamp_hi, prior_q):
+    """Add another map's blocks: known in both -> ``q1 + q2 - q0`` (clamped); counts add (saturating)."""
+    for s in range(n_other):
+        slot = _map_block(table, block_keys, n_blocks, log, count, other_keys[s], prior_q)
+        for v in range(other_log.shape[1]):
+            c = np.int64(other_count[s, v])
+            if c == 0:
+                continue
+            mine = np.int64(count[slot, v])
+            if mine == 0:
+                log[slot, v] = other_log[s, v]
+            else:
+                log[slot, v] = _bounded(np.int64(log[slot, v]) + np.int64(other_log[s, v]) - prior_q, clamp_lo, clamp_hi)
+            count[slot, v] = min(mine + c, 65535)
+
+
+@numba.njit(cache=True, nogil=True)
+def set_voxels(table, block_keys, n_blocks, log, count, keys, values, counts, bits, prior_q):
+    """Overwrite the fixed-point log-odds and count of each key, creating blocks as needed (room reserved)."""
+    for i in range(keys.shape[0]):
+        block, local = split_key(np.int64(keys[i, 0]), np.int64(keys[i, 1]), np.int64(keys[i, 2]), bits)
+        slot = _map_block(table, block_keys, n_blocks, log, count, block, prior_q)
+        log[slot, local] = values[i]
+        count[slot, local] = counts[i]
+
+
+@numba.njit(cache=True, nogil=True)
+def lookup(table, block_keys, log, count, keys, bits, prior_q):
+    """Fixed-point log-odds (int32) and observation count at each key; ``(prior_q, 0)`` for voxels never stored."""
+    n = keys.shape[0]
+    out_log = np.empty(n, dtype=np.int32)
+    out_count = np.empty(n, dtype=np.uint16)
+    for i in range(n):
+        block, local = split_key(np.int64(keys[i, 0]), np.int64(keys[i, 1]), np.int64(keys[i, 2]), bits)
+        slot = find_block(table, block_keys, block)
+        if slot < 0:
+            out_log[i] = prior_q
+            out_count[i] = 0
+        else:
+            out_log[i] = log[slot, local]
+            out_count[i] = count[slot, local]
+    return out_log, out_count
