@@ -158,7 +158,7 @@ CASES = {
     "--model-param voxel_size_m": (None, [*MAP, "--model-param", "voxel_size_m=1", "--out", "WORK/o.npz"],
                                    "voxel_size_m: cannot be set as a model parameter"),
     "--voxel 1e-9": (None, ["map", "--disparity-dir", "SEQ/disp", "--model", "hitmiss", "--voxel", "1e-9",
-                            "--out", "WORK/o.npz"], "voxel size 1e-09 m: the map's keys span"),
+                            "--out", "WORK/o.npz"], "voxel size 1e-09 m: the map's key range"),
     "num_disparities 160000": (None, ["map", "--matcher", "sgbm", "--matcher-param", "num_disparities=160000",
                                       "--model", "hitmiss", "--voxel", "0.1", "--out", "WORK/o.npz"],
                                "must be below the image width 96 px"),

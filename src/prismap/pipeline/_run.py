@@ -9,7 +9,7 @@ import numpy as np
 from prismap._files import exclusive_lock
 from prismap._progress import progress as progress_bar
 from prismap.errors import PrismapInputError
-from prismap.grid import KEY_LIMIT, OccupancyMap
+from prismap.grid import KEY_LIMIT, OccupancyMap, key_limit_m, key_range_text
 from prismap.io import BagSequence, Sequence, read_kitti_disparity, read_sequence
 from prismap.pipeline._checkpoint import open_checkpoint, run_fingerprint, save_checkpoint
 from prismap.pipeline._config import DISPARITY_FROM_MATCHER, DISPARITY_FROM_SEQUENCE, MappingConfig
@@ -119,12 +119,11 @@ def check_key_reach(sequence, config, indices):
         depth = getattr(sensor_model_for(config, sequence.camera), "max_range_m", sequence.camera.focal_baseline)
     positions = np.abs(sequence.poses[list(indices)][:, :3, 3]).max()
     reach_m = float(positions + depth)
-    span_m = KEY_LIMIT * config.voxel_size_m
-    if reach_m >= span_m:
+    if reach_m >= key_limit_m(config.voxel_size_m):
         raise PrismapInputError(
-            f"voxel size {config.voxel_size_m:g} m: the map's keys span +-{KEY_LIMIT} voxels = +-{span_m:.4g} m, "
-            f"but the rays reach {reach_m:.4g} m (camera positions up to {positions:.4g} m plus depths up to "
-            f"{depth:.4g} m); use a voxel size of at least {reach_m / KEY_LIMIT:.3g} m or a shorter --max-range"
+            f"voxel size {config.voxel_size_m:g} m: the map's key range {key_range_text(config.voxel_size_m)} "
+            f"cannot hold rays reaching {reach_m:.4g} m (camera positions up to {positions:.4g} m plus depths up "
+            f"to {depth:.4g} m); use a voxel size of at least {reach_m / KEY_LIMIT:.3g} m or a shorter --max-range"
         )
 
 
