@@ -12,6 +12,7 @@ Subpackages (imported on first use, so ``import prismap`` stays cheap):
 - :mod:`prismap.sim`           synthetic worlds with exact ground truth
 - :mod:`prismap.evaluate`      scores of maps against ground truth
 - :mod:`prismap.pipeline`      frames in, map out
+- :mod:`prismap.viewer`        the 3-D map viewer in the browser
 """
 
 import importlib
@@ -22,7 +23,7 @@ __version__ = "0.1.0"
 
 _SUBPACKAGES = (
     "camera", "stereo", "gmm", "characterise", "sensor_models", "grid", "io", "sim",
-    "evaluate", "pipeline", "plots", "cli",
+    "evaluate", "pipeline", "plots", "cli", "viewer",
 )
 
 __all__ = ["PrismapInputError", "__version__", *_SUBPACKAGES]

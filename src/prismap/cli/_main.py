@@ -12,7 +12,7 @@ import sys
 from prismap import __version__
 from prismap.errors import PrismapInputError
 
-COMMANDS = ("characterise", "map", "evaluate", "lidar_truth", "experiment", "demo", "models")
+COMMANDS = ("characterise", "map", "evaluate", "lidar_truth", "experiment", "demo", "models", "view")
 
 
 def build_parser():
