@@ -1,23 +1,12 @@
 """``prismap models compare``: every inverse sensor model along one ray, judged against PRISM."""
 
-import json
 from pathlib import Path
 
 import numpy as np
 
-from prismap._files import write_text_atomic
-from prismap._progress import progress
 from prismap._validate import check_positive, check_probability
 from prismap.errors import PrismapInputError
-
-FILES = {
-    "profiles": "profiles.png",
-    "sweeps": "prism_sweeps.png",
-    "influence": "influence.png",
-    "divergence": "divergence.png",
-    "tables": "tables.md",
-    "json": "models_compare.json",
-}
+from prismap.experiment._models_compare import FILES
 
 
 def register(subparsers):
@@ -82,9 +71,7 @@ def _camera(args):
 
 def run(args):
     """Run the study and write figures and tables; return the exit status."""
-    from prismap.characterise import load_error_model
-    from prismap.plots import plot_divergence, plot_influence, plot_prism_sweeps, plot_ray_profiles
-    from prismap.study import RaySetup, compare_models, influence_distances, prism_sweeps, time_models
+    from prismap.experiment import run_models_compare
 
     distances = parse_distances(args.distances)
     voxel = check_positive(args.voxel, "--voxel")
@@ -92,55 +79,12 @@ def run(args):
     if args.perf_stride < 1:
         raise PrismapInputError(f"--perf-stride must be >= 1; got {args.perf_stride}")
     focal, baseline, doffs, camera = _camera(args)
-    error_model = load_error_model(args.error_model)
-    mixture = error_model.mixture
-    setup = RaySetup(focal_baseline=focal * baseline, doffs_px=doffs, voxel_size_m=voxel, p0=p0)
-    for s in distances:
-        setup.disparity_at(s)  # fail early on distances the camera cannot resolve
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    paths = {key: out / name for key, name in FILES.items()}
-
-    steps = progress(total=5, desc="models compare", unit="step")
-    comparison = compare_models(mixture, distances, setup=setup)
-    plot_ray_profiles(comparison, path=paths["profiles"])
-    steps.update()
-    by_g = {fit.n_components: fit.mixture for fit in error_model.fits}
-    sweeps = prism_sweeps(mixture, setup=setup, distances_m=distances, reference_m=float(np.median(distances)),
-                          mixtures_by_components=by_g)
-    plot_prism_sweeps(sweeps, path=paths["sweeps"])
-    steps.update()
-    influence = influence_distances(mixture, np.linspace(1.0, 1.5 * max(distances), 16), setup=setup)
-    plot_influence(*influence, path=paths["influence"])
-    steps.update()
-    plot_divergence(comparison, path=paths["divergence"])
-    steps.update()
-    performance = time_models(mixture, setup=setup, focal_px=focal, stride=args.perf_stride)
-    steps.update()
-    steps.close()
-
-    header = (f"Error model {args.error_model} ({error_model.matcher} on {error_model.dataset}, G = "
-              f"{error_model.selected_components}); camera {camera}: f*b = {setup.focal_baseline:.3f} px*m, "
-              f"doffs = {doffs:g} px; cells of {voxel:g} m, p0 = {p0:g}; single-noise sigma "
-              f"{comparison.noise_sigma_px:.3f} px (largest-weight component).")
-    influence_rows = ["| measured (m) | bound behind (m) | observed behind (m) |", "|---:|---:|---:|"]
-    influence_rows += [f"| {m:.2f} | {b:.2f} | {o:.2f} |" for m, b, o in zip(*influence)]
-    tables = "\n".join([
-        "# Sensor models against PRISM", "", header, "",
-        "## Divergence from PRISM", "",
-        "Over the cells either model updates, from the camera to the larger influence depth. Cleared occupancy: "
-        "PRISM's expected occupied cells among those the model pushes toward free.", "",
-        comparison.to_markdown(), "## PRISM's maximum influence distance", "", "\n".join(influence_rows), "",
-        "## Performance", "", performance.to_markdown(),
-    ])
-    write_text_atomic(paths["tables"], tables)
-    record = {"error_model": str(args.error_model), "camera": camera, "comparison": comparison.to_dict(),
-              "influence": {k: v.tolist() for k, v in zip(("measured_m", "bound_m", "observed_m"), influence)},
-              "performance": performance.to_dict()}
-    write_text_atomic(paths["json"], json.dumps(record, indent=2) + "\n")
-    print(header)
-    print(comparison.to_markdown())
-    print(performance.to_markdown())
-    for path in paths.values():
+    result = run_models_compare(args.error_model, args.out, focal_px=focal, baseline_m=baseline, doffs_px=doffs,
+                                camera_label=camera, voxel_size_m=voxel, p0=p0, distances_m=distances,
+                                perf_stride=args.perf_stride)
+    print(result.header)
+    print(result.comparison.to_markdown())
+    print(result.performance.to_markdown())
+    for path in result.paths.values():
         print(f"wrote {path}")
     return 0

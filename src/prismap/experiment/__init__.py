@@ -1,6 +1,7 @@
 """End-to-end experiments: every sensor model mapped and scored against exact ground truth, and the demo."""
 
 from prismap.experiment._cells import ExperimentResult
+from prismap.experiment._models_compare import ModelsComparison, run_models_compare
 from prismap.experiment._office2d import SGBM_LIKE_MIXTURE, run_office2d
 from prismap.experiment._results import (
     MODELS,
@@ -19,9 +20,11 @@ __all__ = [
     "SGBM_LIKE_MIXTURE",
     "CellResult",
     "ExperimentResult",
+    "ModelsComparison",
     "format_results_table",
     "prior_of",
     "read_results",
+    "run_models_compare",
     "run_office2d",
     "run_scene3d",
     "score_grid",
