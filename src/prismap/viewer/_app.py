@@ -43,6 +43,15 @@ def load_trajectory(path):
     return read_kitti_poses(path)
 
 
+def _height_greys(z_m):
+    """(N, 3) uint8 greys of the ground truth's occupied voxels, dark (low) to light (high): every one is
+    occupied, so height is what tells floor, boxes and walls apart."""
+    z = np.asarray(z_m, dtype=np.float64)
+    span = max(float(z.max() - z.min()), 1e-9) if len(z) else 1.0
+    level = 70 + 150 * (z - (z.min() if len(z) else 0.0)) / span
+    return np.repeat(level.astype(np.uint8)[:, None], 3, axis=1)
+
+
 def _framing_box(level, occupied_threshold):
     """``(lo_w, hi_w)`` metres: the 1st-99th percentile box of the occupied voxels (of all, if none are),
     so that a few far stray voxels do not shrink the view of the map."""
@@ -59,7 +68,8 @@ class MapViewer:
     ----------
     grid : OccupancyMap
     truth : GroundTruthOccupancy, optional
-        Its occupied voxels are drawn beside the map (shifted along +x past the map's box), toggleable.
+        Its occupied voxels are drawn beside the map (shifted along +x past the map's box), in greys by
+        height (all are occupied), toggleable.
     poses_w : (N, 4, 4) float64, optional
         ``T_world_cam`` of the camera trajectory, metres; the map file does not record poses.
     host, port : str, int
@@ -90,20 +100,24 @@ class MapViewer:
         base = self.levels[0]
         z_lo, z_hi = base.keys[:, 2].min() * base.size_m, (base.keys[:, 2].max() + 1) * base.size_m
         lo_w, hi_w = _framing_box(base, grid.occupied_threshold)
-        self.truth_offset_w = np.array([hi_w[0] - lo_w[0] + 4 * base.size_m, 0.0, 0.0])
         self.truth_levels = None
+        self.truth_offset_w = np.zeros(3)
         if truth is not None and len(truth.occupied_keys):
             occupied = truth.occupied_keys
             self.truth_levels = voxel_pyramid(occupied, np.ones(len(occupied)), truth.voxel_size_m)
+            truth_lo, truth_hi = _framing_box(self.truth_levels[0], 0.5)
+            # beside the map along +x: past both boxes, with a 1 m gap
+            self.truth_offset_w[0] = max(hi_w[0], truth_hi[0]) - min(lo_w[0], truth_lo[0]) + 1.0
+            lo_w, hi_w = np.minimum(lo_w, truth_lo), np.maximum(hi_w, truth_hi)
 
         self.server = viser.ViserServer(host=host, port=port, verbose=False)
         self.port = self.server.get_port()
         scene, gui = self.server.scene, self.server.gui
         scene.set_up_direction("+z")
-        center = (lo_w + hi_w) / 2 + (self.truth_offset_w / 2 if self.truth_levels else 0.0)
-        extent = float(np.linalg.norm(hi_w - lo_w)) + (self.truth_offset_w[0] if self.truth_levels else 0.0)
+        center = (lo_w + hi_w) / 2 + self.truth_offset_w / 2
+        extent = float(np.linalg.norm(hi_w - lo_w)) + self.truth_offset_w[0]
         self.server.initial_camera.look_at = tuple(center)
-        self.server.initial_camera.position = tuple(center + extent * np.array([0.05, -0.55, 0.5]))
+        self.server.initial_camera.position = tuple(center + extent * np.array([0.0, -0.42, 0.4]))
 
         gui.add_markdown(f"**{len(keys):,} voxels** of {base.size_m:g} m. Colour: P(occupied), {COLORMAP} "
                          "(violet 0, teal 0.5, yellow 1); grey: unobserved inside the map's box.")
@@ -153,8 +167,9 @@ class MapViewer:
             self._draw("/map/unobserved", None, None, 0.0)
         if self.truth_levels and self.show_truth.value:
             truth, keep = select(self.truth_levels, z_range_m=z_range, budget=self.budget)
-            self._draw("/truth/voxels", truth.centers_w[keep], probability_colors(truth.probability[keep]),
-                       truth.size_m, position=self.truth_offset_w)
+            centers = truth.centers_w[keep]
+            self._draw("/truth/voxels", centers, _height_greys(centers[:, 2]), truth.size_m,
+                       position=self.truth_offset_w)
             stats["points"] += int(keep.sum())
         else:
             self._draw("/truth/voxels", None, None, 0.0)
