@@ -96,7 +96,7 @@ class MapViewer:
         self.budget = int(budget)
         self.levels = voxel_pyramid(keys, grid.probability_at_keys(keys), grid.voxel_size_m)
         self._unobserved = None
-        self._handles = {}
+        self._handles, self._keys, self._shown = {}, {}, {}
         base = self.levels[0]
         z_lo, z_hi = base.keys[:, 2].min() * base.size_m, (base.keys[:, 2].max() + 1) * base.size_m
         lo_w, hi_w = _framing_box(base, grid.occupied_threshold)
@@ -133,7 +133,7 @@ class MapViewer:
         if poses_w is not None:
             self._add_trajectory(np.asarray(poses_w, dtype=np.float64))
         scene.add_label("/labels/map", "map", position=tuple((lo_w + hi_w) / 2 * [1, 1, 0] + [0, 0, hi_w[2]]))
-        if self.truth_levels:
+        if self.truth_levels is not None:
             scene.add_label("/labels/truth", "ground truth",
                             position=tuple((lo_w + hi_w) / 2 * [1, 1, 0] + [0, 0, hi_w[2]] + self.truth_offset_w))
         self.stats = self.refresh()
@@ -149,44 +149,60 @@ class MapViewer:
         """
         classes = tuple(name for name, box in self.show.items() if box.value)
         z_range = tuple(self.z_range.value)
-        level, mask = select(self.levels, threshold=self.threshold.value, classes=classes, z_range_m=z_range,
-                             free_threshold=self.grid.free_threshold,
-                             occupied_threshold=self.grid.occupied_threshold, budget=self.budget)
-        stats = {"level": level.level, "voxel_m": level.size_m, "points": int(mask.sum())}
-        self._draw("/map/voxels", level.centers_w[mask], probability_colors(level.probability[mask]), level.size_m)
-        if self.show["unknown"].value:
-            if self._unobserved is None:
-                self._unobserved = unobserved_cells(self.levels[0], budget=self.budget)
-            cells = self._unobserved
-            z = cells.centers_w[:, 2]
-            keep = (z >= z_range[0]) & (z <= z_range[1])
-            colors = np.broadcast_to(np.array(UNKNOWN_COLOR, dtype=np.uint8), (int(keep.sum()), 3))
-            self._draw("/map/unobserved", cells.centers_w[keep], colors, cells.size_m)
-            stats["points"] += int(keep.sum())
-        else:
-            self._draw("/map/unobserved", None, None, 0.0)
-        if self.truth_levels and self.show_truth.value:
-            truth, keep = select(self.truth_levels, z_range_m=z_range, budget=self.budget)
-            centers = truth.centers_w[keep]
-            self._draw("/truth/voxels", centers, _height_greys(centers[:, 2]), truth.size_m,
-                       position=self.truth_offset_w)
-            stats["points"] += int(keep.sum())
-        else:
-            self._draw("/truth/voxels", None, None, 0.0)
+        level = self._layer("/map/voxels", (self.threshold.value, classes, z_range), lambda: self._map_layer(
+            classes, z_range))
+        self._layer("/map/unobserved", (self.show["unknown"].value, z_range), lambda: self._unobserved_layer(z_range))
+        self._layer("/truth/voxels", (self.show_truth.value, z_range), lambda: self._truth_layer(z_range))
+        stats = {"level": level.level, "voxel_m": level.size_m,
+                 "points": sum(count for count, _ in self._shown.values())}
         coarse = f" (2^{level.level} coarser: over the {self.budget:,}-point budget)" if level.level else ""
         self.status.content = f"{stats['points']:,} points shown; map voxels {level.size_m:g} m{coarse}."
         return stats
 
-    def _draw(self, name, centers_w, colors, size_m, position=(0.0, 0.0, 0.0)):
-        """One point cloud of square voxels (None or no points: removed)."""
+    def _map_layer(self, classes, z_range):
+        level, mask = select(self.levels, threshold=self.threshold.value, classes=classes, z_range_m=z_range,
+                             free_threshold=self.grid.free_threshold,
+                             occupied_threshold=self.grid.occupied_threshold, budget=self.budget)
+        return level, (level.centers_w[mask], probability_colors(level.probability[mask]), level.size_m)
+
+    def _unobserved_layer(self, z_range):
+        if not self.show["unknown"].value:
+            return None, None
+        if self._unobserved is None:
+            self._unobserved = unobserved_cells(self.levels[0], budget=self.budget)
+        cells = self._unobserved
+        z = cells.centers_w[:, 2]
+        keep = (z >= z_range[0]) & (z <= z_range[1])
+        colors = np.broadcast_to(np.array(UNKNOWN_COLOR, dtype=np.uint8), (int(keep.sum()), 3))
+        return cells, (cells.centers_w[keep], colors, cells.size_m)
+
+    def _truth_layer(self, z_range):
+        if self.truth_levels is None or not self.show_truth.value:
+            return None, None
+        truth, keep = select(self.truth_levels, z_range_m=z_range, budget=self.budget)
+        centers = truth.centers_w[keep]
+        return truth, (centers, _height_greys(centers[:, 2]), truth.size_m, self.truth_offset_w)
+
+    def _layer(self, name, key, build):
+        """Redraw layer ``name`` with ``build() -> (level, (centres, colours, size[, position]) or None)``
+        unless its controls ``key`` are unchanged; returns its level."""
+        if name in self._shown and self._keys.get(name) == key:
+            return self._shown[name][1]
+        level, cloud = build()
         old = self._handles.pop(name, None)
         if old is not None:
             old.remove()
-        if centers_w is None or len(centers_w) == 0:
-            return
+        self._keys[name] = key
+        self._shown[name] = (0 if cloud is None else len(cloud[0]), level)
+        if cloud is not None and len(cloud[0]):
+            self._handles[name] = self._point_cloud(name, *cloud)
+        return level
+
+    def _point_cloud(self, name, centers_w, colors, size_m, position=(0.0, 0.0, 0.0)):
+        """One point cloud of square voxels, flat-shaded so colours are exact."""
         reach = float(np.abs(centers_w).max())
         precision = "float16" if reach < 256 * size_m else "float32"  # float16 steps stay under size / 4
-        self._handles[name] = self.server.scene.add_point_cloud(
+        return self.server.scene.add_point_cloud(
             name, centers_w, np.ascontiguousarray(colors), point_size=size_m, point_shape="square",
             point_shading="flat", precision=precision, position=tuple(position))
 

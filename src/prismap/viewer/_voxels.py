@@ -1,6 +1,7 @@
 """What the viewer draws, as plain arrays: a level-of-detail pyramid of voxels, the selection a viewer's
 controls ask for, and the colours of probabilities. No server or browser here, so it is tested alone."""
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -20,11 +21,15 @@ unknown between them (observed but undecided; unobserved space is drawn as its o
 
 def probability_colors(probability):
     """(N, 3) uint8 RGB of :data:`COLORMAP` at each probability (256 levels, clipped to [0, 1])."""
+    p = np.clip(np.nan_to_num(np.asarray(probability, dtype=np.float32), nan=0.5), 0.0, 1.0)
+    return _colormap_table()[np.round(p * 255).astype(np.intp)]
+
+
+@functools.cache
+def _colormap_table():
     from matplotlib import colormaps
 
-    table = np.round(colormaps[COLORMAP](np.linspace(0.0, 1.0, 256))[:, :3] * 255).astype(np.uint8)
-    p = np.clip(np.nan_to_num(np.asarray(probability, dtype=np.float64), nan=0.5), 0.0, 1.0)
-    return table[np.round(p * 255).astype(np.intp)]
+    return np.round(colormaps[COLORMAP](np.linspace(0.0, 1.0, 256))[:, :3] * 255).astype(np.uint8)
 
 
 @dataclass(frozen=True)
@@ -37,7 +42,7 @@ class VoxelLevel:
     size_m : float, metres
         Edge of one voxel of this level.
     keys : (N, 3) int64
-        ``floor(x / size_m)``, sorted lexicographically, unique.
+        ``floor(x / size_m)``, unique (sorted lexicographically above level 0).
     probability : (N,) float32
         Largest P(occupied) of the map's voxels inside (an occupied voxel is never hidden by coarsening).
     """
@@ -65,7 +70,7 @@ def _group_max(keys, probability):
         return keys, probability
     lo = keys.min(axis=0)
     flat = np.ravel_multi_index((keys - lo).T, keys.max(axis=0) - lo + 1)
-    order = np.argsort(flat, kind="stable")
+    order = np.argsort(flat)
     flat = flat[order]
     starts = np.flatnonzero(np.r_[True, flat[1:] != flat[:-1]])
     return keys[order][starts], np.maximum.reduceat(probability[order], starts)
@@ -77,13 +82,14 @@ def voxel_pyramid(keys, probability, voxel_size_m, *, min_voxels=4096):
 
     Parameters
     ----------
-    keys : (N, 3) int, voxel keys of the map
+    keys : (N, 3) int, voxel keys of the map, unique (as a map's are)
     probability : (N,) float, P(occupied)
     voxel_size_m : float, metres
 
     Returns
     -------
-    list of VoxelLevel
+    VoxelPyramid
+        Coarser levels are computed when first asked for (a view that fits the budget never pays for them).
     """
     keys = np.asarray(keys)
     probability = np.asarray(probability)
@@ -91,13 +97,49 @@ def voxel_pyramid(keys, probability, voxel_size_m, *, min_voxels=4096):
         raise PrismapInputError(f"`keys` must be (N, 3) with (N,) `probability`; got {keys.shape} and {probability.shape}")
     if not voxel_size_m > 0:
         raise PrismapInputError(f"`voxel_size_m` must be > 0; got {voxel_size_m!r}")
-    levels = [VoxelLevel(0, float(voxel_size_m), *_group_max(keys.astype(np.int64), probability.astype(np.float32)))]
-    while len(levels[-1].keys) > min_voxels:
-        nxt = coarsen(levels[-1])
-        if len(nxt.keys) == len(levels[-1].keys):
-            break
-        levels.append(nxt)
-    return levels
+    return VoxelPyramid(VoxelLevel(0, float(voxel_size_m), keys.astype(np.int64), probability.astype(np.float32)),
+                        min_voxels)
+
+
+class VoxelPyramid:
+    """The levels of :func:`voxel_pyramid`, computed lazily; iterate (finest first) or index them."""
+
+    def __init__(self, base, min_voxels):
+        self._levels = [base]
+        self._min_voxels = min_voxels
+        self._complete = False
+
+    def _grow(self):
+        """Add the next level; False when the last one is already coarse enough or stopped shrinking."""
+        last = self._levels[-1]
+        if self._complete or len(last.keys) <= self._min_voxels:
+            self._complete = True
+            return False
+        nxt = coarsen(last)
+        if len(nxt.keys) == len(last.keys):
+            self._complete = True
+            return False
+        self._levels.append(nxt)
+        return True
+
+    def __iter__(self):
+        index = 0
+        while index < len(self._levels) or self._grow():
+            yield self._levels[index]
+            index += 1
+
+    def __getitem__(self, index):
+        if index < 0:
+            while self._grow():
+                pass
+        while index >= len(self._levels) and self._grow():
+            pass
+        return self._levels[index]
+
+    def __len__(self):
+        while self._grow():
+            pass
+        return len(self._levels)
 
 
 def voxel_classes(probability, free_threshold, occupied_threshold):
