@@ -1,25 +1,71 @@
-"""``prismap demo --quick`` end to end, and ``prismap experiment`` through the command line."""
+"""``prismap demo --quick`` end to end (its Markdown index and HTML report, loaded in headless Chromium),
+the report's Markdown-to-HTML tables, and ``prismap experiment`` through the command line."""
 
+import contextlib
+import io
 import re
 
 import pytest
+from browser import Browser, find_chromium
 
 from prismap.cli._main import main
+from prismap.experiment._report import markdown_to_html
 
 
-def test_quick_demo_links_only_files_that_exist(tmp_path, capsys):
-    out = tmp_path / "outputs"
-    assert main(["demo", "--quick", "--out", str(out)]) == 0
+@pytest.fixture(scope="module")
+def quick_demo(tmp_path_factory):
+    """The output folder of one ``prismap demo --quick`` and what it printed."""
+    out = tmp_path_factory.mktemp("demo") / "outputs"
+    printed = io.StringIO()
+    with contextlib.redirect_stdout(printed):
+        assert main(["demo", "--quick", "--out", str(out)]) == 0
+    return out, printed.getvalue()
+
+
+def test_quick_demo_links_only_files_that_exist(quick_demo):
+    out, printed = quick_demo
     index = (out / "index.md").read_text()
     links = re.findall(r"\]\(([^)]+)\)", index)
-    assert len(links) >= 3 * 3 + 2 * 5  # 3 characterisations x 3 files; per experiment table, JSON, 3 figures
+    assert len(links) >= 3 * 3 + 6 + 2 * 5  # 3 characterisations x 3 files, models compare, per experiment 5
     for link in links:
         assert (out / link).is_file(), link
-    for needed in ("characterise/sgbm/table.md", "office2d/results.md", "scene3d/results.md",
+    for needed in ("characterise/sgbm/table.md", "models/profiles.png", "office2d/results.md", "scene3d/results.md",
                    "scene3d/sgbm/characterisation/table.md", "office2d/map_slices_known-mixture.png"):
         assert needed in links
-    assert "PRISM Brier" in index and "Run time:" in index
-    assert "wrote" in capsys.readouterr().out
+    assert "PRISM Brier" in index and "Run time:" in index and "selected G =" in index
+    assert f"wrote {out / 'index.html'}" in printed
+
+
+def test_markdown_tables_become_html_tables():
+    text = "# Title\n\nSome **bold** `x`.\n\n| model | Brier |\n|---|---:|\n| prism | **0.0123** |\n| ideal | n/a |\n"
+    assert markdown_to_html(text) == (
+        "<h3>Title</h3>\n<p>Some <strong>bold</strong> <code>x</code>.</p>\n"
+        "<table><thead><tr><th>model</th><th class=num>Brier</th></tr></thead><tbody>"
+        "<tr><td>prism</td><td class=num><strong>0.0123</strong></td></tr>"
+        "<tr><td>ideal</td><td class=num>n/a</td></tr></tbody></table>")
+
+
+def test_html_report_has_a_section_per_step_and_loads_in_chromium(quick_demo, tmp_path):
+    out, _ = quick_demo
+    page = (out / "index.html").read_text()
+    sources = re.findall(r'<img src="([^"]+)"', page)
+    assert len(sources) >= 3 * 2 + 4 + 2 * 3 and all((out / s).is_file() for s in sources)
+    titles = re.findall(r"<h2>([^<]+)</h2>", page)
+    assert [t.split(". ", 1)[1].split()[0] for t in titles] == ["Stereo", "Sensor", "2-D", "3-D"]
+    assert page.count("<table>") >= 3 + 1 + 2 and "PRISM Brier" in page
+    if find_chromium() is None:
+        reason = "no chromium on PATH (.ci/run installs Debian's chromium; install it to run the browser tests)"
+        print(reason)
+        pytest.skip(reason)
+    with Browser(width=1100, height=1400) as browser:
+        browser.goto((out / "index.html").as_uri())
+        browser.wait_for("document.readyState === 'complete' && [...document.images].every(i => i.complete)")
+        broken = browser.evaluate("[...document.images].filter(i => !(i.naturalWidth > 0)).map(i => i.src)")
+        assert broken == []
+        assert browser.evaluate("document.images.length") == len(sources)
+        assert browser.evaluate("document.querySelectorAll('table tbody tr').length") > 20
+        (tmp_path / "report.png").write_bytes(browser.screenshot())
+        assert browser.console_errors == []
 
 
 def test_experiment_command_rejects_bad_options(tmp_path, capsys):

@@ -14,6 +14,7 @@ Subpackages (imported on first use, so ``import prismap`` stays cheap):
 - :mod:`prismap.study`         the sensor models side by side along one ray (``models compare``)
 - :mod:`prismap.pipeline`      frames in, map out
 - :mod:`prismap.experiment`    end-to-end workflows on worlds with exact ground truth, and the demo
+- :mod:`prismap.viewer`        the 3-D map viewer in the browser
 """
 
 import importlib
@@ -24,7 +25,7 @@ __version__ = "0.1.0"
 
 _SUBPACKAGES = (
     "camera", "stereo", "gmm", "characterise", "sensor_models", "grid", "io", "sim",
-    "evaluate", "study", "pipeline", "experiment", "plots", "cli",
+    "evaluate", "study", "pipeline", "experiment", "plots", "cli", "viewer",
 )
 
 __all__ = ["PrismapInputError", "__version__", *_SUBPACKAGES]

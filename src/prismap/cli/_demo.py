@@ -1,4 +1,4 @@
-"""``prismap demo``: characterise, compare the sensor models, run both experiments, write an index page."""
+"""``prismap demo``: characterise, compare the sensor models, run the experiments, write an HTML report."""
 
 from pathlib import Path
 
@@ -12,9 +12,9 @@ def register(subparsers):
         help="the whole story in a few minutes: error models, model comparison, 2-D and 3-D experiments",
         description=(
             "Characterise the bundled Middlebury Motorcycle pair with bm, sgbm and variational, compare the "
-            "sensor models on the SGBM error model (prismap models compare, when available), run the 2-D office "
-            "and 3-D indoor experiments and write OUT/index.md linking every table and figure. Finished steps "
-            "are reused when the command is run again."
+            "sensor models on the SGBM error model (prismap models compare), run the experiments (2-D office, "
+            "3-D indoor scene) and write the report OUT/index.html (figures inline, tables, headline numbers) "
+            "and OUT/index.md. Finished steps are reused when the command is run again."
         ),
     )
     add_out(parser, file=False, default=Path("outputs"), metavar="DIR", help="output directory")
@@ -24,10 +24,10 @@ def register(subparsers):
 
 
 def run(args):
-    """Run the demo and print where its index is; return the exit status."""
+    """Run the demo, print its Markdown index and where the report is; return the exit status."""
     from prismap.experiment._demo import run_demo
 
     index = run_demo(args.out, quick=args.quick, seed=args.seed)
-    print(index.read_text(encoding="utf-8"))
-    print(f"wrote {index}")
+    print(index.with_suffix(".md").read_text(encoding="utf-8"))
+    print(f"wrote {index} and {index.with_suffix('.md')}")
     return 0

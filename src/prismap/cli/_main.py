@@ -19,7 +19,7 @@ from prismap import __version__
 from prismap._files import check_output, exclusive_lock
 from prismap.errors import PrismapInputError
 
-COMMANDS = ("characterise", "map", "evaluate", "export", "lidar_truth", "experiment", "demo", "models")
+COMMANDS = ("characterise", "map", "evaluate", "export", "lidar_truth", "experiment", "demo", "models", "view")
 
 
 class _Parser(argparse.ArgumentParser):

@@ -1,105 +1,151 @@
-"""``prismap demo``: the whole story (characterise, compare models, map and score) and an index page linking it."""
+"""``prismap demo``: the whole story (characterise, compare models, map and score) and a report linking it."""
 
-import contextlib
-import io
-import os
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
-from prismap._files import write_text_atomic
-from prismap.errors import PrismapInputError
+import numpy as np
 
-DEMO_SIZES = {
-    False: {"office2d": {"quick": False, "n_frames": 120},
-            "scene3d": {"quick": False, "n_frames": 20}},
-    True: {"office2d": {"quick": True, "n_frames": 12},
-           "scene3d": {"quick": True, "n_frames": 4, "voxel_size_m": 0.2, "matchers": ("sgbm",)}},
-}
-"""Experiment sizes of the demo (full) and of ``--quick`` (a smoke run: tiny, numbers not meaningful)."""
+from prismap._files import write_text_atomic
+from prismap._progress import progress
+from prismap.errors import PrismapInputError
+from prismap.experiment._office2d import run_office2d
+from prismap.experiment._report import format_index_html, format_index_markdown
+from prismap.experiment._scene3d import run_scene3d
+
+
+@dataclass(frozen=True)
+class DemoExperiment:
+    """One experiment of the demo.
+
+    Attributes
+    ----------
+    world : str
+        Its folder in the demo's output and the report's anchor.
+    title : str
+    run : callable
+        ``run(out_dir, seed=..., **sizes) -> ExperimentResult``.
+    full, quick : dict
+        Keyword sizes of the full demo and of ``--quick`` (a smoke run: tiny, numbers not meaningful).
+    """
+
+    world: str
+    title: str
+    run: object
+    full: dict
+    quick: dict
+
+
+EXPERIMENTS = (
+    DemoExperiment("office2d", "2-D office, errors from a known mixture", run_office2d,
+                   full={"quick": False, "n_frames": 120}, quick={"quick": True, "n_frames": 12}),
+    DemoExperiment("scene3d", "3-D indoor scene, characterised matchers", run_scene3d,
+                   full={"quick": False, "n_frames": 20},
+                   quick={"quick": True, "n_frames": 4, "voxel_size_m": 0.2, "matchers": ("sgbm",)}),
+)
+"""The demo's experiments in report order: add one here to add it to the demo."""
 
 MATCHERS = ("bm", "sgbm", "variational")
+"""Matchers characterised on the Motorcycle pair."""
+
+
+@dataclass(frozen=True)
+class Section:
+    """One section of the report: a title, headline lines and ``(path, caption)`` items."""
+
+    title: str
+    headline: tuple
+    items: tuple
 
 
 def run_demo(out_dir, *, quick=False, seed=0):
-    """Characterise the Motorcycle pair with each matcher, compare the sensor models, run both experiments.
+    """Characterise the Motorcycle pair with each matcher, compare the sensor models, run :data:`EXPERIMENTS`.
 
     Every step writes into its own folder of ``out_dir`` and is skipped if its results exist, so an
-    interrupted demo resumes. ``out_dir/index.md`` links every table and figure with a caption and the
-    headline numbers (the best model per score, and PRISM's scores beside the others').
+    interrupted demo resumes. ``out_dir/index.html`` (and ``index.md``) shows, per step, the headline
+    numbers, every table and figure with a caption.
 
     Parameters
     ----------
     out_dir : str or Path
     quick : bool
-        Tiny sizes (:data:`DEMO_SIZES`): checks that the pipeline runs end to end.
+        Tiny sizes (:attr:`DemoExperiment.quick`): checks that the pipeline runs end to end.
     seed : int
 
     Returns
     -------
     Path
-        The index page.
+        The HTML report.
     """
-    from prismap.cli._main import COMMANDS
-    from prismap.experiment._office2d import run_office2d
-    from prismap.experiment._scene3d import run_scene3d
-
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise PrismapInputError(f"--out {out}: exists and is not a directory")
-    sizes = DEMO_SIZES[bool(quick)]
-    sections, timings = [], {}
+    steps = [(f"characterise {m}", lambda m=m: _characterise_motorcycle(out / "characterise" / m, m)) for m in MATCHERS]
+    steps.append(("models compare", lambda: _compare_models(out / "models", out / "characterise" / "sgbm")))
+    steps += [(e.world, lambda e=e: _experiment(out, e, quick=quick, seed=seed)) for e in EXPERIMENTS]
 
-    start = time.perf_counter()
+    timings, sections = {}, []
     characterised = []
-    for matcher in MATCHERS:
-        folder = out / "characterise" / matcher
-        if not (folder / "table.md").is_file():
-            _command(["characterise", "--dataset", "middlebury-motorcycle", "--matcher", matcher, "--out", str(folder)])
-        characterised.append((matcher, folder))
-    timings["characterise Motorcycle"] = time.perf_counter() - start
-    items = []
-    for matcher, folder in characterised:
-        items += [(folder / "table.md", f"{matcher} on Motorcycle: mixtures G = 1..4, AIC/BIC, coverage, bad-1px, "
-                                        "bad-2px (thesis tables 3.1-3.3)."),
-                  (folder / "errors.png", f"{matcher} on Motorcycle: error histogram and fitted mixtures."),
-                  (folder / "errors_wide.png", f"{matcher} on Motorcycle: error tails (log scale).")]
-    sections.append(("1. Stereo error models (Middlebury Motorcycle, ground-truth disparity)", [], items))
-
-    start = time.perf_counter()
-    compare_dir = out / "models"
-    if "models" in COMMANDS:
-        if not compare_dir.is_dir() or not any(compare_dir.iterdir()):
-            _command(["models", "compare", "--error-model", str(out / "characterise" / "sgbm" / "error_model.json"),
-                      "--out", str(compare_dir)])
-        files = sorted(p for p in compare_dir.rglob("*") if p.suffix in (".md", ".png", ".svg", ".json"))
-        items = [(p, f"models compare: {p.stem.replace('_', ' ')}.") for p in files]
-        notes = ["The sensor models along one ray with the SGBM error model; PRISM is the exact yardstick."]
-    else:
-        items, notes = [], ["`prismap models compare` is not part of this build: no ray-level comparison."]
-    timings["models compare"] = time.perf_counter() - start
-    sections.append(("2. Sensor models along one ray (SGBM error model)", notes, items))
-
-    for title, world, runner in (("3. 2-D office, errors from a known mixture", "office2d", run_office2d),
-                                 ("4. 3-D indoor scene, characterised matchers", "scene3d", run_scene3d)):
+    for name, step in progress(steps, desc="demo", unit="step"):
         start = time.perf_counter()
-        result = runner(out / world, seed=seed, **sizes[world])
-        timings[world] = time.perf_counter() - start
-        sections.append((title, headline(result), list(result.artifacts)))
-
-    index = out / "index.md"
-    write_text_atomic(index, format_index(sections, timings, out, quick=quick))
+        section = step()
+        timings[name] = time.perf_counter() - start
+        if name.startswith("characterise"):
+            characterised.append(section)
+        else:
+            sections.append(section)
+    motorcycle = Section("Stereo error models (Middlebury Motorcycle, ground-truth disparity)",
+                         sum((s.headline for s in characterised), ()), sum((s.items for s in characterised), ()))
+    sections.insert(0, motorcycle)
+    sections = [Section(f"{i}. {s.title}", s.headline, s.items) for i, s in enumerate(sections, start=1)]
+    write_text_atomic(out / "index.md", format_index_markdown(sections, timings, out, quick=quick))
+    index = out / "index.html"
+    write_text_atomic(index, format_index_html(sections, timings, out, quick=quick))
     return index
 
 
-def _command(argv):
-    """Run a ``prismap`` sub-command in this process; its output is kept off the demo's stdout."""
-    from prismap.cli._main import main
+def _characterise_motorcycle(folder, matcher_name):
+    """The matcher's error model on the Motorcycle pair (reused when its files exist)."""
+    from prismap.characterise import characterise_matcher, load_error_model, write_characterisation
+    from prismap.experiment._scene3d import _matcher
+    from prismap.io import load_middlebury_motorcycle
 
-    buffer = io.StringIO()
-    with contextlib.redirect_stdout(buffer):
-        status = main(argv)
-    if status != 0:
-        raise PrismapInputError(f"demo step `prismap {' '.join(argv)}` failed with status {status}")
+    model_path = folder / "error_model.json"
+    if not all((folder / name).is_file() for name in ("error_model.json", "table.md", "errors.png", "errors_wide.png")):
+        frame = load_middlebury_motorcycle()
+        truth = frame.disparity_gt
+        matcher = _matcher(matcher_name, float(np.max(truth[np.isfinite(truth)])))
+        write_characterisation(characterise_matcher([frame], matcher, dataset="middlebury-motorcycle"), folder)
+    model = load_error_model(model_path)
+    mixture = model.mixture
+    largest = mixture.weights.argmax()
+    headline = ((f"{matcher_name}: selected G = {model.selected_components}; largest component w = "
+                 f"{mixture.weights[largest]:.3f}, sigma = {mixture.sigmas[largest]:.3f} px."),)
+    items = ((folder / "table.md", (f"{matcher_name} on Motorcycle: mixtures G = 1..4, AIC/BIC, coverage, bad-1px, "
+                                    "bad-2px (thesis tables 3.1-3.3).")),
+             (folder / "errors.png", f"{matcher_name} on Motorcycle: error histogram and fitted mixtures."),
+             (folder / "errors_wide.png", f"{matcher_name} on Motorcycle: error tails (log scale)."))
+    return Section("", headline, items)
+
+
+def _compare_models(folder, characterisation):
+    """``models compare`` on the SGBM error model with the Motorcycle rig (reused when its files exist)."""
+    from prismap.characterise import load_error_model
+    from prismap.study import COMPARE_FILES, run_models_compare
+
+    if not all((folder / name).is_file() for name in COMPARE_FILES.values()):
+        model_path = characterisation / "error_model.json"
+        run_models_compare(load_error_model(model_path), folder, camera="middlebury-motorcycle", source=str(model_path))
+    items = tuple((folder / name, f"models compare: {Path(name).stem.replace('_', ' ')}.")
+                  for name in COMPARE_FILES.values())
+    return Section("Sensor models along one ray (SGBM error model)",
+                   ("The sensor models along one ray with the SGBM error model; PRISM is the exact yardstick.",), items)
+
+
+def _experiment(out, experiment, *, quick, seed):
+    sizes = experiment.quick if quick else experiment.full
+    result = experiment.run(out / experiment.world, seed=seed, **sizes)
+    return Section(experiment.title, tuple(headline(result)), tuple(result.artifacts))
 
 
 def headline(result):
@@ -120,22 +166,3 @@ def headline(result):
             f"ECE {s.ece:.4f}, AUC {s.roc_auc:.3f}, occupied called free {s.occupied_called_free:.3f}."
         )
     return lines
-
-
-def format_index(sections, timings, out_dir, *, quick):
-    """The Markdown index: per section, headline lines and links (relative to ``out_dir``) with captions."""
-    lines = ["# prismap demo", ""]
-    if quick:
-        lines += ["Quick mode: tiny sizes that only show the pipeline runs; the numbers are not meaningful.", ""]
-    total = sum(timings.values())
-    lines += [f"Run time: {total:.0f} s (" + ", ".join(f"{k} {v:.0f} s" for k, v in timings.items()) + ").", ""]
-    for title, notes, items in sections:
-        lines += [f"## {title}", ""]
-        lines += [f"- {note}" for note in notes]
-        if notes:
-            lines.append("")
-        for path, caption in items:
-            link = Path(os.path.relpath(path, out_dir)).as_posix()
-            lines.append(f"- [{link}]({link}): {caption}")
-        lines.append("")
-    return "\n".join(lines)

@@ -1,0 +1,31 @@
+"""The 3-D map viewer in the browser (viser) and the voxel level-of-detail it draws from."""
+
+from prismap.viewer._app import POINT_BUDGET, MapViewer, load_trajectory
+from prismap.viewer._voxels import (
+    CLASSES,
+    COLORMAP,
+    VoxelLevel,
+    VoxelPyramid,
+    coarsen,
+    probability_colors,
+    select,
+    unobserved_cells,
+    voxel_classes,
+    voxel_pyramid,
+)
+
+__all__ = [
+    "CLASSES",
+    "COLORMAP",
+    "POINT_BUDGET",
+    "MapViewer",
+    "VoxelLevel",
+    "VoxelPyramid",
+    "coarsen",
+    "load_trajectory",
+    "probability_colors",
+    "select",
+    "unobserved_cells",
+    "voxel_classes",
+    "voxel_pyramid",
+]
