@@ -9,7 +9,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from prismap._validate import as_float_array
-from prismap.camera import StereoCamera
 from prismap.errors import PrismapInputError
 from prismap.io._frame import StereoFrame
 from prismap.sim._kernels import cast_view, shade_view
@@ -19,11 +18,6 @@ from prismap.sim._truth import ground_truth
 
 # brightness by face normal axis (x, y, z) and side (the face at the box's lo, at its hi): a fixed light
 _SHADE = np.array([[0.80, 0.90], [0.70, 0.85], [0.55, 1.00]])
-
-
-def tsukuba_camera():
-    """The New Tsukuba rig: 640x480, f = 615 px, principal point (320, 240), baseline 0.10 m."""
-    return StereoCamera(615.0, 320.0, 240.0, 0.10, width=640, height=480)
 
 
 @dataclass(frozen=True)
