@@ -12,11 +12,12 @@ def test_quick_demo_links_only_files_that_exist(tmp_path, capsys):
     assert main(["demo", "--quick", "--out", str(out)]) == 0
     index = (out / "index.md").read_text()
     links = re.findall(r"\]\(([^)]+)\)", index)
-    assert len(links) >= 3 * 3 + 2 * 5  # 3 characterisations x 3 files; per experiment table, JSON, 3 figures
+    assert len(links) >= 3 * 3 + 3 * 5  # 3 characterisations x 3 files; per experiment table, JSON, 3 figures
     for link in links:
         assert (out / link).is_file(), link
     for needed in ("characterise/sgbm/table.md", "office2d/results.md", "scene3d/results.md",
-                   "scene3d/sgbm/characterisation/table.md", "office2d/map_slices_known-mixture.png"):
+                   "scene3d/sgbm/characterisation/table.md", "office2d/map_slices_known-mixture.png",
+                   "street3d/results.md", "street3d/map_slices_sgbm.png"):
         assert needed in links
     assert "PRISM Brier" in index and "Run time:" in index
     assert "wrote" in capsys.readouterr().out

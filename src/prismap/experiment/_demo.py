@@ -11,9 +11,11 @@ from prismap.errors import PrismapInputError
 
 DEMO_SIZES = {
     False: {"office2d": {"quick": False, "n_frames": 120},
-            "scene3d": {"quick": False, "n_frames": 20}},
+            "scene3d": {"quick": False, "n_frames": 20},
+            "street3d": {"quick": False, "n_frames": 8}},
     True: {"office2d": {"quick": True, "n_frames": 12},
-           "scene3d": {"quick": True, "n_frames": 4, "voxel_size_m": 0.2, "matchers": ("sgbm",)}},
+           "scene3d": {"quick": True, "n_frames": 4, "voxel_size_m": 0.2, "matchers": ("sgbm",)},
+           "street3d": {"quick": True, "n_frames": 4, "matchers": ("sgbm",)}},
 }
 """Experiment sizes of the demo (full) and of ``--quick`` (a smoke run: tiny, numbers not meaningful)."""
 
@@ -41,7 +43,7 @@ def run_demo(out_dir, *, quick=False, seed=0):
     """
     from prismap.cli._main import COMMANDS
     from prismap.experiment._office2d import run_office2d
-    from prismap.experiment._scene3d import run_scene3d
+    from prismap.experiment._scene3d import run_scene3d, run_street3d
 
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
@@ -80,7 +82,8 @@ def run_demo(out_dir, *, quick=False, seed=0):
     sections.append(("2. Sensor models along one ray (SGBM error model)", notes, items))
 
     for title, world, runner in (("3. 2-D office, errors from a known mixture", "office2d", run_office2d),
-                                 ("4. 3-D indoor scene, characterised matchers", "scene3d", run_scene3d)):
+                                 ("4. 3-D indoor scene, characterised matchers", "scene3d", run_scene3d),
+                                 ("5. 3-D street, KITTI-like rig, characterised matchers", "street3d", run_street3d)):
         start = time.perf_counter()
         result = runner(out / world, seed=seed, **sizes[world])
         timings[world] = time.perf_counter() - start
