@@ -3,7 +3,8 @@
 World frame: metres, z up, x along the street (the direction of travel), y to the left, the road surface at
 z = 0 and the street's centre line at y = 0. Cameras use OpenCV axes and ``T_world_cam`` poses (see
 :mod:`prismap.sim._poses`); the scene is a :class:`~prismap.sim.Scene3D`, so it renders and voxelises like
-the indoor room.
+the indoor room. The road, pavements and façades lie at round coordinates; to keep those planes off voxel
+faces, shift scene and poses by half a voxel as the experiments do (``run_street3d(grid_offset=0.5)``).
 """
 
 import numpy as np
@@ -54,6 +55,17 @@ def street_scene(*, seed=0):
     Returns
     -------
     Scene3D
+
+    Examples
+    --------
+    A full-size KITTI-like sequence with exact disparity, poses and voxelised truth:
+
+    >>> from prismap import sim
+    >>> scene = sim.street_scene(seed=0)
+    >>> camera = sim.kitti_camera()  # 1242x375; kitti_camera(scale=0.5) for 621x188
+    >>> poses = sim.street_trajectory(10, seed=0)  # T_world_cam, 1 m apart
+    >>> frames = list(scene.frames(camera, poses, seed=0))  # StereoFrame: left, right, disparity_gt, T_world_cam
+    >>> truth = scene.ground_truth(frames, 0.1, max_range_m=80.0)  # GroundTruthOccupancy
     """
     rng = np.random.default_rng(seed)
     tex = {name: i for i, name in enumerate(PHOTOGRAPHS)}
