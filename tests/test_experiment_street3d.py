@@ -7,13 +7,13 @@ import pytest
 from prismap.errors import PrismapInputError
 from prismap.experiment import WORLDS, run_street3d
 
-MODELS_TESTED = ("hitmiss", "andert", "prism")
+MODELS_TESTED = ("hitmiss", "prism")
 
 
 @pytest.fixture(scope="module")
 def street(tmp_path_factory):
     out = tmp_path_factory.mktemp("street3d")
-    return out, run_street3d(out, quick=True, n_frames=6, matchers=("sgbm",), models=MODELS_TESTED)
+    return out, run_street3d(out, quick=True, n_frames=5, matchers=("sgbm",), models=MODELS_TESTED)
 
 
 def test_the_street_run_characterises_on_frames_it_does_not_map(street):
@@ -22,8 +22,8 @@ def test_the_street_run_characterises_on_frames_it_does_not_map(street):
     assert result.settings["image_scale"] == 0.25 and result.settings["mode"] == "projective"
     table = (out / "sgbm" / "characterisation" / "table.md").read_text()
     assert "street-0 frames [0, 4]" in table
-    assert len(list((out / "sgbm" / "disparity").glob("*.png"))) == 4
-    assert [c.model for c in result.cells] == list(MODELS_TESTED) and all(c.n_frames == 4 for c in result.cells)
+    assert len(list((out / "sgbm" / "disparity").glob("*.png"))) == 3
+    assert [c.model for c in result.cells] == list(MODELS_TESTED) and all(c.n_frames == 3 for c in result.cells)
     for path, _ in result.artifacts:
         assert path.is_file(), path
 

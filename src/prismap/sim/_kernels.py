@@ -38,7 +38,8 @@ def _first_hit(origin, direction, box_lo, box_hi):
             if t0 > t_near:
                 t_near = t0
                 axis_near = a
-            t_far = min(t_far, t1)
+            if t1 < t_far:
+                t_far = t1
             if t_near > t_far or t_far <= 0.0 or t_near >= best_t:
                 missed = True  # no entry, behind the origin, or farther than the best hit so far
                 break
