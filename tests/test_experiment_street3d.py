@@ -20,6 +20,7 @@ def test_the_street_run_characterises_on_frames_it_does_not_map(street):
     out, result = street
     assert result.world == "street3d" and result.settings["world"] == "street3d"
     assert result.settings["image_scale"] == 0.25 and result.settings["mode"] == "projective"
+    assert result.settings["model_params"] == {"prism": {"near_m": 1.5}}  # PRISM only: no surface nearer
     table = (out / "sgbm" / "characterisation" / "table.md").read_text()
     assert "street-0 frames [0, 4]" in table
     assert len(list((out / "sgbm" / "disparity").glob("*.png"))) == 3

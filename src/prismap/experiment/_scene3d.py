@@ -30,8 +30,8 @@ class RenderedWorld:
     sizes : dict of bool -> dict
         Full (False) and ``quick`` (True) sizes: ``n_frames`` rendered, ``image_scale`` of the camera,
         ``voxel_size_m``, ``subsample`` (pixel step when mapping), ``max_range_m``, the integration
-        ``mode`` of :class:`prismap.pipeline.MappingConfig`, and ``prism_near_m`` (PRISM's ``near_m``, the
-        nearest depth a surface may have; None = the model's default).
+        ``mode`` of :class:`prismap.pipeline.MappingConfig`, and ``model_params`` (model name -> its
+        extra parameters; models not named get their defaults).
     scene : callable
         ``scene(seed) -> Scene3D``.
     trajectory : callable
@@ -60,9 +60,9 @@ def _scene3d_world():
     return RenderedWorld(
         "scene3d", "3-D indoor scene, characterised matchers",
         {False: {"n_frames": 40, "image_scale": 1.0, "voxel_size_m": 0.1, "subsample": 2, "max_range_m": 10.0,
-                 "mode": "ray", "prism_near_m": None},
+                 "mode": "ray", "model_params": {}},
          True: {"n_frames": 16, "image_scale": 0.25, "voxel_size_m": 0.1, "subsample": 1, "max_range_m": 10.0,
-                "mode": "ray", "prism_near_m": None}},
+                "mode": "ray", "model_params": {}}},
         lambda seed: sim.indoor_scene(seed=seed), lambda n, seed: sim.indoor_trajectory(n, seed=seed),
         lambda scale: sim.tsukuba_camera(scale=scale), 1.0, "Indoor scene, New Tsukuba camera")
 
@@ -78,9 +78,9 @@ def _street3d_world():
     return RenderedWorld(
         "street3d", "3-D street, KITTI-like rig, characterised matchers",
         {False: {"n_frames": 16, "image_scale": 0.5, "voxel_size_m": 0.2, "subsample": 2, "max_range_m": 40.0,
-                 "mode": "projective", "prism_near_m": STREET_NEAR_M},
+                 "mode": "projective", "model_params": {"prism": {"near_m": STREET_NEAR_M}}},
          True: {"n_frames": 8, "image_scale": 0.25, "voxel_size_m": 0.4, "subsample": 1, "max_range_m": 30.0,
-                "mode": "projective", "prism_near_m": STREET_NEAR_M}},
+                "mode": "projective", "model_params": {"prism": {"near_m": STREET_NEAR_M}}}},
         lambda seed: sim.street_scene(seed=seed), lambda n, seed: sim.street_trajectory(n, seed=seed),
         lambda scale: sim.kitti_camera(scale=scale), 1.0, "Street scene, KITTI-like camera")
 
@@ -297,11 +297,10 @@ def _mapper(sequence, disparity_dir, matcher_name, mixture, p0, settings):
     from prismap.pipeline import MappingConfig, map_sequence
 
     def build_map(model_name):
-        params = {"near_m": settings["prism_near_m"]} if model_name == "prism" and settings["prism_near_m"] else {}
-        config = MappingConfig(model=model_name, model_params=params, voxel_size_m=settings["voxel_size_m"], p0=p0,
-                               error_model=mixture, matcher=matcher_name, disparity_source=str(Path(disparity_dir).resolve()),
-                               max_range_m=settings["max_range_m"], subsample=settings["subsample"],
-                               mode=settings["mode"])
+        config = MappingConfig(model=model_name, model_params=settings["model_params"].get(model_name, {}),
+                               voxel_size_m=settings["voxel_size_m"], p0=p0, error_model=mixture, matcher=matcher_name,
+                               disparity_source=str(Path(disparity_dir).resolve()),
+                               max_range_m=settings["max_range_m"], subsample=settings["subsample"], mode=settings["mode"])
         return map_sequence(sequence, config)
 
     return build_map
