@@ -12,7 +12,7 @@ from prismap.errors import PrismapInputError
 DEMO_SIZES = {
     False: {"office2d": {"quick": False, "n_frames": 120},
             "scene3d": {"quick": False, "n_frames": 20},
-            "street3d": {"quick": False, "n_frames": 8}},
+            "street3d": {"quick": False, "n_frames": 12}},
     True: {"office2d": {"quick": True, "n_frames": 12},
            "scene3d": {"quick": True, "n_frames": 4, "voxel_size_m": 0.2, "matchers": ("sgbm",)},
            "street3d": {"quick": True, "n_frames": 4, "matchers": ("sgbm",)}},
