@@ -26,11 +26,12 @@ def test_quick_demo_links_only_files_that_exist(quick_demo):
     out, printed = quick_demo
     index = (out / "index.md").read_text()
     links = re.findall(r"\]\(([^)]+)\)", index)
-    assert len(links) >= 3 * 3 + 6 + 2 * 5  # 3 characterisations x 3 files, models compare, per experiment 5
+    assert len(links) >= 3 * 3 + 6 + 3 * 5  # 3 characterisations x 3 files, models compare, per experiment 5
     for link in links:
         assert (out / link).is_file(), link
     for needed in ("characterise/sgbm/table.md", "models/profiles.png", "office2d/results.md", "scene3d/results.md",
-                   "scene3d/sgbm/characterisation/table.md", "office2d/map_slices_known-mixture.png"):
+                   "scene3d/sgbm/characterisation/table.md", "office2d/map_slices_known-mixture.png",
+                   "street3d/results.md", "street3d/map_slices_sgbm.png"):
         assert needed in links
     assert "PRISM Brier" in index and "Run time:" in index and "selected G =" in index
     assert f"wrote {out / 'index.html'}" in printed
@@ -49,10 +50,10 @@ def test_html_report_has_a_section_per_step_and_loads_in_chromium(quick_demo, tm
     out, _ = quick_demo
     page = (out / "index.html").read_text()
     sources = re.findall(r'<img src="([^"]+)"', page)
-    assert len(sources) >= 3 * 2 + 4 + 2 * 3 and all((out / s).is_file() for s in sources)
+    assert len(sources) >= 3 * 2 + 4 + 3 * 3 and all((out / s).is_file() for s in sources)
     titles = re.findall(r"<h2>([^<]+)</h2>", page)
-    assert [t.split(". ", 1)[1].split()[0] for t in titles] == ["Stereo", "Sensor", "2-D", "3-D"]
-    assert page.count("<table>") >= 3 + 1 + 2 and "PRISM Brier" in page
+    assert [t.split(". ", 1)[1].split()[0] for t in titles] == ["Stereo", "Sensor", "2-D", "3-D", "Street,"]
+    assert page.count("<table>") >= 3 + 1 + 3 and "PRISM Brier" in page
     if find_chromium() is None:
         reason = "no chromium on PATH (.ci/run installs Debian's chromium; install it to run the browser tests)"
         print(reason)

@@ -7,7 +7,14 @@ import pytest
 from sklearn.metrics import brier_score_loss, log_loss, roc_auc_score
 
 from prismap.errors import PrismapInputError
-from prismap.evaluate import LOG_LOSS_EPS, MapScores, align_to_ground_truth, roc_auc, score_map
+from prismap.evaluate import (
+    LOG_LOSS_EPS,
+    MapScores,
+    align_to_ground_truth,
+    roc_auc,
+    safety_score,
+    score_map,
+)
 
 
 def test_scores_by_hand():
@@ -168,3 +175,60 @@ def test_align_errors(kwargs, match):
     p0 = args.pop("p0")
     with pytest.raises(PrismapInputError, match=match):
         align_to_ground_truth(*args.values(), p0=p0)
+
+
+def _safety_brute_force(p, y, share=0.9):
+    """Sweep every threshold t of the grid {P values} (called free: P <= t); the first one calling at least
+    ``share`` of the free voxels free, and the occupied share it calls free."""
+    for t in np.unique(p):
+        if np.count_nonzero(p[~y] <= t) >= share * np.count_nonzero(~y) - 1e-9:
+            return np.mean(p[y] <= t) if y.any() else np.nan, t
+    return np.nan, np.nan
+
+
+def test_safety_score_by_hand():
+    # 10 free voxels at P = 0.05 ... 0.50; 9 of them must be called free -> t = 0.45 (the 9th smallest)
+    free = np.arange(1, 11) / 20.0
+    occupied = np.array([0.3, 0.45, 0.46, 0.9])  # 0.3 and the tie 0.45 are called free, 0.46 is not
+    p = np.concatenate([free, occupied])
+    y = np.r_[np.zeros(10, bool), np.ones(4, bool)]
+    score, threshold = safety_score(p, y)
+    assert threshold == pytest.approx(0.45) and score == 0.5
+    s = score_map(p, y)
+    assert s.safety_threshold == threshold and s.safety_occupied_called_free == 0.5
+    assert s.occupied_called_free == 0.75  # the old score: P < 0.5, kept beside it
+
+
+def test_safety_score_ignores_the_prior_but_the_old_score_does_not():
+    rng = np.random.default_rng(3)
+    y = rng.random(400) < 0.2
+    p = np.clip(0.2 + 0.5 * y + rng.normal(0, 0.15, 400), 0.001, 0.999)
+    low = p**3  # strictly increasing: the same ranking with a lower "prior"
+    assert safety_score(low, y)[0] == safety_score(p, y)[0]
+    assert score_map(low, y).occupied_called_free > score_map(p, y).occupied_called_free
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_safety_score_matches_a_brute_force_threshold_sweep(seed):
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(1, 200))
+    y = rng.random(n) < rng.uniform(0.05, 0.6)
+    p = np.round(np.clip(0.3 + 0.3 * y + rng.normal(0, 0.25, n), 0, 1), int(rng.integers(1, 4)))  # ties
+    score, threshold = safety_score(p, y)
+    expected_score, expected_threshold = _safety_brute_force(p, y)
+    np.testing.assert_equal([score, threshold], [expected_score, expected_threshold])
+    if (~y).any():
+        assert np.mean(p[~y] <= threshold) >= 0.9 and np.mean(p[~y] < threshold) < 0.9
+
+
+def test_safety_score_empty_classes_and_exact_counts():
+    assert np.isnan(safety_score([0.2, 0.9], [True, True])).all()  # no free voxel: no threshold
+    score, threshold = safety_score([0.1, 0.2], [False, False])  # no occupied voxel: threshold only
+    assert np.isnan(score) and threshold == 0.2
+    # 70 free voxels: 0.9 * 70 = 63 exactly (not 64 from float rounding): t is the 63rd smallest
+    p = np.arange(70) / 100.0
+    assert safety_score(p, np.zeros(70, bool))[1] == 0.62
+    with pytest.raises(PrismapInputError, match=r"`free_share` must lie in \(0, 1\]"):
+        safety_score([0.1], [False], free_share=0.0)
+    with pytest.raises(PrismapInputError, match="must have the shape"):
+        safety_score([0.1, 0.2], [False])

@@ -131,8 +131,22 @@ def test_results_round_trip_and_table_marks_the_best(tmp_path):
     assert table == format_results_table(cells, title="T", notes=("a note",))
     prism_row = next(line for line in table.splitlines() if "| prism |" in line)
     ideal_row = next(line for line in table.splitlines() if "| ideal |" in line)
-    assert prism_row.count("**") == 2 * 6 and "**" not in ideal_row  # the sharper map is best on all six scores
+    assert prism_row.count("**") == 2 * 7 and "**" not in ideal_row  # the sharper map is best on all seven scores
     assert json.loads(paths["json"].read_text())["settings"] == {"seed": 3}
+
+
+def test_a_cell_of_an_older_results_version_is_recomputed(tmp_path):
+    from prismap.experiment._results import read_cell, write_cell
+
+    cell = CellResult("sgbm", "prism", score_map([0.2, 0.8], [False, True]), 1.0, 3, {"seed": 0})
+    path = tmp_path / "cell.json"
+    write_cell(cell, path)
+    assert read_cell(path, {"seed": 0}).to_dict() == cell.to_dict()
+    old = json.loads(path.read_text())
+    old["version"] = 1
+    del old["scores"]["safety_threshold"]
+    path.write_text(json.dumps(old))
+    assert read_cell(path, {"seed": 0}) is None
 
 
 def test_unreadable_results_name_the_file(tmp_path):
@@ -141,7 +155,7 @@ def test_unreadable_results_name_the_file(tmp_path):
     with pytest.raises(PrismapInputError, match="results.json: unreadable results file"):
         read_results(path)
     path.write_text(json.dumps({"format": "prismap-experiment-results", "cells": [{"format": "x", "version": 1}]}))
-    with pytest.raises(PrismapInputError, match="cell 0: not a version-1 experiment cell"):
+    with pytest.raises(PrismapInputError, match="cell 0: not a version-2 experiment cell"):
         read_results(path)
 
 

@@ -11,3 +11,7 @@ TSUKUBA_CAMERA = StereoCamera(focal_px=615.0, cx_px=320.0, cy_px=240.0, baseline
 
 KITTI_CAMERA = StereoCamera(focal_px=721.5377, cx_px=609.5593, cy_px=172.854, baseline_m=0.5327, width=1242, height=375)
 """KITTI 2011_09_26 colour cameras 2 and 3 (``P_rect_02``/``P_rect_03``, as in KITTI stereo 2015), 1242x375."""
+
+KITTI_LIKE_CAMERA = StereoCamera(focal_px=720.0, cx_px=620.5, cy_px=187.0, baseline_m=0.54, width=1242, height=375)
+"""The simulated street's idealised KITTI-like rig: 1242x375, f = 720 px, principal point at the image centre,
+baseline 0.54 m (``prismap.sim.kitti_camera`` scales it)."""

@@ -3,6 +3,8 @@
 import json
 from pathlib import Path
 
+import numpy as np
+
 from prismap.cli._args import add_out
 from prismap.errors import PrismapInputError
 
@@ -74,9 +76,9 @@ def format_scores(scores, *, title):
     from prismap.evaluate import SCORE_COLUMNS
 
     lines = [f"{title}", "", "| score | value |", "|---|---|"]
-    for label, name, fmt in (*_COUNT_ROWS, *SCORE_COLUMNS):
+    for label, name, fmt, *_ in (*_COUNT_ROWS, *SCORE_COLUMNS):
         value = getattr(scores, name)
-        text = "n/a" if isinstance(value, float) and value != value else fmt.format(value)
+        text = "n/a" if isinstance(value, float) and np.isnan(value) else fmt.format(value)
         lines.append(f"| {label} | {text} |")
     return "\n".join(lines)
 

@@ -1,6 +1,8 @@
 """Proper scores of a probabilistic map against true occupancy (SENSOR_MODELS.md section 6)."""
 
+import math
 from dataclasses import dataclass
+from fractions import Fraction
 
 import numpy as np
 from scipy.stats import rankdata
@@ -11,16 +13,22 @@ from prismap.errors import PrismapInputError
 LOG_LOSS_EPS = 1e-6
 """Probabilities are clipped to ``[LOG_LOSS_EPS, 1 - LOG_LOSS_EPS]`` before the log-loss."""
 
+SAFETY_FREE_SHARE = 0.9
+"""Share of the truly free voxels the safety score's threshold calls free (see :func:`safety_score`)."""
+
 
 SCORE_COLUMNS = (
-    ("Brier score", "brier", "{:.4f}"),
-    ("log-loss (nats)", "log_loss", "{:.4f}"),
-    ("ECE", "ece", "{:.4f}"),
-    ("ROC AUC", "roc_auc", "{:.4f}"),
-    ("occupied called free", "occupied_called_free", "{:.4f}"),
-    ("free called occupied", "free_called_occupied", "{:.4f}"),
+    ("Brier score", "brier", "{:.4f}", "lower"),
+    ("log-loss (nats)", "log_loss", "{:.4f}", "lower"),
+    ("ECE", "ece", "{:.4f}", "lower"),
+    ("ROC AUC", "roc_auc", "{:.4f}", "higher"),
+    ("occupied called free", "occupied_called_free", "{:.4f}", "lower"),
+    ("free called occupied", "free_called_occupied", "{:.4f}", "lower"),
+    ("occupied called free at 90 % free", "safety_occupied_called_free", "{:.4f}", "lower"),
+    ("threshold at 90 % free", "safety_threshold", "{:.4f}", None),
 )
-"""(label, :class:`MapScores` attribute, format) of the scores every table shows, in order."""
+"""(label, :class:`MapScores` attribute, format, which is better: "lower", "higher" or None for a value
+that is not a score) of every column the tables show, in order."""
 
 
 @dataclass(frozen=True)
@@ -46,6 +54,12 @@ class MapScores:
         Fraction of truly occupied voxels with ``P < 0.5`` (the unsafe error); NaN without any.
     free_called_occupied : float
         Fraction of truly free voxels with ``P > 0.5``; NaN without any.
+    safety_occupied_called_free : float
+        Threshold-free safety score: fraction of truly occupied voxels called free (``P <= t``) at the
+        threshold ``t`` that calls 90 % of the truly free voxels free (:func:`safety_score`); NaN without
+        occupied or without free voxels.
+    safety_threshold : float
+        That threshold ``t``, a probability; NaN without free voxels.
     bin_edges : (B + 1,) float64
         Edges of the equal-width reliability bins on ``[0, 1]``.
     bin_counts : (B,) int64
@@ -67,6 +81,8 @@ class MapScores:
     roc_auc: float
     occupied_called_free: float
     free_called_occupied: float
+    safety_occupied_called_free: float
+    safety_threshold: float
     bin_edges: np.ndarray
     bin_counts: np.ndarray
     bin_mean_probability: np.ndarray
@@ -143,6 +159,7 @@ def score_map(probability, occupied, *, n_bins=10, n_hist_bins=20):
     ece = float(np.sum(bin_counts[filled] * np.abs(bin_mean[filled] - bin_fraction[filled])) / p.size)
 
     hist_edges = np.linspace(0.0, 1.0, n_hist_bins + 1)
+    safety, threshold = safety_score(p, y)
     return MapScores(
         n_voxels=int(p.size),
         n_occupied=n_occupied,
@@ -153,6 +170,8 @@ def score_map(probability, occupied, *, n_bins=10, n_hist_bins=20):
         roc_auc=roc_auc(p, y),
         occupied_called_free=float(np.mean(p[y] < 0.5)) if n_occupied else float("nan"),
         free_called_occupied=float(np.mean(p[~y] > 0.5)) if n_free else float("nan"),
+        safety_occupied_called_free=safety,
+        safety_threshold=threshold,
         bin_edges=bin_edges,
         bin_counts=bin_counts.astype(np.int64),
         bin_mean_probability=bin_mean,
@@ -161,6 +180,48 @@ def score_map(probability, occupied, *, n_bins=10, n_hist_bins=20):
         hist_free=np.histogram(p[~y], bins=hist_edges)[0].astype(np.int64),
         hist_occupied=np.histogram(p[y], bins=hist_edges)[0].astype(np.int64),
     )
+
+
+def safety_score(probability, occupied, *, free_share=SAFETY_FREE_SHARE):
+    """Share of truly occupied voxels called free at the threshold that calls ``free_share`` of the free ones free.
+
+    A voxel is called free when ``P <= t``. The threshold ``t`` is the smallest such that at least
+    ``free_share`` of the truly free voxels are called free: the ``k``-th smallest ``P`` of the free voxels,
+    ``k = ceil(free_share n_free)``. Every voxel with ``P == t`` is called free, so occupied voxels tied
+    with the free voxels the threshold must pass count against the map (a map that cannot separate them
+    is not safe). Unlike the fraction called free at ``P < 0.5``, the score does not depend on the map's
+    prior or on its calibration: any strictly increasing transform of ``P`` leaves it unchanged.
+
+    Parameters
+    ----------
+    probability : (N,) float, in [0, 1]
+        Predicted ``P(occupied)`` of each evaluated voxel.
+    occupied : (N,) bool
+        True occupancy of the same voxels.
+    free_share : float in (0, 1], keyword-only
+
+    Returns
+    -------
+    score : float
+        Fraction of the truly occupied voxels with ``P <= t``; NaN without occupied or without free voxels.
+    threshold : float
+        ``t``; NaN without free voxels (no threshold is defined).
+    """
+    p = as_float_array(probability, "probability", ndim=1, allow_nan=False)
+    y = _as_binary(occupied, "occupied")
+    if y.shape != p.shape:
+        raise PrismapInputError(f"`occupied` must have the shape of `probability` {p.shape}; got {y.shape}")
+    share = float(free_share)
+    if not 0.0 < share <= 1.0:
+        raise PrismapInputError(f"`free_share` must lie in (0, 1]; got {free_share!r}")
+    free = p[~y]
+    if free.size == 0:
+        return float("nan"), float("nan")
+    k = max(1, math.ceil(Fraction(repr(share)) * free.size))  # exact: 0.9 * 70 is 63.00000000000001 in floats
+    threshold = float(np.partition(free, k - 1)[k - 1])
+    n_occupied = int(y.sum())
+    score = float(np.count_nonzero(p[y] <= threshold) / n_occupied) if n_occupied else float("nan")
+    return score, threshold
 
 
 def roc_auc(score, positive):

@@ -11,19 +11,29 @@ from prismap.experiment._results import (
     score_grid,
     write_results,
 )
-from prismap.experiment._scene3d import MATCHERS, run_scene3d, split_frames
+from prismap.experiment._scene3d import (
+    MATCHERS,
+    WORLDS,
+    run_rendered_world,
+    run_scene3d,
+    run_street3d,
+    split_frames,
+)
 
 __all__ = [
     "MATCHERS",
     "MODELS",
     "SGBM_LIKE_MIXTURE",
+    "WORLDS",
     "CellResult",
     "ExperimentResult",
     "format_results_table",
     "prior_of",
     "read_results",
     "run_office2d",
+    "run_rendered_world",
     "run_scene3d",
+    "run_street3d",
     "score_grid",
     "split_frames",
     "write_results",

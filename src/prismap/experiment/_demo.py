@@ -11,7 +11,7 @@ from prismap._progress import progress
 from prismap.errors import PrismapInputError
 from prismap.experiment._office2d import run_office2d
 from prismap.experiment._report import format_index_html, format_index_markdown
-from prismap.experiment._scene3d import run_scene3d
+from prismap.experiment._scene3d import run_scene3d, run_street3d
 
 
 @dataclass(frozen=True)
@@ -42,6 +42,8 @@ EXPERIMENTS = (
     DemoExperiment("scene3d", "3-D indoor scene, characterised matchers", run_scene3d,
                    full={"quick": False, "n_frames": 20},
                    quick={"quick": True, "n_frames": 4, "voxel_size_m": 0.2, "matchers": ("sgbm",)}),
+    DemoExperiment("street3d", "Street, KITTI-like rig, characterised matchers", run_street3d,
+                   full={"quick": False, "n_frames": 12}, quick={"quick": True, "n_frames": 4, "matchers": ("sgbm",)}),
 )
 """The demo's experiments in report order: add one here to add it to the demo."""
 

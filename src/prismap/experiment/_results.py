@@ -15,8 +15,8 @@ MODELS = ("ideal", "hitmiss", "convolution", "andert", "prism")
 """Every inverse sensor model of SENSOR_MODELS.md, in the order of the tables."""
 
 RESULTS_FORMAT = "prismap-experiment-results"
-RESULTS_VERSION = 1
-
+RESULTS_VERSION = 2
+"""Version 2 added the safety score (``safety_occupied_called_free``, ``safety_threshold``) to the scores."""
 
 
 @dataclass(frozen=True)
@@ -119,6 +119,8 @@ def read_cell(path, settings):
         data = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise PrismapInputError(f"{path}: unreadable experiment cell ({exc}); delete it to recompute") from None
+    if isinstance(data, dict) and data.get("version") != RESULTS_VERSION:
+        return None  # a cell of an older format lacks scores of this one: recompute it
     result = CellResult.from_dict(data, source=str(path))
     return result if result.settings == _plain(settings) else None
 
@@ -136,9 +138,9 @@ def format_results_table(results, *, title, notes=()):
     best = best_models(results)
     for result in results:
         cells = [result.matcher, result.model]
-        for _, name, fmt in SCORE_COLUMNS:
+        for _, name, fmt, _ in SCORE_COLUMNS:
             value = getattr(result.scores, name)
-            text = "n/a" if value != value else fmt.format(value)
+            text = "n/a" if np.isnan(value) else fmt.format(value)
             if best.get((result.matcher, name)) == result.model:
                 text = f"**{text}**"
             cells.append(text)
@@ -146,19 +148,24 @@ def format_results_table(results, *, title, notes=()):
         lines.append("| " + " | ".join(cells) + " |")
     first = results[0].scores if results else None
     if first is not None:
-        lines += ["", f"Scored voxels: {first.n_voxels} ({first.n_occupied} occupied, {first.n_free} free). "
-                  "Bold: the best model of each matcher on that score (lowest, highest for ROC AUC)."]
+        counts = f"Scored voxels: {first.n_voxels} ({first.n_occupied} occupied, {first.n_free} free)."
+        legend = ("Bold: the best model of each matcher on that score (lowest, highest for ROC AUC). \"At 90 % free\": "
+                  "occupied voxels called free (P <= t) at the threshold t that calls 90 % of the free ones free, "
+                  "whatever the prior.")
+        lines += ["", f"{counts} {legend}"]
     return "\n".join(lines) + "\n"
 
 
 def best_models(results):
-    """``{(matcher, score name): model}``: each matcher's best model per score (highest AUC, else lowest)."""
+    """``{(matcher, score name): model}``: each matcher's best model per score (its column's better direction)."""
     best = {}
-    for _, name, _ in SCORE_COLUMNS:
-        sign = -1.0 if name == "roc_auc" else 1.0
+    for _, name, _, better in SCORE_COLUMNS:
+        if better is None:
+            continue
+        sign = -1.0 if better == "higher" else 1.0
         for result in results:
             value = getattr(result.scores, name)
-            if value != value:
+            if np.isnan(value):
                 continue
             key = (result.matcher, name)
             current = best.get(key)

@@ -1,53 +1,108 @@
-"""The 3-D experiment: rendered stereo pairs of the indoor scene, each matcher characterised on frames it
-then does not map, every sensor model scored against the exact ground truth."""
+"""The 3-D experiments: rendered stereo pairs of a box world (the indoor room, the street), each matcher
+characterised on frames it then does not map, every sensor model scored against the exact ground truth."""
 
 import math
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from prismap._progress import progress
 from prismap._validate import check_positive
-from prismap.camera import StereoCamera
 from prismap.errors import PrismapInputError
 from prismap.experiment._cells import ExperimentResult, claim_out_dir, draw_figures, run_cells
 from prismap.experiment._results import MODELS, prior_of, write_results
 
 MATCHERS = ("bm", "sgbm", "variational")
-
-SCENE_SIZES = {
-    False: {"n_frames": 40, "image_scale": 1.0, "voxel_size_m": 0.1, "subsample": 2},
-    True: {"n_frames": 16, "image_scale": 0.25, "voxel_size_m": 0.1, "subsample": 1},
-}
-"""Full and ``quick`` sizes: frames rendered (every ``characterise_every``-th characterises), image scale of
-the New Tsukuba camera (640x480 at 1), voxel size, pixel subsampling when mapping."""
-
-SLICE_HEIGHT_M = 1.0
-"""Height of the horizontal map slice drawn in the figures (table, boxes, shelves and walls cross it)."""
+"""Every matcher the 3-D experiments characterise and map with, in the order of the tables."""
 
 
-def scaled_tsukuba_camera(scale):
-    """The New Tsukuba rig (:func:`prismap.sim.tsukuba_camera`) with its image resized by ``scale``."""
-    from prismap.sim import tsukuba_camera
+@dataclass(frozen=True)
+class RenderedWorld:
+    """What a 3-D experiment needs to know of its world; the run itself is :func:`run_rendered_world`.
 
-    base = tsukuba_camera()
-    if scale == 1.0:
-        return base
-    width, height = round(base.width * scale), round(base.height * scale)
-    return StereoCamera(base.focal_px * scale, (base.cx_px + 0.5) * scale - 0.5, (base.cy_px + 0.5) * scale - 0.5,
-                        base.baseline_m, width=width, height=height)
+    Attributes
+    ----------
+    name : str
+        ``settings["world"]`` and the experiment's name (``"scene3d"``, ``"street3d"``).
+    title : str
+        Heading of the results table.
+    sizes : dict of bool -> dict
+        Full (False) and ``quick`` (True) sizes: ``n_frames`` rendered, ``image_scale`` of the camera,
+        ``voxel_size_m``, ``subsample`` (pixel step when mapping), ``max_range_m``, the integration
+        ``mode`` of :class:`prismap.pipeline.MappingConfig`, and ``model_params`` (model name -> its
+        extra parameters; models not named get their defaults).
+    scene : callable
+        ``scene(seed) -> Scene3D``.
+    trajectory : callable
+        ``trajectory(n_frames, seed) -> (N, 4, 4) T_world_cam``.
+    camera : callable
+        ``camera(scale) -> StereoCamera``.
+    slice_height_m : float, metres
+        Height of the horizontal map slice drawn in the figures.
+    description : str
+        First words of the table's notes (the scene and camera).
+    """
+
+    name: str
+    title: str
+    sizes: dict
+    scene: object
+    trajectory: object
+    camera: object
+    slice_height_m: float
+    description: str
 
 
-def scene3d_settings(*, n_frames=None, voxel_size_m=None, seed=0, quick=False, matchers=MATCHERS,
-                     characterise_every=4, max_range_m=10.0, grid_offset=0.5):
-    """The settings dict of a 3-D run (sizes of ``SCENE_SIZES`` unless overridden)."""
-    sizes = dict(SCENE_SIZES[bool(quick)])
+def _scene3d_world():
+    from prismap import sim
+
+    return RenderedWorld(
+        "scene3d", "3-D indoor scene, characterised matchers",
+        {False: {"n_frames": 40, "image_scale": 1.0, "voxel_size_m": 0.1, "subsample": 2, "max_range_m": 10.0,
+                 "mode": "ray", "model_params": {}},
+         True: {"n_frames": 16, "image_scale": 0.25, "voxel_size_m": 0.1, "subsample": 1, "max_range_m": 10.0,
+                "mode": "ray", "model_params": {}}},
+        lambda seed: sim.indoor_scene(seed=seed), lambda n, seed: sim.indoor_trajectory(n, seed=seed),
+        lambda scale: sim.tsukuba_camera(scale=scale), 1.0, "Indoor scene, New Tsukuba camera")
+
+
+STREET_NEAR_M = 1.5
+"""PRISM's ``near_m`` on the street: no surface is nearer than 1.8 m to the drive. PRISM's tables grow like
+``1 / near_m``; at its default 0.1 m they outgrow the cache on this sequence and PRISM maps several times slower."""
+
+
+def _street3d_world():
+    from prismap import sim
+
+    return RenderedWorld(
+        "street3d", "3-D street, KITTI-like rig, characterised matchers",
+        {False: {"n_frames": 16, "image_scale": 0.5, "voxel_size_m": 0.2, "subsample": 2, "max_range_m": 40.0,
+                 "mode": "projective", "model_params": {"prism": {"near_m": STREET_NEAR_M}}},
+         True: {"n_frames": 8, "image_scale": 0.25, "voxel_size_m": 0.4, "subsample": 1, "max_range_m": 30.0,
+                "mode": "projective", "model_params": {"prism": {"near_m": STREET_NEAR_M}}}},
+        lambda seed: sim.street_scene(seed=seed), lambda n, seed: sim.street_trajectory(n, seed=seed),
+        lambda scale: sim.kitti_camera(scale=scale), 1.0, "Street scene, KITTI-like camera")
+
+
+WORLDS = {"scene3d": _scene3d_world, "street3d": _street3d_world}
+"""Name -> :class:`RenderedWorld` factory of every 3-D experiment."""
+
+
+def scene3d_settings(*, world="scene3d", n_frames=None, voxel_size_m=None, seed=0, quick=False, matchers=MATCHERS,
+                     characterise_every=4, max_range_m=None, grid_offset=0.5):
+    """The settings dict of a 3-D run on ``world`` (its sizes unless overridden)."""
+    if world not in WORLDS:
+        raise PrismapInputError(f"`world` must be one of {sorted(WORLDS)}; got {world!r}")
+    sizes = dict(WORLDS[world]().sizes[bool(quick)])
     if n_frames is not None:
         if isinstance(n_frames, bool) or int(n_frames) != n_frames or n_frames < 2:
             raise PrismapInputError(f"`n_frames` must be an integer >= 2 (characterisation + mapping); got {n_frames!r}")
         sizes["n_frames"] = int(n_frames)
     if voxel_size_m is not None:
         sizes["voxel_size_m"] = check_positive(voxel_size_m, "voxel_size_m")
+    if max_range_m is not None:
+        sizes["max_range_m"] = check_positive(max_range_m, "max_range_m")
     every = characterise_every
     if isinstance(every, bool) or int(every) != every or every < 2:
         raise PrismapInputError(f"`characterise_every` must be an integer >= 2; got {every!r}")
@@ -57,9 +112,8 @@ def scene3d_settings(*, n_frames=None, voxel_size_m=None, seed=0, quick=False, m
     offset = float(grid_offset)
     if not 0.0 <= offset < 1.0:
         raise PrismapInputError(f"`grid_offset` must lie in [0, 1) voxels; got {grid_offset!r}")
-    return {"world": "scene3d", "quick": bool(quick), "seed": int(seed), "characterise_every": int(every),
-            "grid_offset_m": offset * sizes["voxel_size_m"],
-            "max_range_m": check_positive(max_range_m, "max_range_m"), "matchers": list(matchers), **sizes}
+    return {"world": world, "quick": bool(quick), "seed": int(seed), "characterise_every": int(every),
+            "grid_offset_m": offset * sizes["voxel_size_m"], "matchers": list(matchers), **sizes}
 
 
 def split_frames(n_frames, every):
@@ -69,40 +123,70 @@ def split_frames(n_frames, every):
 
 
 def run_scene3d(out_dir, *, n_frames=None, voxel_size_m=None, seed=0, quick=False, matchers=MATCHERS,
-                models=MODELS, characterise_every=4, max_range_m=10.0, grid_offset=0.5):
-    """Characterise each matcher on some frames of the indoor scene, map the others with every model, score.
+                models=MODELS, characterise_every=4, max_range_m=None, grid_offset=0.5):
+    """Characterise each matcher on some frames of the indoor room, map the others with every model, score.
 
-    The seeded :func:`prismap.sim.indoor_scene` is rendered along :func:`prismap.sim.indoor_trajectory`.
+    The seeded :func:`prismap.sim.indoor_scene` rendered along :func:`prismap.sim.indoor_trajectory` by the
+    New Tsukuba camera. Full size: 640x480, 40 frames, 0.1 m voxels, every 2nd pixel, rays to 10 m.
+    ``quick``: 160x120, 16 frames, every pixel: the smallest size found where PRISM beats ideal and
+    hit/miss with SGBM on Brier, log-loss and occupied-called-free. Arguments and result: see
+    :func:`run_rendered_world`.
+    """
+    return run_rendered_world("scene3d", out_dir, n_frames=n_frames, voxel_size_m=voxel_size_m, seed=seed,
+                              quick=quick, matchers=matchers, models=models, characterise_every=characterise_every,
+                              max_range_m=max_range_m, grid_offset=grid_offset)
+
+
+def run_street3d(out_dir, *, n_frames=None, voxel_size_m=None, seed=0, quick=False, matchers=MATCHERS,
+                 models=MODELS, characterise_every=4, max_range_m=None, grid_offset=0.5):
+    """Characterise each matcher on some frames of the street drive, map the others with every model, score.
+
+    The seeded :func:`prismap.sim.street_scene` rendered along :func:`prismap.sim.street_trajectory` by
+    :func:`prismap.sim.kitti_camera`. Full size: half resolution (621x188), 16 frames 1 m apart, 0.2 m
+    voxels, every 2nd pixel, rays to 40 m, projective integration. ``quick``: 310x94, 8 frames, 0.4 m
+    voxels, every pixel, rays to 30 m. Arguments and result: see :func:`run_rendered_world`.
+    """
+    return run_rendered_world("street3d", out_dir, n_frames=n_frames, voxel_size_m=voxel_size_m, seed=seed,
+                              quick=quick, matchers=matchers, models=models, characterise_every=characterise_every,
+                              max_range_m=max_range_m, grid_offset=grid_offset)
+
+
+def run_rendered_world(world, out_dir, *, n_frames=None, voxel_size_m=None, seed=0, quick=False, matchers=MATCHERS,
+                       models=MODELS, characterise_every=4, max_range_m=None, grid_offset=0.5):
+    """The 3-D experiment on the world named ``world`` (a key of :data:`WORLDS`).
+
     Frames ``0, k, 2k, ...`` (``k = characterise_every``) characterise each matcher
     (:func:`prismap.characterise.characterise_matcher`: thesis tables 3.1-3.3 with coverage, bad-1px and
     bad-2px, and the error figures, in ``MATCHER/characterisation/``); the other frames are matched once
     (``MATCHER/disparity/``, uint16 PNG, value / 256 px) and mapped by :func:`prismap.pipeline.map_sequence`
-    with every model, using that matcher's error model. Maps are scored on the voxels a perfect sensor
-    observed from the mapping frames within ``max_range_m``; ``p0`` is their occupancy ratio.
+    with every model of ``models``, using that matcher's error model. Maps are scored on the voxels a
+    perfect sensor observed from the mapping frames within ``max_range_m``; ``p0`` is their occupancy ratio.
 
     Parameters
     ----------
+    world : str
+        ``"scene3d"`` or ``"street3d"``.
     out_dir : str or Path
         A rerun with the same settings reuses every finished step (sequence, characterisations,
         disparities, cells).
     n_frames : int or None
-        Frames rendered; None = :data:`SCENE_SIZES`.
+        Frames rendered; None = the world's size.
     voxel_size_m : float or None, metres
     seed : int
         Scene layout, trajectory and image noise.
     quick : bool
-        Quarter-size images (160x120), 16 frames, 0.1 m voxels: the smallest size found where PRISM
-        beats ideal and hit/miss with SGBM on Brier, log-loss and occupied-called-free (not at 12 frames
-        or 0.2 m voxels).
+        The world's small size (tests, quick demo).
     matchers, models : sequence of str
+        Subsets of :data:`MATCHERS` and :data:`prismap.experiment.MODELS`.
     characterise_every : int >= 2
-    max_range_m : float, metres
-        Distance along a ray beyond which maps are not updated (and the ground truth not observed).
+    max_range_m : float or None, metres
+        Distance along a ray beyond which maps are not updated (and the ground truth not observed);
+        None = the world's size.
     grid_offset : float in [0, 1), voxels
-        The scene and trajectory are translated by this many voxels on every axis. The room's floor,
+        The scene and trajectory are translated by this many voxels on every axis. The worlds' floors,
         walls and box faces lie at round coordinates; at offset 0 they coincide with voxel faces, and a
         closed box then marks the voxel beyond its face as occupied although only its boundary plane
-        is solid (the whole floor layer above z = 0, for instance): ground truth no sensor could
+        is solid (the whole layer above the floor, for instance): ground truth no sensor could
         confirm. The default half voxel puts those planes through voxel middles.
 
     Returns
@@ -112,21 +196,22 @@ def run_scene3d(out_dir, *, n_frames=None, voxel_size_m=None, seed=0, quick=Fals
     from prismap import sim
     from prismap.io import read_sequence, write_sequence
 
-    settings = scene3d_settings(n_frames=n_frames, voxel_size_m=voxel_size_m, seed=seed, quick=quick,
+    settings = scene3d_settings(world=world, n_frames=n_frames, voxel_size_m=voxel_size_m, seed=seed, quick=quick,
                                 matchers=matchers, characterise_every=characterise_every, max_range_m=max_range_m,
                                 grid_offset=grid_offset)
-    out = claim_out_dir(out_dir, settings)
-    voxel = settings["voxel_size_m"]
-    camera = scaled_tsukuba_camera(settings["image_scale"])
-    base = sim.indoor_scene(seed=seed)
-    shift = settings["grid_offset_m"]
-    scene = sim.Scene3D(base.box_lo + shift, base.box_hi + shift, base.box_texture, base.box_texel_m, base.box_tint,
-                        name=base.name)
-    poses = sim.indoor_trajectory(settings["n_frames"], seed=seed)
-    poses[:, :3, 3] += shift
+    spec = WORLDS[world]()
     char_index, map_index = split_frames(settings["n_frames"], settings["characterise_every"])
     if len(map_index) == 0:
         raise PrismapInputError(f"{settings['n_frames']} frames leave none to map after characterisation")
+    poses = spec.trajectory(settings["n_frames"], seed)
+    out = claim_out_dir(out_dir, settings)
+    voxel = settings["voxel_size_m"]
+    camera = spec.camera(settings["image_scale"])
+    base = spec.scene(seed)
+    shift = settings["grid_offset_m"]
+    scene = sim.Scene3D(base.box_lo + shift, base.box_hi + shift, base.box_texture, base.box_texel_m, base.box_tint,
+                        name=base.name)
+    poses[:, :3, 3] += shift
     frames = list(progress(scene.frames(camera, poses, seed=seed), total=len(poses), desc="render", unit="frame"))
     char_frames = [frames[i] for i in char_index]
     map_frames = [frames[i] for i in map_index]
@@ -140,6 +225,7 @@ def run_scene3d(out_dir, *, n_frames=None, voxel_size_m=None, seed=0, quick=Fals
     largest = max(float(np.nanmax(f.disparity_gt)) for f in frames)
 
     results, artifacts = [], []
+    layer = math.floor((spec.slice_height_m + shift) / voxel)
     for matcher_name in settings["matchers"]:
         matcher = _matcher(matcher_name, largest)
         mixture, char_artifacts = _characterise(out / matcher_name / "characterisation", char_frames, matcher,
@@ -149,22 +235,21 @@ def run_scene3d(out_dir, *, n_frames=None, voxel_size_m=None, seed=0, quick=Fals
         cells, maps = run_cells(out, matcher_name, models, build_map, truth, settings)
         results += cells
         artifacts += char_artifacts
-        artifacts += draw_figures(out, matcher_name, cells, maps, truth, layer=math.floor((SLICE_HEIGHT_M + shift) / voxel),
-                                  where=f"z = {SLICE_HEIGHT_M} m")
-    notes = (
-        f"Indoor scene {scene.name}, {camera.width}x{camera.height} New Tsukuba camera, {len(char_index)} "
-        f"characterisation frames ({char_index.tolist()}) and {len(map_index)} other mapping frames, "
-        f"{voxel} m voxels, pixel step {settings['subsample']}, rays to {settings['max_range_m']} m; scene and "
-        f"trajectory shifted by {shift:g} m on each axis so that floor and walls cut voxels through the middle.",
-        f"p0 = {p0:.4f}: the occupancy ratio of the voxels a perfect sensor observed (the scored voxels).",
-        "Each matcher's PRISM, convolution and Andert models use the error model characterised on the "
-        "characterisation frames; time = mapping wall time (PRISM's tables included).",
-    )
-    paths = write_results(results, out, title="3-D indoor scene, characterised matchers", notes=notes,
-                          settings=settings)
-    artifacts = [(paths["table"], "Scores of every matcher x sensor model on the 3-D indoor scene (Markdown)."),
+        artifacts += draw_figures(out, matcher_name, cells, maps, truth, layer=layer,
+                                  where=f"z = {spec.slice_height_m} m")
+    setup = (f"{spec.description} ({scene.name}, {camera.width}x{camera.height}, f = {camera.focal_px:g} px, "
+             f"b = {camera.baseline_m:g} m), {len(char_index)} characterisation frames ({char_index.tolist()}) and "
+             f"{len(map_index)} other mapping frames, {voxel} m voxels, pixel step {settings['subsample']}, "
+             f"{settings['mode']} integration, rays to {settings['max_range_m']} m; scene and trajectory shifted by "
+             f"{shift:g} m on each axis so that floors and walls cut voxels through the middle.")
+    models_note = ("Each matcher's PRISM, convolution and Andert models use the error model characterised on the "
+                   "characterisation frames; time = mapping wall time (PRISM's tables included).")
+    notes = (setup, f"p0 = {p0:.4f}: the occupancy ratio of the voxels a perfect sensor observed (the scored voxels).",
+             models_note)
+    paths = write_results(results, out, title=spec.title, notes=notes, settings=settings)
+    artifacts = [(paths["table"], f"Scores of every matcher x sensor model: {spec.title} (Markdown)."),
                  (paths["json"], "The same scores with reliability bins and histograms (JSON).")] + artifacts
-    return ExperimentResult("scene3d", tuple(results), p0, settings, tuple(artifacts))
+    return ExperimentResult(world, tuple(results), p0, settings, tuple(artifacts))
 
 
 def _matcher(name, largest_disparity_px):
@@ -212,9 +297,10 @@ def _mapper(sequence, disparity_dir, matcher_name, mixture, p0, settings):
     from prismap.pipeline import MappingConfig, map_sequence
 
     def build_map(model_name):
-        config = MappingConfig(model=model_name, voxel_size_m=settings["voxel_size_m"], p0=p0, error_model=mixture,
-                               matcher=matcher_name, disparity_source=str(Path(disparity_dir).resolve()),
-                               max_range_m=settings["max_range_m"], subsample=settings["subsample"])
+        config = MappingConfig(model=model_name, model_params=settings["model_params"].get(model_name, {}),
+                               voxel_size_m=settings["voxel_size_m"], p0=p0, error_model=mixture, matcher=matcher_name,
+                               disparity_source=str(Path(disparity_dir).resolve()),
+                               max_range_m=settings["max_range_m"], subsample=settings["subsample"], mode=settings["mode"])
         return map_sequence(sequence, config)
 
     return build_map

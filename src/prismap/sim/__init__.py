@@ -1,8 +1,10 @@
 """Synthetic worlds with exact ground truth: 2-D rectangle worlds with a 1-row stereo range sensor, and
-textured 3-D box scenes rendered as rectified stereo pairs."""
+textured 3-D box scenes (an indoor room, a KITTI-like street) rendered as rectified stereo pairs."""
 
+from prismap.sim._cameras import kitti_camera, scaled_camera, tsukuba_camera
 from prismap.sim._poses import pose_from_heading, poses_from_se2
-from prismap.sim._scene3d import Scene3D, indoor_scene, indoor_trajectory, tsukuba_camera
+from prismap.sim._scene3d import Scene3D, indoor_scene, indoor_trajectory
+from prismap.sim._street import street_scene, street_trajectory
 from prismap.sim._textures import PHOTOGRAPHS, texture_bank
 from prismap.sim._world2d import (
     DisparityFrame,
@@ -15,17 +17,21 @@ from prismap.sim._world2d import (
 
 __all__ = [
     "PHOTOGRAPHS",
-    "Scene3D",
-    "indoor_scene",
-    "indoor_trajectory",
-    "texture_bank",
-    "tsukuba_camera",
     "DisparityFrame",
+    "Scene3D",
     "StereoScanner2D",
     "World2D",
+    "indoor_scene",
+    "indoor_trajectory",
+    "kitti_camera",
     "office_world",
     "pose_from_heading",
     "poses_from_se2",
+    "scaled_camera",
     "simple_world",
+    "street_scene",
+    "street_trajectory",
+    "texture_bank",
+    "tsukuba_camera",
     "waypoint_path",
 ]

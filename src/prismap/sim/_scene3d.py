@@ -9,7 +9,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from prismap._validate import as_float_array
-from prismap.camera import TSUKUBA_CAMERA
 from prismap.errors import PrismapInputError
 from prismap.io._frame import StereoFrame
 from prismap.sim._kernels import cast_view, shade_view
@@ -19,11 +18,6 @@ from prismap.sim._truth import ground_truth
 
 # brightness by face normal axis (x, y, z) and side (the face at the box's lo, at its hi): a fixed light
 _SHADE = np.array([[0.80, 0.90], [0.70, 0.85], [0.55, 1.00]])
-
-
-def tsukuba_camera():
-    """The New Tsukuba rig (:data:`prismap.camera.TSUKUBA_CAMERA`): 640x480, f = 615 px, baseline 0.10 m."""
-    return TSUKUBA_CAMERA
 
 
 @dataclass(frozen=True)
