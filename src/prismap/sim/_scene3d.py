@@ -134,15 +134,15 @@ class Scene3D:
         for index, pose in enumerate(poses):
             yield self.render(camera, pose, noise_sigma=noise_sigma, rng=rng, name=f"{self.name}/{index:06d}")
 
-    def ground_truth(self, frames, voxel_size_m, *, max_range_m=np.inf):
+    def ground_truth(self, frames, voxel_size_m, *, max_depth_m=np.inf):
         """:class:`~prismap.io.GroundTruthOccupancy` of the scene seen by ``frames`` (e.g. rendered ones).
 
         Occupied: every voxel holding a point of a box -- boxes are solid, so voxels inside furniture are
         occupied too, although no sensor sees them; they are scored only if observed. Observed: voxels whose
-        centre a frame sees in front of (or on) the true surface within ``max_range_m`` of camera depth, and
+        centre a frame sees in front of (or on) the true surface within ``max_depth_m`` of camera depth, and
         the voxels of the visible surface points (see ``prismap.sim._truth.ground_truth``).
         """
-        return ground_truth(self.box_lo, self.box_hi, frames, voxel_size_m, max_range_m=max_range_m)
+        return ground_truth(self.box_lo, self.box_hi, frames, voxel_size_m, max_depth_m=max_depth_m)
 
 
 ROOM_M = (14.0, 9.0, 3.0)  # interior of the indoor scene: x, y, z extents from the origin
