@@ -110,7 +110,8 @@ def frame_errors(frame, matcher, position, settings):
 
 
 def histogram_chunk(frames, matcher, positions, settings):
-    """The whole-image :class:`ErrorHistogram` of the frames at ``positions`` of ``frames``."""
+    """The whole-image :class:`ErrorHistogram` of the frames at ``positions`` of ``frames`` (no features)."""
+    settings = dataclasses.replace(settings, feature_settings=None)
     histogram = ErrorHistogram.empty(bin_width=settings.bin_width, limit_px=settings.limit_px)
     for position in positions:
         histogram = histogram + frame_errors(frames[position], matcher, position, settings)[0]
@@ -197,7 +198,7 @@ def characterise_matcher(frames, matcher, *, max_components=4, bin_width=DEFAULT
     edge_threshold_px, texture_window_px
         Feature settings (see :func:`prismap.characterise.compute_features`), stored in the model.
     max_samples : int, >= 1
-        Most pixels (about 40 bytes each) the class search keeps.
+        Most pixels (about 50 bytes each) the class search keeps.
     search_frames : int, >= 1
         Frames the class search samples from.
     progress : bool

@@ -15,8 +15,8 @@ import numpy as np
 
 from prismap.errors import PrismapInputError
 
-DEFAULT_MAX_SAMPLES = 2_000_000
-"""Pixels the class search keeps (about 40 bytes each with four features: 80 MB)."""
+DEFAULT_MAX_SAMPLES = 4_000_000
+"""Pixels the class search keeps (about 50 bytes each with four features: 200 MB)."""
 
 
 def characterised_pixels(features, disparity_gt):

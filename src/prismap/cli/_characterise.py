@@ -57,7 +57,7 @@ def register(subparsers):
                              "class histograms (default 16)")
     parser.add_argument("--max-samples", type=int, metavar="N",
                         help="most pixels the class search keeps, so memory does not grow with the frames "
-                             "(default 2000000)")
+                             "(default 4000000)")
     add_bag_arguments(parser, poses=False)
     parser.set_defaults(func=run)
 
