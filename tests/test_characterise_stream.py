@@ -2,6 +2,7 @@
 the in-memory reference, determinism whatever the chunking, and peak memory flat in the number of frames."""
 
 import json
+import re
 import subprocess
 import sys
 import textwrap
@@ -231,3 +232,17 @@ def test_peak_memory_does_not_grow_with_the_frames(tmp_path):
         peaks[n_frames] = peak_kib
     assert set(peaks) == {4, 40}
     assert peaks[40] - peaks[4] < 15 * 1024, peaks  # KiB
+
+
+def test_progress_counts_frames_per_pass_and_announces_the_steps(frames, monkeypatch, capsys):
+    monkeypatch.setenv("PRISMAP_PROGRESS", "lines")
+    result = characterise_matcher(frames[:4], SeededEdgeMatcher(), search_frames=3, max_components=2, max_classes=2)
+    err = capsys.readouterr().err
+    assert result.model.conditioned
+    assert "characterise seeded-edge: sample for the class search: 3/3 frames (100%)" in err
+    assert re.search(r"characterise seeded-edge: choose error classes on \d+ of \d+ pixels: 1/1 steps", err)
+    assert "characterise seeded-edge: class histograms: 4/4 frames (100%)" in err
+    assert f"characterise seeded-edge: fit {1 + result.model.n_classes} mixture(s) by EM, G = 1..2: 1/1 steps" in err
+    characterise_matcher(frames[:4], SeededEdgeMatcher(), search_frames=3, max_components=2, max_classes=2,
+                         progress=False)
+    assert capsys.readouterr().err == ""
