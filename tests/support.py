@@ -86,7 +86,7 @@ def synthetic_sequence(path, n_frames=6, *, camera=CAMERA, seed=0, truth=True):
     """Write ``n_frames`` of the seeded indoor scene (with disp/, and occupancy.npz at VOXEL) to ``path``."""
     scene = sim.indoor_scene(seed=seed)
     frames = list(scene.frames(camera, sim.indoor_trajectory(n_frames, seed=seed), seed=seed))
-    occupancy = scene.ground_truth(frames, VOXEL, max_range_m=8.0) if truth else None
+    occupancy = scene.ground_truth(frames, VOXEL, max_depth_m=8.0) if truth else None
     write_sequence(frames, path, occupancy=occupancy)
     return path
 

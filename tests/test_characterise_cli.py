@@ -121,6 +121,10 @@ def test_bad_options_are_clear_errors(capsys, tmp_path):
     err = _run_failing(capsys, ["characterise", "--dataset", "middlebury-motorcycle", "--matcher", "sgbm",
                                 "--max-classes", "0", "--out", str(tmp_path / "out")])
     assert "--max-classes" in err
+    for option in ("--search-frames", "--max-samples"):
+        err = _run_failing(capsys, ["characterise", "--dataset", "middlebury-motorcycle", "--matcher", "sgbm",
+                                    option, "0", "--out", str(tmp_path / "out")])
+        assert f"`{option}` must be >= 1; got 0" in err
 
 
 def test_plain_option_writes_one_class(tmp_path):

@@ -70,3 +70,20 @@ def test_an_unusable_out_is_refused_before_any_work(kitti_2015, tmp_path, capsys
     status = main(["characterise", "--dataset", str(kitti_2015), "--matcher", "sgbm", "--out", str(tmp_path / "file")])
     assert status == 2 and "exists and is not a directory" in capsys.readouterr().err
     assert (tmp_path / "file").read_text() == "x"
+
+
+def test_the_search_range_stays_below_the_image_width(tmp_path, capsys):
+    """A true disparity of 37 px on 40 px wide images asks for 48 px of search: it runs with 32 (the last multiple
+    of 16 below the width) instead of failing in the matcher; images at most 16 px wide are refused up front."""
+    rng = np.random.default_rng(3)
+    left, right, truth = shifted_pair(rng, 24, 40, 30)
+    truth[5, 38] = 37.0
+    wide = write_kitti_stereo(tmp_path / "wide", [(left, right, truth)], year=2015)
+    out = tmp_path / "out"
+    status = main(["characterise", "--dataset", str(wide), "--matcher", "sgbm", "--max-components", "1", "--plain",
+                   "--out", str(out)])
+    assert status == 0, capsys.readouterr().err
+    assert json.loads((out / "error_model.json").read_text())["matcher"]["params"]["num_disparities"] == 32
+    narrow = write_kitti_stereo(tmp_path / "narrow", [shifted_pair(rng, 16, 16, 2)], year=2015)
+    _fails(capsys, ["--dataset", str(narrow)], "--dataset: images 16 px wide leave no disparity search range",
+           tmp_path / "out2")

@@ -34,7 +34,8 @@ def sequence_dir(tmp_path_factory):
 def error_model_path(sequence_dir, tmp_path_factory):
     """An error model of SGBM fitted to the sequence's own errors (the characterisation workflow)."""
     params = {"num_disparities": 16}
-    histogram = characterise_sequence(sequence_dir, "sgbm", matcher_params=params, progress=False)
+    histogram = characterise_sequence(sequence_dir, "sgbm", matcher_params=params, conditioned=False,
+                                      progress=False).histogram
     fits = fit_mixtures(histogram.edges, histogram.counts, max_components=2, seed=0)
     model = ErrorModel(matcher="sgbm", matcher_params=params, dataset="synthetic", bin_width=histogram.bin_width,
                        fits=tuple(fits), selected_components=2)

@@ -1,6 +1,7 @@
 """The 2-D experiment (PRISM under its own assumptions), the results table and cells, the map-slice figure."""
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -87,6 +88,20 @@ def test_a_directory_of_another_run_is_refused(office):
 def test_bad_office_options_are_named(tmp_path, kwargs, message):
     with pytest.raises(PrismapInputError, match=message):
         run_office2d(tmp_path, quick=True, **kwargs)
+
+
+@pytest.mark.parametrize("world, message", [
+    ("office2d", r"`n_frames` must be at most \d+ \(the scans of the office tour\); got 100000"),
+    ("scene3d", r"`n_frames` must be an integer in \[1, 360\].*got 100000"),
+    ("street3d", r"100000 frames of 1.0 m end at x = 100003 m: the street allows up to x = 54 m"),
+])
+def test_experiment_frames_beyond_the_world_exit_2_before_anything_is_written(tmp_path, capsys, world, message):
+    from prismap.cli import main
+
+    out = tmp_path / "out"
+    assert main(["experiment", "--world", world, "--quick", "--frames", "100000", "--out", str(out)]) == 2
+    assert re.search(message, capsys.readouterr().err)
+    assert not out.exists()
 
 
 # ------------------------------------------------------------------------------------- scoring and cells

@@ -66,17 +66,32 @@ def test_dask_map_with_matcher_and_checkpoints(sequence_dir, client, tmp_path):
     assert_identical_maps(resumed, parallel)
 
 
-def test_dask_characterisation_equals_the_sequential_histogram(sequence_dir, client):
+def _assert_identical_histograms(a, b):
+    np.testing.assert_array_equal(a.counts, b.counts)
+    for name in ("n_below", "n_above", "n_gt_valid", "n_bad_1px", "n_bad_2px", "sum_abs_error_px", "n_frames"):
+        assert getattr(a, name) == getattr(b, name), name
+
+
+@pytest.mark.parametrize("conditioned", [False, True])
+def test_dask_characterisation_is_bit_identical_to_the_sequential_one(sequence_dir, client, conditioned):
+    """Plain and conditioned; the conditioned run samples 3 of the 7 frames and keeps 16000 of their pixels."""
     params = {"num_disparities": 16, "block_size": 5}
-    sequential = characterise_sequence(sequence_dir, "sgbm", matcher_params=params, progress=False)
-    parallel = characterise_sequence(sequence_dir, "sgbm", matcher_params=params, client=client, chunk_frames=2,
-                                     progress=False)
-    assert parallel.n_frames == sequential.n_frames == 7
-    np.testing.assert_array_equal(parallel.counts, sequential.counts)
-    for name in ("n_below", "n_above", "n_gt_valid", "n_bad_1px", "n_bad_2px"):
-        assert getattr(parallel, name) == getattr(sequential, name)
-    assert parallel.sum_abs_error_px == pytest.approx(sequential.sum_abs_error_px, rel=1e-12)
-    assert sequential.counts.sum() > 0.5 * sequential.n_gt_valid  # the matcher found most pixels
+    options = {"matcher_params": params, "progress": False, "conditioned": conditioned, "max_components": 2,
+               "max_samples": 16000, "search_frames": 3, "max_classes": 3}
+    sequential = characterise_sequence(sequence_dir, "sgbm", **options)
+    assert sequential.histogram.n_frames == 7
+    assert sequential.histogram.counts.sum() > 0.5 * sequential.histogram.n_gt_valid  # the matcher found most pixels
+    if conditioned:
+        record = sequential.model.class_selection
+        assert (record["n_search_frames"], record["n_samples"]) == (3, 16000) and record["n_search_pixels"] > 16000
+        assert sequential.model.conditioned and len(sequential.class_histograms) >= 2
+    for chunk_frames in (2, 3):
+        parallel = characterise_sequence(sequence_dir, "sgbm", client=client, chunk_frames=chunk_frames, **options)
+        _assert_identical_histograms(parallel.histogram, sequential.histogram)
+        assert len(parallel.class_histograms) == len(sequential.class_histograms)
+        for a, b in zip(parallel.class_histograms, sequential.class_histograms):
+            _assert_identical_histograms(a, b)
+        assert parallel.model.to_dict() == sequential.model.to_dict()
 
 
 def test_characterisation_errors_are_raised_before_any_task(sequence_dir, client):

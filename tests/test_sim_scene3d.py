@@ -149,7 +149,9 @@ def test_ground_truth_observed_voxels_match_numpy_reference():
         ),
         (lambda: sim.Scene3D.from_boxes([[0, 0, 1]], [[1, 1, 2]]).render(SMALL, np.eye(4), noise_sigma=-1), "`noise_sigma`"),
         (lambda: sim.Scene3D.from_boxes([[0, 0, 1]], [[1, 1, 2]]).render(SMALL, np.full((4, 4), np.nan)), "`T_world_cam` must be finite"),
-        (lambda: sim.indoor_trajectory(0), "`n_frames` must be a positive integer"),
+        (lambda: sim.indoor_trajectory(0), r"`n_frames` must be an integer in \[1, 360\]"),
+        (lambda: sim.indoor_trajectory(361), r"`n_frames` must be an integer in \[1, 360\].*got 361"),
+        (lambda: sim.indoor_trajectory(True), r"`n_frames` must be an integer"),
         (lambda: sim.indoor_scene().ground_truth([], 0.001), "choose a larger one"),
     ],
 )

@@ -95,7 +95,7 @@ def test_scanner_ranges_equal_brute_force_segment_intersection():
 def test_measured_disparity_errors_follow_the_mixture_and_are_seeded():
     world = sim.simple_world()
     mixture = GaussianMixture([0.7, 0.3], [0.2, -0.5], [0.3, 1.0])
-    scanner = sim.StereoScanner2D(n_rays=200, baseline_m=1.0, max_range_m=50.0, error_model=mixture)
+    scanner = sim.StereoScanner2D(n_rays=200, baseline_m=1.0, max_depth_m=50.0, error_model=mixture)
     poses = sim.waypoint_path(world.waypoints, step_m=1.0)
     frames = list(scanner.frames(world, poses, seed=3))
     errors = np.concatenate([(f.disparity_gt - f.disparity).ravel() for f in frames])
@@ -110,7 +110,7 @@ def test_measured_disparity_errors_follow_the_mixture_and_are_seeded():
 
 def test_hits_beyond_max_range_are_not_measured():
     world = sim.World2D(np.array([[5.0, 0.0, 6.0, 20.0], [2.0, 9.0, 3.0, 9.5]]), np.array([20.0, 20.0]))
-    scanner = sim.StereoScanner2D(n_rays=64, max_range_m=4.0)
+    scanner = sim.StereoScanner2D(n_rays=64, max_depth_m=4.0)
     frame = scanner.scan(world, sim.pose_from_heading([0.0, 10.0], 0.0))
     depth = frame.camera.focal_baseline / frame.disparity_gt[0]
     assert np.all(np.isfinite(depth))
@@ -145,13 +145,13 @@ def test_ground_truth_matches_numpy_reference_and_hand_checks():
     scanner = sim.StereoScanner2D(n_rays=120)
     poses = sim.waypoint_path(world.waypoints, step_m=2.0)[::3] + [0.013, 0.007, 0.0]  # no ties on pixel edges
     frames = list(scanner.frames(world, poses))
-    truth = world.ground_truth(frames, 0.25, max_range_m=8.0)
+    truth = world.ground_truth(frames, 0.25, max_depth_m=8.0)
     assert set(map(tuple, truth.observed_keys.tolist())) == _visible_reference(world, frames, 0.25, 8.0)
     occupied = np.argwhere(world.occupancy(0.25))[:, ::-1]
     np.testing.assert_array_equal(truth.occupied_keys[:, :2], occupied[np.lexsort(occupied.T[::-1])])
     assert np.all(truth.occupied_keys[:, 2] == 0)
     # the first pose stands at (2.513, 2.507) facing +y with nothing within 8 m straight ahead
-    first = set(map(tuple, world.ground_truth(frames[:1], 0.25, max_range_m=8.0).free_keys.tolist()))
+    first = set(map(tuple, world.ground_truth(frames[:1], 0.25, max_depth_m=8.0).free_keys.tolist()))
     assert (10, 9, 0) not in first  # behind the camera
     assert {(10, k, 0) for k in range(10, 42)} <= first  # ahead: centres up to y = 10.375 m (depth 7.87 m)
     assert (10, 42, 0) not in first  # its centre lies 8.118 m ahead, beyond the maximum range

@@ -20,6 +20,7 @@ from prismap.characterise._run import (
     characterise_matcher,
     write_characterisation,
 )
+from prismap.characterise._sample import PixelSample
 from prismap.characterise._select import choose_classes
 
 __all__ = [
@@ -31,6 +32,7 @@ __all__ = [
     "ErrorHistogram",
     "ErrorModel",
     "PixelFeatures",
+    "PixelSample",
     "characterise_matcher",
     "choose_classes",
     "compute_features",

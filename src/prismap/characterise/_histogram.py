@@ -9,6 +9,8 @@ from prismap.errors import PrismapInputError
 
 DEFAULT_BIN_WIDTH = 1.0 / 32.0
 DEFAULT_LIMIT_PX = 256.0
+SUM_RESOLUTION_PX = 2.0 ** -16
+"""Resolution of ``sum_abs_error_px`` (pixels): float64 sums of its multiples are exact up to 2^37 px."""
 MAX_BINS = 1 << 22
 """Most bins a histogram may have (32 MiB of counts; the EM fit's cost grows with the bins)."""
 
@@ -21,7 +23,9 @@ class ErrorHistogram:
     (``merged = h1 + h2``) and 100 frames never hold all their errors in memory. Errors beyond
     ``[-limit_px, limit_px)`` are not binned: they are counted in ``n_below`` / ``n_above``, enter the
     bad-pixel rates and the mean absolute error, and are left out of the mixture fit (which sees
-    ``counts`` only).
+    ``counts`` only). ``sum_abs_error_px`` is a multiple of :data:`SUM_RESOLUTION_PX` (each
+    :meth:`from_errors` rounds to it), so sums of histograms are exact, the same in any order or
+    chunking, while they stay below 2^37 px.
 
     Attributes
     ----------
@@ -137,7 +141,7 @@ class ErrorHistogram:
             n_gt_valid=n_gt,
             n_bad_1px=int((magnitude > 1.0).sum()),
             n_bad_2px=int((magnitude > 2.0).sum()),
-            sum_abs_error_px=float(magnitude.sum()),
+            sum_abs_error_px=round(float(magnitude.sum()) / SUM_RESOLUTION_PX) * SUM_RESOLUTION_PX,
             n_frames=1,
         )
 

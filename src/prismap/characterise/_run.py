@@ -1,12 +1,20 @@
-"""Characterise a stereo matcher: its errors over frames with ground truth, fitted mixtures, files."""
+"""Characterise a stereo matcher: its errors over frames with ground truth, fitted mixtures, files.
 
-from dataclasses import dataclass
+Conditioned characterisation streams: memory is bounded by one frame and the class-search sample,
+whatever the number of frames. Work runs in chunks of frame positions whose results add up exactly
+(integer counts, :class:`PixelSample` merges), so any chunking, here or on Dask workers, gives the same
+model.
+"""
+
+import contextlib
+import dataclasses
+import functools
 from pathlib import Path
 
 import numpy as np
 
 from prismap._files import write_text_atomic
-from prismap._progress import progress
+from prismap._progress import progress as progress_bar
 from prismap.characterise._features import (
     DEFAULT_EDGE_THRESHOLD_PX,
     DEFAULT_TEXTURE_WINDOW_PX,
@@ -18,16 +26,18 @@ from prismap.characterise._histogram import (
     ErrorHistogram,
 )
 from prismap.characterise._model import ErrorModel, format_table, write_error_model
-from prismap.characterise._select import choose_classes, fit_classes
+from prismap.characterise._sample import DEFAULT_MAX_SAMPLES, PixelSample, characterised_pixels
+from prismap.characterise._select import choose_classes, class_histograms, fit_class_histograms
 from prismap.errors import PrismapInputError
 from prismap.gmm import fit_mixtures, select_components
 from prismap.stereo._base import to_grey
 
 DEFAULT_MAX_CLASSES = 6
-DEFAULT_MAX_PIXELS = 30_000_000
+DEFAULT_SEARCH_FRAMES = 16
+"""Frames, evenly spread over the selection, whose pixels the class search samples."""
 
 
-@dataclass(frozen=True)
+@dataclasses.dataclass(frozen=True)
 class Characterisation:
     """Result of :func:`characterise_matcher`: the merged error histograms and the fitted error model.
 
@@ -37,7 +47,7 @@ class Characterisation:
         Every error of every frame.
     model : ErrorModel
     class_histograms : tuple of ErrorHistogram
-        The errors of each class of ``model`` (one, equal to ``histogram``'s binned errors, for a plain model).
+        The errors of each class of ``model`` over every frame (one, ``histogram``, for a plain model).
     """
 
     histogram: ErrorHistogram
@@ -50,27 +60,125 @@ class Characterisation:
         return self.model.mixture
 
 
+@dataclasses.dataclass(frozen=True)
+class FrameSettings:
+    """How each frame is characterised: histogram bins, features, the class-search sample (picklable).
+
+    Attributes
+    ----------
+    bin_width, limit_px : float, pixels
+        See :class:`ErrorHistogram`.
+    feature_settings : dict or None
+        ``edge_threshold_px`` and ``texture_window_px`` of :func:`compute_features`; None = no features
+        (a plain characterisation).
+    max_samples : int
+        Capacity of the class-search sample (:class:`PixelSample`).
+    seed : int
+        Seeds the sample's priorities.
+    """
+
+    bin_width: float = DEFAULT_BIN_WIDTH
+    limit_px: float = DEFAULT_LIMIT_PX
+    feature_settings: dict | None = None
+    max_samples: int = DEFAULT_MAX_SAMPLES
+    seed: int = 0
+
+
+def frame_errors(frame, matcher, position, settings):
+    """One frame's error histogram, its :class:`PixelFeatures` (None without ``feature_settings``) and its name.
+
+    Parameters
+    ----------
+    frame : StereoFrame
+        With ``disparity_gt`` (pixels).
+    matcher : prismap.stereo.StereoMatcher
+    position : int
+        The frame's position in the selection.
+    settings : FrameSettings
+    """
+    name = f"frame {position}" + (f" ({frame.name})" if frame.name else "")
+    if frame.disparity_gt is None:
+        raise PrismapInputError(f"{name}: has no ground-truth disparity; characterisation needs it")
+    disparity, lr_disagreement = matcher.compute_with_confidence(frame.left, frame.right)
+    histogram = ErrorHistogram.from_disparities(disparity, frame.disparity_gt, bin_width=settings.bin_width,
+                                                limit_px=settings.limit_px, name=name)
+    features = None
+    if settings.feature_settings is not None:
+        features = compute_features(to_grey(frame.left), to_grey(frame.right), disparity, lr_disagreement,
+                                    **settings.feature_settings)
+    return histogram, features, name
+
+
+def histogram_chunk(frames, matcher, positions, settings):
+    """The whole-image :class:`ErrorHistogram` of the frames at ``positions`` of ``frames`` (no features)."""
+    settings = dataclasses.replace(settings, feature_settings=None)
+    histogram = ErrorHistogram.empty(bin_width=settings.bin_width, limit_px=settings.limit_px)
+    for position in positions:
+        histogram = histogram + frame_errors(frames[position], matcher, position, settings)[0]
+    return histogram
+
+
+def sample_chunk(frames, matcher, positions, settings):
+    """The whole-image histogram and the class-search :class:`PixelSample` of the frames at ``positions``."""
+    histogram, sample = ErrorHistogram.empty(bin_width=settings.bin_width, limit_px=settings.limit_px), None
+    for position in positions:
+        frame = frames[position]
+        part, features, name = frame_errors(frame, matcher, position, settings)
+        part_sample = PixelSample.from_frame(features, frame.disparity_gt, position, capacity=settings.max_samples,
+                                             seed=settings.seed, name=name)
+        histogram, sample = histogram + part, part_sample if sample is None else sample + part_sample
+    return histogram, sample
+
+
+def class_histogram_chunk(frames, matcher, positions, settings, classes):
+    """The whole-image histogram and one histogram per class of ``classes`` of the frames at ``positions``."""
+    histogram = ErrorHistogram.empty(bin_width=settings.bin_width, limit_px=settings.limit_px)
+    parts = [histogram] * classes.n_classes
+    for position in positions:
+        frame = frames[position]
+        part, features, _ = frame_errors(frame, matcher, position, settings)
+        truth = np.asarray(frame.disparity_gt, dtype=np.float64)
+        keep = characterised_pixels(features, truth)
+        frame_parts = class_histograms(classes, {name: array[keep] for name, array in features.values.items()},
+                                       truth[keep] - features.values["disparity_px"][keep],
+                                       bin_width=settings.bin_width, limit_px=settings.limit_px)
+        histogram = histogram + part
+        parts = [a + b for a, b in zip(parts, frame_parts)]
+    return histogram, tuple(parts)
+
+
 def characterise_matcher(frames, matcher, *, max_components=4, bin_width=DEFAULT_BIN_WIDTH,
                          limit_px=DEFAULT_LIMIT_PX, dataset="", criterion="bic", tolerance=0.01, restarts=4,
                          seed=0, conditioned=True, max_classes=DEFAULT_MAX_CLASSES,
                          edge_threshold_px=DEFAULT_EDGE_THRESHOLD_PX, texture_window_px=DEFAULT_TEXTURE_WINDOW_PX,
-                         max_pixels=DEFAULT_MAX_PIXELS):
+                         max_samples=DEFAULT_MAX_SAMPLES, search_frames=DEFAULT_SEARCH_FRAMES, progress=True,
+                         map_chunks=None, chunk_frames=1):
     """Run ``matcher`` on ``frames``, histogram its errors and fit mixtures with G = 1..``max_components``.
 
     Each frame's errors ``e = d_true - d_computed`` are binned at once into the whole-image histogram.
     Following the thesis (sec. 3.3.1), every error is fitted, outliers included, so wide components
     model the matcher's gross mistakes. With ``conditioned=True`` the pixels' confidence features
-    (:func:`prismap.characterise.compute_features`) are kept too, classes are chosen among quantile
-    bins of them by held-out log-likelihood (:func:`choose_classes`: two-fold over frames of even and
-    odd index, or over the left and right image halves when there is one frame), and one mixture is
-    fitted per class. The plain model is one of the candidates, so a model is conditioned only where
-    that predicts held-out errors better.
+    (:func:`prismap.characterise.compute_features`) are computed too, and memory stays bounded
+    whatever the number of frames:
+
+    1. A first pass over ``search_frames`` frames evenly spread over the selection keeps a seeded
+       uniform sample of at most ``max_samples`` of their pixels (:class:`PixelSample`).
+    2. Classes are chosen among quantile bins of the sampled features by held-out log-likelihood
+       (:func:`choose_classes`: two-fold over frames of even and odd position, or over the left and
+       right image halves when the sample holds one frame). The plain model is one of the candidates,
+       so a model is conditioned only where that predicts held-out errors better.
+    3. A second pass over every frame fills one :class:`ErrorHistogram` per class, and one mixture is
+       fitted per class by EM. When the first pass covered every frame and kept every pixel, its
+       sample is every error and the second pass is skipped (the same histograms, half the work).
 
     Parameters
     ----------
-    frames : iterable of StereoFrame
-        Each with ``disparity_gt`` (pixels, NaN or infinity = unknown).
+    frames : sequence of StereoFrame
+        Each with ``disparity_gt`` (pixels, NaN or infinity = unknown). A lazy frame set
+        (:func:`prismap.io.open_ground_truth`) holds one frame at a time; another iterable is read into
+        a list first.
     matcher : prismap.stereo.StereoMatcher
+        Deterministic: each frame may be matched twice.
     max_components : int
         Largest G fitted.
     bin_width : float, pixels
@@ -82,51 +190,93 @@ def characterise_matcher(frames, matcher, *, max_components=4, bin_width=DEFAULT
     criterion, tolerance
         Selection of G, see :func:`prismap.gmm.select_components`.
     restarts, seed
-        EM starts, see :func:`prismap.gmm.fit_mixture`.
+        EM starts, see :func:`prismap.gmm.fit_mixture`; ``seed`` also seeds the class-search sample.
     conditioned : bool
         Choose classes of pixels and fit one mixture per class (False: the plain whole-image model).
     max_classes : int, >= 1
         Most classes a candidate may have.
     edge_threshold_px, texture_window_px
         Feature settings (see :func:`prismap.characterise.compute_features`), stored in the model.
-    max_pixels : int
-        Most characterised pixels whose features are kept (about 30 bytes each) with ``conditioned``.
+    max_samples : int, >= 1
+        Most pixels (about 50 bytes each) the class search keeps.
+    search_frames : int, >= 1
+        Frames the class search samples from.
+    progress : bool
+        Show the frames done and the class-search and fitting steps on stderr (see :mod:`prismap._progress`).
+    map_chunks : callable or None
+        ``map_chunks(function, chunks)`` returns ``function(chunk)`` for each list of frame positions in
+        ``chunks``, in order (e.g. on Dask workers: :func:`prismap.pipeline.characterise_sequence`);
+        ``function`` pickles when ``frames`` and ``matcher`` do. None = here.
+    chunk_frames : int, >= 1
+        Frames per chunk. Results do not depend on it: histograms and samples merge exactly.
 
     Returns
     -------
     Characterisation
     """
-    histogram = ErrorHistogram.empty(bin_width=bin_width, limit_px=limit_px)
-    settings = {"edge_threshold_px": edge_threshold_px, "texture_window_px": texture_window_px}
-    samples = _Samples(max_pixels) if conditioned else None
-    total = len(frames) if hasattr(frames, "__len__") else None
-    for index, frame in enumerate(progress(frames, total=total, desc=f"characterise {matcher.name}")):
-        name = f"frame {index}" + (f" ({frame.name})" if frame.name else "")
-        if frame.disparity_gt is None:
-            raise PrismapInputError(f"{name}: has no ground-truth disparity; characterisation needs it")
-        disparity, lr_disagreement = matcher.compute_with_confidence(frame.left, frame.right)
-        histogram = histogram + ErrorHistogram.from_disparities(
-            disparity, frame.disparity_gt, bin_width=bin_width, limit_px=limit_px, name=name
-        )
-        if samples is not None:
-            features = compute_features(to_grey(frame.left), to_grey(frame.right), disparity, lr_disagreement,
-                                        **settings)
-            samples.add(features, np.asarray(frame.disparity_gt, dtype=np.float64), index, name)
-    if histogram.n_frames == 0:
+    if not hasattr(frames, "__getitem__") or not hasattr(frames, "__len__"):
+        frames = list(frames)
+    for name, value in (("search_frames", search_frames), ("chunk_frames", chunk_frames)):
+        if isinstance(value, bool) or int(value) != value or value < 1:
+            raise PrismapInputError(f"`{name}` must be an integer >= 1; got {value!r}")
+    if len(frames) == 0:
         raise PrismapInputError("no frames to characterise: the frame set is empty")
+    ErrorHistogram.empty(bin_width=bin_width, limit_px=limit_px)  # bad bins fail before any frame is matched
+    feature_settings = ({"edge_threshold_px": float(edge_threshold_px), "texture_window_px": int(texture_window_px)}
+                        if conditioned else None)
+    settings = FrameSettings(float(bin_width), float(limit_px), feature_settings, max_samples, int(seed))
+    passes = _Passes(frames, matcher, settings, map_chunks or map, int(chunk_frames), progress)
+    fit_options = {"max_components": max_components, "criterion": criterion, "tolerance": tolerance,
+                   "restarts": restarts, "seed": seed}
+    every = list(range(len(frames)))
+    if not conditioned:
+        histogram = passes.run(histogram_chunk, every, "histogram")
+        return _fit(histogram, (histogram,), {}, matcher, dataset, fit_options, passes)
+    search = sorted({round(x) for x in np.linspace(0, len(frames) - 1, min(int(search_frames), len(frames)))})
+    histogram, sample = passes.run(sample_chunk, search, "sample for the class search")
+    _check_fittable(histogram)
+    values, errors, fold, held_out = sample.arrays()
+    with passes.step(f"choose error classes on {sample.n_samples} of {sample.n_seen} pixels"):
+        classes, record = choose_classes(values, errors, fold, bin_edges=histogram.edges, max_classes=max_classes,
+                                         max_components=max_components, criterion=criterion, tolerance=tolerance,
+                                         seed=seed)
+    record = {"held_out": held_out, "n_search_frames": len(search), "n_samples": sample.n_samples,
+              "n_search_pixels": sample.n_seen, **record}
+    conditioning = {"class_selection": record}
+    if not classes.features:  # the plain model predicts held-out errors best
+        if len(search) < len(frames):
+            histogram = passes.run(histogram_chunk, every, "histogram")
+        return _fit(histogram, (histogram,), conditioning, matcher, dataset, fit_options, passes)
+    conditioning.update(classes=classes, feature_settings=feature_settings)
+    if len(search) == len(frames) and sample.exhaustive:  # the sample is every error: no second pass
+        parts = class_histograms(classes, values, errors, bin_width=settings.bin_width, limit_px=settings.limit_px,
+                                 n_frames=histogram.n_frames)
+    else:
+        histogram, parts = passes.run(functools.partial(class_histogram_chunk, classes=classes), every,
+                                      "class histograms")
+        parts = tuple(dataclasses.replace(part, n_frames=histogram.n_frames) for part in parts)
+    return _fit(histogram, parts, conditioning, matcher, dataset, fit_options, passes)
+
+
+def _check_fittable(histogram):
     if histogram.counts.sum() == 0:
         raise PrismapInputError(
             f"every one of the {histogram.n_errors} errors lies beyond +-{histogram.limit_px} px: nothing to fit"
         )
-    fit_options = {"restarts": restarts, "seed": seed}
-    fits = fit_mixtures(histogram.edges, histogram.counts, max_components=max_components, **fit_options)
-    selected = select_components(fits, criterion=criterion, tolerance=tolerance)
-    conditioning, class_histograms = {}, (histogram,)
-    if samples is not None:
-        conditioning, class_histograms = _conditioning(samples, histogram, max_classes=max_classes,
-                                                       max_components=max_components, criterion=criterion,
-                                                       tolerance=tolerance, fit_options=fit_options,
-                                                       feature_settings=features.settings)
+
+
+def _fit(histogram, parts, conditioning, matcher, dataset, fit_options, passes):
+    """Fit the whole-image mixtures and, for a conditioned model, one per class; the :class:`Characterisation`."""
+    _check_fittable(histogram)
+    criterion, tolerance = fit_options["criterion"], fit_options["tolerance"]
+    classes = conditioning.get("classes")
+    n_fits = 1 + (classes.n_classes if classes is not None else 0)
+    with passes.step(f"fit {n_fits} mixture(s) by EM, G = 1..{fit_options['max_components']}"):
+        fits = fit_mixtures(histogram.edges, histogram.counts, max_components=fit_options["max_components"],
+                            restarts=fit_options["restarts"], seed=fit_options["seed"])
+        selected = select_components(fits, criterion=criterion, tolerance=tolerance)
+        if classes is not None:
+            conditioning["class_models"] = fit_class_histograms(classes, parts, **fit_options)
     model = ErrorModel(
         matcher=matcher.name,
         matcher_params=matcher.params(),
@@ -138,66 +288,43 @@ def characterise_matcher(frames, matcher, *, max_components=4, bin_width=DEFAULT
         statistics=histogram.statistics(),
         **conditioning,
     )
-    return Characterisation(histogram, model, class_histograms)
+    return Characterisation(histogram, model, tuple(parts))
 
 
-class _Samples:
-    """Features and errors of every characterised pixel, with the frame and image half (columns) it came from."""
-
-    def __init__(self, max_pixels):
-        self.max_pixels = int(max_pixels)
-        self.n_pixels = 0
-        self.values, self.errors, self.frame, self.right_half = {}, [], [], []
-
-    def add(self, features, disparity_gt, index, name):
-        computed = features.values["disparity_px"]
-        if disparity_gt.shape != computed.shape:
-            raise PrismapInputError(f"{name}: disparity and ground truth differ in shape: "
-                                    f"{computed.shape} vs {disparity_gt.shape}")
-        keep = features.valid & np.isfinite(disparity_gt)
-        for array in features.values.values():
-            keep &= ~np.isnan(array)
-        self.n_pixels += int(keep.sum())
-        if self.n_pixels > self.max_pixels:
-            raise PrismapInputError(
-                f"{name}: conditioned characterisation keeps the features of every characterised pixel and the "
-                f"frames so far hold {self.n_pixels} > max_pixels = {self.max_pixels}; use fewer frames "
-                "(or every K-th) or the plain model"
-            )
-        if self.values and set(self.values) != set(features.names):
-            raise PrismapInputError(f"{name}: has features {features.names}; earlier frames had {tuple(self.values)}")
-        for feature, array in features.values.items():
-            self.values.setdefault(feature, []).append(array[keep].astype(np.float32))
-        self.errors.append((disparity_gt - computed)[keep])
-        self.frame.append(np.full(int(keep.sum()), index, dtype=np.int32))
-        columns = np.broadcast_to(np.arange(keep.shape[1])[None, :], keep.shape)
-        self.right_half.append(columns[keep] >= keep.shape[1] / 2)
-
-    def arrays(self):
-        values = {name: np.concatenate(parts).astype(np.float64) for name, parts in self.values.items()}
-        frame = np.concatenate(self.frame)
-        if np.unique(frame).size >= 2:
-            return values, np.concatenate(self.errors), frame % 2, "two folds: frames of even / odd index"
-        return values, np.concatenate(self.errors), np.concatenate(self.right_half).astype(np.int64), (
-            "two folds: left / right image halves (one frame)")
+def _add(a, b):
+    """Merge two chunk results: histograms and samples add, tuples element-wise."""
+    if isinstance(a, tuple):
+        return tuple(_add(x, y) for x, y in zip(a, b))
+    return a + b
 
 
-def _conditioning(samples, histogram, *, max_classes, max_components, criterion, tolerance, fit_options,
-                  feature_settings):
-    """Classes chosen by held-out likelihood, one mixture per class on all errors, and the class histograms."""
-    values, errors, fold, held_out = samples.arrays()
-    classes, record = choose_classes(values, errors, fold, bin_edges=histogram.edges, max_classes=max_classes,
-                                     max_components=max_components, criterion=criterion, tolerance=tolerance,
-                                     seed=fit_options["seed"])
-    record = {"held_out": held_out, **record}
-    if not classes.features:  # the plain model predicts held-out errors best
-        return {"class_selection": record}, (histogram,)
-    models, histograms = fit_classes(classes, values, errors, bin_width=histogram.bin_width,
-                                     limit_px=histogram.limit_px, n_frames=histogram.n_frames,
-                                     max_components=max_components, criterion=criterion, tolerance=tolerance,
-                                     **fit_options)
-    return {"classes": classes, "class_models": models, "class_selection": record,
-            "feature_settings": feature_settings}, histograms
+class _Passes:
+    """Runs chunk tasks over frame positions (here or through ``map_chunks``), merges them, shows progress."""
+
+    def __init__(self, frames, matcher, settings, map_chunks, chunk_frames, enabled):
+        self.frames, self.matcher, self.settings = frames, matcher, settings
+        self.map_chunks, self.chunk_frames = map_chunks, chunk_frames
+        self.enabled = None if enabled else False
+        self.desc = f"characterise {matcher.name}"
+
+    def run(self, task, positions, what):
+        """``task(frames, matcher, chunk, settings)`` over chunks of ``positions``, merged."""
+        chunks = [positions[i:i + self.chunk_frames] for i in range(0, len(positions), self.chunk_frames)]
+        function = functools.partial(task, self.frames, self.matcher, settings=self.settings)
+        total = None
+        with progress_bar(total=len(positions), desc=f"{self.desc}: {what}", unit="frame",
+                          enabled=self.enabled) as bar:
+            for chunk, result in zip(chunks, self.map_chunks(function, chunks)):
+                total = result if total is None else _add(total, result)
+                bar.update(len(chunk))
+        return total
+
+    @contextlib.contextmanager
+    def step(self, what):
+        """Announce one step of work (a one-item bar, or a line when it is done)."""
+        with progress_bar(total=1, desc=f"{self.desc}: {what}", unit="step", enabled=self.enabled) as bar:
+            yield
+            bar.update(1)
 
 
 def write_characterisation(result, out_dir):

@@ -78,9 +78,8 @@ def fit_class(counts, edges, *, max_components, criterion, tolerance, **em_optio
     return fits, select_components(fits, criterion=criterion, tolerance=tolerance)
 
 
-def fit_classes(classes, values, errors, *, bin_width, limit_px, n_frames=1, max_components, criterion, tolerance,
-                restarts=4, seed=0):
-    """One mixture per class: each class's errors histogrammed and fitted by EM, G by the criterion.
+def class_histograms(classes, values, errors, *, bin_width, limit_px, n_frames=1):
+    """The errors of each class of ``classes`` in one :class:`ErrorHistogram` per class.
 
     Parameters
     ----------
@@ -91,29 +90,52 @@ def fit_classes(classes, values, errors, *, bin_width, limit_px, n_frames=1, max
         The histogram bins (see :class:`~prismap.characterise.ErrorHistogram`).
     n_frames : int
         Frames the samples came from (recorded in each class's histogram).
+
+    Returns
+    -------
+    tuple of ErrorHistogram
+        One per class, in class order.
+    """
+    label = classes.assign(values, np.ones(np.shape(errors), bool))
+    return tuple(dataclasses.replace(ErrorHistogram.from_errors(errors[label == k], bin_width=bin_width,
+                                                                limit_px=limit_px), n_frames=n_frames)
+                 for k in range(classes.n_classes))
+
+
+def fit_class_histograms(classes, histograms, *, max_components, criterion, tolerance, restarts=4, seed=0):
+    """One mixture per class: EM on each class's histogram, G by the criterion.
+
+    Parameters
+    ----------
+    classes : ErrorClasses
+        Names a class without errors in the error message.
+    histograms : sequence of ErrorHistogram
+        One per class (:func:`class_histograms`, or merged over frames).
     max_components, criterion, tolerance, restarts, seed
         As in :func:`prismap.characterise.characterise_matcher`.
 
     Returns
     -------
-    class_models : tuple of ClassModel
-        Shares are of the samples that fall in a class.
-    histograms : tuple of ErrorHistogram
+    tuple of ClassModel
+        Shares are of the errors that fall in a class.
     """
-    label = classes.assign(values, np.ones(np.shape(errors), bool))
-    n_classified = int((label >= 0).sum())
-    models, histograms = [], []
-    for k in range(classes.n_classes):
-        part = dataclasses.replace(
-            ErrorHistogram.from_errors(errors[label == k], bin_width=bin_width, limit_px=limit_px), n_frames=n_frames,
-        )
+    n_classified = sum(part.n_errors for part in histograms)
+    models = []
+    for k, part in enumerate(histograms):
         if part.counts.sum() == 0:
             raise PrismapInputError(f"error class {k} ({classes.bounds(k)}) has no error to fit")
         fits, selected = fit_class(part.counts.astype(np.float64), part.edges, max_components=max_components,
                                    criterion=criterion, tolerance=tolerance, restarts=restarts, seed=seed)
         models.append(ClassModel(tuple(fits), selected, part.n_errors / n_classified, part.statistics()))
-        histograms.append(part)
-    return tuple(models), tuple(histograms)
+    return tuple(models)
+
+
+def fit_classes(classes, values, errors, *, bin_width, limit_px, n_frames=1, max_components, criterion, tolerance,
+                restarts=4, seed=0):
+    """:func:`class_histograms` of the samples, then :func:`fit_class_histograms`: ``(class_models, histograms)``."""
+    histograms = class_histograms(classes, values, errors, bin_width=bin_width, limit_px=limit_px, n_frames=n_frames)
+    return fit_class_histograms(classes, histograms, max_components=max_components, criterion=criterion,
+                                tolerance=tolerance, restarts=restarts, seed=seed), histograms
 
 
 def choose_classes(values, errors, fold, *, bin_edges, max_classes, max_components, criterion, tolerance,

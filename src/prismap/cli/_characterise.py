@@ -2,6 +2,8 @@
 
 import math
 
+import numpy as np
+
 from prismap._validate import check_positive
 from prismap.cli._args import add_out, seed
 from prismap.cli._bag import add_bag_arguments, open_bag_argument
@@ -50,6 +52,12 @@ def register(subparsers):
                              "held-out log-likelihood (the plain model is one candidate), one mixture per class")
     parser.add_argument("--max-classes", type=int, default=6, metavar="K",
                         help="most error classes of a conditioned model (default 6)")
+    parser.add_argument("--search-frames", type=int, metavar="N",
+                        help="frames, evenly spread, whose pixels the class search samples; every frame fills the "
+                             "class histograms (default 16)")
+    parser.add_argument("--max-samples", type=int, metavar="N",
+                        help="most pixels the class search keeps, so memory does not grow with the frames "
+                             "(default 4000000)")
     add_bag_arguments(parser, poses=False)
     parser.set_defaults(func=run)
 
@@ -62,8 +70,9 @@ def run(args):
     bin_width = check_positive(args.bin_width, "--bin-width")
     if args.max_components < 1:
         raise PrismapInputError(f"`--max-components` must be >= 1; got {args.max_components}")
-    if args.max_classes < 1:
-        raise PrismapInputError(f"`--max-classes` must be >= 1; got {args.max_classes}")
+    for option in ("max_classes", "search_frames", "max_samples"):
+        if getattr(args, option) is not None and getattr(args, option) < 1:
+            raise PrismapInputError(f"`--{option.replace('_', '-')}` must be >= 1; got {getattr(args, option)}")
     if (args.dataset is None) == (args.bag is None):
         raise PrismapInputError("give exactly one of --dataset NAME|PATH and --bag PATH")
     if args.bag is not None and not args.truth_topic:
@@ -80,6 +89,7 @@ def run(args):
         frames, matcher, max_components=args.max_components, bin_width=bin_width, dataset=args.dataset,
         criterion=args.criterion, tolerance=args.tolerance, seed=args.seed, conditioned=args.conditioned,
         max_classes=args.max_classes,
+        **{name: getattr(args, name) for name in ("search_frames", "max_samples") if getattr(args, name) is not None},
     )
     paths = write_characterisation(result, args.out)
     stats = result.histogram.statistics()
@@ -112,9 +122,15 @@ def _search_range(matcher_name, frames):
     """Matcher options whose disparity range covers the largest ground-truth disparity of the frames.
 
     The largest disparity comes from a pass over the ground truth alone (no frame is kept), bounded by
-    each image's width.
+    each image's width. The range stays below the first frame's width (no match can lie farther; the
+    matchers refuse a range that reaches it), so a disparity within 16 px of the width is searched
+    up to the last multiple of 16 below it.
     """
     largest = frames.max_disparity_px()
+    width = np.shape(frames.disparity_gt(0))[1]
     if matcher_name == "variational":
-        return {"max_disparity": float(math.ceil(largest) + 1)}
-    return {"num_disparities": 16 * math.ceil((largest + 1) / 16)}
+        return {"max_disparity": float(min(math.ceil(largest) + 1, width - 1))}
+    if width <= 16:
+        raise PrismapInputError(f"--dataset: images {width} px wide leave no disparity search range "
+                                f"({matcher_name} searches in steps of 16 px, below the image width)")
+    return {"num_disparities": min(16 * math.ceil((largest + 1) / 16), 16 * ((width - 1) // 16))}

@@ -25,7 +25,7 @@ OFFICE_SIZES = {
 
 
 def office2d_settings(*, n_frames=None, voxel_size_m=None, seed=0, quick=False, error_model=SGBM_LIKE_MIXTURE,
-                      max_range_m=15.0):
+                      max_depth_m=15.0):
     """The settings dict of a 2-D run (sizes of ``OFFICE_SIZES`` unless overridden)."""
     sizes = dict(OFFICE_SIZES[bool(quick)])
     if voxel_size_m is not None:
@@ -35,12 +35,12 @@ def office2d_settings(*, n_frames=None, voxel_size_m=None, seed=0, quick=False, 
     if not isinstance(error_model, GaussianMixture):
         raise PrismapInputError(f"`error_model` must be a GaussianMixture; got {type(error_model).__name__}")
     return {"world": "office2d", "quick": bool(quick), "seed": int(seed), "n_frames": n_frames,
-            "max_range_m": check_positive(max_range_m, "max_range_m"), "fov_deg": 90.0, "baseline_m": 0.1,
+            "max_depth_m": check_positive(max_depth_m, "max_depth_m"), "fov_deg": 90.0, "baseline_m": 0.1,
             "error_model": error_model.to_dict(), **sizes}
 
 
 def run_office2d(out_dir, *, n_frames=None, voxel_size_m=None, seed=0, quick=False, models=MODELS,
-                 error_model=SGBM_LIKE_MIXTURE, max_range_m=15.0):
+                 error_model=SGBM_LIKE_MIXTURE, max_depth_m=15.0):
     """Map the office world with every sensor model from disparities with known-mixture errors; score them.
 
     The scanner (:class:`prismap.sim.StereoScanner2D`, 90 degree field of view, 0.1 m baseline) follows
@@ -66,7 +66,7 @@ def run_office2d(out_dir, *, n_frames=None, voxel_size_m=None, seed=0, quick=Fal
         Coarser path, fewer rays, 0.2 m cells (tests, quick demo).
     models : sequence of str
     error_model : GaussianMixture, pixels
-    max_range_m : float, metres of camera depth
+    max_depth_m : float, metres of camera depth
         Farther hits give no measurement.
 
     Returns
@@ -78,7 +78,7 @@ def run_office2d(out_dir, *, n_frames=None, voxel_size_m=None, seed=0, quick=Fal
     from prismap.pipeline import build_sensor_model
 
     settings = office2d_settings(n_frames=n_frames, voxel_size_m=voxel_size_m, seed=seed, quick=quick,
-                                 error_model=error_model, max_range_m=max_range_m)
+                                 error_model=error_model, max_depth_m=max_depth_m)
     world = sim.office_world()
     poses = sim.waypoint_path(world.waypoints, step_m=settings["path_step_m"], turn_step_deg=settings["turn_step_deg"])
     if n_frames is not None:
@@ -89,10 +89,10 @@ def run_office2d(out_dir, *, n_frames=None, voxel_size_m=None, seed=0, quick=Fal
     out = claim_out_dir(out_dir, settings)
     voxel = settings["voxel_size_m"]
     scanner = sim.StereoScanner2D(n_rays=settings["n_rays"], fov_deg=settings["fov_deg"],
-                                  baseline_m=settings["baseline_m"], max_range_m=settings["max_range_m"],
+                                  baseline_m=settings["baseline_m"], max_depth_m=settings["max_depth_m"],
                                   error_model=error_model)
     frames = list(scanner.frames(world, poses, seed=seed))
-    truth = world.ground_truth(frames, voxel, max_range_m=settings["max_range_m"])
+    truth = world.ground_truth(frames, voxel, max_depth_m=settings["max_depth_m"])
     p0 = prior_of(truth)
 
     def build_map(model_name):

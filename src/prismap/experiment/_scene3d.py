@@ -217,7 +217,7 @@ def run_rendered_world(world, out_dir, *, n_frames=None, voxel_size_m=None, seed
     map_frames = [frames[i] for i in map_index]
     sequence_dir = out / "sequence"
     if not (sequence_dir / "occupancy.npz").is_file():  # written last: its presence means the sequence is whole
-        truth = scene.ground_truth(map_frames, voxel, max_range_m=settings["max_range_m"])
+        truth = scene.ground_truth(map_frames, voxel, max_depth_m=settings["max_range_m"])
         write_sequence(map_frames, sequence_dir, occupancy=truth)
     sequence = read_sequence(sequence_dir)
     truth = sequence.ground_truth

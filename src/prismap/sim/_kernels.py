@@ -143,13 +143,13 @@ def shade_view(origin, rotation, focal, cx, cy, depth, box, axis, box_texture, b
 
 
 @numba.njit(cache=True)
-def mark_visible(mask, key_lo, voxel_size, planar_z, rotation_wc, position_w, focal, cx, cy, depth, max_range):
+def mark_visible(mask, key_lo, voxel_size, planar_z, rotation_wc, position_w, focal, cx, cy, depth, max_depth):
     """Set ``mask[i, j, k]`` for voxels whose centre a camera sees in front of (or on) the surface.
 
     Voxel ``(i, j, k)`` has key ``key_lo + (i, j, k)`` and centre ``(key + 0.5) * voxel_size``; with
     ``planar_z`` finite the centre's z is replaced by it (2-D worlds: the sensor plane). ``rotation_wc`` (3, 3)
     and ``position_w`` (3,) are the camera's pose (R_world_cam, camera centre). A centre counts if it
-    projects (nearest pixel) into the image, its camera depth is positive, not beyond ``max_range`` and not
+    projects (nearest pixel) into the image, its camera depth is positive, not beyond ``max_depth`` and not
     beyond the true surface depth ``depth`` (H, W) at that pixel (inf where nothing is hit).
     """
     height, width = depth.shape
@@ -162,7 +162,7 @@ def mark_visible(mask, key_lo, voxel_size, planar_z, rotation_wc, position_w, fo
                 centre_z = planar_z if np.isfinite(planar_z) else (key_lo[2] + k + 0.5) * voxel_size
                 offset[2] = centre_z - position_w[2]
                 z = rotation_wc[0, 2] * offset[0] + rotation_wc[1, 2] * offset[1] + rotation_wc[2, 2] * offset[2]
-                if z <= 0.0 or z > max_range:
+                if z <= 0.0 or z > max_depth:
                     continue
                 x = rotation_wc[0, 0] * offset[0] + rotation_wc[1, 0] * offset[1] + rotation_wc[2, 0] * offset[2]
                 y = rotation_wc[0, 1] * offset[0] + rotation_wc[1, 1] * offset[1] + rotation_wc[2, 1] * offset[2]

@@ -134,15 +134,15 @@ class Scene3D:
         for index, pose in enumerate(poses):
             yield self.render(camera, pose, noise_sigma=noise_sigma, rng=rng, name=f"{self.name}/{index:06d}")
 
-    def ground_truth(self, frames, voxel_size_m, *, max_range_m=np.inf):
+    def ground_truth(self, frames, voxel_size_m, *, max_depth_m=np.inf):
         """:class:`~prismap.io.GroundTruthOccupancy` of the scene seen by ``frames`` (e.g. rendered ones).
 
         Occupied: every voxel holding a point of a box -- boxes are solid, so voxels inside furniture are
         occupied too, although no sensor sees them; they are scored only if observed. Observed: voxels whose
-        centre a frame sees in front of (or on) the true surface within ``max_range_m`` of camera depth, and
+        centre a frame sees in front of (or on) the true surface within ``max_depth_m`` of camera depth, and
         the voxels of the visible surface points (see ``prismap.sim._truth.ground_truth``).
         """
-        return ground_truth(self.box_lo, self.box_hi, frames, voxel_size_m, max_range_m=max_range_m)
+        return ground_truth(self.box_lo, self.box_hi, frames, voxel_size_m, max_depth_m=max_depth_m)
 
 
 ROOM_M = (14.0, 9.0, 3.0)  # interior of the indoor scene: x, y, z extents from the origin
@@ -191,18 +191,28 @@ def indoor_scene(*, seed=0):
     return Scene3D(lo, hi, texture, texel, tint, name=f"indoor-{seed}")
 
 
+MAX_INDOOR_FRAMES = 360
+"""Most frames of :func:`indoor_trajectory`: one per degree of the loop (more are near-duplicates)."""
+
+
 def indoor_trajectory(n_frames=40, *, seed=0):
     """A smooth closed loop through :func:`indoor_scene`'s room, panning and tilting to look at its content.
 
     The camera circles the room centre (7, 4.5) on a seeded, wobbling ellipse of radii about 3.8 x 2.0 m at
     1.4-1.6 m height, heading along the path plus a +-35 degree pan, pitched 3-9 degrees down.
 
+    Parameters
+    ----------
+    n_frames : int, 1 .. MAX_INDOOR_FRAMES
+    seed : int
+
     Returns
     -------
     T_world_cam : (n_frames, 4, 4) float64
     """
-    if int(n_frames) != n_frames or n_frames < 1:
-        raise PrismapInputError(f"`n_frames` must be a positive integer; got {n_frames!r}")
+    if isinstance(n_frames, bool) or int(n_frames) != n_frames or not 1 <= n_frames <= MAX_INDOOR_FRAMES:
+        raise PrismapInputError(f"`n_frames` must be an integer in [1, {MAX_INDOOR_FRAMES}] (one frame per degree "
+                                f"of the loop at most); got {n_frames!r}")
     rng = np.random.default_rng(seed)
     amplitude, phase = rng.uniform(-0.05, 0.05, 2), rng.uniform(0, 2 * np.pi, 3)
     angle = np.linspace(0.0, 2 * np.pi, int(n_frames), endpoint=False)

@@ -65,7 +65,7 @@ def street_scene(*, seed=0):
     >>> camera = sim.kitti_camera()  # 1242x375; kitti_camera(scale=0.5) for 621x188
     >>> poses = sim.street_trajectory(10, seed=0)  # T_world_cam, 1 m apart
     >>> frames = list(scene.frames(camera, poses, seed=0))  # StereoFrame: left, right, disparity_gt, T_world_cam
-    >>> truth = scene.ground_truth(frames, 0.1, max_range_m=80.0)  # GroundTruthOccupancy
+    >>> truth = scene.ground_truth(frames, 0.1, max_depth_m=80.0)  # GroundTruthOccupancy
     """
     rng = np.random.default_rng(seed)
     tex = {name: i for i, name in enumerate(PHOTOGRAPHS)}

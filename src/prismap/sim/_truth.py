@@ -20,14 +20,14 @@ def solid_key_ranges(box_lo, box_hi, voxel_size_m):
     )
 
 
-def ground_truth(box_lo, box_hi, frames, voxel_size_m, *, planar=False, max_range_m=np.inf):
+def ground_truth(box_lo, box_hi, frames, voxel_size_m, *, planar=False, max_depth_m=np.inf):
     """Occupied and observed voxels of a world of closed axis-aligned boxes seen by ``frames``.
 
     Occupied: every voxel containing a point of a box (boxes are solid, so their inside is occupied too).
     Observed by a frame: (a) voxels whose centre projects (nearest pixel) into the image at a camera depth in
-    (0, min(true surface depth at that pixel, ``max_range_m``)] -- the free space a noise-free sensor sweeps,
+    (0, min(true surface depth at that pixel, ``max_depth_m``)] -- the free space a noise-free sensor sweeps,
     tested like a projective mapper does -- and (b) the voxels holding the visible surface points of the
-    pixels (their true hits within ``max_range_m``). Only voxels inside the boxes' bounding box count.
+    pixels (their true hits within ``max_depth_m``). Only voxels inside the boxes' bounding box count.
 
     Parameters
     ----------
@@ -39,14 +39,14 @@ def ground_truth(box_lo, box_hi, frames, voxel_size_m, *, planar=False, max_rang
     voxel_size_m : float, metres
     planar : bool
         2-D world: voxel centres are taken in the sensor plane z = 0 and only the layer z key 0 is used.
-    max_range_m : float, metres
+    max_depth_m : float, metres of camera depth (z)
 
     Returns
     -------
     GroundTruthOccupancy
     """
     voxel = check_positive(voxel_size_m, "voxel_size_m")
-    max_range = float(max_range_m)
+    max_depth = float(max_depth_m)
     key_lo, key_hi = solid_key_ranges(box_lo, box_hi, voxel)
     bounds_lo, bounds_hi = key_lo.min(axis=0), key_hi.max(axis=0)
     if planar:
@@ -66,9 +66,9 @@ def ground_truth(box_lo, box_hi, frames, voxel_size_m, *, planar=False, max_rang
         mark_visible(
             seen, bounds_lo, voxel, 0.0 if planar else np.nan, np.ascontiguousarray(pose[:3, :3]),
             np.ascontiguousarray(pose[:3, 3]),
-            camera.focal_px, camera.cx_px, camera.cy_px, np.where(np.isnan(depth), np.inf, depth), max_range,
+            camera.focal_px, camera.cx_px, camera.cy_px, np.where(np.isnan(depth), np.inf, depth), max_depth,
         )
-        hit = np.isfinite(depth) & (depth <= max_range)
+        hit = np.isfinite(depth) & (depth <= max_depth)
         points_w = (camera.pixel_rays(depth.shape)[hit] * depth[hit, None]) @ pose[:3, :3].T + pose[:3, 3]
         keys = np.floor(points_w / voxel).astype(np.int64) - bounds_lo
         if planar:

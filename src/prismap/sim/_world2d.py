@@ -88,14 +88,14 @@ class World2D:
             grid[y0 : y1 + 1, x0 : x1 + 1] = True
         return grid
 
-    def ground_truth(self, frames, cell_size_m, *, max_range_m=np.inf):
+    def ground_truth(self, frames, cell_size_m, *, max_depth_m=np.inf):
         """:class:`~prismap.io.GroundTruthOccupancy` of this world seen by ``frames`` (keys with z = 0).
 
         Occupied keys are those of :meth:`occupancy`; observed keys are the cells whose centre the sensor
-        sees up to the true surface (or ``max_range_m`` of camera depth), plus the cells of the true hits.
+        sees up to the true surface (or ``max_depth_m`` of camera depth), plus the cells of the true hits.
         """
         lo, hi = self.boxes
-        return ground_truth(lo, hi, frames, cell_size_m, planar=True, max_range_m=max_range_m)
+        return ground_truth(lo, hi, frames, cell_size_m, planar=True, max_depth_m=max_depth_m)
 
 
 def simple_world():
@@ -225,7 +225,7 @@ class StereoScanner2D:
     the image ``fov_deg`` wide from the outer pixel edges: ``f = (n_rays / 2) / tan(fov / 2)``. The ray of
     column u is ``((u - cx) / f, 0, 1)`` in camera axes. A hit at camera depth z (along the optical axis, not
     along the ray) has the true disparity ``d = f b / z``; the sensor reports ``d - e`` with ``e`` drawn from
-    ``error_model`` (``e = d_true - d_measured``), NaN when the hit is deeper than ``max_range_m``, when nothing
+    ``error_model`` (``e = d_true - d_measured``), NaN when the hit is deeper than ``max_depth_m``, when nothing
     is hit, or when the measurement is <= 0 (a matcher reports no negative disparities).
 
     Parameters
@@ -233,12 +233,12 @@ class StereoScanner2D:
     n_rays : int
     fov_deg : float, degrees, in (0, 180)
     baseline_m : float, metres
-    max_range_m : float, metres of camera depth
+    max_depth_m : float, metres of camera depth
     error_model : GaussianMixture or None
         None: noise-free measurements.
     """
 
-    def __init__(self, *, n_rays=360, fov_deg=90.0, baseline_m=0.1, max_range_m=15.0, error_model=None):
+    def __init__(self, *, n_rays=360, fov_deg=90.0, baseline_m=0.1, max_depth_m=15.0, error_model=None):
         if int(n_rays) != n_rays or n_rays < 1:
             raise PrismapInputError(f"`n_rays` must be a positive integer; got {n_rays!r}")
         fov = float(fov_deg)
@@ -248,7 +248,7 @@ class StereoScanner2D:
             raise PrismapInputError(
                 f"`error_model` must be a GaussianMixture or None; got {type(error_model).__name__}"
             )
-        self.max_range_m = check_positive(max_range_m, "max_range_m")
+        self.max_depth_m = check_positive(max_depth_m, "max_depth_m")
         self.error_model = error_model
         focal = (n_rays / 2) / np.tan(np.radians(fov) / 2)
         self.camera = StereoCamera(focal, (n_rays - 1) / 2, 0.0, baseline_m, width=int(n_rays), height=1)
@@ -277,7 +277,7 @@ class StereoScanner2D:
         measured = truth.copy()
         if self.error_model is not None:
             measured -= self.error_model.sample(truth.size, rng).reshape(truth.shape)
-        measured[~(depth <= self.max_range_m) | ~(measured > 0)] = np.nan
+        measured[~(depth <= self.max_depth_m) | ~(measured > 0)] = np.nan
         range_m = depth * np.linalg.norm(self.ray_directions_cam, axis=1)
         return DisparityFrame(measured.astype(np.float32), cam, pose.copy(), truth, range_m, name=name)
 
