@@ -74,7 +74,7 @@ def test_continuous_converges_to_discrete_as_cells_shrink():
         edges = np.arange(1.0, 8.0 + 1e-9, length)
         p0 = -np.expm1(-rate * length)
         model = PrismModel(error_model=MIXTURE, focal_baseline=FB, voxel_size_m=length, p0=p0,
-                           near_m=edges[0], max_range_m=edges[-1], method="direct")
+                           near_m=edges[0], far_depth_m=edges[-1], method="direct")
         continuous, _ = model.cell_posteriors([d_hat], [1.0], *_one_ray_cells(edges))
         discrete = prism_discrete_posteriors(d_hat, edges, MIXTURE, focal_baseline=FB, p0=p0)
         errors.append(np.abs(continuous - discrete).max())
@@ -175,7 +175,7 @@ def test_influence_depth_bounds_every_later_cell():
     disparity = _on_grid(depths)
     norm = np.array([1.0, 1.1, 1.25])
     influence = model.influence_depth(disparity, norm)
-    assert np.all(influence > FB / disparity) and np.all(influence <= model.max_range_m)
+    assert np.all(influence > FB / disparity) and np.all(influence <= model.far_depth_m)
     rng = np.random.default_rng(5)
     rays = np.repeat(np.arange(3), 40)
     start = np.repeat(influence, 40) + rng.uniform(0, 5, 120)
@@ -197,7 +197,7 @@ def test_prior_estimated_from_likelihood_recovers_the_simulated_prior():
     rng = np.random.default_rng(11)
     disparity, norm = _simulate_disparities(rng, 0.03, 600)
     estimate = estimate_prior_from_likelihood(disparity, norm, error_model=MIXTURE, focal_baseline=FB,
-                                              voxel_size_m=0.1, near_m=0.5, max_range_m=60.0, max_rays=600)
+                                              voxel_size_m=0.1, near_m=0.5, far_depth_m=60.0, max_rays=600)
     assert estimate == pytest.approx(0.03, rel=0.2)
 
 
@@ -214,7 +214,7 @@ def test_prior_from_ground_truth_is_the_smoothed_occupancy_ratio():
     [
         ({}, "error_model"),
         ({"error_model": MIXTURE, "p0": 1.0}, "p0"),
-        ({"error_model": MIXTURE, "near_m": 5.0, "max_range_m": 2.0}, "near_m < max_range_m"),
+        ({"error_model": MIXTURE, "near_m": 5.0, "far_depth_m": 2.0}, "near_m < far_depth_m"),
         ({"error_model": MIXTURE, "method": "fast"}, "method"),
         ({"error_model": MIXTURE, "voxel_size_m": -0.1}, "voxel_size_m"),
         ({"error_model": MIXTURE, "focal_baseline": 0.0}, "focal_baseline"),
@@ -262,7 +262,7 @@ def test_rate_derivatives_of_the_evidence_match_finite_differences(depth, max_ra
     """The tables' Taylor terms in log(lambda) come from moments; check them on log Z, far term included."""
     from prismap.sensor_models import _kernels
 
-    model = PrismModel(error_model=MIXTURE, focal_baseline=FB, max_range_m=max_range)
+    model = PrismModel(error_model=MIXTURE, focal_baseline=FB, far_depth_m=max_range)
     shift = _on_grid([depth])[0]
     log_wn, means, sigmas = model._mixture_arrays()
     log_far = float(model._log_far(shift))

@@ -122,7 +122,7 @@ class PrismModel(RayModel):
 
     Surfaces along a ray form a Poisson process of rate ``lambda = -ln(1 - p0) / voxel_size_m`` per metre
     of ray (``lambda_z = lambda |r|`` per metre of depth), starting at ``near_m``; the pixel sees the first
-    one; ``d^ = f b / z* - doffs - e`` with ``e`` from ``error_model``; nothing before ``max_range_m``
+    one; ``d^ = f b / z* - doffs - e`` with ``e`` from ``error_model``; nothing before ``far_depth_m``
     gives a far measurement. ``cell_posteriors`` uses ``method``:
 
     - ``"table"`` (default): ``log(C/Z)`` and ``log(D/Z)`` tabulated per (``d^`` rounded to
@@ -152,7 +152,7 @@ class PrismModel(RayModel):
         ``z0``: no surface before this depth. Table size and build time grow like ``1 / near_m`` (the
         likelihood term of ``x``): setting it to the matcher's nearest depth ``f b / max_disparity`` saves
         most of both (0.5 m instead of 0.1 m: 5x fewer nodes).
-    max_range_m : float, metres, default 200
+    far_depth_m : float, metres, default 200
         ``z_max``: beyond it, the far measurement.
     method : {"table", "direct"}
     disparity_step_px : float, pixels, default 1/16
@@ -168,7 +168,7 @@ class PrismModel(RayModel):
     default_policy = "mean"
     error_model: GaussianMixture | None = None
     near_m: float = 0.1
-    max_range_m: float = 200.0
+    far_depth_m: float = 200.0
     method: str = "table"
     disparity_step_px: float = 1.0 / 16.0
     influence_epsilon: float = INFLUENCE_EPSILON
@@ -184,13 +184,13 @@ class PrismModel(RayModel):
                 f"got {type(self.error_model).__name__}"
             )
         near = check_positive(self.near_m, "near_m")
-        far = check_positive(self.max_range_m, "max_range_m")
+        far = check_positive(self.far_depth_m, "far_depth_m")
         if far <= near:
-            raise PrismapInputError(f"prism: need near_m < max_range_m; got {near} and {far}")
+            raise PrismapInputError(f"prism: need near_m < far_depth_m; got {near} and {far}")
         if self.method not in ("table", "direct"):
             raise PrismapInputError(f"prism: `method` must be 'table' or 'direct'; got {self.method!r}")
         object.__setattr__(self, "near_m", near)
-        object.__setattr__(self, "max_range_m", far)
+        object.__setattr__(self, "far_depth_m", far)
         object.__setattr__(self, "disparity_step_px", check_positive(self.disparity_step_px, "disparity_step_px"))
         object.__setattr__(self, "influence_epsilon", check_positive(self.influence_epsilon, "influence_epsilon"))
         memory = check_positive(self.table_memory_mb, "table_memory_mb")
@@ -203,10 +203,10 @@ class PrismModel(RayModel):
 
         A table's grid runs in ``x = lambda_z z - f b / (sigma_min z)`` with a node every
         ``_QUAD_STEP * _NODES_PER_TABLE_STEP`` in ``x``, so it holds at most ``x_span / 0.5`` nodes with
-        ``x_span = f b / (sigma_min near_m) + lambda |r| max_range_m`` (|r| <= 2, a 120 degree view). Without the
+        ``x_span = f b / (sigma_min near_m) + lambda |r| far_depth_m`` (|r| <= 2, a 120 degree view). Without the
         bound an error sigma of 1e-4 px or a sub-millimetre ``near_m`` asks for gigabytes and minutes per table.
         """
-        x_span = self._ku() / self.near_m + 2.0 * self.rate_per_m * self.max_range_m
+        x_span = self._ku() / self.near_m + 2.0 * self.rate_per_m * self.far_depth_m
         max_nodes = x_span / (_QUAD_STEP * _NODES_PER_TABLE_STEP)
         if max_nodes > MAX_TABLE_NODES:
             sigma_min = float(self.error_model.sigmas.min())
@@ -232,7 +232,7 @@ class PrismModel(RayModel):
         return self.focal_baseline / float(self.error_model.sigmas.min())
 
     def _log_far(self, disparity):
-        u_max = self.focal_baseline / self.max_range_m
+        u_max = self.focal_baseline / self.far_depth_m
         return log_mean_likelihood(0.0, u_max, disparity, self.error_model, self.doffs_px)
 
     # ------------------------------------------------------------------ interface
@@ -247,7 +247,7 @@ class PrismModel(RayModel):
             order = np.argsort(rays, kind="stable")
             ray_start = np.searchsorted(rays[order], np.arange(disparity.size + 1))
             return _kernels.prism_direct_cells(
-                disparity + self.doffs_px, lam, order, ray_start, start, end, self.near_m, self.max_range_m,
+                disparity + self.doffs_px, lam, order, ray_start, start, end, self.near_m, self.far_depth_m,
                 self.focal_baseline, self._ku(), _QUAD_STEP, self._log_far(disparity), *self._mixture_arrays(),
             )
         if method != "table":
@@ -258,7 +258,7 @@ class PrismModel(RayModel):
         """Depth beyond which every cell's ``|logit(P) - logit(p_c)| < influence_epsilon`` (metres), per ray.
 
         From the bound ``|increment(a)| <= log(1 + e^{-lambda (a - z0)} sup_{t >= a} g(t) / C(a))``, which
-        holds for a cell of any length starting at ``a``; capped at ``max_range_m``.
+        holds for a cell of any length starting at ``a``; capped at ``far_depth_m``.
         """
         disparity = as_float_array(disparity_px, "disparity_px", ndim=1, allow_nan=False)
         norm = as_float_array(ray_norm, "ray_norm", shape=(disparity.size,))
@@ -291,12 +291,12 @@ class PrismModel(RayModel):
         for lo in range(0, n, _CHUNK_CELLS):
             hi = min(lo + _CHUNK_CELLS, n)
             m = hi - lo
-            _kernels.prism_table_lookup(lam, table, delta, rays, start, end, lo, hi, self.near_m, self.max_range_m,
+            _kernels.prism_table_lookup(lam, table, delta, rays, start, end, lo, hi, self.near_m, self.far_depth_m,
                                         self.focal_baseline, self._ku(), _QUAD_STEP, meta, nodes, log_wn, means,
                                         sigmas, l_a, l_c, side)
             np.exp(l_a[:m], out=e_a[:m])
             np.exp(l_c[:m], out=e_c[:m])
-            n_fix = _kernels.prism_table_combine(lam, rays, start, end, lo, hi, self.near_m, self.max_range_m, l_a,
+            n_fix = _kernels.prism_table_combine(lam, rays, start, end, lo, hi, self.near_m, self.far_depth_m, l_a,
                                                  l_c, e_a, e_c, side, post, ratio, fix_index, fix_value)
             np.log(ratio[:m], out=inc[lo:hi])
             inc[lo + fix_index[:n_fix]] = fix_value[:n_fix]
@@ -321,13 +321,13 @@ class PrismModel(RayModel):
         built = []
         for d, rate, far in zip(disparity, lam, log_far):
             nodes, meta = _kernels.prism_table(
-                d + self.doffs_px, rate, self.near_m, self.max_range_m, self.focal_baseline, self._ku(),
+                d + self.doffs_px, rate, self.near_m, self.far_depth_m, self.focal_baseline, self._ku(),
                 _QUAD_STEP, far, log_eps_bound, _LAMBDA_SLACK, _NODES_PER_TABLE_STEP, _COARSE_RATIO,
                 _COARSE_BELOW, log_wn, means, sigmas,
             )
             if nodes.shape[0] < 2:
                 raise PrismapInputError(
-                    f"prism: near_m={self.near_m} to max_range_m={self.max_range_m} is too short to tabulate"
+                    f"prism: near_m={self.near_m} to far_depth_m={self.far_depth_m} is too short to tabulate"
                 )
             built.append((nodes, (rate, *meta, d + self.doffs_px, far)))
         return built
@@ -422,7 +422,7 @@ def prior_from_ground_truth(occupied):
 
 
 def estimate_prior_from_likelihood(disparity_px, ray_norm, *, error_model, focal_baseline, doffs_px=0.0,
-                                   voxel_size_m=0.1, near_m=0.1, max_range_m=200.0, max_rays=2000, seed=0,
+                                   voxel_size_m=0.1, near_m=0.1, far_depth_m=200.0, max_rays=2000, seed=0,
                                    bounds=(1e-4, 0.9)):
     """``p0`` maximising the measurements' likelihood under PRISM's forward model.
 
@@ -436,7 +436,7 @@ def estimate_prior_from_likelihood(disparity_px, ray_norm, *, error_model, focal
     disparity_px : (R,) float64, pixels, finite
     ray_norm : (R,) float64, ``|r|`` of each ray
     error_model : GaussianMixture
-    focal_baseline, doffs_px, voxel_size_m, near_m, max_range_m
+    focal_baseline, doffs_px, voxel_size_m, near_m, far_depth_m
         As for :class:`PrismModel`.
     bounds : (float, float)
         Search interval of ``p0``.
@@ -457,14 +457,14 @@ def estimate_prior_from_likelihood(disparity_px, ray_norm, *, error_model, focal
         pick = np.random.default_rng(seed).choice(disparity.size, size=int(max_rays), replace=False)
         disparity, norm = disparity[pick], norm[pick]
     model = PrismModel(error_model=error_model, focal_baseline=focal_baseline, doffs_px=doffs_px,
-                       voxel_size_m=voxel_size_m, near_m=near_m, max_range_m=max_range_m)
+                       voxel_size_m=voxel_size_m, near_m=near_m, far_depth_m=far_depth_m)
     shift = disparity + model.doffs_px
     log_far = model._log_far(disparity)
     log_wn, means, sigmas = model._mixture_arrays()
 
     def negative_log_likelihood(log_p0):
         lam = -np.log1p(-np.exp(log_p0)) / model.voxel_size_m * norm
-        return -_kernels.prism_log_evidence(shift, lam, model.near_m, model.max_range_m, model.focal_baseline,
+        return -_kernels.prism_log_evidence(shift, lam, model.near_m, model.far_depth_m, model.focal_baseline,
                                            model._ku(), _QUAD_STEP, log_far, log_wn, means, sigmas).sum()
 
     result = minimize_scalar(negative_log_likelihood, bounds=(np.log(lo), np.log(hi)), method="bounded",
