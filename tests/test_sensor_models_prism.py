@@ -9,6 +9,8 @@ from prismap.errors import PrismapInputError
 from prismap.gmm import GaussianMixture
 from prismap.sensor_models import (
     PrismModel,
+    _kernels,
+    _prism,
     estimate_prior_from_likelihood,
     make_sensor_model,
     prior_from_ground_truth,
@@ -239,14 +241,14 @@ def test_bad_rays_are_named():
 
 
 def test_table_cache_evicts_least_recently_used_beyond_its_budget():
-    model = PrismModel(error_model=MIXTURE, focal_baseline=FB, table_memory_mb=0.05)  # room for ~2 tables
+    model = PrismModel(error_model=MIXTURE, focal_baseline=FB, table_memory_mb=0.025)  # room for ~2 tables
     edges = np.linspace(0.5, 12.0, 60)
     cells = _one_ray_cells(edges)
     first = model.cell_posteriors(_on_grid([2.0]), [1.0], *cells)
     assert len(model._cache) == 1
     for depth in (3.0, 4.0, 5.0):
         model.cell_posteriors(_on_grid([depth]), [1.0], *cells)
-        assert model._cache.nbytes <= model._cache.budget_bytes
+        assert model._cache.nbytes <= model._cache.limit_bytes
     assert len(model._cache) < 4  # the 2 m table went first
     np.testing.assert_array_equal(model.cell_posteriors(_on_grid([2.0]), [1.0], *cells)[1], first[1])
     # the tables one call needs stay, even beyond the budget
@@ -257,10 +259,33 @@ def test_table_cache_evicts_least_recently_used_beyond_its_budget():
         PrismModel(error_model=MIXTURE, focal_baseline=FB, table_memory_mb=0.0)
 
 
+def _fake_tables(keys):
+    """Tables of 100 nodes whose only content is their key (the cache never looks inside)."""
+    return [(np.full((100, _kernels.TABLE_COLUMNS), float(k)), (float(k),) * (len(_kernels.META_COLUMNS) - 2))
+            for k in keys]
+
+
+@pytest.mark.parametrize(("budget_tables", "rebuilt"), [(None, False), (6, True)])
+def test_auto_table_budget_keeps_a_frame_asked_for_in_chunks(budget_tables, rebuilt):
+    node_bytes = _prism._TableCache(None, 0).nodes.itemsize
+    table_bytes = 100 * _kernels.TABLE_COLUMNS * node_bytes + len(_kernels.META_COLUMNS) * 8
+    budget = None if budget_tables is None else budget_tables * table_bytes
+    cache = _prism._TableCache(budget, floor_bytes=table_bytes)
+    frame = np.arange(10, dtype=np.int64)
+    for _ in range(2):  # two frames seeing the same keys: the whole frame at once, then in two chunks
+        for keys in (frame, frame[:5], frame[5:]):
+            rows = cache.rows(keys, _fake_tables)
+            assert np.array_equal(cache.meta[rows, 1], keys)  # each key's own table
+    assert cache.builds > 10 if rebuilt else (cache.builds == 10 and cache.hits == 30)
+    if budget is None:  # a new frame of 10 other keys: the oldest 10 go, two frames' tables stay
+        cache.rows(frame + 10, _fake_tables)
+        cache.rows(frame + 20, _fake_tables)
+        assert sorted(cache.index) == list(range(10, 30)) and cache.nbytes <= cache.limit_bytes
+
+
 @pytest.mark.parametrize(("depth", "max_range"), [(3.0, 200.0), (15.0, 20.0)])
 def test_rate_derivatives_of_the_evidence_match_finite_differences(depth, max_range):
     """The tables' Taylor terms in log(lambda) come from moments; check them on log Z, far term included."""
-    from prismap.sensor_models import _kernels
 
     model = PrismModel(error_model=MIXTURE, focal_baseline=FB, far_depth_m=max_range)
     shift = _on_grid([depth])[0]
@@ -284,7 +309,6 @@ def test_rate_derivatives_of_the_evidence_match_finite_differences(depth, max_ra
 
 def test_table_chunks_give_the_same_cells_as_one_chunk(monkeypatch):
     """Chunk boundaries (look-up reuse restarts, near-underflow cells patched per chunk) change nothing."""
-    from prismap.sensor_models import _prism
 
     rng = np.random.default_rng(8)
     depths = np.exp(rng.uniform(np.log(0.5), np.log(30.0), 12))
@@ -303,7 +327,6 @@ def test_table_chunks_give_the_same_cells_as_one_chunk(monkeypatch):
 
 def test_endpoint_asymptotic_of_the_evidence_matches_fine_quadrature_where_steep():
     """The coarse front of a table uses C = q g / (q g)'; check it against quadrature with fine panels."""
-    from prismap.sensor_models import _kernels
 
     model = PrismModel(error_model=MIXTURE, focal_baseline=FB)
     log_wn, means, sigmas = model._mixture_arrays()
@@ -323,7 +346,6 @@ def test_endpoint_asymptotic_of_the_evidence_matches_fine_quadrature_where_steep
 
 
 def test_table_keys_match_numpy_unique_of_the_packed_keys():
-    from prismap.sensor_models import _kernels, _prism
 
     rng = np.random.default_rng(21)
     disparity = np.round(rng.uniform(0.5, 80.0, 5000), 1)  # repeated disparities: few distinct keys

@@ -40,7 +40,11 @@ _NODES_PER_TABLE_STEP = 2  # table node spacing = 2 panels = 0.5 in x
 _COARSE_RATIO = 64  # node spacing 32 in x where log(C/Z) < _COARSE_BELOW (near-quadratic in x) and past influence
 _COARSE_BELOW = -40.0
 MAX_TABLE_NODES = 1 << 20
-"""Most nodes one table may need (64 MiB of float64 rows; see ``PrismModel._check_table_size``)."""
+"""Most nodes one table may need (32 MiB of float32 rows; see ``PrismModel._check_table_size``)."""
+AUTO_TABLE_FLOOR_MB = 64.0
+"""Least table cache budget (MiB) of a model with ``table_memory_mb=None``."""
+AUTO_TABLE_CALLS = 2
+"""A model with ``table_memory_mb=None`` keeps this many times the tables of its largest call."""
 _LAMBDA_STEP = 0.1  # table grid in log(lambda_z): one table every ~10 % of ray norm, the nearest one per ray
 _LAMBDA_SLACK = float(np.expm1(_LAMBDA_STEP / 2))  # relative rate gap a table's influence depth covers
 _KEY_L_SPAN = 1 << 16  # table key = disparity key * span + rate key
@@ -130,12 +134,12 @@ class PrismModel(RayModel):
       ``x = lambda_z z - f b / (sigma_min z)``: a node every half prior e-fold or narrowest sigma from
       where ``C/Z > e^-40`` to the influence depth; every 32 before (``C`` from its endpoint asymptotic
       there) and 4 nodes beyond. Cubic Hermite in ``x`` with exact derivatives; each ray uses the table of
-      the nearest rate plus a second-order Taylor term in ``log lambda_z`` (from stored moments). About
-      14 KB per table. Error against ``"direct"``: within :data:`TABLE_TOLERANCE` for
+      the nearest rate plus a second-order Taylor term in ``log lambda_z`` (from stored moments). Nodes
+      are stored in float32 (their rounding is far below the tolerance): 5-30 KB a table. Error against ``"direct"``: within :data:`TABLE_TOLERANCE` for
       disparities on the step grid; off-grid disparities are rounded (a shift of at most half a step).
       Tables are cached on the model (one model per error model and camera; each
-      :meth:`with_extra_noise` copy has its own), least recently used ones dropped beyond
-      ``table_memory_mb``, so a sequence pays for each table about once. A cell costs a look-up (reused
+      :meth:`with_extra_noise` copy has its own), least recently used ones dropped beyond the budget
+      (``table_memory_mb``), so a sequence pays for each table about once. A cell costs a look-up (reused
       from the previous cell when it starts where that one ended), a vectorised exp and log, and a
       division or two.
     - ``"direct"``: quadrature ray by ray (8-point Gauss-Legendre panels of x-width 0.25) with every cell
@@ -158,10 +162,14 @@ class PrismModel(RayModel):
     disparity_step_px : float, pixels, default 1/16
         Table key resolution (OpenCV's sub-pixel step).
     influence_epsilon : float, log-odds, default 1e-3
-    table_memory_mb : float, MiB, default 64
-        Table cache budget (about 20 KB per table at 0.1 m cells); the tables one call needs are kept even
-        beyond it. A model whose tables could exceed :data:`MAX_TABLE_NODES` nodes (an error sigma far below
-        the matcher's sub-pixel step, or a tiny ``near_m``) is refused on construction.
+    table_memory_mb : float or None, MiB, default None
+        Table cache budget; the tables one call needs are kept even beyond it. ``None``: the larger of
+        :data:`AUTO_TABLE_FLOOR_MB` and :data:`AUTO_TABLE_CALLS` times the tables of the largest call so
+        far. The integrators ask for a whole frame's rays at once (``influence_depth``) and then in chunks,
+        so the cache then holds two frames' tables: a fixed budget below one frame's tables (tens to
+        hundreds of MB on a street, 5-30 KB a table) rebuilds them chunk after chunk. A model whose
+        tables could exceed :data:`MAX_TABLE_NODES` nodes (an error sigma far below the matcher's sub-pixel
+        step, or a tiny ``near_m``) is refused on construction.
     """
 
     name = "prism"
@@ -172,7 +180,7 @@ class PrismModel(RayModel):
     method: str = "table"
     disparity_step_px: float = 1.0 / 16.0
     influence_epsilon: float = INFLUENCE_EPSILON
-    table_memory_mb: float = 64.0
+    table_memory_mb: float | None = None
     _cache: "_TableCache" = field(default=None, init=False, repr=False, compare=False)
     _widened: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
@@ -193,9 +201,12 @@ class PrismModel(RayModel):
         object.__setattr__(self, "far_depth_m", far)
         object.__setattr__(self, "disparity_step_px", check_positive(self.disparity_step_px, "disparity_step_px"))
         object.__setattr__(self, "influence_epsilon", check_positive(self.influence_epsilon, "influence_epsilon"))
-        memory = check_positive(self.table_memory_mb, "table_memory_mb")
-        object.__setattr__(self, "table_memory_mb", memory)
-        object.__setattr__(self, "_cache", _TableCache(int(memory * 2**20)))
+        if self.table_memory_mb is None:
+            budget = None
+        else:
+            object.__setattr__(self, "table_memory_mb", check_positive(self.table_memory_mb, "table_memory_mb"))
+            budget = int(self.table_memory_mb * 2**20)
+        object.__setattr__(self, "_cache", _TableCache(budget, int(AUTO_TABLE_FLOOR_MB * 2**20)))
         self._check_table_size()
 
     def _check_table_size(self):
@@ -336,18 +347,26 @@ class PrismModel(RayModel):
 class _TableCache:
     """PRISM tables packed in one node array, least recently used ones evicted beyond a memory budget.
 
-    ``meta`` has one row per table (``_kernels.META_COLUMNS``), ``nodes`` the rows of every table back to
-    back. Tables used by the current call are never evicted, so one call may exceed the budget.
+    ``meta`` has one row per table (``_kernels.META_COLUMNS``, float64: the grid's positions), ``nodes`` the
+    rows of every table back to back (float32: values and slopes, rounded far below ``TABLE_TOLERANCE``). Tables used by the current call are never evicted, so one call may exceed the budget. A budget of
+    ``None`` is the larger of ``floor_bytes`` and :data:`AUTO_TABLE_CALLS` times the bytes of the largest
+    call's tables so far (:attr:`limit_bytes`). ``hits`` and
+    ``builds`` count the distinct keys of every call found in the cache and built (a thrashing cache builds
+    the same keys again and again).
     """
 
-    def __init__(self, budget_bytes):
+    def __init__(self, budget_bytes, floor_bytes):
         self.budget_bytes = budget_bytes
+        self.floor_bytes = floor_bytes
+        self.largest_call_bytes = 0
         self.index = {}
         self.keys = np.empty(0, dtype=np.int64)
         self.meta = np.empty((0, len(_kernels.META_COLUMNS)))
-        self.nodes = np.empty((0, _kernels.TABLE_COLUMNS))
+        self.nodes = np.empty((0, _kernels.TABLE_COLUMNS), dtype=np.float32)
         self.last_used = np.empty(0, dtype=np.int64)
         self.clock = 0
+        self.hits = 0
+        self.builds = 0
 
     @property
     def nbytes(self):
@@ -357,17 +376,31 @@ class _TableCache:
     def __len__(self):
         return len(self.index)
 
+    @property
+    def limit_bytes(self):
+        """Bytes beyond which least recently used tables are dropped."""
+        if self.budget_bytes is not None:
+            return self.budget_bytes
+        return max(self.floor_bytes, AUTO_TABLE_CALLS * self.largest_call_bytes)
+
+    def _table_bytes(self):
+        """Bytes of each table (its nodes and metadata row)."""
+        return (self.meta[:, -1] * (self.nodes.itemsize * _kernels.TABLE_COLUMNS)
+                + self.meta.itemsize * self.meta.shape[1])
+
     def rows(self, keys, build):
         """Metadata row of each (distinct) key, calling ``build(missing keys)`` for absent ones."""
         rows = np.array([self.index.get(int(key), -1) for key in keys], dtype=np.int64)
         missing = keys[rows < 0]
+        self.hits += keys.size - missing.size
+        self.builds += missing.size
         if missing.size:
             built = build(missing)
             lengths = np.array([nodes.shape[0] for nodes, _ in built], dtype=np.float64)
             offsets = self.nodes.shape[0] + np.concatenate(([0.0], np.cumsum(lengths)[:-1]))
             extra = np.column_stack([np.array([row for _, row in built]), offsets, lengths])
             first = len(self.index)
-            self.nodes = np.concatenate([self.nodes] + [nodes for nodes, _ in built])
+            self.nodes = np.concatenate([self.nodes] + [nodes for nodes, _ in built], dtype=np.float32)
             self.meta = np.concatenate([self.meta, extra])
             self.keys = np.concatenate([self.keys, missing])
             self.last_used = np.concatenate([self.last_used, np.zeros(missing.size, dtype=np.int64)])
@@ -376,16 +409,17 @@ class _TableCache:
             rows[rows < 0] = first + np.arange(missing.size)
         self.clock += 1
         self.last_used[rows] = self.clock
-        if self.nbytes > self.budget_bytes:
+        self.largest_call_bytes = max(self.largest_call_bytes, int(self._table_bytes()[rows].sum()))
+        if self.nbytes > self.limit_bytes:
             rows = self._evict(rows)
         return rows
 
     def _evict(self, rows):
         """Drop the least recently used tables (never those of ``rows``) until within budget; new rows."""
-        size = self.meta[:, -1] * self.nodes.itemsize * _kernels.TABLE_COLUMNS + self.meta.itemsize * self.meta.shape[1]
+        size = self._table_bytes()
         order = np.argsort(self.last_used, kind="stable")
         order = order[self.last_used[order] < self.clock]
-        excess = self.nbytes - self.budget_bytes
+        excess = self.nbytes - self.limit_bytes
         drop = order[: np.searchsorted(np.cumsum(size[order]), excess) + 1]
         keep = np.setdiff1d(np.arange(len(self.index)), drop)
         starts = self.meta[keep, -2].astype(np.int64)
