@@ -135,8 +135,8 @@ class PrismModel(RayModel):
       where ``C/Z > e^-40`` to the influence depth; every 32 before (``C`` from its endpoint asymptotic
       there) and 4 nodes beyond. Cubic Hermite in ``x`` with exact derivatives; each ray uses the table of
       the nearest rate plus a second-order Taylor term in ``log lambda_z`` (from stored moments). Nodes
-      are stored in float32 (their rounding is far below the tolerance): 5-30 KB a table. Error against ``"direct"``: within :data:`TABLE_TOLERANCE` for
-      disparities on the step grid; off-grid disparities are rounded (a shift of at most half a step).
+      are stored in float32 (their rounding is far below the tolerance): 5-30 KB a table. Error against
+      ``"direct"``: within :data:`TABLE_TOLERANCE` for disparities on the step grid; off-grid disparities are rounded (a shift of at most half a step).
       Tables are cached on the model (one model per error model and camera; each
       :meth:`with_extra_noise` copy has its own), least recently used ones dropped beyond the budget
       (``table_memory_mb``), so a sequence pays for each table about once. A cell costs a look-up (reused
@@ -348,11 +348,11 @@ class _TableCache:
     """PRISM tables packed in one node array, least recently used ones evicted beyond a memory budget.
 
     ``meta`` has one row per table (``_kernels.META_COLUMNS``, float64: the grid's positions), ``nodes`` the
-    rows of every table back to back (float32: values and slopes, rounded far below ``TABLE_TOLERANCE``). Tables used by the current call are never evicted, so one call may exceed the budget. A budget of
+    rows of every table back to back (float32: values and slopes, rounded far below ``TABLE_TOLERANCE``).
+    Tables used by the current call are never evicted, so one call may exceed the budget. A budget of
     ``None`` is the larger of ``floor_bytes`` and :data:`AUTO_TABLE_CALLS` times the bytes of the largest
-    call's tables so far (:attr:`limit_bytes`). ``hits`` and
-    ``builds`` count the distinct keys of every call found in the cache and built (a thrashing cache builds
-    the same keys again and again).
+    call's tables so far (:attr:`limit_bytes`). ``hits`` and ``builds`` count the distinct keys of every
+    call found in the cache and built (a thrashing cache builds the same keys again and again).
     """
 
     def __init__(self, budget_bytes, floor_bytes):
