@@ -136,7 +136,8 @@ class PrismModel(RayModel):
       there) and 4 nodes beyond. Cubic Hermite in ``x`` with exact derivatives; each ray uses the table of
       the nearest rate plus a second-order Taylor term in ``log lambda_z`` (from stored moments). Nodes
       are stored in float32 (their rounding is far below the tolerance): 5-30 KB a table. Error against
-      ``"direct"``: within :data:`TABLE_TOLERANCE` for disparities on the step grid; off-grid disparities are rounded (a shift of at most half a step).
+      ``"direct"``: within :data:`TABLE_TOLERANCE` for disparities on the step grid; off-grid disparities
+      are rounded (a shift of at most half a step).
       Tables are cached on the model (one model per error model and camera; each
       :meth:`with_extra_noise` copy has its own), least recently used ones dropped beyond the budget
       (``table_memory_mb``), so a sequence pays for each table about once. A cell costs a look-up (reused
