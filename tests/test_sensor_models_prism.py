@@ -355,3 +355,17 @@ def test_table_keys_match_numpy_unique_of_the_packed_keys():
            + np.minimum(np.rint(log_norm / _prism._LAMBDA_STEP).astype(np.int64), _prism._KEY_L_SPAN - 1))
     np.testing.assert_array_equal(unique[inverse], key)
     np.testing.assert_array_equal(np.sort(unique), np.unique(key))
+
+
+def test_tables_built_in_threads_equal_tables_built_in_one(monkeypatch):
+    depths = np.linspace(1.0, 30.0, 9)
+    cells = _one_ray_cells(np.linspace(0.5, 40.0, 80))
+    rays = np.repeat(np.arange(depths.size), cells[1].size)
+    args = (_on_grid(depths), np.linspace(1.0, 1.3, depths.size), rays, np.tile(cells[1], depths.size),
+            np.tile(cells[2], depths.size))
+    monkeypatch.setattr(_prism, "_BUILD_THREADS", 1)
+    serial = PrismModel(error_model=MIXTURE, focal_baseline=FB).cell_posteriors(*args)
+    monkeypatch.setattr(_prism, "_BUILD_THREADS", 2)
+    threaded = PrismModel(error_model=MIXTURE, focal_baseline=FB)
+    np.testing.assert_array_equal(threaded.cell_posteriors(*args)[1], serial[1])
+    assert threaded._cache.builds == depths.size

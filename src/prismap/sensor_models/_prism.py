@@ -12,6 +12,8 @@ L. Matthies, S. Shafer, "Error modeling in stereo navigation", IEEE J. Robotics 
 """
 
 import dataclasses
+import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -48,6 +50,7 @@ AUTO_TABLE_CALLS = 2
 _LAMBDA_STEP = 0.1  # table grid in log(lambda_z): one table every ~10 % of ray norm, the nearest one per ray
 _LAMBDA_SLACK = float(np.expm1(_LAMBDA_STEP / 2))  # relative rate gap a table's influence depth covers
 _KEY_L_SPAN = 1 << 16  # table key = disparity key * span + rate key
+_BUILD_THREADS = min(2, os.cpu_count() or 1)  # threads building one call's missing tables
 _CHUNK_CELLS = 1 << 15  # cells per look-up/exp/combine/log round: the scratch arrays stay in cache
 
 
@@ -330,19 +333,24 @@ class PrismModel(RayModel):
         log_far = self._log_far(disparity)
         log_wn, means, sigmas = self._mixture_arrays()
         log_eps_bound = float(np.log(np.expm1(self.influence_epsilon)))
-        built = []
-        for d, rate, far in zip(disparity, lam, log_far):
+        ku = self._ku()
+
+        def build(d, rate, far):
             nodes, meta = _kernels.prism_table(
-                d + self.doffs_px, rate, self.near_m, self.far_depth_m, self.focal_baseline, self._ku(),
-                _QUAD_STEP, far, log_eps_bound, _LAMBDA_SLACK, _NODES_PER_TABLE_STEP, _COARSE_RATIO,
-                _COARSE_BELOW, log_wn, means, sigmas,
+                d + self.doffs_px, rate, self.near_m, self.far_depth_m, self.focal_baseline, ku, _QUAD_STEP, far,
+                log_eps_bound, _LAMBDA_SLACK, _NODES_PER_TABLE_STEP, _COARSE_RATIO, _COARSE_BELOW, log_wn, means,
+                sigmas,
             )
             if nodes.shape[0] < 2:
                 raise PrismapInputError(
                     f"prism: near_m={self.near_m} to far_depth_m={self.far_depth_m} is too short to tabulate"
                 )
-            built.append((nodes, (rate, *meta, d + self.doffs_px, far)))
-        return built
+            return nodes, (rate, *meta, d + self.doffs_px, far)
+
+        if disparity.size < 2 * _BUILD_THREADS:
+            return [build(*job) for job in zip(disparity, lam, log_far)]
+        with ThreadPoolExecutor(_BUILD_THREADS) as pool:  # prism_table releases the GIL
+            return list(pool.map(build, disparity, lam, log_far))
 
 
 class _TableCache:
