@@ -1,16 +1,30 @@
 """OctoMap's insertPointCloud versus prismap's map, side by side in one process (ANCHORS.md).
 
-Scenes: (a) a 640x480 depth frame of planes at 1-10 m (tests/support.planes_frame), 0.1 m voxels;
-(b) 100k random points at 2-20 m in a 90x60 degree frustum (seed 0), 0.1 m voxels. Same points, resolution and
-max range for both. Prints wall seconds (median of --repeat runs) with the throughput ratio, CPU seconds
-(process time, both threads; steadier than wall time on a shared machine), the time spent inside the sensor
-model's own calls (hit/miss in ray mode is added while casting: no model calls), and bytes per known voxel.
-The first of the --repeat runs of PRISM builds its tables (cold); the median is a warm run.
-Run: .venv/bin/python benchmarks/bench_grid.py [--repeat 3]
+Scenes: (a) a 640x480 depth frame of planes at 1-10 m (tests/support.planes_frame), 0.1 m voxels, its
+disparities perturbed by :data:`STREET_MIXTURE` (seed 0); (b) 100k random points at 2-20 m in a 90x60 degree
+frustum (seed 0), 0.1 m voxels. Same points, resolution and max range for both. Prints wall seconds (median
+of --repeat runs) with the throughput ratio, CPU seconds (process time, both threads; steadier than wall time
+on a shared machine), the time spent inside the sensor model's own calls (hit/miss in ray mode is added while
+casting: no model calls), and bytes per known voxel. The first of the --repeat runs of PRISM builds its
+tables (cold); the median is a warm run.
+
+Scene (c), the street (``--street``): ``sim.street_scene(seed=0)`` seen by ``sim.kitti_camera(scale=--scale)``
+(1242x375, f 720 px, b 0.54 m at scale 1) along ``sim.street_trajectory(--frames)``, exact depths kept
+within 2-80 m (sky and farther pixels invalid), disparities perturbed by :data:`STREET_MIXTURE` with fresh
+seeded errors every frame and rounded to OpenCV's 1/16 px, rays cut at 80 m, at 0.2 and 0.1 m voxels. Each
+method maps the whole sequence into one map in a fresh process (so the first frame is truly cold: imports,
+numba caches, PRISM's first tables), the processes interleaved and repeated --repeat times; the table gives
+medians over the repeats of the first frame and of the median steady frame (frames 2..N), wall and CPU, their
+ratios to OctoMap's, the rise of the process's peak RSS over the sequence, the map's own bytes, and for PRISM
+the table cache's size and hit rate (distinct keys found / looked up per call).
+Run: .venv/bin/python benchmarks/bench_grid.py [--repeat 3] [--street [--scale 1.0] [--frames 10]]
 """
 
 import argparse
+import json
+import resource
 import statistics
+import subprocess
 import sys
 import time
 from pathlib import Path
@@ -21,6 +35,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
 import octomap  # noqa: E402
 
+from prismap import sim  # noqa: E402
 from prismap.camera import StereoCamera  # noqa: E402
 from prismap.gmm import GaussianMixture  # noqa: E402
 from prismap.grid import OccupancyMap  # noqa: E402
@@ -28,6 +43,19 @@ from prismap.sensor_models import make_sensor_model  # noqa: E402
 from support import planes_frame, world_points  # noqa: E402
 
 VOXEL = 0.1
+STREET_MIXTURE = GaussianMixture(np.array([0.80, 0.15, 0.05]), np.array([0.0, -0.1, -2.0]),
+                                 np.array([0.3, 1.0, 10.0]))
+"""Disparity error of scenes (a) and (c): a 0.3 px core, a 1 px shoulder and 5 % outliers of sigma 10 px."""
+STREET_RANGE_M = (2.0, 80.0)
+STREET_NEAR_M = 1.5  # PRISM's near_m on the street (no surface nearer than 1.8 m to the drive)
+STREET_METHODS = {  # label: (model name, mode)
+    "OctoMap insertPointCloud": ("octomap", None),
+    "hit/miss, ray": ("hitmiss", "ray"),
+    "hit/miss, projective": ("hitmiss", "projective"),
+    "Andert, projective": ("andert", "projective"),
+    "PRISM, ray": ("prism", "ray"),
+    "PRISM, projective": ("prism", "projective"),
+}
 
 
 def hitmiss(camera):
@@ -72,6 +100,121 @@ class TimedModel:
         return TimedModel(self.model.with_extra_noise(sigma_px))
 
 
+def measured_disparity(true_disparity, rng):
+    """``true - e`` with ``e`` drawn from :data:`STREET_MIXTURE`, rounded to 1/16 px; NaN stays, <= 0 becomes NaN."""
+    valid = np.isfinite(true_disparity)
+    measured = np.full(true_disparity.shape, np.nan)
+    noisy = true_disparity[valid] - STREET_MIXTURE.sample(int(valid.sum()), rng)
+    measured[valid] = np.where(noisy > 0, np.rint(noisy * 16.0) / 16.0, np.nan)
+    return measured
+
+
+def mixture_text():
+    m = STREET_MIXTURE
+    return " + ".join(f"{w:.2f} N({mu:g}, {sd:g} px)" for w, mu, sd in zip(m.weights, m.means, m.sigmas))
+
+
+def _load():
+    with open("/proc/loadavg") as f:
+        return " ".join(f.read().split()[:3])
+
+
+def street_frames(scale, n_frames):
+    """Camera, poses and measured disparity images (NaN = invalid) of scene (c)."""
+    camera = sim.kitti_camera(scale=scale)
+    scene = sim.street_scene(seed=0)
+    poses = sim.street_trajectory(n_frames, seed=0)
+    near, far = STREET_RANGE_M
+    disparities = []
+    for k, pose in enumerate(poses):
+        depth = scene.cast(camera, pose)
+        true = np.where((depth >= near) & (depth <= far), camera.focal_baseline / depth - camera.doffs_px, np.nan)
+        disparities.append(measured_disparity(true, np.random.default_rng(k)))
+    return camera, poses, disparities
+
+
+def street_model(name, camera, voxel):
+    common = {"focal_baseline": camera.focal_baseline, "doffs_px": camera.doffs_px, "voxel_size_m": voxel}
+    if name == "hitmiss":
+        return make_sensor_model("hitmiss", p0=0.5, **common)
+    if name == "andert":
+        return make_sensor_model("andert", sigma_px=float(STREET_MIXTURE.sigmas[0]), **common)
+    return make_sensor_model("prism", p0=0.05, error_model=STREET_MIXTURE, near_m=STREET_NEAR_M, **common)
+
+
+def street_method(name, mode, voxel, scale, n_frames):
+    """Map scene (c) with one method in this (fresh) process; per-frame wall and CPU seconds and memory."""
+    camera, poses, disparities = street_frames(scale, n_frames)
+    max_range = STREET_RANGE_M[1]
+    rss_before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+    wall, cpu, out = [], [], {}
+    if name == "octomap":
+        tree = octomap.OcTree(voxel)
+        for disparity, pose in zip(disparities, poses):
+            valid = np.isfinite(disparity)
+            depth = np.where(valid, camera.focal_baseline / (disparity + camera.doffs_px), np.nan)
+            points = world_points(camera, pose, depth)[valid.ravel()]
+            start, start_cpu = time.perf_counter(), time.process_time()
+            tree.insertPointCloud(points, np.ascontiguousarray(pose[:3, 3]), maxrange=max_range)
+            wall.append(time.perf_counter() - start)
+            cpu.append(time.process_time() - start_cpu)
+        out["map_bytes"] = tree.memoryUsage()
+    else:
+        model = street_model(name, camera, voxel)
+        grid = OccupancyMap(voxel, p0=model.p0)
+        for disparity, pose in zip(disparities, poses):
+            start, start_cpu = time.perf_counter(), time.process_time()
+            grid.integrate_disparity(disparity, camera, pose, model, mode=mode, max_range_m=max_range)
+            wall.append(time.perf_counter() - start)
+            cpu.append(time.process_time() - start_cpu)
+        out["map_bytes"] = grid.nbytes()
+        if name == "prism":
+            cache = model._cache
+            out.update(tables=len(cache), table_bytes=cache.nbytes, table_hits=cache.hits, table_builds=cache.builds)
+    out.update(wall=wall, cpu=cpu,
+               rss_rise=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024 - rss_before)
+    return out
+
+
+def street(args):
+    """Scene (c): every method in its own process, interleaved, --repeat times; a table of medians."""
+    camera = sim.kitti_camera(scale=args.scale)
+    for voxel in (0.2, 0.1):
+        print(f"\nscene (c): street, {camera.width}x{camera.height} px (f {camera.focal_px:g} px, b "
+              f"{camera.baseline_m:g} m), {args.frames} frames, depths {STREET_RANGE_M[0]:g}-{STREET_RANGE_M[1]:g} m, "
+              f"{voxel} m voxels, rays cut at {STREET_RANGE_M[1]:g} m, errors {mixture_text()}; load {_load()}")
+        runs = {label: [] for label in STREET_METHODS}
+        for _ in range(args.repeat):
+            for label, (name, mode) in STREET_METHODS.items():
+                command = [sys.executable, __file__, "--street-method", name, str(mode), str(voxel), str(args.scale),
+                           str(args.frames)]
+                runs[label].append(json.loads(subprocess.run(command, check=True, capture_output=True,
+                                                             text=True).stdout.splitlines()[-1]))
+        octo = _street_summary(runs["OctoMap insertPointCloud"])
+        print(f"{'method':<26} {'cold s':>7} {'CPU':>6} {'steady s':>8} {'CPU':>6} {'x Octo':>6} {'x CPU':>6} "
+              f"{'cold/st':>7} {'RSS MB':>7} {'map MB':>7}  tables")
+        for label, results in runs.items():
+            row = _street_summary(results)
+            tables = ""
+            if "tables" in results[-1]:
+                last = results[-1]
+                hit_rate = last["table_hits"] / max(last["table_hits"] + last["table_builds"], 1)
+                tables = (f"{last['tables']} tables, {last['table_bytes'] / 2**20:.1f} MB, {last['table_builds']} built, "
+                          f"hit rate {hit_rate:.3f}")
+            print(f"{label:<26} {row['cold']:7.2f} {row['cold_cpu']:6.2f} {row['steady']:8.3f} {row['steady_cpu']:6.3f} "
+                  f"{octo['steady'] / row['steady']:6.2f} {octo['steady_cpu'] / row['steady_cpu']:6.2f} "
+                  f"{row['cold'] / row['steady']:7.2f} {row['rss'] / 2**20:7.0f} {row['map'] / 2**20:7.1f}  {tables}")
+
+
+def _street_summary(results):
+    """Medians over repeats of the first frame, of each run's median steady frame, and of the memory figures."""
+    median = statistics.median
+    return {"cold": median(r["wall"][0] for r in results), "cold_cpu": median(r["cpu"][0] for r in results),
+            "steady": median(median(r["wall"][1:]) for r in results),
+            "steady_cpu": median(median(r["cpu"][1:]) for r in results),
+            "rss": median(r["rss_rise"] for r in results), "map": median(r["map_bytes"] for r in results)}
+
+
 def octomap_known_voxels(tree):
     return sum(round((leaf.getSize() / VOXEL) ** 3) for leaf in tree.begin_leafs())
 
@@ -111,11 +254,23 @@ def _octo(points, origin, max_range):
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--street", action="store_true", help="scene (c) only")
+    parser.add_argument("--scale", type=float, default=1.0, help="scene (c): kitti_camera scale (0.5: 621x188)")
+    parser.add_argument("--frames", type=int, default=10, help="scene (c): frames along the street")
+    parser.add_argument("--street-method", nargs=5, help=argparse.SUPPRESS)  # one process of scene (c)
     args = parser.parse_args()
+    if args.street_method:
+        name, mode, voxel, scale, frames = args.street_method
+        print(json.dumps(street_method(name, mode, float(voxel), float(scale), int(frames))))
+        return
+    if args.street:
+        street(args)
+        return
 
     camera, pose, depth = planes_frame()
     model = hitmiss(camera)
-    disparity = camera.focal_baseline / depth
+    disparity = measured_disparity(camera.focal_baseline / depth, np.random.default_rng(0))
+    depth = camera.focal_baseline / disparity
     warm = OccupancyMap(VOXEL, p0=0.5)
     for mode in ("ray", "projective"):
         warm.integrate_disparity(disparity[:40, :40], camera, pose, model, mode=mode, max_range_m=12.0)
@@ -128,11 +283,13 @@ def main():
         return go
 
     prism = make_sensor_model("prism", focal_baseline=camera.focal_baseline, doffs_px=0.0, voxel_size_m=VOXEL,
-                              p0=0.05, error_model=GaussianMixture.gaussian(0.5))
+                              p0=0.05, error_model=STREET_MIXTURE)
     runs = [("ray, hit/miss", model, frame("ray")), ("projective, hit/miss", model, frame("projective")),
-            ("projective, PRISM (p0 0.05, N(0, 0.5 px) errors)", prism, frame("projective"))]
-    print("scene (a): 640x480 planes at 1-10 m (floor, walls, slanted box), camera yawed 20 deg, 0.1 m voxels, max range 12 m")
-    run("a", world_points(camera, pose, depth), pose[:3, 3].copy(), runs, args.repeat, 12.0)
+            ("projective, PRISM (p0 0.05)", prism, frame("projective"))]
+    print("scene (a): 640x480 planes at 1-10 m (floor, walls, slanted box), camera yawed 20 deg, 0.1 m voxels, max range "
+          f"12 m, errors {mixture_text()}; load {_load()}")
+    valid = np.isfinite(depth).ravel()
+    run("a", world_points(camera, pose, depth)[valid], pose[:3, 3].copy(), runs, args.repeat, 12.0)
 
     rays, depth_b = frustum_scene()
     origin = np.zeros(3)

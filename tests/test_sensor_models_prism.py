@@ -9,6 +9,8 @@ from prismap.errors import PrismapInputError
 from prismap.gmm import GaussianMixture
 from prismap.sensor_models import (
     PrismModel,
+    _kernels,
+    _prism,
     estimate_prior_from_likelihood,
     make_sensor_model,
     prior_from_ground_truth,
@@ -74,7 +76,7 @@ def test_continuous_converges_to_discrete_as_cells_shrink():
         edges = np.arange(1.0, 8.0 + 1e-9, length)
         p0 = -np.expm1(-rate * length)
         model = PrismModel(error_model=MIXTURE, focal_baseline=FB, voxel_size_m=length, p0=p0,
-                           near_m=edges[0], max_range_m=edges[-1], method="direct")
+                           near_m=edges[0], far_depth_m=edges[-1], method="direct")
         continuous, _ = model.cell_posteriors([d_hat], [1.0], *_one_ray_cells(edges))
         discrete = prism_discrete_posteriors(d_hat, edges, MIXTURE, focal_baseline=FB, p0=p0)
         errors.append(np.abs(continuous - discrete).max())
@@ -175,7 +177,7 @@ def test_influence_depth_bounds_every_later_cell():
     disparity = _on_grid(depths)
     norm = np.array([1.0, 1.1, 1.25])
     influence = model.influence_depth(disparity, norm)
-    assert np.all(influence > FB / disparity) and np.all(influence <= model.max_range_m)
+    assert np.all(influence > FB / disparity) and np.all(influence <= model.far_depth_m)
     rng = np.random.default_rng(5)
     rays = np.repeat(np.arange(3), 40)
     start = np.repeat(influence, 40) + rng.uniform(0, 5, 120)
@@ -197,7 +199,7 @@ def test_prior_estimated_from_likelihood_recovers_the_simulated_prior():
     rng = np.random.default_rng(11)
     disparity, norm = _simulate_disparities(rng, 0.03, 600)
     estimate = estimate_prior_from_likelihood(disparity, norm, error_model=MIXTURE, focal_baseline=FB,
-                                              voxel_size_m=0.1, near_m=0.5, max_range_m=60.0, max_rays=600)
+                                              voxel_size_m=0.1, near_m=0.5, far_depth_m=60.0, max_rays=600)
     assert estimate == pytest.approx(0.03, rel=0.2)
 
 
@@ -214,7 +216,7 @@ def test_prior_from_ground_truth_is_the_smoothed_occupancy_ratio():
     [
         ({}, "error_model"),
         ({"error_model": MIXTURE, "p0": 1.0}, "p0"),
-        ({"error_model": MIXTURE, "near_m": 5.0, "max_range_m": 2.0}, "near_m < max_range_m"),
+        ({"error_model": MIXTURE, "near_m": 5.0, "far_depth_m": 2.0}, "near_m < far_depth_m"),
         ({"error_model": MIXTURE, "method": "fast"}, "method"),
         ({"error_model": MIXTURE, "voxel_size_m": -0.1}, "voxel_size_m"),
         ({"error_model": MIXTURE, "focal_baseline": 0.0}, "focal_baseline"),
@@ -239,14 +241,14 @@ def test_bad_rays_are_named():
 
 
 def test_table_cache_evicts_least_recently_used_beyond_its_budget():
-    model = PrismModel(error_model=MIXTURE, focal_baseline=FB, table_memory_mb=0.05)  # room for ~2 tables
+    model = PrismModel(error_model=MIXTURE, focal_baseline=FB, table_memory_mb=0.025)  # room for ~2 tables
     edges = np.linspace(0.5, 12.0, 60)
     cells = _one_ray_cells(edges)
     first = model.cell_posteriors(_on_grid([2.0]), [1.0], *cells)
     assert len(model._cache) == 1
     for depth in (3.0, 4.0, 5.0):
         model.cell_posteriors(_on_grid([depth]), [1.0], *cells)
-        assert model._cache.nbytes <= model._cache.budget_bytes
+        assert model._cache.nbytes <= model._cache.limit_bytes
     assert len(model._cache) < 4  # the 2 m table went first
     np.testing.assert_array_equal(model.cell_posteriors(_on_grid([2.0]), [1.0], *cells)[1], first[1])
     # the tables one call needs stay, even beyond the budget
@@ -257,12 +259,35 @@ def test_table_cache_evicts_least_recently_used_beyond_its_budget():
         PrismModel(error_model=MIXTURE, focal_baseline=FB, table_memory_mb=0.0)
 
 
+def _fake_tables(keys):
+    """Tables of 100 nodes whose only content is their key (the cache never looks inside)."""
+    return [(np.full((100, _kernels.TABLE_COLUMNS), float(k)), (float(k),) * (len(_kernels.META_COLUMNS) - 2))
+            for k in keys]
+
+
+@pytest.mark.parametrize(("budget_tables", "rebuilt"), [(None, False), (6, True)])
+def test_auto_table_budget_keeps_a_frame_asked_for_in_chunks(budget_tables, rebuilt):
+    node_bytes = _prism._TableCache(None, 0).nodes.itemsize
+    table_bytes = 100 * _kernels.TABLE_COLUMNS * node_bytes + len(_kernels.META_COLUMNS) * 8
+    budget = None if budget_tables is None else budget_tables * table_bytes
+    cache = _prism._TableCache(budget, floor_bytes=table_bytes)
+    frame = np.arange(10, dtype=np.int64)
+    for _ in range(2):  # two frames seeing the same keys: the whole frame at once, then in two chunks
+        for keys in (frame, frame[:5], frame[5:]):
+            rows = cache.rows(keys, _fake_tables)
+            assert np.array_equal(cache.meta[rows, 1], keys)  # each key's own table
+    assert cache.builds > 10 if rebuilt else (cache.builds == 10 and cache.hits == 30)
+    if budget is None:  # a new frame of 10 other keys: the oldest 10 go, two frames' tables stay
+        cache.rows(frame + 10, _fake_tables)
+        cache.rows(frame + 20, _fake_tables)
+        assert sorted(cache.index) == list(range(10, 30)) and cache.nbytes <= cache.limit_bytes
+
+
 @pytest.mark.parametrize(("depth", "max_range"), [(3.0, 200.0), (15.0, 20.0)])
 def test_rate_derivatives_of_the_evidence_match_finite_differences(depth, max_range):
     """The tables' Taylor terms in log(lambda) come from moments; check them on log Z, far term included."""
-    from prismap.sensor_models import _kernels
 
-    model = PrismModel(error_model=MIXTURE, focal_baseline=FB, max_range_m=max_range)
+    model = PrismModel(error_model=MIXTURE, focal_baseline=FB, far_depth_m=max_range)
     shift = _on_grid([depth])[0]
     log_wn, means, sigmas = model._mixture_arrays()
     log_far = float(model._log_far(shift))
@@ -284,7 +309,6 @@ def test_rate_derivatives_of_the_evidence_match_finite_differences(depth, max_ra
 
 def test_table_chunks_give_the_same_cells_as_one_chunk(monkeypatch):
     """Chunk boundaries (look-up reuse restarts, near-underflow cells patched per chunk) change nothing."""
-    from prismap.sensor_models import _prism
 
     rng = np.random.default_rng(8)
     depths = np.exp(rng.uniform(np.log(0.5), np.log(30.0), 12))
@@ -303,7 +327,6 @@ def test_table_chunks_give_the_same_cells_as_one_chunk(monkeypatch):
 
 def test_endpoint_asymptotic_of_the_evidence_matches_fine_quadrature_where_steep():
     """The coarse front of a table uses C = q g / (q g)'; check it against quadrature with fine panels."""
-    from prismap.sensor_models import _kernels
 
     model = PrismModel(error_model=MIXTURE, focal_baseline=FB)
     log_wn, means, sigmas = model._mixture_arrays()
@@ -323,7 +346,6 @@ def test_endpoint_asymptotic_of_the_evidence_matches_fine_quadrature_where_steep
 
 
 def test_table_keys_match_numpy_unique_of_the_packed_keys():
-    from prismap.sensor_models import _kernels, _prism
 
     rng = np.random.default_rng(21)
     disparity = np.round(rng.uniform(0.5, 80.0, 5000), 1)  # repeated disparities: few distinct keys
@@ -333,3 +355,17 @@ def test_table_keys_match_numpy_unique_of_the_packed_keys():
            + np.minimum(np.rint(log_norm / _prism._LAMBDA_STEP).astype(np.int64), _prism._KEY_L_SPAN - 1))
     np.testing.assert_array_equal(unique[inverse], key)
     np.testing.assert_array_equal(np.sort(unique), np.unique(key))
+
+
+def test_tables_built_in_threads_equal_tables_built_in_one(monkeypatch):
+    depths = np.linspace(1.0, 30.0, 9)
+    cells = _one_ray_cells(np.linspace(0.5, 40.0, 80))
+    rays = np.repeat(np.arange(depths.size), cells[1].size)
+    args = (_on_grid(depths), np.linspace(1.0, 1.3, depths.size), rays, np.tile(cells[1], depths.size),
+            np.tile(cells[2], depths.size))
+    monkeypatch.setattr(_prism, "_BUILD_THREADS", 1)
+    serial = PrismModel(error_model=MIXTURE, focal_baseline=FB).cell_posteriors(*args)
+    monkeypatch.setattr(_prism, "_BUILD_THREADS", 2)
+    threaded = PrismModel(error_model=MIXTURE, focal_baseline=FB)
+    np.testing.assert_array_equal(threaded.cell_posteriors(*args)[1], serial[1])
+    assert threaded._cache.builds == depths.size

@@ -110,13 +110,13 @@ def check_key_reach(sequence, config, indices):
     """Refuse, before any work, a voxel size whose key range cannot hold the rays of ``sequence``.
 
     The rays reach at most the farthest camera position plus the longest depth: ``config.max_range_m``,
-    else the model's ``max_range_m`` (PRISM), else the depth of a 1 px disparity (``f b``).
+    else the model's ``far_depth_m`` (PRISM), else the depth of a 1 px disparity (``f b``).
     """
     if sequence.poses is None:
         return
     depth = config.max_range_m
     if math.isinf(depth):
-        depth = getattr(sensor_model_for(config, sequence.camera), "max_range_m", sequence.camera.focal_baseline)
+        depth = getattr(sensor_model_for(config, sequence.camera), "far_depth_m", sequence.camera.focal_baseline)
     positions = np.abs(sequence.poses[list(indices)][:, :3, 3]).max()
     reach_m = float(positions + depth)
     if reach_m >= key_limit_m(config.voxel_size_m):

@@ -12,6 +12,8 @@ L. Matthies, S. Shafer, "Error modeling in stereo navigation", IEEE J. Robotics 
 """
 
 import dataclasses
+import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -40,10 +42,15 @@ _NODES_PER_TABLE_STEP = 2  # table node spacing = 2 panels = 0.5 in x
 _COARSE_RATIO = 64  # node spacing 32 in x where log(C/Z) < _COARSE_BELOW (near-quadratic in x) and past influence
 _COARSE_BELOW = -40.0
 MAX_TABLE_NODES = 1 << 20
-"""Most nodes one table may need (64 MiB of float64 rows; see ``PrismModel._check_table_size``)."""
+"""Most nodes one table may need (32 MiB of float32 rows; see ``PrismModel._check_table_size``)."""
+AUTO_TABLE_FLOOR_MB = 64.0
+"""Least table cache budget (MiB) of a model with ``table_memory_mb=None``."""
+AUTO_TABLE_CALLS = 2
+"""A model with ``table_memory_mb=None`` keeps this many times the tables of its largest call."""
 _LAMBDA_STEP = 0.1  # table grid in log(lambda_z): one table every ~10 % of ray norm, the nearest one per ray
 _LAMBDA_SLACK = float(np.expm1(_LAMBDA_STEP / 2))  # relative rate gap a table's influence depth covers
 _KEY_L_SPAN = 1 << 16  # table key = disparity key * span + rate key
+_BUILD_THREADS = min(2, os.cpu_count() or 1)  # threads building one call's missing tables
 _CHUNK_CELLS = 1 << 15  # cells per look-up/exp/combine/log round: the scratch arrays stay in cache
 
 
@@ -122,7 +129,7 @@ class PrismModel(RayModel):
 
     Surfaces along a ray form a Poisson process of rate ``lambda = -ln(1 - p0) / voxel_size_m`` per metre
     of ray (``lambda_z = lambda |r|`` per metre of depth), starting at ``near_m``; the pixel sees the first
-    one; ``d^ = f b / z* - doffs - e`` with ``e`` from ``error_model``; nothing before ``max_range_m``
+    one; ``d^ = f b / z* - doffs - e`` with ``e`` from ``error_model``; nothing before ``far_depth_m``
     gives a far measurement. ``cell_posteriors`` uses ``method``:
 
     - ``"table"`` (default): ``log(C/Z)`` and ``log(D/Z)`` tabulated per (``d^`` rounded to
@@ -130,12 +137,13 @@ class PrismModel(RayModel):
       ``x = lambda_z z - f b / (sigma_min z)``: a node every half prior e-fold or narrowest sigma from
       where ``C/Z > e^-40`` to the influence depth; every 32 before (``C`` from its endpoint asymptotic
       there) and 4 nodes beyond. Cubic Hermite in ``x`` with exact derivatives; each ray uses the table of
-      the nearest rate plus a second-order Taylor term in ``log lambda_z`` (from stored moments). About
-      14 KB per table. Error against ``"direct"``: within :data:`TABLE_TOLERANCE` for
-      disparities on the step grid; off-grid disparities are rounded (a shift of at most half a step).
+      the nearest rate plus a second-order Taylor term in ``log lambda_z`` (from stored moments). Nodes
+      are stored in float32 (their rounding is far below the tolerance): 5-30 KB a table. Error against
+      ``"direct"``: within :data:`TABLE_TOLERANCE` for disparities on the step grid; off-grid disparities
+      are rounded (a shift of at most half a step).
       Tables are cached on the model (one model per error model and camera; each
-      :meth:`with_extra_noise` copy has its own), least recently used ones dropped beyond
-      ``table_memory_mb``, so a sequence pays for each table about once. A cell costs a look-up (reused
+      :meth:`with_extra_noise` copy has its own), least recently used ones dropped beyond the budget
+      (``table_memory_mb``), so a sequence pays for each table about once. A cell costs a look-up (reused
       from the previous cell when it starts where that one ended), a vectorised exp and log, and a
       division or two.
     - ``"direct"``: quadrature ray by ray (8-point Gauss-Legendre panels of x-width 0.25) with every cell
@@ -152,27 +160,31 @@ class PrismModel(RayModel):
         ``z0``: no surface before this depth. Table size and build time grow like ``1 / near_m`` (the
         likelihood term of ``x``): setting it to the matcher's nearest depth ``f b / max_disparity`` saves
         most of both (0.5 m instead of 0.1 m: 5x fewer nodes).
-    max_range_m : float, metres, default 200
+    far_depth_m : float, metres, default 200
         ``z_max``: beyond it, the far measurement.
     method : {"table", "direct"}
     disparity_step_px : float, pixels, default 1/16
         Table key resolution (OpenCV's sub-pixel step).
     influence_epsilon : float, log-odds, default 1e-3
-    table_memory_mb : float, MiB, default 64
-        Table cache budget (about 20 KB per table at 0.1 m cells); the tables one call needs are kept even
-        beyond it. A model whose tables could exceed :data:`MAX_TABLE_NODES` nodes (an error sigma far below
-        the matcher's sub-pixel step, or a tiny ``near_m``) is refused on construction.
+    table_memory_mb : float or None, MiB, default None
+        Table cache budget; the tables one call needs are kept even beyond it. ``None``: the larger of
+        :data:`AUTO_TABLE_FLOOR_MB` and :data:`AUTO_TABLE_CALLS` times the tables of the largest call so
+        far. The integrators ask for a whole frame's rays at once (``influence_depth``) and then in chunks,
+        so the cache then holds two frames' tables: a fixed budget below one frame's tables (tens to
+        hundreds of MB on a street, 5-30 KB a table) rebuilds them chunk after chunk. A model whose
+        tables could exceed :data:`MAX_TABLE_NODES` nodes (an error sigma far below the matcher's sub-pixel
+        step, or a tiny ``near_m``) is refused on construction.
     """
 
     name = "prism"
     default_policy = "mean"
     error_model: GaussianMixture | None = None
     near_m: float = 0.1
-    max_range_m: float = 200.0
+    far_depth_m: float = 200.0
     method: str = "table"
     disparity_step_px: float = 1.0 / 16.0
     influence_epsilon: float = INFLUENCE_EPSILON
-    table_memory_mb: float = 64.0
+    table_memory_mb: float | None = None
     _cache: "_TableCache" = field(default=None, init=False, repr=False, compare=False)
     _widened: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
@@ -184,18 +196,21 @@ class PrismModel(RayModel):
                 f"got {type(self.error_model).__name__}"
             )
         near = check_positive(self.near_m, "near_m")
-        far = check_positive(self.max_range_m, "max_range_m")
+        far = check_positive(self.far_depth_m, "far_depth_m")
         if far <= near:
-            raise PrismapInputError(f"prism: need near_m < max_range_m; got {near} and {far}")
+            raise PrismapInputError(f"prism: need near_m < far_depth_m; got {near} and {far}")
         if self.method not in ("table", "direct"):
             raise PrismapInputError(f"prism: `method` must be 'table' or 'direct'; got {self.method!r}")
         object.__setattr__(self, "near_m", near)
-        object.__setattr__(self, "max_range_m", far)
+        object.__setattr__(self, "far_depth_m", far)
         object.__setattr__(self, "disparity_step_px", check_positive(self.disparity_step_px, "disparity_step_px"))
         object.__setattr__(self, "influence_epsilon", check_positive(self.influence_epsilon, "influence_epsilon"))
-        memory = check_positive(self.table_memory_mb, "table_memory_mb")
-        object.__setattr__(self, "table_memory_mb", memory)
-        object.__setattr__(self, "_cache", _TableCache(int(memory * 2**20)))
+        if self.table_memory_mb is None:
+            budget = None
+        else:
+            object.__setattr__(self, "table_memory_mb", check_positive(self.table_memory_mb, "table_memory_mb"))
+            budget = int(self.table_memory_mb * 2**20)
+        object.__setattr__(self, "_cache", _TableCache(budget, int(AUTO_TABLE_FLOOR_MB * 2**20)))
         self._check_table_size()
 
     def _check_table_size(self):
@@ -203,10 +218,10 @@ class PrismModel(RayModel):
 
         A table's grid runs in ``x = lambda_z z - f b / (sigma_min z)`` with a node every
         ``_QUAD_STEP * _NODES_PER_TABLE_STEP`` in ``x``, so it holds at most ``x_span / 0.5`` nodes with
-        ``x_span = f b / (sigma_min near_m) + lambda |r| max_range_m`` (|r| <= 2, a 120 degree view). Without the
+        ``x_span = f b / (sigma_min near_m) + lambda |r| far_depth_m`` (|r| <= 2, a 120 degree view). Without the
         bound an error sigma of 1e-4 px or a sub-millimetre ``near_m`` asks for gigabytes and minutes per table.
         """
-        x_span = self._ku() / self.near_m + 2.0 * self.rate_per_m * self.max_range_m
+        x_span = self._ku() / self.near_m + 2.0 * self.rate_per_m * self.far_depth_m
         max_nodes = x_span / (_QUAD_STEP * _NODES_PER_TABLE_STEP)
         if max_nodes > MAX_TABLE_NODES:
             sigma_min = float(self.error_model.sigmas.min())
@@ -232,7 +247,7 @@ class PrismModel(RayModel):
         return self.focal_baseline / float(self.error_model.sigmas.min())
 
     def _log_far(self, disparity):
-        u_max = self.focal_baseline / self.max_range_m
+        u_max = self.focal_baseline / self.far_depth_m
         return log_mean_likelihood(0.0, u_max, disparity, self.error_model, self.doffs_px)
 
     # ------------------------------------------------------------------ interface
@@ -247,7 +262,7 @@ class PrismModel(RayModel):
             order = np.argsort(rays, kind="stable")
             ray_start = np.searchsorted(rays[order], np.arange(disparity.size + 1))
             return _kernels.prism_direct_cells(
-                disparity + self.doffs_px, lam, order, ray_start, start, end, self.near_m, self.max_range_m,
+                disparity + self.doffs_px, lam, order, ray_start, start, end, self.near_m, self.far_depth_m,
                 self.focal_baseline, self._ku(), _QUAD_STEP, self._log_far(disparity), *self._mixture_arrays(),
             )
         if method != "table":
@@ -258,7 +273,7 @@ class PrismModel(RayModel):
         """Depth beyond which every cell's ``|logit(P) - logit(p_c)| < influence_epsilon`` (metres), per ray.
 
         From the bound ``|increment(a)| <= log(1 + e^{-lambda (a - z0)} sup_{t >= a} g(t) / C(a))``, which
-        holds for a cell of any length starting at ``a``; capped at ``max_range_m``.
+        holds for a cell of any length starting at ``a``; capped at ``far_depth_m``.
         """
         disparity = as_float_array(disparity_px, "disparity_px", ndim=1, allow_nan=False)
         norm = as_float_array(ray_norm, "ray_norm", shape=(disparity.size,))
@@ -291,12 +306,12 @@ class PrismModel(RayModel):
         for lo in range(0, n, _CHUNK_CELLS):
             hi = min(lo + _CHUNK_CELLS, n)
             m = hi - lo
-            _kernels.prism_table_lookup(lam, table, delta, rays, start, end, lo, hi, self.near_m, self.max_range_m,
+            _kernels.prism_table_lookup(lam, table, delta, rays, start, end, lo, hi, self.near_m, self.far_depth_m,
                                         self.focal_baseline, self._ku(), _QUAD_STEP, meta, nodes, log_wn, means,
                                         sigmas, l_a, l_c, side)
             np.exp(l_a[:m], out=e_a[:m])
             np.exp(l_c[:m], out=e_c[:m])
-            n_fix = _kernels.prism_table_combine(lam, rays, start, end, lo, hi, self.near_m, self.max_range_m, l_a,
+            n_fix = _kernels.prism_table_combine(lam, rays, start, end, lo, hi, self.near_m, self.far_depth_m, l_a,
                                                  l_c, e_a, e_c, side, post, ratio, fix_index, fix_value)
             np.log(ratio[:m], out=inc[lo:hi])
             inc[lo + fix_index[:n_fix]] = fix_value[:n_fix]
@@ -318,36 +333,49 @@ class PrismModel(RayModel):
         log_far = self._log_far(disparity)
         log_wn, means, sigmas = self._mixture_arrays()
         log_eps_bound = float(np.log(np.expm1(self.influence_epsilon)))
-        built = []
-        for d, rate, far in zip(disparity, lam, log_far):
+        ku = self._ku()
+
+        def build(d, rate, far):
             nodes, meta = _kernels.prism_table(
-                d + self.doffs_px, rate, self.near_m, self.max_range_m, self.focal_baseline, self._ku(),
-                _QUAD_STEP, far, log_eps_bound, _LAMBDA_SLACK, _NODES_PER_TABLE_STEP, _COARSE_RATIO,
-                _COARSE_BELOW, log_wn, means, sigmas,
+                d + self.doffs_px, rate, self.near_m, self.far_depth_m, self.focal_baseline, ku, _QUAD_STEP, far,
+                log_eps_bound, _LAMBDA_SLACK, _NODES_PER_TABLE_STEP, _COARSE_RATIO, _COARSE_BELOW, log_wn, means,
+                sigmas,
             )
             if nodes.shape[0] < 2:
                 raise PrismapInputError(
-                    f"prism: near_m={self.near_m} to max_range_m={self.max_range_m} is too short to tabulate"
+                    f"prism: near_m={self.near_m} to far_depth_m={self.far_depth_m} is too short to tabulate"
                 )
-            built.append((nodes, (rate, *meta, d + self.doffs_px, far)))
-        return built
+            return nodes, (rate, *meta, d + self.doffs_px, far)
+
+        if disparity.size < 2 * _BUILD_THREADS:
+            return [build(*job) for job in zip(disparity, lam, log_far)]
+        with ThreadPoolExecutor(_BUILD_THREADS) as pool:  # prism_table releases the GIL
+            return list(pool.map(build, disparity, lam, log_far))
 
 
 class _TableCache:
     """PRISM tables packed in one node array, least recently used ones evicted beyond a memory budget.
 
-    ``meta`` has one row per table (``_kernels.META_COLUMNS``), ``nodes`` the rows of every table back to
-    back. Tables used by the current call are never evicted, so one call may exceed the budget.
+    ``meta`` has one row per table (``_kernels.META_COLUMNS``, float64: the grid's positions), ``nodes`` the
+    rows of every table back to back (float32: values and slopes, rounded far below ``TABLE_TOLERANCE``).
+    Tables used by the current call are never evicted, so one call may exceed the budget. A budget of
+    ``None`` is the larger of ``floor_bytes`` and :data:`AUTO_TABLE_CALLS` times the bytes of the largest
+    call's tables so far (:attr:`limit_bytes`). ``hits`` and ``builds`` count the distinct keys of every
+    call found in the cache and built (a thrashing cache builds the same keys again and again).
     """
 
-    def __init__(self, budget_bytes):
+    def __init__(self, budget_bytes, floor_bytes):
         self.budget_bytes = budget_bytes
+        self.floor_bytes = floor_bytes
+        self.largest_call_bytes = 0
         self.index = {}
         self.keys = np.empty(0, dtype=np.int64)
         self.meta = np.empty((0, len(_kernels.META_COLUMNS)))
-        self.nodes = np.empty((0, _kernels.TABLE_COLUMNS))
+        self.nodes = np.empty((0, _kernels.TABLE_COLUMNS), dtype=np.float32)
         self.last_used = np.empty(0, dtype=np.int64)
         self.clock = 0
+        self.hits = 0
+        self.builds = 0
 
     @property
     def nbytes(self):
@@ -357,17 +385,31 @@ class _TableCache:
     def __len__(self):
         return len(self.index)
 
+    @property
+    def limit_bytes(self):
+        """Bytes beyond which least recently used tables are dropped."""
+        if self.budget_bytes is not None:
+            return self.budget_bytes
+        return max(self.floor_bytes, AUTO_TABLE_CALLS * self.largest_call_bytes)
+
+    def _table_bytes(self):
+        """Bytes of each table (its nodes and metadata row)."""
+        return (self.meta[:, -1] * (self.nodes.itemsize * _kernels.TABLE_COLUMNS)
+                + self.meta.itemsize * self.meta.shape[1])
+
     def rows(self, keys, build):
         """Metadata row of each (distinct) key, calling ``build(missing keys)`` for absent ones."""
         rows = np.array([self.index.get(int(key), -1) for key in keys], dtype=np.int64)
         missing = keys[rows < 0]
+        self.hits += keys.size - missing.size
+        self.builds += missing.size
         if missing.size:
             built = build(missing)
             lengths = np.array([nodes.shape[0] for nodes, _ in built], dtype=np.float64)
             offsets = self.nodes.shape[0] + np.concatenate(([0.0], np.cumsum(lengths)[:-1]))
             extra = np.column_stack([np.array([row for _, row in built]), offsets, lengths])
             first = len(self.index)
-            self.nodes = np.concatenate([self.nodes] + [nodes for nodes, _ in built])
+            self.nodes = np.concatenate([self.nodes] + [nodes for nodes, _ in built], dtype=np.float32)
             self.meta = np.concatenate([self.meta, extra])
             self.keys = np.concatenate([self.keys, missing])
             self.last_used = np.concatenate([self.last_used, np.zeros(missing.size, dtype=np.int64)])
@@ -376,16 +418,17 @@ class _TableCache:
             rows[rows < 0] = first + np.arange(missing.size)
         self.clock += 1
         self.last_used[rows] = self.clock
-        if self.nbytes > self.budget_bytes:
+        self.largest_call_bytes = max(self.largest_call_bytes, int(self._table_bytes()[rows].sum()))
+        if self.nbytes > self.limit_bytes:
             rows = self._evict(rows)
         return rows
 
     def _evict(self, rows):
         """Drop the least recently used tables (never those of ``rows``) until within budget; new rows."""
-        size = self.meta[:, -1] * self.nodes.itemsize * _kernels.TABLE_COLUMNS + self.meta.itemsize * self.meta.shape[1]
+        size = self._table_bytes()
         order = np.argsort(self.last_used, kind="stable")
         order = order[self.last_used[order] < self.clock]
-        excess = self.nbytes - self.budget_bytes
+        excess = self.nbytes - self.limit_bytes
         drop = order[: np.searchsorted(np.cumsum(size[order]), excess) + 1]
         keep = np.setdiff1d(np.arange(len(self.index)), drop)
         starts = self.meta[keep, -2].astype(np.int64)
@@ -422,7 +465,7 @@ def prior_from_ground_truth(occupied):
 
 
 def estimate_prior_from_likelihood(disparity_px, ray_norm, *, error_model, focal_baseline, doffs_px=0.0,
-                                   voxel_size_m=0.1, near_m=0.1, max_range_m=200.0, max_rays=2000, seed=0,
+                                   voxel_size_m=0.1, near_m=0.1, far_depth_m=200.0, max_rays=2000, seed=0,
                                    bounds=(1e-4, 0.9)):
     """``p0`` maximising the measurements' likelihood under PRISM's forward model.
 
@@ -436,7 +479,7 @@ def estimate_prior_from_likelihood(disparity_px, ray_norm, *, error_model, focal
     disparity_px : (R,) float64, pixels, finite
     ray_norm : (R,) float64, ``|r|`` of each ray
     error_model : GaussianMixture
-    focal_baseline, doffs_px, voxel_size_m, near_m, max_range_m
+    focal_baseline, doffs_px, voxel_size_m, near_m, far_depth_m
         As for :class:`PrismModel`.
     bounds : (float, float)
         Search interval of ``p0``.
@@ -457,14 +500,14 @@ def estimate_prior_from_likelihood(disparity_px, ray_norm, *, error_model, focal
         pick = np.random.default_rng(seed).choice(disparity.size, size=int(max_rays), replace=False)
         disparity, norm = disparity[pick], norm[pick]
     model = PrismModel(error_model=error_model, focal_baseline=focal_baseline, doffs_px=doffs_px,
-                       voxel_size_m=voxel_size_m, near_m=near_m, max_range_m=max_range_m)
+                       voxel_size_m=voxel_size_m, near_m=near_m, far_depth_m=far_depth_m)
     shift = disparity + model.doffs_px
     log_far = model._log_far(disparity)
     log_wn, means, sigmas = model._mixture_arrays()
 
     def negative_log_likelihood(log_p0):
         lam = -np.log1p(-np.exp(log_p0)) / model.voxel_size_m * norm
-        return -_kernels.prism_log_evidence(shift, lam, model.near_m, model.max_range_m, model.focal_baseline,
+        return -_kernels.prism_log_evidence(shift, lam, model.near_m, model.far_depth_m, model.focal_baseline,
                                            model._ku(), _QUAD_STEP, log_far, log_wn, means, sigmas).sum()
 
     result = minimize_scalar(negative_log_likelihood, bounds=(np.log(lo), np.log(hi)), method="bounded",
