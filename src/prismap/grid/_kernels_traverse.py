@@ -1,7 +1,7 @@
 """numba kernels of ray traversal (Amanatides & Woo): the voxels each ray crosses and their depth intervals.
 
 Called only by the grid's wrappers, which check and convert first. The hot loops inline everything on
-their common path (a call per block change with array arguments made a cast 3x slower). The fused
+their common path (an out-of-line call with array arguments per block change costs more than the step itself). The fused
 kernels register the crossed voxels in the frame accumulator as they go (``_kernels_accumulate``).
 Every kernel releases the GIL (``nogil=True``) so that a caller may run them beside Python code.
 
