@@ -86,7 +86,10 @@ class MapViewer:
     """
 
     def __init__(self, grid, *, truth=None, poses_w=None, host="127.0.0.1", port=8080, budget=POINT_BUDGET):
-        import viser
+        try:
+            import viser
+        except ImportError:
+            raise PrismapInputError("prismap view needs the optional `viser` module: pip install 'prismap[view]'") from None
 
         start = time.perf_counter()
         keys, _, _ = grid.known_voxels()
