@@ -74,7 +74,8 @@ def measure_targets(world, results, error_models):
             others = {m: getattr(s, field) for m, s in cells.items() if m != CHAMPION}
             rival = max(others, key=lambda m: sign * others[m])
             met = bool(sign * mine > sign * others[rival] if strict else sign * mine >= sign * others[rival])
-            targets.append(Target(f"{world}, {matcher}: {model_label(CHAMPION)} has the {claim} of every model",
+            said = f"a {claim} any other model's" if not strict else f"the {claim} of every model"
+            targets.append(Target(f"{world}, {matcher}: {model_label(CHAMPION)} has {said}",
                                   f"{mine:.4f} against {others[rival]:.4f} for the best other ({model_label(rival, names)})",
                                   met))
     if world in LOG_LOSS_GAIN:
