@@ -165,3 +165,21 @@ def write_kitti_stereo(root, pairs, *, year=2015, focal_px=20.0, baseline_m=0.54
         (root / folder).mkdir(parents=True, exist_ok=True)
         (root / folder / f"{index:06d}.txt").write_text(text)
     return root
+
+
+def conditioned_error_model(matcher="sgbm", feature="edge_distance_px", edges=(2.5, 10.0)):
+    """A three-class :class:`ErrorModel` on one feature, each class with a distinct mixture around MIXTURE."""
+    from prismap.characterise import ClassModel, ErrorClasses, ErrorModel
+    from prismap.gmm import MixtureFit
+
+    def fit(mixture):
+        return MixtureFit(mixture, -1.0, 1.0, 1.0, 100.0, mixture.n_components, True)
+
+    mixtures = (GaussianMixture([0.6, 0.4], [0.0, -1.0], [0.8, 4.0]), GaussianMixture([0.9, 0.1], [0.05, -0.3], [0.3, 2.0]),
+                GaussianMixture([1.0], [0.0], [0.1]))
+    bounds = (-np.inf, *edges, np.inf)
+    classes = ErrorClasses((feature,), [[lo] for lo in bounds[:-1]], [[hi] for hi in bounds[1:]])
+    class_models = tuple(ClassModel((fit(m),), m.n_components, share, {"n_errors": 100})
+                         for m, share in zip(mixtures, (0.2, 0.5, 0.3)))
+    return ErrorModel(matcher, {}, "test", 1 / 32, (fit(MIXTURE),), 2, classes=classes, class_models=class_models,
+                      feature_settings={"edge_threshold_px": 1.0, "texture_window_px": 7})

@@ -271,3 +271,46 @@ def test_a_checkpoint_fingerprint_covers_kittis_pose_file(kitti_tree, tmp_path):
     pose_file.write_text(text.replace(" 0 ", " 0.0 "))  # same poses, other bytes
     assert pose_file.read_text() != text
     assert run_fingerprint(read_sequence(copy), config) != before
+
+
+@pytest.fixture(scope="module")
+def conditioned_model_path(tmp_path_factory):
+    from support import conditioned_error_model
+
+    path = tmp_path_factory.mktemp("conditioned") / "error_model.json"
+    write_error_model(conditioned_error_model(feature="texture", edges=(20.0, 30.0)), path)
+    return path
+
+
+def test_map_is_conditioned_by_default_and_plain_one_option_away(sequence_dir, conditioned_model_path, tmp_path, capsys):
+    from prismap.characterise import load_error_model
+    from support import config
+
+    model = load_error_model(conditioned_model_path)
+    for extra, text, conditioned in (((), "(prism, conditioned on 3 error classes,", True),
+                                     (("--plain",), "(prism, plain,", False)):
+        out = tmp_path / f"{conditioned}.npz"
+        assert main(map_args(sequence_dir, out, "--model", "prism", "--error-model", str(conditioned_model_path),
+                             "--frames", "0:3", *extra)) == 0
+        assert text in capsys.readouterr().out
+        cfg = config(model="prism", error_model=model if conditioned else model.mixture, disparity_source="matcher",
+                     frames=(0, 3))
+        assert_same_map(load_map(out), map_sequence(sequence_dir, cfg, progress=False))
+
+
+@pytest.mark.parametrize(("extra", "message"), [
+    (("--matcher", "bm"), "the conditioned error model was fitted to matcher 'sgbm'; this run uses 'bm'"),
+    (("--disparity-dir", "DISP"), None),
+])
+def test_map_refuses_a_conditioned_model_it_cannot_use(sequence_dir, tmp_path, capsys, extra, message):
+    from support import conditioned_error_model
+
+    path = tmp_path / "lr.json"
+    write_error_model(conditioned_error_model(feature="lr_disagreement_px", edges=(0.5, 1.0)), path)
+    extra = [str(sequence_dir / "disp") if e == "DISP" else e for e in extra]
+    out = tmp_path / "m.npz"
+    assert main(map_args(sequence_dir, out, "--model", "andert", "--error-model", str(path), *extra)) == 2
+    err = capsys.readouterr().err
+    assert (message or "lr_disagreement_px, which needs the matcher's left-right check") in err
+    assert "Traceback" not in err and err.count("\n") == 1 and not out.exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["lr.json"]

@@ -7,7 +7,7 @@ import pytest
 from prismap.errors import PrismapInputError
 from prismap.experiment import WORLDS, run_street3d
 
-MODELS_TESTED = ("hitmiss", "prism")
+MODELS_TESTED = ("hitmiss", "prism", "prism_conditioned")
 
 
 @pytest.fixture(scope="module")
@@ -39,6 +39,8 @@ def test_every_street_map_is_scored_on_the_same_voxels_with_the_safety_score(str
     results = (out / "results.md").read_text()
     assert "occupied called free at 90 % free" in results and "threshold at 90 % free" in results
     assert "KITTI-like camera" in results and "310x94" in results
+    assert "| sgbm | prism (plain) |" in results and "| sgbm | prism (conditioned) |" in results
+    assert "## Targets" in results and "street3d, sgbm: conditioned PRISM's log-loss at least 10% below" in results
     # PRISM separates occupied from free voxels better than hit/miss even at this tiny size
     assert result.cell("sgbm", "prism").scores.roc_auc > result.cell("sgbm", "hitmiss").scores.roc_auc
 

@@ -7,7 +7,7 @@ import pytest
 from prismap.errors import PrismapInputError
 from prismap.io import load_map
 from prismap.pipeline import characterise_sequence, map_sequence
-from support import config, synthetic_sequence
+from support import conditioned_error_model, config, synthetic_sequence
 
 distributed = pytest.importorskip("distributed")
 
@@ -53,6 +53,14 @@ def test_dask_prism_map_is_bit_identical_to_the_sequential_map(sequence_dir, cli
     cfg = config(model="prism")
     assert_identical_maps(map_sequence(sequence_dir, cfg, progress=False, client=client, chunk_frames=3),
                           map_sequence(sequence_dir, cfg, progress=False))
+
+
+def test_dask_conditioned_map_is_bit_identical_to_the_sequential_map(sequence_dir, client):
+    """Workers compute each frame's features and classes themselves; the maps must not differ."""
+    cfg = config(model="prism", error_model=conditioned_error_model(feature="texture", edges=(20.0, 30.0)))
+    assert cfg.conditioned
+    sequential = map_sequence(sequence_dir, cfg, progress=False)
+    assert_identical_maps(map_sequence(sequence_dir, cfg, progress=False, client=client, chunk_frames=3), sequential)
 
 
 def test_dask_map_with_matcher_and_checkpoints(sequence_dir, client, tmp_path):

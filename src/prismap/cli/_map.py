@@ -42,7 +42,10 @@ def register(subparsers):
                         help="sensor model parameter, repeatable (e.g. p_hit=0.7)")
     parser.add_argument("--error-model", type=Path, metavar="MODEL.json",
                         help="the matcher's error model (prismap characterise); needed by prism, and by "
-                             "convolution/andert without sigma_px (they take the largest-weight component's sigma)")
+                             "convolution/andert without sigma_px (they take the largest-weight component's sigma). "
+                             "A conditioned model (with error classes) gives each pixel its class's mixture")
+    parser.add_argument("--plain", action="store_true",
+                        help="use the error model's whole-image mixture for every pixel, not its classes")
     parser.add_argument("--voxel", required=True, type=float, metavar="M", help="voxel size in metres")
     parser.add_argument("--p0", type=float, default=0.05, help="prior occupancy of a voxel (default 0.05)")
     parser.add_argument("--mode", choices=("ray", "projective"), default="ray", help="integration mode (default ray)")
@@ -74,13 +77,14 @@ def run(args):
     sequence = _open_input(args, read_sequence)
     config = MappingConfig(
         model=args.model, voxel_size_m=check_positive(args.voxel, "--voxel"), p0=check_probability(args.p0, "--p0"),
-        error_model=_error_model(args.error_model), model_params=parse_params(args.model_param, "--model-param"),
+        error_model=_error_model(args.error_model), conditioned=False if args.plain else None,
+        model_params=parse_params(args.model_param, "--model-param"),
         matcher=args.matcher, matcher_params=parse_params(args.matcher_param, "--matcher-param"),
         disparity_source="matcher" if args.disparity_dir is None else _disparity_dir(args.disparity_dir),
         mode=args.mode, policy=args.policy, max_range_m=args.max_range, subsample=args.subsample,
         frames=parse_frames(args.frames),
     )
-    config.sensor_model(sequence.camera)  # a bad model option fails here, not on the first frame or a worker
+    model_text = _error_text(config, sequence.camera)  # a bad model option fails here, not on a frame or a worker
     checkpoint = None
     if args.checkpoint_every:
         checkpoint = args.out.with_name(args.out.name.removesuffix(".npz") + ".checkpoint.npz")
@@ -91,7 +95,7 @@ def run(args):
     if checkpoint is not None:
         remove_checkpoint(checkpoint)
     print(f"{grid.n_frames} frames, {grid.n_known} known voxels, {len(grid.occupied_voxels()[0])} occupied "
-          f"({config.model}, voxel {config.voxel_size_m} m); wrote {args.out}")
+          f"({config.model}, {model_text}, voxel {config.voxel_size_m} m); wrote {args.out}")
     return 0
 
 
@@ -142,7 +146,17 @@ def _error_model(path):
         return None
     from prismap.characterise import load_error_model
 
-    return load_error_model(path).mixture
+    return load_error_model(path)
+
+
+def _error_text(config, camera):
+    """How the run used its error model, for the output line: conditioned (a model per class) or plain."""
+    from prismap.sensor_models import ConditionedModel
+
+    model = config.sensor_model(camera)
+    if isinstance(model, ConditionedModel):
+        return f"conditioned on {model.n_classes} error classes"
+    return "plain"
 
 
 def _disparity_dir(path):

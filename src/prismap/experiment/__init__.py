@@ -3,7 +3,9 @@
 from prismap.experiment._cells import ExperimentResult
 from prismap.experiment._office2d import SGBM_LIKE_MIXTURE, run_office2d
 from prismap.experiment._results import (
+    CONDITIONED_SUFFIX,
     MODELS,
+    MODELS_3D,
     CellResult,
     format_results_table,
     prior_of,
@@ -19,15 +21,20 @@ from prismap.experiment._scene3d import (
     run_street3d,
     split_frames,
 )
+from prismap.experiment._targets import Target, measure_targets
 
 __all__ = [
+    "CONDITIONED_SUFFIX",
     "MATCHERS",
     "MODELS",
+    "MODELS_3D",
     "SGBM_LIKE_MIXTURE",
     "WORLDS",
     "CellResult",
     "ExperimentResult",
+    "Target",
     "format_results_table",
+    "measure_targets",
     "prior_of",
     "read_results",
     "run_office2d",

@@ -43,9 +43,12 @@ EXPERIMENTS = (
                    full={"quick": False, "n_frames": 20},
                    quick={"quick": True, "n_frames": 4, "voxel_size_m": 0.2, "matchers": ("sgbm",)}),
     DemoExperiment("street3d", "Street, KITTI-like rig, characterised matchers", run_street3d,
-                   full={"quick": False, "n_frames": 12}, quick={"quick": True, "n_frames": 4, "matchers": ("sgbm",)}),
+                   full={"quick": False, "n_frames": 12, "matchers": ("bm", "sgbm")},
+                   quick={"quick": True, "n_frames": 4, "matchers": ("sgbm",)}),
 )
-"""The demo's experiments in report order: add one here to add it to the demo."""
+"""The demo's experiments in report order: add one here to add it to the demo. The street maps with block matching
+and semiglobal matching only: its variational cells cost two thirds of its mapping time, and the conditioned
+variants would otherwise double the street's share of the demo."""
 
 MATCHERS = ("bm", "sgbm", "variational")
 """Matchers characterised on the Motorcycle pair."""

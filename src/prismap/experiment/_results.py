@@ -14,6 +14,28 @@ from prismap.sensor_models import prior_from_ground_truth
 MODELS = ("ideal", "hitmiss", "convolution", "andert", "prism")
 """Every inverse sensor model of SENSOR_MODELS.md, in the order of the tables."""
 
+CONDITIONED_SUFFIX = "_conditioned"
+"""A cell's model ``NAME_conditioned`` maps with model NAME conditioned on the error classes."""
+MODELS_3D = ("ideal", "hitmiss", "convolution", "convolution_conditioned", "andert", "andert_conditioned", "prism",
+             "prism_conditioned")
+"""The cells of the 3-D experiments, in table order: every model, and each model that uses the error model both
+plain (the whole-image mixture) and conditioned (each pixel's class mixture)."""
+
+
+def split_variant(name):
+    """``(model name, conditioned)`` of a cell's model: ``"prism_conditioned"`` -> ``("prism", True)``."""
+    if name.endswith(CONDITIONED_SUFFIX):
+        return name[: -len(CONDITIONED_SUFFIX)], True
+    return name, False
+
+
+def model_label(name, names=()):
+    """The table label of a cell's model: ``prism (conditioned)``; ``prism (plain)`` when ``names`` has its twin."""
+    model, conditioned = split_variant(name)
+    if conditioned:
+        return f"{model} (conditioned)"
+    return f"{model} (plain)" if model + CONDITIONED_SUFFIX in names else model
+
 RESULTS_FORMAT = "prismap-experiment-results"
 RESULTS_VERSION = 2
 """Version 2 added the safety score (``safety_occupied_called_free``, ``safety_threshold``) to the scores."""
@@ -136,8 +158,9 @@ def format_results_table(results, *, title, notes=()):
     lines = [f"# {title}", "", *notes, *([""] if notes else []),
              "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     best = best_models(results)
+    names = {result.model for result in results}
     for result in results:
-        cells = [result.matcher, result.model]
+        cells = [result.matcher, model_label(result.model, names)]
         for _, name, fmt, _ in SCORE_COLUMNS:
             value = getattr(result.scores, name)
             text = "n/a" if np.isnan(value) else fmt.format(value)
@@ -174,8 +197,11 @@ def best_models(results):
     return {key: model for key, (model, _) in best.items()}
 
 
-def write_results(results, out_dir, *, title, notes=(), settings=None):
+def write_results(results, out_dir, *, title, notes=(), settings=None, sections=(), extra=None):
     """Write ``results.md`` and ``results.json`` (every cell with its full scores) into ``out_dir``.
+
+    ``sections`` (Markdown texts) follow the table in ``results.md``; ``extra`` (plain-JSON fields) joins
+    ``results.json``.
 
     Returns
     -------
@@ -183,9 +209,10 @@ def write_results(results, out_dir, *, title, notes=(), settings=None):
     """
     out = Path(out_dir)
     paths = {"table": out / "results.md", "json": out / "results.json"}
-    write_text_atomic(paths["table"], format_results_table(results, title=title, notes=notes))
+    table = format_results_table(results, title=title, notes=notes)
+    write_text_atomic(paths["table"], "\n".join([table, *sections]))
     document = {"format": RESULTS_FORMAT, "version": RESULTS_VERSION, "title": title, "settings": settings or {},
-                "cells": [r.to_dict() for r in results]}
+                "cells": [r.to_dict() for r in results], **(extra or {})}
     write_text_atomic(paths["json"], json.dumps(document, indent=1) + "\n")
     return paths
 

@@ -11,7 +11,8 @@ from prismap._progress import progress
 from prismap._validate import check_positive
 from prismap.errors import PrismapInputError
 from prismap.experiment._cells import ExperimentResult, claim_out_dir, draw_figures, run_cells
-from prismap.experiment._results import MODELS, prior_of, write_results
+from prismap.experiment._results import MODELS_3D, prior_of, split_variant, write_results
+from prismap.experiment._targets import format_targets, measure_targets
 
 MATCHERS = ("bm", "sgbm", "variational")
 """Every matcher the 3-D experiments characterise and map with, in the order of the tables."""
@@ -123,7 +124,7 @@ def split_frames(n_frames, every):
 
 
 def run_scene3d(out_dir, *, n_frames=None, voxel_size_m=None, seed=0, quick=False, matchers=MATCHERS,
-                models=MODELS, characterise_every=4, max_range_m=None, grid_offset=0.5):
+                models=MODELS_3D, characterise_every=4, max_range_m=None, grid_offset=0.5):
     """Characterise each matcher on some frames of the indoor room, map the others with every model, score.
 
     The seeded :func:`prismap.sim.indoor_scene` rendered along :func:`prismap.sim.indoor_trajectory` by the
@@ -138,7 +139,7 @@ def run_scene3d(out_dir, *, n_frames=None, voxel_size_m=None, seed=0, quick=Fals
 
 
 def run_street3d(out_dir, *, n_frames=None, voxel_size_m=None, seed=0, quick=False, matchers=MATCHERS,
-                 models=MODELS, characterise_every=4, max_range_m=None, grid_offset=0.5):
+                 models=MODELS_3D, characterise_every=4, max_range_m=None, grid_offset=0.5):
     """Characterise each matcher on some frames of the street drive, map the others with every model, score.
 
     The seeded :func:`prismap.sim.street_scene` rendered along :func:`prismap.sim.street_trajectory` by
@@ -152,7 +153,7 @@ def run_street3d(out_dir, *, n_frames=None, voxel_size_m=None, seed=0, quick=Fal
 
 
 def run_rendered_world(world, out_dir, *, n_frames=None, voxel_size_m=None, seed=0, quick=False, matchers=MATCHERS,
-                       models=MODELS, characterise_every=4, max_range_m=None, grid_offset=0.5):
+                       models=MODELS_3D, characterise_every=4, max_range_m=None, grid_offset=0.5):
     """The 3-D experiment on the world named ``world`` (a key of :data:`WORLDS`).
 
     Frames ``0, k, 2k, ...`` (``k = characterise_every``) characterise each matcher
@@ -224,14 +225,15 @@ def run_rendered_world(world, out_dir, *, n_frames=None, voxel_size_m=None, seed
     p0 = prior_of(truth)
     largest = max(float(np.nanmax(f.disparity_gt)) for f in frames)
 
-    results, artifacts = [], []
+    results, artifacts, error_models = [], [], {}
     layer = math.floor((spec.slice_height_m + shift) / voxel)
     for matcher_name in settings["matchers"]:
         matcher = _matcher(matcher_name, largest)
-        mixture, char_artifacts = _characterise(out / matcher_name / "characterisation", char_frames, matcher,
-                                                f"{scene.name} frames {char_index.tolist()}")
+        error_model, char_artifacts = _characterise(out / matcher_name / "characterisation", char_frames, matcher,
+                                                    f"{scene.name} frames {char_index.tolist()}")
+        error_models[matcher_name] = error_model
         disparity_dir = _match(out / matcher_name / "disparity", map_frames, matcher)
-        build_map = _mapper(sequence, disparity_dir, matcher_name, mixture, p0, settings)
+        build_map = _mapper(sequence, disparity_dir, matcher_name, error_model, p0, settings)
         cells, maps = run_cells(out, matcher_name, models, build_map, truth, settings)
         results += cells
         artifacts += char_artifacts
@@ -243,10 +245,14 @@ def run_rendered_world(world, out_dir, *, n_frames=None, voxel_size_m=None, seed
              f"{settings['mode']} integration, rays to {settings['max_range_m']} m; scene and trajectory shifted by "
              f"{shift:g} m on each axis so that floors and walls cut voxels through the middle.")
     models_note = ("Each matcher's PRISM, convolution and Andert models use the error model characterised on the "
-                   "characterisation frames; time = mapping wall time (PRISM's tables included).")
+                   "characterisation frames: \"plain\" its whole-image mixture for every pixel, \"conditioned\" the "
+                   "mixture of each pixel's error class (from the features of the mapped frame's own disparity and "
+                   "image); time = mapping wall time (PRISM's tables and the features included).")
     notes = (setup, f"p0 = {p0:.4f}: the occupancy ratio of the voxels a perfect sensor observed (the scored voxels).",
-             models_note)
-    paths = write_results(results, out, title=spec.title, notes=notes, settings=settings)
+             models_note, _classes_note(error_models))
+    targets = measure_targets(world, results, error_models)
+    paths = write_results(results, out, title=spec.title, notes=notes, settings=settings,
+                          sections=(format_targets(targets),), extra={"targets": [t.to_dict() for t in targets]})
     artifacts = [(paths["table"], f"Scores of every matcher x sensor model: {spec.title} (Markdown)."),
                  (paths["json"], "The same scores with reliability bins and histograms (JSON).")] + artifacts
     return ExperimentResult(world, tuple(results), p0, settings, tuple(artifacts))
@@ -277,7 +283,20 @@ def _characterise(out_dir, frames, matcher, dataset):
         (paths["figure_wide"], f"{name}: the error tails on a log scale."),
         (paths["model"], f"{name}: the error model (JSON) every model of this matcher used."),
     ]
-    return load_error_model(paths["model"]).mixture, artifacts
+    return load_error_model(paths["model"]), artifacts
+
+
+def _classes_note(error_models):
+    """One sentence per matcher: its error classes (the per-class view is in its characterisation table)."""
+    lines = []
+    for name, model in error_models.items():
+        chosen = model.class_selection
+        features = ", ".join(model.classes.features) or "none"
+        lines.append(f"{name}: {model.n_classes} error class(es) by {features} (see {name}/characterisation/table.md); "
+                     "held-out log-likelihood "
+                     f"{chosen.get('conditioned_nats_per_error', float('nan')):.4f} nats/error conditioned, "
+                     f"{chosen.get('plain_nats_per_error', float('nan')):.4f} plain.")
+    return " ".join(lines)
 
 
 def _match(out_dir, frames, matcher):
@@ -292,13 +311,19 @@ def _match(out_dir, frames, matcher):
     return out_dir
 
 
-def _mapper(sequence, disparity_dir, matcher_name, mixture, p0, settings):
-    """``build_map(model_name)``: the pipeline's map of the mapping frames from the matcher's disparities."""
+def _mapper(sequence, disparity_dir, matcher_name, error_model, p0, settings):
+    """``build_map(cell_model)``: the pipeline's map of the mapping frames from the matcher's disparities.
+
+    ``cell_model`` is a model name, plain, or with :data:`~prismap.experiment.CONDITIONED_SUFFIX`: conditioned
+    on the error model's classes (plain when the characterisation chose none).
+    """
     from prismap.pipeline import MappingConfig, map_sequence
 
-    def build_map(model_name):
+    def build_map(cell_model):
+        model_name, conditioned = split_variant(cell_model)
         config = MappingConfig(model=model_name, model_params=settings["model_params"].get(model_name, {}),
-                               voxel_size_m=settings["voxel_size_m"], p0=p0, error_model=mixture, matcher=matcher_name,
+                               voxel_size_m=settings["voxel_size_m"], p0=p0, error_model=error_model,
+                               conditioned=None if conditioned else False, matcher=matcher_name,
                                disparity_source=str(Path(disparity_dir).resolve()),
                                max_range_m=settings["max_range_m"], subsample=settings["subsample"], mode=settings["mode"])
         return map_sequence(sequence, config)

@@ -8,10 +8,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from prismap._validate import check_positive, check_probability
+from prismap.characterise import ErrorModel
 from prismap.errors import PrismapInputError
 from prismap.gmm import GaussianMixture
 from prismap.grid import POLICIES
-from prismap.sensor_models import make_sensor_model, model_names
+from prismap.sensor_models import conditioned_sensor_model, make_sensor_model, model_names
 from prismap.stereo import matcher_names
 
 MODES = ("ray", "projective")
@@ -52,6 +53,15 @@ def _as_mixture(error_model):
         return mixture
     raise PrismapInputError(
         f"`error_model` must be a GaussianMixture or an error model with `.mixture`; got {type(error_model).__name__}"
+    )
+
+
+def _check_error_model(error_model):
+    """``error_model`` unchanged if it is None, a GaussianMixture or an :class:`ErrorModel`; else raise."""
+    if error_model is None or isinstance(error_model, (GaussianMixture, ErrorModel)):
+        return error_model
+    raise PrismapInputError(
+        f"`error_model` must be an ErrorModel, a GaussianMixture or None; got {type(error_model).__name__}"
     )
 
 
@@ -124,9 +134,14 @@ class MappingConfig:
     voxel_size_m : float, metres, > 0
     p0 : float in (0, 1)
         Prior occupancy of a voxel (the scene's occupancy ratio at this voxel size).
-    error_model : GaussianMixture or None
+    error_model : ErrorModel or GaussianMixture or None
         The matcher's disparity error model, pixels (needed by ``prism``, and by ``convolution`` and
-        ``andert`` without an explicit ``sigma_px``).
+        ``andert`` without an explicit ``sigma_px``). A GaussianMixture is a plain model.
+    conditioned : bool or None
+        Give each pixel the error mixture of its class (:meth:`ErrorModel.classify` of its confidence
+        features, computed per frame) instead of the whole-image mixture. None = True when the error
+        model has more than one class. True needs such a model; it changes only the models that use
+        the error model (``prism``, ``convolution``, ``andert``).
     model_params : dict
         Extra parameters of the sensor model.
     matcher : str
@@ -159,7 +174,8 @@ class MappingConfig:
     model: str = "prism"
     voxel_size_m: float = 0.1
     p0: float = 0.05
-    error_model: GaussianMixture | None = None
+    error_model: ErrorModel | GaussianMixture | None = None
+    conditioned: bool | None = None
     model_params: tuple = ()
     matcher: str = "sgbm"
     matcher_params: tuple = ()
@@ -180,7 +196,8 @@ class MappingConfig:
             raise PrismapInputError(f"unknown matcher {self.matcher!r}; expected one of {list(matcher_names())}")
         set_("voxel_size_m", check_positive(self.voxel_size_m, "voxel_size_m"))
         set_("p0", check_probability(self.p0, "p0"))
-        set_("error_model", _as_mixture(self.error_model))
+        set_("error_model", _check_error_model(self.error_model))
+        set_("conditioned", _check_conditioned(self.conditioned, self.error_model))
         set_("model_params", _frozen_params(self.model_params, "model_params"))
         _check_model_params(dict(self.model_params), "model_params")
         set_("matcher_params", _frozen_params(self.matcher_params, "matcher_params"))
@@ -207,10 +224,20 @@ class MappingConfig:
         """Matcher parameters as a dict."""
         return dict(self.matcher_params)
 
+    @property
+    def mixture(self):
+        """The whole-image error mixture (GaussianMixture, pixels) or None: what a plain model uses."""
+        return _as_mixture(self.error_model)
+
     def sensor_model(self, camera):
-        """The configured sensor model for ``camera`` (see :func:`build_sensor_model`)."""
+        """The configured sensor model for ``camera``: :func:`build_sensor_model` when plain, else
+        :func:`prismap.sensor_models.conditioned_sensor_model`: a ConditionedModel for the models that use the
+        error model, whose rays then need ``ray_class``; the plain model for ``ideal`` and ``hitmiss``."""
+        if self.conditioned:
+            return conditioned_sensor_model(self.model, camera, voxel_size_m=self.voxel_size_m, p0=self.p0,
+                                            error_model=self.error_model, **self.model_options)
         return build_sensor_model(self.model, camera, voxel_size_m=self.voxel_size_m, p0=self.p0,
-                                  error_model=self.error_model, **self.model_options)
+                                  error_model=self.mixture, **self.model_options)
 
     def frame_indices(self, n_frames):
         """``range`` of the frames of a sequence of ``n_frames`` this config maps; raises if empty."""
@@ -224,10 +251,15 @@ class MappingConfig:
         return range(start, stop)
 
     def to_dict(self):
-        """Plain-JSON form (the error model as its weights, means and sigmas)."""
+        """Plain-JSON form: the error model as its weights, means and sigmas, with its classes when they are used.
+
+        A plain run records only the whole-image mixture, so it fingerprints the same whether it was
+        given that mixture or the whole error model.
+        """
+        error_model = self.error_model if self.conditioned else self.mixture
         return {
-            "model": self.model, "model_params": self.model_options,
-            "error_model": None if self.error_model is None else self.error_model.to_dict(),
+            "model": self.model, "model_params": self.model_options, "conditioned": self.conditioned,
+            "error_model": None if error_model is None else error_model.to_dict(),
             "voxel_size_m": self.voxel_size_m, "p0": self.p0,
             "matcher": self.matcher, "matcher_params": self.matcher_options,
             "disparity_source": self.disparity_source, "mode": self.mode, "policy": self.policy,
@@ -245,6 +277,21 @@ class MappingConfig:
 
     def __hash__(self):
         return hash(self.fingerprint())
+
+
+def _check_conditioned(conditioned, error_model):
+    """The ``conditioned`` flag resolved against the error model (None = whether it has classes)."""
+    has_classes = isinstance(error_model, ErrorModel) and error_model.n_classes > 1
+    if conditioned is None:
+        return has_classes
+    if not isinstance(conditioned, (bool, np.bool_)):
+        raise PrismapInputError(f"`conditioned` must be True, False or None; got {conditioned!r}")
+    if conditioned and not has_classes:
+        raise PrismapInputError(
+            "`conditioned` needs an error model with more than one class (prismap characterise, conditioned); "
+            f"this one has {error_model.n_classes if isinstance(error_model, ErrorModel) else 'no'} classes"
+        )
+    return bool(conditioned)
 
 
 def _check_frames(frames):

@@ -8,12 +8,15 @@ import numpy as np
 
 from prismap._files import exclusive_lock
 from prismap._progress import progress as progress_bar
+from prismap.characterise import compute_features
 from prismap.errors import PrismapInputError
 from prismap.grid import KEY_LIMIT, OccupancyMap, key_limit_m, key_range_text
 from prismap.io import BagSequence, Sequence, read_kitti_disparity, read_sequence
 from prismap.pipeline._checkpoint import open_checkpoint, run_fingerprint, save_checkpoint
 from prismap.pipeline._config import DISPARITY_FROM_MATCHER, DISPARITY_FROM_SEQUENCE, MappingConfig
+from prismap.sensor_models import ConditionedModel
 from prismap.stereo import make_matcher
+from prismap.stereo._base import to_grey
 
 _MODEL_CACHE = {}
 """The last sensor model built in this process, keyed by (config fingerprint, camera): a Dask worker
@@ -40,12 +43,20 @@ def sensor_model_for(config, camera):
 
 
 class DisparitySource:
-    """The disparity image of each frame of a sequence, as ``config.disparity_source`` says.
+    """The disparity image of each frame of a sequence, as ``config.disparity_source`` says, and its pixels' classes.
 
     Parameters
     ----------
     sequence : Sequence
     config : MappingConfig
+
+    Raises
+    ------
+    PrismapInputError
+        At construction, before any frame is read: a bad matcher or disparity directory, or a conditioned
+        error model whose features this run cannot compute (:meth:`ErrorModel.check_usable`: another
+        matcher; the left-right disagreement without the matcher's left-right check, or from precomputed
+        disparities, which have none).
     """
 
     def __init__(self, sequence, config):
@@ -59,28 +70,52 @@ class DisparitySource:
                 raise PrismapInputError(f"matcher {config.matcher!r}: bad parameter(s) {config.matcher_options}: {exc}") from None
         elif self.kind != DISPARITY_FROM_SEQUENCE and not Path(self.kind).is_dir():
             raise PrismapInputError(f"disparity directory {self.kind}: not found")
+        self.error_model = None
+        if isinstance(sensor_model_for(config, sequence.camera), ConditionedModel):
+            self.error_model = config.error_model
+            self.error_model.check_usable(config.matcher,
+                                          left_right_check=bool(getattr(self.matcher, "left_right_check", False)))
 
     def __call__(self, index):
-        """``(disparity, T_world_cam)`` of frame ``index``: (H, W) float32 pixels (NaN = invalid), (4, 4) metres."""
+        """``(disparity, T_world_cam, ray_class)`` of frame ``index``.
+
+        Returns
+        -------
+        disparity : (H, W) float32, pixels, NaN = invalid
+        T_world_cam : (4, 4) float64, metres
+        ray_class : (H, W) int32 or None
+            Each pixel's error class (:meth:`ErrorModel.classify` of its confidence features, -1 = none)
+            when the run is conditioned; None otherwise.
+        """
         frame = self.sequence[index]
         if frame.T_world_cam is None:
             raise PrismapInputError(
                 f"{self.sequence.path}: no poses.txt; mapping needs the pose of every frame (a KITTI odometry "
                 "sequence ROOT/sequences/NN takes ROOT/poses/NN.txt, published for sequences 00-10 only)"
             )
+        lr_disagreement = None
         if self.matcher is not None:
-            return self.matcher.compute(frame.left, frame.right), frame.T_world_cam
-        if self.kind == DISPARITY_FROM_SEQUENCE:
+            disparity, lr_disagreement = self.matcher.compute_with_confidence(frame.left, frame.right)
+        elif self.kind == DISPARITY_FROM_SEQUENCE:
             if frame.disparity_gt is None:
                 raise PrismapInputError(f"{self.sequence.path / 'disp' / self.sequence.names[index]}: disparity file missing")
-            return frame.disparity_gt, frame.T_world_cam
+            disparity = frame.disparity_gt
+        else:
+            disparity = self._read(index, frame)
+        if self.error_model is None:
+            return disparity, frame.T_world_cam, None
+        features = compute_features(to_grey(frame.left), to_grey(frame.right), disparity, lr_disagreement,
+                                    **self.error_model.feature_settings)
+        return disparity, frame.T_world_cam, self.error_model.classify(features)
+
+    def _read(self, index, frame):
         path = Path(self.kind) / self.sequence.names[index]
         if not path.is_file():
             raise PrismapInputError(f"{path}: disparity file missing (expected one uint16 PNG per frame, value / 256 = px)")
         disparity = read_kitti_disparity(path)
         if disparity.shape != frame.left.shape[:2]:
             raise PrismapInputError(f"{path}: size {disparity.shape} differs from the images' {frame.left.shape[:2]}")
-        return disparity, frame.T_world_cam
+        return disparity
 
 
 def integrate_frames(grid, sequence, config, indices, *, on_frame=None):
@@ -98,9 +133,9 @@ def integrate_frames(grid, sequence, config, indices, *, on_frame=None):
     model = sensor_model_for(config, sequence.camera)
     source = DisparitySource(sequence, config)
     for index in indices:
-        disparity, pose = source(index)
+        disparity, pose, ray_class = source(index)
         grid.integrate_disparity(disparity, sequence.camera, pose, model, mode=config.mode, policy=config.policy,
-                                 max_range_m=config.max_range_m, subsample=config.subsample)
+                                 max_range_m=config.max_range_m, subsample=config.subsample, ray_class=ray_class)
         if on_frame is not None:
             on_frame(grid)
     return grid
@@ -191,6 +226,7 @@ def map_sequence(sequence, config, *, progress=True, checkpoint=None, checkpoint
     sequence = open_sequence(sequence)
     indices = config.frame_indices(len(sequence))
     check_key_reach(sequence, config, indices)
+    DisparitySource(sequence, config)  # refuses a bad matcher, disparity directory or error model before any work
     if checkpoint is None:
         return _map_frames(sequence, config, indices, progress, None, checkpoint_every, client, chunk_frames)
     with exclusive_lock(checkpoint, "checkpoint"):
