@@ -120,3 +120,16 @@ def test_bad_classes_and_arguments_are_named():
         ConditionedModel(model.plain, (other,))
     with pytest.raises(PrismapInputError, match="is ConvolutionModel; expected AndertModel"):
         ConditionedModel(model.plain, (make_sensor_model("convolution", focal_baseline=1.0, **SETTINGS),))
+
+
+def test_conditioned_prism_reports_the_far_depth_the_key_reach_check_reads():
+    from prismap.camera import TSUKUBA_CAMERA
+    from prismap.sensor_models import conditioned_sensor_model
+    from support import conditioned_error_model
+
+    error_model = conditioned_error_model()
+    prism = conditioned_sensor_model("prism", TSUKUBA_CAMERA, voxel_size_m=0.1, p0=0.1, error_model=error_model,
+                                     far_depth_m=37.0)
+    assert prism.far_depth_m == 37.0 == prism.plain.far_depth_m
+    andert = conditioned_sensor_model("andert", TSUKUBA_CAMERA, voxel_size_m=0.1, p0=0.1, error_model=error_model)
+    assert not hasattr(andert, "far_depth_m")

@@ -65,6 +65,11 @@ class ConditionedModel(InverseSensorModel):
         return self.plain.default_policy
 
     @property
+    def far_depth_m(self):
+        """The farthest depth (metres) any sub-model reasons to; AttributeError for models without one (not PRISM)."""
+        return max(model.far_depth_m for model in (self.plain, *self.class_models))
+
+    @property
     def n_classes(self):
         """Number of classes (the plain model not counted)."""
         return len(self.class_models)
