@@ -14,7 +14,6 @@ from prismap.io import load_map, read_ground_truth, read_sequence, write_ground_
 from prismap.pipeline import (
     DisparitySource,
     build_sensor_model,
-    dominant_sigma_px,
     ground_truth_from_map,
     lidar_reference_map,
     map_sequence,
@@ -45,8 +44,8 @@ def hand_map(sequence_dir, cfg, indices, disparity_of):
 
 # ------------------------------------------------------------------------------------ sensor models
 def test_dominant_sigma_is_the_largest_weight_component():
-    assert dominant_sigma_px(MIXTURE) == 0.4
-    assert dominant_sigma_px(GaussianMixture([0.3, 0.7], [0, 0], [0.2, 1.5])) == 1.5
+    assert MIXTURE.dominant_sigma() == 0.4
+    assert GaussianMixture([0.3, 0.7], [0, 0], [0.2, 1.5]).dominant_sigma() == 1.5
 
 
 def test_build_sensor_model_gives_each_model_its_noise():

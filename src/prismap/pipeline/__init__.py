@@ -3,7 +3,7 @@ LiDAR reference maps."""
 
 from prismap.pipeline._characterise import characterise_sequence
 from prismap.pipeline._checkpoint import open_checkpoint, remove_checkpoint, run_fingerprint, save_checkpoint
-from prismap.pipeline._config import MappingConfig, build_sensor_model, dominant_sigma_px
+from prismap.pipeline._config import MappingConfig, build_sensor_model
 from prismap.pipeline._lidar import (
     LIDAR_P0,
     KittiLidarScans,
@@ -21,7 +21,6 @@ __all__ = [
     "MappingConfig",
     "build_sensor_model",
     "characterise_sequence",
-    "dominant_sigma_px",
     "ground_truth_from_map",
     "in_camera_view",
     "integrate_frames",

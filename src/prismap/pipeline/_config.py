@@ -12,13 +12,12 @@ from prismap.characterise import ErrorModel
 from prismap.errors import PrismapInputError
 from prismap.gmm import GaussianMixture
 from prismap.grid import POLICIES
-from prismap.sensor_models import conditioned_sensor_model, make_sensor_model, model_names
+from prismap.sensor_models import USES_SIGMA, conditioned_sensor_model, model_for_mixture, model_names
 from prismap.stereo import matcher_names
 
 MODES = ("ray", "projective")
 DISPARITY_FROM_MATCHER = "matcher"
 DISPARITY_FROM_SEQUENCE = "sequence"
-NEEDS_SIGMA = ("convolution", "andert")
 """Models parametrised by one disparity noise ``sigma_px``: taken from the error model unless given."""
 RESERVED_MODEL_PARAMS = {
     "voxel_size_m": "the map's voxel size (--voxel)", "p0": "the map's prior (--p0)",
@@ -33,16 +32,6 @@ def _check_model_params(params, option):
         name = reserved[0]
         raise PrismapInputError(f"{option} {name}: cannot be set as a model parameter; it comes from "
                                 f"{RESERVED_MODEL_PARAMS[name]}")
-
-
-def dominant_sigma_px(mixture):
-    """Standard deviation (pixels) of the largest-weight component of ``mixture``.
-
-    Models with a single Gaussian disparity noise (convolution, Andert) take this sigma: the core of
-    the matcher's error distribution, which most pixels follow. The mixture's overall std would be
-    inflated by the gross-error components and blur every measurement.
-    """
-    return float(mixture.sigmas[int(np.argmax(mixture.weights))])
 
 
 def _as_mixture(error_model):
@@ -80,8 +69,9 @@ def build_sensor_model(name, camera, *, voxel_size_m, p0, error_model=None, **pa
         Prior occupancy; must equal the map's.
     error_model : GaussianMixture or object with ``.mixture`` or None
         The matcher's disparity error ``e = d_true - d_computed`` (pixels). ``prism`` uses the whole
-        mixture; ``convolution`` and ``andert`` use :func:`dominant_sigma_px` unless ``sigma_px`` is in
-        ``params``; ``ideal`` and ``hitmiss`` ignore it.
+        mixture; ``convolution`` and ``andert`` its dominant sigma (:meth:`GaussianMixture.dominant_sigma`)
+        unless ``sigma_px`` is in ``params``; ``ideal`` and ``hitmiss`` ignore it (see
+        :func:`prismap.sensor_models.model_for_mixture`, which builds the model).
     **params
         The model's own parameters (e.g. ``p_hit``, ``eta``, ``near_m``).
 
@@ -94,21 +84,15 @@ def build_sensor_model(name, camera, *, voxel_size_m, p0, error_model=None, **pa
     mixture = _as_mixture(error_model)
     params = dict(params)
     _check_model_params(params, "model parameter")
-    if name == "prism":
-        if mixture is None:
+    if mixture is None:
+        if name == "prism":
             raise PrismapInputError("sensor model 'prism' needs an error model (--error-model MODEL.json)")
-        params["error_model"] = mixture
-    elif name in NEEDS_SIGMA and "sigma_px" not in params:
-        if mixture is None:
+        if name in USES_SIGMA and "sigma_px" not in params:
             raise PrismapInputError(
                 f"sensor model {name!r} needs an error model (--error-model MODEL.json) or an explicit sigma_px"
             )
-        params["sigma_px"] = dominant_sigma_px(mixture)
-    try:
-        return make_sensor_model(name, focal_baseline=camera.focal_baseline, doffs_px=camera.doffs_px,
-                                 voxel_size_m=voxel_size_m, p0=p0, **params)
-    except TypeError as exc:
-        raise PrismapInputError(f"sensor model {name!r}: bad parameter(s) {sorted(params)}: {exc}") from None
+    return model_for_mixture(name, mixture, focal_baseline=camera.focal_baseline, doffs_px=camera.doffs_px,
+                             voxel_size_m=voxel_size_m, p0=p0, **params)
 
 
 def _frozen_params(value, name):

@@ -7,7 +7,13 @@ from prismap.sensor_models._base import (
     register_model,
 )
 from prismap.sensor_models._classic import AndertModel, ConvolutionModel, HitMissModel, IdealModel
-from prismap.sensor_models._conditioned import ConditionedModel, conditioned_sensor_model, model_for_mixture
+from prismap.sensor_models._conditioned import (
+    USES_MIXTURE,
+    USES_SIGMA,
+    ConditionedModel,
+    conditioned_sensor_model,
+    model_for_mixture,
+)
 from prismap.sensor_models._prism import (
     PrismModel,
     estimate_prior_from_likelihood,
@@ -17,6 +23,8 @@ from prismap.sensor_models._prism import (
 )
 
 __all__ = [
+    "USES_MIXTURE",
+    "USES_SIGMA",
     "AndertModel",
     "ConditionedModel",
     "ConvolutionModel",

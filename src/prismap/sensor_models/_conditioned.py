@@ -144,12 +144,12 @@ def model_for_mixture(name, mixture, *, focal_baseline, doffs_px, voxel_size_m, 
     """The sensor model ``name`` for one error mixture: PRISM with it, convolution/Andert with its dominant sigma.
 
     ``params`` (the model's own parameters) win over what the mixture would set (``error_model``,
-    ``sigma_px``); other models ignore the mixture.
+    ``sigma_px``); other models ignore the mixture, and ``mixture=None`` sets nothing.
     """
     params = dict(params)
-    if name == USES_MIXTURE:
+    if mixture is not None and name == USES_MIXTURE:
         params.setdefault("error_model", mixture)
-    elif name in USES_SIGMA:
+    elif mixture is not None and name in USES_SIGMA:
         params.setdefault("sigma_px", mixture.dominant_sigma())
     try:
         return make_sensor_model(name, focal_baseline=focal_baseline, doffs_px=doffs_px, voxel_size_m=voxel_size_m,
