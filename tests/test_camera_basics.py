@@ -31,6 +31,16 @@ def test_triangulated_points_project_back_to_their_pixels():
     assert z == pytest.approx(CAM.focal_baseline / disparity[v, u])
 
 
+def test_project_inverts_pixel_rays_and_is_nan_behind_the_camera():
+    depth = np.random.default_rng(1).uniform(0.5, 50.0, size=(480, 640, 1))
+    u, v = CAM.project(CAM.pixel_rays() * depth)
+    np.testing.assert_allclose(u, np.broadcast_to(np.arange(640.0), (480, 640)), atol=1e-9)
+    np.testing.assert_allclose(v, np.broadcast_to(np.arange(480.0)[:, None], (480, 640)), atol=1e-9)
+    u, v = CAM.project(np.array([[1.0, 2.0, 0.0], [1.0, 2.0, -3.0], [0.615, -1.23, 2.0]]))
+    assert np.isnan(u[:2]).all() and np.isnan(v[:2]).all()
+    assert (u[2], v[2]) == pytest.approx((320.0 + 615.0 * 0.615 / 2.0, 240.0 - 615.0 * 1.23 / 2.0))
+
+
 def test_bad_camera_parameters():
     with pytest.raises(PrismapInputError, match="baseline_m"):
         StereoCamera(600, 320, 240, 0.0)

@@ -174,6 +174,20 @@ class StereoCamera:
             disparity = self.focal_baseline / z - self.doffs_px
         return np.where(np.isfinite(z) & (z > 0), disparity, np.nan)
 
+    def project(self, points_cam):
+        """Pixel coordinates ``(u, v) = (f x / z + cx, f y / z + cy)`` of points in the left camera frame.
+
+        The inverse of :meth:`pixel_rays` (pixel centres at integers). ``points_cam`` is ``(..., 3)``
+        metres; returns two ``(...)`` float64 arrays, NaN for points not in front of the camera (``z <= 0``).
+        """
+        points = np.asarray(points_cam, dtype=np.float64)
+        x, y, z = points[..., 0], points[..., 1], points[..., 2]
+        in_front = z > 0
+        safe_z = np.where(in_front, z, 1.0)
+        u = np.where(in_front, self.focal_px * x / safe_z + self.cx_px, np.nan)
+        v = np.where(in_front, self.focal_px * y / safe_z + self.cy_px, np.nan)
+        return u, v
+
     def pixel_rays(self, shape=None):
         """Rays ``((u - cx)/f, (v - cy)/f, 1)`` of every pixel, camera frame: (H, W, 3) float64.
 

@@ -84,9 +84,10 @@ def points_to_disparity(points_cam, camera):
     points = as_float_array(points_cam, "points_cam", shape=(None, 3), allow_nan=False)
     if camera.width is None or camera.height is None:
         raise PrismapInputError("`camera` needs its image size (width, height) to project points into its image")
-    x, y, z = points[points[:, 2] > 0].T
-    col = np.floor(camera.focal_px * x / z + camera.cx_px + 0.5)
-    row = np.floor(camera.focal_px * y / z + camera.cy_px + 0.5)
+    points = points[points[:, 2] > 0]
+    z = points[:, 2]
+    u, v = camera.project(points)
+    col, row = np.floor(u + 0.5), np.floor(v + 0.5)
     inside = (col >= 0) & (col < camera.width) & (row >= 0) & (row < camera.height)
     depth = np.full(camera.height * camera.width, np.inf)
     np.minimum.at(depth, (row[inside] * camera.width + col[inside]).astype(np.int64), z[inside])

@@ -192,9 +192,5 @@ def in_camera_view(points_cam, camera):
         raise PrismapInputError(f"`points_cam` must be (N, 3); got {points.shape}")
     if camera.width is None or camera.height is None:
         raise PrismapInputError("`camera` needs its image size (width, height) to decide what it sees")
-    x, y, z = points.T
-    in_front = z > 0
-    safe_z = np.where(in_front, z, 1.0)
-    u = camera.focal_px * x / safe_z + camera.cx_px
-    v = camera.focal_px * y / safe_z + camera.cy_px
-    return in_front & (u >= -0.5) & (u < camera.width - 0.5) & (v >= -0.5) & (v < camera.height - 0.5)
+    u, v = camera.project(points)  # NaN behind the camera: every comparison below is False there
+    return (u >= -0.5) & (u < camera.width - 0.5) & (v >= -0.5) & (v < camera.height - 0.5)
