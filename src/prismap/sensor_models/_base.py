@@ -27,12 +27,16 @@ class InverseSensorModel(ABC):
     ``p0`` or ``voxel_size_m`` differ from its own. A model conditioned on a per-ray class accepts the
     keyword ``ray_class`` ((R,) int32, -1 = no class) in :meth:`cell_posteriors` and
     :meth:`influence_depth`; the grid passes it only when the frame has classes, and never to a hit/miss
-    model.
+    model. A model with ``takes_voxel_overhang`` accepts the keyword ``voxel_overhang_m`` ((R,) float64,
+    metres along each ray: how far before its surface a voxel can still hold part of it, see
+    ``prismap.grid._overhang``) in :meth:`cell_posteriors`.
     """
 
     name = "base"
     default_policy = "mean"
     """Name of the per-frame policy the map uses with this model by default (the grid owns the policies)."""
+    takes_voxel_overhang = False
+    """Whether :meth:`cell_posteriors` uses the keyword ``voxel_overhang_m`` (the grid computes it only then)."""
 
     @abstractmethod
     def cell_posteriors(self, disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m):

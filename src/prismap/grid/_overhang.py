@@ -1,0 +1,54 @@
+"""How far in front of a measured surface a voxel the ray crosses can still hold part of that surface.
+
+A map's voxel is occupied when any part of a surface lies in it, but a ray only says where IT meets the
+surface. Seen at a grazing angle (a floor, a road, a wall along the street), the ray crosses voxels the
+surface plane passes through before it reaches the plane itself: a model that calls every cell before the
+hit free carves the floor out of the map. For a locally planar surface with unit normal ``n`` (world
+axes) hit at incidence ``cos(theta) = |n . r/|r||``, a voxel of side ``v`` the ray leaves ``t`` metres (along
+the ray) before the hit is ``t cos(theta)`` from the plane, and its points reach at most ``v |n|_1`` further
+along ``n`` (axis-aligned voxels), so it can hold part of the plane only if ``t <= v |n|_1 / cos(theta)``:
+the *overhang*. Models that reason about it (PRISM's ``overhang_fraction``) get it per ray.
+"""
+
+import numpy as np
+
+from prismap.camera import plane_normals
+
+OVERHANG_CAP_VOXELS = 8.0
+"""Largest overhang (voxels): at grazing incidence the bound grows without limit, across a depth
+discontinuity the plane fit is meaningless, and a pixel without a normal gets this value."""
+
+
+def voxel_overhang_m(normals_cam, rays_cam, R_world_cam, voxel_size_m, *, cap_voxels=OVERHANG_CAP_VOXELS):
+    """The overhang bound ``v |n_w|_1 / cos(theta)`` of each ray, capped (metres along the ray).
+
+    Parameters
+    ----------
+    normals_cam : (R, 3) float, camera frame, unit (NaN = no normal: the cap)
+    rays_cam : (R, 3) float, camera frame, the rays ``((u - cx)/f, (v - cy)/f, 1)``
+    R_world_cam : (3, 3) float, rotation camera -> world (voxels are aligned with the world axes)
+    voxel_size_m : float, metres
+    cap_voxels : float, voxels
+
+    Returns
+    -------
+    (R,) float64, metres, in ``[0, cap_voxels * voxel_size_m]``
+    """
+    normals = np.asarray(normals_cam, dtype=np.float64)
+    rays = np.asarray(rays_cam, dtype=np.float64)
+    cap = float(cap_voxels) * float(voxel_size_m)
+    cos_incidence = np.abs(np.einsum("ri,ri->r", normals, rays)) / np.linalg.norm(rays, axis=1)
+    extent = np.abs(normals @ np.asarray(R_world_cam, dtype=np.float64).T).sum(axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        overhang = voxel_size_m * extent / cos_incidence
+    return np.where(np.isfinite(overhang), np.minimum(overhang, cap), cap)
+
+
+def frame_overhang_m(disparity_px, camera, R_world_cam, voxel_size_m, subsample):
+    """:func:`voxel_overhang_m` of every ``subsample``-th pixel of a disparity image, flattened row by row.
+
+    The normals are fitted on the full image (:func:`prismap.camera.plane_normals`), then subsampled.
+    """
+    normals = plane_normals(disparity_px, camera)[::subsample, ::subsample].reshape(-1, 3)
+    rays = camera.pixel_rays(np.shape(disparity_px))[::subsample, ::subsample].reshape(-1, 3)
+    return voxel_overhang_m(normals, rays, R_world_cam, voxel_size_m)
