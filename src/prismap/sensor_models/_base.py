@@ -105,6 +105,20 @@ def model_names():
     return tuple(_REGISTRY)
 
 
+def model_defaults(name):
+    """The default of every public parameter of the model called ``name`` that is a plain number, string or
+    None: what a run without that parameter uses (recorded in run fingerprints, so a changed default is a
+    changed run)."""
+    import dataclasses
+
+    try:
+        cls = _REGISTRY[name]
+    except KeyError:
+        raise PrismapInputError(f"unknown sensor model {name!r}; expected one of {list(_REGISTRY)}") from None
+    return {f.name: f.default for f in dataclasses.fields(cls)
+            if f.init and not f.name.startswith("_") and isinstance(f.default, (bool, int, float, str, type(None)))}
+
+
 def make_sensor_model(name, **params):
     """Build the model called ``name`` (``ideal``, ``hitmiss``, ``convolution``, ``andert``, ``prism``...)."""
     try:
