@@ -187,7 +187,7 @@ def test_a_grazing_floor_stays_in_the_map_without_a_false_layer_above():
     rays_cam = camera.pixel_rays(disparity.shape).reshape(-1, 3)
     fitted = np.isfinite(normals.reshape(-1, 3)[:, 0])
     expected = 0.1 * np.linalg.norm(rays_cam[fitted], axis=1) / np.abs(rays_cam[fitted, 1])
-    got = frame_overhang_m(disparity, camera, pose[:3, :3], 0.1, 1)
+    got = frame_overhang_m(disparity, camera, pose[:3, :3], 0.1, 1, rays_cam)
     np.testing.assert_allclose(got[fitted], np.minimum(expected, 0.8), rtol=1e-8)
     means = {}
     for fraction in (0.0, 0.25):

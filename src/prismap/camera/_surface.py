@@ -3,11 +3,11 @@
 A plane ``n . P = h`` (camera frame) has the disparity ``d + doffs = (f b / h) n . ((u - cx)/f, (v - cy)/f, 1)``:
 affine in the pixel coordinates. So a least-squares fit ``d + doffs = alpha u' + beta v' + gamma`` over a
 window (``u' = u - cx``, ``v' = v - cy``) gives the plane's normal without ever forming depths, in the
-domain where the stereo noise is uniform (disparity) rather than growing with depth squared. The window
-sums are box filters (OpenCV), so a frame costs a few passes over the image.
+domain where the stereo noise is uniform (disparity) rather than growing with depth squared. One numba loop
+per fitted pixel (coordinates relative to the pixel, so the sums stay well conditioned).
 """
 
-import cv2
+import numba as nb
 import numpy as np
 
 from prismap.errors import PrismapInputError
@@ -19,20 +19,22 @@ MIN_WINDOW_SHARE = 0.5
 """Fewest valid pixels a window may hold for its fit (share of the window); fewer: no normal."""
 
 
-def plane_normals(disparity_px, camera, *, window_px=PLANE_WINDOW_PX):
-    """Unit normal of the surface at each pixel, camera frame, facing the camera.
+def plane_normals(disparity_px, camera, *, window_px=PLANE_WINDOW_PX, subsample=1):
+    """Unit normal of the surface at each (``subsample``-th) pixel, camera frame, facing the camera.
 
     Parameters
     ----------
     disparity_px : (H, W) float, pixels, NaN or ``d + doffs <= 0`` = invalid
     camera : StereoCamera
     window_px : odd int >= 3, pixels
-        Side of the window of each fit.
+        Side of the window of each fit (on the full image).
+    subsample : int >= 1
+        Fit at every ``subsample``-th pixel in both directions (as the grid subsamples rays).
 
     Returns
     -------
-    (H, W, 3) float64, camera frame
-        ``n`` with ``|n| = 1`` and ``n . r <= 0`` for the pixel's ray ``r``; NaN where the pixel is invalid,
+    (ceil(H / s), ceil(W / s), 3) float64, camera frame
+        ``n`` with ``|n| = 1`` and ``n . r < 0`` for the pixel's ray ``r``; NaN where the pixel is invalid,
         its window holds fewer than :data:`MIN_WINDOW_SHARE` valid pixels, or their coordinates are
         degenerate (a line of pixels).
 
@@ -40,44 +42,66 @@ def plane_normals(disparity_px, camera, *, window_px=PLANE_WINDOW_PX):
     -----
     With ``d' = d + doffs`` fitted as ``alpha u' + beta v' + gamma`` and
     ``d' = (f b / h)(n_x u'/f + n_y v'/f + n_z)``, the normal is ``(alpha, beta, (d' - alpha u' - beta v') / f)``
-    up to scale, with the pixel's own ``d'``. Across a depth discontinuity the fit mixes two surfaces and the normal leans
-    toward grazing, which is what callers that bound the surface's extent want there.
+    up to scale, with the pixel's own ``d'``. Across a depth discontinuity the fit mixes two surfaces and the
+    normal leans toward grazing, which is what callers that bound the surface's extent want there.
     """
     disparity = np.asarray(disparity_px, dtype=np.float64)
     if disparity.ndim != 2:
         raise PrismapInputError(f"`disparity_px` must be an (H, W) image; got shape {disparity.shape}")
     if isinstance(window_px, bool) or int(window_px) != window_px or window_px < 3 or window_px % 2 == 0:
         raise PrismapInputError(f"`window_px` must be an odd integer >= 3; got {window_px!r}")
-    shifted = disparity + camera.doffs_px
-    valid = np.isfinite(shifted) & (shifted > 0)
+    if isinstance(subsample, bool) or int(subsample) != subsample or subsample < 1:
+        raise PrismapInputError(f"`subsample` must be an integer >= 1; got {subsample!r}")
+    min_count = int(np.ceil(MIN_WINDOW_SHARE * window_px * window_px))
+    return _plane_normals(np.ascontiguousarray(disparity), float(camera.focal_px), float(camera.cx_px),
+                          float(camera.cy_px), float(camera.doffs_px), int(window_px) // 2, int(subsample), min_count)
+
+
+@nb.njit(cache=True, nogil=True)
+def _plane_normals(disparity, f, cx, cy, doffs, half, step, min_count):
+    """Least-squares plane ``d' = alpha u' + beta v' + gamma`` over each window, as a unit normal facing the camera."""
     height, width = disparity.shape
-    u = np.broadcast_to(np.arange(width, dtype=np.float64) - camera.cx_px, (height, width))
-    v = np.broadcast_to(np.arange(height, dtype=np.float64)[:, None] - camera.cy_px, (height, width))
-    weight = valid.astype(np.float64)
-    d = np.where(valid, shifted, 0.0)
-    size = (int(window_px), int(window_px))
-
-    def window_sum(values):
-        return cv2.boxFilter(np.ascontiguousarray(values), -1, size, normalize=False, borderType=cv2.BORDER_CONSTANT)
-
-    n = window_sum(weight)
-    safe_n = np.maximum(n, 1.0)
-    mean_u, mean_v, mean_d = window_sum(u * weight) / safe_n, window_sum(v * weight) / safe_n, window_sum(d) / safe_n
-    var_u = window_sum(u * u * weight) / safe_n - mean_u**2
-    var_v = window_sum(v * v * weight) / safe_n - mean_v**2
-    cov_uv = window_sum(u * v * weight) / safe_n - mean_u * mean_v
-    cov_ud = window_sum(u * d) / safe_n - mean_u * mean_d
-    cov_vd = window_sum(v * d) / safe_n - mean_v * mean_d
-    det = var_u * var_v - cov_uv**2
-    fitted = valid & (n >= MIN_WINDOW_SHARE * size[0] * size[1]) & (det > 1e-6)
-    det = np.where(fitted, det, 1.0)
-    alpha = (var_v * cov_ud - cov_uv * cov_vd) / det
-    beta = (var_u * cov_vd - cov_uv * cov_ud) / det
-    gamma = (d - alpha * u - beta * v) / camera.focal_px
-    normal = np.stack([alpha, beta, gamma], axis=-1)
-    length = np.linalg.norm(normal, axis=-1, keepdims=True)
-    fitted &= length[..., 0] > 0
-    normal = normal / np.where(length > 0, length, 1.0)
-    normal = -normal  # before the flip n . r = d' / f > 0
-    normal[~fitted] = np.nan
-    return normal
+    rows, cols = (height + step - 1) // step, (width + step - 1) // step
+    out = np.full((rows, cols, 3), np.nan)
+    for i in range(rows):
+        y = i * step
+        for j in range(cols):
+            x = j * step
+            d0 = disparity[y, x] + doffs
+            if not d0 > 0:
+                continue
+            n = 0
+            su = sv = sd = suu = svv = suv = sud = svd = 0.0
+            for yy in range(max(y - half, 0), min(y + half + 1, height)):
+                for xx in range(max(x - half, 0), min(x + half + 1, width)):
+                    d = disparity[yy, xx] + doffs
+                    if d > 0:  # False for NaN
+                        u = xx - x
+                        v = yy - y
+                        n += 1
+                        su += u
+                        sv += v
+                        sd += d
+                        suu += u * u
+                        svv += v * v
+                        suv += u * v
+                        sud += u * d
+                        svd += v * d
+            if n < min_count:
+                continue
+            var_u = suu / n - (su / n) ** 2
+            var_v = svv / n - (sv / n) ** 2
+            cov_uv = suv / n - (su / n) * (sv / n)
+            cov_ud = sud / n - (su / n) * (sd / n)
+            cov_vd = svd / n - (sv / n) * (sd / n)
+            det = var_u * var_v - cov_uv * cov_uv
+            if det <= 1e-6:
+                continue
+            alpha = (var_v * cov_ud - cov_uv * cov_vd) / det
+            beta = (var_u * cov_vd - cov_uv * cov_ud) / det
+            gamma = (d0 - alpha * (x - cx) - beta * (y - cy)) / f
+            length = np.sqrt(alpha * alpha + beta * beta + gamma * gamma)
+            out[i, j, 0] = -alpha / length  # before the flip n . r = d' / f > 0
+            out[i, j, 1] = -beta / length
+            out[i, j, 2] = -gamma / length
+    return out

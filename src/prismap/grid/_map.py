@@ -182,7 +182,7 @@ class OccupancyMap:
         rays_w = _kernels_project.rotate_rays(np.ascontiguousarray(rays_cam), np.ascontiguousarray(rotation))
         overhang = None
         if model.takes_voxel_overhang:
-            overhang = frame_overhang_m(disparity_px, camera, rotation, self.voxel_size_m, step)
+            overhang = frame_overhang_m(disparity_px, camera, rotation, self.voxel_size_m, step, rays_cam)
         batch = self._batch(origin, rays_w, d, noise, classes, image, overhang)
         self._integrate(batch, model, mode, policy, max_range_m)
 

@@ -10,6 +10,7 @@ along ``n`` (axis-aligned voxels), so it can hold part of the plane only if ``t 
 the *overhang*. Models that reason about it (PRISM's ``overhang_fraction``) get it per ray.
 """
 
+import numba as nb
 import numpy as np
 
 from prismap.camera import plane_normals
@@ -34,21 +35,31 @@ def voxel_overhang_m(normals_cam, rays_cam, R_world_cam, voxel_size_m, *, cap_vo
     -------
     (R,) float64, metres, in ``[0, cap_voxels * voxel_size_m]``
     """
-    normals = np.asarray(normals_cam, dtype=np.float64)
-    rays = np.asarray(rays_cam, dtype=np.float64)
-    cap = float(cap_voxels) * float(voxel_size_m)
-    cos_incidence = np.abs(np.einsum("ri,ri->r", normals, rays)) / np.linalg.norm(rays, axis=1)
-    extent = np.abs(normals @ np.asarray(R_world_cam, dtype=np.float64).T).sum(axis=1)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        overhang = voxel_size_m * extent / cos_incidence
-    return np.where(np.isfinite(overhang), np.minimum(overhang, cap), cap)
+    return _overhang(np.ascontiguousarray(normals_cam, dtype=np.float64), np.ascontiguousarray(rays_cam, dtype=np.float64),
+                     np.ascontiguousarray(R_world_cam, dtype=np.float64), float(voxel_size_m),
+                     float(cap_voxels) * float(voxel_size_m))
 
 
-def frame_overhang_m(disparity_px, camera, R_world_cam, voxel_size_m, subsample):
+def frame_overhang_m(disparity_px, camera, R_world_cam, voxel_size_m, subsample, rays_cam):
     """:func:`voxel_overhang_m` of every ``subsample``-th pixel of a disparity image, flattened row by row.
 
-    The normals are fitted on the full image (:func:`prismap.camera.plane_normals`), then subsampled.
+    The normals are fitted on windows of the full image (:func:`prismap.camera.plane_normals`) at those
+    pixels; ``rays_cam`` ((R, 3), camera frame) are the same pixels' rays.
     """
-    normals = plane_normals(disparity_px, camera)[::subsample, ::subsample].reshape(-1, 3)
-    rays = camera.pixel_rays(np.shape(disparity_px))[::subsample, ::subsample].reshape(-1, 3)
-    return voxel_overhang_m(normals, rays, R_world_cam, voxel_size_m)
+    normals = plane_normals(disparity_px, camera, subsample=subsample).reshape(-1, 3)
+    return voxel_overhang_m(normals, rays_cam, R_world_cam, voxel_size_m)
+
+
+@nb.njit(cache=True, nogil=True)
+def _overhang(normals, rays, R, voxel, cap):
+    out = np.empty(rays.shape[0])
+    for k in range(rays.shape[0]):
+        nx, ny, nz = normals[k, 0], normals[k, 1], normals[k, 2]
+        rx, ry, rz = rays[k, 0], rays[k, 1], rays[k, 2]
+        cos_incidence = abs(nx * rx + ny * ry + nz * rz) / np.sqrt(rx * rx + ry * ry + rz * rz)
+        extent = 0.0
+        for a in range(3):
+            extent += abs(R[a, 0] * nx + R[a, 1] * ny + R[a, 2] * nz)
+        value = voxel * extent / cos_incidence if cos_incidence > 0 else np.inf
+        out[k] = min(value, cap) if np.isfinite(value) else cap
+    return out
