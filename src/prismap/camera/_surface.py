@@ -35,8 +35,9 @@ def plane_normals(disparity_px, camera, *, window_px=PLANE_WINDOW_PX, subsample=
     -------
     (ceil(H / s), ceil(W / s), 3) float64, camera frame
         ``n`` with ``|n| = 1`` and ``n . r < 0`` for the pixel's ray ``r``; NaN where the pixel is invalid,
-        its window holds fewer than :data:`MIN_WINDOW_SHARE` valid pixels, or their coordinates are
-        degenerate (a line of pixels).
+        its window holds fewer than :data:`MIN_WINDOW_SHARE` valid pixels (of its part inside the image), or
+        their coordinates are degenerate (a line of pixels). A one-row image (a line scanner,
+        ``prismap.sim.StereoScanner2D``) is fitted by a line, the surface taken as extruded across the scan.
 
     Notes
     -----
@@ -52,13 +53,12 @@ def plane_normals(disparity_px, camera, *, window_px=PLANE_WINDOW_PX, subsample=
         raise PrismapInputError(f"`window_px` must be an odd integer >= 3; got {window_px!r}")
     if isinstance(subsample, bool) or int(subsample) != subsample or subsample < 1:
         raise PrismapInputError(f"`subsample` must be an integer >= 1; got {subsample!r}")
-    min_count = int(np.ceil(MIN_WINDOW_SHARE * window_px * window_px))
     return _plane_normals(np.ascontiguousarray(disparity), float(camera.focal_px), float(camera.cx_px),
-                          float(camera.cy_px), float(camera.doffs_px), int(window_px) // 2, int(subsample), min_count)
+                          float(camera.cy_px), float(camera.doffs_px), int(window_px) // 2, int(subsample), MIN_WINDOW_SHARE)
 
 
 @nb.njit(cache=True, nogil=True)
-def _plane_normals(disparity, f, cx, cy, doffs, half, step, min_count):
+def _plane_normals(disparity, f, cx, cy, doffs, half, step, min_share):
     """Least-squares plane ``d' = alpha u' + beta v' + gamma`` over each window, as a unit normal facing the camera."""
     height, width = disparity.shape
     rows, cols = (height + step - 1) // step, (width + step - 1) // step
@@ -72,8 +72,10 @@ def _plane_normals(disparity, f, cx, cy, doffs, half, step, min_count):
                 continue
             n = 0
             su = sv = sd = suu = svv = suv = sud = svd = 0.0
-            for yy in range(max(y - half, 0), min(y + half + 1, height)):
-                for xx in range(max(x - half, 0), min(x + half + 1, width)):
+            y0, y1 = max(y - half, 0), min(y + half + 1, height)
+            x0, x1 = max(x - half, 0), min(x + half + 1, width)
+            for yy in range(y0, y1):
+                for xx in range(x0, x1):
                     d = disparity[yy, xx] + doffs
                     if d > 0:  # False for NaN
                         u = xx - x
@@ -87,18 +89,24 @@ def _plane_normals(disparity, f, cx, cy, doffs, half, step, min_count):
                         suv += u * v
                         sud += u * d
                         svd += v * d
-            if n < min_count:
+            if n < min_share * (y1 - y0) * (x1 - x0):
                 continue
             var_u = suu / n - (su / n) ** 2
             var_v = svv / n - (sv / n) ** 2
             cov_uv = suv / n - (su / n) * (sv / n)
             cov_ud = sud / n - (su / n) * (sd / n)
             cov_vd = svd / n - (sv / n) * (sd / n)
-            det = var_u * var_v - cov_uv * cov_uv
-            if det <= 1e-6:
-                continue
-            alpha = (var_v * cov_ud - cov_uv * cov_vd) / det
-            beta = (var_u * cov_vd - cov_uv * cov_ud) / det
+            if height == 1:  # a line scanner: a line fit, the surface extruded across the scan
+                if var_u <= 1e-6:
+                    continue
+                alpha = cov_ud / var_u
+                beta = 0.0
+            else:
+                det = var_u * var_v - cov_uv * cov_uv
+                if det <= 1e-6:
+                    continue
+                alpha = (var_v * cov_ud - cov_uv * cov_vd) / det
+                beta = (var_u * cov_vd - cov_uv * cov_ud) / det
             gamma = (d0 - alpha * (x - cx) - beta * (y - cy)) / f
             length = np.sqrt(alpha * alpha + beta * beta + gamma * gamma)
             out[i, j, 0] = -alpha / length  # before the flip n . r = d' / f > 0
