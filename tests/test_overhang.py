@@ -58,7 +58,7 @@ def test_overhang_bound_by_hand():
     # a floor (normal +z) seen by a ray at cos(theta) = 0.2; a wall head on; a 45-degree wall head on; no normal
     normals = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [np.sqrt(0.5), np.sqrt(0.5), 0.0], [np.nan] * 3])
     rays = np.array([[np.sqrt(0.96), 0.0, -0.2], [-1.0, 0.0, 0.0], [-1.0, -1.0, 0.0], [0.0, 0.0, 1.0]])
-    np.testing.assert_allclose(voxel_overhang_m(normals, rays, R, v), [v / 0.2, v, v * np.sqrt(2), OVERHANG_CAP_VOXELS * v])
+    np.testing.assert_allclose(voxel_overhang_m(normals, rays, R, v), [v / 0.2, v, v * np.sqrt(2), 0.0])
     grazing = voxel_overhang_m(np.array([[0.0, 0.0, 1.0]]), np.array([[1.0, 0.0, -1e-4]]), R, v)
     assert grazing[0] == OVERHANG_CAP_VOXELS * v
     # the world rotation matters (voxels are world-aligned), the camera's does not change cos(theta)

@@ -36,8 +36,8 @@ def plane_normals(disparity_px, camera, *, window_px=PLANE_WINDOW_PX, subsample=
     (ceil(H / s), ceil(W / s), 3) float64, camera frame
         ``n`` with ``|n| = 1`` and ``n . r < 0`` for the pixel's ray ``r``; NaN where the pixel is invalid,
         its window holds fewer than :data:`MIN_WINDOW_SHARE` valid pixels (of its part inside the image), or
-        their coordinates are degenerate (a line of pixels). A one-row image (a line scanner,
-        ``prismap.sim.StereoScanner2D``) is fitted by a line, the surface taken as extruded across the scan.
+        their coordinates are degenerate (a line of pixels: every pixel of a one-row image, as
+        ``prismap.sim.StereoScanner2D`` gives).
 
     Notes
     -----
@@ -96,17 +96,11 @@ def _plane_normals(disparity, f, cx, cy, doffs, half, step, min_share):
             cov_uv = suv / n - (su / n) * (sv / n)
             cov_ud = sud / n - (su / n) * (sd / n)
             cov_vd = svd / n - (sv / n) * (sd / n)
-            if height == 1:  # a line scanner: a line fit, the surface extruded across the scan
-                if var_u <= 1e-6:
-                    continue
-                alpha = cov_ud / var_u
-                beta = 0.0
-            else:
-                det = var_u * var_v - cov_uv * cov_uv
-                if det <= 1e-6:
-                    continue
-                alpha = (var_v * cov_ud - cov_uv * cov_vd) / det
-                beta = (var_u * cov_vd - cov_uv * cov_ud) / det
+            det = var_u * var_v - cov_uv * cov_uv
+            if det <= 1e-6:
+                continue
+            alpha = (var_v * cov_ud - cov_uv * cov_vd) / det
+            beta = (var_u * cov_vd - cov_uv * cov_ud) / det
             gamma = (d0 - alpha * (x - cx) - beta * (y - cy)) / f
             length = np.sqrt(alpha * alpha + beta * beta + gamma * gamma)
             out[i, j, 0] = -alpha / length  # before the flip n . r = d' / f > 0

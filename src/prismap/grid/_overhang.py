@@ -16,8 +16,8 @@ import numpy as np
 from prismap.camera import plane_normals
 
 OVERHANG_CAP_VOXELS = 8.0
-"""Largest overhang (voxels): at grazing incidence the bound grows without limit, across a depth
-discontinuity the plane fit is meaningless, and a pixel without a normal gets this value."""
+"""Largest overhang (voxels): at grazing incidence the bound grows without limit, and across a depth
+discontinuity the plane fit leans toward grazing."""
 
 
 def voxel_overhang_m(normals_cam, rays_cam, R_world_cam, voxel_size_m, *, cap_voxels=OVERHANG_CAP_VOXELS):
@@ -25,7 +25,8 @@ def voxel_overhang_m(normals_cam, rays_cam, R_world_cam, voxel_size_m, *, cap_vo
 
     Parameters
     ----------
-    normals_cam : (R, 3) float, camera frame, unit (NaN = no normal: the cap)
+    normals_cam : (R, 3) float, camera frame, unit (NaN = no normal: overhang 0, the one-dimensional model;
+        a one-row image has none, and neither does a pixel whose window is mostly invalid)
     rays_cam : (R, 3) float, camera frame, the rays ``((u - cx)/f, (v - cy)/f, 1)``
     R_world_cam : (3, 3) float, rotation camera -> world (voxels are aligned with the world axes)
     voxel_size_m : float, metres
@@ -60,6 +61,10 @@ def _overhang(normals, rays, R, voxel, cap):
         extent = 0.0
         for a in range(3):
             extent += abs(R[a, 0] * nx + R[a, 1] * ny + R[a, 2] * nz)
-        value = voxel * extent / cos_incidence if cos_incidence > 0 else np.inf
-        out[k] = min(value, cap) if np.isfinite(value) else cap
+        if not cos_incidence >= 0:  # no normal (NaN)
+            out[k] = 0.0
+        elif cos_incidence == 0:
+            out[k] = cap
+        else:
+            out[k] = min(voxel * extent / cos_incidence, cap)
     return out
