@@ -133,3 +133,29 @@ def test_conditioned_prism_reports_the_far_depth_the_key_reach_check_reads():
     assert prism.far_depth_m == 37.0 == prism.plain.far_depth_m
     andert = conditioned_sensor_model("andert", TSUKUBA_CAMERA, voxel_size_m=0.1, p0=0.1, error_model=error_model)
     assert not hasattr(andert, "far_depth_m")
+
+
+def test_conditioned_prism_gives_each_class_its_rays_overhangs():
+    model = conditioned_sensor_model("prism", CAMERA, error_model=_error_model(), **SETTINGS)
+    assert model.takes_voxel_overhang
+    disparity, norm, ray_class, rays, start, end = _rays(seed=2)
+    overhang = np.random.default_rng(5).uniform(0.0, 1.0, disparity.size)
+    posterior, increment = model.cell_posteriors(disparity, norm, rays, start, end, ray_class=ray_class,
+                                                 voxel_overhang_m=overhang)
+    for k in (-1, 0, 1, 2):
+        mine = np.flatnonzero(ray_class == k)
+        local = np.full(disparity.size, -1)
+        local[mine] = np.arange(mine.size)
+        cells = np.flatnonzero(np.isin(rays, mine))
+        p, inc = model._model(k).cell_posteriors(disparity[mine], norm[mine], local[rays[cells]], start[cells],
+                                                 end[cells], voxel_overhang_m=overhang[mine])
+        np.testing.assert_array_equal(posterior[cells], p)
+        np.testing.assert_array_equal(increment[cells], inc)
+    without = model.cell_posteriors(disparity, norm, rays, start, end, ray_class=ray_class)[0]
+    assert np.abs(without - posterior).max() > 1e-3
+    plain = model.cell_posteriors(disparity, norm, rays, start, end, voxel_overhang_m=overhang)[0]
+    np.testing.assert_array_equal(plain, model.plain.cell_posteriors(disparity, norm, rays, start, end,
+                                                                     voxel_overhang_m=overhang)[0])
+    with pytest.raises(PrismapInputError, match="voxel_overhang_m"):
+        model.cell_posteriors(disparity, norm, rays, start, end, ray_class=ray_class, voxel_overhang_m=overhang[:3])
+    assert not conditioned_sensor_model("andert", CAMERA, error_model=_error_model(), **SETTINGS).takes_voxel_overhang

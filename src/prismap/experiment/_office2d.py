@@ -95,11 +95,15 @@ def run_office2d(out_dir, *, n_frames=None, voxel_size_m=None, seed=0, quick=Fal
     truth = world.ground_truth(frames, voxel, max_depth_m=settings["max_depth_m"])
     p0 = prior_of(truth)
 
+    # rays stop where the scored cells do: the farthest ray reaches max_depth_m of camera depth at |r| times it
+    # (an error can put a measured disparity near 0 px, whose free space would otherwise run for kilometres)
+    reach_m = settings["max_depth_m"] * float(np.linalg.norm(scanner.camera.pixel_rays((1, settings["n_rays"])), axis=-1).max())
+
     def build_map(model_name):
         model = build_sensor_model(model_name, scanner.camera, voxel_size_m=voxel, p0=p0, error_model=error_model)
         grid = OccupancyMap(voxel, p0=p0)
         for frame in progress(frames, total=len(frames), desc=f"office2d {model_name}", unit="frame"):
-            grid.integrate_disparity(frame.disparity, frame.camera, frame.T_world_cam, model)
+            grid.integrate_disparity(frame.disparity, frame.camera, frame.T_world_cam, model, max_range_m=reach_m)
         return grid
 
     results, maps = run_cells(out, ERROR_SOURCE, models, build_map, truth, settings)

@@ -12,7 +12,9 @@ The grid never knows which sensor model it runs: it hands the model flat arrays 
 disparity and ``|r|``, per cell the ray index and the cell's depth interval on that ray) and gets back
 per-cell log-odds increments (SENSOR_MODELS.md section 3). A model that states hit/miss increments
 (``hit_miss_increments``) is applied while casting, without cell arrays. A per-ray class
-(``RayBatch.ray_class``) reaches the model as the keyword ``ray_class`` only when the batch has one.
+(``RayBatch.ray_class``) reaches the model as the keyword ``ray_class`` only when the batch has one, a
+per-ray voxel overhang (``RayBatch.voxel_overhang_m``) as ``voxel_overhang_m`` only when the batch has
+one and the model ``takes_voxel_overhang``.
 
 Work per frame is bounded before it starts (:data:`MAX_FRAME_CELLS`, :data:`MAX_RAY_CELLS`) and the
 accumulator's memory while it runs (``_accumulator.frame_budget_bytes``); docs/errors.md lists the bounds.
@@ -81,6 +83,8 @@ class RayBatch:
     extra_noise_px : (R,) float64, pixels, or None; extra disparity noise per ray (pose uncertainty)
     ray_class : (R,) int32 or None; the error-model class of each ray, -1 = no class
     image : ImageProjection or None; needed by the projective integrator
+    voxel_overhang_m : (R,) float64, metres along the ray, or None; how far before its surface a voxel the ray
+        crosses can still hold part of that surface (``grid._overhang``)
     """
 
     origin_w: np.ndarray
@@ -90,6 +94,7 @@ class RayBatch:
     extra_noise_px: np.ndarray | None = None
     ray_class: np.ndarray | None = None
     image: ImageProjection | None = None
+    voxel_overhang_m: np.ndarray | None = None
 
     def __len__(self):
         return self.disparity_px.size
@@ -104,7 +109,8 @@ class RayBatch:
             ray_index = np.where(flat >= 0, new[np.maximum(flat, 0)], -1).astype(np.int32).reshape(image.ray_index.shape)
             image = replace(image, ray_index=ray_index)
         return RayBatch(self.origin_w, np.ascontiguousarray(self.rays_w[keep]), self.disparity_px[keep],
-                        self.ray_norm[keep], _take(self.extra_noise_px, keep), _take(self.ray_class, keep), image)
+                        self.ray_norm[keep], _take(self.extra_noise_px, keep), _take(self.ray_class, keep), image,
+                        _take(self.voxel_overhang_m, keep))
 
     def class_kwargs(self, idx, model):
         """``{"ray_class": classes of rays idx}`` for a call of ``model``, or ``{}`` when the batch has no
@@ -112,6 +118,14 @@ class RayBatch:
         if self.ray_class is None or model.hit_miss_increments() is not None:
             return {}
         return {"ray_class": self.ray_class if idx is None else self.ray_class[idx]}
+
+    def cell_kwargs(self, idx, model):
+        """:meth:`class_kwargs` plus ``{"voxel_overhang_m": ...}`` of rays idx when the batch has overhangs and
+        ``model.takes_voxel_overhang``: the keywords of ``model.cell_posteriors``."""
+        kwargs = self.class_kwargs(idx, model)
+        if self.voxel_overhang_m is not None and model.takes_voxel_overhang:
+            kwargs["voxel_overhang_m"] = _rows(self.voxel_overhang_m, idx)
+        return kwargs
 
 
 def _take(array, idx):
@@ -189,7 +203,7 @@ class Integrator(ABC):
     def cell_increments(self, model, batch, idx, ray_of_cell, t_in, t_out):
         """The model's log-odds increments of the cells of rays ``idx``, checked for shape."""
         _, increment = model.cell_posteriors(_rows(batch.disparity_px, idx), _rows(batch.ray_norm, idx), ray_of_cell,
-                                             t_in, t_out, **batch.class_kwargs(idx, model))
+                                             t_in, t_out, **batch.cell_kwargs(idx, model))
         increment = np.asarray(increment, dtype=np.float64)
         if increment.shape != t_in.shape:
             raise PrismapInputError(

@@ -9,6 +9,7 @@ from prismap.grid import _accumulator, _kernels_accumulate, _kernels_hash, _kern
 from prismap.grid._integrators import ImageProjection, RayBatch, make_integrator
 from prismap.grid._keys import BLOCK_BITS, KEY_LIMIT, check_keys, key_range_text, point_to_key
 from prismap.grid._logodds import LOG_ODDS_STEP, Q_MAX, Q_MIN, from_fixed, logit, to_fixed
+from prismap.grid._overhang import frame_overhang_m
 from prismap.grid._policies import policy_code, policy_name
 from prismap.grid._storage import BlockTable
 
@@ -78,7 +79,7 @@ class OccupancyMap:
 
     # ----------------------------------------------------------------------------------- integration
     def integrate_rays(self, origin_w, rays_w, disparity_px, model, *, mode="ray", policy=None,
-                       max_range_m=np.inf, extra_noise_px=None, ray_class=None):
+                       max_range_m=np.inf, extra_noise_px=None, ray_class=None, voxel_overhang_m=None):
         """Integrate one frame given as rays from one origin (ray mode).
 
         Parameters
@@ -105,13 +106,16 @@ class OccupancyMap:
         ray_class : (R,) int or None
             Error-model class of each ray (-1 = no class), passed to the model's ``cell_posteriors`` and
             ``influence_depth`` as the keyword ``ray_class`` (only when given). Hit/miss models ignore it.
+        voxel_overhang_m : (R,) float, metres along the ray, >= 0, or None
+            How far before its surface a voxel each ray crosses can still hold part of that surface
+            (``grid._overhang``), passed to models that ``takes_voxel_overhang`` (PRISM).
 
         Notes
         -----
         The integrators (:func:`~prismap.grid.make_integrator`) say how rays become voxel updates.
         Several rays of the frame that cross one voxel give it ONE update, combined by ``policy``.
         """
-        batch = self._batch(origin_w, rays_w, disparity_px, extra_noise_px, ray_class, None)
+        batch = self._batch(origin_w, rays_w, disparity_px, extra_noise_px, ray_class, None, voxel_overhang_m)
         self._integrate(batch, model, mode, policy, max_range_m)
 
     def integrate_disparity(self, disparity_px, camera, T_world_cam, model, *, mode="ray", policy=None,
@@ -137,6 +141,9 @@ class OccupancyMap:
             (m^2, rad^2, world axes). Widens each ray's disparity noise, see Notes.
         ray_class : (H, W) int or None
             Error-model class of each pixel (-1 = no class), see :meth:`integrate_rays`.
+
+        A model that ``takes_voxel_overhang`` (PRISM) gets each ray's voxel overhang, from surface normals
+        fitted to this disparity image (``grid._overhang.frame_overhang_m``).
 
         Notes
         -----
@@ -173,10 +180,13 @@ class OccupancyMap:
             image = ImageProjection(np.ascontiguousarray(rotation.T), camera.focal_px, camera.cx_px, camera.cy_px,
                                     step, ray_index)
         rays_w = _kernels_project.rotate_rays(np.ascontiguousarray(rays_cam), np.ascontiguousarray(rotation))
-        batch = self._batch(origin, rays_w, d, noise, classes, image)
+        overhang = None
+        if model.takes_voxel_overhang:
+            overhang = frame_overhang_m(disparity_px, camera, rotation, self.voxel_size_m, step, rays_cam)
+        batch = self._batch(origin, rays_w, d, noise, classes, image, overhang)
         self._integrate(batch, model, mode, policy, max_range_m)
 
-    def _batch(self, origin_w, rays_w, disparity_px, extra_noise_px, ray_class, image):
+    def _batch(self, origin_w, rays_w, disparity_px, extra_noise_px, ray_class, image, voxel_overhang_m):
         """The checked :class:`RayBatch` of a frame, its invalid rays dropped."""
         origin = self._points(origin_w, "origin_w", single=True)
         rays = self._points(rays_w, "rays_w", as_direction=True)
@@ -192,7 +202,12 @@ class OccupancyMap:
             if not np.all(noise[valid] >= 0) or not np.all(np.isfinite(noise[valid])):
                 raise PrismapInputError("`extra_noise_px` must be finite and >= 0 at every valid ray")
         classes = None if ray_class is None else _class_array(ray_class, "ray_class", (n,))
-        batch = RayBatch(origin, rays, disparity, ray_norm, noise, classes, image)
+        overhang = None
+        if voxel_overhang_m is not None:
+            overhang = as_float_array(voxel_overhang_m, "voxel_overhang_m", shape=(n,))
+            if not np.all(overhang[valid] >= 0) or not np.all(np.isfinite(overhang[valid])):
+                raise PrismapInputError("`voxel_overhang_m` must be finite and >= 0 at every valid ray")
+        batch = RayBatch(origin, rays, disparity, ray_norm, noise, classes, image, overhang)
         return batch if valid.all() else batch.subset(valid)  # a dense frame skips these copies
 
     def _integrate(self, batch, model, mode, policy, max_range_m):

@@ -12,7 +12,7 @@ from prismap.characterise import ErrorModel
 from prismap.errors import PrismapInputError
 from prismap.gmm import GaussianMixture
 from prismap.grid import POLICIES
-from prismap.sensor_models import USES_SIGMA, conditioned_sensor_model, model_for_mixture, model_names
+from prismap.sensor_models import USES_SIGMA, conditioned_sensor_model, model_defaults, model_for_mixture, model_names
 from prismap.stereo import matcher_names
 
 MODES = ("ray", "projective")
@@ -238,11 +238,14 @@ class MappingConfig:
         """Plain-JSON form: the error model as its weights, means and sigmas, with its classes when they are used.
 
         A plain run records only the whole-image mixture, so it fingerprints the same whether it was
-        given that mixture or the whole error model.
+        given that mixture or the whole error model. ``model_params`` holds the model's defaults
+        (:func:`prismap.sensor_models.model_defaults`, without what the run sets) under the given ones,
+        so a checkpoint of an older default is not resumed with a newer one.
         """
         error_model = self.error_model if self.conditioned else self.mixture
+        defaults = {k: v for k, v in model_defaults(self.model).items() if k not in RESERVED_MODEL_PARAMS}
         return {
-            "model": self.model, "model_params": self.model_options, "conditioned": self.conditioned,
+            "model": self.model, "model_params": {**defaults, **self.model_options}, "conditioned": self.conditioned,
             "error_model": None if error_model is None else error_model.to_dict(),
             "voxel_size_m": self.voxel_size_m, "p0": self.p0,
             "matcher": self.matcher, "matcher_params": self.matcher_options,

@@ -3,6 +3,7 @@
 from prismap.sensor_models._base import (
     InverseSensorModel,
     make_sensor_model,
+    model_defaults,
     model_names,
     register_model,
 )
@@ -36,6 +37,7 @@ __all__ = [
     "estimate_prior_from_likelihood",
     "log_mean_likelihood",
     "make_sensor_model",
+    "model_defaults",
     "model_for_mixture",
     "model_names",
     "prior_from_ground_truth",

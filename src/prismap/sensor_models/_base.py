@@ -27,12 +27,16 @@ class InverseSensorModel(ABC):
     ``p0`` or ``voxel_size_m`` differ from its own. A model conditioned on a per-ray class accepts the
     keyword ``ray_class`` ((R,) int32, -1 = no class) in :meth:`cell_posteriors` and
     :meth:`influence_depth`; the grid passes it only when the frame has classes, and never to a hit/miss
-    model.
+    model. A model with ``takes_voxel_overhang`` accepts the keyword ``voxel_overhang_m`` ((R,) float64,
+    metres along each ray: how far before its surface a voxel can still hold part of it, see
+    ``prismap.grid._overhang``) in :meth:`cell_posteriors`.
     """
 
     name = "base"
     default_policy = "mean"
     """Name of the per-frame policy the map uses with this model by default (the grid owns the policies)."""
+    takes_voxel_overhang = False
+    """Whether :meth:`cell_posteriors` uses the keyword ``voxel_overhang_m`` (the grid computes it only then)."""
 
     @abstractmethod
     def cell_posteriors(self, disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m):
@@ -99,6 +103,20 @@ def register_model(cls):
 def model_names():
     """Names accepted by :func:`make_sensor_model`, in registration order."""
     return tuple(_REGISTRY)
+
+
+def model_defaults(name):
+    """The default of every public parameter of the model called ``name`` that is a plain number, string or
+    None: what a run without that parameter uses (recorded in run fingerprints, so a changed default is a
+    changed run)."""
+    import dataclasses
+
+    try:
+        cls = _REGISTRY[name]
+    except KeyError:
+        raise PrismapInputError(f"unknown sensor model {name!r}; expected one of {list(_REGISTRY)}") from None
+    return {f.name: f.default for f in dataclasses.fields(cls)
+            if f.init and not f.name.startswith("_") and isinstance(f.default, (bool, int, float, str, type(None)))}
 
 
 def make_sensor_model(name, **params):

@@ -65,6 +65,11 @@ class ConditionedModel(InverseSensorModel):
         return self.plain.default_policy
 
     @property
+    def takes_voxel_overhang(self):
+        """The sub-models' (PRISM's with ``overhang_fraction > 0``)."""
+        return self.plain.takes_voxel_overhang
+
+    @property
     def far_depth_m(self):
         """The farthest depth (metres) any sub-model reasons to; AttributeError for models without one (not PRISM)."""
         return max(model.far_depth_m for model in (self.plain, *self.class_models))
@@ -89,7 +94,8 @@ class ConditionedModel(InverseSensorModel):
             )
         return classes.astype(np.int64)
 
-    def cell_posteriors(self, disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m, *, ray_class=None):
+    def cell_posteriors(self, disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m, *, ray_class=None,
+                        voxel_overhang_m=None):
         """Posterior and increment per cell (see :class:`InverseSensorModel`), each ray by its class's model.
 
         Parameters
@@ -97,13 +103,20 @@ class ConditionedModel(InverseSensorModel):
         ray_class : (R,) int or None, keyword-only
             Class of each ray (:meth:`prismap.characterise.ErrorModel.classify` of its pixel), ``-1`` =
             no class (the plain model); None = every ray plain.
+        voxel_overhang_m : (R,) float or None, keyword-only, metres
+            Passed to the sub-models with each class's rays (when they :attr:`takes_voxel_overhang`).
         """
+        overhang = {} if voxel_overhang_m is None or not self.takes_voxel_overhang else {"voxel_overhang_m": voxel_overhang_m}
         if ray_class is None:
-            return self.plain.cell_posteriors(disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m)
+            return self.plain.cell_posteriors(disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m, **overhang)
         disparity, norm, rays, start, end = check_cell_arrays(
             disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m
         )
         classes = self._check_classes(ray_class, disparity.size)
+        if overhang:
+            overhang_m = np.asarray(voxel_overhang_m, dtype=np.float64)
+            if overhang_m.shape != disparity.shape:
+                raise PrismapInputError(f"`voxel_overhang_m` must have shape {disparity.shape}; got {overhang_m.shape}")
         cell_class = classes[rays]
         posterior = np.empty(start.size)
         increment = np.empty(start.size)
@@ -112,8 +125,10 @@ class ConditionedModel(InverseSensorModel):
             ray_index = np.flatnonzero(classes == k)
             cells = np.flatnonzero(cell_class == k)
             local[ray_index] = np.arange(ray_index.size)
+            if overhang:
+                overhang = {"voxel_overhang_m": overhang_m[ray_index]}
             posterior[cells], increment[cells] = self._model(int(k)).cell_posteriors(
-                disparity[ray_index], norm[ray_index], local[rays[cells]], start[cells], end[cells]
+                disparity[ray_index], norm[ray_index], local[rays[cells]], start[cells], end[cells], **overhang
             )
         return posterior, increment
 

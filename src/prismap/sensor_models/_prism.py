@@ -122,6 +122,14 @@ def prism_discrete_posteriors(disparity_px, cell_edges_depth_m, mixture, *, foca
     return np.exp(log_num - log_norm)
 
 
+OVERHANG_FRACTION = 0.25
+"""PRISM's default share of the voxel overhang bound counted as occupied. Half the bound is its mean over
+plane positions; but a plane through voxel centres then puts the voxel just in front of it exactly on the
+boundary, where every frame adds an even chance of occupancy and the fused map grows a false layer in front
+of walls. A quarter keeps most of the grazing floor and no such layer (see the commit message and
+docs/SENSOR_MODELS.md for the measurements)."""
+
+
 @register_model
 @dataclass(frozen=True, kw_only=True)
 class PrismModel(RayModel):
@@ -174,6 +182,15 @@ class PrismModel(RayModel):
         hundreds of MB on a street, 5-30 KB a table) rebuilds them chunk after chunk. A model whose
         tables could exceed :data:`MAX_TABLE_NODES` nodes (an error sigma far below the matcher's sub-pixel
         step, or a tiny ``near_m``) is refused on construction.
+    overhang_fraction : float in [0, 1], default :data:`OVERHANG_FRACTION`
+        A map's voxel is occupied when any part of a surface lies in it, and a ray seeing a floor or a
+        wall at a grazing angle crosses such voxels before it meets the surface. Given each ray's voxel
+        overhang ``o`` (``voxel_overhang_m``: the largest distance before the surface at which a crossed
+        voxel can still hold part of the locally planar surface, computed by the grid from the disparity
+        image's normals), the cell ``[a, c]`` is evaluated as ``[a, c' = c + overhang_fraction * o / |r|]``:
+        the voxel holds part of the surface when the first surface lies within that stretch, and its prior
+        is the stretch's (the same event), so ``P Z = p_c' C(a) + C(c') - C(a)`` and the increment is
+        ``logit(P) - logit(p_c')``. 0 = the one-dimensional model of SENSOR_MODELS.md.
     """
 
     name = "prism"
@@ -185,6 +202,7 @@ class PrismModel(RayModel):
     disparity_step_px: float = 1.0 / 16.0
     influence_epsilon: float = INFLUENCE_EPSILON
     table_memory_mb: float | None = None
+    overhang_fraction: float = OVERHANG_FRACTION
     _cache: "_TableCache" = field(default=None, init=False, repr=False, compare=False)
     _widened: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
@@ -205,6 +223,10 @@ class PrismModel(RayModel):
         object.__setattr__(self, "far_depth_m", far)
         object.__setattr__(self, "disparity_step_px", check_positive(self.disparity_step_px, "disparity_step_px"))
         object.__setattr__(self, "influence_epsilon", check_positive(self.influence_epsilon, "influence_epsilon"))
+        fraction = self.overhang_fraction
+        if isinstance(fraction, bool) or not isinstance(fraction, (int, float, np.floating)) or not 0 <= fraction <= 1:
+            raise PrismapInputError(f"prism: `overhang_fraction` must be a number in [0, 1]; got {fraction!r}")
+        object.__setattr__(self, "overhang_fraction", float(fraction))
         if self.table_memory_mb is None:
             budget = None
         else:
@@ -234,6 +256,11 @@ class PrismModel(RayModel):
 
     # ------------------------------------------------------------------ derived constants
     @property
+    def takes_voxel_overhang(self):
+        """True when ``overhang_fraction > 0``: the grid then computes each ray's voxel overhang."""
+        return self.overhang_fraction > 0
+
+    @property
     def rate_per_m(self):
         """``lambda``: surfaces per metre of ray, from ``p0`` and ``voxel_size_m``."""
         return -np.log1p(-self.p0) / self.voxel_size_m
@@ -251,12 +278,22 @@ class PrismModel(RayModel):
         return log_mean_likelihood(0.0, u_max, disparity, self.error_model, self.doffs_px)
 
     # ------------------------------------------------------------------ interface
-    def cell_posteriors(self, disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m, *, method=None):
-        """Posterior and increment per cell (see :class:`InverseSensorModel`); ``method`` overrides the model's."""
+    def cell_posteriors(self, disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m, *, method=None,
+                        voxel_overhang_m=None):
+        """Posterior and increment per cell (see :class:`InverseSensorModel`); ``method`` overrides the model's.
+
+        ``voxel_overhang_m`` ((R,) float, metres along each ray, or None = 0): each cell ``[a, c]`` is
+        evaluated as ``[a, c + overhang_fraction * overhang / |r|]`` (see the class).
+        """
         method = self.method if method is None else method
         disparity, norm, rays, start, end, _ = self._prepare(
             disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m
         )
+        if voxel_overhang_m is not None and self.overhang_fraction > 0:
+            overhang = as_float_array(voxel_overhang_m, "voxel_overhang_m", shape=(disparity.size,), allow_nan=False)
+            if overhang.size and overhang.min() < 0:
+                raise PrismapInputError(f"prism: `voxel_overhang_m` must be >= 0; got minimum {overhang.min()!r}")
+            end = end + (self.overhang_fraction * overhang / norm)[rays]
         lam = self.rate_per_m * norm
         if method == "direct":
             order = np.argsort(rays, kind="stable")

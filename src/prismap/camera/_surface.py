@@ -1,0 +1,109 @@
+"""Surface normals from one disparity image, by local plane fits in disparity space.
+
+A plane ``n . P = h`` (camera frame) has the disparity ``d + doffs = (f b / h) n . ((u - cx)/f, (v - cy)/f, 1)``:
+affine in the pixel coordinates. So a least-squares fit ``d + doffs = alpha u' + beta v' + gamma`` over a
+window (``u' = u - cx``, ``v' = v - cy``) gives the plane's normal without ever forming depths, in the
+domain where the stereo noise is uniform (disparity) rather than growing with depth squared. One numba loop
+per fitted pixel (coordinates relative to the pixel, so the sums stay well conditioned).
+"""
+
+import numba as nb
+import numpy as np
+
+from prismap.errors import PrismapInputError
+
+PLANE_WINDOW_PX = 7
+"""Side of the square window of each plane fit (pixels)."""
+
+MIN_WINDOW_SHARE = 0.5
+"""Fewest valid pixels a window may hold for its fit (share of the window); fewer: no normal."""
+
+
+def plane_normals(disparity_px, camera, *, window_px=PLANE_WINDOW_PX, subsample=1):
+    """Unit normal of the surface at each (``subsample``-th) pixel, camera frame, facing the camera.
+
+    Parameters
+    ----------
+    disparity_px : (H, W) float, pixels, NaN or ``d + doffs <= 0`` = invalid
+    camera : StereoCamera
+    window_px : odd int >= 3, pixels
+        Side of the window of each fit (on the full image).
+    subsample : int >= 1
+        Fit at every ``subsample``-th pixel in both directions (as the grid subsamples rays).
+
+    Returns
+    -------
+    (ceil(H / s), ceil(W / s), 3) float64, camera frame
+        ``n`` with ``|n| = 1`` and ``n . r < 0`` for the pixel's ray ``r``; NaN where the pixel is invalid,
+        its window holds fewer than :data:`MIN_WINDOW_SHARE` valid pixels (of its part inside the image), or
+        their coordinates are degenerate (a line of pixels: every pixel of a one-row image, as
+        ``prismap.sim.StereoScanner2D`` gives).
+
+    Notes
+    -----
+    With ``d' = d + doffs`` fitted as ``alpha u' + beta v' + gamma`` and
+    ``d' = (f b / h)(n_x u'/f + n_y v'/f + n_z)``, the normal is ``(alpha, beta, (d' - alpha u' - beta v') / f)``
+    up to scale, with the pixel's own ``d'``. Across a depth discontinuity the fit mixes two surfaces and the
+    normal leans toward grazing, which is what callers that bound the surface's extent want there.
+    """
+    disparity = np.asarray(disparity_px, dtype=np.float64)
+    if disparity.ndim != 2:
+        raise PrismapInputError(f"`disparity_px` must be an (H, W) image; got shape {disparity.shape}")
+    if isinstance(window_px, bool) or int(window_px) != window_px or window_px < 3 or window_px % 2 == 0:
+        raise PrismapInputError(f"`window_px` must be an odd integer >= 3; got {window_px!r}")
+    if isinstance(subsample, bool) or int(subsample) != subsample or subsample < 1:
+        raise PrismapInputError(f"`subsample` must be an integer >= 1; got {subsample!r}")
+    return _plane_normals(np.ascontiguousarray(disparity), float(camera.focal_px), float(camera.cx_px),
+                          float(camera.cy_px), float(camera.doffs_px), int(window_px) // 2, int(subsample), MIN_WINDOW_SHARE)
+
+
+@nb.njit(cache=True, nogil=True)
+def _plane_normals(disparity, f, cx, cy, doffs, half, step, min_share):
+    """Least-squares plane ``d' = alpha u' + beta v' + gamma`` over each window, as a unit normal facing the camera."""
+    height, width = disparity.shape
+    rows, cols = (height + step - 1) // step, (width + step - 1) // step
+    out = np.full((rows, cols, 3), np.nan)
+    for i in range(rows):
+        y = i * step
+        for j in range(cols):
+            x = j * step
+            d0 = disparity[y, x] + doffs
+            if not d0 > 0:
+                continue
+            n = 0
+            su = sv = sd = suu = svv = suv = sud = svd = 0.0
+            y0, y1 = max(y - half, 0), min(y + half + 1, height)
+            x0, x1 = max(x - half, 0), min(x + half + 1, width)
+            for yy in range(y0, y1):
+                for xx in range(x0, x1):
+                    d = disparity[yy, xx] + doffs
+                    if d > 0:  # False for NaN
+                        u = xx - x
+                        v = yy - y
+                        n += 1
+                        su += u
+                        sv += v
+                        sd += d
+                        suu += u * u
+                        svv += v * v
+                        suv += u * v
+                        sud += u * d
+                        svd += v * d
+            if n < min_share * (y1 - y0) * (x1 - x0):
+                continue
+            var_u = suu / n - (su / n) ** 2
+            var_v = svv / n - (sv / n) ** 2
+            cov_uv = suv / n - (su / n) * (sv / n)
+            cov_ud = sud / n - (su / n) * (sd / n)
+            cov_vd = svd / n - (sv / n) * (sd / n)
+            det = var_u * var_v - cov_uv * cov_uv
+            if det <= 1e-6:
+                continue
+            alpha = (var_v * cov_ud - cov_uv * cov_vd) / det
+            beta = (var_u * cov_vd - cov_uv * cov_ud) / det
+            gamma = (d0 - alpha * (x - cx) - beta * (y - cy)) / f
+            length = np.sqrt(alpha * alpha + beta * beta + gamma * gamma)
+            out[i, j, 0] = -alpha / length  # before the flip n . r = d' / f > 0
+            out[i, j, 1] = -beta / length
+            out[i, j, 2] = -gamma / length
+    return out
