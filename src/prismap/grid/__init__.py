@@ -11,6 +11,9 @@ Design notes (one owner per concept):
 - ``_policies``: the per-frame policies (names, codes, combining rule).
 - ``_integrators``: :class:`RayBatch` in, ``make_integrator("ray" | "projective")`` out; the per-frame
   bounds on work and memory (docs/errors.md).
+- ``_overhang``: how far before its hit a voxel a ray crosses can still hold the (locally planar) surface,
+  per ray, from the disparity image's plane normals (:func:`prismap.camera.plane_normals`); passed to the
+  models that ``takes_voxel_overhang`` (PRISM).
 - ``_kernels_hash``, ``_kernels_traverse``, ``_kernels_project``, ``_kernels_accumulate``: numba kernels,
   called only by the wrappers of this package.
 """
