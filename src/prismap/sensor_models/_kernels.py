@@ -262,17 +262,19 @@ def prism_march(shift, lam, z0, z_max, fb, ku, hq, log_far, log_eps_bound, lam_s
     factor ``1 +- lam_slack`` of ``lam``. The march stops (not before node ``i_min``) once the remaining
     evidence is below e^-40 of ``C``.
     """
-    return _march(shift, lam, z0, z0, np.full(3, -np.inf), z_max, fb, ku, hq, log_far, log_eps_bound, lam_slack,
-                  i_min, log_wn, means, sigmas)
+    return _march(shift, lam, z0, z0, np.full(3, -np.inf), 0, hq, z_max, fb, ku, hq, log_far, log_eps_bound,
+                  lam_slack, i_min, log_wn, means, sigmas)
 
 
 @nb.njit(cache=True, nogil=True)
-def _march(shift, lam, z0, z_start, log_c_start, z_max, fb, ku, hq, log_far, log_eps_bound, lam_slack, i_min,
-           log_wn, means, sigmas):
-    """:func:`prism_march` from ``z_start``, where the moments of C are ``log_c_start`` (3,)."""
+def _march(shift, lam, z0, z_start, log_c_start, n_wide, h_wide, z_max, fb, ku, hq, log_far, log_eps_bound,
+           lam_slack, i_min, log_wn, means, sigmas):
+    """:func:`prism_march` from ``z_start``, where the moments of C are ``log_c_start`` (3,); its first
+    ``n_wide`` panels are ``h_wide`` wide in x (a table's broad front), the others ``hq``."""
     x0 = x_of_z(z_start, lam, ku)
+    x_wide = x0 + n_wide * h_wide
     x_end = x_of_z(z_max, lam, ku)
-    n_max = max(1, int(math.ceil((x_end - x0) / hq)))
+    n_max = n_wide + max(1, int(math.ceil((x_end - x_wide) / hq)))
     z = np.empty(n_max + 1)
     log_c = np.full((n_max + 1, 3), -np.inf)
     log_c[0] = log_c_start
@@ -283,7 +285,8 @@ def _march(shift, lam, z0, z_start, log_c_start, z_max, fb, ku, hq, log_far, log
     tail = -np.inf
     slack = -math.log1p(-lam_slack)  # a rate lam (1 - s) has C(a) >= (1 - s) C(a; lam)
     for i in range(1, n_max + 1):
-        z[i] = z_max if i == n_max else z_of_x(x0 + i * hq, lam, ku)
+        x_i = x0 + i * h_wide if i <= n_wide else x_wide + (i - n_wide) * hq
+        z[i] = z_max if i == n_max else z_of_x(x_i, lam, ku)
         panel[i, 0], panel[i, 1], panel[i, 2] = _log_panel_moments(z[i - 1], z[i], lam, z0, fb, shift, log_wn,
                                                                     means, sigmas)
         for k in range(3):
@@ -372,31 +375,41 @@ def _log_c_asymptotic(z, lam, z0, fb, shift, log_wn, means, sigmas):
 
 
 @nb.njit(cache=True, nogil=True)
-def prism_table(shift, lam, z0, z_max, fb, ku, hq, log_far, log_eps_bound, lam_slack, step, coarse_ratio,
-                coarse_below, log_wn, means, sigmas):
-    """The table of one (d^, lam): nodes every ``step`` panels, every ``coarse_ratio``-th one where C/Z is tiny.
+def prism_table(shift, lam, z0, z_max, fb, ku, h, log_far, log_eps_bound, lam_slack, coarse_ratio, coarse_below,
+                e_broad, wide_ratio, wide_efolds, log_wn, means, sigmas):
+    """The table of one (d^, lam): a node per march panel, every ``coarse_ratio``-th one where C/Z is tiny.
 
     Node columns (see :data:`TABLE_COLUMNS`): ``log(C/Z)``, ``d log(C/Z)/dx``, the first and second
     derivatives of ``log(C/Z)`` in ``log lam`` (from the moments, :func:`_rate_derivatives`), and the same
-    four for ``D = Z - C``. Nodes are uniform in x: spacing ``H = coarse_ratio h`` up to ``x_split``, then
-    ``h = step hq`` up to ``x_back`` (a node past the influence depth, beyond which only the cells that
-    straddle it look up), then four equal intervals ``H_back`` to the end of the march.
+    four for ``D = Z - C``. Nodes are uniform in x by segment: spacing ``H = coarse_ratio h`` up to
+    ``x_split``, ``H_wide = wide_ratio h`` up to ``x_wide``, then ``h`` up to ``x_back`` (a node past the
+    influence depth, beyond which only the cells that straddle it look up), then four equal intervals
+    ``H_back`` to the end of the march. Panels of the march are the node intervals (8-point Gauss-Legendre
+    is exact far below the tolerance on a panel of half a narrowest sigma).
 
     Before ``x_split`` ``q g`` rises steeply (``|phi''| / phi'^2 < _STEEP``, ``phi = log(q g)``) and
     ``C/Z < e^coarse_below``: there ``C`` is its endpoint (Laplace) asymptotic ``q g / (q g)'`` (relative
-    error about ``phi''/phi'^2``), all its mass at ``z``; quadrature (panels of ``hq``) starts at ``x_split``.
+    error about ``phi''/phi'^2``), all its mass at ``z``; quadrature starts at ``x_split``. Up to ``x_wide``
+    (true disparities above ``shift + e_broad``, where only the widest error component is not negligible)
+    ``C`` and its moments integrate only that component: smooth on its sigma's scale, so ``H_wide``.
 
     Returns
     -------
     nodes : (N, 8) float64
-    meta : (11,) float64
-        ``x0, x_split, x_back, n_coarse, n_back`` (rows at ``x_split``, ``x_back``), ``z_end`` (last node),
-        ``z_infl``, ``log Z``, ``h``, ``H``, ``H_back``.
+    meta : (14,) float64
+        ``x0, x_split, x_wide, x_back, n_coarse, n_wide, n_back`` (rows at ``x_split``, ``x_wide``,
+        ``x_back``), ``z_end`` (last node), ``z_infl``, ``log Z``, ``h``, ``H``, ``H_wide``, ``H_back``.
     """
-    h = step * hq
     h_coarse = coarse_ratio * h
+    h_wide = wide_ratio * h
     x0 = x_of_z(z0, lam, ku)
     x_end = x_of_z(z_max, lam, ku)
+    u_broad = shift + e_broad  # inf: no broad front
+    x_broad = x0 if wide_ratio <= 1 or u_broad == np.inf else (
+        x_of_z(fb / u_broad, lam, ku) if u_broad > fb / z_max else x_end)
+    if h_wide > wide_efolds:  # and where an interval spans at most wide_efolds of the prior (dz = h_wide / x'(z))
+        x_broad = min(x_broad, x_of_z(math.sqrt(ku / (lam * (h_wide / wide_efolds - 1.0))), lam, ku))
+    x_broad = min(x_broad, x_end - 4.0 * h_wide)  # the fine part keeps a few panels before z_max
     n_steep = 0  # coarse nodes after z0 where q g is steep
     while x0 + (n_steep + 2) * h_coarse < x_end:
         z = z_of_x(x0 + (n_steep + 1) * h_coarse, lam, ku)
@@ -410,15 +423,17 @@ def prism_table(shift, lam, z0, z_max, fb, ku, hq, log_far, log_eps_bound, lam_s
     n_coarse = n_steep
     log_z = np.nan
     while True:  # once, or twice if the first Z shows the steep part reaching above e^coarse_below
-        z_split = z_of_x(x0 + n_coarse * h_coarse, lam, ku) if n_coarse > 0 else z0
+        x_split = x0 + n_coarse * h_coarse
+        z_split = z_of_x(x_split, lam, ku) if n_coarse > 0 else z0
         if n_coarse > 0:
             log_c = _log_c_asymptotic(z_split, lam, z0, fb, shift, log_wn, means, sigmas)
             log_s = math.log(z_split - z0)
             for k in range(3):
                 log_c_start[k] = log_c + k * log_s
+        n_wide = max(int((x_broad - x_split) / h_wide), 0)
         z, log_c, log_d, log_z, log_far_w, i_infl = _march(
-            shift, lam, z0, z_split, log_c_start, z_max, fb, ku, hq, log_far, log_eps_bound, lam_slack, 2 * step,
-            log_wn, means, sigmas,
+            shift, lam, z0, z_split, log_c_start, n_wide, h_wide, z_max, fb, ku, h, log_far, log_eps_bound,
+            lam_slack, n_wide + 2, log_wn, means, sigmas,
         )
         fit = n_coarse
         while fit > 0 and _log_c_asymptotic(z_of_x(x0 + fit * h_coarse, lam, ku), lam, z0, fb, shift, log_wn,
@@ -427,27 +442,27 @@ def prism_table(shift, lam, z0, z_max, fb, ku, hq, log_far, log_eps_bound, lam_s
         if fit == n_coarse:
             break
         n_coarse = fit
-    n = (z.size - 1) // step * step
+    n = z.size - 1
     # fine up to a node past the influence depth, then 4 equal intervals to the end (on the march's nodes)
-    back = (n - min((i_infl // step + 1) * step, n)) // (4 * step) * step
+    first_back = max(min(i_infl + 1, n), n_wide + 1)
+    back = (n - first_back) // 4
     n_back = 4 if back > 0 else 0
     i_back = n - n_back * back
-    n_fine = i_back // step
     z_far = z_max - z0 if log_far_w > -np.inf else z[-1] - z0
     log_total = np.empty(3)
     for k in range(3):
         log_total[k] = logaddexp(log_c[-1, k], log_d[-1, k])
     z_1, z_2 = _rate_derivatives(log_total, log_far_w, lam, z_far)
-    nodes = np.empty((n_coarse + n_fine + 1 + n_back, TABLE_COLUMNS))
+    nodes = np.empty((n_coarse + i_back + 1 + n_back, TABLE_COLUMNS))
     row_c = np.empty(3)
     row_d = np.empty(3)
     for row in range(nodes.shape[0]):
         slope_c = np.nan
         xi = x0 + row * h_coarse
         if 0 < row <= n_coarse:  # the slope of the asymptotic, also at x_split (the end of a coarse interval)
-            slope_c = (_log_c_asymptotic(z_of_x(xi + 0.5 * hq, lam, ku), lam, z0, fb, shift, log_wn, means, sigmas)
-                       - _log_c_asymptotic(z_of_x(xi - 0.5 * hq, lam, ku), lam, z0, fb, shift, log_wn, means,
-                                           sigmas)) / hq
+            slope_c = (_log_c_asymptotic(z_of_x(xi + 0.25 * h, lam, ku), lam, z0, fb, shift, log_wn, means, sigmas)
+                       - _log_c_asymptotic(z_of_x(xi - 0.25 * h, lam, ku), lam, z0, fb, shift, log_wn, means,
+                                           sigmas)) / (0.5 * h)
         if row < n_coarse:
             zi = z_of_x(xi, lam, ku) if row > 0 else z0
             row_c[:] = -np.inf
@@ -459,7 +474,7 @@ def prism_table(shift, lam, z0, z_max, fb, ku, hq, log_far, log_eps_bound, lam_s
             for k in range(3):  # D = everything minus the (tiny) C
                 row_d[k] = log_total[k] + log1mexp(row_c[k] - log_total[k])
         else:
-            i = (row - n_coarse) * step if row <= n_coarse + n_fine else i_back + (row - n_coarse - n_fine) * back
+            i = row - n_coarse if row <= n_coarse + i_back else i_back + (row - n_coarse - i_back) * back
             zi = z[i]
             row_c[:] = log_c[i]
             row_d[:] = log_d[i]
@@ -481,8 +496,8 @@ def prism_table(shift, lam, z0, z_max, fb, ku, hq, log_far, log_eps_bound, lam_s
     nodes[0, 2] = nodes[1, 2]
     nodes[0, 3] = nodes[1, 3]
     x_split = x_of_z(z[0], lam, ku)
-    meta = np.array([x0, x_split, x_of_z(z[i_back], lam, ku), n_coarse, n_coarse + n_fine, z[n], z[i_infl], log_z,
-                     h, h_coarse, max(back, step) * hq])
+    meta = np.array([x0, x_split, x_split + n_wide * h_wide, x_of_z(z[i_back], lam, ku), n_coarse, n_coarse + n_wide,
+                     n_coarse + i_back, z[n], z[i_infl], log_z, h, h_coarse, h_wide, max(back, 1) * h])
     return nodes, meta
 
 
@@ -578,29 +593,30 @@ def prism_direct_cells(
     return post, inc
 
 
-META_COLUMNS = ("lam", "x0", "x_split", "x_back", "n_coarse", "n_back", "z_end", "z_infl", "log_z", "h", "h_coarse",
-                "h_back", "shift", "log_far", "offset", "length")
+META_COLUMNS = ("lam", "x0", "x_split", "x_wide", "x_back", "n_coarse", "n_wide", "n_back", "z_end", "z_infl", "log_z",
+                "h", "h_coarse", "h_wide", "h_back", "shift", "log_far", "offset", "length")
 """Columns of the per-table metadata matrix that :func:`prism_table_lookup` reads (one row per table):
 :func:`prism_table`'s meta after the rate, then the shift, far term, first row and row count of its nodes."""
-(_LAM, _X0, _X_SPLIT, _X_BACK, _N_COARSE, _N_BACK, _Z_END, _Z_INFL, _LOG_Z, _H, _H_COARSE, _H_BACK, _SHIFT,
- _LOG_FAR, _OFFSET, _LENGTH) = range(16)
+(_LAM, _X0, _X_SPLIT, _X_WIDE, _X_BACK, _N_COARSE, _N_WIDE, _N_BACK, _Z_END, _Z_INFL, _LOG_Z, _H, _H_COARSE, _H_WIDE,
+ _H_BACK, _SHIFT, _LOG_FAR, _OFFSET, _LENGTH) = range(19)
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def _locate(x, x0, x_split, x_back, n_coarse, n_back, n_last, inv_hc, inv_h, inv_hb):
-    """Row (from the table's first) of the node left of ``x``, the fraction to the next, and the segment
-    (0: coarse front, 1: fine, 2: back)."""
+def _locate(x, x0, x_split, x_wide, x_back, n_coarse, n_wide, n_back, n_last, spacing, inverse):
+    """Row (from the table's first) of the node left of ``x``, the fraction to the next, and the spacing
+    of that segment (``spacing``, ``inverse`` (4,): of the coarse front, broad front, fine part, back)."""
     if x < x_split:
-        s = (x - x0) * inv_hc
-        k = min(max(int(s), 0), n_coarse - 1)
-        return k, min(max(s - k, 0.0), 1.0), 0
-    if x < x_back or n_back == n_last:
-        s = (x - x_split) * inv_h
-        k = min(max(int(s), 0), n_back - n_coarse - 1)
-        return n_coarse + k, min(max(s - k, 0.0), 1.0), 1
-    s = (x - x_back) * inv_hb
-    k = min(max(int(s), 0), n_last - n_back - 1)
-    return n_back + k, min(max(s - k, 0.0), 1.0), 2
+        origin, segment, first, last = x0, 0, 0, n_coarse
+    elif x < x_wide:
+        origin, segment, first, last = x_split, 1, n_coarse, n_wide
+    elif x < x_back or n_back == n_last:
+        origin, segment, first, last = x_wide, 2, n_wide, n_back
+    else:
+        origin, segment, first, last = x_back, 3, n_back, n_last
+    step = spacing[segment]
+    s = (x - origin) * inverse[segment]
+    k = min(max(int(s), 0), last - first - 1)
+    return first + k, min(max(s - k, 0.0), 1.0), step
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
@@ -649,6 +665,17 @@ def combine_small(l_a, l_c, a_is_d, c_is_d, lam_len):
                    other_c if c_is_d else l_c, l_c if c_is_d else other_c, lam_len)
 
 
+@nb.njit(cache=True, nogil=True)
+def _log_c_first(z, steep, lam, ku, hq, z0, fb, shift, log_wn, means, sigmas):
+    """``log C(z)`` in a table's first interval (``z0 < z``): quadrature, or where ``q g`` rises steeply
+    (``steep``: the interval is in the coarse front) the endpoint asymptotic with the start's cut,
+    ``C = q g / phi' (1 - e^{-phi' (z - z0)})``, exact for an exponential ``q g``."""
+    if not steep:
+        return log_integral(z0, z, lam, ku, hq, z0, fb, shift, log_wn, means, sigmas)
+    phi, phi_z = _log_qg_slope(z, lam, z0, fb, shift, log_wn, means, sigmas)
+    return phi - math.log(phi_z) + log1mexp(-phi_z * (z - z0))
+
+
 _SKIP = 4
 """``side`` flag of a cell the measurement does not change (empty, or beyond the influence depth)."""
 
@@ -670,9 +697,11 @@ def prism_table_lookup(lam, table, delta, ray_of_cell, start, end, lo, hi, z0, z
     c_prev = -1.0
     lcc = 0.0
     c_is_d = 0
-    lam_t = x0 = x_split = x_back = h_c = h = h_b = inv_hb = inv_hc = inv_h = z_end = z_infl = 0.0
+    spacing = np.empty(4)
+    inverse = np.empty(4)
+    lam_t = x0 = x_split = x_wide = x_back = z_end = z_infl = 0.0
     dl = shift = log_z = log_far = 0.0
-    off = n_coarse = n_back = n_last = 0
+    off = n_coarse = n_wide = n_back = n_last = 0
     for i in range(lo, hi):
         j = i - lo
         r = ray_of_cell[i]
@@ -684,15 +713,17 @@ def prism_table_lookup(lam, table, delta, ray_of_cell, start, end, lo, hi, z0, z
             lam_t = meta[t, _LAM]
             x0 = meta[t, _X0]
             x_split = meta[t, _X_SPLIT]
+            x_wide = meta[t, _X_WIDE]
             x_back = meta[t, _X_BACK]
             n_coarse = int(meta[t, _N_COARSE])
+            n_wide = int(meta[t, _N_WIDE])
             n_back = int(meta[t, _N_BACK])
-            h = meta[t, _H]
-            h_c = meta[t, _H_COARSE]
-            h_b = meta[t, _H_BACK]
-            inv_h = 1.0 / h
-            inv_hc = 1.0 / h_c
-            inv_hb = 1.0 / h_b
+            spacing[0] = meta[t, _H_COARSE]
+            spacing[1] = meta[t, _H_WIDE]
+            spacing[2] = meta[t, _H]
+            spacing[3] = meta[t, _H_BACK]
+            for k in range(4):
+                inverse[k] = 1.0 / spacing[k]
             z_end = meta[t, _Z_END]
             z_infl = meta[t, _Z_INFL]
             shift = meta[t, _SHIFT]
@@ -711,14 +742,13 @@ def prism_table_lookup(lam, table, delta, ray_of_cell, start, end, lo, hi, z0, z
             l_a[j] = lcc
             a_is_d = c_is_d
         else:
-            k, f, segment = _locate(lam_t * a - ku / a, x0, x_split, x_back, n_coarse, n_back, n_last, inv_hc,
-                                    inv_h, inv_hb)
+            k, f, step = _locate(lam_t * a - ku / a, x0, x_split, x_wide, x_back, n_coarse, n_wide, n_back, n_last,
+                                 spacing, inverse)
             o = off + k
-            step = h if segment == 1 else (h_c if segment == 0 else h_b)
-            if k == 0:  # first interval: log C is -inf at z0, integrate
+            if k == 0:  # first interval: log C is -inf at z0
                 lca = -np.inf
                 if a > z0:
-                    lca = log_integral(z0, a, lam_t, ku, hq, z0, fb, shift, log_wn, means, sigmas) - log_z
+                    lca = _log_c_first(a, n_coarse > 0, lam_t, ku, hq, z0, fb, shift, log_wn, means, sigmas) - log_z
             else:
                 lca = _interpolate(nodes, o, f, step, 0, dl)
             a_is_d = 0 if lca < -0.6931471805599453 else 1
@@ -727,12 +757,11 @@ def prism_table_lookup(lam, table, delta, ray_of_cell, start, end, lo, hi, z0, z
             lcc = log_tail(c, log_z, lam_t, ku, hq, z0, z_max, fb, shift, log_far, log_wn, means, sigmas) - log_z
             c_is_d = 1
         else:
-            k, f, segment = _locate(lam_t * c - ku / c, x0, x_split, x_back, n_coarse, n_back, n_last, inv_hc,
-                                    inv_h, inv_hb)
+            k, f, step = _locate(lam_t * c - ku / c, x0, x_split, x_wide, x_back, n_coarse, n_wide, n_back, n_last,
+                                 spacing, inverse)
             o = off + k
-            step = h if segment == 1 else (h_c if segment == 0 else h_b)
             if k == 0:
-                lcc = log_integral(z0, c, lam_t, ku, hq, z0, fb, shift, log_wn, means, sigmas) - log_z
+                lcc = _log_c_first(c, n_coarse > 0, lam_t, ku, hq, z0, fb, shift, log_wn, means, sigmas) - log_z
             else:
                 lcc = _interpolate(nodes, o, f, step, 0, dl)
             c_is_d = 0
