@@ -135,22 +135,25 @@ def test_table_with_a_broad_front_agrees_with_direct_within_stated_bound(voxel):
     disparity = np.round(KITTI_FB / depths * 16) / 16
     _assert_table_within_tolerance(model, disparity, rng.uniform(1.0, 1.3, depths.size), _random_cells(rng, depths))
     meta = model._cache.meta
-    wide = meta[:, _kernels.META_COLUMNS.index("n_wide")] - meta[:, _kernels.META_COLUMNS.index("n_coarse")]
-    assert np.all(wide > 10)  # the broad front is there, and the cells above crossed it
+    rows = [meta[:, _kernels.META_COLUMNS.index(f"row_{k}")] for k in range(_kernels.N_SEGMENTS)]
+    assert np.all(rows[2] - rows[1] > 10)  # a broad front, and the cells above crossed it
+    assert np.sum(rows[4] - rows[3] > 10) >= 3  # the near measurements' tables have a broad back
 
 
-def test_broad_front_starts_where_the_narrower_components_are_negligible():
-    e_broad, ratio = _prism.broad_front(STREET)
+def test_broad_segments_are_where_the_narrower_components_are_negligible():
+    e_front, e_back, ratio = _prism.broad_errors(STREET)
     assert ratio == int(_prism._WIDE_SIGMAS * 10.0 / (0.3 * _prism._TABLE_STEP))
+    assert e_back < -2.0 < 0.0 < e_front
 
     def log_share(e):  # of the largest narrower component against the widest, errors e (pixels)
         log_dens = np.log(STREET.weights / STREET.sigmas) - 0.5 * ((e[:, None] - STREET.means) / STREET.sigmas) ** 2
         return log_dens[:, :2].max(axis=1) - log_dens[:, 2]
 
-    assert np.all(log_share(e_broad + np.geomspace(1e-6, 100.0, 200)) <= _prism._BROAD_SHARE + 1e-9)
-    assert log_share(np.array([e_broad - 0.05]))[0] > _prism._BROAD_SHARE  # and not later
-    assert _prism.broad_front(GaussianMixture.gaussian(0.5)) == (np.inf, 1)
-    assert _prism.broad_front(GaussianMixture([0.5, 0.5], [0.0, 1.0], [1.0, 1.0]))[1] == 1
+    beyond = np.geomspace(1e-6, 100.0, 200)
+    assert np.all(log_share(np.concatenate([e_front + beyond, e_back - beyond])) <= _prism._BROAD_SHARE + 1e-9)
+    assert np.all(log_share(np.array([e_front - 0.05, e_back + 0.05])) > _prism._BROAD_SHARE)  # and not nearer
+    assert _prism.broad_errors(GaussianMixture.gaussian(0.5)) == (np.inf, -np.inf, 1)
+    assert _prism.broad_errors(GaussianMixture([0.5, 0.5], [0.0, 1.0], [1.0, 1.0]))[2] == 1
 
 
 def test_cells_in_a_tables_first_interval_agree_with_direct():
@@ -162,8 +165,8 @@ def test_cells_in_a_tables_first_interval_agree_with_direct():
     model.influence_depth(disparity, np.ones(4))  # builds the tables
     column = _kernels.META_COLUMNS.index
     meta = model._cache.meta
-    assert np.all(meta[:, column("n_coarse")] > 0)
-    first = [_kernels.z_of_x(m[column("x0")] + m[column("h_coarse")], m[column("lam")], model._ku()) for m in meta]
+    assert np.all(meta[:, column("row_1")] > 0)  # a coarse front
+    first = [_kernels.z_of_x(m[column("x_0")] + m[column("h_0")], m[column("lam")], model._ku()) for m in meta]
     ends = np.concatenate([np.geomspace(1.5 + 1e-4, z1, 12) for z1 in first])
     rays = np.repeat(np.arange(4), 12)
     _assert_table_within_tolerance(model, disparity, np.ones(4), (rays, np.full(rays.size, 1.0), ends),

@@ -140,8 +140,8 @@ class PrismModel(RayModel):
       ``x = lambda_z z - f b / (sigma_min z)``: a node every half prior e-fold or narrowest sigma from
       where ``C/Z > e^-40`` to the influence depth; every 32 before (``C`` from its endpoint asymptotic
       there), every quarter widest sigma (at most half a prior e-fold) where only the widest error
-      component matters (:func:`broad_front`: far in front of the measurement, where outliers alone
-      produce it), and 4 nodes beyond. Cubic Hermite in ``x`` with exact derivatives; each ray uses the
+      component matters (:func:`broad_errors`: far in front of and behind the measurement, where outliers
+      alone produce it), and 4 nodes beyond. Cubic Hermite in ``x`` with exact derivatives; each ray uses the
       table of the nearest rate plus a second-order Taylor term in ``log lambda_z`` (from stored moments).
       Nodes are stored in float32 (their rounding is far below the tolerance): 3-30 KB a table. Error against
       ``"direct"``: within :data:`TABLE_TOLERANCE` for disparities on the step grid; off-grid disparities
@@ -339,12 +339,12 @@ class PrismModel(RayModel):
         log_wn, means, sigmas = self._mixture_arrays()
         log_eps_bound = float(np.log(np.expm1(self.influence_epsilon)))
         ku = self._ku()
-        e_broad, wide_ratio = broad_front(self.error_model)
+        e_front, e_back, wide_ratio = broad_errors(self.error_model)
 
         def build(d, rate, far):
             nodes, meta = _kernels.prism_table(
                 d + self.doffs_px, rate, self.near_m, self.far_depth_m, self.focal_baseline, ku, _TABLE_STEP, far,
-                log_eps_bound, _LAMBDA_SLACK, _COARSE_RATIO, _COARSE_BELOW, e_broad, wide_ratio, _WIDE_EFOLDS,
+                log_eps_bound, _LAMBDA_SLACK, _COARSE_RATIO, _COARSE_BELOW, e_front, e_back, wide_ratio, _WIDE_EFOLDS,
                 log_wn, means, sigmas,
             )
             if nodes.shape[0] < 2:
@@ -359,13 +359,14 @@ class PrismModel(RayModel):
             return list(pool.map(build, disparity, lam, log_far))
 
 
-def broad_front(mixture):
+def broad_errors(mixture):
     """Where a PRISM table may drop all but the widest error component, and its node spacing there.
 
-    For errors ``e >= e_broad`` (pixels; true disparity above ``d^ + e_broad``, in front of the measurement)
-    every other component's density is below ``e^_BROAD_SHARE`` of the widest one's, so ``C`` and its moments
-    there are smooth on the widest sigma's scale: nodes every ``wide_ratio`` fine nodes (at most
-    ``_WIDE_SIGMAS`` widest sigmas apart). ``wide_ratio`` 1 (a one-component or even mixture): no broad front.
+    For errors ``e >= e_front`` (pixels; true disparity above ``d^ + e_front``, in front of the
+    measurement) and ``e <= e_back`` (behind it) every other component's density is below
+    ``e^_BROAD_SHARE`` of the widest one's, so ``C``, ``D`` and their moments there are smooth on the widest
+    sigma's scale: nodes every ``wide_ratio`` fine nodes (at most ``_WIDE_SIGMAS`` widest sigmas apart).
+    ``wide_ratio`` 1 (a one-component or even mixture): no broad segments.
 
     Parameters
     ----------
@@ -374,27 +375,28 @@ def broad_front(mixture):
 
     Returns
     -------
-    e_broad : float, pixels (inf when no error is far enough)
+    e_front, e_back : float, pixels (``inf``, ``-inf``: none; ``-inf``, ``inf``: everywhere)
     wide_ratio : int >= 1
     """
     w, mu, sd = mixture.weights, mixture.means, mixture.sigmas
     if sd.size < 2:
-        return np.inf, 1
+        return np.inf, -np.inf, 1
     b = int(np.argmax(sd))
-    e_broad = -np.inf
+    e_front, e_back = -np.inf, np.inf
     for j in np.flatnonzero(np.arange(sd.size) != b):
         if sd[j] >= sd[b]:
-            return np.inf, 1
-        # log(w_j N_j(e)) - log(w_b N_b(e)) - _BROAD_SHARE = a e^2 + b e + c, a < 0: its larger root
+            return np.inf, -np.inf, 1
+        # log(w_j N_j(e)) - log(w_b N_b(e)) - _BROAD_SHARE = a e^2 + b e + c, a < 0: it is < 0 outside its roots
         a = 0.5 / sd[b] ** 2 - 0.5 / sd[j] ** 2
         lin = mu[j] / sd[j] ** 2 - mu[b] / sd[b] ** 2
         c = (np.log(w[j] / sd[j]) - np.log(w[b] / sd[b]) - 0.5 * (mu[j] / sd[j]) ** 2 + 0.5 * (mu[b] / sd[b]) ** 2
              - _BROAD_SHARE)
         disc = lin * lin - 4.0 * a * c
         if disc > 0:
-            e_broad = max(e_broad, (-lin - np.sqrt(disc)) / (2.0 * a))
+            e_front = max(e_front, (-lin - np.sqrt(disc)) / (2.0 * a))
+            e_back = min(e_back, (-lin + np.sqrt(disc)) / (2.0 * a))
     wide_ratio = int(_WIDE_SIGMAS * sd[b] / (sd.min() * _TABLE_STEP))
-    return float(e_broad), max(min(wide_ratio, _COARSE_RATIO), 1)
+    return float(e_front), float(e_back), max(min(wide_ratio, _COARSE_RATIO), 1)
 
 
 class _TableCache:
