@@ -351,7 +351,7 @@ class PrismModel(RayModel):
                 raise PrismapInputError(
                     f"prism: near_m={self.near_m} to far_depth_m={self.far_depth_m} is too short to tabulate"
                 )
-            return nodes, (rate, *meta, d + self.doffs_px, far)
+            return nodes.astype(np.float32), (rate, *meta, d + self.doffs_px, far)  # halves the new tables at once
 
         if disparity.size < 2 * _BUILD_THREADS:
             return [build(*job) for job in zip(disparity, lam, log_far)]
