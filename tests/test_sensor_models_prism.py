@@ -156,21 +156,29 @@ def test_broad_segments_are_where_the_narrower_components_are_negligible():
     assert _prism.broad_errors(GaussianMixture([0.5, 0.5], [0.0, 1.0], [1.0, 1.0]))[2] == 1
 
 
-def test_cells_in_a_tables_first_interval_agree_with_direct():
-    """Cells ending between near_m and a table's first node (C from the steep front's asymptotic)."""
-    model = make_sensor_model("prism", focal_baseline=KITTI_FB, error_model=STREET, voxel_size_m=0.2, p0=0.05,
-                              near_m=1.5)
-    depths = np.array([5.0, 12.0, 30.0, 60.0])
-    disparity = np.round(KITTI_FB / depths * 16) / 16
+SGBM_LIKE = GaussianMixture([0.84, 0.10, 0.06], [0.01, -0.04, -10.4], [0.24, 0.92, 13.6])
+
+
+@pytest.mark.parametrize(("fb", "mixture", "near", "steep"), [(KITTI_FB, STREET, 1.5, True), (FB, SGBM_LIKE, 0.9, False)])
+def test_cells_in_a_tables_first_interval_agree_with_direct(fb, mixture, near, steep):
+    """Cells ending between near_m and a table's first node: C from the steep front's asymptotic, or (no
+    steep front) from one panel over the interval."""
+    model = make_sensor_model("prism", focal_baseline=fb, error_model=mixture, voxel_size_m=0.2, p0=0.05, near_m=near)
+    depths = np.array([5.0, 12.0, 30.0, 60.0]) * fb / KITTI_FB
+    disparity = np.round(fb / depths * 16) / 16
     model.influence_depth(disparity, np.ones(4))  # builds the tables
     column = _kernels.META_COLUMNS.index
     meta = model._cache.meta
-    assert np.all(meta[:, column("row_1")] > 0)  # a coarse front
-    first = [_kernels.z_of_x(m[column("x_0")] + m[column("h_0")], m[column("lam")], model._ku()) for m in meta]
-    ends = np.concatenate([np.geomspace(1.5 + 1e-4, z1, 12) for z1 in first])
+    assert np.all((meta[:, column("row_1")] > 0) == steep)  # a coarse front or none
+    first = []
+    for m in meta:
+        segment = next(k for k in range(_kernels.N_SEGMENTS) if m[column(f"row_{k + 1}")] > 0)  # holds row 0
+        first.append(_kernels.z_of_x(m[column(f"x_{segment}")] + m[column(f"h_{segment}")], m[column("lam")],
+                                     model._ku()))
+    ends = np.concatenate([np.geomspace(near + 1e-4, z1, 12) for z1 in first])
     rays = np.repeat(np.arange(4), 12)
-    _assert_table_within_tolerance(model, disparity, np.ones(4), (rays, np.full(rays.size, 1.0), ends),
-                                   moderate_min=0, large_min=40)
+    _assert_table_within_tolerance(model, disparity, np.ones(4), (rays, np.full(rays.size, near - 0.5), ends),
+                                   moderate_min=0, large_min=0)
 
 
 @pytest.mark.parametrize("method", ["table", "direct"])

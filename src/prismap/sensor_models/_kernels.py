@@ -717,12 +717,13 @@ def combine_small(l_a, l_c, a_is_d, c_is_d, lam_len):
 
 
 @nb.njit(cache=True, nogil=True)
-def _log_c_first(z, steep, lam, ku, hq, z0, fb, shift, log_wn, means, sigmas):
-    """``log C(z)`` in a table's first interval (``z0 < z``): quadrature, or where ``q g`` rises steeply
-    (``steep``: the interval is in the coarse front) the endpoint asymptotic with the start's cut,
-    ``C = q g / phi' (1 - e^{-phi' (z - z0)})``, exact for an exponential ``q g``."""
+def _log_c_first(z, steep, lam, ku, h, z0, fb, shift, log_wn, means, sigmas):
+    """``log C(z)`` in a table's first interval (``z0 < z``, x-width ``h``): one Gauss-Legendre panel, as
+    the table's march integrated that interval, or where ``q g`` rises steeply (``steep``: the interval
+    is in the coarse front) the endpoint asymptotic with the start's cut, ``C = q g / phi' (1 -
+    e^{-phi' (z - z0)})``, exact for an exponential ``q g``."""
     if not steep:
-        return log_integral(z0, z, lam, ku, hq, z0, fb, shift, log_wn, means, sigmas)
+        return log_integral(z0, z, lam, ku, h, z0, fb, shift, log_wn, means, sigmas)
     phi, phi_z = _log_qg_slope(z, lam, z0, fb, shift, log_wn, means, sigmas)
     return phi - math.log(phi_z) + log1mexp(-phi_z * (z - z0))
 
@@ -791,7 +792,7 @@ def prism_table_lookup(lam, table, delta, ray_of_cell, start, end, lo, hi, z0, z
             if k == 0:  # first interval: log C is -inf at z0
                 lca = -np.inf
                 if a > z0:
-                    lca = _log_c_first(a, seg_row[1] > 0, lam_t, ku, hq, z0, fb, shift, log_wn, means, sigmas) - log_z
+                    lca = _log_c_first(a, seg_row[1] > 0, lam_t, ku, step, z0, fb, shift, log_wn, means, sigmas) - log_z
             else:
                 lca = _interpolate(nodes, o, f, step, 0, dl)
             a_is_d = 0 if lca < -0.6931471805599453 else 1
@@ -803,7 +804,7 @@ def prism_table_lookup(lam, table, delta, ray_of_cell, start, end, lo, hi, z0, z
             k, f, step = _locate(lam_t * c - ku / c, seg_x, seg_row, seg_h, seg_inv)
             o = off + k
             if k == 0:
-                lcc = _log_c_first(c, seg_row[1] > 0, lam_t, ku, hq, z0, fb, shift, log_wn, means, sigmas) - log_z
+                lcc = _log_c_first(c, seg_row[1] > 0, lam_t, ku, step, z0, fb, shift, log_wn, means, sigmas) - log_z
             else:
                 lcc = _interpolate(nodes, o, f, step, 0, dl)
             c_is_d = 0
