@@ -729,6 +729,8 @@ def _log_c_first(z, steep, lam, ku, h, z0, fb, shift, log_wn, means, sigmas):
 
 
 _SKIP = 4
+_REUSED = 8
+"""``side`` bit of a cell whose start is the previous cell's end (its ``l_a`` is that cell's ``l_c``)."""
 """``side`` flag of a cell the measurement does not change (empty, or beyond the influence depth)."""
 
 
@@ -740,8 +742,8 @@ def prism_table_lookup(lam, table, delta, ray_of_cell, start, end, lo, hi, z0, z
     Per ray one table (``table[r]``, the ray's rate ``e^delta[r]`` times the table's). A look-up
     interpolates ``log(C/Z)`` and, only where ``C/Z > 1/2``, ``log(D/Z)``: ``C/Z + D/Z = 1``. Writes
     ``l_a[j], l_c[j]`` (cell ``lo + j``) and ``side[j]`` (bit 0: ``l_a`` is D's, bit 1: ``l_c`` is D's,
-    :data:`_SKIP`: no change). A cell starting where the previous one of the same ray ended reuses that
-    look-up (ray casting emits cells in order). Cells starting beyond the influence depth are skipped; for a
+    :data:`_REUSED`, or :data:`_SKIP`: no change). A cell starting where the previous one of the same ray
+    ended reuses that look-up (ray casting emits cells in order). Cells starting beyond the influence depth are skipped; for a
     cell ending beyond the table (where the remaining evidence is below e^-40 of C), ``D(c)`` is integrated
     on the spot.
     """
@@ -812,17 +814,18 @@ def prism_table_lookup(lam, table, delta, ray_of_cell, start, end, lo, hi, z0, z
                 lcc = _interpolate(nodes, o, f, step, 4, dl)
                 c_is_d = 1
         l_c[j] = lcc
-        side[j] = a_is_d + 2 * c_is_d
+        side[j] = a_is_d + 2 * c_is_d + (_REUSED if a == c_prev else 0)
         c_prev = c
 
 
 @nb.njit(cache=True, nogil=True, fastmath=_FASTMATH)
-def prism_table_combine(lam, ray_of_cell, start, end, lo, hi, z0, z_max, l_a, l_c, e_a, e_c, side, post, ratio,
+def prism_table_combine(lam, ray_of_cell, start, end, lo, hi, z0, z_max, l_a, l_c, e_c, side, post, ratio,
                         fix_index, fix_value):
     """Second stage on cells ``lo:hi``: posterior (into ``post[lo:hi]``) and ``ratio[j]``, the increment's exp.
 
-    ``e_a, e_c`` are ``exp(l_a), exp(l_c)`` of :func:`prism_table_lookup`, so ``C/Z`` and ``D/Z`` at both
-    ends are at hand in linear space: ``P Z = p_c C(a) + C(c) - C(a)``, ``(1 - P) Z = (1 - p_c) C(a) + D(c)``
+    ``e_c`` is ``exp(l_c)`` of :func:`prism_table_lookup`; ``exp(l_a)`` is the previous cell's ``e_c``
+    where the look-up was reused (ray casting: all but a ray's first cell), else computed here. So ``C/Z``
+    and ``D/Z`` at both ends are at hand in linear space: ``P Z = p_c C(a) + C(c) - C(a)``, ``(1 - P) Z = (1 - p_c) C(a) + D(c)``
     and the increment is ``log(ratio)`` with ``ratio = P (1 - p_c) / ((1 - P) p_c)``. Cells near underflow
     (a log below -600 or ``lam_len > 40``) go through :func:`combine_small` instead: ``ratio = 1``, listed
     in ``fix_index`` (offset from ``lo``) and ``fix_value``; returns how many.
@@ -836,7 +839,8 @@ def prism_table_combine(lam, ray_of_cell, start, end, lo, hi, z0, z_max, l_a, l_
             post[i] = -math.expm1(-lam[r] * max(end[i] - start[i], 0.0))
             ratio[j] = 1.0
             continue
-        c_a = 1.0 - e_a[j] if s & 1 else e_a[j]
+        e_a = e_c[j - 1] if s & _REUSED else math.exp(l_a[j])
+        c_a = 1.0 - e_a if s & 1 else e_a
         c_c = 1.0 - e_c[j] if s & 2 else e_c[j]
         d_a = 1.0 - c_a
         d_c = 1.0 - c_c

@@ -305,7 +305,7 @@ class PrismModel(RayModel):
         post = np.empty(n)
         inc = np.empty(n)
         size = min(n, _CHUNK_CELLS)
-        l_a, l_c, e_a, e_c, ratio, fix_value = (np.empty(size) for _ in range(6))
+        l_a, l_c, e_c, ratio, fix_value = (np.empty(size) for _ in range(5))
         side = np.empty(size, dtype=np.int8)
         fix_index = np.empty(size, dtype=np.int64)
         for lo in range(0, n, _CHUNK_CELLS):
@@ -314,10 +314,9 @@ class PrismModel(RayModel):
             _kernels.prism_table_lookup(lam, table, delta, rays, start, end, lo, hi, self.near_m, self.far_depth_m,
                                         self.focal_baseline, self._ku(), _QUAD_STEP, meta, nodes, log_wn, means,
                                         sigmas, l_a, l_c, side)
-            np.exp(l_a[:m], out=e_a[:m])
             np.exp(l_c[:m], out=e_c[:m])
             n_fix = _kernels.prism_table_combine(lam, rays, start, end, lo, hi, self.near_m, self.far_depth_m, l_a,
-                                                 l_c, e_a, e_c, side, post, ratio, fix_index, fix_value)
+                                                 l_c, e_c, side, post, ratio, fix_index, fix_value)
             np.log(ratio[:m], out=inc[lo:hi])
             inc[lo + fix_index[:n_fix]] = fix_value[:n_fix]
         return post, inc
