@@ -17,7 +17,8 @@ numba caches, PRISM's first tables), the processes interleaved and repeated --re
 medians over the repeats of the first frame and of the median steady frame (frames 2..N), wall and CPU, their
 ratios to OctoMap's, the rise of the process's peak RSS over the sequence, the map's own bytes, and for PRISM
 the table cache's size and hit rate (distinct keys found / looked up per call).
-Run: .venv/bin/python benchmarks/bench_grid.py [--repeat 3] [--street [--scale 1.0] [--frames 10]]
+Run: .venv/bin/python benchmarks/bench_grid.py [--repeat 3] [--street [--scale 1.0] [--frames 10] [--voxels 0.2 0.1]
+[--methods OctoMap PRISM]]
 """
 
 import argparse
@@ -179,18 +180,20 @@ def street_method(name, mode, voxel, scale, n_frames):
 def street(args):
     """Scene (c): every method in its own process, interleaved, --repeat times; a table of medians."""
     camera = sim.kitti_camera(scale=args.scale)
-    for voxel in (0.2, 0.1):
+    methods = {label: STREET_METHODS[label] for label in STREET_METHODS
+               if args.methods is None or any(word.lower() in label.lower() for word in args.methods)}
+    for voxel in args.voxels:
         print(f"\nscene (c): street, {camera.width}x{camera.height} px (f {camera.focal_px:g} px, b "
               f"{camera.baseline_m:g} m), {args.frames} frames, depths {STREET_RANGE_M[0]:g}-{STREET_RANGE_M[1]:g} m, "
               f"{voxel} m voxels, rays cut at {STREET_RANGE_M[1]:g} m, errors {mixture_text()}; load {_load()}")
-        runs = {label: [] for label in STREET_METHODS}
+        runs = {label: [] for label in methods}
         for _ in range(args.repeat):
-            for label, (name, mode) in STREET_METHODS.items():
+            for label, (name, mode) in methods.items():
                 command = [sys.executable, __file__, "--street-method", name, str(mode), str(voxel), str(args.scale),
                            str(args.frames)]
                 runs[label].append(json.loads(subprocess.run(command, check=True, capture_output=True,
                                                              text=True).stdout.splitlines()[-1]))
-        octo = _street_summary(runs["OctoMap insertPointCloud"])
+        octo = _street_summary(runs.get("OctoMap insertPointCloud") or runs[next(iter(runs))])
         print(f"{'method':<26} {'cold s':>7} {'CPU':>6} {'steady s':>8} {'CPU':>6} {'x Octo':>6} {'x CPU':>6} "
               f"{'cold/st':>7} {'RSS MB':>7} {'map MB':>7}  tables")
         for label, results in runs.items():
@@ -257,6 +260,9 @@ def main():
     parser.add_argument("--street", action="store_true", help="scene (c) only")
     parser.add_argument("--scale", type=float, default=1.0, help="scene (c): kitti_camera scale (0.5: 621x188)")
     parser.add_argument("--frames", type=int, default=10, help="scene (c): frames along the street")
+    parser.add_argument("--voxels", type=float, nargs="+", default=[0.2, 0.1], help="scene (c): voxel sizes (m)")
+    parser.add_argument("--methods", nargs="+", help="scene (c): only the methods whose label contains one of these "
+                        "words (e.g. OctoMap PRISM); ratios are to OctoMap, or to the first method without it")
     parser.add_argument("--street-method", nargs=5, help=argparse.SUPPRESS)  # one process of scene (c)
     args = parser.parse_args()
     if args.street_method:

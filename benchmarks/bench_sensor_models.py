@@ -8,12 +8,17 @@ casting to the influence depth of the ideal model sees), each ending exactly whe
 
     .venv/bin/python benchmarks/bench_sensor_models.py            # 320x240 rays (~4 M cells)
     .venv/bin/python benchmarks/bench_sensor_models.py --full     # 640x480 rays (~17 M cells, ~1 GB)
+    .venv/bin/python benchmarks/bench_sensor_models.py --street   # the street's own ray-mode calls (below)
 
 Large batches spill the cell arrays out of the caches, which slows the ideal model most (it only
 compares): the ratio is also printed for one call of the size the grid makes (~4096 rays). Then a
 40-frame sequence (160x120 rays per frame, the depth field moving by 0.15 rad per frame): PRISM's
 total time with a fresh model (tables built as new disparities appear) against the same frames again
 (warm), and the ideal model's, to show what share of a sequence table building takes.
+
+``--street``: the first 4 model calls (4096 rays each, the cells the ray integrator casts to the influence
+depth) of one frame of bench_grid.py's street scene (c) at 0.2 m voxels, PRISM with the street mixture
+(tables warm) against the ideal model on the same calls, CPU time (best of 3).
 """
 
 import argparse
@@ -22,6 +27,7 @@ import time
 import numpy as np
 
 from prismap.gmm import GaussianMixture
+from prismap.grid import OccupancyMap
 from prismap.sensor_models import make_sensor_model
 
 FOCAL, BASELINE, WIDTH, HEIGHT = 615.0, 0.10, 640, 480
@@ -74,12 +80,60 @@ def sequence(frames, step):
     return cold, warm, base, prism
 
 
+def street_calls(scale, n_calls=4):
+    """The first ``n_calls`` model calls of ray casting one frame of bench_grid's street scene (c) at 0.2 m
+    (PRISM with the street mixture): (PRISM model, list of ``cell_posteriors`` argument tuples)."""
+    import bench_grid
+
+    camera, poses, disparities = bench_grid.street_frames(scale, 1)
+    model = bench_grid.street_model("prism", camera, 0.2)
+    calls = []
+
+    class Recorder(bench_grid.TimedModel):
+        def cell_posteriors(self, *args):
+            if len(calls) < n_calls:
+                calls.append(tuple(np.array(a) for a in args))
+            return self.model.cell_posteriors(*args)
+
+    OccupancyMap(0.2, p0=model.p0).integrate_disparity(disparities[0], camera, poses[0], Recorder(model), mode="ray",
+                                                       max_range_m=bench_grid.STREET_RANGE_M[1])
+    return model, calls
+
+
+def street(scale):
+    """Nanoseconds per cell (CPU) of PRISM (warm tables) and the ideal model on the street's own ray-mode calls."""
+    prism, calls = street_calls(scale)
+    ideal = make_sensor_model("ideal", focal_baseline=prism.focal_baseline, doffs_px=prism.doffs_px,
+                              voxel_size_m=prism.voxel_size_m, p0=prism.p0)
+    n_cells = sum(call[2].size for call in calls)
+    results = {}
+    for name, model in (("ideal", ideal), ("prism table (warm)", prism)):
+        for call in calls:
+            model.cell_posteriors(*call)
+        best = np.inf
+        for _ in range(3):
+            t0 = time.process_time()
+            for call in calls:
+                model.cell_posteriors(*call)
+            best = min(best, time.process_time() - t0)
+        results[name] = best / n_cells * 1e9
+    print(f"street scene (c) at scale {scale:g}, 0.2 m voxels: {len(calls)} ray-mode calls of "
+          f"{calls[0][0].size} rays, {n_cells} cells; CPU ns per cell: ideal {results['ideal']:.1f}, PRISM "
+          f"{results['prism table (warm)']:.1f}, ratio {results['prism table (warm)'] / results['ideal']:.2f}")
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--full", action="store_true", help="all 640x480 rays instead of 320x240")
     parser.add_argument("--direct-rays", type=int, default=300, help="rays for the slow direct PRISM")
     parser.add_argument("--frames", type=int, default=40, help="frames of the synthetic sequence (0: skip)")
+    parser.add_argument("--street", action="store_true",
+                        help="only the street's ray-mode calls (bench_grid scene (c), KITTI rig, street mixture)")
+    parser.add_argument("--scale", type=float, default=1.0, help="--street: kitti_camera scale")
     args = parser.parse_args()
+    if args.street:
+        street(args.scale)
+        return
     batch = scene(1 if args.full else 2)
     n_cells = batch[2].size
     print(f"scene: {batch[0].size} rays ({'640x480' if args.full else '320x240'} of a 640x480 frame), "

@@ -336,13 +336,15 @@ def _project_voxels_reference(key_min, shape, origin, R_cam_world, focal, cx, cy
     return ray[keep], grid[keep], t0[keep], t1[keep]
 
 
-def test_project_voxels_equals_visiting_every_voxel_of_the_box():
-    # The kernel skips the parts of each key column that cannot project into the image; the result must be
-    # that of testing every voxel (rotated camera, invalid pixels, rays cut at random depths).
-    from prismap.grid._kernels_project import frustum_box, project_voxels
+@pytest.mark.parametrize("wall", [False, True])
+def test_project_voxels_equals_visiting_every_voxel_of_the_box(wall):
+    # The kernel skips the parts of each key column that cannot project into the image, and runs of voxels
+    # beyond every stop depth of the image tiles they project to; the result must be that of testing every
+    # voxel (rotated camera, invalid pixels, rays cut at random depths; with a wall: a near quarter of them).
+    from prismap.grid._kernels_project import TILE, frustum_box, project_voxels
 
     rng = np.random.default_rng(15)
-    rows, cols, focal, cx, cy = 12, 16, 14.0, 7.5, 5.5
+    rows, cols, focal, cx, cy = 2 * TILE, 3 * TILE, 14.0, 1.5 * TILE, TILE - 0.5
     pixel = np.stack(np.meshgrid(np.arange(cols), np.arange(rows)), -1).reshape(-1, 2)
     valid = rng.random(rows * cols) < 0.8
     ray_index = np.full(rows * cols, -1, dtype=np.int32)
@@ -352,6 +354,8 @@ def test_project_voxels_equals_visiting_every_voxel_of_the_box():
     rays_cam = np.column_stack([(pixel[valid, 0] - cx) / focal, (pixel[valid, 1] - cy) / focal, np.ones(valid.sum())])
     rays = rays_cam @ R_world_cam.T
     t_stop = rng.uniform(0.2, 1.5, valid.sum())
+    if wall:  # the left two tiles' rays stop near the camera
+        t_stop[pixel[valid, 0] < 2 * TILE] = rng.uniform(0.15, 0.3, int((pixel[valid, 0] < 2 * TILE).sum()))
     exclusive = rng.random(valid.sum()) < 0.5
     origin = np.array([0.013, -0.027, 0.031])
     key_min, shape, _ = frustum_box(origin, rays, t_stop, 0.1)
@@ -371,3 +375,22 @@ def test_project_voxels_equals_visiting_every_voxel_of_the_box():
     np.testing.assert_array_equal(got[1], want[1])
     np.testing.assert_allclose(got[2], want[2], rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(got[3], want[3], rtol=1e-12, atol=1e-12)
+
+
+def test_a_run_of_voxels_is_skipped_only_beyond_the_stops_of_every_tile_it_projects_to():
+    from prismap.grid._kernels_project import TILE, _run_beyond_stops
+
+    tile_stop = np.array([[1.0, 5.0]])  # one row of two tiles; camera at the origin looking along z
+    reach = 0.05
+
+    def beyond(x, z0, z1):  # a run along the camera's z axis at lateral offset x (one world column along z)
+        return _run_beyond_stops(np.eye(3), x, 0.0, z0, z1, float(TILE), 0.5 * TILE, 0.5 * TILE, reach, tile_stop)
+
+    assert beyond(-0.1, 2.0, 3.0)  # projects into the left tile only, behind its 1 m
+    assert not beyond(-0.1, 0.5, 1.0)  # in front of it
+    assert not beyond(-0.1, 1.04, 2.0)  # within reach of it
+    assert beyond(1.0875, 3.0, 4.0)  # columns 6.2-6.9: the left tile, one pixel of margin
+    assert not beyond(1.3125, 3.0, 4.0)  # columns 6.6-7.5: the margin reaches the right tile's first column
+    assert beyond(-2.0, 1.5, 3.0)  # columns -6.7 to -1.3: outside the image, no tile
+    assert not beyond(1.5, 2.0, 3.0)  # columns 8-10: the right tile (5 m)
+    assert not beyond(-0.1, -1.0, 3.0)  # starts behind the camera

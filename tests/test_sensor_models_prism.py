@@ -105,18 +105,80 @@ def _random_cells(rng, depths, n_cells=120):
 def test_table_agrees_with_direct_within_stated_bound(mixture, voxel, p0):
     rng = np.random.default_rng(3)
     depths = np.exp(rng.uniform(np.log(0.4), np.log(40.0), 25))
-    disparity = _on_grid(depths)
-    norm = rng.uniform(1.0, 1.3, depths.size)
-    cells = _random_cells(rng, depths)
     model = make_sensor_model("prism", focal_baseline=FB, error_model=mixture, voxel_size_m=voxel, p0=p0)
+    _assert_table_within_tolerance(model, _on_grid(depths), rng.uniform(1.0, 1.3, depths.size),
+                                   _random_cells(rng, depths))
+
+
+def _assert_table_within_tolerance(model, disparity, norm, cells, *, moderate_min=500, large_min=50):
     p_table, inc_table = model.cell_posteriors(disparity, norm, *cells)
     p_direct, inc_direct = model.cell_posteriors(disparity, norm, *cells, method="direct")
     err = np.abs(inc_table - inc_direct)
     moderate = np.abs(inc_direct) <= TABLE_TOLERANCE["large"]
-    assert moderate.sum() > 500 and (~moderate).sum() > 50
+    assert moderate.sum() >= moderate_min and (~moderate).sum() >= large_min
     assert np.all(err[moderate] <= TABLE_TOLERANCE["abs"] + TABLE_TOLERANCE["rel"] * np.abs(inc_direct[moderate]))
     assert np.all(err[~moderate] <= TABLE_TOLERANCE["large_rel"] * np.abs(inc_direct[~moderate]))
     assert np.abs(p_table - p_direct).max() <= TABLE_TOLERANCE["posterior"]
+
+
+KITTI_FB = 720.0 * 0.54
+STREET = GaussianMixture([0.80, 0.15, 0.05], [0.0, -0.1, -2.0], [0.3, 1.0, 10.0])
+
+
+@pytest.mark.parametrize("voxel", [0.2, 0.1])
+def test_table_with_a_broad_front_agrees_with_direct_within_stated_bound(voxel):
+    """A street rig and a mixture with 5 % outliers of 10 px: most of each table is its broad front."""
+    rng = np.random.default_rng(4)
+    depths = np.exp(rng.uniform(np.log(2.0), np.log(80.0), 25))
+    model = make_sensor_model("prism", focal_baseline=KITTI_FB, error_model=STREET, voxel_size_m=voxel, p0=0.05,
+                              near_m=1.5)
+    disparity = np.round(KITTI_FB / depths * 16) / 16
+    _assert_table_within_tolerance(model, disparity, rng.uniform(1.0, 1.3, depths.size), _random_cells(rng, depths))
+    meta = model._cache.meta
+    rows = [meta[:, _kernels.META_COLUMNS.index(f"row_{k}")] for k in range(_kernels.N_SEGMENTS)]
+    assert np.all(rows[2] - rows[1] > 10)  # a broad front, and the cells above crossed it
+    assert np.sum(rows[4] - rows[3] > 10) >= 3  # the near measurements' tables have a broad back
+
+
+def test_broad_segments_are_where_the_narrower_components_are_negligible():
+    e_front, e_back, ratio = _prism.broad_errors(STREET)
+    assert ratio == int(_prism._WIDE_SIGMAS * 10.0 / (0.3 * _prism._TABLE_STEP))
+    assert e_back < -2.0 < 0.0 < e_front
+
+    def log_share(e):  # of the largest narrower component against the widest, errors e (pixels)
+        log_dens = np.log(STREET.weights / STREET.sigmas) - 0.5 * ((e[:, None] - STREET.means) / STREET.sigmas) ** 2
+        return log_dens[:, :2].max(axis=1) - log_dens[:, 2]
+
+    beyond = np.geomspace(1e-6, 100.0, 200)
+    assert np.all(log_share(np.concatenate([e_front + beyond, e_back - beyond])) <= _prism._BROAD_SHARE + 1e-9)
+    assert np.all(log_share(np.array([e_front - 0.05, e_back + 0.05])) > _prism._BROAD_SHARE)  # and not nearer
+    assert _prism.broad_errors(GaussianMixture.gaussian(0.5)) == (np.inf, -np.inf, 1)
+    assert _prism.broad_errors(GaussianMixture([0.5, 0.5], [0.0, 1.0], [1.0, 1.0]))[2] == 1
+
+
+SGBM_LIKE = GaussianMixture([0.84, 0.10, 0.06], [0.01, -0.04, -10.4], [0.24, 0.92, 13.6])
+
+
+@pytest.mark.parametrize(("fb", "mixture", "near", "steep"), [(KITTI_FB, STREET, 1.5, True), (FB, SGBM_LIKE, 0.9, False)])
+def test_cells_in_a_tables_first_interval_agree_with_direct(fb, mixture, near, steep):
+    """Cells ending between near_m and a table's first node: C from the steep front's asymptotic, or (no
+    steep front) from one panel over the interval."""
+    model = make_sensor_model("prism", focal_baseline=fb, error_model=mixture, voxel_size_m=0.2, p0=0.05, near_m=near)
+    depths = np.array([5.0, 12.0, 30.0, 60.0]) * fb / KITTI_FB
+    disparity = np.round(fb / depths * 16) / 16
+    model.influence_depth(disparity, np.ones(4))  # builds the tables
+    column = _kernels.META_COLUMNS.index
+    meta = model._cache.meta
+    assert np.all((meta[:, column("row_1")] > 0) == steep)  # a coarse front or none
+    first = []
+    for m in meta:
+        segment = next(k for k in range(_kernels.N_SEGMENTS) if m[column(f"row_{k + 1}")] > 0)  # holds row 0
+        first.append(_kernels.z_of_x(m[column(f"x_{segment}")] + m[column(f"h_{segment}")], m[column("lam")],
+                                     model._ku()))
+    ends = np.concatenate([np.geomspace(near + 1e-4, z1, 12) for z1 in first])
+    rays = np.repeat(np.arange(4), 12)
+    _assert_table_within_tolerance(model, disparity, np.ones(4), (rays, np.full(rays.size, near - 0.5), ends),
+                                   moderate_min=0, large_min=0)
 
 
 @pytest.mark.parametrize("method", ["table", "direct"])
@@ -241,7 +303,7 @@ def test_bad_rays_are_named():
 
 
 def test_table_cache_evicts_least_recently_used_beyond_its_budget():
-    model = PrismModel(error_model=MIXTURE, focal_baseline=FB, table_memory_mb=0.025)  # room for ~2 tables
+    model = PrismModel(error_model=MIXTURE, focal_baseline=FB, table_memory_mb=0.012)  # room for ~2 tables
     edges = np.linspace(0.5, 12.0, 60)
     cells = _one_ray_cells(edges)
     first = model.cell_posteriors(_on_grid([2.0]), [1.0], *cells)

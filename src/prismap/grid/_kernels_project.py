@@ -21,6 +21,10 @@ def project_voxels(key_min, shape, origin, R_cam_world, focal, cx, cy, subsample
     :func:`cast_rays`. Returns ``ray_of_cell, keys, t_in, t_out`` as :func:`cast_rays` does, in the
     order of the box (x, then y, then z), and how many voxels are kept: when that exceeds ``capacity``
     (the outputs' size) only the first ``capacity`` are returned; call again with room for all.
+
+    Runs of :data:`SPAN` voxels of a key column that lie wholly beyond the farthest stop depth of the image
+    tiles (:data:`TILE` pixels square) their centres project to are skipped without visiting each voxel:
+    on a street most of the frustum's key box lies behind the first surfaces.
     """
     nx, ny, nz = shape[0], shape[1], shape[2]
     ray_of_cell = np.empty(capacity, dtype=np.int64)
@@ -32,6 +36,8 @@ def project_voxels(key_min, shape, origin, R_cam_world, focal, cx, cy, subsample
     reach = np.sqrt(0.75) * voxel_size  # centre to corner: no point of the voxel is nearer in depth
     col_offset = cx / subsample + 0.5
     row_offset = cy / subsample + 0.5
+    scale_px = focal / subsample
+    tile_stop = _tile_stops(ray_index, t_stop)
     m = 0
     for ix in range(nx):
         kx = key_min[0] + ix
@@ -39,46 +45,105 @@ def project_voxels(key_min, shape, origin, R_cam_world, focal, cx, cy, subsample
         for iy in range(ny):
             ky = key_min[1] + iy
             wy = (ky + 0.5) * voxel_size - origin[1]
-            z_lo, z_hi = _column_in_image(R_cam_world, wx, wy, key_min[2], nz, origin[2], voxel_size, focal / subsample,
+            z_lo, z_hi = _column_in_image(R_cam_world, wx, wy, key_min[2], nz, origin[2], voxel_size, scale_px,
                                           col_offset, row_offset, cols, rows)
-            for iz in range(z_lo, z_hi):
-                kz = key_min[2] + iz
-                wz = (kz + 0.5) * voxel_size - origin[2]
-                pz = R_cam_world[2, 0] * wx + R_cam_world[2, 1] * wy + R_cam_world[2, 2] * wz
-                if pz <= 0.0:
+            for base in range(z_lo, z_hi, SPAN):
+                top = min(base + SPAN, z_hi)
+                wz0 = (key_min[2] + base + 0.5) * voxel_size - origin[2]
+                if _run_beyond_stops(R_cam_world, wx, wy, wz0, wz0 + (top - 1 - base) * voxel_size, scale_px,
+                                     col_offset, row_offset, reach, tile_stop):
                     continue
-                px = R_cam_world[0, 0] * wx + R_cam_world[0, 1] * wy + R_cam_world[0, 2] * wz
-                py = R_cam_world[1, 0] * wx + R_cam_world[1, 1] * wy + R_cam_world[1, 2] * wz
-                scale = focal / (pz * subsample)
-                col = np.floor(px * scale + col_offset)
-                row = np.floor(py * scale + row_offset)
-                if col < 0 or row < 0 or col >= cols or row >= rows:
-                    continue
-                ray = ray_index[np.int64(row), np.int64(col)]
-                if ray < 0:
-                    continue
-                stop = t_stop[ray]
-                if pz - reach > stop:  # the whole voxel lies beyond the ray's stop depth
-                    continue
-                # Slab intersection of the ray with the voxel box, in depth units.
-                t0, t1 = _slab(rays[ray, 0], rays[ray, 1], rays[ray, 2], kx * voxel_size - origin[0],
-                               ky * voxel_size - origin[1], kz * voxel_size - origin[2], voxel_size)
-                t0 = max(t0, 0.0)
-                if t1 <= t0:
-                    t0 = max(pz - half, 0.0)
-                    t1 = pz + half
-                if exclusive[ray]:
-                    if t1 > stop:
+                for iz in range(base, top):
+                    kz = key_min[2] + iz
+                    wz = (kz + 0.5) * voxel_size - origin[2]
+                    pz = R_cam_world[2, 0] * wx + R_cam_world[2, 1] * wy + R_cam_world[2, 2] * wz
+                    if pz <= 0.0:
                         continue
-                elif t0 > stop:
-                    continue
-                if m >= capacity:  # full: only count (the caller repeats with room for all)
-                    m += 1
-                    continue
-                ray_of_cell[m] = ray
-                m = write_cell(keys, t_in_out, t_out_out, m, kx, ky, kz, t0, t1)
+                    px = R_cam_world[0, 0] * wx + R_cam_world[0, 1] * wy + R_cam_world[0, 2] * wz
+                    py = R_cam_world[1, 0] * wx + R_cam_world[1, 1] * wy + R_cam_world[1, 2] * wz
+                    scale = focal / (pz * subsample)
+                    col = np.floor(px * scale + col_offset)
+                    row = np.floor(py * scale + row_offset)
+                    if col < 0 or row < 0 or col >= cols or row >= rows:
+                        continue
+                    ray = ray_index[np.int64(row), np.int64(col)]
+                    if ray < 0:
+                        continue
+                    stop = t_stop[ray]
+                    if pz - reach > stop:  # the whole voxel lies beyond the ray's stop depth
+                        continue
+                    # Slab intersection of the ray with the voxel box, in depth units.
+                    t0, t1 = _slab(rays[ray, 0], rays[ray, 1], rays[ray, 2], kx * voxel_size - origin[0],
+                                   ky * voxel_size - origin[1], kz * voxel_size - origin[2], voxel_size)
+                    t0 = max(t0, 0.0)
+                    if t1 <= t0:
+                        t0 = max(pz - half, 0.0)
+                        t1 = pz + half
+                    if exclusive[ray]:
+                        if t1 > stop:
+                            continue
+                    elif t0 > stop:
+                        continue
+                    if m >= capacity:  # full: only count (the caller repeats with room for all)
+                        m += 1
+                        continue
+                    ray_of_cell[m] = ray
+                    m = write_cell(keys, t_in_out, t_out_out, m, kx, ky, kz, t0, t1)
     n = min(m, capacity)
     return ray_of_cell[:n], keys[:n], t_in_out[:n], t_out_out[:n], m
+
+
+SPAN = 8
+"""Voxels of a key column that :func:`project_voxels` tests as one run against the tiles' stop depths."""
+
+TILE = 8
+"""Side (subsampled pixels) of the image tiles whose farthest stop depth bounds a run of voxels."""
+
+
+@numba.njit(cache=True, nogil=True)
+def _tile_stops(ray_index, t_stop):
+    """(rows / TILE, cols / TILE) float64: the largest stop depth of the rays of each tile, -inf for none."""
+    rows, cols = ray_index.shape
+    out = np.full(((rows + TILE - 1) // TILE, (cols + TILE - 1) // TILE), -np.inf)
+    for r in range(rows):
+        for c in range(cols):
+            ray = ray_index[r, c]
+            if ray >= 0:
+                out[r // TILE, c // TILE] = max(out[r // TILE, c // TILE], t_stop[ray])
+    return out
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _run_beyond_stops(R_cam_world, wx, wy, wz0, wz1, scale, col_offset, row_offset, reach, tile_stop):
+    """Whether every voxel centre on the segment ``(wx, wy, wz0..wz1)`` (relative to the origin) is in front
+    of the camera and nearer than ``reach`` to none of the stop depths of the tiles it projects into.
+
+    The segment projects onto the image segment between its ends' projections, so onto pixels within their
+    bounding box (one pixel of margin for rounding); a voxel of the run is kept only if its depth minus
+    ``reach`` is at most its ray's stop depth, at most the largest stop depth of those tiles.
+    """
+    dx, dy, dz = R_cam_world[0, 2], R_cam_world[1, 2], R_cam_world[2, 2]
+    px = R_cam_world[0, 0] * wx + R_cam_world[0, 1] * wy + dx * wz0
+    py = R_cam_world[1, 0] * wx + R_cam_world[1, 1] * wy + dy * wz0
+    pz = R_cam_world[2, 0] * wx + R_cam_world[2, 1] * wy + dz * wz0
+    run = wz1 - wz0
+    qx, qy, qz = px + dx * run, py + dy * run, pz + dz * run
+    if pz <= 0.0 or qz <= 0.0:
+        return False
+    col_p, col_q = px * scale / pz + col_offset, qx * scale / qz + col_offset
+    row_p, row_q = py * scale / pz + row_offset, qy * scale / qz + row_offset
+    n_rows, n_cols = tile_stop.shape
+    c0, c1 = max(min(col_p, col_q), -2.0), min(max(col_p, col_q), n_cols * TILE + 1.0)  # ints below stay small
+    r0, r1 = max(min(row_p, row_q), -2.0), min(max(row_p, row_q), n_rows * TILE + 1.0)
+    tc0 = max(np.int64(np.floor(c0)) - 1, 0) // TILE
+    tc1 = min(np.int64(np.floor(c1)) + 1, n_cols * TILE - 1) // TILE
+    tr0 = max(np.int64(np.floor(r0)) - 1, 0) // TILE
+    tr1 = min(np.int64(np.floor(r1)) + 1, n_rows * TILE - 1) // TILE
+    farthest = -np.inf
+    for tr in range(tr0, tr1 + 1):
+        for tc in range(tc0, tc1 + 1):
+            farthest = max(farthest, tile_stop[tr, tc])
+    return min(pz, qz) - reach > farthest
 
 
 @numba.njit(cache=True, nogil=True, inline="always")

@@ -262,17 +262,34 @@ def prism_march(shift, lam, z0, z_max, fb, ku, hq, log_far, log_eps_bound, lam_s
     factor ``1 +- lam_slack`` of ``lam``. The march stops (not before node ``i_min``) once the remaining
     evidence is below e^-40 of ``C``.
     """
-    return _march(shift, lam, z0, z0, np.full(3, -np.inf), z_max, fb, ku, hq, log_far, log_eps_bound, lam_slack,
-                  i_min, log_wn, means, sigmas)
+    return _march(shift, lam, z0, z0, np.full(3, -np.inf), np.zeros(3, dtype=np.int64), hq, z_max, fb, ku, hq,
+                  log_far, log_eps_bound, lam_slack, i_min, log_wn, means, sigmas)
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _march_x(i, x0, counts, h_wide, h):
+    """x of node ``i`` of a march from ``x0`` whose panels are ``counts[0]`` of ``h_wide``, ``counts[1]`` of
+    ``h``, ``counts[2]`` of ``h_wide``, then ``h``."""
+    widths = (h_wide, h, h_wide)
+    x = x0
+    for r in range(3):
+        if i <= counts[r]:
+            return x + i * widths[r]
+        x += counts[r] * widths[r]
+        i -= counts[r]
+    return x + i * h
 
 
 @nb.njit(cache=True, nogil=True)
-def _march(shift, lam, z0, z_start, log_c_start, z_max, fb, ku, hq, log_far, log_eps_bound, lam_slack, i_min,
-           log_wn, means, sigmas):
-    """:func:`prism_march` from ``z_start``, where the moments of C are ``log_c_start`` (3,)."""
+def _march(shift, lam, z0, z_start, log_c_start, counts, h_wide, z_max, fb, ku, hq, log_far, log_eps_bound,
+           lam_slack, i_min, log_wn, means, sigmas):
+    """:func:`prism_march` from ``z_start``, where the moments of C are ``log_c_start`` (3,), on panels of
+    x-width ``h_wide`` (``counts[0]``: a table's broad front), ``hq`` (``counts[1]``), ``h_wide``
+    (``counts[2]``: its broad back), then ``hq`` to the end (:func:`_march_x`)."""
     x0 = x_of_z(z_start, lam, ku)
     x_end = x_of_z(z_max, lam, ku)
-    n_max = max(1, int(math.ceil((x_end - x0) / hq)))
+    last = counts[0] + counts[1] + counts[2]
+    n_max = last + max(1, int(math.ceil((x_end - _march_x(last, x0, counts, h_wide, hq)) / hq)))
     z = np.empty(n_max + 1)
     log_c = np.full((n_max + 1, 3), -np.inf)
     log_c[0] = log_c_start
@@ -283,7 +300,7 @@ def _march(shift, lam, z0, z_start, log_c_start, z_max, fb, ku, hq, log_far, log
     tail = -np.inf
     slack = -math.log1p(-lam_slack)  # a rate lam (1 - s) has C(a) >= (1 - s) C(a; lam)
     for i in range(1, n_max + 1):
-        z[i] = z_max if i == n_max else z_of_x(x0 + i * hq, lam, ku)
+        z[i] = z_max if i == n_max else z_of_x(_march_x(i, x0, counts, h_wide, hq), lam, ku)
         panel[i, 0], panel[i, 1], panel[i, 2] = _log_panel_moments(z[i - 1], z[i], lam, z0, fb, shift, log_wn,
                                                                     means, sigmas)
         for k in range(3):
@@ -371,32 +388,58 @@ def _log_c_asymptotic(z, lam, z0, fb, shift, log_wn, means, sigmas):
     return phi - math.log(phi_z)
 
 
+N_SEGMENTS = 6
+"""Segments of a table's node grid, each uniform in x: coarse front, broad front, fine, broad back, fine, back."""
+
+
 @nb.njit(cache=True, nogil=True)
-def prism_table(shift, lam, z0, z_max, fb, ku, hq, log_far, log_eps_bound, lam_slack, step, coarse_ratio,
-                coarse_below, log_wn, means, sigmas):
-    """The table of one (d^, lam): nodes every ``step`` panels, every ``coarse_ratio``-th one where C/Z is tiny.
+def prism_table(shift, lam, z0, z_max, fb, ku, h, log_far, log_eps_bound, lam_slack, coarse_ratio, coarse_below,
+                e_front, e_back, wide_ratio, wide_efolds, log_wn, means, sigmas):
+    """The table of one (d^, lam): a node per march panel, every ``coarse_ratio``-th one where C/Z is tiny.
 
     Node columns (see :data:`TABLE_COLUMNS`): ``log(C/Z)``, ``d log(C/Z)/dx``, the first and second
     derivatives of ``log(C/Z)`` in ``log lam`` (from the moments, :func:`_rate_derivatives`), and the same
-    four for ``D = Z - C``. Nodes are uniform in x: spacing ``H = coarse_ratio h`` up to ``x_split``, then
-    ``h = step hq`` up to ``x_back`` (a node past the influence depth, beyond which only the cells that
-    straddle it look up), then four equal intervals ``H_back`` to the end of the march.
+    four for ``D = Z - C``. Nodes are uniform in x on each of :data:`N_SEGMENTS` segments: spacing
+    ``H = coarse_ratio h`` up to ``x_split``; ``H_wide = wide_ratio h`` over the broad front (true
+    disparities above ``shift + e_front``); ``h``; ``H_wide`` over the broad back (below ``shift + e_back``),
+    both only where an interval spans at most ``wide_efolds`` prior e-folds; ``h``; then, from a node past
+    the influence depth (beyond which only the cells that straddle it look up), four equal intervals to
+    the end of the march. The march's panels are the node intervals (8-point Gauss-Legendre is exact far
+    below the tolerance on half a narrowest sigma, and on a broad segment, where only the widest error
+    component is not negligible, on a quarter of its sigma).
 
     Before ``x_split`` ``q g`` rises steeply (``|phi''| / phi'^2 < _STEEP``, ``phi = log(q g)``) and
     ``C/Z < e^coarse_below``: there ``C`` is its endpoint (Laplace) asymptotic ``q g / (q g)'`` (relative
-    error about ``phi''/phi'^2``), all its mass at ``z``; quadrature (panels of ``hq``) starts at ``x_split``.
+    error about ``phi''/phi'^2``), all its mass at ``z``; quadrature starts at ``x_split``.
 
     Returns
     -------
     nodes : (N, 8) float64
-    meta : (11,) float64
-        ``x0, x_split, x_back, n_coarse, n_back`` (rows at ``x_split``, ``x_back``), ``z_end`` (last node),
-        ``z_infl``, ``log Z``, ``h``, ``H``, ``H_back``.
+    meta : (3 N_SEGMENTS + 3,) float64
+        Per segment its first x, its first row and its spacing; then ``z_end`` (last node), ``z_infl``,
+        ``log Z``.
     """
-    h = step * hq
     h_coarse = coarse_ratio * h
+    h_wide = wide_ratio * h
     x0 = x_of_z(z0, lam, ku)
     x_end = x_of_z(z_max, lam, ku)
+    x_front = x0  # broad front: [x_split, x_front); broad back: [x_back_wide, x_lam)
+    x_back_wide = x_lam = x_end
+    if wide_ratio > 1:
+        if h_wide > wide_efolds:  # an interval spans dz = h_wide / (lam + ku / z^2)
+            x_lam = min(x_end, x_of_z(math.sqrt(ku / (lam * (h_wide / wide_efolds - 1.0))), lam, ku))
+        u_front = shift + e_front
+        u_back = shift + e_back
+        if e_front == -np.inf or u_front <= fb / z_max:
+            x_front = x_end
+        elif u_front < np.inf:
+            x_front = x_of_z(fb / u_front, lam, ku)
+        if u_back == np.inf:
+            x_back_wide = x0
+        elif u_back > fb / z_max:
+            x_back_wide = x_of_z(fb / u_back, lam, ku)
+    x_front = min(x_front, x_lam, x_end - 4.0 * h_wide)  # the fine part keeps a few panels before z_max
+    x_back_wide = min(x_back_wide, x_end - 2.0 * h)
     n_steep = 0  # coarse nodes after z0 where q g is steep
     while x0 + (n_steep + 2) * h_coarse < x_end:
         z = z_of_x(x0 + (n_steep + 1) * h_coarse, lam, ku)
@@ -407,18 +450,25 @@ def prism_table(shift, lam, z0, z_max, fb, ku, hq, log_far, log_eps_bound, lam_s
             break
         n_steep += 1
     log_c_start = np.full(3, -np.inf)
+    counts = np.zeros(3, dtype=np.int64)
     n_coarse = n_steep
     log_z = np.nan
     while True:  # once, or twice if the first Z shows the steep part reaching above e^coarse_below
-        z_split = z_of_x(x0 + n_coarse * h_coarse, lam, ku) if n_coarse > 0 else z0
+        x_split = x0 + n_coarse * h_coarse
+        z_split = z_of_x(x_split, lam, ku) if n_coarse > 0 else z0
         if n_coarse > 0:
             log_c = _log_c_asymptotic(z_split, lam, z0, fb, shift, log_wn, means, sigmas)
             log_s = math.log(z_split - z0)
             for k in range(3):
                 log_c_start[k] = log_c + k * log_s
+        counts[0] = max(int((x_front - x_split) / h_wide), 0)
+        x_fine = x_split + counts[0] * h_wide
+        counts[1] = max(int(math.ceil((x_back_wide - x_fine) / h)), 1)
+        x_fine += counts[1] * h
+        counts[2] = max(int((min(x_lam, x_end - h) - x_fine) / h_wide), 0)
         z, log_c, log_d, log_z, log_far_w, i_infl = _march(
-            shift, lam, z0, z_split, log_c_start, z_max, fb, ku, hq, log_far, log_eps_bound, lam_slack, 2 * step,
-            log_wn, means, sigmas,
+            shift, lam, z0, z_split, log_c_start, counts, h_wide, z_max, fb, ku, h, log_far, log_eps_bound,
+            lam_slack, counts[0] + 2, log_wn, means, sigmas,
         )
         fit = n_coarse
         while fit > 0 and _log_c_asymptotic(z_of_x(x0 + fit * h_coarse, lam, ku), lam, z0, fb, shift, log_wn,
@@ -427,27 +477,38 @@ def prism_table(shift, lam, z0, z_max, fb, ku, hq, log_far, log_eps_bound, lam_s
         if fit == n_coarse:
             break
         n_coarse = fit
-    n = (z.size - 1) // step * step
+    n = z.size - 1
+    starts = np.array([0, counts[0], counts[0] + counts[1], counts[0] + counts[1] + counts[2]])  # march regions
+    widths = np.array([h_wide, h, h_wide, h])
+    last = 3
+    while starts[last] >= n:
+        last -= 1
+    uniform = starts[last]  # first node of the uniform run of panels that ends the march
+    for r in range(last - 1, -1, -1):
+        if starts[r] < starts[r + 1]:
+            if widths[r] != widths[last]:
+                break
+            uniform = starts[r]
     # fine up to a node past the influence depth, then 4 equal intervals to the end (on the march's nodes)
-    back = (n - min((i_infl // step + 1) * step, n)) // (4 * step) * step
+    first_back = max(min(i_infl + 1, n), uniform)
+    back = (n - first_back) // 4
     n_back = 4 if back > 0 else 0
     i_back = n - n_back * back
-    n_fine = i_back // step
     z_far = z_max - z0 if log_far_w > -np.inf else z[-1] - z0
     log_total = np.empty(3)
     for k in range(3):
         log_total[k] = logaddexp(log_c[-1, k], log_d[-1, k])
     z_1, z_2 = _rate_derivatives(log_total, log_far_w, lam, z_far)
-    nodes = np.empty((n_coarse + n_fine + 1 + n_back, TABLE_COLUMNS))
+    nodes = np.empty((n_coarse + i_back + 1 + n_back, TABLE_COLUMNS))
     row_c = np.empty(3)
     row_d = np.empty(3)
     for row in range(nodes.shape[0]):
         slope_c = np.nan
         xi = x0 + row * h_coarse
         if 0 < row <= n_coarse:  # the slope of the asymptotic, also at x_split (the end of a coarse interval)
-            slope_c = (_log_c_asymptotic(z_of_x(xi + 0.5 * hq, lam, ku), lam, z0, fb, shift, log_wn, means, sigmas)
-                       - _log_c_asymptotic(z_of_x(xi - 0.5 * hq, lam, ku), lam, z0, fb, shift, log_wn, means,
-                                           sigmas)) / hq
+            slope_c = (_log_c_asymptotic(z_of_x(xi + 0.25 * h, lam, ku), lam, z0, fb, shift, log_wn, means, sigmas)
+                       - _log_c_asymptotic(z_of_x(xi - 0.25 * h, lam, ku), lam, z0, fb, shift, log_wn, means,
+                                           sigmas)) / (0.5 * h)
         if row < n_coarse:
             zi = z_of_x(xi, lam, ku) if row > 0 else z0
             row_c[:] = -np.inf
@@ -459,7 +520,7 @@ def prism_table(shift, lam, z0, z_max, fb, ku, hq, log_far, log_eps_bound, lam_s
             for k in range(3):  # D = everything minus the (tiny) C
                 row_d[k] = log_total[k] + log1mexp(row_c[k] - log_total[k])
         else:
-            i = (row - n_coarse) * step if row <= n_coarse + n_fine else i_back + (row - n_coarse - n_fine) * back
+            i = row - n_coarse if row <= n_coarse + i_back else i_back + (row - n_coarse - i_back) * back
             zi = z[i]
             row_c[:] = log_c[i]
             row_d[:] = log_d[i]
@@ -480,9 +541,18 @@ def prism_table(shift, lam, z0, z_max, fb, ku, hq, log_far, log_eps_bound, lam_s
         nodes[row, 7] = d_2 - z_2
     nodes[0, 2] = nodes[1, 2]
     nodes[0, 3] = nodes[1, 3]
-    x_split = x_of_z(z[0], lam, ku)
-    meta = np.array([x0, x_split, x_of_z(z[i_back], lam, ku), n_coarse, n_coarse + n_fine, z[n], z[i_infl], log_z,
-                     h, h_coarse, max(back, step) * hq])
+    meta = np.empty(3 * N_SEGMENTS + 3)
+    x_march = x_of_z(z[0], lam, ku)
+    meta[0], meta[N_SEGMENTS], meta[2 * N_SEGMENTS] = x0, 0, h_coarse
+    for r in range(4):
+        i = min(starts[r], i_back)
+        meta[1 + r] = _march_x(i, x_march, counts, h_wide, h)
+        meta[N_SEGMENTS + 1 + r] = n_coarse + i
+        meta[2 * N_SEGMENTS + 1 + r] = widths[r]
+    meta[N_SEGMENTS - 1] = _march_x(i_back, x_march, counts, h_wide, h)
+    meta[2 * N_SEGMENTS - 1] = n_coarse + i_back
+    meta[3 * N_SEGMENTS - 1] = max(back, 1) * widths[last]
+    meta[3 * N_SEGMENTS:] = z[n], z[i_infl], log_z
     return nodes, meta
 
 
@@ -578,29 +648,26 @@ def prism_direct_cells(
     return post, inc
 
 
-META_COLUMNS = ("lam", "x0", "x_split", "x_back", "n_coarse", "n_back", "z_end", "z_infl", "log_z", "h", "h_coarse",
-                "h_back", "shift", "log_far", "offset", "length")
-"""Columns of the per-table metadata matrix that :func:`prism_table_lookup` reads (one row per table):
-:func:`prism_table`'s meta after the rate, then the shift, far term, first row and row count of its nodes."""
-(_LAM, _X0, _X_SPLIT, _X_BACK, _N_COARSE, _N_BACK, _Z_END, _Z_INFL, _LOG_Z, _H, _H_COARSE, _H_BACK, _SHIFT,
- _LOG_FAR, _OFFSET, _LENGTH) = range(16)
+META_COLUMNS = ("lam", *(f"x_{k}" for k in range(N_SEGMENTS)), *(f"row_{k}" for k in range(N_SEGMENTS)),
+                *(f"h_{k}" for k in range(N_SEGMENTS)), "z_end", "z_infl", "log_z", "shift", "log_far", "offset", "length")
+"""Columns of the per-table metadata matrix that :func:`prism_table_lookup` reads (one row per table): the
+rate, :func:`prism_table`'s meta (per segment its first x, first row and spacing, then ``z_end``, ``z_infl``,
+``log Z``), then the shift, far term, first row and row count of its nodes."""
+_LAM, _X, _ROW, _SPACING = 0, 1, 1 + N_SEGMENTS, 1 + 2 * N_SEGMENTS
+_Z_END, _Z_INFL, _LOG_Z, _SHIFT, _LOG_FAR, _OFFSET, _LENGTH = range(1 + 3 * N_SEGMENTS, 8 + 3 * N_SEGMENTS)
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def _locate(x, x0, x_split, x_back, n_coarse, n_back, n_last, inv_hc, inv_h, inv_hb):
-    """Row (from the table's first) of the node left of ``x``, the fraction to the next, and the segment
-    (0: coarse front, 1: fine, 2: back)."""
-    if x < x_split:
-        s = (x - x0) * inv_hc
-        k = min(max(int(s), 0), n_coarse - 1)
-        return k, min(max(s - k, 0.0), 1.0), 0
-    if x < x_back or n_back == n_last:
-        s = (x - x_split) * inv_h
-        k = min(max(int(s), 0), n_back - n_coarse - 1)
-        return n_coarse + k, min(max(s - k, 0.0), 1.0), 1
-    s = (x - x_back) * inv_hb
-    k = min(max(int(s), 0), n_last - n_back - 1)
-    return n_back + k, min(max(s - k, 0.0), 1.0), 2
+def _locate(x, seg_x, seg_row, seg_h, seg_inv):
+    """Row (from the table's first) of the node left of ``x``, the fraction to the next, and the spacing
+    there: in the last non-empty segment that starts at or before ``x`` (``seg_row`` (N_SEGMENTS + 1,)
+    ends with the table's last row)."""
+    s = N_SEGMENTS - 1
+    while s > 0 and (x < seg_x[s] or seg_row[s + 1] == seg_row[s]):
+        s -= 1
+    v = (x - seg_x[s]) * seg_inv[s]
+    k = min(max(int(v), 0), seg_row[s + 1] - seg_row[s] - 1)
+    return seg_row[s] + k, min(max(v - k, 0.0), 1.0), seg_h[s]
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
@@ -649,7 +716,21 @@ def combine_small(l_a, l_c, a_is_d, c_is_d, lam_len):
                    other_c if c_is_d else l_c, l_c if c_is_d else other_c, lam_len)
 
 
+@nb.njit(cache=True, nogil=True)
+def _log_c_first(z, steep, lam, ku, h, z0, fb, shift, log_wn, means, sigmas):
+    """``log C(z)`` in a table's first interval (``z0 < z``, x-width ``h``): one Gauss-Legendre panel, as
+    the table's march integrated that interval, or where ``q g`` rises steeply (``steep``: the interval
+    is in the coarse front) the endpoint asymptotic with the start's cut, ``C = q g / phi' (1 -
+    e^{-phi' (z - z0)})``, exact for an exponential ``q g``."""
+    if not steep:
+        return log_integral(z0, z, lam, ku, h, z0, fb, shift, log_wn, means, sigmas)
+    phi, phi_z = _log_qg_slope(z, lam, z0, fb, shift, log_wn, means, sigmas)
+    return phi - math.log(phi_z) + log1mexp(-phi_z * (z - z0))
+
+
 _SKIP = 4
+_REUSED = 8
+"""``side`` bit of a cell whose start is the previous cell's end (its ``l_a`` is that cell's ``l_c``)."""
 """``side`` flag of a cell the measurement does not change (empty, or beyond the influence depth)."""
 
 
@@ -661,8 +742,8 @@ def prism_table_lookup(lam, table, delta, ray_of_cell, start, end, lo, hi, z0, z
     Per ray one table (``table[r]``, the ray's rate ``e^delta[r]`` times the table's). A look-up
     interpolates ``log(C/Z)`` and, only where ``C/Z > 1/2``, ``log(D/Z)``: ``C/Z + D/Z = 1``. Writes
     ``l_a[j], l_c[j]`` (cell ``lo + j``) and ``side[j]`` (bit 0: ``l_a`` is D's, bit 1: ``l_c`` is D's,
-    :data:`_SKIP`: no change). A cell starting where the previous one of the same ray ended reuses that
-    look-up (ray casting emits cells in order). Cells starting beyond the influence depth are skipped; for a
+    :data:`_REUSED`, or :data:`_SKIP`: no change). A cell starting where the previous one of the same ray
+    ended reuses that look-up (ray casting emits cells in order). Cells starting beyond the influence depth are skipped; for a
     cell ending beyond the table (where the remaining evidence is below e^-40 of C), ``D(c)`` is integrated
     on the spot.
     """
@@ -670,9 +751,12 @@ def prism_table_lookup(lam, table, delta, ray_of_cell, start, end, lo, hi, z0, z
     c_prev = -1.0
     lcc = 0.0
     c_is_d = 0
-    lam_t = x0 = x_split = x_back = h_c = h = h_b = inv_hb = inv_hc = inv_h = z_end = z_infl = 0.0
-    dl = shift = log_z = log_far = 0.0
-    off = n_coarse = n_back = n_last = 0
+    seg_x = np.empty(N_SEGMENTS)
+    seg_h = np.empty(N_SEGMENTS)
+    seg_inv = np.empty(N_SEGMENTS)
+    seg_row = np.empty(N_SEGMENTS + 1, dtype=np.int64)
+    lam_t = z_end = z_infl = dl = shift = log_z = log_far = 0.0
+    off = 0
     for i in range(lo, hi):
         j = i - lo
         r = ray_of_cell[i]
@@ -682,24 +766,18 @@ def prism_table_lookup(lam, table, delta, ray_of_cell, start, end, lo, hi, z0, z
             t = table[r]
             dl = delta[r]
             lam_t = meta[t, _LAM]
-            x0 = meta[t, _X0]
-            x_split = meta[t, _X_SPLIT]
-            x_back = meta[t, _X_BACK]
-            n_coarse = int(meta[t, _N_COARSE])
-            n_back = int(meta[t, _N_BACK])
-            h = meta[t, _H]
-            h_c = meta[t, _H_COARSE]
-            h_b = meta[t, _H_BACK]
-            inv_h = 1.0 / h
-            inv_hc = 1.0 / h_c
-            inv_hb = 1.0 / h_b
+            for k in range(N_SEGMENTS):
+                seg_x[k] = meta[t, _X + k]
+                seg_row[k] = int(meta[t, _ROW + k])
+                seg_h[k] = meta[t, _SPACING + k]
+                seg_inv[k] = 1.0 / seg_h[k]
+            seg_row[N_SEGMENTS] = int(meta[t, _LENGTH]) - 1
             z_end = meta[t, _Z_END]
             z_infl = meta[t, _Z_INFL]
             shift = meta[t, _SHIFT]
             log_z = meta[t, _LOG_Z]
             log_far = meta[t, _LOG_FAR]
             off = int(meta[t, _OFFSET])
-            n_last = int(meta[t, _LENGTH]) - 1
         a = max(start[i], z0)
         c = min(end[i], z_max)
         if c <= a or a >= z_infl:
@@ -711,14 +789,12 @@ def prism_table_lookup(lam, table, delta, ray_of_cell, start, end, lo, hi, z0, z
             l_a[j] = lcc
             a_is_d = c_is_d
         else:
-            k, f, segment = _locate(lam_t * a - ku / a, x0, x_split, x_back, n_coarse, n_back, n_last, inv_hc,
-                                    inv_h, inv_hb)
+            k, f, step = _locate(lam_t * a - ku / a, seg_x, seg_row, seg_h, seg_inv)
             o = off + k
-            step = h if segment == 1 else (h_c if segment == 0 else h_b)
-            if k == 0:  # first interval: log C is -inf at z0, integrate
+            if k == 0:  # first interval: log C is -inf at z0
                 lca = -np.inf
                 if a > z0:
-                    lca = log_integral(z0, a, lam_t, ku, hq, z0, fb, shift, log_wn, means, sigmas) - log_z
+                    lca = _log_c_first(a, seg_row[1] > 0, lam_t, ku, step, z0, fb, shift, log_wn, means, sigmas) - log_z
             else:
                 lca = _interpolate(nodes, o, f, step, 0, dl)
             a_is_d = 0 if lca < -0.6931471805599453 else 1
@@ -727,12 +803,10 @@ def prism_table_lookup(lam, table, delta, ray_of_cell, start, end, lo, hi, z0, z
             lcc = log_tail(c, log_z, lam_t, ku, hq, z0, z_max, fb, shift, log_far, log_wn, means, sigmas) - log_z
             c_is_d = 1
         else:
-            k, f, segment = _locate(lam_t * c - ku / c, x0, x_split, x_back, n_coarse, n_back, n_last, inv_hc,
-                                    inv_h, inv_hb)
+            k, f, step = _locate(lam_t * c - ku / c, seg_x, seg_row, seg_h, seg_inv)
             o = off + k
-            step = h if segment == 1 else (h_c if segment == 0 else h_b)
             if k == 0:
-                lcc = log_integral(z0, c, lam_t, ku, hq, z0, fb, shift, log_wn, means, sigmas) - log_z
+                lcc = _log_c_first(c, seg_row[1] > 0, lam_t, ku, step, z0, fb, shift, log_wn, means, sigmas) - log_z
             else:
                 lcc = _interpolate(nodes, o, f, step, 0, dl)
             c_is_d = 0
@@ -740,17 +814,18 @@ def prism_table_lookup(lam, table, delta, ray_of_cell, start, end, lo, hi, z0, z
                 lcc = _interpolate(nodes, o, f, step, 4, dl)
                 c_is_d = 1
         l_c[j] = lcc
-        side[j] = a_is_d + 2 * c_is_d
+        side[j] = a_is_d + 2 * c_is_d + (_REUSED if a == c_prev else 0)
         c_prev = c
 
 
 @nb.njit(cache=True, nogil=True, fastmath=_FASTMATH)
-def prism_table_combine(lam, ray_of_cell, start, end, lo, hi, z0, z_max, l_a, l_c, e_a, e_c, side, post, ratio,
+def prism_table_combine(lam, ray_of_cell, start, end, lo, hi, z0, z_max, l_a, l_c, e_c, side, post, ratio,
                         fix_index, fix_value):
     """Second stage on cells ``lo:hi``: posterior (into ``post[lo:hi]``) and ``ratio[j]``, the increment's exp.
 
-    ``e_a, e_c`` are ``exp(l_a), exp(l_c)`` of :func:`prism_table_lookup`, so ``C/Z`` and ``D/Z`` at both
-    ends are at hand in linear space: ``P Z = p_c C(a) + C(c) - C(a)``, ``(1 - P) Z = (1 - p_c) C(a) + D(c)``
+    ``e_c`` is ``exp(l_c)`` of :func:`prism_table_lookup`; ``exp(l_a)`` is the previous cell's ``e_c``
+    where the look-up was reused (ray casting: all but a ray's first cell), else computed here. So ``C/Z``
+    and ``D/Z`` at both ends are at hand in linear space: ``P Z = p_c C(a) + C(c) - C(a)``, ``(1 - P) Z = (1 - p_c) C(a) + D(c)``
     and the increment is ``log(ratio)`` with ``ratio = P (1 - p_c) / ((1 - P) p_c)``. Cells near underflow
     (a log below -600 or ``lam_len > 40``) go through :func:`combine_small` instead: ``ratio = 1``, listed
     in ``fix_index`` (offset from ``lo``) and ``fix_value``; returns how many.
@@ -764,7 +839,8 @@ def prism_table_combine(lam, ray_of_cell, start, end, lo, hi, z0, z_max, l_a, l_
             post[i] = -math.expm1(-lam[r] * max(end[i] - start[i], 0.0))
             ratio[j] = 1.0
             continue
-        c_a = 1.0 - e_a[j] if s & 1 else e_a[j]
+        e_a = e_c[j - 1] if s & _REUSED else math.exp(l_a[j])
+        c_a = 1.0 - e_a if s & 1 else e_a
         c_c = 1.0 - e_c[j] if s & 2 else e_c[j]
         d_a = 1.0 - c_a
         d_c = 1.0 - c_c

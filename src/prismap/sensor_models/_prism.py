@@ -38,9 +38,12 @@ posterior``. It includes the cut at the influence depth (``influence_epsilon``).
 ``tests/test_sensor_models_prism.py``, where the worst cells use under half of each term."""
 
 _QUAD_STEP = 0.25  # x-width of one Gauss-Legendre panel (x: one unit per prior e-fold or narrowest sigma)
-_NODES_PER_TABLE_STEP = 2  # table node spacing = 2 panels = 0.5 in x
+_TABLE_STEP = 0.5  # table node spacing in x, also the width of its march's panels
 _COARSE_RATIO = 64  # node spacing 32 in x where log(C/Z) < _COARSE_BELOW (near-quadratic in x) and past influence
 _COARSE_BELOW = -40.0
+_BROAD_SHARE = -20.0  # log share of g below which a table's broad front drops the narrower error components
+_WIDE_SIGMAS = 0.25  # broad-front node spacing, at most this many sigmas of the widest component
+_WIDE_EFOLDS = 0.5  # broad-front node spacing, at most this many e-folds of the prior
 MAX_TABLE_NODES = 1 << 20
 """Most nodes one table may need (32 MiB of float32 rows; see ``PrismModel._check_table_size``)."""
 AUTO_TABLE_FLOOR_MB = 64.0
@@ -144,9 +147,11 @@ class PrismModel(RayModel):
       ``disparity_step_px``, ``lambda_z`` on a 10 % grid) on a grid uniform in
       ``x = lambda_z z - f b / (sigma_min z)``: a node every half prior e-fold or narrowest sigma from
       where ``C/Z > e^-40`` to the influence depth; every 32 before (``C`` from its endpoint asymptotic
-      there) and 4 nodes beyond. Cubic Hermite in ``x`` with exact derivatives; each ray uses the table of
-      the nearest rate plus a second-order Taylor term in ``log lambda_z`` (from stored moments). Nodes
-      are stored in float32 (their rounding is far below the tolerance): 5-30 KB a table. Error against
+      there), every quarter widest sigma (at most half a prior e-fold) where only the widest error
+      component matters (:func:`broad_errors`: far in front of and behind the measurement, where outliers
+      alone produce it), and 4 nodes beyond. Cubic Hermite in ``x`` with exact derivatives; each ray uses the
+      table of the nearest rate plus a second-order Taylor term in ``log lambda_z`` (from stored moments).
+      Nodes are stored in float32 (their rounding is far below the tolerance): 3-30 KB a table. Error against
       ``"direct"``: within :data:`TABLE_TOLERANCE` for disparities on the step grid; off-grid disparities
       are rounded (a shift of at most half a step).
       Tables are cached on the model (one model per error model and camera; each
@@ -239,15 +244,15 @@ class PrismModel(RayModel):
         """Refuse, before any table is built, a model whose tables could exceed :data:`MAX_TABLE_NODES`.
 
         A table's grid runs in ``x = lambda_z z - f b / (sigma_min z)`` with a node every
-        ``_QUAD_STEP * _NODES_PER_TABLE_STEP`` in ``x``, so it holds at most ``x_span / 0.5`` nodes with
+        ``_TABLE_STEP`` in ``x``, so it holds at most ``x_span / 0.5`` nodes with
         ``x_span = f b / (sigma_min near_m) + lambda |r| far_depth_m`` (|r| <= 2, a 120 degree view). Without the
         bound an error sigma of 1e-4 px or a sub-millimetre ``near_m`` asks for gigabytes and minutes per table.
         """
         x_span = self._ku() / self.near_m + 2.0 * self.rate_per_m * self.far_depth_m
-        max_nodes = x_span / (_QUAD_STEP * _NODES_PER_TABLE_STEP)
+        max_nodes = x_span / _TABLE_STEP
         if max_nodes > MAX_TABLE_NODES:
             sigma_min = float(self.error_model.sigmas.min())
-            smallest = self.focal_baseline / (self.near_m * MAX_TABLE_NODES * _QUAD_STEP * _NODES_PER_TABLE_STEP)
+            smallest = self.focal_baseline / (self.near_m * MAX_TABLE_NODES * _TABLE_STEP)
             raise PrismapInputError(
                 f"prism: an error sigma of {sigma_min:.3g} px with near_m {self.near_m:g} m and f*b "
                 f"{self.focal_baseline:.4g} px*m allows tables of up to {max_nodes:.3g} nodes, more than "
@@ -337,7 +342,7 @@ class PrismModel(RayModel):
         post = np.empty(n)
         inc = np.empty(n)
         size = min(n, _CHUNK_CELLS)
-        l_a, l_c, e_a, e_c, ratio, fix_value = (np.empty(size) for _ in range(6))
+        l_a, l_c, e_c, ratio, fix_value = (np.empty(size) for _ in range(5))
         side = np.empty(size, dtype=np.int8)
         fix_index = np.empty(size, dtype=np.int64)
         for lo in range(0, n, _CHUNK_CELLS):
@@ -346,10 +351,9 @@ class PrismModel(RayModel):
             _kernels.prism_table_lookup(lam, table, delta, rays, start, end, lo, hi, self.near_m, self.far_depth_m,
                                         self.focal_baseline, self._ku(), _QUAD_STEP, meta, nodes, log_wn, means,
                                         sigmas, l_a, l_c, side)
-            np.exp(l_a[:m], out=e_a[:m])
             np.exp(l_c[:m], out=e_c[:m])
             n_fix = _kernels.prism_table_combine(lam, rays, start, end, lo, hi, self.near_m, self.far_depth_m, l_a,
-                                                 l_c, e_a, e_c, side, post, ratio, fix_index, fix_value)
+                                                 l_c, e_c, side, post, ratio, fix_index, fix_value)
             np.log(ratio[:m], out=inc[lo:hi])
             inc[lo + fix_index[:n_fix]] = fix_value[:n_fix]
         return post, inc
@@ -371,23 +375,64 @@ class PrismModel(RayModel):
         log_wn, means, sigmas = self._mixture_arrays()
         log_eps_bound = float(np.log(np.expm1(self.influence_epsilon)))
         ku = self._ku()
+        e_front, e_back, wide_ratio = broad_errors(self.error_model)
 
         def build(d, rate, far):
             nodes, meta = _kernels.prism_table(
-                d + self.doffs_px, rate, self.near_m, self.far_depth_m, self.focal_baseline, ku, _QUAD_STEP, far,
-                log_eps_bound, _LAMBDA_SLACK, _NODES_PER_TABLE_STEP, _COARSE_RATIO, _COARSE_BELOW, log_wn, means,
-                sigmas,
+                d + self.doffs_px, rate, self.near_m, self.far_depth_m, self.focal_baseline, ku, _TABLE_STEP, far,
+                log_eps_bound, _LAMBDA_SLACK, _COARSE_RATIO, _COARSE_BELOW, e_front, e_back, wide_ratio, _WIDE_EFOLDS,
+                log_wn, means, sigmas,
             )
             if nodes.shape[0] < 2:
                 raise PrismapInputError(
                     f"prism: near_m={self.near_m} to far_depth_m={self.far_depth_m} is too short to tabulate"
                 )
-            return nodes, (rate, *meta, d + self.doffs_px, far)
+            return nodes.astype(np.float32), (rate, *meta, d + self.doffs_px, far)  # halves the new tables at once
 
         if disparity.size < 2 * _BUILD_THREADS:
             return [build(*job) for job in zip(disparity, lam, log_far)]
         with ThreadPoolExecutor(_BUILD_THREADS) as pool:  # prism_table releases the GIL
             return list(pool.map(build, disparity, lam, log_far))
+
+
+def broad_errors(mixture):
+    """Where a PRISM table may drop all but the widest error component, and its node spacing there.
+
+    For errors ``e >= e_front`` (pixels; true disparity above ``d^ + e_front``, in front of the
+    measurement) and ``e <= e_back`` (behind it) every other component's density is below
+    ``e^_BROAD_SHARE`` of the widest one's, so ``C``, ``D`` and their moments there are smooth on the widest
+    sigma's scale: nodes every ``wide_ratio`` fine nodes (at most ``_WIDE_SIGMAS`` widest sigmas apart).
+    ``wide_ratio`` 1 (a one-component or even mixture): no broad segments.
+
+    Parameters
+    ----------
+    mixture : GaussianMixture
+        Disparity error ``e = d_true - d_computed`` (pixels).
+
+    Returns
+    -------
+    e_front, e_back : float, pixels (``inf``, ``-inf``: none; ``-inf``, ``inf``: everywhere)
+    wide_ratio : int >= 1
+    """
+    w, mu, sd = mixture.weights, mixture.means, mixture.sigmas
+    if sd.size < 2:
+        return np.inf, -np.inf, 1
+    b = int(np.argmax(sd))
+    e_front, e_back = -np.inf, np.inf
+    for j in np.flatnonzero(np.arange(sd.size) != b):
+        if sd[j] >= sd[b]:
+            return np.inf, -np.inf, 1
+        # log(w_j N_j(e)) - log(w_b N_b(e)) - _BROAD_SHARE = a e^2 + b e + c, a < 0: it is < 0 outside its roots
+        a = 0.5 / sd[b] ** 2 - 0.5 / sd[j] ** 2
+        lin = mu[j] / sd[j] ** 2 - mu[b] / sd[b] ** 2
+        c = (np.log(w[j] / sd[j]) - np.log(w[b] / sd[b]) - 0.5 * (mu[j] / sd[j]) ** 2 + 0.5 * (mu[b] / sd[b]) ** 2
+             - _BROAD_SHARE)
+        disc = lin * lin - 4.0 * a * c
+        if disc > 0:
+            e_front = max(e_front, (-lin - np.sqrt(disc)) / (2.0 * a))
+            e_back = min(e_back, (-lin + np.sqrt(disc)) / (2.0 * a))
+    wide_ratio = int(_WIDE_SIGMAS * sd[b] / (sd.min() * _TABLE_STEP))
+    return float(e_front), float(e_back), max(min(wide_ratio, _COARSE_RATIO), 1)
 
 
 class _TableCache:
