@@ -84,18 +84,18 @@ class TimedModel:
     def __getattr__(self, name):
         return getattr(self.model, name)
 
-    def _timed(self, method, *args):
+    def _timed(self, method, *args, **kwargs):
         start = time.perf_counter()
         try:
-            return method(*args)
+            return method(*args, **kwargs)
         finally:
             self.seconds += time.perf_counter() - start
 
-    def cell_posteriors(self, *args):
-        return self._timed(self.model.cell_posteriors, *args)
+    def cell_posteriors(self, *args, **kwargs):
+        return self._timed(self.model.cell_posteriors, *args, **kwargs)
 
-    def influence_depth(self, *args):
-        return self._timed(self.model.influence_depth, *args)
+    def influence_depth(self, *args, **kwargs):
+        return self._timed(self.model.influence_depth, *args, **kwargs)
 
     def with_extra_noise(self, sigma_px):
         return TimedModel(self.model.with_extra_noise(sigma_px))

@@ -8,7 +8,7 @@ PRISM with :data:`prismap.experiment.SGBM_LIKE_MIXTURE`, near_m 0.9 m = f b / 64
 take sigma 0.5 px), 0.1 m voxels, 8 m max range.
 
 Stages (default): :func:`prismap.pipeline.map_sequence`, sequential, in ray and projective mode, with the
-library's calls wrapped here to time them: matching (the matcher's ``compute``), model (the sensor model's
+library's calls wrapped here to time them: matching (the matcher's ``compute_with_confidence``), model (the sensor model's
 ``cell_posteriors`` and ``influence_depth``), casting (``grid._accumulator.cast_into`` in ray mode,
 ``grid._kernels_project.project_voxels`` in projective mode), merge (``grid._kernels_accumulate.apply_frame``)
 and rays and the rest (what is left of the frame). In ray mode the model runs on a second thread while the
@@ -90,7 +90,7 @@ def timed_run(sequence, config):
 
     def matcher(*args, **kwargs):
         m = make(*args, **kwargs)
-        compute = m.compute
+        compute = m.compute_with_confidence  # what DisparitySource calls (the disparity and its LR disagreement)
 
         def timed_compute(*a, **k):
             start = time.perf_counter()
@@ -99,7 +99,7 @@ def timed_run(sequence, config):
             finally:
                 clock.seconds["matching"] = clock.seconds.get("matching", 0.0) + time.perf_counter() - start
 
-        m.compute = timed_compute
+        m.compute_with_confidence = timed_compute
         return m
 
     prismap.pipeline._run.make_matcher = matcher

@@ -30,7 +30,7 @@ def test_plane_normals_recover_the_plane_facing_the_camera(normal):
     got = plane_normals(disparity, CAMERA)
     fitted = np.isfinite(got[..., 0])
     assert fitted.mean() > 0.4
-    np.testing.assert_allclose(got[fitted], np.broadcast_to(-n, got[fitted].shape), atol=1e-8)
+    np.testing.assert_allclose(got[fitted], np.broadcast_to(-n, got[fitted].shape), atol=1e-6)  # summed-area rounding
     rays = CAMERA.pixel_rays(disparity.shape)
     assert np.all(np.einsum("...i,...i->...", got[fitted], rays[fitted]) < 0)
 
@@ -183,7 +183,7 @@ def test_a_grazing_floor_stays_in_the_map_without_a_false_layer_above():
     camera = StereoCamera(80.0, 80.0, 60.0, 0.3, width=160, height=120)
     disparity, pose = _floor_frame(camera, 1.2, 0.05)
     normals = plane_normals(disparity, camera)
-    assert np.nanmax(np.abs(normals @ pose[:3, :3].T - [0.0, 0.0, 1.0])) < 1e-8
+    assert np.nanmax(np.abs(normals @ pose[:3, :3].T - [0.0, 0.0, 1.0])) < 1e-6
     rays_cam = camera.pixel_rays(disparity.shape).reshape(-1, 3)
     fitted = np.isfinite(normals.reshape(-1, 3)[:, 0])
     expected = 0.1 * np.linalg.norm(rays_cam[fitted], axis=1) / np.abs(rays_cam[fitted, 1])

@@ -3,8 +3,8 @@
 A plane ``n . P = h`` (camera frame) has the disparity ``d + doffs = (f b / h) n . ((u - cx)/f, (v - cy)/f, 1)``:
 affine in the pixel coordinates. So a least-squares fit ``d + doffs = alpha u' + beta v' + gamma`` over a
 window (``u' = u - cx``, ``v' = v - cy``) gives the plane's normal without ever forming depths, in the
-domain where the stereo noise is uniform (disparity) rather than growing with depth squared. One numba loop
-per fitted pixel (coordinates relative to the pixel, so the sums stay well conditioned).
+domain where the stereo noise is uniform (disparity) rather than growing with depth squared. The window sums
+come from summed-area tables (one numba pass over the image), then each fitted pixel costs a constant.
 """
 
 import numba as nb
@@ -59,43 +59,54 @@ def plane_normals(disparity_px, camera, *, window_px=PLANE_WINDOW_PX, subsample=
 
 @nb.njit(cache=True, nogil=True)
 def _plane_normals(disparity, f, cx, cy, doffs, half, step, min_share):
-    """Least-squares plane ``d' = alpha u' + beta v' + gamma`` over each window, as a unit normal facing the camera."""
+    """Least-squares plane ``d' = alpha u' + beta v' + gamma`` over each window, as a unit normal facing the camera.
+
+    The window sums (count, u, v, d', u^2, v^2, u v, u d', v d' of the valid pixels) come from summed-area
+    tables, so a fit costs the same whatever the window; the (co)variances are differences of means, which do
+    not depend on where the coordinates start.
+    """
     height, width = disparity.shape
+    table = np.zeros((9, height + 1, width + 1))
+    row = np.empty(9)
+    for y in range(height):
+        row[:] = 0.0
+        for x in range(width):
+            d = disparity[y, x] + doffs
+            if d > 0:  # False for NaN
+                row[0] += 1.0
+                row[1] += x
+                row[2] += y
+                row[3] += d
+                row[4] += x * x
+                row[5] += y * y
+                row[6] += x * y
+                row[7] += x * d
+                row[8] += y * d
+            for k in range(9):
+                table[k, y + 1, x + 1] = table[k, y, x + 1] + row[k]
     rows, cols = (height + step - 1) // step, (width + step - 1) // step
     out = np.full((rows, cols, 3), np.nan)
+    s = np.empty(9)
     for i in range(rows):
         y = i * step
+        y0, y1 = max(y - half, 0), min(y + half + 1, height)
         for j in range(cols):
             x = j * step
             d0 = disparity[y, x] + doffs
             if not d0 > 0:
                 continue
-            n = 0
-            su = sv = sd = suu = svv = suv = sud = svd = 0.0
-            y0, y1 = max(y - half, 0), min(y + half + 1, height)
             x0, x1 = max(x - half, 0), min(x + half + 1, width)
-            for yy in range(y0, y1):
-                for xx in range(x0, x1):
-                    d = disparity[yy, xx] + doffs
-                    if d > 0:  # False for NaN
-                        u = xx - x
-                        v = yy - y
-                        n += 1
-                        su += u
-                        sv += v
-                        sd += d
-                        suu += u * u
-                        svv += v * v
-                        suv += u * v
-                        sud += u * d
-                        svd += v * d
+            for k in range(9):
+                s[k] = table[k, y1, x1] - table[k, y0, x1] - table[k, y1, x0] + table[k, y0, x0]
+            n = s[0]
             if n < min_share * (y1 - y0) * (x1 - x0):
                 continue
-            var_u = suu / n - (su / n) ** 2
-            var_v = svv / n - (sv / n) ** 2
-            cov_uv = suv / n - (su / n) * (sv / n)
-            cov_ud = sud / n - (su / n) * (sd / n)
-            cov_vd = svd / n - (sv / n) * (sd / n)
+            mean_u, mean_v, mean_d = s[1] / n, s[2] / n, s[3] / n
+            var_u = s[4] / n - mean_u * mean_u
+            var_v = s[5] / n - mean_v * mean_v
+            cov_uv = s[6] / n - mean_u * mean_v
+            cov_ud = s[7] / n - mean_u * mean_d
+            cov_vd = s[8] / n - mean_v * mean_d
             det = var_u * var_v - cov_uv * cov_uv
             if det <= 1e-6:
                 continue
