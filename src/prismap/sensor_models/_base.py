@@ -11,6 +11,7 @@ Every model returns, per cell, the posterior ``P(m = 1 | d^)`` and the log-odds 
 nothing about gets increment 0.
 """
 
+import dataclasses
 from abc import ABC, abstractmethod
 
 import numpy as np
@@ -109,8 +110,6 @@ def model_defaults(name):
     """The default of every public parameter of the model called ``name`` that is a plain number, string or
     None: what a run without that parameter uses (recorded in run fingerprints, so a changed default is a
     changed run)."""
-    import dataclasses
-
     try:
         cls = _REGISTRY[name]
     except KeyError:

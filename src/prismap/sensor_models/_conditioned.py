@@ -106,14 +106,16 @@ class ConditionedModel(InverseSensorModel):
         voxel_overhang_m : (R,) float or None, keyword-only, metres
             Passed to the sub-models with each class's rays (when they :attr:`takes_voxel_overhang`).
         """
-        overhang = {} if voxel_overhang_m is None or not self.takes_voxel_overhang else {"voxel_overhang_m": voxel_overhang_m}
+        use_overhang = voxel_overhang_m is not None and self.takes_voxel_overhang
         if ray_class is None:
-            return self.plain.cell_posteriors(disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m, **overhang)
+            extra = {"voxel_overhang_m": voxel_overhang_m} if use_overhang else {}
+            return self.plain.cell_posteriors(disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m, **extra)
         disparity, norm, rays, start, end = check_cell_arrays(
             disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m
         )
         classes = self._check_classes(ray_class, disparity.size)
-        if overhang:
+        overhang_m = None
+        if use_overhang:
             overhang_m = np.asarray(voxel_overhang_m, dtype=np.float64)
             if overhang_m.shape != disparity.shape:
                 raise PrismapInputError(f"`voxel_overhang_m` must have shape {disparity.shape}; got {overhang_m.shape}")
@@ -125,10 +127,9 @@ class ConditionedModel(InverseSensorModel):
             ray_index = np.flatnonzero(classes == k)
             cells = np.flatnonzero(cell_class == k)
             local[ray_index] = np.arange(ray_index.size)
-            if overhang:
-                overhang = {"voxel_overhang_m": overhang_m[ray_index]}
+            extra = {} if overhang_m is None else {"voxel_overhang_m": overhang_m[ray_index]}
             posterior[cells], increment[cells] = self._model(int(k)).cell_posteriors(
-                disparity[ray_index], norm[ray_index], local[rays[cells]], start[cells], end[cells], **overhang
+                disparity[ray_index], norm[ray_index], local[rays[cells]], start[cells], end[cells], **extra
             )
         return posterior, increment
 
