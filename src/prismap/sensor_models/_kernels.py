@@ -576,19 +576,14 @@ def combine(l_ca, l_da, l_cc, l_dc, lam_len):
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def pass_through_log(inc, lam_len, clear_len):
-    """Posterior and increment of a cell that also holds surfaces rays pass through.
+def pass_through_log(inc, lam_len, m):
+    """Posterior and increment of a cell that a ray passes with probability ``m`` when it is occupied.
 
-    Surfaces that stop the ray (expected number ``lam_len`` in the cell, increment ``inc`` against their
-    prior) and surfaces it passes (``clear_len``) are independent Poisson processes (splitting), and the
-    measurement says nothing about the second: ``1 - P = (1 - P_stop) e^-clear_len``. The increment is
-    taken against the prior of both, ``1 - e^-(lam_len + clear_len)``.
+    The cell's likelihood ratio ``R = e^inc`` (occupied, the surface stopping the ray, against free)
+    becomes ``m + (1 - m) R``; the posterior follows with the cell's prior ``1 - e^-lam_len``.
     """
-    logit_stop = inc + log1mexp(-lam_len) + lam_len
-    log_empty = -logaddexp(0.0, logit_stop) - clear_len
-    logit_post = log1mexp(log_empty) - log_empty
-    total = lam_len + clear_len
-    return _sigmoid(logit_post), logit_post - (log1mexp(-total) + total)
+    thinned = logaddexp(math.log(m), math.log1p(-m) + inc)
+    return _sigmoid(log1mexp(-lam_len) + lam_len + thinned), thinned
 
 
 @nb.njit(cache=True, nogil=True)
@@ -616,12 +611,11 @@ def log_tail(z, log_c_z, lam, ku, hq, z0, z_max, fb, shift, log_far, log_wn, mea
 
 @nb.njit(cache=True, nogil=True)
 def prism_direct_cells(
-    shift, lam, order, ray_start, start, end, z0, z_max, fb, ku, hq, log_far, log_wn, means, sigmas, clear_ratio
+    shift, lam, order, ray_start, start, end, z0, z_max, fb, ku, hq, log_far, log_wn, means, sigmas, pass_through
 ):
     """Continuous PRISM by quadrature, ray by ray: exact C and D at every distinct cell boundary.
 
-    ``lam`` is the rate of the surfaces that stop a ray; ``clear_ratio`` that of those it passes over
-    ``lam`` (:func:`pass_through_log`; 0: none).
+    ``pass_through``: the chance that a ray passes an occupied cell (:func:`pass_through_log`; 0: never).
 
     ``order`` sorts cells by ray; the cells of ray ``r`` are ``order[ray_start[r]:ray_start[r + 1]]``.
     """
@@ -658,15 +652,15 @@ def prism_direct_cells(
             a = min(max(start[i], z0), z_max)
             c = min(max(end[i], z0), z_max)
             if c <= a:
-                post[i] = -math.expm1(-lam[r] * (1.0 + clear_ratio) * max(end[i] - start[i], 0.0))
+                post[i] = -math.expm1(-lam[r] * max(end[i] - start[i], 0.0))
                 inc[i] = 0.0
                 continue
             ia = np.searchsorted(bounds, a)
             ic = np.searchsorted(bounds, c)
             lam_len = lam[r] * (c - a)
             post[i], inc[i] = combine(log_c[ia], log_d[ia], log_c[ic], log_d[ic], lam_len)
-            if clear_ratio > 0.0:
-                post[i], inc[i] = pass_through_log(inc[i], lam_len, clear_ratio * lam_len)
+            if pass_through > 0.0:
+                post[i], inc[i] = pass_through_log(inc[i], lam_len, pass_through)
     return post, inc
 
 
@@ -842,7 +836,7 @@ def prism_table_lookup(lam, table, delta, ray_of_cell, start, end, lo, hi, z0, z
 
 @nb.njit(cache=True, nogil=True, fastmath=_FASTMATH)
 def prism_table_combine(lam, ray_of_cell, start, end, lo, hi, z0, z_max, l_a, l_c, e_c, side, post, ratio,
-                        fix_index, fix_value, clear_ratio):
+                        fix_index, fix_value, pass_through):
     """Second stage on cells ``lo:hi``: posterior (into ``post[lo:hi]``) and ``ratio[j]``, the increment's exp.
 
     ``e_c`` is ``exp(l_c)`` of :func:`prism_table_lookup`; ``exp(l_a)`` is the previous cell's ``e_c``
@@ -850,9 +844,8 @@ def prism_table_combine(lam, ray_of_cell, start, end, lo, hi, z0, z_max, l_a, l_
     and ``D/Z`` at both ends are at hand in linear space: ``P Z = p_c C(a) + C(c) - C(a)``, ``(1 - P) Z = (1 - p_c) C(a) + D(c)``
     and the increment is ``log(ratio)`` with ``ratio = P (1 - p_c) / ((1 - P) p_c)``. Cells near underflow
     (a log below -600 or ``lam_len > 40``) go through :func:`combine_small` instead: ``ratio = 1``, listed
-    in ``fix_index`` (offset from ``lo``) and ``fix_value``; returns how many. ``lam`` is the rate of the
-    surfaces that stop a ray, ``clear_ratio`` that of those it passes over ``lam`` (:func:`pass_through_log`:
-    ``P Z = P_stop Z + (1 - P_stop) Z (1 - e^-clear_len)``).
+    in ``fix_index`` (offset from ``lo``) and ``fix_value``; returns how many. ``pass_through``: the chance
+    that a ray passes an occupied cell, ``ratio -> m + (1 - m) ratio`` (:func:`pass_through_log`; 0: never).
     """
     n_fix = 0
     for j in range(hi - lo):
@@ -860,7 +853,7 @@ def prism_table_combine(lam, ray_of_cell, start, end, lo, hi, z0, z_max, l_a, l_
         r = ray_of_cell[i]
         s = side[j]
         if s == _SKIP:
-            post[i] = -math.expm1(-lam[r] * (1.0 + clear_ratio) * max(end[i] - start[i], 0.0))
+            post[i] = -math.expm1(-lam[r] * max(end[i] - start[i], 0.0))
             ratio[j] = 1.0
             continue
         e_a = e_c[j - 1] if s & _REUSED else math.exp(l_a[j])
@@ -875,18 +868,17 @@ def prism_table_combine(lam, ray_of_cell, start, end, lo, hi, z0, z_max, l_a, l_
         num = p_c * c_a + delta
         den = q_c * c_a + d_c
         if min(l_a[j], l_c[j]) >= -600.0 and lam_len <= 40.0 and num > 0.0 and den > 0.0 and p_c > 0.0:
-            if clear_ratio > 0.0:
-                p_clear = _cell_prior(clear_ratio * lam_len)[0]
-                p_all = _cell_prior((1.0 + clear_ratio) * lam_len)[0]
-                post[i] = (num + den * p_clear) / (num + den)
-                ratio[j] = ((num + den * p_clear) * q_c) / (den * p_all)
+            if pass_through > 0.0:
+                thinned = pass_through + (1.0 - pass_through) * (num * q_c) / (den * p_c)
+                post[i] = p_c * thinned / (p_c * thinned + q_c)
+                ratio[j] = thinned
             else:
                 post[i] = num / (num + den)
                 ratio[j] = (num * q_c) / (den * p_c)
         else:  # near underflow: log space
             post[i], fix_value[n_fix] = combine_small(l_a[j], l_c[j], s & 1, s & 2, lam_len)
-            if clear_ratio > 0.0:
-                post[i], fix_value[n_fix] = pass_through_log(fix_value[n_fix], lam_len, clear_ratio * lam_len)
+            if pass_through > 0.0:
+                post[i], fix_value[n_fix] = pass_through_log(fix_value[n_fix], lam_len, pass_through)
             ratio[j] = 1.0
             fix_index[n_fix] = j
             n_fix += 1

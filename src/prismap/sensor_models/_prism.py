@@ -279,15 +279,6 @@ class PrismModel(RayModel):
         """``lambda``: surfaces per metre of ray, from ``p0`` and ``voxel_size_m``."""
         return -np.log1p(-self.p0) / self.voxel_size_m
 
-    @property
-    def stop_rate_per_m(self):
-        """``(1 - pass_through) lambda``: surfaces per metre of ray that stop it (the tables' rate)."""
-        return (1.0 - self.pass_through) * self.rate_per_m
-
-    def _clear_ratio(self):
-        """Rate of the surfaces a ray passes over that of those that stop it."""
-        return self.pass_through / (1.0 - self.pass_through)
-
     def _mixture_arrays(self):
         m = self.error_model
         log_wn = np.log(m.weights) - np.log(m.sigmas) - 0.5 * np.log(2 * np.pi)
@@ -317,14 +308,14 @@ class PrismModel(RayModel):
             if overhang.size and overhang.min() < 0:
                 raise PrismapInputError(f"prism: `voxel_overhang_m` must be >= 0; got minimum {overhang.min()!r}")
             end = end + (self.overhang_fraction * overhang / norm)[rays]
-        lam = self.stop_rate_per_m * norm
+        lam = self.rate_per_m * norm
         if method == "direct":
             order = np.argsort(rays, kind="stable")
             ray_start = np.searchsorted(rays[order], np.arange(disparity.size + 1))
             return _kernels.prism_direct_cells(
                 disparity + self.doffs_px, lam, order, ray_start, start, end, self.near_m, self.far_depth_m,
                 self.focal_baseline, self._ku(), _QUAD_STEP, self._log_far(disparity), *self._mixture_arrays(),
-                self._clear_ratio(),
+                self.pass_through,
             )
         if method != "table":
             raise PrismapInputError(f"prism: `method` must be 'table' or 'direct'; got {method!r}")
@@ -373,7 +364,7 @@ class PrismModel(RayModel):
             np.exp(l_c[:m], out=e_c[:m])
             n_fix = _kernels.prism_table_combine(lam, rays, start, end, lo, hi, self.near_m, self.far_depth_m, l_a,
                                                  l_c, e_c, side, post, ratio, fix_index, fix_value,
-                                                 self._clear_ratio())
+                                                 self.pass_through)
             np.log(ratio[:m], out=inc[lo:hi])
             inc[lo + fix_index[:n_fix]] = fix_value[:n_fix]
         return post, inc
@@ -390,7 +381,7 @@ class PrismModel(RayModel):
         """Nodes and metadata row (see ``_kernels.META_COLUMNS`` without offset, length) of each key."""
         key_d, key_l = np.divmod(np.asarray(keys, dtype=np.int64), _KEY_L_SPAN)
         disparity = key_d * self.disparity_step_px
-        lam = self.stop_rate_per_m * np.exp(key_l * _LAMBDA_STEP)
+        lam = self.rate_per_m * np.exp(key_l * _LAMBDA_STEP)
         log_far = self._log_far(disparity)
         log_wn, means, sigmas = self._mixture_arrays()
         log_eps_bound = float(np.log(np.expm1(self.influence_epsilon)))
