@@ -5,7 +5,7 @@ import numpy as np
 from prismap._validate import check_positive
 from prismap.errors import PrismapInputError
 from prismap.io._sequence import GroundTruthOccupancy
-from prismap.sim._kernels import mark_visible
+from prismap.sim._kernels import count_occupied_before, mark_visible
 
 
 def solid_key_ranges(box_lo, box_hi, voxel_size_m):
@@ -137,11 +137,8 @@ def pass_through_ratio(box_lo, box_hi, frames, voxel_size_m, *, max_depth_m=np.i
         hit = depth <= max_depth_m
         rays_hit += int(hit.sum())
         ray, keys, _, t_out = crossed_voxels(pose[:3, 3], rays_cam @ pose[:3, :3].T, np.where(hit, depth, 0.0), voxel)
-        norm = np.sqrt((rays_cam**2).sum(axis=1))
-        before = t_out < (depth - overhang / norm)[ray]
-        index_3d = keys[before].astype(np.int64) - bounds_lo
-        inside = np.all((index_3d >= 0) & (index_3d < np.array(occupied.shape)), axis=1)
-        passes += int(occupied[tuple(index_3d[inside].T)].sum())
+        limit = depth - overhang / np.sqrt((rays_cam**2).sum(axis=1))
+        passes += count_occupied_before(occupied, bounds_lo, ray, keys, t_out, limit)
     if rays_hit == 0:
         raise PrismapInputError("no ray of `frames` meets a surface within `max_depth_m`: no pass-through ratio")
     return passes / (passes + rays_hit)
