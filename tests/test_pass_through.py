@@ -136,8 +136,8 @@ CAMERA = StereoCamera(40.0, 7.5, 7.5, 0.1, width=16, height=16)
 VOXEL = 0.1
 
 
-def _frame(scene, pose=np.eye(4)):
-    return scene.render(CAMERA, pose, noise_sigma=0.0)
+def _frame(scene):
+    return scene.render(CAMERA, np.eye(4), noise_sigma=0.0)
 
 
 def _reference_ratio(scene, frame):
