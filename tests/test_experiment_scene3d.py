@@ -54,6 +54,15 @@ def test_every_model_sees_the_same_scored_voxels_and_prior(scene):
     assert np.isfinite([c.scores.brier for c in result.cells]).all()
 
 
+def test_prism_passes_through_at_the_ratio_of_the_characterisation_frames(scene):
+    out, result = scene
+    derived = {c.settings["derived_model_params"]["prism"]["pass_through"] for c in result.cells}
+    assert len(derived) == 1
+    ratio = derived.pop()
+    assert 0 < ratio < 0.5  # tables and chairs in front of the walls, beyond each ray's overhang
+    assert f"pass_through = {ratio:.4f}" in (out / "results.md").read_text()
+
+
 @pytest.mark.parametrize(
     "kwargs, message",
     [({"n_frames": 1}, "`n_frames` must be an integer >= 2"), ({"matchers": ("sad",)}, "subset of"),

@@ -224,6 +224,8 @@ def run_rendered_world(world, out_dir, *, n_frames=None, voxel_size_m=None, seed
     truth = sequence.ground_truth
     p0 = prior_of(truth)
     largest = max(float(np.nanmax(f.disparity_gt)) for f in frames)
+    model_params = _with_pass_through(settings, scene, char_frames)
+    cell_settings = dict(settings, derived_model_params=model_params)
 
     results, artifacts, error_models = [], [], {}
     layer = math.floor((spec.slice_height_m + shift) / voxel)
@@ -233,8 +235,8 @@ def run_rendered_world(world, out_dir, *, n_frames=None, voxel_size_m=None, seed
                                                     f"{scene.name} frames {char_index.tolist()}")
         error_models[matcher_name] = error_model
         disparity_dir = _match(out / matcher_name / "disparity", map_frames, matcher)
-        build_map = _mapper(sequence, disparity_dir, matcher_name, error_model, p0, settings)
-        cells, maps = run_cells(out, matcher_name, models, build_map, truth, settings)
+        build_map = _mapper(sequence, disparity_dir, matcher_name, error_model, p0, model_params, settings)
+        cells, maps = run_cells(out, matcher_name, models, build_map, truth, cell_settings)
         results += cells
         artifacts += char_artifacts
         artifacts += draw_figures(out, matcher_name, cells, maps, truth, layer=layer,
@@ -248,7 +250,10 @@ def run_rendered_world(world, out_dir, *, n_frames=None, voxel_size_m=None, seed
                    "characterisation frames: \"plain\" its whole-image mixture for every pixel, \"conditioned\" the "
                    "mixture of each pixel's error class (from the features of the mapped frame's own disparity and "
                    "image); time = mapping wall time (PRISM's tables and the features included).")
-    notes = (setup, f"p0 = {p0:.4f}: the occupancy ratio of the voxels a perfect sensor observed (the scored voxels).",
+    notes = (setup, f"p0 = {p0:.4f}: the occupancy ratio of the voxels a perfect sensor observed (the scored voxels). "
+             f"PRISM's pass_through = {model_params['prism']['pass_through']:.4f}: how often the characterisation "
+             "frames' noise-free rays cross an occupied voxel before their surface (beyond its voxel overhang) "
+             "without stopping (`Scene3D.pass_through_ratio`).",
              models_note, _classes_note(error_models))
     targets = measure_targets(world, results, error_models)
     paths = write_results(results, out, title=spec.title, notes=notes, settings=settings,
@@ -311,8 +316,21 @@ def _match(out_dir, frames, matcher):
     return out_dir
 
 
-def _mapper(sequence, disparity_dir, matcher_name, error_model, p0, settings):
+def _with_pass_through(settings, scene, char_frames):
+    """The run's model parameters, PRISM's ``pass_through`` measured on ``char_frames`` unless the settings set it."""
+    params = {name: dict(values) for name, values in settings["model_params"].items()}
+    prism = params.setdefault("prism", {})
+    if "pass_through" not in prism:
+        prism["pass_through"] = scene.pass_through_ratio(char_frames, settings["voxel_size_m"],
+                                                         max_depth_m=settings["max_range_m"],
+                                                         subsample=settings["subsample"])
+    return params
+
+
+def _mapper(sequence, disparity_dir, matcher_name, error_model, p0, model_params, settings):
     """``build_map(cell_model)``: the pipeline's map of the mapping frames from the matcher's disparities.
+
+    ``model_params``: model name -> its parameters (the settings' with what the run derived).
 
     ``cell_model`` is a model name, plain, or with :data:`~prismap.experiment.CONDITIONED_SUFFIX`: conditioned
     on the error model's classes (plain when the characterisation chose none).
@@ -321,7 +339,7 @@ def _mapper(sequence, disparity_dir, matcher_name, error_model, p0, settings):
 
     def build_map(cell_model):
         model_name, conditioned = split_variant(cell_model)
-        config = MappingConfig(model=model_name, model_params=settings["model_params"].get(model_name, {}),
+        config = MappingConfig(model=model_name, model_params=model_params.get(model_name, {}),
                                voxel_size_m=settings["voxel_size_m"], p0=p0, error_model=error_model,
                                conditioned=None if conditioned else False, matcher=matcher_name,
                                disparity_source=str(Path(disparity_dir).resolve()),

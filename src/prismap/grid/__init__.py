@@ -14,6 +14,8 @@ Design notes (one owner per concept):
 - ``_overhang``: how far before its hit a voxel a ray crosses can still hold the (locally planar) surface,
   per ray, from the disparity image's plane normals (:func:`prismap.camera.plane_normals`); passed to the
   models that ``takes_voxel_overhang`` (PRISM).
+- ``_traverse``: :func:`crossed_voxels`, the checked traversal for callers outside the integrators (the
+  map's queries, the simulator's ground truth).
 - ``_kernels_hash``, ``_kernels_traverse``, ``_kernels_project``, ``_kernels_accumulate``: numba kernels,
   called only by the wrappers of this package.
 """
@@ -31,7 +33,9 @@ from prismap.grid._keys import (
     unpack_keys,
 )
 from prismap.grid._map import FREE, OCCUPIED, OCTOMAP_CLAMP, UNKNOWN, OccupancyMap, pose_noise_px
+from prismap.grid._overhang import frame_overhang_m
 from prismap.grid._policies import POLICIES
+from prismap.grid._traverse import crossed_voxels
 
 __all__ = [
     "FREE",
@@ -46,6 +50,8 @@ __all__ = [
     "Integrator",
     "OccupancyMap",
     "RayBatch",
+    "crossed_voxels",
+    "frame_overhang_m",
     "key_limit_m",
     "key_range_text",
     "key_to_center",

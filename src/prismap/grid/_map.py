@@ -5,13 +5,14 @@ from scipy.special import expit
 
 from prismap._validate import as_float_array, check_positive, check_probability
 from prismap.errors import PrismapInputError
-from prismap.grid import _accumulator, _kernels_accumulate, _kernels_hash, _kernels_project, _kernels_traverse
+from prismap.grid import _accumulator, _kernels_accumulate, _kernels_hash, _kernels_project
 from prismap.grid._integrators import ImageProjection, RayBatch, make_integrator
 from prismap.grid._keys import BLOCK_BITS, KEY_LIMIT, check_keys, key_range_text, point_to_key
 from prismap.grid._logodds import LOG_ODDS_STEP, Q_MAX, Q_MIN, from_fixed, logit, to_fixed
 from prismap.grid._overhang import frame_overhang_m
 from prismap.grid._policies import policy_code, policy_name
 from prismap.grid._storage import BlockTable
+from prismap.grid._traverse import crossed_voxels
 
 FREE, OCCUPIED, UNKNOWN = 0, 1, -1
 """Voxel states returned by :meth:`OccupancyMap.state`."""
@@ -451,9 +452,7 @@ class OccupancyMap:
             raise PrismapInputError("`directions_w` must be finite and non-zero")
         reach = check_positive(max_range_m, "max_range_m")
         unit = directions / norm[:, None]
-        t_stop = np.full(unit.shape[0], reach)
-        ray, keys, t_in, _ = _kernels_traverse.cast_rays(origin, np.ascontiguousarray(unit), t_stop,
-                                                np.zeros(unit.shape[0], dtype=np.bool_), self.voxel_size_m)
+        ray, keys, t_in, _ = crossed_voxels(origin, unit, np.full(unit.shape[0], reach), self.voxel_size_m)
         occupied = self.state_at_keys(keys) == OCCUPIED
         hit = np.zeros(unit.shape[0], dtype=bool)
         out_keys = np.zeros((unit.shape[0], 3), dtype=np.int32)

@@ -575,6 +575,17 @@ def combine(l_ca, l_da, l_cc, l_dc, lam_len):
     return _sigmoid(l_num - l_den), inc
 
 
+@nb.njit(cache=True, nogil=True, inline="always")
+def pass_through_log(inc, lam_len, m):
+    """Posterior and increment of a cell that a ray passes with probability ``m`` when it is occupied.
+
+    The cell's likelihood ratio ``R = e^inc`` (occupied, the surface stopping the ray, against free)
+    becomes ``m + (1 - m) R``; the posterior follows with the cell's prior ``1 - e^-lam_len``.
+    """
+    thinned = logaddexp(math.log(m), math.log1p(-m) + inc)
+    return _sigmoid(log1mexp(-lam_len) + lam_len + thinned), thinned
+
+
 @nb.njit(cache=True, nogil=True)
 def log_tail(z, log_c_z, lam, ku, hq, z0, z_max, fb, shift, log_far, log_wn, means, sigmas):
     """``log D(z)``: evidence beyond ``z`` (far measurement included), marched until the rest is < e^-40."""
@@ -600,9 +611,11 @@ def log_tail(z, log_c_z, lam, ku, hq, z0, z_max, fb, shift, log_far, log_wn, mea
 
 @nb.njit(cache=True, nogil=True)
 def prism_direct_cells(
-    shift, lam, order, ray_start, start, end, z0, z_max, fb, ku, hq, log_far, log_wn, means, sigmas
+    shift, lam, order, ray_start, start, end, z0, z_max, fb, ku, hq, log_far, log_wn, means, sigmas, pass_through
 ):
     """Continuous PRISM by quadrature, ray by ray: exact C and D at every distinct cell boundary.
+
+    ``pass_through``: the chance that a ray passes an occupied cell (:func:`pass_through_log`; 0: never).
 
     ``order`` sorts cells by ray; the cells of ray ``r`` are ``order[ray_start[r]:ray_start[r + 1]]``.
     """
@@ -644,7 +657,10 @@ def prism_direct_cells(
                 continue
             ia = np.searchsorted(bounds, a)
             ic = np.searchsorted(bounds, c)
-            post[i], inc[i] = combine(log_c[ia], log_d[ia], log_c[ic], log_d[ic], lam[r] * (c - a))
+            lam_len = lam[r] * (c - a)
+            post[i], inc[i] = combine(log_c[ia], log_d[ia], log_c[ic], log_d[ic], lam_len)
+            if pass_through > 0.0:
+                post[i], inc[i] = pass_through_log(inc[i], lam_len, pass_through)
     return post, inc
 
 
@@ -820,7 +836,7 @@ def prism_table_lookup(lam, table, delta, ray_of_cell, start, end, lo, hi, z0, z
 
 @nb.njit(cache=True, nogil=True, fastmath=_FASTMATH)
 def prism_table_combine(lam, ray_of_cell, start, end, lo, hi, z0, z_max, l_a, l_c, e_c, side, post, ratio,
-                        fix_index, fix_value):
+                        fix_index, fix_value, pass_through):
     """Second stage on cells ``lo:hi``: posterior (into ``post[lo:hi]``) and ``ratio[j]``, the increment's exp.
 
     ``e_c`` is ``exp(l_c)`` of :func:`prism_table_lookup`; ``exp(l_a)`` is the previous cell's ``e_c``
@@ -828,7 +844,8 @@ def prism_table_combine(lam, ray_of_cell, start, end, lo, hi, z0, z_max, l_a, l_
     and ``D/Z`` at both ends are at hand in linear space: ``P Z = p_c C(a) + C(c) - C(a)``, ``(1 - P) Z = (1 - p_c) C(a) + D(c)``
     and the increment is ``log(ratio)`` with ``ratio = P (1 - p_c) / ((1 - P) p_c)``. Cells near underflow
     (a log below -600 or ``lam_len > 40``) go through :func:`combine_small` instead: ``ratio = 1``, listed
-    in ``fix_index`` (offset from ``lo``) and ``fix_value``; returns how many.
+    in ``fix_index`` (offset from ``lo``) and ``fix_value``; returns how many. ``pass_through``: the chance
+    that a ray passes an occupied cell, ``ratio -> m + (1 - m) ratio`` (:func:`pass_through_log`; 0: never).
     """
     n_fix = 0
     for j in range(hi - lo):
@@ -851,10 +868,17 @@ def prism_table_combine(lam, ray_of_cell, start, end, lo, hi, z0, z_max, l_a, l_
         num = p_c * c_a + delta
         den = q_c * c_a + d_c
         if min(l_a[j], l_c[j]) >= -600.0 and lam_len <= 40.0 and num > 0.0 and den > 0.0 and p_c > 0.0:
-            post[i] = num / (num + den)
-            ratio[j] = (num * q_c) / (den * p_c)
+            if pass_through > 0.0:
+                thinned = pass_through + (1.0 - pass_through) * (num * q_c) / (den * p_c)
+                post[i] = p_c * thinned / (p_c * thinned + q_c)
+                ratio[j] = thinned
+            else:
+                post[i] = num / (num + den)
+                ratio[j] = (num * q_c) / (den * p_c)
         else:  # near underflow: log space
             post[i], fix_value[n_fix] = combine_small(l_a[j], l_c[j], s & 1, s & 2, lam_len)
+            if pass_through > 0.0:
+                post[i], fix_value[n_fix] = pass_through_log(fix_value[n_fix], lam_len, pass_through)
             ratio[j] = 1.0
             fix_index[n_fix] = j
             n_fix += 1

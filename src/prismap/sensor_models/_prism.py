@@ -125,6 +125,10 @@ def prism_discrete_posteriors(disparity_px, cell_edges_depth_m, mixture, *, foca
     return np.exp(log_num - log_norm)
 
 
+PASS_THROUGH = 0.0
+"""PRISM's default chance that a ray crosses an occupied cell without meeting its surface (0: every occupied
+cell stops the ray, the model of SENSOR_MODELS.md)."""
+
 OVERHANG_FRACTION = 0.25
 """PRISM's default share of the voxel overhang bound counted as occupied. Half the bound is its mean over
 plane positions; but a plane through voxel centres then puts the voxel just in front of it exactly on the
@@ -208,6 +212,7 @@ class PrismModel(RayModel):
     influence_epsilon: float = INFLUENCE_EPSILON
     table_memory_mb: float | None = None
     overhang_fraction: float = OVERHANG_FRACTION
+    pass_through: float = PASS_THROUGH
     _cache: "_TableCache" = field(default=None, init=False, repr=False, compare=False)
     _widened: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
@@ -232,6 +237,10 @@ class PrismModel(RayModel):
         if isinstance(fraction, bool) or not isinstance(fraction, (int, float, np.floating)) or not 0 <= fraction <= 1:
             raise PrismapInputError(f"prism: `overhang_fraction` must be a number in [0, 1]; got {fraction!r}")
         object.__setattr__(self, "overhang_fraction", float(fraction))
+        chance = self.pass_through
+        if isinstance(chance, bool) or not isinstance(chance, (int, float, np.floating)) or not 0 <= chance < 1:
+            raise PrismapInputError(f"prism: `pass_through` must be a number in [0, 1); got {chance!r}")
+        object.__setattr__(self, "pass_through", float(chance))
         if self.table_memory_mb is None:
             budget = None
         else:
@@ -306,6 +315,7 @@ class PrismModel(RayModel):
             return _kernels.prism_direct_cells(
                 disparity + self.doffs_px, lam, order, ray_start, start, end, self.near_m, self.far_depth_m,
                 self.focal_baseline, self._ku(), _QUAD_STEP, self._log_far(disparity), *self._mixture_arrays(),
+                self.pass_through,
             )
         if method != "table":
             raise PrismapInputError(f"prism: `method` must be 'table' or 'direct'; got {method!r}")
@@ -353,7 +363,8 @@ class PrismModel(RayModel):
                                         sigmas, l_a, l_c, side)
             np.exp(l_c[:m], out=e_c[:m])
             n_fix = _kernels.prism_table_combine(lam, rays, start, end, lo, hi, self.near_m, self.far_depth_m, l_a,
-                                                 l_c, e_c, side, post, ratio, fix_index, fix_value)
+                                                 l_c, e_c, side, post, ratio, fix_index, fix_value,
+                                                 self.pass_through)
             np.log(ratio[:m], out=inc[lo:hi])
             inc[lo + fix_index[:n_fix]] = fix_value[:n_fix]
         return post, inc

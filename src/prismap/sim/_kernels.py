@@ -172,3 +172,19 @@ def mark_visible(mask, key_lo, voxel_size, planar_z, rotation_wc, position_w, fo
                     continue
                 if z <= depth[v, u]:
                     mask[i, j, k] = True
+
+
+@numba.njit(cache=True, nogil=True)
+def count_occupied_before(occupied, bounds_lo, ray_of_cell, keys, t_out, t_limit):
+    """How many cells (``keys``, (C, 3)) leave their ray before ``t_limit[ray]`` inside an ``occupied`` voxel
+    (a dense (X, Y, Z) bool volume whose first voxel has key ``bounds_lo``)."""
+    count = 0
+    nx, ny, nz = occupied.shape
+    for i in range(keys.shape[0]):
+        if t_out[i] < t_limit[ray_of_cell[i]]:
+            x = keys[i, 0] - bounds_lo[0]
+            y = keys[i, 1] - bounds_lo[1]
+            z = keys[i, 2] - bounds_lo[2]
+            if 0 <= x < nx and 0 <= y < ny and 0 <= z < nz and occupied[x, y, z]:
+                count += 1
+    return count

@@ -14,7 +14,7 @@ from prismap.io._frame import StereoFrame
 from prismap.sim._kernels import cast_view, shade_view
 from prismap.sim._poses import pose_from_heading
 from prismap.sim._textures import PHOTOGRAPHS, texture_bank
-from prismap.sim._truth import ground_truth
+from prismap.sim._truth import ground_truth, pass_through_ratio
 
 # brightness by face normal axis (x, y, z) and side (the face at the box's lo, at its hi): a fixed light
 _SHADE = np.array([[0.80, 0.90], [0.70, 0.85], [0.55, 1.00]])
@@ -143,6 +143,12 @@ class Scene3D:
         the voxels of the visible surface points (see ``prismap.sim._truth.ground_truth``).
         """
         return ground_truth(self.box_lo, self.box_hi, frames, voxel_size_m, max_depth_m=max_depth_m)
+
+    def pass_through_ratio(self, frames, voxel_size_m, *, max_depth_m=np.inf, subsample=1):
+        """How often a ray crosses an occupied voxel without meeting its surface there, seen by ``frames``
+        (see ``prismap.sim._truth.pass_through_ratio``): PRISM's ``pass_through`` for this world."""
+        return pass_through_ratio(self.box_lo, self.box_hi, frames, voxel_size_m, max_depth_m=max_depth_m,
+                                  subsample=subsample)
 
 
 ROOM_M = (14.0, 9.0, 3.0)  # interior of the indoor scene: x, y, z extents from the origin
