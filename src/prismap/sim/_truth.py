@@ -51,13 +51,7 @@ def ground_truth(box_lo, box_hi, frames, voxel_size_m, *, planar=False, max_dept
     shape = occupied.shape
     seen = np.zeros(shape, dtype=np.bool_)
     for index, frame in enumerate(frames):
-        if frame.T_world_cam is None or frame.disparity_gt is None:
-            raise PrismapInputError(f"`frames[{index}]` needs `T_world_cam` and `disparity_gt` for the ground truth")
-        camera = frame.camera
-        pose = np.asarray(frame.T_world_cam, dtype=np.float64)
-        depth = getattr(frame, "extras", {}).get("depth_m")
-        if depth is None:
-            depth = camera.depth_from_disparity(frame.disparity_gt)
+        camera, pose, depth = _true_view(index, frame)
         mark_visible(
             seen, bounds_lo, voxel, 0.0 if planar else np.nan, np.ascontiguousarray(pose[:3, :3]),
             np.ascontiguousarray(pose[:3, 3]),
@@ -71,6 +65,20 @@ def ground_truth(box_lo, box_hi, frames, voxel_size_m, *, planar=False, max_dept
         inside = np.all((keys >= 0) & (keys < np.array(shape)), axis=1)
         seen[tuple(keys[inside].T)] = True
     return GroundTruthOccupancy(voxel, np.argwhere(occupied) + bounds_lo, np.argwhere(seen) + bounds_lo)
+
+
+def _true_view(index, frame):
+    """``(camera, T_world_cam (4, 4) float64, true depth (H, W), metres, NaN or inf = no hit)`` of ``frames[index]``.
+
+    The depth is ``extras["depth_m"]`` when the frame has it (rendered frames: no float32 rounding), else
+    from ``disparity_gt``.
+    """
+    if frame.T_world_cam is None or frame.disparity_gt is None:
+        raise PrismapInputError(f"`frames[{index}]` needs `T_world_cam` and `disparity_gt` for the ground truth")
+    depth = getattr(frame, "extras", {}).get("depth_m")
+    if depth is None:
+        depth = frame.camera.depth_from_disparity(frame.disparity_gt)
+    return frame.camera, np.asarray(frame.T_world_cam, dtype=np.float64), depth
 
 
 def _occupied_volume(box_lo, box_hi, voxel_size_m, planar):
@@ -124,13 +132,7 @@ def pass_through_ratio(box_lo, box_hi, frames, voxel_size_m, *, max_depth_m=np.i
     occupied, bounds_lo = _occupied_volume(box_lo, box_hi, voxel, False)
     passes = rays_hit = 0
     for index, frame in enumerate(frames):
-        if frame.T_world_cam is None or frame.disparity_gt is None:
-            raise PrismapInputError(f"`frames[{index}]` needs `T_world_cam` and `disparity_gt` for the ground truth")
-        camera = frame.camera
-        pose = np.asarray(frame.T_world_cam, dtype=np.float64)
-        depth = getattr(frame, "extras", {}).get("depth_m")
-        if depth is None:
-            depth = camera.depth_from_disparity(frame.disparity_gt)
+        camera, pose, depth = _true_view(index, frame)
         depth = np.where(np.isnan(depth), np.inf, depth)[::subsample, ::subsample].reshape(-1)
         rays_cam = camera.pixel_rays(frame.disparity_gt.shape)[::subsample, ::subsample].reshape(-1, 3)
         overhang = frame_overhang_m(frame.disparity_gt, camera, pose[:3, :3], voxel, subsample, rays_cam)
