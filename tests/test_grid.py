@@ -290,7 +290,9 @@ def test_rotate_rays_equals_the_matrix_product():
     np.testing.assert_allclose(rotate_rays(rays, rotation), rays @ rotation.T, rtol=1e-14, atol=1e-15)
 
 
-def test_project_voxels_with_too_little_room_returns_a_prefix_and_the_full_count():
+def test_project_voxels_grows_its_outputs_and_counts_beyond_the_bound():
+    # Outputs that start with room for 7 cells grow to hold all; a bound of 7 returns the first 7 cells and the
+    # full count (the caller refuses the frame).
     from prismap.grid._kernels_project import frustum_box, project_voxels
 
     rng = np.random.default_rng(14)
@@ -300,12 +302,15 @@ def test_project_voxels_with_too_little_room_returns_a_prefix_and_the_full_count
     exclusive = rng.random(48) < 0.5
     origin = np.array([0.01, -0.02, 0.03])
     key_min, shape, _ = frustum_box(origin, rays, t_stop, 0.1)
+    box = int(np.prod(shape))
     args = (key_min, shape, origin, np.eye(3), 8.0, 3.5, 2.5, 1.0, ray_index, rays, t_stop, exclusive, 0.1)
-    *full, n = project_voxels(*args, int(np.prod(shape)))
-    *part, n_part = project_voxels(*args, 7)
-    assert n == n_part == full[0].size > 7
-    for a, b in zip(full, part):
-        np.testing.assert_array_equal(a[:7], b)
+    *full, n = project_voxels(*args, box, box)
+    *grown, n_grown = project_voxels(*args, 7, box)
+    *part, n_part = project_voxels(*args, 7, 7)
+    assert n == n_grown == n_part == full[0].size > 7
+    for a, b, c in zip(full, grown, part):
+        np.testing.assert_array_equal(a, b)
+        np.testing.assert_array_equal(a[:7], c)
 
 
 def _project_voxels_reference(key_min, shape, origin, R_cam_world, focal, cx, cy, ray_index, rays, t_stop, exclusive,
@@ -361,7 +366,7 @@ def test_project_voxels_equals_visiting_every_voxel_of_the_box(wall):
     key_min, shape, _ = frustum_box(origin, rays, t_stop, 0.1)
     R_cam_world = np.ascontiguousarray(R_world_cam.T)
     *got, n = project_voxels(key_min, shape, origin, R_cam_world, focal, cx, cy, 1.0, ray_index, rays, t_stop,
-                             exclusive, 0.1, int(np.prod(shape)))
+                             exclusive, 0.1, 64, int(np.prod(shape)))
     want = _project_voxels_reference(key_min, shape, origin, R_cam_world, focal, cx, cy, ray_index, rays, t_stop,
                                      exclusive, 0.1)
     assert n == want[0].size > 100
@@ -383,8 +388,8 @@ def test_a_run_of_voxels_is_skipped_only_beyond_the_stops_of_every_tile_it_proje
     tile_stop = np.array([[1.0, 5.0]])  # one row of two tiles; camera at the origin looking along z
     reach = 0.05
 
-    def beyond(x, z0, z1):  # a run along the camera's z axis at lateral offset x (one world column along z)
-        return _run_beyond_stops(np.eye(3), x, 0.0, z0, z1, float(TILE), 0.5 * TILE, 0.5 * TILE, reach, tile_stop)
+    def beyond(x, z0, z1):  # a run along the camera's z axis at lateral offset x
+        return _run_beyond_stops(x, 0.0, z0, x, 0.0, z1, float(TILE), 0.5 * TILE, 0.5 * TILE, reach, tile_stop)
 
     assert beyond(-0.1, 2.0, 3.0)  # projects into the left tile only, behind its 1 m
     assert not beyond(-0.1, 0.5, 1.0)  # in front of it

@@ -342,24 +342,21 @@ class ProjectiveIntegrator(Integrator):
             return
         box = float(np.prod(shape.astype(np.float64)))
         self._check_work(box, f"the frustum's key box of {shape[0]} x {shape[1]} x {shape[2]} voxels")
-        capacity = min(int(box), max(1 << 16, 2 * n))  # about one kept voxel per ray: rarely repeated
-        while True:
-            *cells, n_kept = _kernels_project.project_voxels(
-                key_min, shape, origin, image.R_cam_world, image.focal_px, image.cx_px, image.cy_px,
-                float(image.subsample), image.ray_index, rays, t_stop, exclusive, voxel, capacity,
+        max_cells = _accumulator.frame_budget_bytes() // 40  # 40 bytes per kept cell
+        capacity = int(min(box, max_cells, 1.05 * _frustum_voxels(t_stop, image.focal_px, image.subsample, voxel) + 4096))
+        *cells, n_kept = _kernels_project.project_voxels(
+            key_min, shape, origin, image.R_cam_world, image.focal_px, image.cx_px, image.cy_px,
+            float(image.subsample), image.ray_index, rays, t_stop, exclusive, voxel, capacity, max_cells,
+        )
+        if n_kept > max_cells:
+            raise PrismapInputError(
+                f"the frame projects onto {n_kept} voxels, more than {max_cells} (docs/errors.md) "
+                f"at `voxel_size_m`={voxel:g}: lower `max_range_m` (now {self.max_range_m:g} m) or raise the voxel size"
             )
-            if n_kept <= capacity:
-                break
-            if n_kept * 40 > _accumulator.frame_budget_bytes():  # 40 bytes per kept cell
-                raise PrismapInputError(
-                    f"the frame projects onto {n_kept} voxels, more than {_accumulator.frame_budget_bytes() // 40} (docs/errors.md) "
-                    f"at `voxel_size_m`={voxel:g}: lower `max_range_m` (now {self.max_range_m:g} m) or raise the voxel size"
-                )
-            capacity = n_kept
         ray_of_cell, keys, t_in, t_out = cells
         # Cells grouped by ray (models keep per-ray state from cell to cell); one model call per group and
         # frame, on the rays some voxel uses (models cost per ray too).
-        rows = _accumulator.register_cells(accumulator, keys)  # in box order: runs of voxels in one block
+        rows = _accumulator.register_cells(accumulator, keys)  # in walk order: runs of voxels in one block
         rows, t_in, t_out, used, local = _kernels_project.sort_by_ray(ray_of_cell, n, rows, t_in, t_out)
         if len(groups) == 1:  # no pose noise: the loop below with every used ray in the group, minus its copies
             inc = self.cell_increments(groups[0][0], batch, used, local, t_in, t_out)
@@ -374,6 +371,14 @@ class ProjectiveIntegrator(Integrator):
                 rank = np.cumsum(in_group) - 1  # index of each used ray among the group's used rays
                 inc = self.cell_increments(model, batch, used[in_group], rank[local[mine]], t_in[mine], t_out[mine])
                 _accumulator.scatter(accumulator, rows[mine], inc)
+
+
+def _frustum_voxels(t_stop, focal_px, subsample, voxel_size):
+    """About how many voxel centres lie in the frustum of the pixel rays up to their stop depths plus a voxel:
+    a pixel of side ``subsample / focal_px`` at unit depth sweeps ``(t + voxel)^3 subsample^2 / (3 focal_px^2)``
+    cubic metres up to depth ``t + voxel`` (the rays' cells reach up to a voxel beyond the stop)."""
+    t = t_stop[t_stop > 0]
+    return float(np.sum((t + voxel_size) ** 3)) * subsample**2 / (3.0 * focal_px**2 * voxel_size**3)
 
 
 _INTEGRATORS = {cls.name: cls for cls in (RayIntegrator, ProjectiveIntegrator)}

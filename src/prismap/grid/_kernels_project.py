@@ -11,22 +11,24 @@ from prismap.grid._kernels_traverse import write_cell
 
 @numba.njit(cache=True, nogil=True)
 def project_voxels(key_min, shape, origin, R_cam_world, focal, cx, cy, subsample, ray_index, rays, t_stop, exclusive,
-                   voxel_size, capacity):
+                   voxel_size, capacity, max_cells):
     """Voxels of a key box seen by a pixel ray, with the voxel's depth interval on that ray.
 
     Each voxel centre is projected into the (subsampled) image; the nearest grid pixel with a valid
     ray (``ray_index >= 0``) is the voxel's ray. The interval is the slab intersection of that ray with
     the voxel's box; if the ray misses the box (it passes up to half a pixel beside the centre), the
     interval is the centre's depth +- half a voxel. The voxel is kept by the same rule as
-    :func:`cast_rays`. Returns ``ray_of_cell, keys, t_in, t_out`` as :func:`cast_rays` does, in the
-    order of the box (x, then y, then z), and how many voxels are kept: when that exceeds ``capacity``
-    (the outputs' size) only the first ``capacity`` are returned; call again with room for all.
+    :func:`cast_rays`. Returns ``ray_of_cell, keys, t_in, t_out`` as :func:`cast_rays` does and how many
+    voxels are kept. ``capacity`` is the outputs' first size; they grow by half when full, up to
+    ``max_cells``: beyond it voxels are only counted (the returned count exceeds the outputs' length).
 
-    Runs of :data:`SPAN` voxels of a key column that lie wholly beyond the farthest stop depth of the image
-    tiles (:data:`TILE` pixels square) their centres project to are skipped without visiting each voxel:
-    on a street most of the frustum's key box lies behind the first surfaces.
+    The box is walked in lines along the world axis nearest the image's rows (:func:`_loop_axes`), so
+    that consecutive voxels read neighbouring pixels. Each line is first narrowed to the part that may
+    project into the image, then runs of :data:`SPAN` voxels that lie wholly beyond the farthest stop
+    depth of the image tiles (:data:`TILE` pixels square) they project to are skipped without visiting
+    each voxel: on a street most of the frustum's key box lies behind the first surfaces. A visited
+    voxel reads its pixel's stop depth from one image (:func:`_stop_image`) before anything of its ray.
     """
-    nx, ny, nz = shape[0], shape[1], shape[2]
     ray_of_cell = np.empty(capacity, dtype=np.int64)
     keys = np.empty((capacity, 3), dtype=np.int32)
     t_in_out = np.empty(capacity, dtype=np.float64)
@@ -37,25 +39,37 @@ def project_voxels(key_min, shape, origin, R_cam_world, focal, cx, cy, subsample
     col_offset = cx / subsample + 0.5
     row_offset = cy / subsample + 0.5
     scale_px = focal / subsample
-    tile_stop = _tile_stops(ray_index, t_stop)
+    stops = _stop_image(ray_index, t_stop)
+    tile_stop = _tile_stops(stops)
+    a0, a1, a2 = _loop_axes(R_cam_world)
+    step = np.empty(3)  # camera-frame step of one voxel along the line axis a2
+    for r in range(3):
+        step[r] = R_cam_world[r, a2] * voxel_size
+    k = np.empty(3, dtype=np.int64)
+    w = np.empty(3)  # voxel centre relative to the origin, world axes
     m = 0
-    for ix in range(nx):
-        kx = key_min[0] + ix
-        wx = (kx + 0.5) * voxel_size - origin[0]
-        for iy in range(ny):
-            ky = key_min[1] + iy
-            wy = (ky + 0.5) * voxel_size - origin[1]
-            z_lo, z_hi = _column_in_image(R_cam_world, wx, wy, key_min[2], nz, origin[2], voxel_size, scale_px,
-                                          col_offset, row_offset, cols, rows)
-            for base in range(z_lo, z_hi, SPAN):
-                top = min(base + SPAN, z_hi)
-                wz0 = (key_min[2] + base + 0.5) * voxel_size - origin[2]
-                if _run_beyond_stops(R_cam_world, wx, wy, wz0, wz0 + (top - 1 - base) * voxel_size, scale_px,
+    for i0 in range(shape[a0]):
+        k[a0] = key_min[a0] + i0
+        w[a0] = (k[a0] + 0.5) * voxel_size - origin[a0]
+        for i1 in range(shape[a1]):
+            k[a1] = key_min[a1] + i1
+            w[a1] = (k[a1] + 0.5) * voxel_size - origin[a1]
+            w[a2] = (key_min[a2] + 0.5) * voxel_size - origin[a2]
+            px0 = R_cam_world[0, 0] * w[0] + R_cam_world[0, 1] * w[1] + R_cam_world[0, 2] * w[2]
+            py0 = R_cam_world[1, 0] * w[0] + R_cam_world[1, 1] * w[1] + R_cam_world[1, 2] * w[2]
+            pz0 = R_cam_world[2, 0] * w[0] + R_cam_world[2, 1] * w[1] + R_cam_world[2, 2] * w[2]
+            lo, hi = _line_in_image(px0, py0, pz0, step, shape[a2], scale_px, col_offset, row_offset, cols, rows)
+            for base in range(lo, hi, SPAN):
+                top = min(base + SPAN, hi)
+                last = top - 1
+                if _run_beyond_stops(px0 + base * step[0], py0 + base * step[1], pz0 + base * step[2],
+                                     px0 + last * step[0], py0 + last * step[1], pz0 + last * step[2], scale_px,
                                      col_offset, row_offset, reach, tile_stop):
                     continue
-                for iz in range(base, top):
-                    kz = key_min[2] + iz
-                    wz = (kz + 0.5) * voxel_size - origin[2]
+                for i2 in range(base, top):
+                    k[a2] = key_min[a2] + i2
+                    w[a2] = (k[a2] + 0.5) * voxel_size - origin[a2]
+                    wx, wy, wz = w[0], w[1], w[2]
                     pz = R_cam_world[2, 0] * wx + R_cam_world[2, 1] * wy + R_cam_world[2, 2] * wz
                     if pz <= 0.0:
                         continue
@@ -66,12 +80,12 @@ def project_voxels(key_min, shape, origin, R_cam_world, focal, cx, cy, subsample
                     row = np.floor(py * scale + row_offset)
                     if col < 0 or row < 0 or col >= cols or row >= rows:
                         continue
-                    ray = ray_index[np.int64(row), np.int64(col)]
-                    if ray < 0:
+                    pixel_row, pixel_col = np.int64(row), np.int64(col)
+                    stop = stops[pixel_row, pixel_col]
+                    if pz - reach > stop:  # the whole voxel lies beyond the ray's stop depth (or no ray)
                         continue
-                    stop = t_stop[ray]
-                    if pz - reach > stop:  # the whole voxel lies beyond the ray's stop depth
-                        continue
+                    ray = ray_index[pixel_row, pixel_col]
+                    kx, ky, kz = k[0], k[1], k[2]
                     # Slab intersection of the ray with the voxel box, in depth units.
                     t0, t1 = _slab(rays[ray, 0], rays[ray, 1], rays[ray, 2], kx * voxel_size - origin[0],
                                    ky * voxel_size - origin[1], kz * voxel_size - origin[2], voxel_size)
@@ -84,50 +98,82 @@ def project_voxels(key_min, shape, origin, R_cam_world, focal, cx, cy, subsample
                             continue
                     elif t0 > stop:
                         continue
-                    if m >= capacity:  # full: only count (the caller repeats with room for all)
-                        m += 1
-                        continue
+                    if m >= ray_of_cell.size:
+                        if m >= max_cells:  # over the bound: only count
+                            m += 1
+                            continue
+                        size = min(max(m + m // 2, 16), max_cells)
+                        ray_of_cell, keys, t_in_out, t_out_out = _grown(ray_of_cell, keys, t_in_out, t_out_out, m, size)
                     ray_of_cell[m] = ray
                     m = write_cell(keys, t_in_out, t_out_out, m, kx, ky, kz, t0, t1)
-    n = min(m, capacity)
+    n = min(m, ray_of_cell.size)
     return ray_of_cell[:n], keys[:n], t_in_out[:n], t_out_out[:n], m
 
 
 SPAN = 8
-"""Voxels of a key column that :func:`project_voxels` tests as one run against the tiles' stop depths."""
+"""Voxels of a line that :func:`project_voxels` tests as one run against the tiles' stop depths."""
 
 TILE = 8
 """Side (subsampled pixels) of the image tiles whose farthest stop depth bounds a run of voxels."""
 
 
 @numba.njit(cache=True, nogil=True)
-def _tile_stops(ray_index, t_stop):
-    """(rows / TILE, cols / TILE) float64: the largest stop depth of the rays of each tile, -inf for none."""
+def _grown(ray_of_cell, keys, t_in, t_out, m, size):
+    """The cell arrays with room for ``size`` cells, their first ``m`` rows kept."""
+    grown = (np.empty(size, dtype=np.int64), np.empty((size, 3), dtype=np.int32), np.empty(size), np.empty(size))
+    grown[0][:m] = ray_of_cell[:m]
+    grown[1][:m] = keys[:m]
+    grown[2][:m] = t_in[:m]
+    grown[3][:m] = t_out[:m]
+    return grown
+
+
+@numba.njit(cache=True, nogil=True)
+def _loop_axes(R_cam_world):
+    """World axes ``(outer, middle, inner)`` of :func:`project_voxels`' walk: the inner one nearest the camera's
+    x (image rows), the middle one nearest its y among the others, the outer one the last."""
+    inner = 0
+    for a in range(1, 3):
+        if abs(R_cam_world[0, a]) > abs(R_cam_world[0, inner]):
+            inner = a
+    middle, other = (inner + 1) % 3, (inner + 2) % 3
+    if abs(R_cam_world[1, other]) > abs(R_cam_world[1, middle]):
+        middle = other
+    return 3 - inner - middle, middle, inner
+
+
+@numba.njit(cache=True, nogil=True)
+def _stop_image(ray_index, t_stop):
+    """(rows, cols) float64: the stop depth of each pixel's ray, -inf where there is none."""
     rows, cols = ray_index.shape
-    out = np.full(((rows + TILE - 1) // TILE, (cols + TILE - 1) // TILE), -np.inf)
+    out = np.empty((rows, cols))
     for r in range(rows):
         for c in range(cols):
             ray = ray_index[r, c]
-            if ray >= 0:
-                out[r // TILE, c // TILE] = max(out[r // TILE, c // TILE], t_stop[ray])
+            out[r, c] = t_stop[ray] if ray >= 0 else -np.inf
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _tile_stops(stops):
+    """(rows / TILE, cols / TILE) float64: the largest stop depth of each tile of the stop image."""
+    rows, cols = stops.shape
+    out = np.full(((rows + TILE - 1) // TILE, (cols + TILE - 1) // TILE), -np.inf)
+    for r in range(rows):
+        for c in range(cols):
+            out[r // TILE, c // TILE] = max(out[r // TILE, c // TILE], stops[r, c])
     return out
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _run_beyond_stops(R_cam_world, wx, wy, wz0, wz1, scale, col_offset, row_offset, reach, tile_stop):
-    """Whether every voxel centre on the segment ``(wx, wy, wz0..wz1)`` (relative to the origin) is in front
-    of the camera and nearer than ``reach`` to none of the stop depths of the tiles it projects into.
+def _run_beyond_stops(px, py, pz, qx, qy, qz, scale, col_offset, row_offset, reach, tile_stop):
+    """Whether every voxel centre on the segment from ``p`` to ``q`` (camera frame, relative to the origin) is
+    in front of the camera and nearer than ``reach`` to none of the stop depths of the tiles it projects into.
 
     The segment projects onto the image segment between its ends' projections, so onto pixels within their
     bounding box (one pixel of margin for rounding); a voxel of the run is kept only if its depth minus
     ``reach`` is at most its ray's stop depth, at most the largest stop depth of those tiles.
     """
-    dx, dy, dz = R_cam_world[0, 2], R_cam_world[1, 2], R_cam_world[2, 2]
-    px = R_cam_world[0, 0] * wx + R_cam_world[0, 1] * wy + dx * wz0
-    py = R_cam_world[1, 0] * wx + R_cam_world[1, 1] * wy + dy * wz0
-    pz = R_cam_world[2, 0] * wx + R_cam_world[2, 1] * wy + dz * wz0
-    run = wz1 - wz0
-    qx, qy, qz = px + dx * run, py + dy * run, pz + dz * run
     if pz <= 0.0 or qz <= 0.0:
         return False
     col_p, col_q = px * scale / pz + col_offset, qx * scale / qz + col_offset
@@ -165,20 +211,16 @@ def _half_line(slope, value, lo, hi):
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _column_in_image(R_cam_world, wx, wy, kz_min, nz, oz, voxel_size, scale, col_offset, row_offset, cols, rows):
-    """Index range ``[lo, hi)`` of the voxels ``iz`` of one key column (centre ``(wx, wy, (kz_min + iz +
-    0.5) voxel_size - oz)`` relative to the origin) that may be in front of the camera and project into
-    the image, a superset of those that do.
+def _line_in_image(px, py, pz, step, n, scale, col_offset, row_offset, cols, rows):
+    """Index range ``[lo, hi)`` of the voxels ``i`` of one line of the box (centres ``p + i step``, camera
+    frame, relative to the origin) that may be in front of the camera and project into the image, a
+    superset of those that do.
 
-    Each condition is linear in ``iz`` once multiplied by the (positive) depth ``pz``: ``pz > 0``,
+    Each condition is linear in ``i`` once multiplied by the (positive) depth: ``pz > 0``,
     ``px scale + col_offset pz >= 0``, ``px scale + (col_offset - cols) pz < 0`` and the same for rows.
     """
-    wz = (kz_min + 0.5) * voxel_size - oz
-    px = R_cam_world[0, 0] * wx + R_cam_world[0, 1] * wy + R_cam_world[0, 2] * wz
-    py = R_cam_world[1, 0] * wx + R_cam_world[1, 1] * wy + R_cam_world[1, 2] * wz
-    pz = R_cam_world[2, 0] * wx + R_cam_world[2, 1] * wy + R_cam_world[2, 2] * wz
-    dx, dy, dz = R_cam_world[0, 2] * voxel_size, R_cam_world[1, 2] * voxel_size, R_cam_world[2, 2] * voxel_size
-    lo, hi = np.int64(0), np.int64(nz)
+    dx, dy, dz = step[0], step[1], step[2]
+    lo, hi = np.int64(0), np.int64(n)
     lo, hi = _half_line(dz, pz, lo, hi)
     lo, hi = _half_line(dx * scale + col_offset * dz, px * scale + col_offset * pz, lo, hi)
     lo, hi = _half_line(-(dx * scale + (col_offset - cols) * dz), -(px * scale + (col_offset - cols) * pz), lo, hi)
