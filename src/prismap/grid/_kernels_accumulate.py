@@ -11,7 +11,7 @@ Called only by the grid's wrappers. Every kernel releases the GIL.
 import numba
 import numpy as np
 
-from prismap.grid._kernels_hash import EMPTY, find_block, insert_block
+from prismap.grid._kernels_hash import find_block, insert_block
 from prismap.grid._keys import PACKED_STEPS, split_key
 from prismap.grid._logodds import LOG_ODDS_STEP, Q_MAX, Q_MIN
 from prismap.grid._policies import combine
@@ -98,16 +98,10 @@ def register_run(table, block_keys, n_blocks, acc, links, keys, start, stop, bit
 
 
 @numba.njit(cache=True, nogil=True)
-def register_keys(table, block_keys, n_blocks, acc, links, keys, start, bits, out):
-    """Accumulator rows of ``keys[start:]`` into ``out[start:]``; returns the first index not registered."""
-    return register_run(table, block_keys, n_blocks, acc, links, keys, start, keys.shape[0], bits, out[start:], EMPTY, np.int64(-1))[0]
-
-
-@numba.njit(cache=True, nogil=True)
 def scatter(acc, cell_index, increment):
     """Add each cell's increment to its accumulator row: ``(sum, count, max, min)``, float32.
 
-    ``acc`` is the accumulator payload seen as (rows, 4); ``cell_index`` from :func:`register_keys`.
+    ``acc`` is the accumulator payload seen as (rows, 4); ``cell_index`` from :func:`register_run`.
     """
     for i in range(cell_index.size):
         row = cell_index[i]

@@ -1,128 +1,203 @@
 """numba kernels of projective integration: voxels of a key box projected into the image, frustum bounds.
 
-Called only by the grid's wrappers, which check and convert first. Every kernel releases the GIL.
+Called only by the grid's wrappers, which check and convert first. The walk kernels register the voxels they
+keep in the frame accumulator as they go (``_kernels_accumulate``). Every kernel releases the GIL.
 """
 
 import numba
 import numpy as np
 
+from prismap.grid._kernels_accumulate import register_run
+from prismap.grid._kernels_hash import EMPTY
 from prismap.grid._kernels_traverse import write_cell
 
 
-@numba.njit(cache=True, nogil=True)
-def project_voxels(key_min, shape, origin, R_cam_world, focal, cx, cy, subsample, ray_index, rays, t_stop, exclusive,
-                   voxel_size, capacity, max_cells):
-    """Voxels of a key box seen by a pixel ray, with the voxel's depth interval on that ray.
+@numba.njit(cache=True, nogil=True, inline="always")
+def _line_cells(k, w, a2, key_min, n2, origin, R_cam_world, focal, subsample, scale_px, col_offset, row_offset, step,
+                ray_index, rays, exclusive, stops, tile_stop, voxel_size, line_keys, line_ray, line_t0, line_t1):
+    """The kept voxels of one line of the key box (the voxels along world axis ``a2``, the other two key axes
+    fixed in ``k`` and their centres relative to the origin in ``w``), written to the ``line_*`` scratch
+    arrays in order along the line; returns how many.
 
     Each voxel centre is projected into the (subsampled) image; the nearest grid pixel with a valid
     ray (``ray_index >= 0``) is the voxel's ray. The interval is the slab intersection of that ray with
     the voxel's box; if the ray misses the box (it passes up to half a pixel beside the centre), the
-    interval is the centre's depth +- half a voxel. The voxel is kept by the same rule as
-    :func:`cast_rays`. Returns ``ray_of_cell, keys, t_in, t_out`` as :func:`cast_rays` does and how many
-    voxels are kept. ``capacity`` is the outputs' first size; they grow by half when full, up to
-    ``max_cells``: beyond it voxels are only counted (the returned count exceeds the outputs' length).
-
-    The box is walked in lines along the world axis nearest the image's rows (:func:`_loop_axes`), so
-    that consecutive voxels read neighbouring pixels. Each line is first narrowed to the part that may
-    project into the image, then runs of :data:`SPAN` voxels that lie wholly beyond the farthest stop
-    depth of the image tiles (:data:`TILE` pixels square) they project to are skipped without visiting
-    each voxel: on a street most of the frustum's key box lies behind the first surfaces. A visited
-    voxel reads its pixel's stop depth from one image (:func:`_stop_image`) before anything of its ray.
+    interval is the centre's depth +- half a voxel. The voxel is kept by the rule of ``cast_rays``.
+    The line is first narrowed to the part that may project into the image (:func:`_line_in_image`),
+    then runs of :data:`SPAN` voxels that lie wholly beyond the farthest stop depth of the image tiles they
+    project to are skipped without visiting each voxel (:func:`_run_beyond_stops`): on a street most of
+    the frustum's key box lies behind the first surfaces. A visited voxel reads its pixel's stop depth
+    (``stops``, -inf = no ray) before anything of its ray.
     """
-    ray_of_cell = np.empty(capacity, dtype=np.int64)
-    keys = np.empty((capacity, 3), dtype=np.int32)
-    t_in_out = np.empty(capacity, dtype=np.float64)
-    t_out_out = np.empty(capacity, dtype=np.float64)
     rows, cols = ray_index.shape
     half = 0.5 * voxel_size
     reach = np.sqrt(0.75) * voxel_size  # centre to corner: no point of the voxel is nearer in depth
-    col_offset = cx / subsample + 0.5
-    row_offset = cy / subsample + 0.5
-    scale_px = focal / subsample
-    stops = _stop_image(ray_index, t_stop)
-    tile_stop = _tile_stops(stops)
+    w[a2] = (key_min[a2] + 0.5) * voxel_size - origin[a2]
+    px0 = R_cam_world[0, 0] * w[0] + R_cam_world[0, 1] * w[1] + R_cam_world[0, 2] * w[2]
+    py0 = R_cam_world[1, 0] * w[0] + R_cam_world[1, 1] * w[1] + R_cam_world[1, 2] * w[2]
+    pz0 = R_cam_world[2, 0] * w[0] + R_cam_world[2, 1] * w[1] + R_cam_world[2, 2] * w[2]
+    lo, hi = _line_in_image(px0, py0, pz0, step, n2, scale_px, col_offset, row_offset, cols, rows)
+    c = 0
+    for base in range(lo, hi, SPAN):
+        top = min(base + SPAN, hi)
+        last = top - 1
+        if _run_beyond_stops(px0 + base * step[0], py0 + base * step[1], pz0 + base * step[2], px0 + last * step[0],
+                             py0 + last * step[1], pz0 + last * step[2], scale_px, col_offset, row_offset, reach,
+                             tile_stop):
+            continue
+        for i2 in range(base, top):
+            k[a2] = key_min[a2] + i2
+            w[a2] = (k[a2] + 0.5) * voxel_size - origin[a2]
+            wx, wy, wz = w[0], w[1], w[2]
+            pz = R_cam_world[2, 0] * wx + R_cam_world[2, 1] * wy + R_cam_world[2, 2] * wz
+            if pz <= 0.0:
+                continue
+            px = R_cam_world[0, 0] * wx + R_cam_world[0, 1] * wy + R_cam_world[0, 2] * wz
+            py = R_cam_world[1, 0] * wx + R_cam_world[1, 1] * wy + R_cam_world[1, 2] * wz
+            scale = focal / (pz * subsample)
+            col = np.floor(px * scale + col_offset)
+            row = np.floor(py * scale + row_offset)
+            if col < 0 or row < 0 or col >= cols or row >= rows:
+                continue
+            pixel_row, pixel_col = np.int64(row), np.int64(col)
+            stop = stops[pixel_row, pixel_col]
+            if pz - reach > stop:  # the whole voxel lies beyond the ray's stop depth (or there is no ray)
+                continue
+            ray = ray_index[pixel_row, pixel_col]
+            # Slab intersection of the ray with the voxel box, in depth units.
+            t0, t1 = _slab(rays[ray, 0], rays[ray, 1], rays[ray, 2], k[0] * voxel_size - origin[0],
+                           k[1] * voxel_size - origin[1], k[2] * voxel_size - origin[2], voxel_size)
+            t0 = max(t0, 0.0)
+            if t1 <= t0:
+                t0 = max(pz - half, 0.0)
+                t1 = pz + half
+            if exclusive[ray]:
+                if t1 > stop:
+                    continue
+            elif t0 > stop:
+                continue
+            line_ray[c] = ray
+            write_cell(line_keys, line_t0, line_t1, c, k[0], k[1], k[2], t0, t1)
+            c += 1
+    return c
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _walk_setup(R_cam_world, shape, voxel_size):
+    """Loop axes (:func:`_loop_axes`), the camera-frame step of one voxel along the line axis, and scratch for
+    one line: keys (n2, 3) int32, ray (n2,) int64, t_in, t_out (n2,) float64, accumulator rows (n2,) int64."""
     a0, a1, a2 = _loop_axes(R_cam_world)
-    step = np.empty(3)  # camera-frame step of one voxel along the line axis a2
+    step = np.empty(3)
     for r in range(3):
         step[r] = R_cam_world[r, a2] * voxel_size
+    n2 = shape[a2]
+    return (a0, a1, a2, step, np.empty((n2, 3), dtype=np.int32), np.empty(n2, dtype=np.int64), np.empty(n2),
+            np.empty(n2), np.empty(n2, dtype=np.int64))
+
+
+@numba.njit(cache=True, nogil=True)
+def project_cells(table, block_keys, n_blocks, acc, links, bits, key_min, shape, origin, R_cam_world, focal, cx, cy,
+                  subsample, ray_index, rays, exclusive, stops, tile_stop, voxel_size, ray_of_cell, cell_index, t_in,
+                  t_out, m, start, max_cells):
+    """Voxels of a key box seen by a pixel ray (:func:`_line_cells`), registered in the frame accumulator as
+    they are found (``_kernels_accumulate.register_run``), from line ``start`` on.
+
+    The box is walked in lines along the world axis nearest the image's rows (:func:`_loop_axes`), so that
+    consecutive voxels read neighbouring pixels; lines are numbered ``i0 * n1 + i1`` (outer, middle axis).
+    Cells are appended to ``ray_of_cell, cell_index`` (accumulator rows), ``t_in, t_out`` from row ``m``
+    on; the arrays grow by half when full, up to ``max_cells``: beyond it voxels are only counted (the
+    count exceeds the arrays' length; the caller refuses the frame). Returns the arrays (possibly new),
+    the cell count and the first line not done, -1 when all are: a new block found the accumulator full
+    (grow it and call again from that line).
+    """
+    a0, a1, a2, step, line_keys, line_ray, line_t0, line_t1, line_rows = _walk_setup(R_cam_world, shape, voxel_size)
+    col_offset, row_offset, scale_px = cx / subsample + 0.5, cy / subsample + 0.5, focal / subsample
     k = np.empty(3, dtype=np.int64)
     w = np.empty(3)  # voxel centre relative to the origin, world axes
-    m = 0
-    for i0 in range(shape[a0]):
-        k[a0] = key_min[a0] + i0
-        w[a0] = (k[a0] + 0.5) * voxel_size - origin[a0]
-        for i1 in range(shape[a1]):
-            k[a1] = key_min[a1] + i1
-            w[a1] = (k[a1] + 0.5) * voxel_size - origin[a1]
-            w[a2] = (key_min[a2] + 0.5) * voxel_size - origin[a2]
-            px0 = R_cam_world[0, 0] * w[0] + R_cam_world[0, 1] * w[1] + R_cam_world[0, 2] * w[2]
-            py0 = R_cam_world[1, 0] * w[0] + R_cam_world[1, 1] * w[1] + R_cam_world[1, 2] * w[2]
-            pz0 = R_cam_world[2, 0] * w[0] + R_cam_world[2, 1] * w[1] + R_cam_world[2, 2] * w[2]
-            lo, hi = _line_in_image(px0, py0, pz0, step, shape[a2], scale_px, col_offset, row_offset, cols, rows)
-            for base in range(lo, hi, SPAN):
-                top = min(base + SPAN, hi)
-                last = top - 1
-                if _run_beyond_stops(px0 + base * step[0], py0 + base * step[1], pz0 + base * step[2],
-                                     px0 + last * step[0], py0 + last * step[1], pz0 + last * step[2], scale_px,
-                                     col_offset, row_offset, reach, tile_stop):
-                    continue
-                for i2 in range(base, top):
-                    k[a2] = key_min[a2] + i2
-                    w[a2] = (k[a2] + 0.5) * voxel_size - origin[a2]
-                    wx, wy, wz = w[0], w[1], w[2]
-                    pz = R_cam_world[2, 0] * wx + R_cam_world[2, 1] * wy + R_cam_world[2, 2] * wz
-                    if pz <= 0.0:
-                        continue
-                    px = R_cam_world[0, 0] * wx + R_cam_world[0, 1] * wy + R_cam_world[0, 2] * wz
-                    py = R_cam_world[1, 0] * wx + R_cam_world[1, 1] * wy + R_cam_world[1, 2] * wz
-                    scale = focal / (pz * subsample)
-                    col = np.floor(px * scale + col_offset)
-                    row = np.floor(py * scale + row_offset)
-                    if col < 0 or row < 0 or col >= cols or row >= rows:
-                        continue
-                    pixel_row, pixel_col = np.int64(row), np.int64(col)
-                    stop = stops[pixel_row, pixel_col]
-                    if pz - reach > stop:  # the whole voxel lies beyond the ray's stop depth (or no ray)
-                        continue
-                    ray = ray_index[pixel_row, pixel_col]
-                    kx, ky, kz = k[0], k[1], k[2]
-                    # Slab intersection of the ray with the voxel box, in depth units.
-                    t0, t1 = _slab(rays[ray, 0], rays[ray, 1], rays[ray, 2], kx * voxel_size - origin[0],
-                                   ky * voxel_size - origin[1], kz * voxel_size - origin[2], voxel_size)
-                    t0 = max(t0, 0.0)
-                    if t1 <= t0:
-                        t0 = max(pz - half, 0.0)
-                        t1 = pz + half
-                    if exclusive[ray]:
-                        if t1 > stop:
-                            continue
-                    elif t0 > stop:
-                        continue
-                    if m >= ray_of_cell.size:
-                        if m >= max_cells:  # over the bound: only count
-                            m += 1
-                            continue
-                        size = min(max(m + m // 2, 16), max_cells)
-                        ray_of_cell, keys, t_in_out, t_out_out = _grown(ray_of_cell, keys, t_in_out, t_out_out, m, size)
-                    ray_of_cell[m] = ray
-                    m = write_cell(keys, t_in_out, t_out_out, m, kx, ky, kz, t0, t1)
-    n = min(m, ray_of_cell.size)
-    return ray_of_cell[:n], keys[:n], t_in_out[:n], t_out_out[:n], m
+    n1 = shape[a1]
+    last_block, last_slot = EMPTY, np.int64(-1)
+    for line in range(start, shape[a0] * n1):
+        k[a0] = key_min[a0] + line // n1
+        k[a1] = key_min[a1] + line % n1
+        for a in (a0, a1):
+            w[a] = (k[a] + 0.5) * voxel_size - origin[a]
+        c = _line_cells(k, w, a2, key_min, shape[a2], origin, R_cam_world, focal, subsample, scale_px, col_offset,
+                        row_offset, step, ray_index, rays, exclusive, stops, tile_stop, voxel_size, line_keys,
+                        line_ray, line_t0, line_t1)
+        if c == 0:
+            continue
+        if m + c > ray_of_cell.size:
+            if m + c > max_cells:  # over the bound: only count
+                m += c
+                continue
+            size = min(max(m + m // 2, m + c, 16), max_cells)
+            ray_of_cell, cell_index, t_in, t_out = _grown(ray_of_cell, cell_index, t_in, t_out, m, size)
+        done, last_block, last_slot = register_run(table, block_keys, n_blocks, acc, links, line_keys, 0, c, bits,
+                                                   cell_index[m:], last_block, last_slot)
+        if done < c:
+            return ray_of_cell, cell_index, t_in, t_out, m, line
+        ray_of_cell[m : m + c] = line_ray[:c]
+        t_in[m : m + c] = line_t0[:c]
+        t_out[m : m + c] = line_t1[:c]
+        m += c
+    return ray_of_cell, cell_index, t_in, t_out, m, -1
+
+
+@numba.njit(cache=True, nogil=True)
+def project_hit_miss(table, block_keys, n_blocks, acc, links, bits, key_min, shape, origin, R_cam_world, focal, cx, cy,
+                     subsample, ray_index, rays, exclusive, stops, tile_stop, voxel_size, z_hit, l_hit, l_miss, start):
+    """:func:`project_cells` for a hit/miss model: each kept voxel of interval ``[t_in, t_out)`` on ray ``i``
+    gets ``l_hit`` if it holds ``z_hit[i]``, ``l_miss`` if it ends at or before it, 0 beyond (the rule of
+    ``sensor_models._kernels.hitmiss_cells``), added to its accumulator row as ``_kernels_accumulate.scatter``
+    adds; no cell arrays. Returns the first line not done, -1 when all are (as :func:`project_cells`)."""
+    a0, a1, a2, step, line_keys, line_ray, line_t0, line_t1, line_rows = _walk_setup(R_cam_world, shape, voxel_size)
+    col_offset, row_offset, scale_px = cx / subsample + 0.5, cy / subsample + 0.5, focal / subsample
+    k = np.empty(3, dtype=np.int64)
+    w = np.empty(3)
+    n1 = shape[a1]
+    hit, miss, zero = np.float32(l_hit), np.float32(l_miss), np.float32(0.0)
+    flat = acc.reshape((acc.shape[0] * acc.shape[1], acc.shape[2]))
+    last_block, last_slot = EMPTY, np.int64(-1)
+    for line in range(start, shape[a0] * n1):
+        k[a0] = key_min[a0] + line // n1
+        k[a1] = key_min[a1] + line % n1
+        for a in (a0, a1):
+            w[a] = (k[a] + 0.5) * voxel_size - origin[a]
+        c = _line_cells(k, w, a2, key_min, shape[a2], origin, R_cam_world, focal, subsample, scale_px, col_offset,
+                        row_offset, step, ray_index, rays, exclusive, stops, tile_stop, voxel_size, line_keys,
+                        line_ray, line_t0, line_t1)
+        if c == 0:
+            continue
+        done, last_block, last_slot = register_run(table, block_keys, n_blocks, acc, links, line_keys, 0, c, bits,
+                                                   line_rows, last_block, last_slot)
+        if done < c:
+            return line
+        for j in range(c):
+            z = z_hit[line_ray[j]]
+            x = miss if line_t1[j] <= z else (hit if line_t0[j] <= z else zero)
+            row = line_rows[j]
+            flat[row, 0] += x
+            flat[row, 1] += 1.0
+            if x > flat[row, 2]:  # noqa: PLR1730 (as in _kernels_accumulate.scatter)
+                flat[row, 2] = x
+            if x < flat[row, 3]:  # noqa: PLR1730
+                flat[row, 3] = x
+    return -1
 
 
 SPAN = 8
-"""Voxels of a line that :func:`project_voxels` tests as one run against the tiles' stop depths."""
+"""Voxels of a line that :func:`_line_cells` tests as one run against the tiles' stop depths."""
 
 TILE = 8
 """Side (subsampled pixels) of the image tiles whose farthest stop depth bounds a run of voxels."""
 
 
 @numba.njit(cache=True, nogil=True)
-def _grown(ray_of_cell, keys, t_in, t_out, m, size):
+def _grown(ray_of_cell, cell_index, t_in, t_out, m, size):
     """The cell arrays with room for ``size`` cells, their first ``m`` rows kept."""
-    grown = (np.empty(size, dtype=np.int64), np.empty((size, 3), dtype=np.int32), np.empty(size), np.empty(size))
+    grown = (np.empty(size, dtype=np.int64), np.empty(size, dtype=np.int64), np.empty(size), np.empty(size))
     grown[0][:m] = ray_of_cell[:m]
-    grown[1][:m] = keys[:m]
+    grown[1][:m] = cell_index[:m]
     grown[2][:m] = t_in[:m]
     grown[3][:m] = t_out[:m]
     return grown
@@ -130,7 +205,7 @@ def _grown(ray_of_cell, keys, t_in, t_out, m, size):
 
 @numba.njit(cache=True, nogil=True)
 def _loop_axes(R_cam_world):
-    """World axes ``(outer, middle, inner)`` of :func:`project_voxels`' walk: the inner one nearest the camera's
+    """World axes ``(outer, middle, inner)`` of the walk of :func:`project_cells`: the inner one nearest the camera's
     x (image rows), the middle one nearest its y among the others, the outer one the last."""
     inner = 0
     for a in range(1, 3):
@@ -143,7 +218,7 @@ def _loop_axes(R_cam_world):
 
 
 @numba.njit(cache=True, nogil=True)
-def _stop_image(ray_index, t_stop):
+def stop_image(ray_index, t_stop):
     """(rows, cols) float64: the stop depth of each pixel's ray, -inf where there is none."""
     rows, cols = ray_index.shape
     out = np.empty((rows, cols))
@@ -155,7 +230,7 @@ def _stop_image(ray_index, t_stop):
 
 
 @numba.njit(cache=True, nogil=True)
-def _tile_stops(stops):
+def tile_stops(stops):
     """(rows / TILE, cols / TILE) float64: the largest stop depth of each tile of the stop image."""
     rows, cols = stops.shape
     out = np.full(((rows + TILE - 1) // TILE, (cols + TILE - 1) // TILE), -np.inf)
