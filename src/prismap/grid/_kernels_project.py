@@ -7,17 +7,16 @@ keep in the frame accumulator as they go (``_kernels_accumulate``). Every kernel
 import numba
 import numpy as np
 
-from prismap.grid._kernels_accumulate import register_run
+from prismap.grid._kernels_accumulate import add_increment, register_run
 from prismap.grid._kernels_hash import EMPTY
 from prismap.grid._kernels_traverse import write_cell
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _line_cells(k, w, a2, key_min, n2, origin, R_cam_world, focal, subsample, scale_px, col_offset, row_offset, step,
-                ray_index, rays, exclusive, stops, tile_stop, voxel_size, line_keys, line_ray, line_t0, line_t1):
-    """The kept voxels of one line of the key box (the voxels along world axis ``a2``, the other two key axes
-    fixed in ``k`` and their centres relative to the origin in ``w``), written to the ``line_*`` scratch
-    arrays in order along the line; returns how many.
+def _line_cells(line, walk, key_min, shape, origin, R_cam_world, focal, subsample, ray_index, rays, exclusive, stops,
+                tile_stop, voxel_size):
+    """The kept voxels of line ``line`` of the key box (``i0 * n1 + i1``: the voxels along the walk's line
+    axis, :func:`_walk_setup`), written to the walk's line scratch in order along the line; returns how many.
 
     Each voxel centre is projected into the (subsampled) image; the nearest grid pixel with a valid
     ray (``ray_index >= 0``) is the voxel's ray. The interval is the slab intersection of that ray with
@@ -29,6 +28,12 @@ def _line_cells(k, w, a2, key_min, n2, origin, R_cam_world, focal, subsample, sc
     the frustum's key box lies behind the first surfaces. A visited voxel reads its pixel's stop depth
     (``stops``, -inf = no ray) before anything of its ray.
     """
+    a0, a1, a2, step, k, w, col_offset, row_offset, scale_px, line_keys, line_ray, line_t0, line_t1, _ = walk
+    n1 = shape[a1]
+    k[a0] = key_min[a0] + line // n1
+    k[a1] = key_min[a1] + line % n1
+    for a in (a0, a1):
+        w[a] = (k[a] + 0.5) * voxel_size - origin[a]
     rows, cols = ray_index.shape
     half = 0.5 * voxel_size
     reach = np.sqrt(0.75) * voxel_size  # centre to corner: no point of the voxel is nearer in depth
@@ -36,7 +41,7 @@ def _line_cells(k, w, a2, key_min, n2, origin, R_cam_world, focal, subsample, sc
     px0 = R_cam_world[0, 0] * w[0] + R_cam_world[0, 1] * w[1] + R_cam_world[0, 2] * w[2]
     py0 = R_cam_world[1, 0] * w[0] + R_cam_world[1, 1] * w[1] + R_cam_world[1, 2] * w[2]
     pz0 = R_cam_world[2, 0] * w[0] + R_cam_world[2, 1] * w[1] + R_cam_world[2, 2] * w[2]
-    lo, hi = _line_in_image(px0, py0, pz0, step, n2, scale_px, col_offset, row_offset, cols, rows)
+    lo, hi = _line_in_image(px0, py0, pz0, step, shape[a2], scale_px, col_offset, row_offset, cols, rows)
     c = 0
     for base in range(lo, hi, SPAN):
         top = min(base + SPAN, hi)
@@ -77,22 +82,25 @@ def _line_cells(k, w, a2, key_min, n2, origin, R_cam_world, focal, subsample, sc
             elif t0 > stop:
                 continue
             line_ray[c] = ray
-            write_cell(line_keys, line_t0, line_t1, c, k[0], k[1], k[2], t0, t1)
-            c += 1
+            c = write_cell(line_keys, line_t0, line_t1, c, k[0], k[1], k[2], t0, t1)
     return c
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _walk_setup(R_cam_world, shape, voxel_size):
-    """Loop axes (:func:`_loop_axes`), the camera-frame step of one voxel along the line axis, and scratch for
-    one line: keys (n2, 3) int32, ray (n2,) int64, t_in, t_out (n2,) float64, accumulator rows (n2,) int64."""
+def _walk_setup(R_cam_world, shape, focal, cx, cy, subsample, voxel_size):
+    """State of a walk over the key box: its loop axes (:func:`_loop_axes`), the camera-frame step of one voxel
+    along the line axis, the key and centre (relative to the origin) of the current voxel, the image offsets
+    and scale, and scratch for one line: keys (n2, 3) int32, ray (n2,) int64, t_in, t_out (n2,) float64,
+    accumulator rows (n2,) int64. Returns it and the number of lines."""
     a0, a1, a2 = _loop_axes(R_cam_world)
     step = np.empty(3)
     for r in range(3):
         step[r] = R_cam_world[r, a2] * voxel_size
     n2 = shape[a2]
-    return (a0, a1, a2, step, np.empty((n2, 3), dtype=np.int32), np.empty(n2, dtype=np.int64), np.empty(n2),
+    walk = (a0, a1, a2, step, np.empty(3, dtype=np.int64), np.empty(3), cx / subsample + 0.5, cy / subsample + 0.5,
+            focal / subsample, np.empty((n2, 3), dtype=np.int32), np.empty(n2, dtype=np.int64), np.empty(n2),
             np.empty(n2), np.empty(n2, dtype=np.int64))
+    return walk, shape[a0] * shape[a1]
 
 
 @numba.njit(cache=True, nogil=True)
@@ -110,20 +118,12 @@ def project_cells(table, block_keys, n_blocks, acc, links, bits, key_min, shape,
     the cell count and the first line not done, -1 when all are: a new block found the accumulator full
     (grow it and call again from that line).
     """
-    a0, a1, a2, step, line_keys, line_ray, line_t0, line_t1, line_rows = _walk_setup(R_cam_world, shape, voxel_size)
-    col_offset, row_offset, scale_px = cx / subsample + 0.5, cy / subsample + 0.5, focal / subsample
-    k = np.empty(3, dtype=np.int64)
-    w = np.empty(3)  # voxel centre relative to the origin, world axes
-    n1 = shape[a1]
+    walk, n_lines = _walk_setup(R_cam_world, shape, focal, cx, cy, subsample, voxel_size)
+    line_keys, line_ray, line_t0, line_t1 = walk[9], walk[10], walk[11], walk[12]
     last_block, last_slot = EMPTY, np.int64(-1)
-    for line in range(start, shape[a0] * n1):
-        k[a0] = key_min[a0] + line // n1
-        k[a1] = key_min[a1] + line % n1
-        for a in (a0, a1):
-            w[a] = (k[a] + 0.5) * voxel_size - origin[a]
-        c = _line_cells(k, w, a2, key_min, shape[a2], origin, R_cam_world, focal, subsample, scale_px, col_offset,
-                        row_offset, step, ray_index, rays, exclusive, stops, tile_stop, voxel_size, line_keys,
-                        line_ray, line_t0, line_t1)
+    for line in range(start, n_lines):
+        c = _line_cells(line, walk, key_min, shape, origin, R_cam_world, focal, subsample, ray_index, rays, exclusive,
+                        stops, tile_stop, voxel_size)
         if c == 0:
             continue
         if m + c > ray_of_cell.size:
@@ -150,22 +150,14 @@ def project_hit_miss(table, block_keys, n_blocks, acc, links, bits, key_min, sha
     gets ``l_hit`` if it holds ``z_hit[i]``, ``l_miss`` if it ends at or before it, 0 beyond (the rule of
     ``sensor_models._kernels.hitmiss_cells``), added to its accumulator row as ``_kernels_accumulate.scatter``
     adds; no cell arrays. Returns the first line not done, -1 when all are (as :func:`project_cells`)."""
-    a0, a1, a2, step, line_keys, line_ray, line_t0, line_t1, line_rows = _walk_setup(R_cam_world, shape, voxel_size)
-    col_offset, row_offset, scale_px = cx / subsample + 0.5, cy / subsample + 0.5, focal / subsample
-    k = np.empty(3, dtype=np.int64)
-    w = np.empty(3)
-    n1 = shape[a1]
+    walk, n_lines = _walk_setup(R_cam_world, shape, focal, cx, cy, subsample, voxel_size)
+    line_keys, line_ray, line_t0, line_t1, line_rows = walk[9], walk[10], walk[11], walk[12], walk[13]
     hit, miss, zero = np.float32(l_hit), np.float32(l_miss), np.float32(0.0)
-    flat = acc.reshape((acc.shape[0] * acc.shape[1], acc.shape[2]))
+    rows = acc.reshape((acc.shape[0] * acc.shape[1], acc.shape[2]))
     last_block, last_slot = EMPTY, np.int64(-1)
-    for line in range(start, shape[a0] * n1):
-        k[a0] = key_min[a0] + line // n1
-        k[a1] = key_min[a1] + line % n1
-        for a in (a0, a1):
-            w[a] = (k[a] + 0.5) * voxel_size - origin[a]
-        c = _line_cells(k, w, a2, key_min, shape[a2], origin, R_cam_world, focal, subsample, scale_px, col_offset,
-                        row_offset, step, ray_index, rays, exclusive, stops, tile_stop, voxel_size, line_keys,
-                        line_ray, line_t0, line_t1)
+    for line in range(start, n_lines):
+        c = _line_cells(line, walk, key_min, shape, origin, R_cam_world, focal, subsample, ray_index, rays, exclusive,
+                        stops, tile_stop, voxel_size)
         if c == 0:
             continue
         done, last_block, last_slot = register_run(table, block_keys, n_blocks, acc, links, line_keys, 0, c, bits,
@@ -174,14 +166,7 @@ def project_hit_miss(table, block_keys, n_blocks, acc, links, bits, key_min, sha
             return line
         for j in range(c):
             z = z_hit[line_ray[j]]
-            x = miss if line_t1[j] <= z else (hit if line_t0[j] <= z else zero)
-            row = line_rows[j]
-            flat[row, 0] += x
-            flat[row, 1] += 1.0
-            if x > flat[row, 2]:  # noqa: PLR1730 (as in _kernels_accumulate.scatter)
-                flat[row, 2] = x
-            if x < flat[row, 3]:  # noqa: PLR1730
-                flat[row, 3] = x
+            add_increment(rows, line_rows[j], miss if line_t1[j] <= z else (hit if line_t0[j] <= z else zero))
     return -1
 
 
