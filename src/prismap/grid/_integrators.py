@@ -320,7 +320,11 @@ def _cast_hit_miss(accumulator, origin, rays, t_stop, exclusive, model, voxel_si
 class ProjectiveIntegrator(Integrator):
     """Projective integration: visit the voxels of the frustum (up to where the measurements stop
     influencing), give each the ray of the pixel its centre projects to, one update each. Needs the
-    batch's :class:`ImageProjection`."""
+    batch's :class:`ImageProjection`.
+
+    The key box is walked in lines along the image rows, registering each kept voxel in the accumulator as
+    it is found (``_kernels_project.project_cells``); the cells then go, grouped by ray, through the model
+    and are scattered. Hit/miss models are added while walking (``project_hit_miss``: no cell arrays)."""
 
     name = "projective"
 
