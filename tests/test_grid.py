@@ -290,22 +290,63 @@ def test_rotate_rays_equals_the_matrix_product():
     np.testing.assert_allclose(rotate_rays(rays, rotation), rays @ rotation.T, rtol=1e-14, atol=1e-15)
 
 
-def test_project_voxels_with_too_little_room_returns_a_prefix_and_the_full_count():
-    from prismap.grid._kernels_project import frustum_box, project_voxels
+def _project(key_min, shape, origin, R_cam_world, focal, cx, cy, ray_index, rays, t_stop, exclusive, voxel_size, *,
+             capacity=64, bits=(2, 2, 2), acc=None):
+    """The projective integrator's kept voxels through its wrapper (subsample 1), by default from an empty
+    accumulator that is grown (and the walk resumed) many times: ``(ray, key, t_in, t_out)`` with keys read
+    back through the accumulator's blocks."""
+    from prismap.grid import _accumulator, _kernels_project
+    from prismap.grid._integrators import ProjectiveIntegrator
 
+    acc = _accumulator.new_accumulator(bits) if acc is None else acc
+    stops = _kernels_project.stop_image(ray_index, t_stop)
+    geometry = (key_min, shape, origin, R_cam_world, focal, cx, cy, 1.0, ray_index, rays, exclusive, stops,
+                _kernels_project.tile_stops(stops), voxel_size)
+    ray, rows, t_in, t_out = ProjectiveIntegrator(voxel_size_m=voxel_size)._project_cells(acc, geometry, capacity)
+    return ray, acc.voxel_keys().reshape(-1, 3)[rows], t_in, t_out
+
+
+def _small_view():
     rng = np.random.default_rng(14)
     ray_index = np.arange(48, dtype=np.int32).reshape(6, 8)
     rays = np.column_stack([(np.arange(48) % 8 - 3.5) / 8, (np.arange(48) // 8 - 2.5) / 8, np.ones(48)])
     t_stop = rng.uniform(0.3, 2.0, 48)
     exclusive = rng.random(48) < 0.5
     origin = np.array([0.01, -0.02, 0.03])
+    from prismap.grid._kernels_project import frustum_box
+
     key_min, shape, _ = frustum_box(origin, rays, t_stop, 0.1)
-    args = (key_min, shape, origin, np.eye(3), 8.0, 3.5, 2.5, 1.0, ray_index, rays, t_stop, exclusive, 0.1)
-    *full, n = project_voxels(*args, int(np.prod(shape)))
-    *part, n_part = project_voxels(*args, 7)
-    assert n == n_part == full[0].size > 7
-    for a, b in zip(full, part):
-        np.testing.assert_array_equal(a[:7], b)
+    return (key_min, shape, origin, np.eye(3), 8.0, 3.5, 2.5, ray_index, rays, t_stop, exclusive, 0.1)
+
+
+def test_projected_cells_do_not_depend_on_the_room_they_start_with():
+    # Cell arrays that start with room for 7 cells grow to hold all; same cells in the same order as with room
+    # for the whole box, and as with 8^3 blocks (other block changes, other resumes).
+    view = _small_view()
+    full = _project(*view, capacity=int(np.prod(view[1])))
+    for got in (_project(*view, capacity=7), _project(*view, capacity=7, bits=(3, 3, 3))):
+        assert got[0].size == full[0].size > 7
+        for a, b in zip(full, got):
+            np.testing.assert_array_equal(a, b)
+
+
+def test_a_frame_projecting_onto_more_cells_than_the_memory_bound_is_refused(monkeypatch):
+    from prismap.grid import _accumulator
+
+    acc = _accumulator.new_accumulator((2, 2, 2))
+    acc.reserve(1000)  # room for every block: only the cells' bound applies
+    monkeypatch.setattr(_accumulator, "frame_budget_bytes", lambda: 32 * 20)  # room for 20 cells
+    with pytest.raises(PrismapInputError, match=r"the frame projects onto \d+ voxels, more than 20 \(docs/errors.md\)"):
+        _project(*_small_view(), capacity=7, acc=acc)
+
+
+def test_the_walk_runs_along_the_world_axis_nearest_the_image_rows():
+    from prismap.grid._kernels_project import _loop_axes
+
+    assert _loop_axes(np.eye(3)) == (2, 1, 0)  # looking along world z: lines along x, then y
+    street = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])  # looking along x, z up
+    assert _loop_axes(street) == (0, 2, 1)
+    assert _loop_axes(street[[1, 0, 2]]) == (0, 1, 2)  # rolled a quarter turn: image rows along world z
 
 
 def _project_voxels_reference(key_min, shape, origin, R_cam_world, focal, cx, cy, ray_index, rays, t_stop, exclusive,
@@ -336,12 +377,14 @@ def _project_voxels_reference(key_min, shape, origin, R_cam_world, focal, cx, cy
     return ray[keep], grid[keep], t0[keep], t1[keep]
 
 
+@pytest.mark.parametrize("pose", ["random", "street"])
 @pytest.mark.parametrize("wall", [False, True])
-def test_project_voxels_equals_visiting_every_voxel_of_the_box(wall):
-    # The kernel skips the parts of each key column that cannot project into the image, and runs of voxels
-    # beyond every stop depth of the image tiles they project to; the result must be that of testing every
-    # voxel (rotated camera, invalid pixels, rays cut at random depths; with a wall: a near quarter of them).
-    from prismap.grid._kernels_project import TILE, frustum_box, project_voxels
+def test_projected_cells_equal_visiting_every_voxel_of_the_box(wall, pose):
+    # The walk skips the parts of each line that cannot project into the image, and runs of voxels beyond
+    # every stop depth of the image tiles they project to; the result must be that of testing every voxel
+    # (a rotated camera, or one looking along world x with z up and a slight pitch and roll, invalid pixels,
+    # rays cut at random depths; with a wall: a near third of them).
+    from prismap.grid._kernels_project import TILE, frustum_box
 
     rng = np.random.default_rng(15)
     rows, cols, focal, cx, cy = 2 * TILE, 3 * TILE, 14.0, 1.5 * TILE, TILE - 0.5
@@ -350,7 +393,11 @@ def test_project_voxels_equals_visiting_every_voxel_of_the_box(wall):
     ray_index = np.full(rows * cols, -1, dtype=np.int32)
     ray_index[valid] = np.arange(valid.sum())
     ray_index = ray_index.reshape(rows, cols)
-    R_world_cam = np.linalg.qr(rng.normal(size=(3, 3)))[0]
+    if pose == "random":
+        R_world_cam = np.linalg.qr(rng.normal(size=(3, 3)))[0]
+    else:  # camera x, y, z = world -y, -z, x, pitched and rolled by a few degrees
+        tilt = np.linalg.qr(np.eye(3) + rng.normal(scale=0.05, size=(3, 3)))[0]
+        R_world_cam = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]]) @ (tilt * np.sign(np.diag(tilt)))
     rays_cam = np.column_stack([(pixel[valid, 0] - cx) / focal, (pixel[valid, 1] - cy) / focal, np.ones(valid.sum())])
     rays = rays_cam @ R_world_cam.T
     t_stop = rng.uniform(0.2, 1.5, valid.sum())
@@ -360,11 +407,9 @@ def test_project_voxels_equals_visiting_every_voxel_of_the_box(wall):
     origin = np.array([0.013, -0.027, 0.031])
     key_min, shape, _ = frustum_box(origin, rays, t_stop, 0.1)
     R_cam_world = np.ascontiguousarray(R_world_cam.T)
-    *got, n = project_voxels(key_min, shape, origin, R_cam_world, focal, cx, cy, 1.0, ray_index, rays, t_stop,
-                             exclusive, 0.1, int(np.prod(shape)))
-    want = _project_voxels_reference(key_min, shape, origin, R_cam_world, focal, cx, cy, ray_index, rays, t_stop,
-                                     exclusive, 0.1)
-    assert n == want[0].size > 100
+    args = (key_min, shape, origin, R_cam_world, focal, cx, cy, ray_index, rays, t_stop, exclusive, 0.1)
+    got, want = _project(*args), _project_voxels_reference(*args)
+    assert want[0].size > 100
 
     def ordered(ray, keys, t0, t1):
         order = np.lexsort(keys.T[::-1])
@@ -383,8 +428,8 @@ def test_a_run_of_voxels_is_skipped_only_beyond_the_stops_of_every_tile_it_proje
     tile_stop = np.array([[1.0, 5.0]])  # one row of two tiles; camera at the origin looking along z
     reach = 0.05
 
-    def beyond(x, z0, z1):  # a run along the camera's z axis at lateral offset x (one world column along z)
-        return _run_beyond_stops(np.eye(3), x, 0.0, z0, z1, float(TILE), 0.5 * TILE, 0.5 * TILE, reach, tile_stop)
+    def beyond(x, z0, z1):  # a run along the camera's z axis at lateral offset x
+        return _run_beyond_stops(x, 0.0, z0, x, 0.0, z1, float(TILE), 0.5 * TILE, 0.5 * TILE, reach, tile_stop)
 
     assert beyond(-0.1, 2.0, 3.0)  # projects into the left tile only, behind its 1 m
     assert not beyond(-0.1, 0.5, 1.0)  # in front of it

@@ -32,6 +32,30 @@ def test_projective_and_ray_modes_agree_on_a_frame():
     assert np.mean(proj[occ] == OCCUPIED) >= 0.75
 
 
+@pytest.mark.parametrize("policy", ["occupied-wins", "mean"])
+def test_projective_hit_miss_added_while_projecting_gives_the_map_of_the_cell_path(policy):
+    """A model with hit_miss_increments is added while projecting; hiding them takes the cell path (cells ->
+    sort by ray -> cell_posteriors -> scatter): the same voxels, counts and log-odds, with rays cut at max
+    range, pose-noise groups, subsampled pixels and fresh accumulators grown from empty."""
+    from prismap.sensor_models import HitMissModel as LibraryHitMiss
+
+    class CellPath(LibraryHitMiss):
+        def hit_miss_increments(self):
+            return None
+
+    camera, pose, disparity = small_frame()
+    maps = []
+    for cls in (LibraryHitMiss, CellPath):
+        model = cls(focal_baseline=camera.focal_baseline, voxel_size_m=0.1, p0=0.3)
+        grid = OccupancyMap(0.1, p0=0.3)
+        for subsample, cov in ((1, None), (2, np.eye(3) * 0.05**2)):
+            grid.integrate_disparity(disparity, camera, pose, model, mode="projective", policy=policy, max_range_m=6.0,
+                                     subsample=subsample, pose_covariance=cov)
+        maps.append(grid)
+    assert maps[0].n_known > 20_000
+    assert_same_map(*maps)
+
+
 def test_merge_of_any_split_equals_sequential_integration():
     camera, pose, disparity = small_frame()
     model = HitMissModel(camera.focal_baseline)

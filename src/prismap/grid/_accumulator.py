@@ -63,19 +63,6 @@ def grow(accumulator, blocks):
     accumulator.reserve(min(max(64, held, int(blocks)), max_blocks - held), max_blocks=max_blocks)
 
 
-def register_cells(accumulator, keys):
-    """(C,) int64 accumulator row of each voxel key, adding blocks and growing the accumulator as needed."""
-    rows = np.empty(keys.shape[0], dtype=np.int64)
-    start = 0
-    while True:
-        table = accumulator
-        start = _kernels_accumulate.register_keys(table.table, table.block_keys, table.n_blocks, table.payload["acc"],
-                                                  table.payload["links"], keys, start, table.bits, rows)
-        if start == keys.shape[0]:
-            return rows
-        grow(accumulator, 0)
-
-
 def cast_into(accumulator, origin, rays, t_stop, exclusive, voxel_size, *, grow_room=True):
     """Cast rays, registering the voxels they cross in the accumulator.
 

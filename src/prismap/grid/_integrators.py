@@ -320,7 +320,11 @@ def _cast_hit_miss(accumulator, origin, rays, t_stop, exclusive, model, voxel_si
 class ProjectiveIntegrator(Integrator):
     """Projective integration: visit the voxels of the frustum (up to where the measurements stop
     influencing), give each the ray of the pixel its centre projects to, one update each. Needs the
-    batch's :class:`ImageProjection`."""
+    batch's :class:`ImageProjection`.
+
+    The key box is walked in lines along the image rows, registering each kept voxel in the accumulator as
+    it is found (``_kernels_project.project_cells``); the cells then go, grouped by ray, through the model
+    and are scattered. Hit/miss models are added while walking (``project_hit_miss``: no cell arrays)."""
 
     name = "projective"
 
@@ -342,24 +346,17 @@ class ProjectiveIntegrator(Integrator):
             return
         box = float(np.prod(shape.astype(np.float64)))
         self._check_work(box, f"the frustum's key box of {shape[0]} x {shape[1]} x {shape[2]} voxels")
-        capacity = min(int(box), max(1 << 16, 2 * n))  # about one kept voxel per ray: rarely repeated
-        while True:
-            *cells, n_kept = _kernels_project.project_voxels(
-                key_min, shape, origin, image.R_cam_world, image.focal_px, image.cx_px, image.cy_px,
-                float(image.subsample), image.ray_index, rays, t_stop, exclusive, voxel, capacity,
-            )
-            if n_kept <= capacity:
-                break
-            if n_kept * 40 > _accumulator.frame_budget_bytes():  # 40 bytes per kept cell
-                raise PrismapInputError(
-                    f"the frame projects onto {n_kept} voxels, more than {_accumulator.frame_budget_bytes() // 40} (docs/errors.md) "
-                    f"at `voxel_size_m`={voxel:g}: lower `max_range_m` (now {self.max_range_m:g} m) or raise the voxel size"
-                )
-            capacity = n_kept
-        ray_of_cell, keys, t_in, t_out = cells
+        stops = _kernels_project.stop_image(image.ray_index, t_stop)
+        geometry = (key_min, shape, origin, image.R_cam_world, image.focal_px, image.cx_px, image.cy_px,
+                    float(image.subsample), image.ray_index, rays, exclusive, stops, _kernels_project.tile_stops(stops),
+                    voxel)
+        if all(model.hit_miss_increments() is not None for model, _ in groups):
+            _project_hit_miss(accumulator, geometry, t_stop, exclusive, groups[0][0])
+            return
+        capacity = 1.05 * _frustum_voxels(t_stop, image.focal_px, image.subsample, voxel) + 4096
+        ray_of_cell, rows, t_in, t_out = self._project_cells(accumulator, geometry, int(min(box, capacity)))
         # Cells grouped by ray (models keep per-ray state from cell to cell); one model call per group and
         # frame, on the rays some voxel uses (models cost per ray too).
-        rows = _accumulator.register_cells(accumulator, keys)  # in box order: runs of voxels in one block
         rows, t_in, t_out, used, local = _kernels_project.sort_by_ray(ray_of_cell, n, rows, t_in, t_out)
         if len(groups) == 1:  # no pose noise: the loop below with every used ray in the group, minus its copies
             inc = self.cell_increments(groups[0][0], batch, used, local, t_in, t_out)
@@ -374,6 +371,54 @@ class ProjectiveIntegrator(Integrator):
                 rank = np.cumsum(in_group) - 1  # index of each used ray among the group's used rays
                 inc = self.cell_increments(model, batch, used[in_group], rank[local[mine]], t_in[mine], t_out[mine])
                 _accumulator.scatter(accumulator, rows[mine], inc)
+
+    def _project_cells(self, accumulator, geometry, capacity):
+        """The frame's kept voxels, registered in the accumulator: ``ray_of_cell, rows, t_in, t_out`` in the
+        walk's order (``geometry``: the arguments of ``_kernels_project.project_cells`` after the accumulator's);
+        the cell arrays start with room for ``capacity`` cells."""
+        max_cells = _accumulator.frame_budget_bytes() // 32  # 32 bytes per kept cell
+        capacity = min(capacity, max_cells)
+        cells = (np.empty(capacity, dtype=np.int64), np.empty(capacity, dtype=np.int64), np.empty(capacity),
+                 np.empty(capacity))
+        m, line = 0, 0
+        while True:
+            table = accumulator
+            *cells, m, line = _kernels_project.project_cells(table.table, table.block_keys, table.n_blocks,
+                                                             table.payload["acc"], table.payload["links"], table.bits,
+                                                             *geometry, *cells, m, line, max_cells)
+            if m > max_cells:
+                raise PrismapInputError(
+                    f"the frame projects onto {m} voxels, more than {max_cells} (docs/errors.md) "
+                    f"at `voxel_size_m`={self.voxel_size_m:g}: lower `max_range_m` (now {self.max_range_m:g} m) or raise "
+                    "the voxel size"
+                )
+            if line < 0:
+                return [column[:m] for column in cells]
+            _accumulator.grow(accumulator, 0)
+
+
+def _project_hit_miss(accumulator, geometry, t_stop, exclusive, model):
+    """Projective mode for a model with ``hit_miss_increments``: added while projecting, no cell arrays (rays
+    cut at max range end in misses, as in ray mode)."""
+    l_hit, l_miss = model.hit_miss_increments()
+    z_hit = np.where(exclusive, np.inf, t_stop)
+    line = 0
+    while True:
+        table = accumulator
+        line = _kernels_project.project_hit_miss(table.table, table.block_keys, table.n_blocks, table.payload["acc"],
+                                                 table.payload["links"], table.bits, *geometry, z_hit, l_hit, l_miss,
+                                                 line)
+        if line < 0:
+            return
+        _accumulator.grow(accumulator, 0)
+
+
+def _frustum_voxels(t_stop, focal_px, subsample, voxel_size):
+    """About how many voxel centres lie in the frustum of the pixel rays up to their stop depths plus a voxel:
+    a pixel of side ``subsample / focal_px`` at unit depth sweeps ``(t + voxel)^3 subsample^2 / (3 focal_px^2)``
+    cubic metres up to depth ``t + voxel`` (the rays' cells reach up to a voxel beyond the stop)."""
+    t = t_stop[t_stop > 0]
+    return float(np.sum((t + voxel_size) ** 3)) * subsample**2 / (3.0 * focal_px**2 * voxel_size**3)
 
 
 _INTEGRATORS = {cls.name: cls for cls in (RayIntegrator, ProjectiveIntegrator)}

@@ -11,7 +11,7 @@ Called only by the grid's wrappers. Every kernel releases the GIL.
 import numba
 import numpy as np
 
-from prismap.grid._kernels_hash import EMPTY, find_block, insert_block
+from prismap.grid._kernels_hash import find_block, insert_block
 from prismap.grid._keys import PACKED_STEPS, split_key
 from prismap.grid._logodds import LOG_ODDS_STEP, Q_MAX, Q_MIN
 from prismap.grid._policies import combine
@@ -98,26 +98,24 @@ def register_run(table, block_keys, n_blocks, acc, links, keys, start, stop, bit
 
 
 @numba.njit(cache=True, nogil=True)
-def register_keys(table, block_keys, n_blocks, acc, links, keys, start, bits, out):
-    """Accumulator rows of ``keys[start:]`` into ``out[start:]``; returns the first index not registered."""
-    return register_run(table, block_keys, n_blocks, acc, links, keys, start, keys.shape[0], bits, out[start:], EMPTY, np.int64(-1))[0]
-
-
-@numba.njit(cache=True, nogil=True)
 def scatter(acc, cell_index, increment):
-    """Add each cell's increment to its accumulator row: ``(sum, count, max, min)``, float32.
+    """Add each cell's increment to its accumulator row (:func:`add_increment`).
 
-    ``acc`` is the accumulator payload seen as (rows, 4); ``cell_index`` from :func:`register_keys`.
+    ``acc`` is the accumulator payload seen as (rows, 4); ``cell_index`` from :func:`register_run`.
     """
     for i in range(cell_index.size):
-        row = cell_index[i]
-        x = np.float32(increment[i])
-        acc[row, 0] += x
-        acc[row, 1] += 1.0
-        if x > acc[row, 2]:  # noqa: PLR1730 (a comparison, not max(): a NaN increment leaves the row alone)
-            acc[row, 2] = x
-        if x < acc[row, 3]:  # noqa: PLR1730
-            acc[row, 3] = x
+        add_increment(acc, cell_index[i], np.float32(increment[i]))
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def add_increment(acc, row, x):
+    """Add float32 increment ``x`` to accumulator row ``row``: ``(sum, count, max, min)``."""
+    acc[row, 0] += x
+    acc[row, 1] += 1.0
+    if x > acc[row, 2]:  # noqa: PLR1730 (a comparison, not max(): a NaN increment leaves the row alone)
+        acc[row, 2] = x
+    if x < acc[row, 3]:  # noqa: PLR1730
+        acc[row, 3] = x
 
 
 @numba.njit(cache=True, nogil=True)

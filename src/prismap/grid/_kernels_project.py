@@ -1,133 +1,239 @@
 """numba kernels of projective integration: voxels of a key box projected into the image, frustum bounds.
 
-Called only by the grid's wrappers, which check and convert first. Every kernel releases the GIL.
+Called only by the grid's wrappers, which check and convert first. The walk kernels register the voxels they
+keep in the frame accumulator as they go (``_kernels_accumulate``). Every kernel releases the GIL.
 """
 
 import numba
 import numpy as np
 
+from prismap.grid._kernels_accumulate import add_increment, register_run
+from prismap.grid._kernels_hash import EMPTY
 from prismap.grid._kernels_traverse import write_cell
 
 
-@numba.njit(cache=True, nogil=True)
-def project_voxels(key_min, shape, origin, R_cam_world, focal, cx, cy, subsample, ray_index, rays, t_stop, exclusive,
-                   voxel_size, capacity):
-    """Voxels of a key box seen by a pixel ray, with the voxel's depth interval on that ray.
+@numba.njit(cache=True, nogil=True, inline="always")
+def _line_cells(line, walk, key_min, shape, origin, R_cam_world, focal, subsample, ray_index, rays, exclusive, stops,
+                tile_stop, voxel_size):
+    """The kept voxels of line ``line`` of the key box (``i0 * n1 + i1``: the voxels along the walk's line
+    axis, :func:`_walk_setup`), written to the walk's line scratch in order along the line; returns how many.
 
     Each voxel centre is projected into the (subsampled) image; the nearest grid pixel with a valid
     ray (``ray_index >= 0``) is the voxel's ray. The interval is the slab intersection of that ray with
     the voxel's box; if the ray misses the box (it passes up to half a pixel beside the centre), the
-    interval is the centre's depth +- half a voxel. The voxel is kept by the same rule as
-    :func:`cast_rays`. Returns ``ray_of_cell, keys, t_in, t_out`` as :func:`cast_rays` does, in the
-    order of the box (x, then y, then z), and how many voxels are kept: when that exceeds ``capacity``
-    (the outputs' size) only the first ``capacity`` are returned; call again with room for all.
-
-    Runs of :data:`SPAN` voxels of a key column that lie wholly beyond the farthest stop depth of the image
-    tiles (:data:`TILE` pixels square) their centres project to are skipped without visiting each voxel:
-    on a street most of the frustum's key box lies behind the first surfaces.
+    interval is the centre's depth +- half a voxel. The voxel is kept by the rule of ``cast_rays``.
+    The line is first narrowed to the part that may project into the image (:func:`_line_in_image`),
+    then runs of :data:`SPAN` voxels that lie wholly beyond the farthest stop depth of the image tiles they
+    project to are skipped without visiting each voxel (:func:`_run_beyond_stops`): on a street most of
+    the frustum's key box lies behind the first surfaces. A visited voxel reads its pixel's stop depth
+    (``stops``, -inf = no ray) before anything of its ray.
     """
-    nx, ny, nz = shape[0], shape[1], shape[2]
-    ray_of_cell = np.empty(capacity, dtype=np.int64)
-    keys = np.empty((capacity, 3), dtype=np.int32)
-    t_in_out = np.empty(capacity, dtype=np.float64)
-    t_out_out = np.empty(capacity, dtype=np.float64)
+    a0, a1, a2, step, k, w, col_offset, row_offset, scale_px, line_keys, line_ray, line_t0, line_t1, _ = walk
+    n1 = shape[a1]
+    k[a0] = key_min[a0] + line // n1
+    k[a1] = key_min[a1] + line % n1
+    for a in (a0, a1):
+        w[a] = (k[a] + 0.5) * voxel_size - origin[a]
     rows, cols = ray_index.shape
     half = 0.5 * voxel_size
     reach = np.sqrt(0.75) * voxel_size  # centre to corner: no point of the voxel is nearer in depth
-    col_offset = cx / subsample + 0.5
-    row_offset = cy / subsample + 0.5
-    scale_px = focal / subsample
-    tile_stop = _tile_stops(ray_index, t_stop)
-    m = 0
-    for ix in range(nx):
-        kx = key_min[0] + ix
-        wx = (kx + 0.5) * voxel_size - origin[0]
-        for iy in range(ny):
-            ky = key_min[1] + iy
-            wy = (ky + 0.5) * voxel_size - origin[1]
-            z_lo, z_hi = _column_in_image(R_cam_world, wx, wy, key_min[2], nz, origin[2], voxel_size, scale_px,
-                                          col_offset, row_offset, cols, rows)
-            for base in range(z_lo, z_hi, SPAN):
-                top = min(base + SPAN, z_hi)
-                wz0 = (key_min[2] + base + 0.5) * voxel_size - origin[2]
-                if _run_beyond_stops(R_cam_world, wx, wy, wz0, wz0 + (top - 1 - base) * voxel_size, scale_px,
-                                     col_offset, row_offset, reach, tile_stop):
+    w[a2] = (key_min[a2] + 0.5) * voxel_size - origin[a2]
+    px0 = R_cam_world[0, 0] * w[0] + R_cam_world[0, 1] * w[1] + R_cam_world[0, 2] * w[2]
+    py0 = R_cam_world[1, 0] * w[0] + R_cam_world[1, 1] * w[1] + R_cam_world[1, 2] * w[2]
+    pz0 = R_cam_world[2, 0] * w[0] + R_cam_world[2, 1] * w[1] + R_cam_world[2, 2] * w[2]
+    lo, hi = _line_in_image(px0, py0, pz0, step, shape[a2], scale_px, col_offset, row_offset, cols, rows)
+    c = 0
+    for base in range(lo, hi, SPAN):
+        top = min(base + SPAN, hi)
+        last = top - 1
+        if _run_beyond_stops(px0 + base * step[0], py0 + base * step[1], pz0 + base * step[2], px0 + last * step[0],
+                             py0 + last * step[1], pz0 + last * step[2], scale_px, col_offset, row_offset, reach,
+                             tile_stop):
+            continue
+        for i2 in range(base, top):
+            k[a2] = key_min[a2] + i2
+            w[a2] = (k[a2] + 0.5) * voxel_size - origin[a2]
+            wx, wy, wz = w[0], w[1], w[2]
+            pz = R_cam_world[2, 0] * wx + R_cam_world[2, 1] * wy + R_cam_world[2, 2] * wz
+            if pz <= 0.0:
+                continue
+            px = R_cam_world[0, 0] * wx + R_cam_world[0, 1] * wy + R_cam_world[0, 2] * wz
+            py = R_cam_world[1, 0] * wx + R_cam_world[1, 1] * wy + R_cam_world[1, 2] * wz
+            scale = focal / (pz * subsample)
+            col = np.floor(px * scale + col_offset)
+            row = np.floor(py * scale + row_offset)
+            if col < 0 or row < 0 or col >= cols or row >= rows:
+                continue
+            pixel_row, pixel_col = np.int64(row), np.int64(col)
+            stop = stops[pixel_row, pixel_col]
+            if pz - reach > stop:  # the whole voxel lies beyond the ray's stop depth (or there is no ray)
+                continue
+            ray = ray_index[pixel_row, pixel_col]
+            # Slab intersection of the ray with the voxel box, in depth units.
+            t0, t1 = _slab(rays[ray, 0], rays[ray, 1], rays[ray, 2], k[0] * voxel_size - origin[0],
+                           k[1] * voxel_size - origin[1], k[2] * voxel_size - origin[2], voxel_size)
+            t0 = max(t0, 0.0)
+            if t1 <= t0:
+                t0 = max(pz - half, 0.0)
+                t1 = pz + half
+            if exclusive[ray]:
+                if t1 > stop:
                     continue
-                for iz in range(base, top):
-                    kz = key_min[2] + iz
-                    wz = (kz + 0.5) * voxel_size - origin[2]
-                    pz = R_cam_world[2, 0] * wx + R_cam_world[2, 1] * wy + R_cam_world[2, 2] * wz
-                    if pz <= 0.0:
-                        continue
-                    px = R_cam_world[0, 0] * wx + R_cam_world[0, 1] * wy + R_cam_world[0, 2] * wz
-                    py = R_cam_world[1, 0] * wx + R_cam_world[1, 1] * wy + R_cam_world[1, 2] * wz
-                    scale = focal / (pz * subsample)
-                    col = np.floor(px * scale + col_offset)
-                    row = np.floor(py * scale + row_offset)
-                    if col < 0 or row < 0 or col >= cols or row >= rows:
-                        continue
-                    ray = ray_index[np.int64(row), np.int64(col)]
-                    if ray < 0:
-                        continue
-                    stop = t_stop[ray]
-                    if pz - reach > stop:  # the whole voxel lies beyond the ray's stop depth
-                        continue
-                    # Slab intersection of the ray with the voxel box, in depth units.
-                    t0, t1 = _slab(rays[ray, 0], rays[ray, 1], rays[ray, 2], kx * voxel_size - origin[0],
-                                   ky * voxel_size - origin[1], kz * voxel_size - origin[2], voxel_size)
-                    t0 = max(t0, 0.0)
-                    if t1 <= t0:
-                        t0 = max(pz - half, 0.0)
-                        t1 = pz + half
-                    if exclusive[ray]:
-                        if t1 > stop:
-                            continue
-                    elif t0 > stop:
-                        continue
-                    if m >= capacity:  # full: only count (the caller repeats with room for all)
-                        m += 1
-                        continue
-                    ray_of_cell[m] = ray
-                    m = write_cell(keys, t_in_out, t_out_out, m, kx, ky, kz, t0, t1)
-    n = min(m, capacity)
-    return ray_of_cell[:n], keys[:n], t_in_out[:n], t_out_out[:n], m
+            elif t0 > stop:
+                continue
+            line_ray[c] = ray
+            c = write_cell(line_keys, line_t0, line_t1, c, k[0], k[1], k[2], t0, t1)
+    return c
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _walk_setup(R_cam_world, shape, focal, cx, cy, subsample, voxel_size):
+    """State of a walk over the key box: its loop axes (:func:`_loop_axes`), the camera-frame step of one voxel
+    along the line axis, the key and centre (relative to the origin) of the current voxel, the image offsets
+    and scale, and scratch for one line: keys (n2, 3) int32, ray (n2,) int64, t_in, t_out (n2,) float64,
+    accumulator rows (n2,) int64. Returns it and the number of lines."""
+    a0, a1, a2 = _loop_axes(R_cam_world)
+    step = np.empty(3)
+    for r in range(3):
+        step[r] = R_cam_world[r, a2] * voxel_size
+    n2 = shape[a2]
+    walk = (a0, a1, a2, step, np.empty(3, dtype=np.int64), np.empty(3), cx / subsample + 0.5, cy / subsample + 0.5,
+            focal / subsample, np.empty((n2, 3), dtype=np.int32), np.empty(n2, dtype=np.int64), np.empty(n2),
+            np.empty(n2), np.empty(n2, dtype=np.int64))
+    return walk, shape[a0] * shape[a1]
+
+
+@numba.njit(cache=True, nogil=True)
+def project_cells(table, block_keys, n_blocks, acc, links, bits, key_min, shape, origin, R_cam_world, focal, cx, cy,
+                  subsample, ray_index, rays, exclusive, stops, tile_stop, voxel_size, ray_of_cell, cell_index, t_in,
+                  t_out, m, start, max_cells):
+    """Voxels of a key box seen by a pixel ray (:func:`_line_cells`), registered in the frame accumulator as
+    they are found (``_kernels_accumulate.register_run``), from line ``start`` on.
+
+    The box is walked in lines along the world axis nearest the image's rows (:func:`_loop_axes`), so that
+    consecutive voxels read neighbouring pixels; lines are numbered ``i0 * n1 + i1`` (outer, middle axis).
+    Cells are appended to ``ray_of_cell, cell_index`` (accumulator rows), ``t_in, t_out`` from row ``m``
+    on; the arrays grow by half when full, up to ``max_cells``: beyond it voxels are only counted (the
+    count exceeds the arrays' length; the caller refuses the frame). Returns the arrays (possibly new),
+    the cell count and the first line not done, -1 when all are: a new block found the accumulator full
+    (grow it and call again from that line).
+    """
+    walk, n_lines = _walk_setup(R_cam_world, shape, focal, cx, cy, subsample, voxel_size)
+    line_keys, line_ray, line_t0, line_t1 = walk[9], walk[10], walk[11], walk[12]
+    last_block, last_slot = EMPTY, np.int64(-1)
+    for line in range(start, n_lines):
+        c = _line_cells(line, walk, key_min, shape, origin, R_cam_world, focal, subsample, ray_index, rays, exclusive,
+                        stops, tile_stop, voxel_size)
+        if c == 0:
+            continue
+        if m + c > ray_of_cell.size:
+            if m + c > max_cells:  # over the bound: only count
+                m += c
+                continue
+            size = min(max(m + m // 2, m + c, 16), max_cells)
+            ray_of_cell, cell_index, t_in, t_out = _grown(ray_of_cell, cell_index, t_in, t_out, m, size)
+        done, last_block, last_slot = register_run(table, block_keys, n_blocks, acc, links, line_keys, 0, c, bits,
+                                                   cell_index[m:], last_block, last_slot)
+        if done < c:
+            return ray_of_cell, cell_index, t_in, t_out, m, line
+        ray_of_cell[m : m + c] = line_ray[:c]
+        t_in[m : m + c] = line_t0[:c]
+        t_out[m : m + c] = line_t1[:c]
+        m += c
+    return ray_of_cell, cell_index, t_in, t_out, m, -1
+
+
+@numba.njit(cache=True, nogil=True)
+def project_hit_miss(table, block_keys, n_blocks, acc, links, bits, key_min, shape, origin, R_cam_world, focal, cx, cy,
+                     subsample, ray_index, rays, exclusive, stops, tile_stop, voxel_size, z_hit, l_hit, l_miss, start):
+    """:func:`project_cells` for a hit/miss model: each kept voxel of interval ``[t_in, t_out)`` on ray ``i``
+    gets ``l_hit`` if it holds ``z_hit[i]``, ``l_miss`` if it ends at or before it, 0 beyond (the rule of
+    ``sensor_models._kernels.hitmiss_cells``), added to its accumulator row as ``_kernels_accumulate.scatter``
+    adds; no cell arrays. Returns the first line not done, -1 when all are (as :func:`project_cells`)."""
+    walk, n_lines = _walk_setup(R_cam_world, shape, focal, cx, cy, subsample, voxel_size)
+    line_keys, line_ray, line_t0, line_t1, line_rows = walk[9], walk[10], walk[11], walk[12], walk[13]
+    hit, miss, zero = np.float32(l_hit), np.float32(l_miss), np.float32(0.0)
+    rows = acc.reshape((acc.shape[0] * acc.shape[1], acc.shape[2]))
+    last_block, last_slot = EMPTY, np.int64(-1)
+    for line in range(start, n_lines):
+        c = _line_cells(line, walk, key_min, shape, origin, R_cam_world, focal, subsample, ray_index, rays, exclusive,
+                        stops, tile_stop, voxel_size)
+        if c == 0:
+            continue
+        done, last_block, last_slot = register_run(table, block_keys, n_blocks, acc, links, line_keys, 0, c, bits,
+                                                   line_rows, last_block, last_slot)
+        if done < c:
+            return line
+        for j in range(c):
+            z = z_hit[line_ray[j]]
+            add_increment(rows, line_rows[j], miss if line_t1[j] <= z else (hit if line_t0[j] <= z else zero))
+    return -1
 
 
 SPAN = 8
-"""Voxels of a key column that :func:`project_voxels` tests as one run against the tiles' stop depths."""
+"""Voxels of a line that :func:`_line_cells` tests as one run against the tiles' stop depths."""
 
 TILE = 8
 """Side (subsampled pixels) of the image tiles whose farthest stop depth bounds a run of voxels."""
 
 
 @numba.njit(cache=True, nogil=True)
-def _tile_stops(ray_index, t_stop):
-    """(rows / TILE, cols / TILE) float64: the largest stop depth of the rays of each tile, -inf for none."""
+def _grown(ray_of_cell, cell_index, t_in, t_out, m, size):
+    """The cell arrays with room for ``size`` cells, their first ``m`` rows kept."""
+    grown = (np.empty(size, dtype=np.int64), np.empty(size, dtype=np.int64), np.empty(size), np.empty(size))
+    grown[0][:m] = ray_of_cell[:m]
+    grown[1][:m] = cell_index[:m]
+    grown[2][:m] = t_in[:m]
+    grown[3][:m] = t_out[:m]
+    return grown
+
+
+@numba.njit(cache=True, nogil=True)
+def _loop_axes(R_cam_world):
+    """World axes ``(outer, middle, inner)`` of the walk of :func:`project_cells`: the inner one nearest the camera's
+    x (image rows), the middle one nearest its y among the others, the outer one the last."""
+    inner = 0
+    for a in range(1, 3):
+        if abs(R_cam_world[0, a]) > abs(R_cam_world[0, inner]):
+            inner = a
+    middle, other = (inner + 1) % 3, (inner + 2) % 3
+    if abs(R_cam_world[1, other]) > abs(R_cam_world[1, middle]):
+        middle = other
+    return 3 - inner - middle, middle, inner
+
+
+@numba.njit(cache=True, nogil=True)
+def stop_image(ray_index, t_stop):
+    """(rows, cols) float64: the stop depth of each pixel's ray, -inf where there is none."""
     rows, cols = ray_index.shape
-    out = np.full(((rows + TILE - 1) // TILE, (cols + TILE - 1) // TILE), -np.inf)
+    out = np.empty((rows, cols))
     for r in range(rows):
         for c in range(cols):
             ray = ray_index[r, c]
-            if ray >= 0:
-                out[r // TILE, c // TILE] = max(out[r // TILE, c // TILE], t_stop[ray])
+            out[r, c] = t_stop[ray] if ray >= 0 else -np.inf
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def tile_stops(stops):
+    """(rows / TILE, cols / TILE) float64: the largest stop depth of each tile of the stop image."""
+    rows, cols = stops.shape
+    out = np.full(((rows + TILE - 1) // TILE, (cols + TILE - 1) // TILE), -np.inf)
+    for r in range(rows):
+        for c in range(cols):
+            out[r // TILE, c // TILE] = max(out[r // TILE, c // TILE], stops[r, c])
     return out
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _run_beyond_stops(R_cam_world, wx, wy, wz0, wz1, scale, col_offset, row_offset, reach, tile_stop):
-    """Whether every voxel centre on the segment ``(wx, wy, wz0..wz1)`` (relative to the origin) is in front
-    of the camera and nearer than ``reach`` to none of the stop depths of the tiles it projects into.
+def _run_beyond_stops(px, py, pz, qx, qy, qz, scale, col_offset, row_offset, reach, tile_stop):
+    """Whether every voxel centre on the segment from ``p`` to ``q`` (camera frame, relative to the origin) is
+    in front of the camera and nearer than ``reach`` to none of the stop depths of the tiles it projects into.
 
     The segment projects onto the image segment between its ends' projections, so onto pixels within their
     bounding box (one pixel of margin for rounding); a voxel of the run is kept only if its depth minus
     ``reach`` is at most its ray's stop depth, at most the largest stop depth of those tiles.
     """
-    dx, dy, dz = R_cam_world[0, 2], R_cam_world[1, 2], R_cam_world[2, 2]
-    px = R_cam_world[0, 0] * wx + R_cam_world[0, 1] * wy + dx * wz0
-    py = R_cam_world[1, 0] * wx + R_cam_world[1, 1] * wy + dy * wz0
-    pz = R_cam_world[2, 0] * wx + R_cam_world[2, 1] * wy + dz * wz0
-    run = wz1 - wz0
-    qx, qy, qz = px + dx * run, py + dy * run, pz + dz * run
     if pz <= 0.0 or qz <= 0.0:
         return False
     col_p, col_q = px * scale / pz + col_offset, qx * scale / qz + col_offset
@@ -165,20 +271,16 @@ def _half_line(slope, value, lo, hi):
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _column_in_image(R_cam_world, wx, wy, kz_min, nz, oz, voxel_size, scale, col_offset, row_offset, cols, rows):
-    """Index range ``[lo, hi)`` of the voxels ``iz`` of one key column (centre ``(wx, wy, (kz_min + iz +
-    0.5) voxel_size - oz)`` relative to the origin) that may be in front of the camera and project into
-    the image, a superset of those that do.
+def _line_in_image(px, py, pz, step, n, scale, col_offset, row_offset, cols, rows):
+    """Index range ``[lo, hi)`` of the voxels ``i`` of one line of the box (centres ``p + i step``, camera
+    frame, relative to the origin) that may be in front of the camera and project into the image, a
+    superset of those that do.
 
-    Each condition is linear in ``iz`` once multiplied by the (positive) depth ``pz``: ``pz > 0``,
+    Each condition is linear in ``i`` once multiplied by the (positive) depth: ``pz > 0``,
     ``px scale + col_offset pz >= 0``, ``px scale + (col_offset - cols) pz < 0`` and the same for rows.
     """
-    wz = (kz_min + 0.5) * voxel_size - oz
-    px = R_cam_world[0, 0] * wx + R_cam_world[0, 1] * wy + R_cam_world[0, 2] * wz
-    py = R_cam_world[1, 0] * wx + R_cam_world[1, 1] * wy + R_cam_world[1, 2] * wz
-    pz = R_cam_world[2, 0] * wx + R_cam_world[2, 1] * wy + R_cam_world[2, 2] * wz
-    dx, dy, dz = R_cam_world[0, 2] * voxel_size, R_cam_world[1, 2] * voxel_size, R_cam_world[2, 2] * voxel_size
-    lo, hi = np.int64(0), np.int64(nz)
+    dx, dy, dz = step[0], step[1], step[2]
+    lo, hi = np.int64(0), np.int64(n)
     lo, hi = _half_line(dz, pz, lo, hi)
     lo, hi = _half_line(dx * scale + col_offset * dz, px * scale + col_offset * pz, lo, hi)
     lo, hi = _half_line(-(dx * scale + (col_offset - cols) * dz), -(px * scale + (col_offset - cols) * pz), lo, hi)

@@ -135,7 +135,7 @@ def cast_rays(origin, rays, t_stop, exclusive, voxel_size):
 
 @numba.njit(cache=True, nogil=True)
 def cast_rays_into(table, block_keys, n_blocks, acc, links, origin, rays, t_stop, exclusive, voxel_size, bits):
-    """:func:`cast_rays` fused with :func:`register_keys`: each crossed voxel's accumulator row, no keys.
+    """:func:`cast_rays` fused with ``register_run``: each crossed voxel's accumulator row, no keys.
 
     Returns ``ray_of_cell (C,) int64, cell_index (C,) int64, t_in (C,), t_out (C,) float64`` and the
     number of rays done: fewer than ``len(rays)`` when a new block found the accumulator full (that
