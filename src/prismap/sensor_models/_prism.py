@@ -294,13 +294,15 @@ class PrismModel(RayModel):
         disparity, norm, rays, start, end, _ = self._prepare(
             disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m
         )
+        stretch = np.zeros(disparity.size)  # depth metres added to the end of each ray's cells
         if voxel_overhang_m is not None and self.overhang_fraction > 0:
             overhang = as_float_array(voxel_overhang_m, "voxel_overhang_m", shape=(disparity.size,), allow_nan=False)
             if overhang.size and overhang.min() < 0:
                 raise PrismapInputError(f"prism: `voxel_overhang_m` must be >= 0; got minimum {overhang.min()!r}")
-            end = end + (self.overhang_fraction * overhang / norm)[rays]
+            stretch = self.overhang_fraction * overhang / norm
         lam = self.rate_per_m * norm
         if method == "direct":
+            end = end + stretch[rays]
             order = np.argsort(rays, kind="stable")
             ray_start = np.searchsorted(rays[order], np.arange(disparity.size + 1))
             return _kernels.prism_direct_cells(
@@ -309,7 +311,7 @@ class PrismModel(RayModel):
             )
         if method != "table":
             raise PrismapInputError(f"prism: `method` must be 'table' or 'direct'; got {method!r}")
-        return self._table_cells(lam, disparity, norm, rays, start, end)
+        return self._table_cells(lam, disparity, norm, rays, start, end, stretch)
 
     def influence_depth(self, disparity_px, ray_norm):
         """Depth beyond which every cell's ``|logit(P) - logit(p_c)| < influence_epsilon`` (metres), per ray.
@@ -333,8 +335,9 @@ class PrismModel(RayModel):
         return self._widened[extra]
 
     # ------------------------------------------------------------------ tables
-    def _table_cells(self, lam, disparity, norm, rays, start, end):
-        """Tabulated posteriors and increments, in chunks: table look-ups (numba), exp and log (numpy SIMD)."""
+    def _table_cells(self, lam, disparity, norm, rays, start, end, stretch):
+        """Tabulated posteriors and increments of the cells ``[start, end + stretch[rays]]``, in chunks:
+        table look-ups, exp, combination, log (vectorised exp and log: ``_kernels.exp_into``, ``log_into``)."""
         table, delta = self._tables_for(disparity, norm)
         meta, nodes = self._cache.meta, self._cache.nodes
         log_wn, means, sigmas = self._mixture_arrays()
@@ -342,19 +345,20 @@ class PrismModel(RayModel):
         post = np.empty(n)
         inc = np.empty(n)
         size = min(n, _CHUNK_CELLS)
-        l_a, l_c, e_c, ratio, fix_value = (np.empty(size) for _ in range(5))
+        l_a, l_c, e_a, e_c, lam_len, ratio, fix_value = (np.empty(size) for _ in range(7))
         side = np.empty(size, dtype=np.int8)
         fix_index = np.empty(size, dtype=np.int64)
         for lo in range(0, n, _CHUNK_CELLS):
             hi = min(lo + _CHUNK_CELLS, n)
             m = hi - lo
-            _kernels.prism_table_lookup(lam, table, delta, rays, start, end, lo, hi, self.near_m, self.far_depth_m,
-                                        self.focal_baseline, self._ku(), _QUAD_STEP, meta, nodes, log_wn, means,
-                                        sigmas, l_a, l_c, side)
-            np.exp(l_c[:m], out=e_c[:m])
-            n_fix = _kernels.prism_table_combine(lam, rays, start, end, lo, hi, self.near_m, self.far_depth_m, l_a,
-                                                 l_c, e_c, side, post, ratio, fix_index, fix_value)
-            np.log(ratio[:m], out=inc[lo:hi])
+            _kernels.prism_table_lookup(lam, table, delta, rays, start, end, stretch, lo, hi, self.near_m,
+                                        self.far_depth_m, self.focal_baseline, self._ku(), _QUAD_STEP, meta, nodes,
+                                        log_wn, means, sigmas, l_a, l_c, side, lam_len)
+            _kernels.exp_into(l_a, e_a, m)
+            _kernels.exp_into(l_c, e_c, m)
+            n_fix = _kernels.prism_table_combine(lo, hi, l_a, l_c, e_a, e_c, side, lam_len, post, ratio, fix_index,
+                                                 fix_value)
+            _kernels.log_into(ratio, inc[lo:hi], m)
             inc[lo + fix_index[:n_fix]] = fix_value[:n_fix]
         return post, inc
 
