@@ -843,6 +843,7 @@ def _log_c_first(z, steep, lam, ku, h, z0, fb, shift, log_wn, means, sigmas):
     return phi - math.log(phi_z) + log1mexp(-phi_z * (z - z0))
 
 
+_LOG_HALF = -0.6931471805599453
 _SKIP = 4
 """``side`` flag of a cell the measurement does not change (empty, or beyond the influence depth)."""
 
@@ -854,7 +855,8 @@ def prism_table_lookup(lam, table, delta, ray_of_cell, start, end, stretch, lo, 
 
     A cell is ``[start[i], end[i] + stretch[r]]`` (``stretch``: the ray's voxel overhang share, depth metres).
     Per ray one table (``table[r]``, the ray's rate ``e^delta[r]`` times the table's). A look-up
-    interpolates ``log(C/Z)`` and, only where ``C/Z > 1/2``, ``log(D/Z)``: ``C/Z + D/Z = 1``. Writes
+    interpolates ``log(C/Z)`` and, only where ``C/Z > 1/2``, ``log(D/Z)`` (``C/Z + D/Z = 1``); past a depth
+    of the ray already found to have ``C/Z >= 1/2`` only ``log(D/Z)``, as ``C`` only grows. Writes
     ``l_a[j], l_c[j]`` (cell ``lo + j``) and ``side[j]`` (bit 0: ``l_a`` is D's, bit 1: ``l_c`` is D's, or
     :data:`_SKIP`: no change), and ``lam_len[j]``, the cell's prior rate times its length (of the part in
     ``[z0, z_max]``; a skipped cell's whole length). A cell starting where the previous one of the same ray ended reuses that
@@ -871,6 +873,7 @@ def prism_table_lookup(lam, table, delta, ray_of_cell, start, end, stretch, lo, 
     seg_inv = np.empty(N_SEGMENTS)
     seg_row = np.empty(N_SEGMENTS + 1, dtype=np.int64)
     lam_t = z_end = z_infl = dl = shift = log_z = log_far = stretch_r = 0.0
+    z_half = np.inf
     off = n_seg = s_a = s_c = 0
     steep = False
     for i in range(lo, hi):
@@ -894,6 +897,7 @@ def prism_table_lookup(lam, table, delta, ray_of_cell, start, end, stretch, lo, 
             seg_row[n_seg] = int(meta[t, _LENGTH]) - 1
             steep = int(meta[t, _ROW + 1]) > 0  # a coarse front: C from its endpoint asymptotic there
             s_a = s_c = 0
+            z_half = np.inf  # least depth of the ray known to have C/Z >= 1/2
             z_end = meta[t, _Z_END]
             z_infl = meta[t, _Z_INFL]
             shift = meta[t, _SHIFT]
@@ -916,28 +920,41 @@ def prism_table_lookup(lam, table, delta, ray_of_cell, start, end, stretch, lo, 
         else:
             k, f, s_a = _locate(lam_t * a - ku / a, s_a, seg_x, seg_row, seg_inv, n_seg)
             o = off + k
-            if k == 0:  # first interval: log C is -inf at z0
-                lca = -np.inf
-                if a > z0:
-                    lca = _log_c_first(a, steep, lam_t, ku, seg_h[s_a], z0, fb, shift, log_wn, means, sigmas) - log_z
+            a_is_d = 1
+            if a >= z_half and k > 0:  # C is increasing: past a depth with C/Z >= 1/2, D is the smaller
+                l_a[j] = _interpolate(nodes, o, f, seg_h[s_a], 4, dl)
             else:
-                lca = _interpolate(nodes, o, f, seg_h[s_a], 0, dl)
-            a_is_d = 0 if lca < -0.6931471805599453 else 1
-            l_a[j] = lca if a_is_d == 0 else _interpolate(nodes, o, f, seg_h[s_a], 4, dl)
+                if k == 0:  # first interval: log C is -inf at z0
+                    lca = -np.inf
+                    if a > z0:
+                        lca = _log_c_first(a, steep, lam_t, ku, seg_h[s_a], z0, fb, shift, log_wn, means, sigmas) - log_z
+                else:
+                    lca = _interpolate(nodes, o, f, seg_h[s_a], 0, dl)
+                if lca < _LOG_HALF:
+                    a_is_d = 0
+                    l_a[j] = lca
+                else:
+                    l_a[j] = _interpolate(nodes, o, f, seg_h[s_a], 4, dl)
+                    z_half = min(z_half, a)
         if c > z_end:
             lcc = log_tail(c, log_z, lam_t, ku, hq, z0, z_max, fb, shift, log_far, log_wn, means, sigmas) - log_z
             c_is_d = 1
         else:
             k, f, s_c = _locate(lam_t * c - ku / c, s_c, seg_x, seg_row, seg_inv, n_seg)
             o = off + k
-            if k == 0:
-                lcc = _log_c_first(c, steep, lam_t, ku, seg_h[s_c], z0, fb, shift, log_wn, means, sigmas) - log_z
-            else:
-                lcc = _interpolate(nodes, o, f, seg_h[s_c], 0, dl)
-            c_is_d = 0
-            if lcc >= -0.6931471805599453:
+            c_is_d = 1
+            if c >= z_half and k > 0:
                 lcc = _interpolate(nodes, o, f, seg_h[s_c], 4, dl)
-                c_is_d = 1
+            else:
+                if k == 0:
+                    lcc = _log_c_first(c, steep, lam_t, ku, seg_h[s_c], z0, fb, shift, log_wn, means, sigmas) - log_z
+                else:
+                    lcc = _interpolate(nodes, o, f, seg_h[s_c], 0, dl)
+                if lcc < _LOG_HALF:
+                    c_is_d = 0
+                else:
+                    lcc = _interpolate(nodes, o, f, seg_h[s_c], 4, dl)
+                    z_half = min(z_half, c)
         l_c[j] = lcc
         side[j] = a_is_d + 2 * c_is_d
         c_prev = c
