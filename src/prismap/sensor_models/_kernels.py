@@ -1003,6 +1003,37 @@ def prism_table_combine(lo, hi, l_a, l_c, e_a, e_c, side, lam_len, post, ratio, 
 
 
 @nb.njit(cache=True, nogil=True)
+def prism_table_cells(lam, table, delta, ray_of_cell, start, end, stretch, block, z0, z_max, fb, ku, hq, meta, nodes,
+                      log_wn, means, sigmas):
+    """Tabulated PRISM on every cell ``[start[i], end[i] + stretch[r]]``: posterior and increment, (C,) each.
+
+    Blocks of ``block`` cells go through :func:`prism_table_lookup`, :func:`exp_into` (both ends),
+    :func:`prism_table_combine` and :func:`log_into`; the scratch arrays of a block stay in the core's
+    cache and the GIL stays released for the whole call.
+    """
+    n = start.size
+    post = np.empty(n)
+    inc = np.empty(n)
+    size = max(min(n, block), 1)
+    l_a, l_c, e_a, e_c = np.empty(size), np.empty(size), np.empty(size), np.empty(size)
+    lam_len, ratio, fix_value = np.empty(size), np.empty(size), np.empty(size)
+    side = np.empty(size, dtype=np.int8)
+    fix_index = np.empty(size, dtype=np.int64)
+    for lo in range(0, n, size):
+        hi = min(lo + size, n)
+        m = hi - lo
+        prism_table_lookup(lam, table, delta, ray_of_cell, start, end, stretch, lo, hi, z0, z_max, fb, ku, hq, meta,
+                           nodes, log_wn, means, sigmas, l_a, l_c, side, lam_len)
+        exp_into(l_a, e_a, m)
+        exp_into(l_c, e_c, m)
+        n_fix = prism_table_combine(lo, hi, l_a, l_c, e_a, e_c, side, lam_len, post, ratio, fix_index, fix_value)
+        log_into(ratio, inc[lo:hi], m)
+        for k in range(n_fix):
+            inc[lo + fix_index[k]] = fix_value[k]
+    return post, inc
+
+
+@nb.njit(cache=True, nogil=True)
 def prism_log_evidence(shift, lam, z0, z_max, fb, ku, hq, log_far, log_wn, means, sigmas):
     """``log Z`` (the marginal density of each measured disparity, 1/pixel) for every ray."""
     out = np.empty(shift.size)

@@ -54,7 +54,7 @@ _LAMBDA_STEP = 0.1  # table grid in log(lambda_z): one table every ~10 % of ray 
 _LAMBDA_SLACK = float(np.expm1(_LAMBDA_STEP / 2))  # relative rate gap a table's influence depth covers
 _KEY_L_SPAN = 1 << 16  # table key = disparity key * span + rate key
 _BUILD_THREADS = min(2, os.cpu_count() or 1)  # threads building one call's missing tables
-_CHUNK_CELLS = 1 << 15  # cells per look-up/exp/combine/log round: the scratch arrays stay in cache
+_CHUNK_CELLS = 4096  # cells per look-up/exp/combine/log round: its 8 scratch arrays (228 KiB) stay in L2
 
 
 def _log_diff_ndtr(hi, lo):
@@ -336,31 +336,13 @@ class PrismModel(RayModel):
 
     # ------------------------------------------------------------------ tables
     def _table_cells(self, lam, disparity, norm, rays, start, end, stretch):
-        """Tabulated posteriors and increments of the cells ``[start, end + stretch[rays]]``, in chunks:
-        table look-ups, exp, combination, log (vectorised exp and log: ``_kernels.exp_into``, ``log_into``)."""
+        """Tabulated posteriors and increments of the cells ``[start, end + stretch[rays]]``
+        (``_kernels.prism_table_cells``: table look-ups, vectorised exp, combination, vectorised log)."""
         table, delta = self._tables_for(disparity, norm)
-        meta, nodes = self._cache.meta, self._cache.nodes
         log_wn, means, sigmas = self._mixture_arrays()
-        n = start.size
-        post = np.empty(n)
-        inc = np.empty(n)
-        size = min(n, _CHUNK_CELLS)
-        l_a, l_c, e_a, e_c, lam_len, ratio, fix_value = (np.empty(size) for _ in range(7))
-        side = np.empty(size, dtype=np.int8)
-        fix_index = np.empty(size, dtype=np.int64)
-        for lo in range(0, n, _CHUNK_CELLS):
-            hi = min(lo + _CHUNK_CELLS, n)
-            m = hi - lo
-            _kernels.prism_table_lookup(lam, table, delta, rays, start, end, stretch, lo, hi, self.near_m,
-                                        self.far_depth_m, self.focal_baseline, self._ku(), _QUAD_STEP, meta, nodes,
-                                        log_wn, means, sigmas, l_a, l_c, side, lam_len)
-            _kernels.exp_into(l_a, e_a, m)
-            _kernels.exp_into(l_c, e_c, m)
-            n_fix = _kernels.prism_table_combine(lo, hi, l_a, l_c, e_a, e_c, side, lam_len, post, ratio, fix_index,
-                                                 fix_value)
-            _kernels.log_into(ratio, inc[lo:hi], m)
-            inc[lo + fix_index[:n_fix]] = fix_value[:n_fix]
-        return post, inc
+        return _kernels.prism_table_cells(lam, table, delta, rays, start, end, stretch, _CHUNK_CELLS, self.near_m,
+                                          self.far_depth_m, self.focal_baseline, self._ku(), _QUAD_STEP,
+                                          self._cache.meta, self._cache.nodes, log_wn, means, sigmas)
 
     def _tables_for(self, disparity, norm):
         """Table row and ``delta = log(lambda_ray / lambda_table)`` of every ray, building missing tables."""
