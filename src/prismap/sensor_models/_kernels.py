@@ -73,28 +73,26 @@ def _sigmoid(x):
 # ``(y / ln 2 + shifter) - shifter`` into ``y / ln 2`` and undoes the two-constant (Cody-Waite) reduction.
 
 
-@intrinsic
-def _float_bits(typingctx, x):
-    """The IEEE-754 bits of a float64 as an int64 (a bitcast: no instruction)."""
-    if x != types.float64:
-        return None
+def _bitcast(source, target):
+    """An intrinsic reinterpreting the bits of a ``source`` scalar as a ``target`` one (no instruction)."""
 
-    def codegen(context, builder, signature, args):
-        return builder.bitcast(args[0], context.get_value_type(types.int64))
+    @intrinsic
+    def cast(typingctx, x):
+        if x != source:
+            return None
 
-    return types.int64(types.float64), codegen
+        def codegen(context, builder, signature, args):
+            return builder.bitcast(args[0], context.get_value_type(target))
+
+        return target(source), codegen
+
+    return cast
 
 
-@intrinsic
-def _bits_float(typingctx, bits):
-    """The float64 whose IEEE-754 bits are the int64 ``bits``."""
-    if bits != types.int64:
-        return None
-
-    def codegen(context, builder, signature, args):
-        return builder.bitcast(args[0], context.get_value_type(types.float64))
-
-    return types.float64(types.int64), codegen
+_float_bits = _bitcast(types.float64, types.int64)
+"""The IEEE-754 bits of a float64 as an int64."""
+_bits_float = _bitcast(types.int64, types.float64)
+"""The float64 whose IEEE-754 bits are the given int64."""
 
 
 _LOG2E = 1.4426950408889634

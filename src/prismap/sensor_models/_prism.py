@@ -156,9 +156,9 @@ class PrismModel(RayModel):
       are rounded (a shift of at most half a step).
       Tables are cached on the model (one model per error model and camera; each
       :meth:`with_extra_noise` copy has its own), least recently used ones dropped beyond the budget
-      (``table_memory_mb``), so a sequence pays for each table about once. A cell costs a look-up (reused
-      from the previous cell when it starts where that one ended), a vectorised exp and log, and a
-      division or two.
+      (``table_memory_mb``), so a sequence pays for each table about once. A cell costs a look-up at each
+      end (the start's reused from the previous cell when it starts where that one ended, which a voxel
+      overhang's stretch rules out), two exps and a log in vectorised loops, and a division or two.
     - ``"direct"``: quadrature ray by ray (8-point Gauss-Legendre panels of x-width 0.25) with every cell
       boundary a panel edge.
 
