@@ -16,9 +16,10 @@ compares): the ratio is also printed for one call of the size the grid makes (~4
 total time with a fresh model (tables built as new disparities appear) against the same frames again
 (warm), and the ideal model's, to show what share of a sequence table building takes.
 
-``--street``: the first 4 model calls (4096 rays each, the cells the ray integrator casts to the influence
-depth) of one frame of bench_grid.py's street scene (c) at 0.2 m voxels, PRISM with the street mixture
-(tables warm) against the ideal model on the same calls, CPU time (best of 3).
+``--street``: the first 4 model calls in ray mode (4096 rays each, the cells the ray integrator casts to the
+influence depth) and the one call in projective mode of one frame of bench_grid.py's street scene (c) at
+0.2 m voxels, PRISM with the street mixture (tables warm; with the frame's voxel overhangs, the default, and
+without) against the ideal model on the same calls, CPU time (best of 3).
 """
 
 import argparse
@@ -80,9 +81,10 @@ def sequence(frames, step):
     return cold, warm, base, prism
 
 
-def street_calls(scale, n_calls=4):
-    """The first ``n_calls`` model calls of ray casting one frame of bench_grid's street scene (c) at 0.2 m
-    (PRISM with the street mixture): (PRISM model, list of ``cell_posteriors`` argument tuples)."""
+def street_calls(scale, mode, n_calls=4):
+    """The first ``n_calls`` model calls of integrating one frame of bench_grid's street scene (c) at 0.2 m in
+    ``mode`` (PRISM with the street mixture): (PRISM model, list of ``cell_posteriors`` (arguments, keywords)),
+    the keywords holding each ray's ``voxel_overhang_m``."""
     import bench_grid
 
     camera, poses, disparities = bench_grid.street_frames(scale, 1)
@@ -90,36 +92,41 @@ def street_calls(scale, n_calls=4):
     calls = []
 
     class Recorder(bench_grid.TimedModel):
-        def cell_posteriors(self, *args):
+        def cell_posteriors(self, *args, **kwargs):
             if len(calls) < n_calls:
-                calls.append(tuple(np.array(a) for a in args))
-            return self.model.cell_posteriors(*args)
+                calls.append((tuple(np.array(a) for a in args), {k: np.array(v) for k, v in kwargs.items()}))
+            return self.model.cell_posteriors(*args, **kwargs)
 
-    OccupancyMap(0.2, p0=model.p0).integrate_disparity(disparities[0], camera, poses[0], Recorder(model), mode="ray",
+    OccupancyMap(0.2, p0=model.p0).integrate_disparity(disparities[0], camera, poses[0], Recorder(model), mode=mode,
                                                        max_range_m=bench_grid.STREET_RANGE_M[1])
     return model, calls
 
 
 def street(scale):
-    """Nanoseconds per cell (CPU) of PRISM (warm tables) and the ideal model on the street's own ray-mode calls."""
-    prism, calls = street_calls(scale)
-    ideal = make_sensor_model("ideal", focal_baseline=prism.focal_baseline, doffs_px=prism.doffs_px,
-                              voxel_size_m=prism.voxel_size_m, p0=prism.p0)
-    n_cells = sum(call[2].size for call in calls)
-    results = {}
-    for name, model in (("ideal", ideal), ("prism table (warm)", prism)):
-        for call in calls:
-            model.cell_posteriors(*call)
-        best = np.inf
-        for _ in range(3):
-            t0 = time.process_time()
-            for call in calls:
-                model.cell_posteriors(*call)
-            best = min(best, time.process_time() - t0)
-        results[name] = best / n_cells * 1e9
-    print(f"street scene (c) at scale {scale:g}, 0.2 m voxels: {len(calls)} ray-mode calls of "
-          f"{calls[0][0].size} rays, {n_cells} cells; CPU ns per cell: ideal {results['ideal']:.1f}, PRISM "
-          f"{results['prism table (warm)']:.1f}, ratio {results['prism table (warm)'] / results['ideal']:.2f}")
+    """CPU nanoseconds per cell of PRISM (warm tables; with and without the voxel overhang) and the ideal model
+    on the street's own model calls, in ray mode and in projective mode."""
+    for mode in ("ray", "projective"):
+        prism, calls = street_calls(scale, mode)
+        ideal = make_sensor_model("ideal", focal_baseline=prism.focal_baseline, doffs_px=prism.doffs_px,
+                                  voxel_size_m=prism.voxel_size_m, p0=prism.p0)
+        n_cells = sum(args[2].size for args, _ in calls)
+        results = {}
+        for name, model, overhang in (("ideal", ideal, False), ("PRISM", prism, True),
+                                      ("PRISM without overhang", prism, False)):
+            jobs = [(args, kwargs if overhang else {}) for args, kwargs in calls]
+            for args, kwargs in jobs:
+                model.cell_posteriors(*args, **kwargs)
+            best = np.inf
+            for _ in range(3):
+                t0 = time.process_time()
+                for args, kwargs in jobs:
+                    model.cell_posteriors(*args, **kwargs)
+                best = min(best, time.process_time() - t0)
+            results[name] = best / n_cells * 1e9
+        print(f"street scene (c) at scale {scale:g}, 0.2 m voxels, {mode}: {len(calls)} model call(s) of "
+              f"{calls[0][0][0].size} rays, {n_cells} cells; CPU ns per cell: ideal {results['ideal']:.1f}, PRISM "
+              f"{results['PRISM']:.1f} (ratio {results['PRISM'] / results['ideal']:.2f}), PRISM without the voxel "
+              f"overhang {results['PRISM without overhang']:.1f}")
 
 
 def main():

@@ -431,3 +431,43 @@ def test_tables_built_in_threads_equal_tables_built_in_one(monkeypatch):
     threaded = PrismModel(error_model=MIXTURE, focal_baseline=FB)
     np.testing.assert_array_equal(threaded.cell_posteriors(*args)[1], serial[1])
     assert threaded._cache.builds == depths.size
+
+
+def test_vectorised_exp_and_log_match_numpy_over_the_whole_range():
+    """``exp_into``/``log_into`` (PRISM's cell update) against numpy: 1e-13 relative where the result is normal,
+    subnormal results to their spacing, and the special values (0, inf, NaN, underflow, overflow) exactly."""
+    rng = np.random.default_rng(11)
+    edges = [-np.inf, -800.0, -745.2, -745.1332191019412, -745.13, -708.4, -708.3964185322641, -708.39, -0.0, 0.0,
+             1e-300, 709.78, 709.782712893384, 709.7827128933841, 710.0, np.inf, np.nan]
+    x = np.concatenate([rng.uniform(-760.0, 720.0, 200_000), rng.uniform(-1.0, 1.0, 20_000), edges])
+    got = np.empty_like(x)
+    _kernels.exp_into(x, got, x.size)
+    with np.errstate(over="ignore", under="ignore"):
+        want = np.exp(x)
+    normal = np.isfinite(want) & (want >= np.finfo(np.float64).tiny)
+    assert np.max(np.abs(got[normal] / want[normal] - 1.0)) <= 1e-13
+    subnormal = ~normal & np.isfinite(want)
+    assert subnormal.sum() > 100 and np.max(np.abs(got[subnormal] - want[subnormal])) <= 2e-323
+    np.testing.assert_array_equal(got[~np.isfinite(want)], want[~np.isfinite(want)])
+    assert got[x < -745.14].max() == 0.0 and np.all(got[x > 709.79] == np.inf)
+
+    y = np.concatenate([np.exp(rng.uniform(np.log(5e-324), np.log(1.79e308), 200_000)), 1.0 + rng.normal(0, 1e-9, 1000),
+                        [5e-324, 1e-310, np.finfo(np.float64).tiny, np.finfo(np.float64).max, 1.0, 0.5, 2.0, 0.0,
+                         -0.0, -1.0, np.inf, -np.inf, np.nan]])
+    got = np.empty_like(y)
+    _kernels.log_into(y, got, y.size)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        want = np.log(y)
+    finite = np.isfinite(want) & (want != 0.0)
+    assert np.max(np.abs(got[finite] / want[finite] - 1.0)) <= 1e-13
+    np.testing.assert_array_equal(got[~finite], want[~finite])
+    partial = np.full(4, -7.0)
+    _kernels.exp_into(np.zeros(4), partial, 2)  # only the first n elements are written
+    np.testing.assert_array_equal(partial, [1.0, 1.0, -7.0, -7.0])
+
+
+def test_cell_prior_matches_expm1_on_both_sides_of_its_series_switch():
+    x = np.concatenate([np.geomspace(1e-12, 0.2, 200), np.nextafter(0.2, [0.0, 1.0]), np.geomspace(0.2, 60.0, 200)])
+    p, q = np.array([_kernels._cell_prior(v) for v in x]).T
+    np.testing.assert_allclose(p, -np.expm1(-x), rtol=1e-11, atol=0)
+    np.testing.assert_allclose(q, np.exp(-x), rtol=1e-11, atol=0)

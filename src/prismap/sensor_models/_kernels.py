@@ -3,14 +3,18 @@
 The wrappers validate and convert (contiguous float64 / int64); the kernels assume. Every kernel releases
 the GIL (``nogil=True``), so the grid's model calls run beside its GIL-free casting. PRISM carries
 ``log C`` and ``log D = log(Z - C)`` as logarithms so that nothing underflows from 0.1 m to 200 m with
-surface rates up to 50 per metre; the tabulated cell update exponentiates the smaller of the two (in
-numpy, vectorised) and combines in linear space, except near underflow.
+surface rates up to 50 per metre; the tabulated cell update exponentiates the smaller of the two and
+combines in linear space, except near underflow. Its exp and log are :func:`exp_into` and
+:func:`log_into`: polynomial (Cephes) routines in loops LLVM vectorises, since neither numpy's float64
+exp/log nor numba's ``math.exp`` is SIMD on a CPU without AVX-512 (numba would need Intel's SVML).
 """
 
 import math
 
 import numba as nb
 import numpy as np
+from numba.core import types
+from numba.extending import intrinsic
 
 _GL_X, _GL_W = np.polynomial.legendre.leggauss(8)
 _GL_LOG_W = np.log(_GL_W)
@@ -58,6 +62,110 @@ def _sigmoid(x):
         return 1.0 / (1.0 + math.exp(-x))
     e = math.exp(x)
     return e / (1.0 + e)
+
+
+# ------------------------------------------------------------------------------ vectorisable exp, log
+# Cephes' exp and log (S. L. Moshier, "Methods and programs for mathematical functions", 1989): range
+# reduction by bit operations on the float64 representation, then a rational approximation. Written
+# without calls and with selects instead of branches, so that a loop over an array of them vectorises
+# (4 lanes with AVX2). ``error_model="numpy"``: numba's default checks every division for zero, a branch
+# that stops the vectoriser. Never inline them into a fastmath function: reassociation turns the rounding
+# ``(y / ln 2 + shifter) - shifter`` into ``y / ln 2`` and undoes the two-constant (Cody-Waite) reduction.
+
+
+def _bitcast(source, target):
+    """An intrinsic reinterpreting the bits of a ``source`` scalar as a ``target`` one (no instruction)."""
+
+    @intrinsic
+    def cast(typingctx, x):
+        if x != source:
+            return None
+
+        def codegen(context, builder, signature, args):
+            return builder.bitcast(args[0], context.get_value_type(target))
+
+        return target(source), codegen
+
+    return cast
+
+
+_float_bits = _bitcast(types.float64, types.int64)
+"""The IEEE-754 bits of a float64 as an int64."""
+_bits_float = _bitcast(types.int64, types.float64)
+"""The float64 whose IEEE-754 bits are the given int64."""
+
+
+_LOG2E = 1.4426950408889634
+_SHIFTER = 6755399441055744.0  # 1.5 * 2^52: adding it rounds to an integer held in the low mantissa bits
+_LN2_HI = 6.93145751953125e-1  # ln 2 = _LN2_HI + _LN2_LO, _LN2_HI with a short mantissa (exact n * _LN2_HI)
+_LN2_LO = 1.42860682030941723212e-6
+_EXP_ZERO = -745.1332191019412  # below: exp rounds to 0
+_EXP_MAX = 709.782712893384  # above: exp overflows
+
+
+@nb.njit(cache=True, nogil=True, inline="always", error_model="numpy")
+def fast_exp(x):
+    """``exp(x)`` to 2 ulp (Cephes' Pade form on ``|r| <= ln(2) / 2``, ``x = n ln 2 + r``), subnormal results
+    rounded once; 0 below -745.13, inf above 709.78, NaN for NaN."""
+    y = min(max(x, _EXP_ZERO), _EXP_MAX)
+    t = y * _LOG2E + _SHIFTER
+    n = t - _SHIFTER  # round(y / ln 2)
+    r = (y - n * _LN2_HI) - n * _LN2_LO
+    rr = r * r
+    p = r * ((1.26177193074810590878e-4 * rr + 3.02994407707441961300e-2) * rr + 9.99999999999999999910e-1)
+    q = ((3.00198505138664455042e-6 * rr + 2.52448340349684104192e-3) * rr + 2.27265548208155028766e-1) * rr + 2.0
+    k = _float_bits(t) - _float_bits(_SHIFTER)  # n as an integer, in [-1075, 1024]
+    half = k >> 1  # 2^n as 2^half 2^(k - half): both normal at either end of the range
+    out = (1.0 + 2.0 * p / (q - p)) * _bits_float((half + 1023) << 52) * _bits_float((k - half + 1023) << 52)
+    out = 0.0 if x < _EXP_ZERO else out
+    out = np.inf if x > _EXP_MAX else out
+    return x if x != x else out
+
+
+_SUBNORMAL_SCALE = 18014398509481984.0  # 2^54
+_MANTISSA = 0x000FFFFFFFFFFFFF
+_HALF_EXPONENT = 0x3FE0000000000000  # the exponent bits of 0.5
+_EXPONENT_AS_FLOAT = 0x4330000000000000  # the bits of 2^52: OR an integer below 2^52 in, subtract 2^52
+_TWO_52 = 4503599627370496.0
+_SQRT_HALF_EXACT = 0.70710678118654752440
+
+
+@nb.njit(cache=True, nogil=True, inline="always", error_model="numpy")
+def fast_log(x):
+    """``log(x)`` to 2 ulp for every positive float64, subnormals included (Cephes' rational form on the
+    mantissa in ``[sqrt(1/2), sqrt(2))``); -inf at 0, inf at inf, NaN below 0 and for NaN."""
+    sub = x < 2.2250738585072014e-308
+    b = _float_bits(x * _SUBNORMAL_SCALE if sub else x)
+    # the exponent as a float without an int64 -> float64 conversion (AVX2 has none for packed int64)
+    e = _bits_float(((b >> 52) & 0x7FF) | _EXPONENT_AS_FLOAT) - (_TWO_52 + 1022.0) - (54.0 if sub else 0.0)
+    m = _bits_float((b & _MANTISSA) | _HALF_EXPONENT)  # x = m 2^e, m in [0.5, 1)
+    low = m < _SQRT_HALF_EXACT
+    e = e - 1.0 if low else e
+    m = (m + m - 1.0) if low else (m - 1.0)
+    z = m * m
+    p = ((((1.01875663804580931796e-4 * m + 4.97494994976747001425e-1) * m + 4.70579119878881725854e0) * m
+          + 1.44989225341610930846e1) * m + 1.79368678507819816313e1) * m + 7.70838733755885391666e0
+    q = ((((m + 1.12873587189167450590e1) * m + 4.52279145837532221105e1) * m + 8.29875266912776603211e1) * m
+         + 7.11544750618563894466e1) * m + 2.31251620126765340583e1
+    y = m * (z * p / q) - e * 2.121944400546905827679e-4 - 0.5 * z
+    out = (m + y) + e * 0.693359375
+    if not (x > 0.0 and x < np.inf):
+        out = -np.inf if x == 0.0 else (x if x == np.inf else np.nan)
+    return out
+
+
+@nb.njit(cache=True, nogil=True, error_model="numpy")
+def exp_into(x, out, n):
+    """``out[:n] = exp(x[:n])`` by :func:`fast_exp` (a vectorised loop)."""
+    for i in range(n):
+        out[i] = fast_exp(x[i])
+
+
+@nb.njit(cache=True, nogil=True, error_model="numpy")
+def log_into(x, out, n):
+    """``out[:n] = log(x[:n])`` by :func:`fast_log` (a vectorised loop)."""
+    for i in range(n):
+        out[i] = fast_log(x[i])
 
 
 # ------------------------------------------------------------------------------------- classic models
@@ -674,16 +782,21 @@ _Z_END, _Z_INFL, _LOG_Z, _SHIFT, _LOG_FAR, _OFFSET, _LENGTH = range(1 + 3 * N_SE
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def _locate(x, seg_x, seg_row, seg_h, seg_inv):
-    """Row (from the table's first) of the node left of ``x``, the fraction to the next, and the spacing
-    there: in the last non-empty segment that starts at or before ``x`` (``seg_row`` (N_SEGMENTS + 1,)
-    ends with the table's last row)."""
-    s = N_SEGMENTS - 1
-    while s > 0 and (x < seg_x[s] or seg_row[s + 1] == seg_row[s]):
+def _locate(x, s, seg_x, seg_row, seg_inv, n_seg):
+    """Row (from the table's first) of the node left of ``x``, the fraction to the next, and the segment:
+    the last of the ``n_seg`` non-empty segments (``seg_x``, ``seg_row``, ``seg_inv``: first x, first row,
+    inverse spacing; ``seg_row[n_seg]`` is the table's last row) that starts at or before ``x``, or the first.
+
+    The search starts at segment ``s`` (the previous look-up's): along a ray, where x only grows, it costs
+    a comparison or two.
+    """
+    while s > 0 and x < seg_x[s]:
         s -= 1
+    while s + 1 < n_seg and x >= seg_x[s + 1]:
+        s += 1
     v = (x - seg_x[s]) * seg_inv[s]
     k = min(max(int(v), 0), seg_row[s + 1] - seg_row[s] - 1)
-    return seg_row[s] + k, min(max(v - k, 0.0), 1.0), seg_h[s]
+    return seg_row[s] + k, min(max(v - k, 0.0), 1.0), s
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
@@ -701,17 +814,17 @@ def _interpolate(nodes, o, f, step, col, delta):
             + g * taylor_0 + f * taylor_1)
 
 
-@nb.njit(cache=True, nogil=True, inline="always")
+@nb.njit(cache=True, nogil=True, inline="always", error_model="numpy")
 def _cell_prior(x):
     """``(1 - e^-x, e^-x)`` for ``x >= 0``: below 0.2 a degree-8 series in Estrin form (relative error
-    < 1e-11, no dependency chain), else through exp."""
-    if x >= 0.2:
-        q = math.exp(-x)
-        return 1.0 - q, q
+    < 1e-11, no dependency chain), else through :func:`fast_exp`; both are computed and one selected, so
+    that a loop over cells stays branch-free."""
+    q = fast_exp(-x)
     x2 = x * x
     p = x * ((1.0 - 0.5 * x) + x2 * (1.0 / 6.0 - x * (1.0 / 24.0))
              + x2 * x2 * ((1.0 / 120.0 - x * (1.0 / 720.0)) + x2 * (1.0 / 5040.0 - x * (1.0 / 40320.0))))
-    return p, 1.0 - p
+    small = x < 0.2
+    return (p if small else 1.0 - q), (1.0 - p if small else q)
 
 
 @nb.njit(cache=True, nogil=True)
@@ -744,24 +857,26 @@ def _log_c_first(z, steep, lam, ku, h, z0, fb, shift, log_wn, means, sigmas):
     return phi - math.log(phi_z) + log1mexp(-phi_z * (z - z0))
 
 
+_LOG_HALF = -0.6931471805599453
 _SKIP = 4
-_REUSED = 8
-"""``side`` bit of a cell whose start is the previous cell's end (its ``l_a`` is that cell's ``l_c``)."""
 """``side`` flag of a cell the measurement does not change (empty, or beyond the influence depth)."""
 
 
 @nb.njit(cache=True, nogil=True, fastmath=_FASTMATH)
-def prism_table_lookup(lam, table, delta, ray_of_cell, start, end, lo, hi, z0, z_max, fb, ku, hq, meta, nodes,
-                       log_wn, means, sigmas, l_a, l_c, side):
+def prism_table_lookup(lam, table, delta, ray_of_cell, start, end, stretch, lo, hi, z0, z_max, fb, ku, hq, meta,
+                       nodes, log_wn, means, sigmas, l_a, l_c, side, lam_len):
     """First stage of tabulated PRISM on cells ``lo:hi``: per cell end, the log of the smaller of C/Z, D/Z.
 
+    A cell is ``[start[i], end[i] + stretch[r]]`` (``stretch``: the ray's voxel overhang share, depth metres).
     Per ray one table (``table[r]``, the ray's rate ``e^delta[r]`` times the table's). A look-up
-    interpolates ``log(C/Z)`` and, only where ``C/Z > 1/2``, ``log(D/Z)``: ``C/Z + D/Z = 1``. Writes
-    ``l_a[j], l_c[j]`` (cell ``lo + j``) and ``side[j]`` (bit 0: ``l_a`` is D's, bit 1: ``l_c`` is D's,
-    :data:`_REUSED`, or :data:`_SKIP`: no change). A cell starting where the previous one of the same ray
-    ended reuses that look-up (ray casting emits cells in order). Cells starting beyond the influence depth are skipped; for a
-    cell ending beyond the table (where the remaining evidence is below e^-40 of C), ``D(c)`` is integrated
-    on the spot.
+    interpolates ``log(C/Z)`` and, only where ``C/Z > 1/2``, ``log(D/Z)`` (``C/Z + D/Z = 1``); past a depth
+    of the ray already found to have ``C/Z >= 1/2`` only ``log(D/Z)``, as ``C`` only grows. Writes
+    ``l_a[j], l_c[j]`` (cell ``lo + j``) and ``side[j]`` (bit 0: ``l_a`` is D's, bit 1: ``l_c`` is D's, or
+    :data:`_SKIP`: no change), and ``lam_len[j]``, the cell's prior rate times its length (of the part in
+    ``[z0, z_max]``; a skipped cell's whole length). A cell starting where the previous one of the same ray ended reuses that
+    look-up (ray casting emits cells in order; with a stretch no start is a previous end). Cells starting
+    beyond the influence depth are skipped; for a cell ending beyond the table (where the remaining
+    evidence is below e^-40 of C), ``D(c)`` is integrated on the spot.
     """
     r_prev = -1
     c_prev = -1.0
@@ -771,8 +886,10 @@ def prism_table_lookup(lam, table, delta, ray_of_cell, start, end, lo, hi, z0, z
     seg_h = np.empty(N_SEGMENTS)
     seg_inv = np.empty(N_SEGMENTS)
     seg_row = np.empty(N_SEGMENTS + 1, dtype=np.int64)
-    lam_t = z_end = z_infl = dl = shift = log_z = log_far = 0.0
-    off = 0
+    lam_t = z_end = z_infl = dl = shift = log_z = log_far = stretch_r = 0.0
+    z_half = np.inf
+    off = n_seg = s_a = s_c = 0
+    steep = False
     for i in range(lo, hi):
         j = i - lo
         r = ray_of_cell[i]
@@ -782,107 +899,157 @@ def prism_table_lookup(lam, table, delta, ray_of_cell, start, end, lo, hi, z0, z
             t = table[r]
             dl = delta[r]
             lam_t = meta[t, _LAM]
+            n_seg = 0  # the non-empty segments, in order
             for k in range(N_SEGMENTS):
-                seg_x[k] = meta[t, _X + k]
-                seg_row[k] = int(meta[t, _ROW + k])
-                seg_h[k] = meta[t, _SPACING + k]
-                seg_inv[k] = 1.0 / seg_h[k]
-            seg_row[N_SEGMENTS] = int(meta[t, _LENGTH]) - 1
+                first = int(meta[t, _ROW + k])
+                if (int(meta[t, _ROW + k + 1]) if k + 1 < N_SEGMENTS else int(meta[t, _LENGTH]) - 1) > first:
+                    seg_x[n_seg] = meta[t, _X + k]
+                    seg_row[n_seg] = first
+                    seg_h[n_seg] = meta[t, _SPACING + k]
+                    seg_inv[n_seg] = 1.0 / seg_h[n_seg]
+                    n_seg += 1
+            seg_row[n_seg] = int(meta[t, _LENGTH]) - 1
+            steep = int(meta[t, _ROW + 1]) > 0  # a coarse front: C from its endpoint asymptotic there
+            s_a = s_c = 0
+            z_half = np.inf  # least depth of the ray known to have C/Z >= 1/2
             z_end = meta[t, _Z_END]
             z_infl = meta[t, _Z_INFL]
             shift = meta[t, _SHIFT]
             log_z = meta[t, _LOG_Z]
             log_far = meta[t, _LOG_FAR]
             off = int(meta[t, _OFFSET])
+            stretch_r = stretch[r]
         a = max(start[i], z0)
-        c = min(end[i], z_max)
+        c = min(end[i] + stretch_r, z_max)
         if c <= a or a >= z_infl:
             side[j] = _SKIP
             l_a[j] = l_c[j] = 0.0
+            lam_len[j] = lam[r] * max(end[i] + stretch_r - start[i], 0.0)
             c_prev = -1.0
             continue
+        lam_len[j] = lam[r] * (c - a)
         if a == c_prev:
             l_a[j] = lcc
             a_is_d = c_is_d
         else:
-            k, f, step = _locate(lam_t * a - ku / a, seg_x, seg_row, seg_h, seg_inv)
+            k, f, s_a = _locate(lam_t * a - ku / a, s_a, seg_x, seg_row, seg_inv, n_seg)
             o = off + k
-            if k == 0:  # first interval: log C is -inf at z0
-                lca = -np.inf
-                if a > z0:
-                    lca = _log_c_first(a, seg_row[1] > 0, lam_t, ku, step, z0, fb, shift, log_wn, means, sigmas) - log_z
+            a_is_d = 1
+            if a >= z_half and k > 0:  # C is increasing: past a depth with C/Z >= 1/2, D is the smaller
+                l_a[j] = _interpolate(nodes, o, f, seg_h[s_a], 4, dl)
             else:
-                lca = _interpolate(nodes, o, f, step, 0, dl)
-            a_is_d = 0 if lca < -0.6931471805599453 else 1
-            l_a[j] = lca if a_is_d == 0 else _interpolate(nodes, o, f, step, 4, dl)
+                if k == 0:  # first interval: log C is -inf at z0
+                    lca = -np.inf
+                    if a > z0:
+                        lca = _log_c_first(a, steep, lam_t, ku, seg_h[s_a], z0, fb, shift, log_wn, means, sigmas) - log_z
+                else:
+                    lca = _interpolate(nodes, o, f, seg_h[s_a], 0, dl)
+                if lca < _LOG_HALF:
+                    a_is_d = 0
+                    l_a[j] = lca
+                else:
+                    l_a[j] = _interpolate(nodes, o, f, seg_h[s_a], 4, dl)
+                    z_half = min(z_half, a)
         if c > z_end:
             lcc = log_tail(c, log_z, lam_t, ku, hq, z0, z_max, fb, shift, log_far, log_wn, means, sigmas) - log_z
             c_is_d = 1
         else:
-            k, f, step = _locate(lam_t * c - ku / c, seg_x, seg_row, seg_h, seg_inv)
+            k, f, s_c = _locate(lam_t * c - ku / c, s_c, seg_x, seg_row, seg_inv, n_seg)
             o = off + k
-            if k == 0:
-                lcc = _log_c_first(c, seg_row[1] > 0, lam_t, ku, step, z0, fb, shift, log_wn, means, sigmas) - log_z
+            c_is_d = 1
+            if c >= z_half and k > 0:
+                lcc = _interpolate(nodes, o, f, seg_h[s_c], 4, dl)
             else:
-                lcc = _interpolate(nodes, o, f, step, 0, dl)
-            c_is_d = 0
-            if lcc >= -0.6931471805599453:
-                lcc = _interpolate(nodes, o, f, step, 4, dl)
-                c_is_d = 1
+                if k == 0:
+                    lcc = _log_c_first(c, steep, lam_t, ku, seg_h[s_c], z0, fb, shift, log_wn, means, sigmas) - log_z
+                else:
+                    lcc = _interpolate(nodes, o, f, seg_h[s_c], 0, dl)
+                if lcc < _LOG_HALF:
+                    c_is_d = 0
+                else:
+                    lcc = _interpolate(nodes, o, f, seg_h[s_c], 4, dl)
+                    z_half = min(z_half, c)
         l_c[j] = lcc
-        side[j] = a_is_d + 2 * c_is_d + (_REUSED if a == c_prev else 0)
+        side[j] = a_is_d + 2 * c_is_d
         c_prev = c
 
 
-@nb.njit(cache=True, nogil=True, fastmath=_FASTMATH)
-def prism_table_combine(lam, ray_of_cell, start, end, lo, hi, z0, z_max, l_a, l_c, e_c, side, post, ratio,
-                        fix_index, fix_value, pass_through):
+@nb.njit(cache=True, nogil=True, error_model="numpy")  # no fastmath: it inlines fast_exp
+def prism_table_combine(lo, hi, l_a, l_c, e_a, e_c, side, lam_len, post, ratio, fix_index, fix_value, pass_through):
     """Second stage on cells ``lo:hi``: posterior (into ``post[lo:hi]``) and ``ratio[j]``, the increment's exp.
 
-    ``e_c`` is ``exp(l_c)`` of :func:`prism_table_lookup`; ``exp(l_a)`` is the previous cell's ``e_c``
-    where the look-up was reused (ray casting: all but a ray's first cell), else computed here. So ``C/Z``
-    and ``D/Z`` at both ends are at hand in linear space: ``P Z = p_c C(a) + C(c) - C(a)``, ``(1 - P) Z = (1 - p_c) C(a) + D(c)``
-    and the increment is ``log(ratio)`` with ``ratio = P (1 - p_c) / ((1 - P) p_c)``. Cells near underflow
-    (a log below -600 or ``lam_len > 40``) go through :func:`combine_small` instead: ``ratio = 1``, listed
-    in ``fix_index`` (offset from ``lo``) and ``fix_value``; returns how many. ``pass_through``: the chance
-    that a ray passes an occupied cell, ``ratio -> m + (1 - m) ratio`` (:func:`pass_through_log`; 0: never).
+    ``e_a``, ``e_c`` are ``exp(l_a)``, ``exp(l_c)`` of :func:`prism_table_lookup` (:func:`exp_into`), so
+    ``C/Z`` and ``D/Z`` at both ends are at hand in linear space: ``P Z = p_c C(a) + C(c) - C(a)``,
+    ``(1 - P) Z = (1 - p_c) C(a) + D(c)`` and the increment is ``log(ratio)`` with
+    ``ratio = P (1 - p_c) / ((1 - P) p_c)``, ``p_c = 1 - e^-lam_len``. A first, branch-free pass (it
+    vectorises) does every cell so; a second one redoes the few it marked (``ratio`` -1): skipped cells
+    (``ratio = 1``, the posterior the prior's) and cells near underflow (a log below -600 or
+    ``lam_len > 40``), which go through :func:`combine_small`: ``ratio = 1``, listed in ``fix_index``
+    (offset from ``lo``) and ``fix_value``. Returns how many. ``pass_through``: the chance that a ray passes an
+    occupied cell, ``ratio -> m + (1 - m) ratio`` (:func:`pass_through_log`; 0: never, bit for bit).
     """
-    n_fix = 0
     for j in range(hi - lo):
-        i = lo + j
-        r = ray_of_cell[i]
         s = side[j]
-        if s == _SKIP:
-            post[i] = -math.expm1(-lam[r] * max(end[i] - start[i], 0.0))
-            ratio[j] = 1.0
-            continue
-        e_a = e_c[j - 1] if s & _REUSED else math.exp(l_a[j])
-        c_a = 1.0 - e_a if s & 1 else e_a
+        p_c, q_c = _cell_prior(lam_len[j])
+        c_a = 1.0 - e_a[j] if s & 1 else e_a[j]
         c_c = 1.0 - e_c[j] if s & 2 else e_c[j]
         d_a = 1.0 - c_a
         d_c = 1.0 - c_c
-        lam_len = lam[r] * (min(end[i], z_max) - max(start[i], z0))
-        p_c, q_c = _cell_prior(lam_len)
         # the cell's share C(c) - C(a) from the side that is small (accurate) at c
         delta = max(c_c - c_a, 0.0) if c_c < 0.5 else max(d_a - d_c, 0.0)
         num = p_c * c_a + delta
         den = q_c * c_a + d_c
-        if min(l_a[j], l_c[j]) >= -600.0 and lam_len <= 40.0 and num > 0.0 and den > 0.0 and p_c > 0.0:
-            if pass_through > 0.0:
-                thinned = pass_through + (1.0 - pass_through) * (num * q_c) / (den * p_c)
-                post[i] = p_c * thinned / (p_c * thinned + q_c)
-                ratio[j] = thinned
-            else:
-                post[i] = num / (num + den)
-                ratio[j] = (num * q_c) / (den * p_c)
-        else:  # near underflow: log space
-            post[i], fix_value[n_fix] = combine_small(l_a[j], l_c[j], s & 1, s & 2, lam_len)
-            if pass_through > 0.0:
-                post[i], fix_value[n_fix] = pass_through_log(fix_value[n_fix], lam_len, pass_through)
-            ratio[j] = 1.0
-            fix_index[n_fix] = j
-            n_fix += 1
+        ok = ((s != _SKIP) & (min(l_a[j], l_c[j]) >= -600.0) & (lam_len[j] <= 40.0) & (num > 0.0) & (den > 0.0)
+              & (p_c > 0.0))
+        thinned = pass_through + (1.0 - pass_through) * ((num * q_c) / (den * p_c))  # = the ratio when m = 0
+        post[lo + j] = num / (num + den) if pass_through == 0.0 else p_c * thinned / (p_c * thinned + q_c)
+        ratio[j] = thinned if ok else -1.0
+    n_fix = 0
+    for j in range(hi - lo):
+        if ratio[j] >= 0.0:
+            continue
+        ratio[j] = 1.0
+        if side[j] == _SKIP:
+            post[lo + j] = -math.expm1(-lam_len[j])
+            continue
+        post[lo + j], fix_value[n_fix] = combine_small(l_a[j], l_c[j], side[j] & 1, side[j] & 2, lam_len[j])
+        if pass_through > 0.0:
+            post[lo + j], fix_value[n_fix] = pass_through_log(fix_value[n_fix], lam_len[j], pass_through)
+        fix_index[n_fix] = j
+        n_fix += 1
     return n_fix
+
+
+@nb.njit(cache=True, nogil=True)
+def prism_table_cells(lam, table, delta, ray_of_cell, start, end, stretch, block, z0, z_max, fb, ku, hq, meta, nodes,
+                      log_wn, means, sigmas, pass_through):
+    """Tabulated PRISM on every cell ``[start[i], end[i] + stretch[r]]``: posterior and increment, (C,) each.
+
+    Blocks of ``block`` cells go through :func:`prism_table_lookup`, :func:`exp_into` (both ends),
+    :func:`prism_table_combine` and :func:`log_into`; the scratch arrays of a block stay in the core's
+    cache and the GIL stays released for the whole call. ``pass_through``: see :func:`prism_table_combine`.
+    """
+    n = start.size
+    post = np.empty(n)
+    inc = np.empty(n)
+    size = max(min(n, block), 1)
+    l_a, l_c, e_a, e_c = np.empty(size), np.empty(size), np.empty(size), np.empty(size)
+    lam_len, ratio, fix_value = np.empty(size), np.empty(size), np.empty(size)
+    side = np.empty(size, dtype=np.int8)
+    fix_index = np.empty(size, dtype=np.int64)
+    for lo in range(0, n, size):
+        hi = min(lo + size, n)
+        m = hi - lo
+        prism_table_lookup(lam, table, delta, ray_of_cell, start, end, stretch, lo, hi, z0, z_max, fb, ku, hq, meta,
+                           nodes, log_wn, means, sigmas, l_a, l_c, side, lam_len)
+        exp_into(l_a, e_a, m)
+        exp_into(l_c, e_c, m)
+        n_fix = prism_table_combine(lo, hi, l_a, l_c, e_a, e_c, side, lam_len, post, ratio, fix_index, fix_value,
+                                    pass_through)
+        log_into(ratio, inc[lo:hi], m)
+        for k in range(n_fix):
+            inc[lo + fix_index[k]] = fix_value[k]
+    return post, inc
 
 
 @nb.njit(cache=True, nogil=True)

@@ -54,7 +54,7 @@ _LAMBDA_STEP = 0.1  # table grid in log(lambda_z): one table every ~10 % of ray 
 _LAMBDA_SLACK = float(np.expm1(_LAMBDA_STEP / 2))  # relative rate gap a table's influence depth covers
 _KEY_L_SPAN = 1 << 16  # table key = disparity key * span + rate key
 _BUILD_THREADS = min(2, os.cpu_count() or 1)  # threads building one call's missing tables
-_CHUNK_CELLS = 1 << 15  # cells per look-up/exp/combine/log round: the scratch arrays stay in cache
+_CHUNK_CELLS = 4096  # cells per look-up/exp/combine/log round: its 8 scratch arrays (228 KiB) stay in L2
 
 
 def _log_diff_ndtr(hi, lo):
@@ -160,9 +160,9 @@ class PrismModel(RayModel):
       are rounded (a shift of at most half a step).
       Tables are cached on the model (one model per error model and camera; each
       :meth:`with_extra_noise` copy has its own), least recently used ones dropped beyond the budget
-      (``table_memory_mb``), so a sequence pays for each table about once. A cell costs a look-up (reused
-      from the previous cell when it starts where that one ended), a vectorised exp and log, and a
-      division or two.
+      (``table_memory_mb``), so a sequence pays for each table about once. A cell costs a look-up at each
+      end (the start's reused from the previous cell when it starts where that one ended, which a voxel
+      overhang's stretch rules out), two exps and a log in vectorised loops, and a division or two.
     - ``"direct"``: quadrature ray by ray (8-point Gauss-Legendre panels of x-width 0.25) with every cell
       boundary a panel edge.
 
@@ -303,13 +303,15 @@ class PrismModel(RayModel):
         disparity, norm, rays, start, end, _ = self._prepare(
             disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m
         )
+        stretch = np.zeros(disparity.size)  # depth metres added to the end of each ray's cells
         if voxel_overhang_m is not None and self.overhang_fraction > 0:
             overhang = as_float_array(voxel_overhang_m, "voxel_overhang_m", shape=(disparity.size,), allow_nan=False)
             if overhang.size and overhang.min() < 0:
                 raise PrismapInputError(f"prism: `voxel_overhang_m` must be >= 0; got minimum {overhang.min()!r}")
-            end = end + (self.overhang_fraction * overhang / norm)[rays]
+            stretch = self.overhang_fraction * overhang / norm
         lam = self.rate_per_m * norm
         if method == "direct":
+            end = end + stretch[rays]
             order = np.argsort(rays, kind="stable")
             ray_start = np.searchsorted(rays[order], np.arange(disparity.size + 1))
             return _kernels.prism_direct_cells(
@@ -319,7 +321,7 @@ class PrismModel(RayModel):
             )
         if method != "table":
             raise PrismapInputError(f"prism: `method` must be 'table' or 'direct'; got {method!r}")
-        return self._table_cells(lam, disparity, norm, rays, start, end)
+        return self._table_cells(lam, disparity, norm, rays, start, end, stretch)
 
     def influence_depth(self, disparity_px, ray_norm):
         """Depth beyond which every cell's ``|logit(P) - logit(p_c)| < influence_epsilon`` (metres), per ray.
@@ -343,31 +345,15 @@ class PrismModel(RayModel):
         return self._widened[extra]
 
     # ------------------------------------------------------------------ tables
-    def _table_cells(self, lam, disparity, norm, rays, start, end):
-        """Tabulated posteriors and increments, in chunks: table look-ups (numba), exp and log (numpy SIMD)."""
+    def _table_cells(self, lam, disparity, norm, rays, start, end, stretch):
+        """Tabulated posteriors and increments of the cells ``[start, end + stretch[rays]]``
+        (``_kernels.prism_table_cells``: table look-ups, vectorised exp, combination, vectorised log)."""
         table, delta = self._tables_for(disparity, norm)
-        meta, nodes = self._cache.meta, self._cache.nodes
         log_wn, means, sigmas = self._mixture_arrays()
-        n = start.size
-        post = np.empty(n)
-        inc = np.empty(n)
-        size = min(n, _CHUNK_CELLS)
-        l_a, l_c, e_c, ratio, fix_value = (np.empty(size) for _ in range(5))
-        side = np.empty(size, dtype=np.int8)
-        fix_index = np.empty(size, dtype=np.int64)
-        for lo in range(0, n, _CHUNK_CELLS):
-            hi = min(lo + _CHUNK_CELLS, n)
-            m = hi - lo
-            _kernels.prism_table_lookup(lam, table, delta, rays, start, end, lo, hi, self.near_m, self.far_depth_m,
-                                        self.focal_baseline, self._ku(), _QUAD_STEP, meta, nodes, log_wn, means,
-                                        sigmas, l_a, l_c, side)
-            np.exp(l_c[:m], out=e_c[:m])
-            n_fix = _kernels.prism_table_combine(lam, rays, start, end, lo, hi, self.near_m, self.far_depth_m, l_a,
-                                                 l_c, e_c, side, post, ratio, fix_index, fix_value,
-                                                 self.pass_through)
-            np.log(ratio[:m], out=inc[lo:hi])
-            inc[lo + fix_index[:n_fix]] = fix_value[:n_fix]
-        return post, inc
+        return _kernels.prism_table_cells(lam, table, delta, rays, start, end, stretch, _CHUNK_CELLS, self.near_m,
+                                          self.far_depth_m, self.focal_baseline, self._ku(), _QUAD_STEP,
+                                          self._cache.meta, self._cache.nodes, log_wn, means, sigmas,
+                                          self.pass_through)
 
     def _tables_for(self, disparity, norm):
         """Table row and ``delta = log(lambda_ray / lambda_table)`` of every ray, building missing tables."""
