@@ -112,7 +112,8 @@ def timed_run(sequence, config):
 
     prismap.pipeline._run.sensor_model_for = timed_model
     clock.wrap(prismap.grid._accumulator, "cast_into", "casting")
-    clock.wrap(prismap.grid._kernels_project, "project_voxels", "casting")
+    clock.wrap(prismap.grid._kernels_project, "project_cells", "casting")
+    clock.wrap(prismap.grid._kernels_project, "project_hit_miss", "casting")
     clock.wrap(prismap.grid._kernels_accumulate, "apply_frame", "merge")
     try:
         start = time.perf_counter()
