@@ -10,6 +10,7 @@ come from summed-area tables (one numba pass over the image), then each fitted p
 import numba as nb
 import numpy as np
 
+from prismap._validate import check_integer
 from prismap.errors import PrismapInputError
 
 PLANE_WINDOW_PX = 7
@@ -51,8 +52,7 @@ def plane_normals(disparity_px, camera, *, window_px=PLANE_WINDOW_PX, subsample=
         raise PrismapInputError(f"`disparity_px` must be an (H, W) image; got shape {disparity.shape}")
     if isinstance(window_px, bool) or int(window_px) != window_px or window_px < 3 or window_px % 2 == 0:
         raise PrismapInputError(f"`window_px` must be an odd integer >= 3; got {window_px!r}")
-    if isinstance(subsample, bool) or int(subsample) != subsample or subsample < 1:
-        raise PrismapInputError(f"`subsample` must be an integer >= 1; got {subsample!r}")
+    check_integer(subsample, "subsample", expected="an integer >= 1", condition=lambda n: n >= 1)
     return _plane_normals(np.ascontiguousarray(disparity), float(camera.focal_px), float(camera.cx_px),
                           float(camera.cy_px), float(camera.doffs_px), int(window_px) // 2, int(subsample), MIN_WINDOW_SHARE)
 

@@ -20,7 +20,7 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 from scipy.special import log_ndtr, logsumexp
 
-from prismap._validate import as_float_array, check_positive, check_probability
+from prismap._validate import as_float_array, check_positive, check_probability, check_real
 from prismap.errors import PrismapInputError
 from prismap.gmm import GaussianMixture
 from prismap.sensor_models import _kernels
@@ -233,14 +233,8 @@ class PrismModel(RayModel):
         object.__setattr__(self, "far_depth_m", far)
         object.__setattr__(self, "disparity_step_px", check_positive(self.disparity_step_px, "disparity_step_px"))
         object.__setattr__(self, "influence_epsilon", check_positive(self.influence_epsilon, "influence_epsilon"))
-        fraction = self.overhang_fraction
-        if isinstance(fraction, bool) or not isinstance(fraction, (int, float, np.floating)) or not 0 <= fraction <= 1:
-            raise PrismapInputError(f"prism: `overhang_fraction` must be a number in [0, 1]; got {fraction!r}")
-        object.__setattr__(self, "overhang_fraction", float(fraction))
-        chance = self.pass_through
-        if isinstance(chance, bool) or not isinstance(chance, (int, float, np.floating)) or not 0 <= chance < 1:
-            raise PrismapInputError(f"prism: `pass_through` must be a number in [0, 1); got {chance!r}")
-        object.__setattr__(self, "pass_through", float(chance))
+        object.__setattr__(self, "overhang_fraction", _share(self.overhang_fraction, "overhang_fraction", one=True))
+        object.__setattr__(self, "pass_through", _share(self.pass_through, "pass_through", one=False))
         if self.table_memory_mb is None:
             budget = None
         else:
@@ -390,6 +384,14 @@ class PrismModel(RayModel):
             return [build(*job) for job in zip(disparity, lam, log_far)]
         with ThreadPoolExecutor(_BUILD_THREADS) as pool:  # prism_table releases the GIL
             return list(pool.map(build, disparity, lam, log_far))
+
+
+def _share(value, name, *, one):
+    """``float(value)`` if it is a number in [0, 1] (``one``) or [0, 1), else raise naming ``name``."""
+    number = check_real(value, name, minimum=0.0)
+    if number > 1 or (number == 1 and not one):
+        raise PrismapInputError(f"prism: `{name}` must lie in [0, 1{']' if one else ')'}; got {value!r}")
+    return number
 
 
 def broad_errors(mixture):

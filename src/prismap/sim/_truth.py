@@ -2,8 +2,9 @@
 
 import numpy as np
 
-from prismap._validate import check_positive
+from prismap._validate import check_integer, check_positive
 from prismap.errors import PrismapInputError
+from prismap.grid import crossed_voxels, frame_overhang_m
 from prismap.io._sequence import GroundTruthOccupancy
 from prismap.sim._kernels import count_occupied_before, mark_visible
 
@@ -124,18 +125,15 @@ def pass_through_ratio(box_lo, box_hi, frames, voxel_size_m, *, max_depth_m=np.i
     -------
     float in [0, 1)
     """
-    from prismap.grid import crossed_voxels, frame_overhang_m
-
     voxel = check_positive(voxel_size_m, "voxel_size_m")
-    if isinstance(subsample, bool) or not isinstance(subsample, (int, np.integer)) or subsample < 1:
-        raise PrismapInputError(f"`subsample` must be an integer >= 1; got {subsample!r}")
+    step = check_integer(subsample, "subsample", expected="an integer >= 1", condition=lambda n: n >= 1)
     occupied, bounds_lo = _occupied_volume(box_lo, box_hi, voxel, False)
     passes = rays_hit = 0
     for index, frame in enumerate(frames):
         camera, pose, depth = _true_view(index, frame)
-        depth = np.where(np.isnan(depth), np.inf, depth)[::subsample, ::subsample].reshape(-1)
-        rays_cam = camera.pixel_rays(frame.disparity_gt.shape)[::subsample, ::subsample].reshape(-1, 3)
-        overhang = frame_overhang_m(frame.disparity_gt, camera, pose[:3, :3], voxel, subsample, rays_cam)
+        depth = np.where(np.isnan(depth), np.inf, depth)[::step, ::step].reshape(-1)
+        rays_cam = camera.pixel_rays(frame.disparity_gt.shape)[::step, ::step].reshape(-1, 3)
+        overhang = frame_overhang_m(frame.disparity_gt, camera, pose[:3, :3], voxel, step, rays_cam)
         hit = depth <= max_depth_m
         rays_hit += int(hit.sum())
         ray, keys, _, t_out = crossed_voxels(pose[:3, 3], rays_cam @ pose[:3, :3].T, np.where(hit, depth, 0.0), voxel)
