@@ -200,6 +200,11 @@ class PrismModel(RayModel):
         the voxel holds part of the surface when the first surface lies within that stretch, and its prior
         is the stretch's (the same event), so ``P Z = p_c' C(a) + C(c') - C(a)`` and the increment is
         ``logit(P) - logit(p_c')``. 0 = the one-dimensional model of SENSOR_MODELS.md.
+    pass_through : float in [0, 1), default :data:`PASS_THROUGH`
+        The chance ``m`` that a ray crosses an occupied cell without stopping in it (a voxel holds any part
+        of a solid: a table's edge, a pole's side). Each cell's likelihood ratio ``R`` becomes
+        ``m + (1 - m) R``, so one ray's free evidence is at most ``-log m``; measure it from a ground truth
+        with :meth:`prismap.sim.Scene3D.pass_through_ratio` (docs/SENSOR_MODELS.md, "Pass-through").
     """
 
     name = "prism"
