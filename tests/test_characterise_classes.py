@@ -55,14 +55,16 @@ def _brute_force(classes, values, valid):
     _tree(),
     ErrorClasses.from_edges(("edge_distance_px", "texture"), ([1.5, 4.0], [3.0, 8.0])),
     ErrorClasses.from_edges(("disparity_px",), ([10.0, 20.0, 30.0],)),
+    ErrorClasses.from_edges(("edge_distance_px", "disparity_gradient"), ([3.0], [0.05, 0.2])),
 ])
 def test_classification_agrees_with_a_brute_force_reference(classes):
     rng = np.random.default_rng(4)
     shape = (17, 23)
     values = {"edge_distance_px": rng.integers(0, 8, shape).astype(float), "texture": rng.uniform(0, 12, shape),
-              "disparity_px": rng.uniform(0, 40, shape)}
+              "disparity_px": rng.uniform(0, 40, shape), "disparity_gradient": rng.exponential(0.1, shape)}
     values["edge_distance_px"][0, :4] = [np.inf, 2.0, 1.5, 4.0]  # infinity and values on the bounds
     values["texture"][1, :3] = [5.0, 3.0, np.nan]
+    values["disparity_gradient"][2, :2] = [np.inf, 0.2]  # no wholly valid neighbourhood, a value on a bound
     valid = rng.random(shape) > 0.1
     label = classes.assign(values, valid)
     assert label.dtype == np.int32 and label.shape == shape

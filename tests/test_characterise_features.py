@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from prismap.characterise import FEATURE_UNITS, compute_features, discontinuity_mask
+from prismap.characterise import FEATURE_UNITS, compute_features, discontinuity_mask, disparity_gradient
 from prismap.errors import PrismapInputError
 
 
@@ -70,13 +70,45 @@ def test_texture_is_the_windowed_rms_sobel_gradient():
     np.testing.assert_allclose(texture[4:-4, 4:-4], 3.0, rtol=1e-12)
 
 
+def test_disparity_gradient_is_the_windowed_mean_sobel_magnitude_over_wholly_valid_neighbourhoods():
+    rng = np.random.default_rng(3)
+    d = rng.uniform(5.0, 15.0, (9, 12))
+    d[4, 5] = np.nan
+    d[0, 11] = np.nan
+    window = 5
+    padded = np.pad(d, 1, mode="reflect")  # numpy "reflect" is OpenCV's REFLECT_101
+    smooth, diff = np.array([1.0, 2.0, 1.0]), np.array([-1.0, 0.0, 1.0])
+    magnitude = np.zeros(d.shape)
+    defined = np.zeros(d.shape, bool)
+    for v, u in np.ndindex(d.shape):
+        patch = padded[v:v + 3, u:u + 3]
+        if np.isfinite(patch).all():
+            defined[v, u] = True
+            magnitude[v, u] = np.hypot(smooth @ patch @ diff / 8.0, diff @ patch @ smooth / 8.0)
+    r = window // 2
+    m_pad, w_pad = np.pad(magnitude, r, mode="reflect"), np.pad(defined.astype(float), r, mode="reflect")
+    expected = np.array([[m_pad[v:v + window, u:u + window].sum() / w_pad[v:v + window, u:u + window].sum()
+                          for u in range(12)] for v in range(9)])
+    got = compute_features(np.zeros(d.shape), None, d, texture_window_px=window).values["disparity_gradient"]
+    np.testing.assert_allclose(got, expected, rtol=1e-10, atol=1e-12)
+    # A plane d = 0.3 u - 0.4 v + 20 has gradient 0.5 px/px away from the border, and next to a hole too.
+    v, u = np.mgrid[0:20, 0:30]
+    plane = 0.3 * u - 0.4 * v + 20.0
+    plane[10, 15] = np.nan
+    np.testing.assert_allclose(disparity_gradient(plane, window_px=7)[4:-4, 4:-4], 0.5, rtol=1e-12)
+    # No wholly valid 3x3 neighbourhood in the window: infinitely rough.
+    sparse = np.full((6, 6), np.nan)
+    sparse[::2, ::2] = 1.0
+    assert np.isposinf(disparity_gradient(sparse, window_px=3)).all()
+
+
 def test_features_carry_names_units_validity_and_the_optional_lr_disagreement():
     d = _disparity()
     lr = np.abs(np.random.default_rng(2).normal(size=d.shape))
     plain = compute_features(np.zeros(d.shape), None, d)
     checked = compute_features(np.zeros(d.shape), None, d, lr)
-    assert plain.names == ("edge_distance_px", "texture", "disparity_px")
-    assert checked.names == ("edge_distance_px", "texture", "lr_disagreement_px", "disparity_px")
+    assert plain.names == ("edge_distance_px", "texture", "disparity_gradient", "disparity_px")
+    assert checked.names == ("edge_distance_px", "texture", "disparity_gradient", "lr_disagreement_px", "disparity_px")
     assert set(checked.names) <= set(FEATURE_UNITS)
     np.testing.assert_array_equal(checked.values["lr_disagreement_px"], lr)
     np.testing.assert_array_equal(checked.values["disparity_px"], d)
@@ -90,6 +122,7 @@ def test_features_carry_names_units_validity_and_the_optional_lr_disagreement():
     (lambda d: compute_features(np.zeros(d.shape), None, d, np.zeros((2, 2))), "lr_disagreement"),
     (lambda d: compute_features(np.zeros(d.shape), None, d, texture_window_px=4), "texture_window_px"),
     (lambda d: compute_features(np.zeros(d.shape), None, d, edge_threshold_px=0), "edge_threshold_px"),
+    (lambda d: disparity_gradient(d, window_px=2), "texture_window_px"),
     (lambda d: compute_features(np.zeros(d.shape), None, d[0]), "disparity"),
 ])
 def test_bad_input_names_the_argument(call, message):

@@ -6,6 +6,7 @@ from prismap.characterise._features import (
     PixelFeatures,
     compute_features,
     discontinuity_mask,
+    disparity_gradient,
 )
 from prismap.characterise._histogram import ErrorHistogram
 from prismap.characterise._model import (
@@ -37,6 +38,7 @@ __all__ = [
     "choose_classes",
     "compute_features",
     "discontinuity_mask",
+    "disparity_gradient",
     "format_table",
     "load_error_model",
     "write_characterisation",

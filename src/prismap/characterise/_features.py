@@ -11,6 +11,11 @@ so a mapping run can compute it for each frame and pick the error mixture of eac
 - ``texture`` (grey levels per pixel): ``sqrt`` of the mean squared Sobel gradient magnitude of the
   left grey image over a ``texture_window_px`` square window (Sobel normalised by 1/8 so it estimates
   the derivative; borders reflected as OpenCV's ``BORDER_REFLECT_101``).
+- ``disparity_gradient`` (pixels per pixel): the mean magnitude of the computed disparity's gradient
+  (Sobel normalised by 1/8) over the same ``texture_window_px`` window, averaged over the pixels whose
+  3x3 neighbourhood is wholly valid (``+inf`` where the window holds none). It is large on surfaces
+  seen at a slant and where the computed disparity is rough, both where matchers err more, which
+  neither the distance to a discontinuity nor the image texture sees.
 - ``lr_disagreement_px`` (pixels): the left-right disagreement of the matcher's check
   (:func:`prismap.stereo.left_right_disagreement`); only when the check runs.
 - ``disparity_px`` (pixels): the computed disparity itself.
@@ -28,6 +33,7 @@ from prismap.errors import PrismapInputError
 FEATURE_UNITS = {
     "edge_distance_px": "px",
     "texture": "grey levels / px",
+    "disparity_gradient": "px / px",
     "lr_disagreement_px": "px",
     "disparity_px": "px",
 }
@@ -100,14 +106,47 @@ def texture_strength(grey, *, window_px=DEFAULT_TEXTURE_WINDOW_PX):
     window_px : int, odd, >= 1
     """
     image = as_float_array(grey, "left_grey", ndim=2, allow_nan=False)
-    window = int(window_px)
-    if window != window_px or window < 1 or window % 2 == 0:
-        raise PrismapInputError(f"`texture_window_px` must be an odd integer >= 1; got {window_px!r}")
+    window = _odd_window(window_px)
     gx = cv2.Sobel(image, cv2.CV_64F, 1, 0, ksize=3, scale=0.125, borderType=cv2.BORDER_REFLECT_101)
     gy = cv2.Sobel(image, cv2.CV_64F, 0, 1, ksize=3, scale=0.125, borderType=cv2.BORDER_REFLECT_101)
     energy = cv2.boxFilter(gx * gx + gy * gy, cv2.CV_64F, (window, window), normalize=True,
                            borderType=cv2.BORDER_REFLECT_101)
     return np.sqrt(np.maximum(energy, 0.0))
+
+
+def disparity_gradient(disparity, *, window_px=DEFAULT_TEXTURE_WINDOW_PX):
+    """(H, W) float64, pixels per pixel: mean Sobel gradient magnitude of the disparity over a square window.
+
+    Only pixels whose 3x3 neighbourhood is wholly finite have a gradient; the window averages those
+    (borders reflected as OpenCV's ``BORDER_REFLECT_101``) and is ``+inf`` where it holds none.
+
+    Parameters
+    ----------
+    disparity : (H, W) float, pixels, NaN = invalid
+    window_px : int, odd, >= 1
+    """
+    d = as_float_array(disparity, "disparity", ndim=2)
+    window = _odd_window(window_px)
+    finite = np.isfinite(d)
+    filled = np.where(finite, d, 0.0)
+    border = cv2.BORDER_REFLECT_101
+    gx = cv2.Sobel(filled, cv2.CV_64F, 1, 0, ksize=3, scale=0.125, borderType=border)
+    gy = cv2.Sobel(filled, cv2.CV_64F, 0, 1, ksize=3, scale=0.125, borderType=border)
+    defined = cv2.erode(finite.astype(np.uint8), np.ones((3, 3), np.uint8), borderType=border).astype(bool)
+    magnitude = np.where(defined, np.hypot(gx, gy), 0.0)
+    total = cv2.boxFilter(magnitude, cv2.CV_64F, (window, window), normalize=False, borderType=border)
+    count = cv2.boxFilter(defined.astype(np.float64), cv2.CV_64F, (window, window), normalize=False,
+                          borderType=border)
+    mean = np.full(d.shape, np.inf)
+    np.divide(np.maximum(total, 0.0), count, out=mean, where=count > 0.5)
+    return mean
+
+
+def _odd_window(window_px):
+    window = int(window_px)
+    if window != window_px or window < 1 or window % 2 == 0:
+        raise PrismapInputError(f"`texture_window_px` must be an odd integer >= 1; got {window_px!r}")
+    return window
 
 
 def compute_features(left_grey, right_grey, disparity, lr_disagreement=None, *,
@@ -141,6 +180,7 @@ def compute_features(left_grey, right_grey, disparity, lr_disagreement=None, *,
     values = {
         "edge_distance_px": edge_distance(d, edge_threshold_px=edge_threshold_px),
         "texture": texture_strength(left, window_px=texture_window_px),
+        "disparity_gradient": disparity_gradient(d, window_px=texture_window_px),
     }
     if lr_disagreement is not None:
         values[LR_FEATURE] = as_float_array(lr_disagreement, "lr_disagreement", shape=d.shape)

@@ -50,8 +50,8 @@ def register(subparsers):
     parser.add_argument("--plain", dest="conditioned", action="store_false",
                         help="one whole-image mixture; default: classes of pixels by confidence features, chosen by "
                              "held-out log-likelihood (the plain model is one candidate), one mixture per class")
-    parser.add_argument("--max-classes", type=int, default=6, metavar="K",
-                        help="most error classes of a conditioned model (default 6)")
+    parser.add_argument("--max-classes", type=int, metavar="K",
+                        help="most error classes of a conditioned model (default 12)")
     parser.add_argument("--search-frames", type=int, metavar="N",
                         help="frames, evenly spread, whose pixels the class search samples; every frame fills the "
                              "class histograms (default 16)")
@@ -88,8 +88,8 @@ def run(args):
     result = characterise_matcher(
         frames, matcher, max_components=args.max_components, bin_width=bin_width, dataset=args.dataset,
         criterion=args.criterion, tolerance=args.tolerance, seed=args.seed, conditioned=args.conditioned,
-        max_classes=args.max_classes,
-        **{name: getattr(args, name) for name in ("search_frames", "max_samples") if getattr(args, name) is not None},
+        **{name: getattr(args, name) for name in ("max_classes", "search_frames", "max_samples")
+           if getattr(args, name) is not None},
     )
     paths = write_characterisation(result, args.out)
     stats = result.histogram.statistics()
