@@ -3,11 +3,10 @@ the same voxels, the safety score in the table, and the CLI's --world street3d."
 
 import numpy as np
 import pytest
-
-from prismap.errors import PrismapInputError
 from scipy.stats import norm
 
 from prismap.characterise import compute_features, load_error_model
+from prismap.errors import PrismapInputError
 from prismap.experiment import WORLDS, run_scene3d, run_street3d
 from prismap.experiment._scene3d import mapped_log_likelihood
 from prismap.stereo._base import to_grey
