@@ -3,9 +3,13 @@ the same voxels, the safety score in the table, and the CLI's --world street3d."
 
 import numpy as np
 import pytest
+from scipy.stats import norm
 
+from prismap.characterise import compute_features, load_error_model
 from prismap.errors import PrismapInputError
-from prismap.experiment import WORLDS, run_street3d
+from prismap.experiment import WORLDS, run_scene3d, run_street3d
+from prismap.experiment._scene3d import mapped_log_likelihood
+from prismap.stereo._base import to_grey
 
 MODELS_TESTED = ("hitmiss", "prism", "prism_conditioned")
 
@@ -21,8 +25,10 @@ def test_the_street_run_characterises_on_frames_it_does_not_map(street):
     assert result.world == "street3d" and result.settings["world"] == "street3d"
     assert result.settings["image_scale"] == 0.25 and result.settings["mode"] == "projective"
     assert result.settings["model_params"] == {"prism": {"near_m": 1.5}}  # PRISM only: no surface nearer
+    assert result.settings["between_frames"] == 4
     table = (out / "sgbm" / "characterisation" / "table.md").read_text()
-    assert "street-0 frames [0, 4]" in table
+    assert "street-0 frames [0, 4] and 4 between" in table
+    assert load_error_model(out / "sgbm" / "characterisation" / "error_model.json").statistics["n_frames"] == 6
     assert len(list((out / "sgbm" / "disparity").glob("*.png"))) == 3
     assert [c.model for c in result.cells] == list(MODELS_TESTED) and all(c.n_frames == 3 for c in result.cells)
     for path, _ in result.artifacts:
@@ -43,6 +49,40 @@ def test_every_street_map_is_scored_on_the_same_voxels_with_the_safety_score(str
     assert "## Targets" in results and "street3d, sgbm: conditioned PRISM's log-loss at least 10% below" in results
     # PRISM separates occupied from free voxels better than hit/miss even at this tiny size
     assert result.cell("sgbm", "prism").scores.roc_auc > result.cell("sgbm", "hitmiss").scores.roc_auc
+
+
+def test_the_mapping_frames_likelihood_matches_a_per_pixel_reference(street):
+    from prismap.io import read_kitti_disparity, read_sequence
+
+    out, _ = street
+    model = load_error_model(out / "sgbm" / "characterisation" / "error_model.json")
+    frames = list(read_sequence(out / "sequence"))
+    measured = mapped_log_likelihood(model, frames, out / "sgbm" / "disparity")
+    assert model.conditioned
+
+    def density(mixture, e):  # the mixture's pdf written out, not its logpdf
+        return sum(w * norm.pdf(e, m, s) for w, m, s in zip(mixture.weights, mixture.means, mixture.sigmas))
+
+    labels, errors = [], []
+    for index, frame in enumerate(frames):
+        disparity = read_kitti_disparity(out / "sgbm" / "disparity" / f"{index:06d}.png")
+        label = model.classify(compute_features(to_grey(frame.left), None, disparity, None, **model.feature_settings))
+        for v in range(label.shape[0]):
+            for u in range(label.shape[1]):
+                error = float(frame.disparity_gt[v, u]) - float(disparity[v, u])
+                if label[v, u] >= 0 and np.isfinite(error):
+                    labels.append(label[v, u])
+                    errors.append(error)
+    labels, errors = np.array(labels), np.array(errors)
+    count = errors.size
+    conditioned = sum(np.log(density(mixture, errors[labels == k])).sum()
+                      for k, mixture in enumerate(model.class_mixtures)) / count
+    plain = np.log(density(model.mixture, errors)).mean()
+    assert measured["n_errors"] == count > 1000
+    assert measured["conditioned_nats_per_error"] == pytest.approx(conditioned, rel=1e-9)
+    assert measured["plain_nats_per_error"] == pytest.approx(plain, rel=1e-9)
+    results = (out / "results.md").read_text()
+    assert "street3d, sgbm: log-likelihood of the mapping frames' errors higher conditioned than plain" in results
 
 
 def test_the_cli_runs_the_street_world(monkeypatch, tmp_path, capsys):
@@ -67,4 +107,8 @@ def test_bad_street_options_are_named(tmp_path):
     assert set(WORLDS) == {"scene3d", "street3d"}
     with pytest.raises(PrismapInputError, match="60 frames of 1.0 m end at x = 63 m"):
         run_street3d(tmp_path, n_frames=60)
+    with pytest.raises(PrismapInputError, match="`between_frames` must be an integer >= 0; got -1"):
+        run_street3d(tmp_path, between_frames=-1)
+    with pytest.raises(PrismapInputError, match="world 'scene3d' has no drive between its frames"):
+        run_scene3d(tmp_path, between_frames=2)
     assert not (tmp_path / "settings.json").exists()  # refused before anything is written

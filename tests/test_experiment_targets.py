@@ -62,3 +62,15 @@ def test_a_run_without_conditioned_prism_decides_only_the_error_models(world):
     assert [t.claim for t in targets] == [f"{world}, sgbm: held-out log-likelihood of the errors higher conditioned "
                                           "than plain"]
     assert "No target applies" in format_targets([])
+
+
+def test_the_mapping_frames_likelihood_is_a_target_decided_by_its_numbers():
+    mapped = {"sgbm": {"conditioned_nats_per_error": -0.40, "plain_nats_per_error": -0.52, "n_errors": 900},
+              "bm": {"conditioned_nats_per_error": -0.94, "plain_nats_per_error": -0.54, "n_errors": 700}}
+    targets = measure_targets("street3d", [], {}, mapped)
+    assert [(t.claim, t.measured, t.met) for t in targets] == [
+        ("street3d, sgbm: log-likelihood of the mapping frames' errors higher conditioned than plain",
+         "-0.4000 against -0.5200 nats per error (900 errors)", True),
+        ("street3d, bm: log-likelihood of the mapping frames' errors higher conditioned than plain",
+         "-0.9400 against -0.5400 nats per error (700 errors)", False),
+    ]

@@ -108,10 +108,21 @@ def test_scene_trajectory_and_images_are_determined_by_the_seed():
     assert not np.array_equal(first, other)
 
 
+def test_a_drive_started_half_a_step_on_follows_the_same_path_between_the_first_drives_positions():
+    first = sim.street_trajectory(8, seed=2)
+    between = sim.street_trajectory(16, step_m=0.5, start_m=4.25, seed=2)
+    np.testing.assert_allclose(between[:, 0, 3], 4.25 + 0.5 * np.arange(16))
+    assert np.abs(between[:, 0, 3][:, None] - first[:, 0, 3][None, :]).min() == pytest.approx(0.25)
+    # the path is a function of x: a drive with another start and step through x = 6 m has the pose at x = 6 m
+    through_six = sim.street_trajectory(3, step_m=0.5, start_m=5.0, seed=2)
+    np.testing.assert_allclose(through_six[2], first[2], atol=1e-12)
+
+
 @pytest.mark.parametrize(
     ("call", "message"),
     [
         (lambda: sim.street_trajectory(0), "`n_frames` must be a positive integer"),
+        (lambda: sim.street_trajectory(3, start_m=-1.0), "`start_m` must be a finite number >= 0"),
         (lambda: sim.street_trajectory(3, step_m=0.0), r"`step_m` must lie in \(0, 5\]"),
         (lambda: sim.street_trajectory(60), "60 frames of 1.0 m end at x = 63 m"),
     ],

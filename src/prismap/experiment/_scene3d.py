@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from prismap._progress import progress
-from prismap._validate import check_positive
+from prismap._validate import check_integer, check_positive
 from prismap.errors import PrismapInputError
 from prismap.experiment._cells import ExperimentResult, claim_out_dir, draw_figures, run_cells
 from prismap.experiment._results import MODELS_3D, prior_of, split_variant, write_results
@@ -29,7 +29,9 @@ class RenderedWorld:
     title : str
         Heading of the results table.
     sizes : dict of bool -> dict
-        Full (False) and ``quick`` (True) sizes: ``n_frames`` rendered, ``image_scale`` of the camera,
+        Full (False) and ``quick`` (True) sizes: ``n_frames`` rendered along the drive,
+        ``between_frames`` (extra characterisation frames from positions between the drive's; 0 without
+        ``between_trajectory``), ``image_scale`` of the camera,
         ``voxel_size_m``, ``subsample`` (pixel step when mapping), ``max_range_m``, the integration
         ``mode`` of :class:`prismap.pipeline.MappingConfig`, and ``model_params`` (model name -> its
         extra parameters; models not named get their defaults).
@@ -37,6 +39,9 @@ class RenderedWorld:
         ``scene(seed) -> Scene3D``.
     trajectory : callable
         ``trajectory(n_frames, seed) -> (N, 4, 4) T_world_cam``.
+    between_trajectory : callable or None
+        ``between_trajectory(n_frames, n_between, seed) -> (n_between, 4, 4) T_world_cam``: a second drive
+        over the same stretch whose positions the drive of ``n_frames`` does not use; None = none.
     camera : callable
         ``camera(scale) -> StereoCamera``.
     slice_height_m : float, metres
@@ -53,6 +58,7 @@ class RenderedWorld:
     camera: object
     slice_height_m: float
     description: str
+    between_trajectory: object = None
 
 
 def _scene3d_world():
@@ -60,13 +66,18 @@ def _scene3d_world():
 
     return RenderedWorld(
         "scene3d", "3-D indoor scene, characterised matchers",
-        {False: {"n_frames": 40, "image_scale": 1.0, "voxel_size_m": 0.1, "subsample": 2, "max_range_m": 10.0,
-                 "mode": "ray", "model_params": {}},
-         True: {"n_frames": 16, "image_scale": 0.25, "voxel_size_m": 0.1, "subsample": 1, "max_range_m": 10.0,
-                "mode": "ray", "model_params": {}}},
+        {False: {"n_frames": 40, "between_frames": 0, "image_scale": 1.0, "voxel_size_m": 0.1, "subsample": 2,
+                 "max_range_m": 10.0, "mode": "ray", "model_params": {}},
+         True: {"n_frames": 16, "between_frames": 0, "image_scale": 0.25, "voxel_size_m": 0.1, "subsample": 1,
+                "max_range_m": 10.0, "mode": "ray", "model_params": {}}},
         lambda seed: sim.indoor_scene(seed=seed), lambda n, seed: sim.indoor_trajectory(n, seed=seed),
         lambda scale: sim.tsukuba_camera(scale=scale), 1.0, "Indoor scene, New Tsukuba camera")
 
+
+STREET_BETWEEN_FRAMES = 32
+"""Extra characterisation frames of the full street, from positions between the drive's: with the drive's own
+4 the per-class mixtures see the rare gross errors of every class (on 4 frames alone a class fitted no outlier
+component and gave some errors of the mapped frames log-densities near -5800)."""
 
 STREET_NEAR_M = 1.5
 """PRISM's ``near_m`` on the street: no surface is nearer than 1.8 m to the drive. PRISM's tables grow like
@@ -78,12 +89,14 @@ def _street3d_world():
 
     return RenderedWorld(
         "street3d", "3-D street, KITTI-like rig, characterised matchers",
-        {False: {"n_frames": 16, "image_scale": 0.5, "voxel_size_m": 0.2, "subsample": 2, "max_range_m": 40.0,
-                 "mode": "projective", "model_params": {"prism": {"near_m": STREET_NEAR_M}}},
-         True: {"n_frames": 8, "image_scale": 0.25, "voxel_size_m": 0.4, "subsample": 1, "max_range_m": 30.0,
-                "mode": "projective", "model_params": {"prism": {"near_m": STREET_NEAR_M}}}},
+        {False: {"n_frames": 16, "between_frames": STREET_BETWEEN_FRAMES, "image_scale": 0.5, "voxel_size_m": 0.2,
+                 "subsample": 2, "max_range_m": 40.0, "mode": "projective",
+                 "model_params": {"prism": {"near_m": STREET_NEAR_M}}},
+         True: {"n_frames": 8, "between_frames": 4, "image_scale": 0.25, "voxel_size_m": 0.4, "subsample": 1,
+                "max_range_m": 30.0, "mode": "projective", "model_params": {"prism": {"near_m": STREET_NEAR_M}}}},
         lambda seed: sim.street_scene(seed=seed), lambda n, seed: sim.street_trajectory(n, seed=seed),
-        lambda scale: sim.kitti_camera(scale=scale), 1.0, "Street scene, KITTI-like camera")
+        lambda scale: sim.kitti_camera(scale=scale), 1.0, "Street scene, KITTI-like camera",
+        lambda n, n_between, seed: sim.street_trajectory_between(n, n_between, seed=seed))
 
 
 WORLDS = {"scene3d": _scene3d_world, "street3d": _street3d_world}
@@ -91,11 +104,18 @@ WORLDS = {"scene3d": _scene3d_world, "street3d": _street3d_world}
 
 
 def scene3d_settings(*, world="scene3d", n_frames=None, voxel_size_m=None, seed=0, quick=False, matchers=MATCHERS,
-                     characterise_every=4, max_range_m=None, grid_offset=0.5):
+                     characterise_every=4, max_range_m=None, grid_offset=0.5, between_frames=None):
     """The settings dict of a 3-D run on ``world`` (its sizes unless overridden)."""
     if world not in WORLDS:
         raise PrismapInputError(f"`world` must be one of {sorted(WORLDS)}; got {world!r}")
-    sizes = dict(WORLDS[world]().sizes[bool(quick)])
+    spec = WORLDS[world]()
+    sizes = dict(spec.sizes[bool(quick)])
+    if between_frames is not None:
+        sizes["between_frames"] = check_integer(between_frames, "between_frames", expected="an integer >= 0",
+                                                condition=lambda n: n >= 0)
+        if sizes["between_frames"] and spec.between_trajectory is None:
+            raise PrismapInputError(f"`between_frames`: world {world!r} has no drive between its frames; got "
+                                    f"{between_frames!r} (0 or None)")
     if n_frames is not None:
         if isinstance(n_frames, bool) or int(n_frames) != n_frames or n_frames < 2:
             raise PrismapInputError(f"`n_frames` must be an integer >= 2 (characterisation + mapping); got {n_frames!r}")
@@ -124,7 +144,8 @@ def split_frames(n_frames, every):
 
 
 def run_scene3d(out_dir, *, n_frames=None, voxel_size_m=None, seed=0, quick=False, matchers=MATCHERS,
-                models=MODELS_3D, characterise_every=4, max_range_m=None, grid_offset=0.5):
+                models=MODELS_3D, characterise_every=4, max_range_m=None, grid_offset=0.5,
+                       between_frames=None):
     """Characterise each matcher on some frames of the indoor room, map the others with every model, score.
 
     The seeded :func:`prismap.sim.indoor_scene` rendered along :func:`prismap.sim.indoor_trajectory` by the
@@ -135,33 +156,41 @@ def run_scene3d(out_dir, *, n_frames=None, voxel_size_m=None, seed=0, quick=Fals
     """
     return run_rendered_world("scene3d", out_dir, n_frames=n_frames, voxel_size_m=voxel_size_m, seed=seed,
                               quick=quick, matchers=matchers, models=models, characterise_every=characterise_every,
-                              max_range_m=max_range_m, grid_offset=grid_offset)
+                              max_range_m=max_range_m, grid_offset=grid_offset,
+                              between_frames=between_frames)
 
 
 def run_street3d(out_dir, *, n_frames=None, voxel_size_m=None, seed=0, quick=False, matchers=MATCHERS,
-                 models=MODELS_3D, characterise_every=4, max_range_m=None, grid_offset=0.5):
+                 models=MODELS_3D, characterise_every=4, max_range_m=None, grid_offset=0.5,
+                       between_frames=None):
     """Characterise each matcher on some frames of the street drive, map the others with every model, score.
 
     The seeded :func:`prismap.sim.street_scene` rendered along :func:`prismap.sim.street_trajectory` by
-    :func:`prismap.sim.kitti_camera`. Full size: half resolution (621x188), 16 frames 1 m apart, 0.2 m
-    voxels, every 2nd pixel, rays to 40 m, projective integration. ``quick``: 310x94, 8 frames, 0.4 m
-    voxels, every pixel, rays to 30 m. Arguments and result: see :func:`run_rendered_world`.
+    :func:`prismap.sim.kitti_camera`. Full size: half resolution (621x188), 16 frames 1 m apart and 32 more
+    characterisation frames from the positions between them (:func:`prismap.sim.street_trajectory_between`),
+    0.2 m voxels, every 2nd pixel, rays to 40 m, projective integration. ``quick``: 310x94, 8 + 4 frames,
+    0.4 m voxels, every pixel, rays to 30 m. Arguments and result: see :func:`run_rendered_world`.
     """
     return run_rendered_world("street3d", out_dir, n_frames=n_frames, voxel_size_m=voxel_size_m, seed=seed,
                               quick=quick, matchers=matchers, models=models, characterise_every=characterise_every,
-                              max_range_m=max_range_m, grid_offset=grid_offset)
+                              max_range_m=max_range_m, grid_offset=grid_offset,
+                              between_frames=between_frames)
 
 
 def run_rendered_world(world, out_dir, *, n_frames=None, voxel_size_m=None, seed=0, quick=False, matchers=MATCHERS,
-                       models=MODELS_3D, characterise_every=4, max_range_m=None, grid_offset=0.5):
+                       models=MODELS_3D, characterise_every=4, max_range_m=None, grid_offset=0.5,
+                       between_frames=None):
     """The 3-D experiment on the world named ``world`` (a key of :data:`WORLDS`).
 
-    Frames ``0, k, 2k, ...`` (``k = characterise_every``) characterise each matcher
+    Frames ``0, k, 2k, ...`` (``k = characterise_every``) of the drive, and the world's frames between the
+    drive's positions (``between_frames``), characterise each matcher
     (:func:`prismap.characterise.characterise_matcher`: thesis tables 3.1-3.3 with coverage, bad-1px and
     bad-2px, and the error figures, in ``MATCHER/characterisation/``); the other frames are matched once
     (``MATCHER/disparity/``, uint16 PNG, value / 256 px) and mapped by :func:`prismap.pipeline.map_sequence`
     with every model of ``models``, using that matcher's error model. Maps are scored on the voxels a
     perfect sensor observed from the mapping frames within ``max_range_m``; ``p0`` is their occupancy ratio.
+    The targets include the log-likelihood of the mapping frames' errors under each error model
+    (:func:`mapped_log_likelihood`), the test of a characterisation on errors it never saw.
 
     Parameters
     ----------
@@ -180,6 +209,9 @@ def run_rendered_world(world, out_dir, *, n_frames=None, voxel_size_m=None, seed
     matchers, models : sequence of str
         Subsets of :data:`MATCHERS` and :data:`prismap.experiment.MODELS`.
     characterise_every : int >= 2
+    between_frames : int >= 0 or None
+        Extra characterisation frames rendered along the world's ``between_trajectory`` (their images
+        continue the drive's noise stream, so the drive's frames do not change); None = the world's size.
     max_range_m : float or None, metres
         Distance along a ray beyond which maps are not updated (and the ground truth not observed);
         None = the world's size.
@@ -199,12 +231,15 @@ def run_rendered_world(world, out_dir, *, n_frames=None, voxel_size_m=None, seed
 
     settings = scene3d_settings(world=world, n_frames=n_frames, voxel_size_m=voxel_size_m, seed=seed, quick=quick,
                                 matchers=matchers, characterise_every=characterise_every, max_range_m=max_range_m,
-                                grid_offset=grid_offset)
+                                grid_offset=grid_offset, between_frames=between_frames)
     spec = WORLDS[world]()
-    char_index, map_index = split_frames(settings["n_frames"], settings["characterise_every"])
+    n_drive, n_between = settings["n_frames"], settings["between_frames"]
+    char_index, map_index = split_frames(n_drive, settings["characterise_every"])
     if len(map_index) == 0:
-        raise PrismapInputError(f"{settings['n_frames']} frames leave none to map after characterisation")
-    poses = spec.trajectory(settings["n_frames"], seed)
+        raise PrismapInputError(f"{n_drive} frames leave none to map after characterisation")
+    poses = spec.trajectory(n_drive, seed)
+    if n_between:
+        poses = np.concatenate([poses, spec.between_trajectory(n_drive, n_between, seed)])
     out = claim_out_dir(out_dir, settings)
     voxel = settings["voxel_size_m"]
     camera = spec.camera(settings["image_scale"])
@@ -214,7 +249,8 @@ def run_rendered_world(world, out_dir, *, n_frames=None, voxel_size_m=None, seed
                         name=base.name)
     poses[:, :3, 3] += shift
     frames = list(progress(scene.frames(camera, poses, seed=seed), total=len(poses), desc="render", unit="frame"))
-    char_frames = [frames[i] for i in char_index]
+    drive_char_frames = [frames[i] for i in char_index]
+    char_frames = drive_char_frames + frames[n_drive:]
     map_frames = [frames[i] for i in map_index]
     sequence_dir = out / "sequence"
     if not (sequence_dir / "occupancy.npz").is_file():  # written last: its presence means the sequence is whole
@@ -224,17 +260,19 @@ def run_rendered_world(world, out_dir, *, n_frames=None, voxel_size_m=None, seed
     truth = sequence.ground_truth
     p0 = prior_of(truth)
     largest = max(float(np.nanmax(f.disparity_gt)) for f in frames)
-    model_params = _with_pass_through(settings, scene, char_frames)
+    model_params = _with_pass_through(settings, scene, drive_char_frames)
     cell_settings = dict(settings, derived_model_params=model_params)
 
-    results, artifacts, error_models = [], [], {}
+    results, artifacts, error_models, mapped_likelihoods = [], [], {}, {}
     layer = math.floor((spec.slice_height_m + shift) / voxel)
     for matcher_name in settings["matchers"]:
         matcher = _matcher(matcher_name, largest)
         error_model, char_artifacts = _characterise(out / matcher_name / "characterisation", char_frames, matcher,
-                                                    f"{scene.name} frames {char_index.tolist()}")
+                                                    f"{scene.name} frames {char_index.tolist()}"
+                                                    + (f" and {n_between} between" if n_between else ""))
         error_models[matcher_name] = error_model
         disparity_dir = _match(out / matcher_name / "disparity", map_frames, matcher)
+        mapped_likelihoods[matcher_name] = mapped_log_likelihood(error_model, map_frames, disparity_dir)
         build_map = _mapper(sequence, disparity_dir, matcher_name, error_model, p0, model_params, settings)
         cells, maps = run_cells(out, matcher_name, models, build_map, truth, cell_settings)
         results += cells
@@ -243,7 +281,9 @@ def run_rendered_world(world, out_dir, *, n_frames=None, voxel_size_m=None, seed
                                   where=f"z = {spec.slice_height_m} m")
     setup = (f"{spec.description} ({scene.name}, {camera.width}x{camera.height}, f = {camera.focal_px:g} px, "
              f"b = {camera.baseline_m:g} m), {len(char_index)} characterisation frames ({char_index.tolist()}) and "
-             f"{len(map_index)} other mapping frames, {voxel} m voxels, pixel step {settings['subsample']}, "
+             f"{len(map_index)} other mapping frames of a drive"
+             + (f", {n_between} more characterisation frames from positions between the drive's" if n_between else "")
+             + f", {voxel} m voxels, pixel step {settings['subsample']}, "
              f"{settings['mode']} integration, rays to {settings['max_range_m']} m; scene and trajectory shifted by "
              f"{shift:g} m on each axis so that floors and walls cut voxels through the middle.")
     models_note = ("Each matcher's PRISM, convolution and Andert models use the error model characterised on the "
@@ -251,11 +291,11 @@ def run_rendered_world(world, out_dir, *, n_frames=None, voxel_size_m=None, seed
                    "mixture of each pixel's error class (from the features of the mapped frame's own disparity and "
                    "image); time = mapping wall time (PRISM's tables and the features included).")
     notes = (setup, f"p0 = {p0:.4f}: the occupancy ratio of the voxels a perfect sensor observed (the scored voxels). "
-             f"PRISM's pass_through = {model_params['prism']['pass_through']:.4f}: how often the characterisation "
-             "frames' noise-free rays cross an occupied voxel before their surface (beyond its voxel overhang) "
+             f"PRISM's pass_through = {model_params['prism']['pass_through']:.4f}: how often the drive's "
+             "characterisation frames' noise-free rays cross an occupied voxel before their surface (beyond its voxel overhang) "
              "without stopping (`Scene3D.pass_through_ratio`).",
-             models_note, _classes_note(error_models))
-    targets = measure_targets(world, results, error_models)
+             models_note, _classes_note(error_models, mapped_likelihoods))
+    targets = measure_targets(world, results, error_models, mapped_likelihoods)
     paths = write_results(results, out, title=spec.title, notes=notes, settings=settings,
                           sections=(format_targets(targets),), extra={"targets": [t.to_dict() for t in targets]})
     artifacts = [(paths["table"], f"Scores of every matcher x sensor model: {spec.title} (Markdown)."),
@@ -279,7 +319,10 @@ def _characterise(out_dir, frames, matcher, dataset):
     paths = {"model": out_dir / "error_model.json", "table": out_dir / "table.md",
              "figure": out_dir / "errors.png", "figure_wide": out_dir / "errors_wide.png"}
     if not all(p.is_file() for p in paths.values()):
-        paths = write_characterisation(characterise_matcher(frames, matcher, dataset=dataset), out_dir)
+        # the class search samples every frame: classes chosen on a subset of the street's frames predicted the
+        # mapping frames' errors worse (README, conditioned error models)
+        characterisation = characterise_matcher(frames, matcher, dataset=dataset, search_frames=len(frames))
+        paths = write_characterisation(characterisation, out_dir)
     name = matcher.name
     artifacts = [
         (paths["table"], f"{name}: fitted error mixtures G = 1..4 with AIC/BIC, coverage, bad-1px, bad-2px "
@@ -291,17 +334,66 @@ def _characterise(out_dir, frames, matcher, dataset):
     return load_error_model(paths["model"]), artifacts
 
 
-def _classes_note(error_models):
+def _classes_note(error_models, mapped_likelihoods):
     """One sentence per matcher: its error classes (the per-class view is in its characterisation table)."""
     lines = []
     for name, model in error_models.items():
         chosen = model.class_selection
         features = ", ".join(model.classes.features) or "none"
+        mapped = mapped_likelihoods[name]
         lines.append(f"{name}: {model.n_classes} error class(es) by {features} (see {name}/characterisation/table.md); "
                      "held-out log-likelihood "
                      f"{chosen.get('conditioned_nats_per_error', float('nan')):.4f} nats/error conditioned, "
-                     f"{chosen.get('plain_nats_per_error', float('nan')):.4f} plain.")
+                     f"{chosen.get('plain_nats_per_error', float('nan')):.4f} plain (characterisation folds), "
+                     f"{mapped['conditioned_nats_per_error']:.4f} and {mapped['plain_nats_per_error']:.4f} on the "
+                     "mapping frames' errors.")
     return " ".join(lines)
+
+
+def mapped_log_likelihood(error_model, frames, disparity_dir):
+    """Mean log-density of the mapping frames' disparity errors under the conditioned and the plain model.
+
+    The truly held-out test of a characterisation: errors of frames it never saw, each pixel under its own
+    class's mixture (conditioned) and under the whole-image mixture (plain), on the same pixels (those
+    with a class).
+
+    Parameters
+    ----------
+    error_model : ErrorModel
+    frames : sequence of StereoFrame
+        The mapping frames, with ``disparity_gt`` (pixels).
+    disparity_dir : Path
+        The matcher's disparity of frame ``i`` as ``{i:06d}.png`` (see :func:`_match`).
+
+    Returns
+    -------
+    dict: ``conditioned_nats_per_error``, ``plain_nats_per_error`` (nats per error) and ``n_errors``.
+    """
+    from prismap.characterise import compute_features
+    from prismap.io import read_kitti_disparity
+    from prismap.stereo._base import to_grey
+
+    mixtures = error_model.class_mixtures if error_model.conditioned else (error_model.mixture,)
+    conditioned = plain = 0.0
+    count = 0
+    for index, frame in enumerate(frames):
+        disparity = read_kitti_disparity(Path(disparity_dir) / f"{index:06d}.png")
+        if error_model.conditioned:
+            features = compute_features(to_grey(frame.left), to_grey(frame.right), disparity, None,
+                                        **error_model.feature_settings)
+            label = error_model.classify(features)
+        else:
+            label = np.where(np.isfinite(disparity), 0, -1)
+        errors = np.asarray(frame.disparity_gt, dtype=np.float64) - disparity
+        keep = (label >= 0) & np.isfinite(errors)
+        errors, label = errors[keep], label[keep]
+        plain += float(error_model.mixture.logpdf(errors).sum())
+        conditioned += sum(float(mixture.logpdf(errors[label == k]).sum()) for k, mixture in enumerate(mixtures))
+        count += errors.size
+    if count == 0:
+        raise PrismapInputError("no mapping frame has a pixel with both a computed and a true disparity")
+    return {"conditioned_nats_per_error": conditioned / count, "plain_nats_per_error": plain / count,
+            "n_errors": count}
 
 
 def _match(out_dir, frames, matcher):

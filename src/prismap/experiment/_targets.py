@@ -46,7 +46,7 @@ class Target:
         return {"claim": self.claim, "measured": self.measured, "met": self.met}
 
 
-def measure_targets(world, results, error_models):
+def measure_targets(world, results, error_models, mapped_likelihoods=None):
     """The targets of a 3-D run on ``world``.
 
     Parameters
@@ -57,6 +57,9 @@ def measure_targets(world, results, error_models):
     error_models : dict of str -> ErrorModel
         Each matcher's characterised error model (its ``class_selection`` holds the held-out
         log-likelihoods, nats per error, of the plain and the chosen conditioned model).
+    mapped_likelihoods : dict of str -> dict or None
+        Per matcher, the same on the mapping frames' errors (``conditioned_nats_per_error``,
+        ``plain_nats_per_error``, ``n_errors``: ``mapped_log_likelihood`` of :mod:`prismap.experiment._scene3d`).
 
     Returns
     -------
@@ -89,6 +92,11 @@ def measure_targets(world, results, error_models):
                 f"{mine:.4f} against {plain:.4f}: {measured_gain:+.1%}", bool(measured_gain >= gain)))
     for matcher, model in error_models.items():
         targets.append(held_out_target(f"{world}, {matcher}", model))
+    for matcher, mapped in (mapped_likelihoods or {}).items():
+        conditioned, plain = mapped["conditioned_nats_per_error"], mapped["plain_nats_per_error"]
+        targets.append(Target(f"{world}, {matcher}: log-likelihood of the mapping frames' errors higher conditioned "
+                              "than plain", f"{conditioned:.4f} against {plain:.4f} nats per error "
+                              f"({mapped['n_errors']} errors)", bool(conditioned > plain)))
     return targets
 
 

@@ -4,7 +4,7 @@ textured 3-D box scenes (an indoor room, a KITTI-like street) rendered as rectif
 from prismap.sim._cameras import kitti_camera, scaled_camera, tsukuba_camera
 from prismap.sim._poses import pose_from_heading, poses_from_se2
 from prismap.sim._scene3d import Scene3D, indoor_scene, indoor_trajectory
-from prismap.sim._street import street_scene, street_trajectory
+from prismap.sim._street import street_scene, street_trajectory, street_trajectory_between
 from prismap.sim._textures import PHOTOGRAPHS, texture_bank
 from prismap.sim._world2d import (
     DisparityFrame,
@@ -31,6 +31,7 @@ __all__ = [
     "simple_world",
     "street_scene",
     "street_trajectory",
+    "street_trajectory_between",
     "texture_bank",
     "tsukuba_camera",
     "waypoint_path",

@@ -9,6 +9,7 @@ faces, shift scene and poses by half a voxel as the experiments do (``run_street
 
 import numpy as np
 
+from prismap._validate import check_integer, check_real
 from prismap.errors import PrismapInputError
 from prismap.sim._poses import pose_from_heading
 from prismap.sim._scene3d import Scene3D
@@ -119,19 +120,23 @@ def street_scene(*, seed=0):
     return Scene3D(lo, hi, texture, texel, tint, name=f"street-{seed}")
 
 
-def street_trajectory(n_frames=12, *, step_m=1.0, seed=0):
+def street_trajectory(n_frames=12, *, step_m=1.0, seed=0, start_m=DRIVE_START_M):
     """A drive along :func:`street_scene`'s right-hand lane, forward ``step_m`` per frame, weaving a little.
 
-    The left camera is 1.65 m above the road, starts at x = 4 m and moves ``step_m`` along +x per frame
+    The left camera is 1.65 m above the road, starts at x = ``start_m`` and moves ``step_m`` along +x per frame
     (KITTI at 10 Hz and 36 km/h), within 0.3 m of the lane centre (y = -1.5 m), looking along the road with
     a seeded yaw of up to +-6 degrees (following the weave, plus a slow look-around) and a pitch of 1-2
-    degrees down.
+    degrees down. The weave, yaw and pitch are functions of x, so drives of one seed with other starts or
+    steps follow the same path: a second drive with ``start_m`` half a step on sees the street from the
+    positions between the first one's (separate frames to characterise a matcher on).
 
     Parameters
     ----------
     n_frames : int >= 1
     step_m : float, metres, in (0, 5]
         Forward motion per frame; the drive must end 30 m before the building closing the street.
+    start_m : float, metres, >= 0
+        x of the first camera position.
     seed : int
         Phase of the weave and of the yaw.
 
@@ -144,14 +149,15 @@ def street_trajectory(n_frames=12, *, step_m=1.0, seed=0):
     step = float(step_m)
     if not 0.0 < step <= 5.0:
         raise PrismapInputError(f"`step_m` must lie in (0, 5] metres; got {step_m!r}")
+    start = check_real(start_m, "start_m", minimum=0.0)
     n = int(n_frames)
-    end = DRIVE_START_M + step * (n - 1)
+    end = start + step * (n - 1)
     if end > STREET_LENGTH_M - 30.0:
         raise PrismapInputError(f"{n} frames of {step} m end at x = {end:g} m: the street allows up to "
                                 f"x = {STREET_LENGTH_M - 30.0:g} m (fewer frames or a shorter `step_m`)")
     rng = np.random.default_rng(seed)
     phase = rng.uniform(0.0, 2.0 * np.pi, 2)
-    x = DRIVE_START_M + step * np.arange(n)
+    x = start + step * np.arange(n)
     wavelength = 25.0
     y = LANE_Y_M + 0.3 * np.sin(2.0 * np.pi * x / wavelength + phase[0])
     slope = 0.3 * 2.0 * np.pi / wavelength * np.cos(2.0 * np.pi * x / wavelength + phase[0])
@@ -159,3 +165,30 @@ def street_trajectory(n_frames=12, *, step_m=1.0, seed=0):
     pitch = np.radians(1.5 + 0.5 * np.sin(2.0 * np.pi * x / 17.0 + phase[1]))
     return np.array([pose_from_heading((a, b, CAMERA_HEIGHT_M), h, pitch_rad=p)
                      for a, b, h, p in zip(x, y, heading, pitch)])
+
+
+def street_trajectory_between(n_frames, n_between, *, step_m=1.0, seed=0):
+    """``n_between`` poses spread evenly over the stretch of ``street_trajectory(n_frames, step_m=step_m)``.
+
+    The same path (weave, yaw and pitch follow x), ``n_between`` positions ``n_frames * step_m / n_between``
+    apart starting half such a step after the drive's first: frames of the same street the drive does not
+    see from, to characterise a matcher on before mapping the drive.
+
+    Parameters
+    ----------
+    n_frames : int >= 1
+        Frames of the drive whose stretch is covered.
+    n_between : int >= 1
+    step_m : float, metres
+        The drive's step.
+    seed : int
+        The drive's seed.
+
+    Returns
+    -------
+    T_world_cam : (n_between, 4, 4) float64
+    """
+    n = check_integer(n_frames, "n_frames", expected="a positive integer", condition=lambda k: k >= 1)
+    step = n * check_real(step_m, "step_m", minimum=0.0) / check_integer(
+        n_between, "n_between", expected="a positive integer", condition=lambda k: k >= 1)
+    return street_trajectory(n_between, step_m=step, start_m=DRIVE_START_M + 0.5 * step, seed=seed)
