@@ -385,10 +385,18 @@ class PrismModel(RayModel):
                 )
             return nodes.astype(np.float32), (rate, *meta, d + self.doffs_px, far)  # halves the new tables at once
 
-        if disparity.size < 2 * _BUILD_THREADS:
-            return [build(*job) for job in zip(disparity, lam, log_far)]
-        with ThreadPoolExecutor(_BUILD_THREADS) as pool:  # prism_table releases the GIL
-            return list(pool.map(build, disparity, lam, log_far))
+        jobs = list(zip(disparity, lam, log_far))
+        if len(jobs) < 2 * _BUILD_THREADS:
+            return [build(*job) for job in jobs]
+        # One share of the keys a thread (prism_table releases the GIL), not one task a table: a task's
+        # hand-over costs about as much CPU as a small table's build.
+        with ThreadPoolExecutor(_BUILD_THREADS) as pool:
+            shares = list(pool.map(lambda share: [build(*job) for job in share],
+                                   [jobs[t::_BUILD_THREADS] for t in range(_BUILD_THREADS)]))
+        built = [None] * len(jobs)
+        for t, share in enumerate(shares):
+            built[t::_BUILD_THREADS] = share
+        return built
 
 
 def _share(value, name, *, one):
