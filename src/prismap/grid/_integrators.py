@@ -234,10 +234,11 @@ class RayIntegrator(Integrator):
 
     Hit/miss models go through ``cast_hit_miss`` (increments added while casting). For the others, rays go
     in chunks (:data:`RAYS_PER_CHUNK`, :data:`CELLS_PER_CHUNK`) through a two-stage pipeline: this thread
-    casts chunk k + 1 (the kernel releases the GIL) while a worker thread runs the model on chunk k and adds
-    its increments. The cast beside the scatter never grows the accumulator (it is grown once the scatter is
-    done), and it only creates blocks and fills their rows while the scatter writes rows of blocks created
-    before, so the two never touch the same memory.
+    casts chunk k + 1 (the kernel releases the GIL) while a worker thread runs the model on chunk k (half
+    of its rays in a helper thread: the model costs several times the cast) and adds its increments. The
+    cast beside the scatter never grows the accumulator (it is grown once the scatter is done), and it only
+    creates blocks and fills their rows while the scatter writes rows of blocks created before, so the two
+    never touch the same memory.
 
     References
     ----------
@@ -271,10 +272,10 @@ class RayIntegrator(Integrator):
                 chunk = idx[part]
                 chunks.append((model, chunk, np.ascontiguousarray(batch.rays_w[chunk]),
                                np.ascontiguousarray(t_stop[part]), np.ascontiguousarray(exclusive[part])))
-        with ThreadPoolExecutor(max_workers=1) as worker:
+        with ThreadPoolExecutor(max_workers=1) as worker, ThreadPoolExecutor(max_workers=1) as helper:
             cells = _accumulator.cast_into(accumulator, origin, *chunks[0][2:], voxel)
             for k, (model, chunk, *_) in enumerate(chunks):
-                job = worker.submit(self._model_and_scatter, accumulator, model, batch, chunk, cells)
+                job = worker.submit(self._model_and_scatter, accumulator, model, batch, chunk, cells, helper)
                 if k + 1 < len(chunks):
                     # This thread enters the GIL-free cast at once; the worker's model call may hold the GIL.
                     partial = _accumulator.cast_into(accumulator, origin, *chunks[k + 1][2:], voxel, grow_room=False)
@@ -282,10 +283,20 @@ class RayIntegrator(Integrator):
                 if k + 1 < len(chunks):
                     cells = _accumulator.finish_cast(accumulator, origin, *chunks[k + 1][2:], voxel, partial)
 
-    def _model_and_scatter(self, accumulator, model, batch, chunk, cells):
+    def _model_and_scatter(self, accumulator, model, batch, chunk, cells, helper):
+        """The model on a chunk's cells, its first half of rays in ``helper``'s thread beside the second half in
+        this one, then the increments scattered in the cells' order (this thread alone writes the accumulator:
+        rays of a chunk cross the same voxels)."""
         ray_of_cell, cell_index, t_in, t_out = cells
-        if cell_index.size:
-            _accumulator.scatter(accumulator, cell_index, self.cell_increments(model, batch, chunk, ray_of_cell, t_in, t_out))
+        if not cell_index.size:
+            return
+        half = chunk.size // 2
+        cut = int(np.searchsorted(ray_of_cell, half))  # the cast goes ray by ray: ray_of_cell is sorted
+        first = helper.submit(self.cell_increments, model, batch, chunk[:half], ray_of_cell[:cut], t_in[:cut],
+                              t_out[:cut])
+        second = self.cell_increments(model, batch, chunk[half:], ray_of_cell[cut:] - half, t_in[cut:], t_out[cut:])
+        _accumulator.scatter(accumulator, cell_index[:cut], first.result())
+        _accumulator.scatter(accumulator, cell_index[cut:], second)
 
 
 def _chunks(limits):
