@@ -243,18 +243,13 @@ def test_projective_prism_maps_do_not_depend_on_the_walks_parts(monkeypatch, ove
         assert_same_map(maps[0], other)
 
 
-def test_ray_mode_model_halves_in_two_threads_give_the_map_of_one_call_per_chunk(monkeypatch):
-    """Ray mode runs the model on each chunk's two halves of rays in two threads; the map equals the one of one
-    model call per chunk, voxel for voxel (PRISM with the overhang's stretch, small chunks of odd sizes)."""
+def test_ray_mode_models_in_threads_give_the_map_of_one_thread(monkeypatch):
+    """Ray mode runs the model on chunks in MODEL_THREADS threads beside the cast and adds the increments in
+    chunk order; the map equals the one of one model thread, voxel for voxel (PRISM with the overhang's
+    stretch, small chunks of odd sizes, an accumulator grown from empty while models run)."""
     from prismap.gmm import GaussianMixture
-    from prismap.grid import _accumulator, _integrators
+    from prismap.grid import _integrators
     from prismap.sensor_models import make_sensor_model
-
-    def one_call(self, accumulator, model, batch, chunk, cells, helper):
-        ray_of_cell, cell_index, t_in, t_out = cells
-        if cell_index.size:
-            _accumulator.scatter(accumulator, cell_index, self.cell_increments(model, batch, chunk, ray_of_cell, t_in,
-                                                                                t_out))
 
     camera, pose, disparity = small_frame()
     mixture = GaussianMixture(np.array([0.9, 0.1]), np.array([0.0, 0.0]), np.array([0.3, 3.0]))
@@ -262,11 +257,11 @@ def test_ray_mode_model_halves_in_two_threads_give_the_map_of_one_call_per_chunk
                               error_model=mixture, near_m=0.5)
     monkeypatch.setattr(_integrators, "RAYS_PER_CHUNK", 301)
     maps = []
-    for split in (True, False):
-        if not split:
-            monkeypatch.setattr(_integrators.RayIntegrator, "_model_and_scatter", one_call)
+    for threads in (1, 2, 3):
+        monkeypatch.setattr(_integrators, "MODEL_THREADS", threads)
         grid = OccupancyMap(0.1, p0=0.1)
         grid.integrate_disparity(disparity, camera, pose, model, mode="ray", max_range_m=6.0, subsample=3)
         maps.append(grid)
     assert maps[0].n_known > 5_000
-    assert_same_map(*maps)
+    for other in maps[1:]:
+        assert_same_map(maps[0], other)

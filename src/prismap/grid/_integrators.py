@@ -21,6 +21,7 @@ accumulator's memory while it runs (``_accumulator.frame_budget_bytes``); docs/e
 """
 
 from abc import ABC, abstractmethod
+from collections import deque
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 
@@ -31,6 +32,9 @@ from prismap.grid import _accumulator, _kernels_project, _kernels_traverse
 
 RAYS_PER_CHUNK = 4096
 """Rays cast per model call in ray mode (fewer when they cross more than :data:`CELLS_PER_CHUNK` voxels)."""
+
+MODEL_THREADS = 2
+"""Threads running the model on ray-mode chunks beside the casting thread."""
 
 CELLS_PER_CHUNK = 1 << 22
 """Voxel visits per ray-mode chunk: bounds the chunk's cell arrays (32 bytes a cell, 128 MiB)."""
@@ -233,12 +237,10 @@ class RayIntegrator(Integrator):
     ``min(model.influence_depth, max range)``, including the voxel that contains the stop depth.
 
     Hit/miss models go through ``cast_hit_miss`` (increments added while casting). For the others, rays go
-    in chunks (:data:`RAYS_PER_CHUNK`, :data:`CELLS_PER_CHUNK`) through a two-stage pipeline: this thread
-    casts chunk k + 1 (the kernel releases the GIL) while a worker thread runs the model on chunk k (half
-    of its rays in a helper thread: the model costs several times the cast) and adds its increments. The
-    cast beside the scatter never grows the accumulator (it is grown once the scatter is done), and it only
-    creates blocks and fills their rows while the scatter writes rows of blocks created before, so the two
-    never touch the same memory.
+    in chunks (:data:`RAYS_PER_CHUNK`, :data:`CELLS_PER_CHUNK`) through a pipeline: this thread casts chunk
+    k + 1 (the kernel releases the GIL) while :data:`MODEL_THREADS` threads run the model on chunks k - 1 and
+    k (the model costs several times the cast); this thread then adds the increments of finished chunks in
+    chunk order, so only it writes the accumulator.
 
     References
     ----------
@@ -272,31 +274,26 @@ class RayIntegrator(Integrator):
                 chunk = idx[part]
                 chunks.append((model, chunk, np.ascontiguousarray(batch.rays_w[chunk]),
                                np.ascontiguousarray(t_stop[part]), np.ascontiguousarray(exclusive[part])))
-        with ThreadPoolExecutor(max_workers=1) as worker, ThreadPoolExecutor(max_workers=1) as helper:
-            cells = _accumulator.cast_into(accumulator, origin, *chunks[0][2:], voxel)
-            for k, (model, chunk, *_) in enumerate(chunks):
-                job = worker.submit(self._model_and_scatter, accumulator, model, batch, chunk, cells, helper)
-                if k + 1 < len(chunks):
-                    # This thread enters the GIL-free cast at once; the worker's model call may hold the GIL.
-                    partial = _accumulator.cast_into(accumulator, origin, *chunks[k + 1][2:], voxel, grow_room=False)
-                job.result()
-                if k + 1 < len(chunks):
-                    cells = _accumulator.finish_cast(accumulator, origin, *chunks[k + 1][2:], voxel, partial)
+        # The model runs on chunks k - 1 and k in MODEL_THREADS threads while this thread casts chunk k + 1 and
+        # adds finished chunks' increments in chunk order: it alone writes the accumulator (so the cast may grow
+        # it), and the map is that of one thread.
+        pending = deque()
+        with ThreadPoolExecutor(max_workers=MODEL_THREADS) as threads:
+            for model, chunk, *cast in chunks:
+                ray_of_cell, cell_index, t_in, t_out = _accumulator.cast_into(accumulator, origin, *cast, voxel)
+                if cell_index.size:
+                    pending.append((cell_index, threads.submit(self.cell_increments, model, batch, chunk, ray_of_cell,
+                                                               t_in, t_out)))
+                while len(pending) > MODEL_THREADS:
+                    _scatter_next(accumulator, pending)
+            while pending:
+                _scatter_next(accumulator, pending)
 
-    def _model_and_scatter(self, accumulator, model, batch, chunk, cells, helper):
-        """The model on a chunk's cells, its first half of rays in ``helper``'s thread beside the second half in
-        this one, then the increments scattered in the cells' order (this thread alone writes the accumulator:
-        rays of a chunk cross the same voxels)."""
-        ray_of_cell, cell_index, t_in, t_out = cells
-        if not cell_index.size:
-            return
-        half = chunk.size // 2
-        cut = int(np.searchsorted(ray_of_cell, half))  # the cast goes ray by ray: ray_of_cell is sorted
-        first = helper.submit(self.cell_increments, model, batch, chunk[:half], ray_of_cell[:cut], t_in[:cut],
-                              t_out[:cut])
-        second = self.cell_increments(model, batch, chunk[half:], ray_of_cell[cut:] - half, t_in[cut:], t_out[cut:])
-        _accumulator.scatter(accumulator, cell_index[:cut], first.result())
-        _accumulator.scatter(accumulator, cell_index[cut:], second)
+
+def _scatter_next(accumulator, pending):
+    """Add the oldest pending chunk's increments (``(cell_index, future of increments)``) to the accumulator."""
+    cell_index, increments = pending.popleft()
+    _accumulator.scatter(accumulator, cell_index, increments.result())
 
 
 def _chunks(limits):
