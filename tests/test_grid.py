@@ -291,10 +291,10 @@ def test_rotate_rays_equals_the_matrix_product():
 
 
 def _project(key_min, shape, origin, R_cam_world, focal, cx, cy, ray_index, rays, t_stop, exclusive, voxel_size, *,
-             capacity=64, bits=(2, 2, 2), acc=None):
+             capacity=64, bits=(2, 2, 2), acc=None, parts=1):
     """The projective integrator's kept voxels through its wrapper (subsample 1), by default from an empty
-    accumulator that is grown (and the walk resumed) many times: ``(ray, key, t_in, t_out)`` with keys read
-    back through the accumulator's blocks."""
+    accumulator that is grown (and the walk resumed) many times, the walk's lines in ``parts`` parts:
+    ``(ray, key, t_in, t_out)`` with keys read back through the accumulator's blocks."""
     from prismap.grid import _accumulator, _kernels_project
     from prismap.grid._integrators import ProjectiveIntegrator
 
@@ -302,7 +302,10 @@ def _project(key_min, shape, origin, R_cam_world, focal, cx, cy, ray_index, rays
     stops = _kernels_project.stop_image(ray_index, t_stop)
     geometry = (key_min, shape, origin, R_cam_world, focal, cx, cy, 1.0, ray_index, rays, exclusive, stops,
                 _kernels_project.tile_stops(stops), voxel_size)
-    ray, rows, t_in, t_out = ProjectiveIntegrator(voxel_size_m=voxel_size)._project_cells(acc, geometry, capacity)
+    cuts = np.linspace(0, _kernels_project.walk_lines(R_cam_world, shape), parts + 1).astype(np.int64)
+    walked = list(ProjectiveIntegrator(voxel_size_m=voxel_size)._project_cells(acc, geometry, capacity, cuts))
+    assert len(walked) == parts
+    ray, rows, t_in, t_out = (np.concatenate(column) for column in zip(*walked))
     return ray, acc.voxel_keys().reshape(-1, 3)[rows], t_in, t_out
 
 
@@ -324,7 +327,8 @@ def test_projected_cells_do_not_depend_on_the_room_they_start_with():
     # for the whole box, and as with 8^3 blocks (other block changes, other resumes).
     view = _small_view()
     full = _project(*view, capacity=int(np.prod(view[1])))
-    for got in (_project(*view, capacity=7), _project(*view, capacity=7, bits=(3, 3, 3))):
+    for got in (_project(*view, capacity=7), _project(*view, capacity=7, bits=(3, 3, 3)),
+                _project(*view, capacity=7, parts=5)):
         assert got[0].size == full[0].size > 7
         for a, b in zip(full, got):
             np.testing.assert_array_equal(a, b)

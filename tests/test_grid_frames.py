@@ -214,3 +214,54 @@ def test_subsampling_uses_every_nth_pixel():
     sub.integrate_disparity(disparity, camera, pose, model, subsample=4, max_range_m=12.0)
     assert 0 < sub.n_known
     assert sub.n_known == pytest.approx(full.n_known, rel=0.05)
+
+
+@pytest.mark.parametrize("overhang_fraction", [0.0, 0.25])
+def test_projective_prism_maps_do_not_depend_on_the_walks_parts(monkeypatch, overhang_fraction):
+    """The projective walk hands its cells to the model part by part (the model in a worker thread beside the
+    walk); one part, three and one per line or so give the same map voxel for voxel: PRISM with and without
+    the overhang's stretch (without it a cell reuses its ray's previous look-up), pose-noise groups, and an
+    accumulator grown from empty in the middle of parts."""
+    from prismap.gmm import GaussianMixture
+    from prismap.grid import _integrators
+    from prismap.sensor_models import make_sensor_model
+
+    camera, pose, disparity = small_frame()
+    mixture = GaussianMixture(np.array([0.9, 0.1]), np.array([0.0, 0.0]), np.array([0.3, 3.0]))
+    maps = []
+    for parts in (1, 3, 1000):
+        monkeypatch.setattr(_integrators, "PROJECTIVE_PARTS", parts)
+        model = make_sensor_model("prism", focal_baseline=camera.focal_baseline, voxel_size_m=0.1, p0=0.1,
+                                  error_model=mixture, near_m=0.5, overhang_fraction=overhang_fraction)
+        grid = OccupancyMap(0.1, p0=0.1)
+        for cov in (None, np.eye(3) * 0.03**2):
+            grid.integrate_disparity(disparity, camera, pose, model, mode="projective", max_range_m=6.0,
+                                     subsample=2, pose_covariance=cov)
+        maps.append(grid)
+    assert maps[0].n_known > 5_000
+    for other in maps[1:]:
+        assert_same_map(maps[0], other)
+
+
+def test_ray_mode_models_in_threads_give_the_map_of_one_thread(monkeypatch):
+    """Ray mode runs the model on chunks in MODEL_THREADS threads beside the cast and adds the increments in
+    chunk order; the map equals the one of one model thread, voxel for voxel (PRISM with the overhang's
+    stretch, small chunks of odd sizes, an accumulator grown from empty while models run)."""
+    from prismap.gmm import GaussianMixture
+    from prismap.grid import _integrators
+    from prismap.sensor_models import make_sensor_model
+
+    camera, pose, disparity = small_frame()
+    mixture = GaussianMixture(np.array([0.9, 0.1]), np.array([0.0, 0.0]), np.array([0.3, 3.0]))
+    model = make_sensor_model("prism", focal_baseline=camera.focal_baseline, voxel_size_m=0.1, p0=0.1,
+                              error_model=mixture, near_m=0.5)
+    monkeypatch.setattr(_integrators, "RAYS_PER_CHUNK", 301)
+    maps = []
+    for threads in (1, 2, 3):
+        monkeypatch.setattr(_integrators, "MODEL_THREADS", threads)
+        grid = OccupancyMap(0.1, p0=0.1)
+        grid.integrate_disparity(disparity, camera, pose, model, mode="ray", max_range_m=6.0, subsample=3)
+        maps.append(grid)
+    assert maps[0].n_known > 5_000
+    for other in maps[1:]:
+        assert_same_map(maps[0], other)

@@ -321,6 +321,24 @@ def test_table_cache_evicts_least_recently_used_beyond_its_budget():
         PrismModel(error_model=MIXTURE, focal_baseline=FB, table_memory_mb=0.0)
 
 
+def test_calls_from_two_threads_under_a_thrashing_cache_equal_serial_calls():
+    # The grid may call cell_posteriors from two threads at once. With room for about two tables every call
+    # builds and evicts (new arrays, renumbered rows) while the other thread's call may be looking up; each
+    # call must still read its own tables.
+    from concurrent.futures import ThreadPoolExecutor
+
+    edges = np.linspace(0.5, 12.0, 60)
+    calls = [(_on_grid([d, d + 0.7]), [1.0, 1.2], np.repeat([0, 1], 59), np.tile(edges[:-1], 2), np.tile(edges[1:], 2))
+             for d in np.linspace(1.0, 9.0, 12)]
+    want = [PrismModel(error_model=MIXTURE, focal_baseline=FB).cell_posteriors(*args)[1] for args in calls]
+    model = PrismModel(error_model=MIXTURE, focal_baseline=FB, table_memory_mb=0.012)
+    with ThreadPoolExecutor(2) as pool:
+        got = list(pool.map(lambda args: model.cell_posteriors(*args)[1], calls * 3))
+    for k, increment in enumerate(got):
+        np.testing.assert_array_equal(increment, want[k % len(calls)])
+    assert model._cache.builds > len(calls)  # it did thrash
+
+
 def _fake_tables(keys):
     """Tables of 100 nodes whose only content is their key (the cache never looks inside)."""
     return [(np.full((100, _kernels.TABLE_COLUMNS), float(k)), (float(k),) * (len(_kernels.META_COLUMNS) - 2))

@@ -63,36 +63,28 @@ def grow(accumulator, blocks):
     accumulator.reserve(min(max(64, held, int(blocks)), max_blocks - held), max_blocks=max_blocks)
 
 
-def cast_into(accumulator, origin, rays, t_stop, exclusive, voxel_size, *, grow_room=True):
-    """Cast rays, registering the voxels they cross in the accumulator.
+def cast_into(accumulator, origin, rays, t_stop, exclusive, voxel_size):
+    """Cast rays, registering the voxels they cross in the accumulator (grown as needed).
 
     Returns ``[ray_of_cell, cell_index (accumulator rows), t_in, t_out]`` as
-    ``_kernels_traverse.cast_rays_into``, and how many rays are done. With ``grow_room=False`` it never
-    reallocates the accumulator (safe beside a :func:`scatter` into it in another thread) and may stop
-    short; call :func:`finish_cast` afterwards.
+    ``_kernels_traverse.cast_rays_into``. It reallocates the accumulator's arrays: nothing else may use
+    them meanwhile.
     """
-    table = accumulator
-    *cells, done = _kernels_traverse.cast_rays_into(table.table, table.block_keys, table.n_blocks, table.payload["acc"],
-                                                    table.payload["links"], origin, rays, t_stop, exclusive, voxel_size,
-                                                    table.bits)
-    if grow_room:
-        return finish_cast(accumulator, origin, rays, t_stop, exclusive, voxel_size, (cells, done))
-    return cells, done
-
-
-def finish_cast(accumulator, origin, rays, t_stop, exclusive, voxel_size, partial):
-    """Complete a :func:`cast_into` that stopped short, growing the accumulator; returns the cells."""
-    cells, done = partial
-    parts = [cells]
-    while done < rays.shape[0]:
-        grow(accumulator, 0)
-        more, n = cast_into(accumulator, origin, rays[done:], t_stop[done:], exclusive[done:], voxel_size,
-                            grow_room=False)
-        more[0] += done
-        parts.append(more)
+    parts, done = [], 0
+    while True:
+        table = accumulator
+        *cells, n = _kernels_traverse.cast_rays_into(table.table, table.block_keys, table.n_blocks,
+                                                     table.payload["acc"], table.payload["links"], origin, rays[done:],
+                                                     t_stop[done:], exclusive[done:], voxel_size, table.bits)
+        if done:
+            cells[0] += done
+        parts.append(cells)
         done += n
+        if done >= rays.shape[0]:
+            break
+        grow(accumulator, 0)
     if len(parts) == 1:
-        return cells
+        return parts[0]
     return [np.concatenate(column) for column in zip(*parts)]
 
 

@@ -21,6 +21,7 @@ accumulator's memory while it runs (``_accumulator.frame_budget_bytes``); docs/e
 """
 
 from abc import ABC, abstractmethod
+from collections import deque
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 
@@ -32,12 +33,19 @@ from prismap.grid import _accumulator, _kernels_project, _kernels_traverse
 RAYS_PER_CHUNK = 4096
 """Rays cast per model call in ray mode (fewer when they cross more than :data:`CELLS_PER_CHUNK` voxels)."""
 
+MODEL_THREADS = 2
+"""Threads running the model on ray-mode chunks beside the casting thread."""
+
 CELLS_PER_CHUNK = 1 << 22
 """Voxel visits per ray-mode chunk: bounds the chunk's cell arrays (32 bytes a cell, 128 MiB)."""
 
 MAX_FRAME_CELLS = 1 << 30
 """Voxel visits one frame may ask for: the sum over rays of the voxels between the origin and the stop depth
 (ray mode), or the voxels of the frustum's key box (projective mode)."""
+
+PROJECTIVE_PARTS = 8
+"""Parts (ranges of the walk's lines) of a projective frame: the model runs on one part's cells while the next
+part is walked."""
 
 MAX_RAY_CELLS = 1 << 20
 """Voxels one ray may cross (1 M: 105 km at 0.1 m voxels, 1 km at 1 mm)."""
@@ -229,11 +237,10 @@ class RayIntegrator(Integrator):
     ``min(model.influence_depth, max range)``, including the voxel that contains the stop depth.
 
     Hit/miss models go through ``cast_hit_miss`` (increments added while casting). For the others, rays go
-    in chunks (:data:`RAYS_PER_CHUNK`, :data:`CELLS_PER_CHUNK`) through a two-stage pipeline: this thread
-    casts chunk k + 1 (the kernel releases the GIL) while a worker thread runs the model on chunk k and adds
-    its increments. The cast beside the scatter never grows the accumulator (it is grown once the scatter is
-    done), and it only creates blocks and fills their rows while the scatter writes rows of blocks created
-    before, so the two never touch the same memory.
+    in chunks (:data:`RAYS_PER_CHUNK`, :data:`CELLS_PER_CHUNK`) through a pipeline: this thread casts chunk
+    k + 1 (the kernel releases the GIL) while :data:`MODEL_THREADS` threads run the model on chunks k - 1 and
+    k (the model costs several times the cast); this thread then adds the increments of finished chunks in
+    chunk order, so only it writes the accumulator.
 
     References
     ----------
@@ -267,21 +274,26 @@ class RayIntegrator(Integrator):
                 chunk = idx[part]
                 chunks.append((model, chunk, np.ascontiguousarray(batch.rays_w[chunk]),
                                np.ascontiguousarray(t_stop[part]), np.ascontiguousarray(exclusive[part])))
-        with ThreadPoolExecutor(max_workers=1) as worker:
-            cells = _accumulator.cast_into(accumulator, origin, *chunks[0][2:], voxel)
-            for k, (model, chunk, *_) in enumerate(chunks):
-                job = worker.submit(self._model_and_scatter, accumulator, model, batch, chunk, cells)
-                if k + 1 < len(chunks):
-                    # This thread enters the GIL-free cast at once; the worker's model call may hold the GIL.
-                    partial = _accumulator.cast_into(accumulator, origin, *chunks[k + 1][2:], voxel, grow_room=False)
-                job.result()
-                if k + 1 < len(chunks):
-                    cells = _accumulator.finish_cast(accumulator, origin, *chunks[k + 1][2:], voxel, partial)
+        # The model runs on chunks k - 1 and k in MODEL_THREADS threads while this thread casts chunk k + 1 and
+        # adds finished chunks' increments in chunk order: it alone writes the accumulator (so the cast may grow
+        # it), and the map is that of one thread.
+        pending = deque()
+        with ThreadPoolExecutor(max_workers=MODEL_THREADS) as threads:
+            for model, chunk, *cast in chunks:
+                ray_of_cell, cell_index, t_in, t_out = _accumulator.cast_into(accumulator, origin, *cast, voxel)
+                if cell_index.size:
+                    pending.append((cell_index, threads.submit(self.cell_increments, model, batch, chunk, ray_of_cell,
+                                                               t_in, t_out)))
+                while len(pending) > MODEL_THREADS:
+                    _scatter_next(accumulator, pending)
+            while pending:
+                _scatter_next(accumulator, pending)
 
-    def _model_and_scatter(self, accumulator, model, batch, chunk, cells):
-        ray_of_cell, cell_index, t_in, t_out = cells
-        if cell_index.size:
-            _accumulator.scatter(accumulator, cell_index, self.cell_increments(model, batch, chunk, ray_of_cell, t_in, t_out))
+
+def _scatter_next(accumulator, pending):
+    """Add the oldest pending chunk's increments (``(cell_index, future of increments)``) to the accumulator."""
+    cell_index, increments = pending.popleft()
+    _accumulator.scatter(accumulator, cell_index, increments.result())
 
 
 def _chunks(limits):
@@ -324,7 +336,9 @@ class ProjectiveIntegrator(Integrator):
 
     The key box is walked in lines along the image rows, registering each kept voxel in the accumulator as
     it is found (``_kernels_project.project_cells``); the cells then go, grouped by ray, through the model
-    and are scattered. Hit/miss models are added while walking (``project_hit_miss``: no cell arrays)."""
+    and are scattered, in :data:`PROJECTIVE_PARTS` parts of the lines: a worker thread runs the model on
+    part k while this thread walks part k + 1. A voxel is visited once per frame, so the map does not
+    depend on the parts. Hit/miss models are added while walking (``project_hit_miss``: no cell arrays)."""
 
     name = "projective"
 
@@ -354,10 +368,32 @@ class ProjectiveIntegrator(Integrator):
             _project_hit_miss(accumulator, geometry, t_stop, exclusive, groups[0][0])
             return
         capacity = 1.05 * _frustum_voxels(t_stop, image.focal_px, image.subsample, voxel) + 4096
-        ray_of_cell, rows, t_in, t_out = self._project_cells(accumulator, geometry, int(min(box, capacity)))
-        # Cells grouped by ray (models keep per-ray state from cell to cell); one model call per group and
-        # frame, on the rays some voxel uses (models cost per ray too).
-        rows, t_in, t_out, used, local = _kernels_project.sort_by_ray(ray_of_cell, n, rows, t_in, t_out)
+        n_lines = int(_kernels_project.walk_lines(image.R_cam_world, shape))
+        cuts = np.linspace(0, n_lines, min(PROJECTIVE_PARTS, n_lines) + 1).astype(np.int64)
+        pending = []
+
+        def wait():
+            while pending:
+                pending.pop().result()
+
+        with ThreadPoolExecutor(max_workers=1) as worker:
+            # A part's cells go through the model in the worker while this thread walks the next part (the walk
+            # releases the GIL). The walk only creates blocks and fills their rows while the worker scatters into
+            # rows of blocks created before; the accumulator grows only once the worker is idle.
+            for cells in self._project_cells(accumulator, geometry, int(min(box, capacity)), cuts, wait):
+                wait()
+                pending.append(worker.submit(self._model_and_scatter, accumulator, batch, groups, group_of_ray,
+                                             cells))
+            wait()
+
+    def _model_and_scatter(self, accumulator, batch, groups, group_of_ray, cells):
+        """One part's cells (``ray_of_cell, rows, t_in, t_out``) through the model, grouped by ray (models keep
+        per-ray state from cell to cell), and scattered; one model call per noise group, on the rays some
+        voxel uses (models cost per ray too)."""
+        ray_of_cell, rows, t_in, t_out = cells
+        if ray_of_cell.size == 0:
+            return
+        rows, t_in, t_out, used, local = _kernels_project.sort_by_ray(ray_of_cell, len(batch), rows, t_in, t_out)
         if len(groups) == 1:  # no pose noise: the loop below with every used ray in the group, minus its copies
             inc = self.cell_increments(groups[0][0], batch, used, local, t_in, t_out)
             _accumulator.scatter(accumulator, rows, inc)
@@ -372,29 +408,37 @@ class ProjectiveIntegrator(Integrator):
                 inc = self.cell_increments(model, batch, used[in_group], rank[local[mine]], t_in[mine], t_out[mine])
                 _accumulator.scatter(accumulator, rows[mine], inc)
 
-    def _project_cells(self, accumulator, geometry, capacity):
-        """The frame's kept voxels, registered in the accumulator: ``ray_of_cell, rows, t_in, t_out`` in the
-        walk's order (``geometry``: the arguments of ``_kernels_project.project_cells`` after the accumulator's);
-        the cell arrays start with room for ``capacity`` cells."""
+    def _project_cells(self, accumulator, geometry, capacity, cuts, before_grow=lambda: None):
+        """The frame's kept voxels, registered in the accumulator, part by part: yields ``ray_of_cell, rows,
+        t_in, t_out`` of the walk's lines ``cuts[k]`` to ``cuts[k + 1] - 1`` (``cuts`` (P + 1,) int64, from 0
+        to ``_kernels_project.walk_lines``) in the walk's order (``geometry``: the arguments of
+        ``_kernels_project.project_cells`` after the accumulator's). The cell arrays start with room for
+        ``capacity`` cells; ``before_grow()`` is called before the accumulator grows (it must wait for every
+        user of the accumulator's arrays)."""
         max_cells = _accumulator.frame_budget_bytes() // 32  # 32 bytes per kept cell
         capacity = min(capacity, max_cells)
         cells = (np.empty(capacity, dtype=np.int64), np.empty(capacity, dtype=np.int64), np.empty(capacity),
                  np.empty(capacity))
-        m, line = 0, 0
-        while True:
-            table = accumulator
-            *cells, m, line = _kernels_project.project_cells(table.table, table.block_keys, table.n_blocks,
-                                                             table.payload["acc"], table.payload["links"], table.bits,
-                                                             *geometry, *cells, m, line, max_cells)
-            if m > max_cells:
-                raise PrismapInputError(
-                    f"the frame projects onto {m} voxels, more than {max_cells} (docs/errors.md) "
-                    f"at `voxel_size_m`={self.voxel_size_m:g}: lower `max_range_m` (now {self.max_range_m:g} m) or raise "
-                    "the voxel size"
-                )
-            if line < 0:
-                return [column[:m] for column in cells]
-            _accumulator.grow(accumulator, 0)
+        m = 0
+        for start, stop in zip(cuts[:-1], cuts[1:]):
+            first, line = m, start
+            while True:
+                table = accumulator
+                *cells, m, line = _kernels_project.project_cells(table.table, table.block_keys, table.n_blocks,
+                                                                 table.payload["acc"], table.payload["links"],
+                                                                 table.bits, *geometry, *cells, m, line, stop,
+                                                                 max_cells)
+                if m > max_cells:
+                    raise PrismapInputError(
+                        f"the frame projects onto {m} voxels, more than {max_cells} (docs/errors.md) "
+                        f"at `voxel_size_m`={self.voxel_size_m:g}: lower `max_range_m` (now {self.max_range_m:g} m) "
+                        "or raise the voxel size"
+                    )
+                if line < 0:
+                    break
+                before_grow()
+                _accumulator.grow(accumulator, 0)
+            yield [column[first:m] for column in cells]
 
 
 def _project_hit_miss(accumulator, geometry, t_stop, exclusive, model):

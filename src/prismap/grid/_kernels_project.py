@@ -106,9 +106,9 @@ def _walk_setup(R_cam_world, shape, focal, cx, cy, subsample, voxel_size):
 @numba.njit(cache=True, nogil=True)
 def project_cells(table, block_keys, n_blocks, acc, links, bits, key_min, shape, origin, R_cam_world, focal, cx, cy,
                   subsample, ray_index, rays, exclusive, stops, tile_stop, voxel_size, ray_of_cell, cell_index, t_in,
-                  t_out, m, start, max_cells):
+                  t_out, m, start, stop, max_cells):
     """Voxels of a key box seen by a pixel ray (:func:`_line_cells`), registered in the frame accumulator as
-    they are found (``_kernels_accumulate.register_run``), from line ``start`` on.
+    they are found (``_kernels_accumulate.register_run``), on lines ``start`` to ``stop - 1``.
 
     The box is walked in lines along the world axis nearest the image's rows (:func:`_loop_axes`), so that
     consecutive voxels read neighbouring pixels; lines are numbered ``i0 * n1 + i1`` (outer, middle axis).
@@ -116,12 +116,12 @@ def project_cells(table, block_keys, n_blocks, acc, links, bits, key_min, shape,
     on; the arrays grow by half when full, up to ``max_cells``: beyond it voxels are only counted (the
     count exceeds the arrays' length; the caller refuses the frame). Returns the arrays (possibly new),
     the cell count and the first line not done, -1 when all are: a new block found the accumulator full
-    (grow it and call again from that line).
+    (grow it and call again from that line). :func:`walk_lines` gives the number of lines.
     """
-    walk, n_lines = _walk_setup(R_cam_world, shape, focal, cx, cy, subsample, voxel_size)
+    walk, _ = _walk_setup(R_cam_world, shape, focal, cx, cy, subsample, voxel_size)
     line_keys, line_ray, line_t0, line_t1 = walk[9], walk[10], walk[11], walk[12]
     last_block, last_slot = EMPTY, np.int64(-1)
-    for line in range(start, n_lines):
+    for line in range(start, stop):
         c = _line_cells(line, walk, key_min, shape, origin, R_cam_world, focal, subsample, ray_index, rays, exclusive,
                         stops, tile_stop, voxel_size)
         if c == 0:
@@ -186,6 +186,13 @@ def _grown(ray_of_cell, cell_index, t_in, t_out, m, size):
     grown[2][:m] = t_in[:m]
     grown[3][:m] = t_out[:m]
     return grown
+
+
+@numba.njit(cache=True, nogil=True)
+def walk_lines(R_cam_world, shape):
+    """Number of lines of the walk of :func:`project_cells` over a key box of ``shape`` (3,)."""
+    a0, a1, _ = _loop_axes(R_cam_world)
+    return shape[a0] * shape[a1]
 
 
 @numba.njit(cache=True, nogil=True)

@@ -30,7 +30,8 @@ class InverseSensorModel(ABC):
     :meth:`influence_depth`; the grid passes it only when the frame has classes, and never to a hit/miss
     model. A model with ``takes_voxel_overhang`` accepts the keyword ``voxel_overhang_m`` ((R,) float64,
     metres along each ray: how far before its surface a voxel can still hold part of it, see
-    ``prismap.grid._overhang``) in :meth:`cell_posteriors`.
+    ``prismap.grid._overhang``) in :meth:`cell_posteriors`. The grid may call :meth:`cell_posteriors` from
+    two threads at once (on different rays), so a model that caches must guard its cache.
     """
 
     name = "base"

@@ -13,6 +13,7 @@ L. Matthies, S. Shafer, "Error modeling in stereo navigation", IEEE J. Robotics 
 
 import dataclasses
 import os
+import threading
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
@@ -330,8 +331,8 @@ class PrismModel(RayModel):
         """
         disparity = as_float_array(disparity_px, "disparity_px", ndim=1, allow_nan=False)
         norm = as_float_array(ray_norm, "ray_norm", shape=(disparity.size,))
-        table, _ = self._tables_for(disparity, norm)
-        return self._cache.meta[table, _kernels.META_COLUMNS.index("z_infl")]
+        table, _, meta, _ = self._tables_for(disparity, norm)
+        return meta[table, _kernels.META_COLUMNS.index("z_infl")]
 
     def with_extra_noise(self, sigma_px):
         """A copy whose error model is ``error_model.widened(sigma_px)``.
@@ -347,20 +348,23 @@ class PrismModel(RayModel):
     def _table_cells(self, lam, disparity, norm, rays, start, end, stretch):
         """Tabulated posteriors and increments of the cells ``[start, end + stretch[rays]]``
         (``_kernels.prism_table_cells``: table look-ups, vectorised exp, combination, vectorised log)."""
-        table, delta = self._tables_for(disparity, norm)
+        table, delta, meta, nodes = self._tables_for(disparity, norm)
         log_wn, means, sigmas = self._mixture_arrays()
         return _kernels.prism_table_cells(lam, table, delta, rays, start, end, stretch, _CHUNK_CELLS, self.near_m,
-                                          self.far_depth_m, self.focal_baseline, self._ku(), _QUAD_STEP,
-                                          self._cache.meta, self._cache.nodes, log_wn, means, sigmas,
-                                          self.pass_through)
+                                          self.far_depth_m, self.focal_baseline, self._ku(), _QUAD_STEP, meta, nodes,
+                                          log_wn, means, sigmas, self.pass_through)
 
     def _tables_for(self, disparity, norm):
-        """Table row and ``delta = log(lambda_ray / lambda_table)`` of every ray, building missing tables."""
+        """Table row and ``delta = log(lambda_ray / lambda_table)`` of every ray, building missing tables, and
+        the cache's ``meta`` and ``nodes`` arrays those rows index: taken under the cache's lock, so a call in
+        another thread that builds or evicts (new arrays, new rows) leaves this call's view intact."""
         log_norm = np.log(np.maximum(norm, 1.0))
         unique, inverse = _kernels.table_keys(disparity, log_norm, self.disparity_step_px, _LAMBDA_STEP, _KEY_L_SPAN)
-        rows = self._cache.rows(unique, self._build_tables)
+        with self._cache.lock:
+            rows = self._cache.rows(unique, self._build_tables)
+            meta, nodes = self._cache.meta, self._cache.nodes
         key_l = np.minimum(np.rint(log_norm / _LAMBDA_STEP), _KEY_L_SPAN - 1)
-        return rows[inverse], log_norm - key_l * _LAMBDA_STEP
+        return rows[inverse], log_norm - key_l * _LAMBDA_STEP, meta, nodes
 
     def _build_tables(self, keys):
         """Nodes and metadata row (see ``_kernels.META_COLUMNS`` without offset, length) of each key."""
@@ -385,10 +389,18 @@ class PrismModel(RayModel):
                 )
             return nodes.astype(np.float32), (rate, *meta, d + self.doffs_px, far)  # halves the new tables at once
 
-        if disparity.size < 2 * _BUILD_THREADS:
-            return [build(*job) for job in zip(disparity, lam, log_far)]
-        with ThreadPoolExecutor(_BUILD_THREADS) as pool:  # prism_table releases the GIL
-            return list(pool.map(build, disparity, lam, log_far))
+        jobs = list(zip(disparity, lam, log_far))
+        if len(jobs) < 2 * _BUILD_THREADS:
+            return [build(*job) for job in jobs]
+        # One share of the keys a thread (prism_table releases the GIL), not one task a table: a task's
+        # hand-over costs about as much CPU as a small table's build.
+        with ThreadPoolExecutor(_BUILD_THREADS) as pool:
+            shares = list(pool.map(lambda share: [build(*job) for job in share],
+                                   [jobs[t::_BUILD_THREADS] for t in range(_BUILD_THREADS)]))
+        built = [None] * len(jobs)
+        for t, share in enumerate(shares):
+            built[t::_BUILD_THREADS] = share
+        return built
 
 
 def _share(value, name, *, one):
@@ -447,7 +459,9 @@ class _TableCache:
     Tables used by the current call are never evicted, so one call may exceed the budget. A budget of
     ``None`` is the larger of ``floor_bytes`` and :data:`AUTO_TABLE_CALLS` times the bytes of the largest
     call's tables so far (:attr:`limit_bytes`). ``hits`` and ``builds`` count the distinct keys of every
-    call found in the cache and built (a thrashing cache builds the same keys again and again).
+    call found in the cache and built (a thrashing cache builds the same keys again and again). Callers
+    hold ``lock`` around :meth:`rows` and their reads of ``meta`` and ``nodes``: a build or an eviction
+    replaces those arrays (never writes into them) and renumbers rows.
     """
 
     def __init__(self, budget_bytes, floor_bytes):
@@ -462,6 +476,7 @@ class _TableCache:
         self.clock = 0
         self.hits = 0
         self.builds = 0
+        self.lock = threading.Lock()
 
     @property
     def nbytes(self):
