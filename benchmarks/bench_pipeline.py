@@ -11,8 +11,9 @@ Stages (default): :func:`prismap.pipeline.map_sequence`, sequential, in ray and 
 library's calls wrapped here to time them: matching (the matcher's ``compute_with_confidence``), model (the sensor model's
 ``cell_posteriors`` and ``influence_depth``), casting (``grid._accumulator.cast_into`` in ray mode,
 ``grid._kernels_project.project_voxels`` in projective mode), merge (``grid._kernels_accumulate.apply_frame``)
-and rays and the rest (what is left of the frame). In ray mode the model runs on a second thread while the
-next chunk is cast, so model + casting may exceed their share of the wall time. ``cold`` is the first run in
+and rays and the rest (what is left of the frame). Stage seconds add up over threads: in ray mode the model runs
+in two threads while the next chunk is cast, in projective mode on one part of the walk while the next is walked,
+so the shares may add up past 100 % of the wall time (then "rays and rest" is 0). ``cold`` is the first run in
 this process (numba caches loaded, PRISM's tables built), ``warm`` the median of --repeat more runs (the
 pipeline keeps the model, so its tables, between runs of one config). The floor is SGBM's ``compute`` alone
 on the same frames (warm, median of --repeat).
