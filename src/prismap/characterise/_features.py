@@ -13,9 +13,10 @@ so a mapping run can compute it for each frame and pick the error mixture of eac
   the derivative; borders reflected as OpenCV's ``BORDER_REFLECT_101``).
 - ``disparity_gradient`` (pixels per pixel): the mean magnitude of the computed disparity's gradient
   (Sobel normalised by 1/8) over the same ``texture_window_px`` window, averaged over the pixels whose
-  3x3 neighbourhood is wholly valid (``+inf`` where the window holds none). It is large on surfaces
-  seen at a slant and where the computed disparity is rough, both where matchers err more, which
-  neither the distance to a discontinuity nor the image texture sees.
+  3x3 neighbourhood is wholly valid (``+inf`` where the window holds none). It is large where the
+  computed disparity is rough or slanted; matchers err more where it is large (on the room's SGBM
+  frames, not explained by the true surface slant), which neither the distance to a discontinuity nor
+  the image texture sees.
 - ``lr_disagreement_px`` (pixels): the left-right disagreement of the matcher's check
   (:func:`prismap.stereo.left_right_disagreement`); only when the check runs.
 - ``disparity_px`` (pixels): the computed disparity itself.

@@ -36,9 +36,10 @@ import numpy as np
 
 from prismap._files import write_text_atomic
 from prismap.characterise._classes import ErrorClasses
-from prismap.characterise._features import FEATURE_UNITS, LR_FEATURE
+from prismap.characterise._features import FEATURE_UNITS, LR_FEATURE, compute_features
 from prismap.errors import PrismapInputError
 from prismap.gmm import GaussianMixture, MixtureFit
+from prismap.stereo._base import to_grey
 
 FORMAT = "prismap-error-model"
 FORMAT_VERSION = 2
@@ -222,6 +223,23 @@ class ErrorModel:
                     f"the features were computed with {settings}; the error model needs {self.feature_settings}"
                 )
         return self.classes.assign(features.values, features.valid)
+
+    def classify_frame(self, left, right, disparity, lr_disagreement=None):
+        """Class of each pixel of a stereo frame: its features (this model's :attr:`feature_settings`) from the
+        images and the computed disparity, then :meth:`classify`.
+
+        Parameters
+        ----------
+        left, right : (H, W) or (H, W, 3) uint8, the rectified images
+        disparity : (H, W) float, pixels, NaN = invalid; the matcher's output
+        lr_disagreement : (H, W) float, pixels, or None; the matcher's left-right disagreement
+
+        Returns
+        -------
+        (H, W) int32, as :meth:`classify`.
+        """
+        features = compute_features(to_grey(left), to_grey(right), disparity, lr_disagreement, **self.feature_settings)
+        return self.classify(features)
 
     def to_dict(self):
         """The JSON form documented in this module."""

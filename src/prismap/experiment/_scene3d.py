@@ -144,8 +144,7 @@ def split_frames(n_frames, every):
 
 
 def run_scene3d(out_dir, *, n_frames=None, voxel_size_m=None, seed=0, quick=False, matchers=MATCHERS,
-                models=MODELS_3D, characterise_every=4, max_range_m=None, grid_offset=0.5,
-                       between_frames=None):
+                models=MODELS_3D, characterise_every=4, max_range_m=None, grid_offset=0.5, between_frames=None):
     """Characterise each matcher on some frames of the indoor room, map the others with every model, score.
 
     The seeded :func:`prismap.sim.indoor_scene` rendered along :func:`prismap.sim.indoor_trajectory` by the
@@ -161,8 +160,7 @@ def run_scene3d(out_dir, *, n_frames=None, voxel_size_m=None, seed=0, quick=Fals
 
 
 def run_street3d(out_dir, *, n_frames=None, voxel_size_m=None, seed=0, quick=False, matchers=MATCHERS,
-                 models=MODELS_3D, characterise_every=4, max_range_m=None, grid_offset=0.5,
-                       between_frames=None):
+                 models=MODELS_3D, characterise_every=4, max_range_m=None, grid_offset=0.5, between_frames=None):
     """Characterise each matcher on some frames of the street drive, map the others with every model, score.
 
     The seeded :func:`prismap.sim.street_scene` rendered along :func:`prismap.sim.street_trajectory` by
@@ -369,9 +367,7 @@ def mapped_log_likelihood(error_model, frames, disparity_dir):
     -------
     dict: ``conditioned_nats_per_error``, ``plain_nats_per_error`` (nats per error) and ``n_errors``.
     """
-    from prismap.characterise import compute_features
     from prismap.io import read_kitti_disparity
-    from prismap.stereo._base import to_grey
 
     mixtures = error_model.class_mixtures if error_model.conditioned else (error_model.mixture,)
     conditioned = plain = 0.0
@@ -379,9 +375,7 @@ def mapped_log_likelihood(error_model, frames, disparity_dir):
     for index, frame in enumerate(frames):
         disparity = read_kitti_disparity(Path(disparity_dir) / f"{index:06d}.png")
         if error_model.conditioned:
-            features = compute_features(to_grey(frame.left), to_grey(frame.right), disparity, None,
-                                        **error_model.feature_settings)
-            label = error_model.classify(features)
+            label = error_model.classify_frame(frame.left, frame.right, disparity)
         else:
             label = np.where(np.isfinite(disparity), 0, -1)
         errors = np.asarray(frame.disparity_gt, dtype=np.float64) - disparity

@@ -8,7 +8,6 @@ import numpy as np
 
 from prismap._files import exclusive_lock
 from prismap._progress import progress as progress_bar
-from prismap.characterise import compute_features
 from prismap.errors import PrismapInputError
 from prismap.grid import KEY_LIMIT, OccupancyMap, key_limit_m, key_range_text
 from prismap.io import BagSequence, Sequence, read_kitti_disparity, read_sequence
@@ -16,7 +15,6 @@ from prismap.pipeline._checkpoint import open_checkpoint, run_fingerprint, save_
 from prismap.pipeline._config import DISPARITY_FROM_MATCHER, DISPARITY_FROM_SEQUENCE, MappingConfig
 from prismap.sensor_models import ConditionedModel
 from prismap.stereo import make_matcher
-from prismap.stereo._base import to_grey
 
 _MODEL_CACHE = {}
 """The last sensor model built in this process, keyed by (config fingerprint, camera): a Dask worker
@@ -104,9 +102,8 @@ class DisparitySource:
             disparity = self._read(index, frame)
         if self.error_model is None:
             return disparity, frame.T_world_cam, None
-        features = compute_features(to_grey(frame.left), to_grey(frame.right), disparity, lr_disagreement,
-                                    **self.error_model.feature_settings)
-        return disparity, frame.T_world_cam, self.error_model.classify(features)
+        return disparity, frame.T_world_cam, self.error_model.classify_frame(frame.left, frame.right, disparity,
+                                                                           lr_disagreement)
 
     def _read(self, index, frame):
         path = Path(self.kind) / self.sequence.names[index]
