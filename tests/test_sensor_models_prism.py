@@ -340,9 +340,13 @@ def test_calls_from_two_threads_under_a_thrashing_cache_equal_serial_calls():
 
 
 def _fake_tables(keys):
-    """Tables of 100 nodes whose only content is their key (the cache never looks inside)."""
-    return [(np.full((100, _kernels.TABLE_COLUMNS), float(k)), (float(k),) * (len(_kernels.META_COLUMNS) - 2))
-            for k in keys]
+    """Tables of 100 nodes whose only content is their key (the cache never looks inside but for the offsets
+    and lengths)."""
+    nodes = np.repeat(np.asarray(keys, dtype=np.float32), 100)[:, None] * np.ones(_kernels.TABLE_COLUMNS, np.float32)
+    meta = np.repeat(np.asarray(keys, dtype=np.float64)[:, None], len(_kernels.META_COLUMNS), axis=1)
+    meta[:, _prism._OFFSET] = 100.0 * np.arange(len(keys))
+    meta[:, _prism._LENGTH] = 100.0
+    return nodes, meta
 
 
 @pytest.mark.parametrize(("budget_tables", "rebuilt"), [(None, False), (6, True)])
@@ -356,6 +360,7 @@ def test_auto_table_budget_keeps_a_frame_asked_for_in_chunks(budget_tables, rebu
         for keys in (frame, frame[:5], frame[5:]):
             rows = cache.rows(keys, _fake_tables)
             assert np.array_equal(cache.meta[rows, 1], keys)  # each key's own table
+            assert np.array_equal(cache.nodes[cache.meta[rows, _prism._OFFSET].astype(np.int64), 0], keys)
     assert cache.builds > 10 if rebuilt else (cache.builds == 10 and cache.hits == 30)
     if budget is None:  # a new frame of 10 other keys: the oldest 10 go, two frames' tables stay
         cache.rows(frame + 10, _fake_tables)
