@@ -494,3 +494,25 @@ def test_cell_prior_matches_expm1_on_both_sides_of_its_series_switch():
     p, q = np.array([_kernels._cell_prior(v) for v in x]).T
     np.testing.assert_allclose(p, -np.expm1(-x), rtol=1e-11, atol=0)
     np.testing.assert_allclose(q, np.exp(-x), rtol=1e-11, atol=0)
+
+
+def test_log_sums_skip_underflowing_exps_without_changing_a_bit():
+    """logaddexp and the streaming log-sum-exp skip exp where it underflows (libm's slow path); the results
+    equal the plain formulas bit for bit on both sides of the cuts (exp subnormal below -708.4, 0 below
+    -745.13)."""
+    a = np.array([0.0, 1.5, -3.0, 700.0, -40.0])
+    gaps = np.concatenate([[0.0, -1.0, -37.0, -700.0], np.linspace(-708.0, -709.0, 9), [-744.0, -745.1, -745.2, -746.0, -1e4, -np.inf]])
+    for x in a:
+        for gap in gaps:
+            b = x + gap
+            assert _kernels.logaddexp(x, b) == x + np.log1p(np.exp(b - x))
+            assert _kernels.logaddexp(b, x) == _kernels.logaddexp(x, b)
+    # a narrow component thousands of sigmas away from u contributes nothing, exactly as before
+    log_wn = np.log([0.8, 0.2]) - np.log([0.3, 10.0]) - 0.5 * np.log(2 * np.pi)
+    means, sigmas = np.array([0.0, -2.0]), np.array([0.3, 10.0])
+    for u in (0.1, 5.0, 40.0, 400.0):
+        t = (u - 1.0 - means) / sigmas
+        v = log_wn - 0.5 * t * t
+        best = v.max()
+        plain = best + np.log(np.sum(np.exp(v - best)))
+        np.testing.assert_allclose(_kernels.log_likelihood(u, 1.0, log_wn, means, sigmas), plain, rtol=1e-15)

@@ -30,7 +30,7 @@ def logaddexp(a, b):
     """``log(exp(a) + exp(b))``, exact for -inf arguments."""
     if a < b:
         a, b = b, a
-    if b == -np.inf:
+    if not b - a >= _EXP_ZERO:  # exp(b - a) is 0 (libm's slow underflow path): nothing to add
         return a
     return a + math.log1p(math.exp(b - a))
 
@@ -101,6 +101,7 @@ _LN2_HI = 6.93145751953125e-1  # ln 2 = _LN2_HI + _LN2_LO, _LN2_HI with a short 
 _LN2_LO = 1.42860682030941723212e-6
 _EXP_ZERO = -745.1332191019412  # below: exp rounds to 0
 _EXP_MAX = 709.782712893384  # above: exp overflows
+_EXP_NORMAL = -708.3964185322641  # below: exp is subnormal or 0, which added to a sum >= 1 changes nothing
 
 
 @nb.njit(cache=True, nogil=True, inline="always", error_model="numpy")
@@ -263,8 +264,8 @@ def andert_cells(depth_hat, sigma_depth, ray_norm, ray_of_cell, start, end, eta,
 def _log_sum_exp_add(best, total, v):
     """One step of a streaming log-sum-exp: the sum so far is ``exp(best) * total``; add ``exp(v)``."""
     if v > best:
-        return v, total * math.exp(best - v) + 1.0
-    return best, total + math.exp(v - best)
+        return v, (total * math.exp(best - v) if best - v > _EXP_NORMAL else 0.0) + 1.0
+    return best, total + (math.exp(v - best) if v - best > _EXP_NORMAL else 0.0)
 
 
 @nb.njit(cache=True, nogil=True)
