@@ -365,7 +365,7 @@ def test_auto_table_budget_keeps_a_frame_asked_for_in_chunks(budget_tables, rebu
     if budget is None:  # a new frame of 10 other keys: the oldest 10 go, two frames' tables stay
         cache.rows(frame + 10, _fake_tables)
         cache.rows(frame + 20, _fake_tables)
-        assert sorted(cache.index) == list(range(10, 30)) and cache.nbytes <= cache.limit_bytes
+        assert sorted(cache.keys) == list(range(10, 30)) and cache.nbytes <= cache.limit_bytes
 
 
 @pytest.mark.parametrize(("depth", "max_range"), [(3.0, 200.0), (15.0, 20.0)])
