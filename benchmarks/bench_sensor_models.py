@@ -69,6 +69,57 @@ def time_call(model, batch, repeat=1, **kwargs):
     return best
 
 
+def table_stages(prism, batch, repeat=5):
+    """Nanoseconds per cell of each stage of tabulated PRISM's cell update on ``batch`` (tables warm): the two
+    table look-ups per cell (``_kernels.prism_table_lookup``), the two vectorised exps, the combination and
+    the vectorised log, each run alone over the whole batch in blocks as ``prism_table_cells`` runs them."""
+    from prismap.sensor_models import _kernels, _prism
+
+    disparity, norm, rays, start, end = (np.ascontiguousarray(a) for a in batch)
+    n = start.size
+    table, delta, meta, nodes = prism._tables_for(disparity, norm)
+    log_wn, means, sigmas = prism._mixture_arrays()
+    lam = prism.rate_per_m * norm
+    stretch = np.zeros(norm.size)
+    l_a, l_c, e_a, e_c, lam_len, ratio, fix_value, inc = (np.empty(n) for _ in range(8))
+    post = np.empty(n)
+    side = np.empty(n, dtype=np.int8)
+    fix_index = np.empty(n, dtype=np.int64)
+    block = _prism._CHUNK_CELLS
+    blocks = [(lo, min(lo + block, n)) for lo in range(0, n, block)]
+
+    def lookup():
+        for lo, hi in blocks:
+            _kernels.prism_table_lookup(lam, table, delta, rays, start, end, stretch, lo, hi, prism.near_m,
+                                        prism.far_depth_m, prism.focal_baseline, prism._ku(), _prism._QUAD_STEP,
+                                        meta, nodes, log_wn, means, sigmas, l_a[lo:hi], l_c[lo:hi], side[lo:hi],
+                                        lam_len[lo:hi])
+
+    def exps():
+        for lo, hi in blocks:
+            _kernels.exp_into(l_a[lo:hi], e_a[lo:hi], hi - lo)
+            _kernels.exp_into(l_c[lo:hi], e_c[lo:hi], hi - lo)
+
+    def combination():
+        for lo, hi in blocks:
+            _kernels.prism_table_combine(lo, hi, l_a[lo:hi], l_c[lo:hi], e_a[lo:hi], e_c[lo:hi], side[lo:hi],
+                                         lam_len[lo:hi], post, ratio[lo:hi], fix_index, fix_value, prism.pass_through)
+
+    def logs():
+        for lo, hi in blocks:
+            _kernels.log_into(ratio[lo:hi], inc[lo:hi], hi - lo)
+
+    out = {}
+    for name, stage in (("look-ups", lookup), ("exps", exps), ("combination", combination), ("log", logs)):
+        best = np.inf
+        for _ in range(repeat):
+            t0 = time.perf_counter()
+            stage()
+            best = min(best, time.perf_counter() - t0)
+        out[name] = best / n * 1e9
+    return out
+
+
 def sequence(frames, step):
     """Seconds for ``frames`` frames: fresh PRISM, the same PRISM again (warm), ideal; and the PRISM model."""
     common = {"focal_baseline": FB, "voxel_size_m": 0.1, "p0": 0.05}
@@ -177,6 +228,10 @@ def main():
     ns_prism = time_call(prism, chunk, repeat=5) / chunk[2].size * 1e9
     print(f"one grid-sized call ({chunk[0].size} rays, {chunk[2].size} cells, arrays in cache): ideal "
           f"{ns_ideal:.1f} ns/cell, prism table (warm) {ns_prism:.1f} ns/cell, ratio {ns_prism / ns_ideal:.2f}")
+    stage_ns = table_stages(prism, chunk)
+    print("  its stages (ns/cell, best of 5): " + ", ".join(f"{name} {ns:.1f}" for name, ns in stage_ns.items())
+          + f"; the look-up stage alone (no exp, combination or log) is {stage_ns['look-ups'] / ns_ideal:.1f}x the "
+          "ideal model: the floor of a tabulated PRISM that interpolates two table rows per cell")
     if args.frames:
         cold, warm, base, model = sequence(args.frames, 4)
         print(f"sequence of {args.frames} frames (160x120 rays each): PRISM fresh {cold:.2f} s, again (warm) "

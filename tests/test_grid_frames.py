@@ -221,7 +221,7 @@ def test_projective_prism_maps_do_not_depend_on_the_walks_parts(monkeypatch, ove
     """The projective walk hands its cells to the model part by part (the model in a worker thread beside the
     walk); one part, three and one per line or so give the same map voxel for voxel: PRISM with and without
     the overhang's stretch (without it a cell reuses its ray's previous look-up), pose-noise groups, and an
-    accumulator grown from empty in the middle of parts."""
+    accumulator grown from empty in the middle of parts (no blocks reserved before the walk) or reserved."""
     from prismap.gmm import GaussianMixture
     from prismap.grid import _integrators
     from prismap.sensor_models import make_sensor_model
@@ -229,8 +229,9 @@ def test_projective_prism_maps_do_not_depend_on_the_walks_parts(monkeypatch, ove
     camera, pose, disparity = small_frame()
     mixture = GaussianMixture(np.array([0.9, 0.1]), np.array([0.0, 0.0]), np.array([0.3, 3.0]))
     maps = []
-    for parts in (1, 3, 1000):
+    for parts, block_fill in ((1, 1e9), (3, 1e9), (1000, 1e9), (3, _integrators.BLOCK_FILL)):
         monkeypatch.setattr(_integrators, "PROJECTIVE_PARTS", parts)
+        monkeypatch.setattr(_integrators, "BLOCK_FILL", block_fill)
         model = make_sensor_model("prism", focal_baseline=camera.focal_baseline, voxel_size_m=0.1, p0=0.1,
                                   error_model=mixture, near_m=0.5, overhang_fraction=overhang_fraction)
         grid = OccupancyMap(0.1, p0=0.1)

@@ -235,3 +235,18 @@ def test_frames_beyond_the_bounds_are_refused_up_front_under_a_memory_cap():
     assert "a ray would cross" in lines["lidar 1e5 m"] and "`voxel_size_m`=0.2" in lines["lidar 1e5 m"]
     # fewer visits than the bound, yet too many distinct blocks: refused when the accumulator reaches its bound
     assert "the frame accumulator's bound" in lines["1 mm small frame"]
+
+
+def test_blocks_expected_by_a_frame_are_reserved_within_the_frame_budget(monkeypatch):
+    """``_accumulator.expect`` reserves room for an estimate of a frame's blocks in one allocation, never
+    below what the accumulator holds and never beyond the frame budget (an estimate is no error)."""
+    from prismap.grid import _accumulator
+
+    acc = _accumulator.new_accumulator((2, 2, 2))
+    _accumulator.expect(acc, 1000)
+    assert acc.block_keys.size == 1000 and len(acc) == 0
+    _accumulator.expect(acc, 10)  # room enough: nothing changes
+    assert acc.block_keys.size == 1000
+    monkeypatch.setattr(_accumulator, "frame_budget_bytes", lambda: 5000 * acc.bytes_per_block())
+    _accumulator.expect(acc, 1e12)
+    assert acc.block_keys.size == 5000

@@ -340,9 +340,13 @@ def test_calls_from_two_threads_under_a_thrashing_cache_equal_serial_calls():
 
 
 def _fake_tables(keys):
-    """Tables of 100 nodes whose only content is their key (the cache never looks inside)."""
-    return [(np.full((100, _kernels.TABLE_COLUMNS), float(k)), (float(k),) * (len(_kernels.META_COLUMNS) - 2))
-            for k in keys]
+    """Tables of 100 nodes whose only content is their key (the cache never looks inside but for the offsets
+    and lengths)."""
+    nodes = np.repeat(np.asarray(keys, dtype=np.float32), 100)[:, None] * np.ones(_kernels.TABLE_COLUMNS, np.float32)
+    meta = np.repeat(np.asarray(keys, dtype=np.float64)[:, None], len(_kernels.META_COLUMNS), axis=1)
+    meta[:, _prism._OFFSET] = 100.0 * np.arange(len(keys))
+    meta[:, _prism._LENGTH] = 100.0
+    return nodes, meta
 
 
 @pytest.mark.parametrize(("budget_tables", "rebuilt"), [(None, False), (6, True)])
@@ -356,11 +360,12 @@ def test_auto_table_budget_keeps_a_frame_asked_for_in_chunks(budget_tables, rebu
         for keys in (frame, frame[:5], frame[5:]):
             rows = cache.rows(keys, _fake_tables)
             assert np.array_equal(cache.meta[rows, 1], keys)  # each key's own table
+            assert np.array_equal(cache.nodes[cache.meta[rows, _prism._OFFSET].astype(np.int64), 0], keys)
     assert cache.builds > 10 if rebuilt else (cache.builds == 10 and cache.hits == 30)
     if budget is None:  # a new frame of 10 other keys: the oldest 10 go, two frames' tables stay
         cache.rows(frame + 10, _fake_tables)
         cache.rows(frame + 20, _fake_tables)
-        assert sorted(cache.index) == list(range(10, 30)) and cache.nbytes <= cache.limit_bytes
+        assert sorted(cache.keys) == list(range(10, 30)) and cache.nbytes <= cache.limit_bytes
 
 
 @pytest.mark.parametrize(("depth", "max_range"), [(3.0, 200.0), (15.0, 20.0)])
@@ -489,3 +494,25 @@ def test_cell_prior_matches_expm1_on_both_sides_of_its_series_switch():
     p, q = np.array([_kernels._cell_prior(v) for v in x]).T
     np.testing.assert_allclose(p, -np.expm1(-x), rtol=1e-11, atol=0)
     np.testing.assert_allclose(q, np.exp(-x), rtol=1e-11, atol=0)
+
+
+def test_log_sums_skip_underflowing_exps_without_changing_a_bit():
+    """logaddexp and the streaming log-sum-exp skip exp where it underflows (libm's slow path); the results
+    equal the plain formulas bit for bit on both sides of the cuts (exp subnormal below -708.4, 0 below
+    -745.13)."""
+    a = np.array([0.0, 1.5, -3.0, 700.0, -40.0])
+    gaps = np.concatenate([[0.0, -1.0, -37.0, -700.0], np.linspace(-708.0, -709.0, 9), [-744.0, -745.1, -745.2, -746.0, -1e4, -np.inf]])
+    for x in a:
+        for gap in gaps:
+            b = x + gap
+            assert _kernels.logaddexp(x, b) == x + np.log1p(np.exp(b - x))
+            assert _kernels.logaddexp(b, x) == _kernels.logaddexp(x, b)
+    # a narrow component thousands of sigmas away from u contributes nothing, exactly as before
+    log_wn = np.log([0.8, 0.2]) - np.log([0.3, 10.0]) - 0.5 * np.log(2 * np.pi)
+    means, sigmas = np.array([0.0, -2.0]), np.array([0.3, 10.0])
+    for u in (0.1, 5.0, 40.0, 400.0):
+        t = (u - 1.0 - means) / sigmas
+        v = log_wn - 0.5 * t * t
+        best = v.max()
+        plain = best + np.log(np.sum(np.exp(v - best)))
+        np.testing.assert_allclose(_kernels.log_likelihood(u, 1.0, log_wn, means, sigmas), plain, rtol=1e-15)

@@ -63,6 +63,16 @@ def grow(accumulator, blocks):
     accumulator.reserve(min(max(64, held, int(blocks)), max_blocks - held), max_blocks=max_blocks)
 
 
+def expect(accumulator, blocks):
+    """Make room for ``blocks`` blocks in all, an estimate of what a frame will touch, within
+    :func:`frame_budget_bytes` (never an error: the frame itself is refused only when it needs more): one
+    allocation instead of doubling from an empty accumulator, each doubling a copy of every block held."""
+    max_blocks = frame_budget_bytes() // accumulator.bytes_per_block()
+    extra = min(int(blocks), max_blocks) - len(accumulator)
+    if extra > 0:
+        accumulator.reserve(extra, max_blocks=max_blocks)
+
+
 def cast_into(accumulator, origin, rays, t_stop, exclusive, voxel_size):
     """Cast rays, registering the voxels they cross in the accumulator (grown as needed).
 

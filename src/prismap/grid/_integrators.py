@@ -47,6 +47,10 @@ PROJECTIVE_PARTS = 8
 """Parts (ranges of the walk's lines) of a projective frame: the model runs on one part's cells while the next
 part is walked."""
 
+BLOCK_FILL = 0.5
+"""Share of the voxels of the accumulator blocks a projective frame touches that it keeps, to reserve the
+blocks before the walk: a street frame's 1.48 M voxels lie in 46 k blocks of 64."""
+
 MAX_RAY_CELLS = 1 << 20
 """Voxels one ray may cross (1 M: 105 km at 0.1 m voxels, 1 km at 1 mm)."""
 
@@ -368,6 +372,7 @@ class ProjectiveIntegrator(Integrator):
             _project_hit_miss(accumulator, geometry, t_stop, exclusive, groups[0][0])
             return
         capacity = 1.05 * _frustum_voxels(t_stop, image.focal_px, image.subsample, voxel) + 4096
+        _accumulator.expect(accumulator, capacity / (BLOCK_FILL * accumulator.block_voxels))
         n_lines = int(_kernels_project.walk_lines(image.R_cam_world, shape))
         cuts = np.linspace(0, n_lines, min(PROJECTIVE_PARTS, n_lines) + 1).astype(np.int64)
         pending = []

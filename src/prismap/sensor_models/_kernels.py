@@ -30,7 +30,7 @@ def logaddexp(a, b):
     """``log(exp(a) + exp(b))``, exact for -inf arguments."""
     if a < b:
         a, b = b, a
-    if b == -np.inf:
+    if not b - a >= _EXP_ZERO:  # exp(b - a) is 0 (libm's slow underflow path): nothing to add
         return a
     return a + math.log1p(math.exp(b - a))
 
@@ -101,6 +101,7 @@ _LN2_HI = 6.93145751953125e-1  # ln 2 = _LN2_HI + _LN2_LO, _LN2_HI with a short 
 _LN2_LO = 1.42860682030941723212e-6
 _EXP_ZERO = -745.1332191019412  # below: exp rounds to 0
 _EXP_MAX = 709.782712893384  # above: exp overflows
+_EXP_NORMAL = -708.3964185322641  # below: exp is subnormal or 0, which added to a sum >= 1 changes nothing
 
 
 @nb.njit(cache=True, nogil=True, inline="always", error_model="numpy")
@@ -263,8 +264,8 @@ def andert_cells(depth_hat, sigma_depth, ray_norm, ray_of_cell, start, end, eta,
 def _log_sum_exp_add(best, total, v):
     """One step of a streaming log-sum-exp: the sum so far is ``exp(best) * total``; add ``exp(v)``."""
     if v > best:
-        return v, total * math.exp(best - v) + 1.0
-    return best, total + math.exp(v - best)
+        return v, (total * math.exp(best - v) if best - v > _EXP_NORMAL else 0.0) + 1.0
+    return best, total + (math.exp(v - best) if v - best > _EXP_NORMAL else 0.0)
 
 
 @nb.njit(cache=True, nogil=True)
@@ -779,6 +780,38 @@ rate, :func:`prism_table`'s meta (per segment its first x, first row and spacing
 ``log Z``), then the shift, far term, first row and row count of its nodes."""
 _LAM, _X, _ROW, _SPACING = 0, 1, 1 + N_SEGMENTS, 1 + 2 * N_SEGMENTS
 _Z_END, _Z_INFL, _LOG_Z, _SHIFT, _LOG_FAR, _OFFSET, _LENGTH = range(1 + 3 * N_SEGMENTS, 8 + 3 * N_SEGMENTS)
+
+
+@nb.njit(cache=True, nogil=True)
+def prism_tables(shifts, lams, log_fars, z0, z_max, fb, ku, h, log_eps_bound, lam_slack, coarse_ratio, coarse_below,
+                 e_front, e_back, wide_ratio, wide_efolds, log_wn, means, sigmas):
+    """:func:`prism_table` of every ``(shifts[k], lams[k], log_fars[k])``, packed for the table cache.
+
+    Returns ``nodes`` (N, :data:`TABLE_COLUMNS`) float32, every table's rows back to back (their rounding is
+    far below ``TABLE_TOLERANCE``), and ``meta`` (K, ``len(META_COLUMNS)``) float64, one row per table
+    (``offset``: its first row in ``nodes``). One call builds a batch without a Python step per table.
+    """
+    n_tables = shifts.size
+    meta = np.empty((n_tables, _LENGTH + 1))
+    built = []
+    total = 0
+    for k in range(n_tables):
+        nodes, table_meta = prism_table(shifts[k], lams[k], z0, z_max, fb, ku, h, log_fars[k], log_eps_bound,
+                                        lam_slack, coarse_ratio, coarse_below, e_front, e_back, wide_ratio,
+                                        wide_efolds, log_wn, means, sigmas)
+        built.append(nodes)
+        meta[k, _LAM] = lams[k]
+        meta[k, _X : _SHIFT] = table_meta
+        meta[k, _SHIFT] = shifts[k]
+        meta[k, _LOG_FAR] = log_fars[k]
+        meta[k, _OFFSET] = total
+        meta[k, _LENGTH] = nodes.shape[0]
+        total += nodes.shape[0]
+    packed = np.empty((total, TABLE_COLUMNS), dtype=np.float32)
+    for k in range(n_tables):
+        offset = int(meta[k, _OFFSET])
+        packed[offset : offset + built[k].shape[0]] = built[k]
+    return packed, meta
 
 
 @nb.njit(cache=True, nogil=True, inline="always")

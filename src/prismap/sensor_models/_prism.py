@@ -56,6 +56,7 @@ _LAMBDA_SLACK = float(np.expm1(_LAMBDA_STEP / 2))  # relative rate gap a table's
 _KEY_L_SPAN = 1 << 16  # table key = disparity key * span + rate key
 _BUILD_THREADS = min(2, os.cpu_count() or 1)  # threads building one call's missing tables
 _CHUNK_CELLS = 4096  # cells per look-up/exp/combine/log round: its 8 scratch arrays (228 KiB) stay in L2
+_OFFSET, _LENGTH = _kernels.META_COLUMNS.index("offset"), _kernels.META_COLUMNS.index("length")
 
 
 def _log_diff_ndtr(hi, lo):
@@ -367,40 +368,44 @@ class PrismModel(RayModel):
         return rows[inverse], log_norm - key_l * _LAMBDA_STEP, meta, nodes
 
     def _build_tables(self, keys):
-        """Nodes and metadata row (see ``_kernels.META_COLUMNS`` without offset, length) of each key."""
+        """The tables of ``keys`` ((K,) int64): ``nodes`` (N, ``_kernels.TABLE_COLUMNS``) float32 back to back and
+        their ``meta`` rows (K, ``len(_kernels.META_COLUMNS)``), ``offset`` from the first row of ``nodes``
+        (``_kernels.prism_tables``), in :data:`_BUILD_THREADS` threads for a large batch."""
         key_d, key_l = np.divmod(np.asarray(keys, dtype=np.int64), _KEY_L_SPAN)
         disparity = key_d * self.disparity_step_px
         lam = self.rate_per_m * np.exp(key_l * _LAMBDA_STEP)
         log_far = self._log_far(disparity)
+        shift = disparity + self.doffs_px
         log_wn, means, sigmas = self._mixture_arrays()
         log_eps_bound = float(np.log(np.expm1(self.influence_epsilon)))
         ku = self._ku()
         e_front, e_back, wide_ratio = broad_errors(self.error_model)
 
-        def build(d, rate, far):
-            nodes, meta = _kernels.prism_table(
-                d + self.doffs_px, rate, self.near_m, self.far_depth_m, self.focal_baseline, ku, _TABLE_STEP, far,
-                log_eps_bound, _LAMBDA_SLACK, _COARSE_RATIO, _COARSE_BELOW, e_front, e_back, wide_ratio, _WIDE_EFOLDS,
-                log_wn, means, sigmas,
+        def build(share):
+            return _kernels.prism_tables(
+                shift[share], lam[share], log_far[share], self.near_m, self.far_depth_m, self.focal_baseline, ku,
+                _TABLE_STEP, log_eps_bound, _LAMBDA_SLACK, _COARSE_RATIO, _COARSE_BELOW, e_front, e_back, wide_ratio,
+                _WIDE_EFOLDS, log_wn, means, sigmas,
             )
-            if nodes.shape[0] < 2:
-                raise PrismapInputError(
-                    f"prism: near_m={self.near_m} to far_depth_m={self.far_depth_m} is too short to tabulate"
-                )
-            return nodes.astype(np.float32), (rate, *meta, d + self.doffs_px, far)  # halves the new tables at once
 
-        jobs = list(zip(disparity, lam, log_far))
-        if len(jobs) < 2 * _BUILD_THREADS:
-            return [build(*job) for job in jobs]
-        # One share of the keys a thread (prism_table releases the GIL), not one task a table: a task's
-        # hand-over costs about as much CPU as a small table's build.
-        with ThreadPoolExecutor(_BUILD_THREADS) as pool:
-            shares = list(pool.map(lambda share: [build(*job) for job in share],
-                                   [jobs[t::_BUILD_THREADS] for t in range(_BUILD_THREADS)]))
-        built = [None] * len(jobs)
-        for t, share in enumerate(shares):
-            built[t::_BUILD_THREADS] = share
-        return built
+        n = shift.size
+        if n < 2 * _BUILD_THREADS:
+            nodes, meta = build(slice(None))
+        else:
+            # One share of the keys a thread (prism_tables releases the GIL), interleaved: neighbouring keys
+            # cost about the same.
+            with ThreadPoolExecutor(_BUILD_THREADS) as pool:
+                shares = list(pool.map(build, [slice(t, None, _BUILD_THREADS) for t in range(_BUILD_THREADS)]))
+            meta = np.empty((n, shares[0][1].shape[1]))
+            first = 0
+            for t, (share_nodes, share_meta) in enumerate(shares):
+                share_meta[:, _OFFSET] += first
+                meta[t::_BUILD_THREADS] = share_meta
+                first += share_nodes.shape[0]
+            nodes = np.concatenate([share_nodes for share_nodes, _ in shares])
+        if n and meta[:, _LENGTH].min() < 2:
+            raise PrismapInputError(f"prism: near_m={self.near_m} to far_depth_m={self.far_depth_m} is too short to tabulate")
+        return nodes, meta
 
 
 def _share(value, name, *, one):
@@ -460,18 +465,21 @@ class _TableCache:
     ``None`` is the larger of ``floor_bytes`` and :data:`AUTO_TABLE_CALLS` times the bytes of the largest
     call's tables so far (:attr:`limit_bytes`). ``hits`` and ``builds`` count the distinct keys of every
     call found in the cache and built (a thrashing cache builds the same keys again and again). Callers
-    hold ``lock`` around :meth:`rows` and their reads of ``meta`` and ``nodes``: a build or an eviction
-    replaces those arrays (never writes into them) and renumbers rows.
+    hold ``lock`` around :meth:`rows` and their reads of ``meta`` and ``nodes``: a build replaces them by
+    longer ones (it writes new nodes only behind the rows an earlier ``nodes`` holds, into room kept for them:
+    at most half the nodes' bytes more than :attr:`nbytes`), an eviction by new arrays with rows renumbered.
     """
 
     def __init__(self, budget_bytes, floor_bytes):
         self.budget_bytes = budget_bytes
         self.floor_bytes = floor_bytes
         self.largest_call_bytes = 0
-        self.index = {}
         self.keys = np.empty(0, dtype=np.int64)
+        self.order = np.empty(0, dtype=np.int64)  # rows by increasing key and those keys: binary search
+        self.sorted_keys = self.keys
         self.meta = np.empty((0, len(_kernels.META_COLUMNS)))
         self.nodes = np.empty((0, _kernels.TABLE_COLUMNS), dtype=np.float32)
+        self._node_room = self.nodes  # self.nodes is its head; new tables go in behind
         self.last_used = np.empty(0, dtype=np.int64)
         self.clock = 0
         self.hits = 0
@@ -484,7 +492,7 @@ class _TableCache:
         return self.nodes.nbytes + self.meta.nbytes
 
     def __len__(self):
-        return len(self.index)
+        return self.keys.size
 
     @property
     def limit_bytes(self):
@@ -495,27 +503,25 @@ class _TableCache:
 
     def _table_bytes(self):
         """Bytes of each table (its nodes and metadata row)."""
-        return (self.meta[:, -1] * (self.nodes.itemsize * _kernels.TABLE_COLUMNS)
+        return (self.meta[:, _LENGTH] * (self.nodes.itemsize * _kernels.TABLE_COLUMNS)
                 + self.meta.itemsize * self.meta.shape[1])
 
     def rows(self, keys, build):
-        """Metadata row of each (distinct) key, calling ``build(missing keys)`` for absent ones."""
-        rows = np.array([self.index.get(int(key), -1) for key in keys], dtype=np.int64)
+        """Metadata row of each (distinct) key, calling ``build(missing keys)`` for absent ones (it returns
+        their ``nodes`` and ``meta`` rows, offsets from its first node: ``PrismModel._build_tables``)."""
+        rows = self._find(keys)
         missing = keys[rows < 0]
         self.hits += keys.size - missing.size
         self.builds += missing.size
         if missing.size:
-            built = build(missing)
-            lengths = np.array([nodes.shape[0] for nodes, _ in built], dtype=np.float64)
-            offsets = self.nodes.shape[0] + np.concatenate(([0.0], np.cumsum(lengths)[:-1]))
-            extra = np.column_stack([np.array([row for _, row in built]), offsets, lengths])
-            first = len(self.index)
-            self.nodes = np.concatenate([self.nodes] + [nodes for nodes, _ in built], dtype=np.float32)
-            self.meta = np.concatenate([self.meta, extra])
+            nodes, meta = build(missing)
+            meta[:, _OFFSET] += self.nodes.shape[0]
+            first = self.keys.size
+            self._append_nodes(nodes)
+            self.meta = np.concatenate([self.meta, meta])
             self.keys = np.concatenate([self.keys, missing])
             self.last_used = np.concatenate([self.last_used, np.zeros(missing.size, dtype=np.int64)])
-            for k, key in enumerate(missing):
-                self.index[int(key)] = first + k
+            self._sort()
             rows[rows < 0] = first + np.arange(missing.size)
         self.clock += 1
         self.last_used[rows] = self.clock
@@ -524,6 +530,28 @@ class _TableCache:
             rows = self._evict(rows)
         return rows
 
+    def _append_nodes(self, nodes):
+        """Append rows to ``nodes``: into the room behind them (rows no reader indexes yet), else into a new
+        array half as large again as needed, so that a sequence copies its tables a few times, not every call."""
+        n, m = self.nodes.shape[0], nodes.shape[0]
+        if n + m > self._node_room.shape[0]:
+            room = np.empty((n + m + (n + m) // 2, _kernels.TABLE_COLUMNS), dtype=np.float32)
+            room[:n] = self.nodes
+            self._node_room = room
+        self._node_room[n : n + m] = nodes
+        self.nodes = self._node_room[: n + m]
+
+    def _sort(self):
+        self.order = np.argsort(self.keys, kind="stable")
+        self.sorted_keys = self.keys[self.order]
+
+    def _find(self, keys):
+        """Row of each key, -1 where absent."""
+        if not self.keys.size:
+            return np.full(keys.size, -1, dtype=np.int64)
+        at = np.minimum(np.searchsorted(self.sorted_keys, keys), self.keys.size - 1)
+        return np.where(self.sorted_keys[at] == keys, self.order[at], -1)
+
     def _evict(self, rows):
         """Drop the least recently used tables (never those of ``rows``) until within budget; new rows."""
         size = self._table_bytes()
@@ -531,15 +559,15 @@ class _TableCache:
         order = order[self.last_used[order] < self.clock]
         excess = self.nbytes - self.limit_bytes
         drop = order[: np.searchsorted(np.cumsum(size[order]), excess) + 1]
-        keep = np.setdiff1d(np.arange(len(self.index)), drop)
-        starts = self.meta[keep, -2].astype(np.int64)
-        lengths = self.meta[keep, -1].astype(np.int64)
-        self.nodes = np.concatenate([self.nodes[s : s + n] for s, n in zip(starts, lengths)])
+        keep = np.setdiff1d(np.arange(self.keys.size), drop)
+        starts = self.meta[keep, _OFFSET].astype(np.int64)
+        lengths = self.meta[keep, _LENGTH].astype(np.int64)
+        self.nodes = self._node_room = np.concatenate([self.nodes[s : s + n] for s, n in zip(starts, lengths)])
         self.meta = self.meta[keep]
-        self.meta[:, -2] = np.concatenate(([0], np.cumsum(lengths)[:-1]))
+        self.meta[:, _OFFSET] = np.concatenate(([0], np.cumsum(lengths)[:-1]))
         self.keys = self.keys[keep]
         self.last_used = self.last_used[keep]
-        self.index = {int(key): row for row, key in enumerate(self.keys)}
+        self._sort()
         new_row = np.full(len(keep) + len(drop), -1, dtype=np.int64)
         new_row[keep] = np.arange(keep.size)
         return new_row[rows]
