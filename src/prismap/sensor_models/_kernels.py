@@ -695,8 +695,9 @@ def pass_through_log(inc, lam_len, m):
 
 
 @nb.njit(cache=True, nogil=True)
-def log_tail(z, log_c_z, lam, ku, hq, z0, z_max, fb, shift, log_far, log_wn, means, sigmas):
-    """``log D(z)``: evidence beyond ``z`` (far measurement included), marched until the rest is < e^-40."""
+def log_tail(z, log_c_z, lam, ku, hq, z0, z_max, fb, shift, log_far, log_wn, means, sigmas, log_rest=-40.0):
+    """``log D(z)``: evidence beyond ``z`` (far measurement included), marched until the rest is below
+    ``e^log_rest`` of ``C(z)`` plus the march so far."""
     tail = -np.inf
     acc = log_c_z
     x_start = x_of_z(z, lam, ku)
@@ -712,7 +713,7 @@ def log_tail(z, log_c_z, lam, ku, hq, z0, z_max, fb, shift, log_far, log_wn, mea
         za = zb
         k += 1
         bound = -lam * (za - z0) + max(_log_sup_tail(za, z_max, fb, shift, log_wn, means, sigmas), log_far)
-        if za < z_max and bound - acc < -40.0:
+        if za < z_max and bound - acc < log_rest:
             return logaddexp(tail, bound)
     return logaddexp(tail, -lam * (z_max - z0) + log_far)
 
@@ -1153,7 +1154,7 @@ def _log_hit(log_survive, hazard, a, c, fb, shift, log_w, means, sigmas):
 
 @nb.njit(cache=True, nogil=True)
 def prism_map_prior_cells(shift, lam, order, ray_start, start, end, stretch, cell_rate, z0, z_max, fb, ku, hq,
-                          log_far, log_wn, log_w, means, sigmas, pass_through):
+                          log_rest, log_far, log_wn, log_w, means, sigmas, pass_through):
     """PRISM with per-cell priors on rays of consecutive cells: exact posterior and increment of every cell.
 
     The cells of ray ``r`` are ``order[ray_start[r]:ray_start[r + 1]]``, nearest first, each starting where
@@ -1161,7 +1162,8 @@ def prism_map_prior_cells(shift, lam, order, ray_start, start, end, stretch, cel
     ``[z0, z_max]`` with surface rate ``cell_rate[k]`` (per metre of depth), so hazard
     ``h_k = cell_rate[k] (c_k - a_k)``, prior ``p_k = 1 - e^-h_k``, survival ``S_k = e^{-sum_{j<k} h_j}``,
     first-hit evidence ``T_k = S_k p_k L_k`` (``L_k``: :func:`log_mean_g` over the cell). Beyond the last cell
-    the ray has the prior rate ``lam[r]`` (``log_tail``, the far measurement included). With ``B_i`` the
+    the ray has the prior rate ``lam[r]`` (``log_tail`` on panels of x-width ``hq``, stopped where the rest is
+    below ``e^log_rest`` of the evidence before; the far measurement included). With ``B_i`` the
     evidence of a first surface before cell ``i`` and ``A_i`` of one after it,
     ``P Z = p_i B_i + T_i`` and ``(1 - P) Z = (1 - p_i) B_i + A_i``: no difference of sums, so nothing cancels.
     ``stretch[r] > 0`` (depth metres; the voxel overhang share) makes cell ``i``'s event "a surface in
@@ -1197,7 +1199,7 @@ def prism_map_prior_cells(shift, lam, order, ray_start, start, end, stretch, cel
         tail = -np.inf
         if c[m - 1] < z_max:
             tail = log_tail(c[m - 1], before[m] - log_s[m], lam[r], ku, hq, c[m - 1], z_max, fb, shift[r], log_far[r],
-                            log_wn, means, sigmas)
+                            log_wn, means, sigmas, log_rest)
         else:
             tail = log_far[r]
         after = np.empty(m + 1)  # after[k]: evidence of a first surface beyond cell k - 1 (cells >= k, tail)

@@ -55,6 +55,8 @@ _LAMBDA_STEP = 0.1  # table grid in log(lambda_z): one table every ~10 % of ray 
 _LAMBDA_SLACK = float(np.expm1(_LAMBDA_STEP / 2))  # relative rate gap a table's influence depth covers
 _KEY_L_SPAN = 1 << 16  # table key = disparity key * span + rate key
 _BUILD_THREADS = min(2, os.cpu_count() or 1)  # threads building one call's missing tables
+_TAIL_STEP = 1.0  # prior="map": x-width of the panels of a ray's tail beyond its last cell
+_TAIL_REST = -20.0  # prior="map": the tail's march stops where the rest is below e^-20 of the evidence before
 _CHUNK_CELLS = 4096  # cells per look-up/exp/combine/log round: its 8 scratch arrays (228 KiB) stay in L2
 
 
@@ -390,8 +392,8 @@ class PrismModel(RayModel):
         log_wn, means, sigmas = self._mixture_arrays()
         return _kernels.prism_map_prior_cells(
             disparity + self.doffs_px, lam, order, ray_start, start, end, stretch, cell_rate, self.near_m,
-            self.far_depth_m, self.focal_baseline, self._ku(), _QUAD_STEP, self._log_far(disparity), log_wn, log_w,
-            means, sigmas, self.pass_through,
+            self.far_depth_m, self.focal_baseline, self._ku(), _TAIL_STEP, _TAIL_REST, self._log_far(disparity), log_wn,
+            log_w, means, sigmas, self.pass_through,
         )
 
     # ------------------------------------------------------------------ tables
