@@ -12,39 +12,20 @@ scored voxel. A model is a cell name of the experiment (``prism_conditioned``, `
 (comma-separated; defaults sgbm, prism_conditioned,convolution, 1,2,5,all).
 """
 
-import json
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
+from bench_room_errors import load_run, near_free
 
-from prismap.characterise import load_error_model
 from prismap.evaluate import align_to_ground_truth, score_map
-from prismap.experiment._results import prior_of, split_variant
-from prismap.grid import pack_keys
-from prismap.io import read_sequence
+from prismap.experiment._results import split_variant
 from prismap.pipeline import MappingConfig
 from prismap.pipeline._run import integrate_frames, new_map
 
 
-def near_free(truth):
-    """(M,) bool over ``truth.observed_keys``: the voxel has an occupied 6-neighbour."""
-    occupied_keys = pack_keys(truth.occupied_keys)
-    near = np.zeros(truth.observed_keys.shape[0], bool)
-    for step in np.vstack((np.eye(3, dtype=np.int64), -np.eye(3, dtype=np.int64))):
-        near |= np.isin(pack_keys(truth.observed_keys + step), occupied_keys)
-    return near
-
-
 def main(run_dir, matcher="sgbm", models="prism_conditioned,convolution", counts="1,2,5,all"):
-    run = Path(run_dir)
-    sequence = read_sequence(run / "sequence")
-    truth = sequence.ground_truth
-    settings = json.loads((run / "settings.json").read_text())
-    error_model = load_error_model(run / matcher / "characterisation" / "error_model.json")
-    params = json.loads((run / "cells" / f"{matcher}__prism.json").read_text())["settings"]["derived_model_params"]
-    p0 = prior_of(truth)
+    run, sequence, truth, settings, error_model, params, p0 = load_run(run_dir, matcher)
     near = near_free(truth)
     n_frames = len(sequence)
     stops = sorted({n_frames if c == "all" else min(int(c), n_frames) for c in counts.split(",")})
