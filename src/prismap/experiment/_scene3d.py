@@ -288,7 +288,9 @@ def run_rendered_world(world, out_dir, *, n_frames=None, voxel_size_m=None, seed
     models_note = ("Each matcher's PRISM, convolution and Andert models use the error model characterised on the "
                    "characterisation frames: \"plain\" its whole-image mixture for every pixel, \"conditioned\" the "
                    "mixture of each pixel's error class (from the features of the mapped frame's own disparity and "
-                   "image); time = mapping wall time (PRISM's tables and the features included).")
+                   "image); \"map prior\": PRISM with each cell's prior the map's current probability of its voxel "
+                   "instead of p0 (`prior=\"map\"`, ray mode only), a variant of conditioned PRISM, so the targets do "
+                   "not count it as a rival; time = mapping wall time (PRISM's tables and the features included).")
     notes = (setup, f"p0 = {p0:.4f}: the occupancy ratio of the voxels a perfect sensor observed (the scored voxels). "
              f"PRISM's pass_through = {model_params['prism']['pass_through']:.4f}: how often the drive's "
              "characterisation frames' noise-free rays cross an occupied voxel before their surface (beyond its voxel overhang) "
