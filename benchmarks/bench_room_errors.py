@@ -75,6 +75,15 @@ def synthetic_errors(variant, mixture, frame, camera, rng):
     raise SystemExit(f"unknown variant {variant!r}: independent, shared or patches")
 
 
+def near_free(truth):
+    """(M,) bool over ``truth.observed_keys``: the voxel has an occupied 6-neighbour."""
+    occupied_keys = pack_keys(truth.occupied_keys)
+    near = np.zeros(truth.observed_keys.shape[0], bool)
+    for step in np.vstack((np.eye(3, dtype=np.int64), -np.eye(3, dtype=np.int64))):
+        near |= np.isin(pack_keys(truth.observed_keys + step), occupied_keys)
+    return near
+
+
 def scores(grid, truth, near):
     """The map's scores and the ROC AUC of occupied voxels against near-free and far-free ones."""
     keys = grid.known_voxels()[0]
@@ -88,19 +97,20 @@ def scores(grid, truth, near):
             f"far free {parts[1].roc_auc:.4f}")
 
 
-def main(run_dir, matcher="sgbm", variants="independent,shared,patches", models="convolution,prism"):
+def load_run(run_dir, matcher):
+    """``(run, sequence, truth, settings, error_model, derived model params, p0)`` of a finished 3-D run."""
     run = Path(run_dir)
     sequence = read_sequence(run / "sequence")
-    truth = sequence.ground_truth
     settings = json.loads((run / "settings.json").read_text())
     error_model = load_error_model(run / matcher / "characterisation" / "error_model.json")
     cell = json.loads((run / "cells" / f"{matcher}__prism.json").read_text())
-    model_params = cell["settings"]["derived_model_params"]
-    p0 = prior_of(truth)
-    occupied_keys = pack_keys(truth.occupied_keys)
-    near = np.zeros(truth.observed_keys.shape[0], bool)
-    for step in np.vstack((np.eye(3, dtype=np.int64), -np.eye(3, dtype=np.int64))):
-        near |= np.isin(pack_keys(truth.observed_keys + step), occupied_keys)
+    truth = sequence.ground_truth
+    return run, sequence, truth, settings, error_model, cell["settings"]["derived_model_params"], prior_of(truth)
+
+
+def main(run_dir, matcher="sgbm", variants="independent,shared,patches", models="convolution,prism"):
+    run, sequence, truth, settings, error_model, model_params, p0 = load_run(run_dir, matcher)
+    near = near_free(truth)
     for model in models.split(","):
         print(f"{matcher} (run)  {model:12s}", scores(load_map(run / "cells" / f"{matcher}__{model}.npz"), truth, near))
     for variant in variants.split(","):

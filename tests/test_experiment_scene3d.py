@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from prismap.errors import PrismapInputError
-from prismap.experiment import MODELS_3D, run_scene3d, split_frames
+from prismap.experiment import MODELS_ROOM, run_scene3d, split_frames
 
 
 @pytest.fixture(scope="module")
@@ -38,9 +38,10 @@ def test_the_run_characterises_on_frames_it_does_not_map(scene):
     table = (out / "sgbm" / "characterisation" / "table.md").read_text()
     assert "frames [0, 4, 8, 12]" in table and "bad-1px" in table and "bad-2px" in table and "coverage" in table
     assert len(list((out / "sgbm" / "disparity").glob("*.png"))) == 12
-    assert [c.model for c in result.cells] == list(MODELS_3D)
+    assert [c.model for c in result.cells] == list(MODELS_ROOM)
     results = (out / "results.md").read_text()
     assert "| sgbm | prism (plain) |" in results and "| sgbm | prism (conditioned) |" in results
+    assert "| sgbm | prism (conditioned, map prior) |" in results
     assert "## Targets" in results and "held-out log-likelihood of the errors higher conditioned than plain" in results
     for path, _ in result.artifacts:
         assert path.is_file(), path

@@ -5,7 +5,7 @@ from types import SimpleNamespace
 import pytest
 
 from prismap.experiment import MODELS_3D, measure_targets
-from prismap.experiment._results import model_label, split_variant
+from prismap.experiment._results import MODELS_ROOM, model_label, split_variant, variant_params
 from prismap.experiment._targets import format_targets
 
 
@@ -24,6 +24,10 @@ def test_variant_names_and_labels():
     assert model_label("prism_conditioned") == "prism (conditioned)"
     assert model_label("prism", MODELS_3D) == "prism (plain)" and model_label("hitmiss", MODELS_3D) == "hitmiss"
     assert model_label("prism", ("prism", "ideal")) == "prism"
+    assert split_variant("prism_conditioned_map_prior") == ("prism", True)
+    assert variant_params("prism_conditioned_map_prior") == {"prior": "map"} and variant_params("prism") == {}
+    assert model_label("prism_conditioned_map_prior") == "prism (conditioned, map prior)"
+    assert model_label("prism_map_prior", MODELS_ROOM) == "prism (map prior)"
 
 
 def test_each_claim_is_decided_by_its_numbers():
@@ -74,3 +78,13 @@ def test_the_mapping_frames_likelihood_is_a_target_decided_by_its_numbers():
         ("street3d, bm: log-likelihood of the mapping frames' errors higher conditioned than plain",
          "-0.9400 against -0.5400 nats per error (700 errors)", False),
     ]
+
+
+def test_the_champions_own_fusion_variant_is_not_its_rival():
+    base = [cell("sgbm", "prism", 0.025, 0.110, 0.91, 0.30), cell("sgbm", "prism_conditioned", 0.024, 0.098, 0.90, 0.30)]
+    sibling = cell("sgbm", "prism_conditioned_map_prior", 0.001, 0.001, 0.99, 0.0)  # better on every score
+    models = {"sgbm": error_model(-0.80, -0.70, 5)}
+    alone = [(t.claim, t.measured, t.met) for t in measure_targets("scene3d", base, models)]
+    assert [(t.claim, t.measured, t.met) for t in measure_targets("scene3d", [*base, sibling], models)] == alone
+    rival = cell("sgbm", "andert", 0.001, 0.2, 0.5, 0.5)  # another model still is one
+    assert not next(t for t in measure_targets("scene3d", [*base, rival], models) if "Brier" in t.claim).met

@@ -44,6 +44,9 @@ def register(subparsers):
                         help="the matcher's error model (prismap characterise); needed by prism, and by "
                              "convolution/andert without sigma_px (they take the largest-weight component's sigma). "
                              "A conditioned model (with error classes) gives each pixel its class's mixture")
+    parser.add_argument("--map-prior", action="store_true",
+                        help="prism: each cell's prior is the map's current probability, not --p0 (Kaufman et al. "
+                             "2016; the same as --model-param prior=map); ray mode, not on Dask")
     parser.add_argument("--plain", action="store_true",
                         help="use the error model's whole-image mixture for every pixel, not its classes")
     parser.add_argument("--voxel", required=True, type=float, metavar="M", help="voxel size in metres")
@@ -75,10 +78,15 @@ def run(args):
     if args.workers is not None and args.workers < 1:
         raise PrismapInputError(f"--workers must be >= 1; got {args.workers}")
     sequence = _open_input(args, read_sequence)
+    model_params = parse_params(args.model_param, "--model-param")
+    if args.map_prior:
+        if args.model != "prism":
+            raise PrismapInputError(f"--map-prior is an option of --model prism; got --model {args.model}")
+        model_params["prior"] = "map"
     config = MappingConfig(
         model=args.model, voxel_size_m=check_positive(args.voxel, "--voxel"), p0=check_probability(args.p0, "--p0"),
         error_model=_error_model(args.error_model), conditioned=False if args.plain else None,
-        model_params=parse_params(args.model_param, "--model-param"),
+        model_params=model_params,
         matcher=args.matcher, matcher_params=parse_params(args.matcher_param, "--matcher-param"),
         disparity_source="matcher" if args.disparity_dir is None else _disparity_dir(args.disparity_dir),
         mode=args.mode, policy=args.policy, max_range_m=args.max_range, subsample=args.subsample,

@@ -4,8 +4,10 @@ from prismap.experiment._cells import ExperimentResult
 from prismap.experiment._office2d import SGBM_LIKE_MIXTURE, run_office2d
 from prismap.experiment._results import (
     CONDITIONED_SUFFIX,
+    MAP_PRIOR_SUFFIX,
     MODELS,
     MODELS_3D,
+    MODELS_ROOM,
     CellResult,
     format_results_table,
     prior_of,
@@ -25,9 +27,11 @@ from prismap.experiment._targets import Target, measure_targets
 
 __all__ = [
     "CONDITIONED_SUFFIX",
+    "MAP_PRIOR_SUFFIX",
     "MATCHERS",
     "MODELS",
     "MODELS_3D",
+    "MODELS_ROOM",
     "SGBM_LIKE_MIXTURE",
     "WORLDS",
     "CellResult",

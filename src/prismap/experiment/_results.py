@@ -20,21 +20,37 @@ MODELS_3D = ("ideal", "hitmiss", "convolution", "convolution_conditioned", "ande
              "prism_conditioned")
 """The cells of the 3-D experiments, in table order: every model, and each model that uses the error model both
 plain (the whole-image mixture) and conditioned (each pixel's class mixture)."""
+MAP_PRIOR_SUFFIX = "_map_prior"
+"""A cell's model ``NAME_map_prior`` (after any conditioned suffix) is PRISM with ``prior="map"``: each cell's prior
+the map's current probability (ray mode only)."""
+MODELS_ROOM = (*MODELS_3D, "prism" + CONDITIONED_SUFFIX + MAP_PRIOR_SUFFIX)
+"""The cells of the room (ray mode): :data:`MODELS_3D` and conditioned PRISM with the map as prior."""
 
 
 def split_variant(name):
-    """``(model name, conditioned)`` of a cell's model: ``"prism_conditioned"`` -> ``("prism", True)``."""
+    """``(model name, conditioned)`` of a cell's model: ``"prism_conditioned"`` -> ``("prism", True)``; a
+    :data:`MAP_PRIOR_SUFFIX` is dropped first (see :func:`variant_params`)."""
+    name = name.removesuffix(MAP_PRIOR_SUFFIX)
     if name.endswith(CONDITIONED_SUFFIX):
         return name[: -len(CONDITIONED_SUFFIX)], True
     return name, False
 
 
+def variant_params(name):
+    """The model parameters a cell's variant sets: ``{"prior": "map"}`` for ``..._map_prior``, else ``{}``."""
+    return {"prior": "map"} if name.endswith(MAP_PRIOR_SUFFIX) else {}
+
+
 def model_label(name, names=()):
-    """The table label of a cell's model: ``prism (conditioned)``; ``prism (plain)`` when ``names`` has its twin."""
+    """The table label of a cell's model: ``prism (conditioned)``, ``prism (conditioned, map prior)``;
+    ``prism (plain)`` when ``names`` has its conditioned twin."""
     model, conditioned = split_variant(name)
-    if conditioned:
-        return f"{model} (conditioned)"
-    return f"{model} (plain)" if model + CONDITIONED_SUFFIX in names else model
+    variant = ["conditioned"] if conditioned else []
+    if variant_params(name):
+        variant.append("map prior")
+    elif not conditioned and model + CONDITIONED_SUFFIX in names:
+        variant.append("plain")
+    return f"{model} ({', '.join(variant)})" if variant else model
 
 RESULTS_FORMAT = "prismap-experiment-results"
 RESULTS_VERSION = 2

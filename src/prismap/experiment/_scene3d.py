@@ -11,7 +11,7 @@ from prismap._progress import progress
 from prismap._validate import check_integer, check_positive
 from prismap.errors import PrismapInputError
 from prismap.experiment._cells import ExperimentResult, claim_out_dir, draw_figures, run_cells
-from prismap.experiment._results import MODELS_3D, prior_of, split_variant, write_results
+from prismap.experiment._results import MODELS_3D, MODELS_ROOM, prior_of, split_variant, variant_params, write_results
 from prismap.experiment._targets import format_targets, measure_targets
 
 MATCHERS = ("bm", "sgbm", "variational")
@@ -144,13 +144,14 @@ def split_frames(n_frames, every):
 
 
 def run_scene3d(out_dir, *, n_frames=None, voxel_size_m=None, seed=0, quick=False, matchers=MATCHERS,
-                models=MODELS_3D, characterise_every=4, max_range_m=None, grid_offset=0.5, between_frames=None):
+                models=MODELS_ROOM, characterise_every=4, max_range_m=None, grid_offset=0.5, between_frames=None):
     """Characterise each matcher on some frames of the indoor room, map the others with every model, score.
 
     The seeded :func:`prismap.sim.indoor_scene` rendered along :func:`prismap.sim.indoor_trajectory` by the
     New Tsukuba camera. Full size: 640x480, 40 frames, 0.1 m voxels, every 2nd pixel, rays to 10 m.
     ``quick``: 160x120, 16 frames, every pixel: the smallest size found where PRISM beats ideal and
-    hit/miss with SGBM on Brier, log-loss and occupied-called-free. Arguments and result: see
+    hit/miss with SGBM on Brier, log-loss and occupied-called-free. Ray mode, so the models include
+    conditioned PRISM with the map as prior (:data:`~prismap.experiment.MODELS_ROOM`). Arguments and result: see
     :func:`run_rendered_world`.
     """
     return run_rendered_world("scene3d", out_dir, n_frames=n_frames, voxel_size_m=voxel_size_m, seed=seed,
@@ -287,7 +288,9 @@ def run_rendered_world(world, out_dir, *, n_frames=None, voxel_size_m=None, seed
     models_note = ("Each matcher's PRISM, convolution and Andert models use the error model characterised on the "
                    "characterisation frames: \"plain\" its whole-image mixture for every pixel, \"conditioned\" the "
                    "mixture of each pixel's error class (from the features of the mapped frame's own disparity and "
-                   "image); time = mapping wall time (PRISM's tables and the features included).")
+                   "image); \"map prior\": PRISM with each cell's prior the map's current probability of its voxel "
+                   "instead of p0 (`prior=\"map\"`, ray mode only), a variant of conditioned PRISM, so the targets do "
+                   "not count it as a rival; time = mapping wall time (PRISM's tables and the features included).")
     notes = (setup, f"p0 = {p0:.4f}: the occupancy ratio of the voxels a perfect sensor observed (the scored voxels). "
              f"PRISM's pass_through = {model_params['prism']['pass_through']:.4f}: how often the drive's "
              "characterisation frames' noise-free rays cross an occupied voxel before their surface (beyond its voxel overhang) "
@@ -419,13 +422,15 @@ def _mapper(sequence, disparity_dir, matcher_name, error_model, p0, model_params
     ``model_params``: model name -> its parameters (the settings' with what the run derived).
 
     ``cell_model`` is a model name, plain, or with :data:`~prismap.experiment.CONDITIONED_SUFFIX`: conditioned
-    on the error model's classes (plain when the characterisation chose none).
+    on the error model's classes (plain when the characterisation chose none), then optionally
+    :data:`~prismap.experiment.MAP_PRIOR_SUFFIX`: PRISM with the map as prior.
     """
     from prismap.pipeline import MappingConfig, map_sequence
 
     def build_map(cell_model):
         model_name, conditioned = split_variant(cell_model)
-        config = MappingConfig(model=model_name, model_params=model_params.get(model_name, {}),
+        config = MappingConfig(model=model_name, model_params={**model_params.get(model_name, {}),
+                                                               **variant_params(cell_model)},
                                voxel_size_m=settings["voxel_size_m"], p0=p0, error_model=error_model,
                                conditioned=None if conditioned else False, matcher=matcher_name,
                                disparity_source=str(Path(disparity_dir).resolve()),

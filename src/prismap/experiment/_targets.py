@@ -11,10 +11,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from prismap.experiment._results import CONDITIONED_SUFFIX, model_label
+from prismap.experiment._results import CONDITIONED_SUFFIX, model_label, split_variant
 
 CHAMPION = "prism" + CONDITIONED_SUFFIX
-"""The model the targets are about."""
+"""The model the targets are about. Its rivals are every other model's cells; cells of the same model and error
+model that differ only in their fusion (PRISM with the map as prior) are the claim's subject, not rivals."""
 TARGET_MATCHERS = ("sgbm", "bm")
 """Matchers whose maps the ranking targets cover."""
 LOG_LOSS_GAIN = {"street3d": ("sgbm", 0.10)}
@@ -74,7 +75,7 @@ def measure_targets(world, results, error_models, mapped_likelihoods=None):
         names = set(cells)
         for field, claim, sign, strict in RANKED:
             mine = getattr(cells[CHAMPION], field)
-            others = {m: getattr(s, field) for m, s in cells.items() if m != CHAMPION}
+            others = {m: getattr(s, field) for m, s in cells.items() if split_variant(m) != split_variant(CHAMPION)}
             rival = max(others, key=lambda m: sign * others[m])
             met = bool(sign * mine > sign * others[rival] if strict else sign * mine >= sign * others[rival])
             said = f"a {claim} any other model's" if not strict else f"the {claim} of every model"

@@ -14,7 +14,8 @@ per-cell log-odds increments (SENSOR_MODELS.md section 3). A model that states h
 (``hit_miss_increments``) is applied while casting, without cell arrays. A per-ray class
 (``RayBatch.ray_class``) reaches the model as the keyword ``ray_class`` only when the batch has one, a
 per-ray voxel overhang (``RayBatch.voxel_overhang_m``) as ``voxel_overhang_m`` only when the batch has
-one and the model ``takes_voxel_overhang``.
+one and the model ``takes_voxel_overhang``, and each cell's map log-odds before the frame as ``map_log_odds``
+when the model ``takes_map_prior`` (ray mode only: such a model needs each ray's cells from the camera on).
 
 Work per frame is bounded before it starts (:data:`MAX_FRAME_CELLS`, :data:`MAX_RAY_CELLS`) and the
 accumulator's memory while it runs (``_accumulator.frame_budget_bytes``); docs/errors.md lists the bounds.
@@ -175,17 +176,33 @@ class Integrator(ABC):
         OctoMap does).
     reach_m : float, metres
         Distance from the origin to the edge of the key space: a ray that would run further is an error.
+    map_log_odds : callable or None
+        ``map_log_odds(rows)``: the map's log-odds (float64, before this frame) of the voxels of accumulator
+        rows ``rows`` ((C,) int64), for models that ``takes_map_prior``; only integrators that cast whole
+        rays (:attr:`whole_rays`) use it.
     """
 
     name = "base"
+    whole_rays = False
+    """Whether the cells handed to the model tile each ray from the camera on (what ``takes_map_prior`` needs)."""
 
-    def __init__(self, *, voxel_size_m, max_range_m=np.inf, reach_m=np.inf):
+    def __init__(self, *, voxel_size_m, max_range_m=np.inf, reach_m=np.inf, map_log_odds=None):
         self.voxel_size_m = float(voxel_size_m)
         self.max_range_m = float(max_range_m)
         self.reach_m = float(reach_m)
+        self.map_log_odds = map_log_odds
 
     def integrate(self, accumulator, batch, model):
         """Add the batch's (voxel, increment) pairs of ``model`` to ``accumulator`` (cleared by the caller)."""
+        if getattr(model, "takes_map_prior", False):
+            if not self.whole_rays:
+                raise PrismapInputError(
+                    f"sensor model {model.name!r} with the map as prior needs whole rays: use mode='ray' "
+                    f"(the {self.name} integrator does not cast rays from the camera)"
+                )
+            if self.map_log_odds is None:
+                raise PrismapInputError(f"sensor model {model.name!r} takes the map as prior: the integrator needs "
+                                        "`map_log_odds` (OccupancyMap passes it)")
         if len(batch):
             self._integrate(accumulator, batch, noise_groups(model, batch.extra_noise_px))
 
@@ -212,10 +229,14 @@ class Integrator(ABC):
             )
         return t_stop, exclusive
 
-    def cell_increments(self, model, batch, idx, ray_of_cell, t_in, t_out):
-        """The model's log-odds increments of the cells of rays ``idx``, checked for shape."""
+    def cell_increments(self, model, batch, idx, ray_of_cell, t_in, t_out, map_log_odds=None):
+        """The model's log-odds increments of the cells of rays ``idx``, checked for shape; ``map_log_odds``
+        ((C,) float64 or None) is passed on as the keyword of that name when given."""
+        kwargs = batch.cell_kwargs(idx, model)
+        if map_log_odds is not None:
+            kwargs["map_log_odds"] = map_log_odds
         _, increment = model.cell_posteriors(_rows(batch.disparity_px, idx), _rows(batch.ray_norm, idx), ray_of_cell,
-                                             t_in, t_out, **batch.cell_kwargs(idx, model))
+                                             t_in, t_out, **kwargs)
         increment = np.asarray(increment, dtype=np.float64)
         if increment.shape != t_in.shape:
             raise PrismapInputError(
@@ -244,7 +265,8 @@ class RayIntegrator(Integrator):
     in chunks (:data:`RAYS_PER_CHUNK`, :data:`CELLS_PER_CHUNK`) through a pipeline: this thread casts chunk
     k + 1 (the kernel releases the GIL) while :data:`MODEL_THREADS` threads run the model on chunks k - 1 and
     k (the model costs several times the cast); this thread then adds the increments of finished chunks in
-    chunk order, so only it writes the accumulator.
+    chunk order, so only it writes the accumulator. A model that ``takes_map_prior`` gets each chunk's cells'
+    map log-odds, looked up by this thread right after the chunk's cast (the map changes only after the frame).
 
     References
     ----------
@@ -252,6 +274,7 @@ class RayIntegrator(Integrator):
     """
 
     name = "ray"
+    whole_rays = True
 
     def _integrate(self, accumulator, batch, groups):
         origin, voxel = batch.origin_w, self.voxel_size_m
@@ -286,8 +309,9 @@ class RayIntegrator(Integrator):
             for model, chunk, *cast in chunks:
                 ray_of_cell, cell_index, t_in, t_out = _accumulator.cast_into(accumulator, origin, *cast, voxel)
                 if cell_index.size:
+                    prior = self.map_log_odds(cell_index) if getattr(model, "takes_map_prior", False) else None
                     pending.append((cell_index, threads.submit(self.cell_increments, model, batch, chunk, ray_of_cell,
-                                                               t_in, t_out)))
+                                                               t_in, t_out, prior)))
                 while len(pending) > MODEL_THREADS:
                     _scatter_next(accumulator, pending)
             while pending:

@@ -197,3 +197,24 @@ def lookup(table, block_keys, log, count, keys, bits, prior_q):
             out_log[i] = log[slot, local]
             out_count[i] = count[slot, local]
     return out_log, out_count
+
+
+@numba.njit(cache=True, nogil=True)
+def map_log_of_rows(table, block_keys, log, acc_block_keys, rows, voxel_bits, prior_q):
+    """The map's fixed-point log-odds (int32) of the voxels of frame accumulator rows ``rows``.
+
+    A row is ``slot * V + voxel`` in the accumulator (``V = 2**voxel_bits``), the voxel's index in its block the
+    same in the map; ``prior_q`` where the map has no such block. Consecutive rows of one block (a ray's cells)
+    share one hash look-up.
+    """
+    out = np.empty(rows.size, dtype=np.int32)
+    mask = (1 << voxel_bits) - 1
+    last_block = -1
+    slot = -1
+    for i in range(rows.size):
+        block = rows[i] >> voxel_bits
+        if block != last_block:
+            last_block = block
+            slot = find_block(table, block_keys, acc_block_keys[block])
+        out[i] = prior_q if slot < 0 else log[slot, rows[i] & mask]
+    return out

@@ -221,7 +221,9 @@ class OccupancyMap:
         if reach <= 0:
             raise PrismapInputError(f"`origin_w` {batch.origin_w.tolist()} lies outside the map's key range "
                                     f"{key_range_text(self.voxel_size_m)}")
-        integrator = make_integrator(mode, voxel_size_m=self.voxel_size_m, max_range_m=max_range, reach_m=reach)
+        prior = self._map_log_odds if getattr(model, "takes_map_prior", False) else None
+        integrator = make_integrator(mode, voxel_size_m=self.voxel_size_m, max_range_m=max_range, reach_m=reach,
+                                     map_log_odds=prior)
         self._accumulator.clear()
         integrator.integrate(self._accumulator, batch, model)
         self._apply_accumulator(code)
@@ -239,6 +241,14 @@ class OccupancyMap:
                     f"sensor model {getattr(model, 'name', type(model).__name__)!r} was built with {attr}={theirs!r} "
                     f"but the map has {attr}={mine!r}: build the model with the map's {attr}"
                 )
+
+    def _map_log_odds(self, rows):
+        """Log-odds (float64) of the voxels of frame accumulator rows ``rows``; ``logit(p0)`` where the map has none."""
+        store, acc = self._store, self._accumulator
+        q = _kernels_accumulate.map_log_of_rows(store.table, store.block_keys, store.payload["log"], acc.block_keys,
+                                                np.ascontiguousarray(rows, dtype=np.int64), sum(store.bits),
+                                                np.int32(self.prior_q))
+        return from_fixed(q)
 
     def merge(self, other):
         """Add another map of the same grid into this one (in place); returns ``self``.

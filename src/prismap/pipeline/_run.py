@@ -214,7 +214,9 @@ def map_sequence(sequence, config, *, progress=True, checkpoint=None, checkpoint
     merged in frame order, at most two per worker in flight, so memory stays bounded by the chunks.
     Without clamping, a merged map equals the sequential one up to float32 rounding of the log-odds
     sums (:meth:`OccupancyMap.merge`). A sequential run resumed from a checkpoint equals an
-    uninterrupted one exactly.
+    uninterrupted one exactly. A model that ``takes_map_prior`` (PRISM with ``prior="map"``) weighs each
+    frame against the map before it, so chunks mapped apart and merged are not that map: it is refused on
+    Dask (checkpoints work: they hold the whole map).
     """
     if not isinstance(config, MappingConfig):
         raise PrismapInputError(f"`config` must be a MappingConfig; got {type(config).__name__}")
@@ -224,6 +226,14 @@ def map_sequence(sequence, config, *, progress=True, checkpoint=None, checkpoint
     indices = config.frame_indices(len(sequence))
     check_key_reach(sequence, config, indices)
     DisparitySource(sequence, config)  # refuses a bad matcher, disparity directory or error model before any work
+    if client is not None and getattr(sensor_model_for(config, sequence.camera), "takes_map_prior", False):
+        raise PrismapInputError(
+            f"sensor model {config.model!r} with the map as prior (prior='map') weighs each frame against the map "
+            "before it, so chunks mapped apart on Dask cannot be merged into that map: map sequentially (no client)"
+        )
+    if config.mode != "ray" and getattr(sensor_model_for(config, sequence.camera), "takes_map_prior", False):
+        raise PrismapInputError(f"sensor model {config.model!r} with the map as prior (prior='map') needs whole rays: "
+                                f"mode 'ray', not {config.mode!r}")
     if checkpoint is None:
         return _map_frames(sequence, config, indices, progress, None, checkpoint_every, client, chunk_frames)
     with exclusive_lock(checkpoint, "checkpoint"):

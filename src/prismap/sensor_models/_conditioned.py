@@ -70,6 +70,11 @@ class ConditionedModel(InverseSensorModel):
         return self.plain.takes_voxel_overhang
 
     @property
+    def takes_map_prior(self):
+        """The sub-models' (PRISM's with ``prior="map"``)."""
+        return self.plain.takes_map_prior
+
+    @property
     def far_depth_m(self):
         """The farthest depth (metres) any sub-model reasons to; AttributeError for models without one (not PRISM)."""
         return max(model.far_depth_m for model in (self.plain, *self.class_models))
@@ -95,7 +100,7 @@ class ConditionedModel(InverseSensorModel):
         return classes.astype(np.int64)
 
     def cell_posteriors(self, disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m, *, ray_class=None,
-                        voxel_overhang_m=None):
+                        voxel_overhang_m=None, map_log_odds=None):
         """Posterior and increment per cell (see :class:`InverseSensorModel`), each ray by its class's model.
 
         Parameters
@@ -105,10 +110,16 @@ class ConditionedModel(InverseSensorModel):
             no class (the plain model); None = every ray plain.
         voxel_overhang_m : (R,) float or None, keyword-only, metres
             Passed to the sub-models with each class's rays (when they :attr:`takes_voxel_overhang`).
+        map_log_odds : (C,) float or None, keyword-only
+            Each cell's map log-odds, passed to the sub-models with each class's cells (when they
+            :attr:`takes_map_prior`).
         """
         use_overhang = voxel_overhang_m is not None and self.takes_voxel_overhang
+        use_prior = map_log_odds is not None and self.takes_map_prior
         if ray_class is None:
             extra = {"voxel_overhang_m": voxel_overhang_m} if use_overhang else {}
+            if use_prior:
+                extra["map_log_odds"] = map_log_odds
             return self.plain.cell_posteriors(disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m, **extra)
         disparity, norm, rays, start, end = check_cell_arrays(
             disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m
@@ -119,6 +130,11 @@ class ConditionedModel(InverseSensorModel):
             overhang_m = np.asarray(voxel_overhang_m, dtype=np.float64)
             if overhang_m.shape != disparity.shape:
                 raise PrismapInputError(f"`voxel_overhang_m` must have shape {disparity.shape}; got {overhang_m.shape}")
+        prior_log = None
+        if use_prior:
+            prior_log = np.asarray(map_log_odds, dtype=np.float64)
+            if prior_log.shape != start.shape:
+                raise PrismapInputError(f"`map_log_odds` must have shape {start.shape}; got {prior_log.shape}")
         cell_class = classes[rays]
         posterior = np.empty(start.size)
         increment = np.empty(start.size)
@@ -128,6 +144,8 @@ class ConditionedModel(InverseSensorModel):
             cells = np.flatnonzero(cell_class == k)
             local[ray_index] = np.arange(ray_index.size)
             extra = {} if overhang_m is None else {"voxel_overhang_m": overhang_m[ray_index]}
+            if prior_log is not None:
+                extra["map_log_odds"] = prior_log[cells]
             posterior[cells], increment[cells] = self._model(int(k)).cell_posteriors(
                 disparity[ray_index], norm[ray_index], local[rays[cells]], start[cells], end[cells], **extra
             )

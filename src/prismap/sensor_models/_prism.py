@@ -55,6 +55,8 @@ _LAMBDA_STEP = 0.1  # table grid in log(lambda_z): one table every ~10 % of ray 
 _LAMBDA_SLACK = float(np.expm1(_LAMBDA_STEP / 2))  # relative rate gap a table's influence depth covers
 _KEY_L_SPAN = 1 << 16  # table key = disparity key * span + rate key
 _BUILD_THREADS = min(2, os.cpu_count() or 1)  # threads building one call's missing tables
+_TAIL_STEP = 1.0  # prior="map": x-width of the panels of a ray's tail beyond its last cell
+_TAIL_REST = -20.0  # prior="map": the tail's march stops where the rest is below e^-20 of the evidence before
 _CHUNK_CELLS = 4096  # cells per look-up/exp/combine/log round: its 8 scratch arrays (228 KiB) stay in L2
 _OFFSET, _LENGTH = _kernels.META_COLUMNS.index("offset"), _kernels.META_COLUMNS.index("length")
 
@@ -126,6 +128,9 @@ def prism_discrete_posteriors(disparity_px, cell_edges_depth_m, mixture, *, foca
     log_norm = np.logaddexp(np.logaddexp.reduce(terms), log_far)
     return np.exp(log_num - log_norm)
 
+
+PRIORS = ("p0", "map")
+"""Values of PRISM's ``prior``: every cell at ``p0``, or each cell at the map's current probability."""
 
 PASS_THROUGH = 0.0
 """PRISM's default chance that a ray crosses an occupied cell without meeting its surface (0: every occupied
@@ -207,6 +212,15 @@ class PrismModel(RayModel):
         of a solid: a table's edge, a pole's side). Each cell's likelihood ratio ``R`` becomes
         ``m + (1 - m) R``, so one ray's free evidence is at most ``-log m``; measure it from a ground truth
         with :meth:`prismap.sim.Scene3D.pass_through_ratio` (docs/SENSOR_MODELS.md, "Pass-through").
+    prior : {"p0", "map"}, default "p0"
+        The prior of the cells of a ray. ``"p0"``: every cell at ``p0`` (the formula above, by ``method``).
+        ``"map"``: each cell at the map's current probability of its voxel (Kaufman et al. 2016; the
+        grid hands it over as ``map_log_odds`` because :attr:`takes_map_prior`), so a frame's evidence is
+        weighed against what earlier frames found. Each ray's cells must then tile it from the camera (ray
+        casting; projective integration has no whole rays). The exact discrete posterior
+        (``_kernels.prism_map_prior_cells``: ``g`` averaged uniformly in disparity over each cell, the
+        prior rate beyond the ray's last cell); ``method`` and the tables are not used.
+        docs/SENSOR_MODELS.md, "The map as prior".
     """
 
     name = "prism"
@@ -220,6 +234,7 @@ class PrismModel(RayModel):
     table_memory_mb: float | None = None
     overhang_fraction: float = OVERHANG_FRACTION
     pass_through: float = PASS_THROUGH
+    prior: str = "p0"
     _cache: "_TableCache" = field(default=None, init=False, repr=False, compare=False)
     _widened: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
@@ -242,6 +257,8 @@ class PrismModel(RayModel):
         object.__setattr__(self, "influence_epsilon", check_positive(self.influence_epsilon, "influence_epsilon"))
         object.__setattr__(self, "overhang_fraction", _share(self.overhang_fraction, "overhang_fraction", one=True))
         object.__setattr__(self, "pass_through", _share(self.pass_through, "pass_through", one=False))
+        if self.prior not in PRIORS:
+            raise PrismapInputError(f"prism: `prior` must be one of {list(PRIORS)}; got {self.prior!r}")
         if self.table_memory_mb is None:
             budget = None
         else:
@@ -276,6 +293,11 @@ class PrismModel(RayModel):
         return self.overhang_fraction > 0
 
     @property
+    def takes_map_prior(self):
+        """True when ``prior == "map"``: the grid then passes each cell's current map log-odds."""
+        return self.prior == "map"
+
+    @property
     def rate_per_m(self):
         """``lambda``: surfaces per metre of ray, from ``p0`` and ``voxel_size_m``."""
         return -np.log1p(-self.p0) / self.voxel_size_m
@@ -294,11 +316,13 @@ class PrismModel(RayModel):
 
     # ------------------------------------------------------------------ interface
     def cell_posteriors(self, disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m, *, method=None,
-                        voxel_overhang_m=None):
+                        voxel_overhang_m=None, map_log_odds=None):
         """Posterior and increment per cell (see :class:`InverseSensorModel`); ``method`` overrides the model's.
 
         ``voxel_overhang_m`` ((R,) float, metres along each ray, or None = 0): each cell ``[a, c]`` is
         evaluated as ``[a, c + overhang_fraction * overhang / |r|]`` (see the class).
+        ``map_log_odds`` ((C,) float, log-odds of each cell's voxel before this frame, or None = every voxel at
+        ``p0``): the cells' priors when ``prior == "map"``; refused otherwise.
         """
         method = self.method if method is None else method
         disparity, norm, rays, start, end, _ = self._prepare(
@@ -311,6 +335,10 @@ class PrismModel(RayModel):
                 raise PrismapInputError(f"prism: `voxel_overhang_m` must be >= 0; got minimum {overhang.min()!r}")
             stretch = self.overhang_fraction * overhang / norm
         lam = self.rate_per_m * norm
+        if self.prior == "map":
+            return self._map_prior_cells(lam, disparity, norm, rays, start, end, stretch, map_log_odds)
+        if map_log_odds is not None:
+            raise PrismapInputError("prism: `map_log_odds` is used only with prior='map'; this model has prior='p0'")
         if method == "direct":
             end = end + stretch[rays]
             order = np.argsort(rays, kind="stable")
@@ -344,6 +372,30 @@ class PrismModel(RayModel):
         if extra not in self._widened:
             self._widened[extra] = dataclasses.replace(self, error_model=self.error_model.widened(extra))
         return self._widened[extra]
+
+    def _map_prior_cells(self, lam, disparity, norm, rays, start, end, stretch, map_log_odds):
+        """:meth:`cell_posteriors` with the map as prior (``_kernels.prism_map_prior_cells``).
+
+        A voxel of probability ``P_v`` has surface rate ``-log(1 - P_v) / voxel_size_m`` per metre of ray
+        (``log1p(e^l)``, softplus of its log-odds ``l``), so a ray's stretch of length ``s`` in it has prior
+        ``1 - (1 - P_v)^(s / voxel_size_m)``: the voxel's own probability across a whole voxel, and the
+        ``p0`` model's rate in an unknown voxel.
+        """
+        if map_log_odds is None:
+            log_odds = np.full(start.size, float(np.log(self.p0) - np.log1p(-self.p0)))
+        else:
+            log_odds = as_float_array(map_log_odds, "map_log_odds", shape=(start.size,), allow_nan=False)
+        order = np.lexsort((start, rays))
+        ray_start = np.searchsorted(rays[order], np.arange(disparity.size + 1))
+        _check_tiling(rays[order], start[order], end[order], ray_start, self.near_m)
+        cell_rate = np.logaddexp(0.0, log_odds) / self.voxel_size_m * norm[rays]  # per metre of depth
+        log_w = np.log(self.error_model.weights)
+        log_wn, means, sigmas = self._mixture_arrays()
+        return _kernels.prism_map_prior_cells(
+            disparity + self.doffs_px, lam, order, ray_start, start, end, stretch, cell_rate, self.near_m,
+            self.far_depth_m, self.focal_baseline, self._ku(), _TAIL_STEP, _TAIL_REST, self._log_far(disparity), log_wn,
+            log_w, means, sigmas, self.pass_through,
+        )
 
     # ------------------------------------------------------------------ tables
     def _table_cells(self, lam, disparity, norm, rays, start, end, stretch):
@@ -406,6 +458,23 @@ class PrismModel(RayModel):
         if n and meta[:, _LENGTH].min() < 2:
             raise PrismapInputError(f"prism: near_m={self.near_m} to far_depth_m={self.far_depth_m} is too short to tabulate")
         return nodes, meta
+
+
+def _check_tiling(rays, start, end, ray_start, near_m):
+    """Refuse cells (sorted by ray, then start) that do not tile each ray from at most ``near_m`` without gaps."""
+    first = ray_start[:-1][np.diff(ray_start) > 0]
+    if first.size and start[first].max() > near_m:
+        raise PrismapInputError(
+            f"prism prior='map': each ray's cells must start at or before near_m = {near_m:g} m (ray casting from "
+            f"the camera); a ray's first cell starts at {start[first].max():.6g} m"
+        )
+    same = rays[1:] == rays[:-1]
+    gap = np.abs(start[1:] - end[:-1])[same]
+    if gap.size and gap.max() > 1e-9 * max(1.0, float(np.abs(end).max())):
+        raise PrismapInputError(
+            "prism prior='map': each ray's cells must follow one another without gaps or overlaps (ray casting "
+            f"gives such cells, projective integration does not); found a gap of {gap.max():.3g} m"
+        )
 
 
 def _share(value, name, *, one):
