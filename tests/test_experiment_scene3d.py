@@ -11,13 +11,13 @@ import numpy as np
 import pytest
 
 from prismap.errors import PrismapInputError
-from prismap.experiment import MODELS_ROOM, run_scene3d, split_frames
+from prismap.experiment import MODELS_3D_MAP_PRIOR, run_scene3d, split_frames
 
 
 @pytest.fixture(scope="module")
 def scene(tmp_path_factory):
     out = tmp_path_factory.mktemp("scene3d")
-    return out, run_scene3d(out, quick=True, matchers=("sgbm",))
+    return out, run_scene3d(out, quick=True, matchers=("sgbm",), models=MODELS_3D_MAP_PRIOR)
 
 
 def test_prism_beats_ideal_and_hitmiss_on_brier_log_loss_and_occupied_called_free(scene):
@@ -38,7 +38,7 @@ def test_the_run_characterises_on_frames_it_does_not_map(scene):
     table = (out / "sgbm" / "characterisation" / "table.md").read_text()
     assert "frames [0, 4, 8, 12]" in table and "bad-1px" in table and "bad-2px" in table and "coverage" in table
     assert len(list((out / "sgbm" / "disparity").glob("*.png"))) == 12
-    assert [c.model for c in result.cells] == list(MODELS_ROOM)
+    assert [c.model for c in result.cells] == list(MODELS_3D_MAP_PRIOR)
     results = (out / "results.md").read_text()
     assert "| sgbm | prism (plain) |" in results and "| sgbm | prism (conditioned) |" in results
     assert "| sgbm | prism (conditioned, map prior) |" in results

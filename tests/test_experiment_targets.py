@@ -5,7 +5,7 @@ from types import SimpleNamespace
 import pytest
 
 from prismap.experiment import MODELS_3D, measure_targets
-from prismap.experiment._results import MODELS_ROOM, model_label, split_variant, variant_params
+from prismap.experiment._results import MODELS_3D_MAP_PRIOR, model_label, split_variant, variant_params
 from prismap.experiment._targets import format_targets
 
 
@@ -27,7 +27,7 @@ def test_variant_names_and_labels():
     assert split_variant("prism_conditioned_map_prior") == ("prism", True)
     assert variant_params("prism_conditioned_map_prior") == {"prior": "map"} and variant_params("prism") == {}
     assert model_label("prism_conditioned_map_prior") == "prism (conditioned, map prior)"
-    assert model_label("prism_map_prior", MODELS_ROOM) == "prism (map prior)"
+    assert model_label("prism_map_prior", MODELS_3D_MAP_PRIOR) == "prism (map prior)"
 
 
 def test_each_claim_is_decided_by_its_numbers():

@@ -11,7 +11,7 @@ from prismap._progress import progress
 from prismap._validate import check_integer, check_positive
 from prismap.errors import PrismapInputError
 from prismap.experiment._cells import ExperimentResult, claim_out_dir, draw_figures, run_cells
-from prismap.experiment._results import MODELS_3D, MODELS_ROOM, prior_of, split_variant, variant_params, write_results
+from prismap.experiment._results import MODELS_3D, prior_of, split_variant, variant_params, write_results
 from prismap.experiment._targets import format_targets, measure_targets
 
 MATCHERS = ("bm", "sgbm", "variational")
@@ -144,14 +144,14 @@ def split_frames(n_frames, every):
 
 
 def run_scene3d(out_dir, *, n_frames=None, voxel_size_m=None, seed=0, quick=False, matchers=MATCHERS,
-                models=MODELS_ROOM, characterise_every=4, max_range_m=None, grid_offset=0.5, between_frames=None):
+                models=MODELS_3D, characterise_every=4, max_range_m=None, grid_offset=0.5, between_frames=None):
     """Characterise each matcher on some frames of the indoor room, map the others with every model, score.
 
     The seeded :func:`prismap.sim.indoor_scene` rendered along :func:`prismap.sim.indoor_trajectory` by the
     New Tsukuba camera. Full size: 640x480, 40 frames, 0.1 m voxels, every 2nd pixel, rays to 10 m.
     ``quick``: 160x120, 16 frames, every pixel: the smallest size found where PRISM beats ideal and
-    hit/miss with SGBM on Brier, log-loss and occupied-called-free. Ray mode, so the models include
-    conditioned PRISM with the map as prior (:data:`~prismap.experiment.MODELS_ROOM`). Arguments and result: see
+    hit/miss with SGBM on Brier, log-loss and occupied-called-free. Ray mode, so
+    ``models=MODELS_3D_MAP_PRIOR`` adds conditioned PRISM with the map as prior. Arguments and result: see
     :func:`run_rendered_world`.
     """
     return run_rendered_world("scene3d", out_dir, n_frames=n_frames, voxel_size_m=voxel_size_m, seed=seed,
