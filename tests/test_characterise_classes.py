@@ -103,13 +103,14 @@ def _samples(seed, n=60000):
 def test_held_out_selection_finds_the_informative_feature_and_em_recovers_each_class_mixture():
     values, errors, fold = _samples(0)
     edges = ErrorHistogram.empty().edges
-    classes, record = choose_classes(values, errors, fold, bin_edges=edges, max_classes=4, max_components=3,
-                                     criterion="bic", tolerance=0.002)
+    classes, record = choose_classes(values, errors, fold, bin_edges=edges, max_classes=4, max_components=3)
     assert classes.features == ("edge_distance_px",)
     assert record["conditioned_nats_per_error"] > record["plain_nats_per_error"] + 0.1
     assert record["candidates"][0]["features"] == [] and len(record["candidates"]) > 5
+    assert record["components"] == [2] * classes.n_classes  # held-out G finds the true 2 components per class
     models, histograms = fit_classes(classes, values, errors, bin_width=1 / 32, limit_px=256.0,
-                                     max_components=3, criterion="bic", tolerance=0.002)
+                                     max_components=3, criterion="bic", tolerance=0.002,
+                                     components=record["components"])
     label = classes.assign(values, np.ones(errors.size, bool))
     assert sum(h.n_errors for h in histograms) == errors.size
     for k, model in enumerate(models):
@@ -131,7 +132,7 @@ def test_errors_independent_of_the_features_keep_the_plain_model():
     values = {"texture": rng.uniform(0, 20, n)}
     errors = FAR_FROM_EDGE.sample(n, rng)
     classes, record = choose_classes(values, errors, rng.integers(0, 2, n), bin_edges=ErrorHistogram.empty().edges,
-                                     max_classes=3, max_components=2, criterion="bic", tolerance=0.01)
+                                     max_classes=3, max_components=2)
     assert classes.features == () and record["conditioned_nats_per_error"] == record["plain_nats_per_error"]
 
 

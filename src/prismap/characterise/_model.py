@@ -7,7 +7,7 @@ Format (JSON, ``format_version`` 2)::
      "bin_width_px": 0.03125,
      "statistics": {"n_frames", "n_errors", "n_gt_valid", "n_outside_bins", "coverage", "bad_1px",
                     "bad_2px", "mean_abs_error_px"},
-     "selection": {"criterion": "bic", "tolerance_nats_per_error": 0.01},
+     "selection": {"criterion": "bic", "tolerance_nats_per_error": 0.01},  # or {"criterion": "held-out", "held_out": ...}
      "selected_components": 2,
      "models": [{"n_components": 1, "weights": [...], "means": [...], "sigmas": [...],
                  "log_likelihood": ..., "aic": ..., "bic": ..., "n_samples": ..., "n_iter": ...,
@@ -50,6 +50,9 @@ MAX_COMPONENTS = 64
 MAX_CLASSES = 64
 _FIT_FIELDS = ("log_likelihood", "aic", "bic", "n_samples", "n_iter", "converged")
 _SHARE_TOLERANCE = 1e-6
+HELD_OUT = "held-out"
+"""``selection["criterion"]`` of a conditioned characterisation: every G (the whole image's and each class's)
+chosen by the log-likelihood of held-out errors, as the classes are (:func:`prismap.characterise.choose_classes`)."""
 
 
 def _find_fit(fits, n_components):
@@ -110,7 +113,8 @@ class ErrorModel:
         Whole-image fits, one per G, ascending.
     selected_components : int
     selection : dict
-        How G was selected: ``{"criterion": ..., "tolerance_nats_per_error": ...}``.
+        How G was selected: ``{"criterion": "bic" or "aic", "tolerance_nats_per_error": ...}`` (the smallest G
+        within the tolerance of the best criterion), or ``{"criterion": HELD_OUT, "held_out": ...}``.
     statistics : dict
         Coverage, bad-pixel rates, mean absolute error, counts (see ``ErrorHistogram.statistics``).
     classes : ErrorClasses or None
@@ -503,9 +507,7 @@ def format_table(model):
          f"bad-2px {_percent(stats.get('bad_2px'))}, mean |e| {_decimal(stats.get('mean_abs_error_px'))} px; "
          f"histogram bin width {model.bin_width:g} px."),
         "",
-        (f"Selected G = {model.selected_components} (marked *): the smallest G whose "
-         f"{model.selection.get('criterion', 'bic').upper()} is within "
-         f"{model.selection.get('tolerance_nats_per_error', 0)} nats per error of the best. "
+        (f"Selected G = {model.selected_components} (marked *): " + _selection_rule(model.selection) + " "
          "AIC = 2k - 2 ln L and BIC = k ln N - 2 ln L with k = 3G - 1 (the thesis printed 2G as the AIC "
          f"penalty). Rows with G > 3 list only components with weight > {TABLE_MIN_WEIGHT}, as in the thesis."),
         "",
@@ -533,6 +535,15 @@ def format_table(model):
             notes.append(f"G = {fit.n_components}: {hidden} component(s) with weight <= {TABLE_MIN_WEIGHT} "
                          f"(together {rest:.2f}) not shown.")
     return "\n".join(lines + ([""] + notes if notes else []) + _class_lines(model)) + "\n"
+
+
+def _selection_rule(selection):
+    """How G was selected, in words."""
+    if selection.get("criterion") == HELD_OUT:
+        return (f"the G with the highest log-likelihood of held-out errors ({selection.get('held_out', '?')}), "
+                "as for each class.")
+    return (f"the smallest G whose {selection.get('criterion', 'bic').upper()} is within "
+            f"{selection.get('tolerance_nats_per_error', 0)} nats per error of the best.")
 
 
 def _class_lines(model):

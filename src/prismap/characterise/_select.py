@@ -16,6 +16,7 @@ import dataclasses
 
 import numpy as np
 
+from prismap._validate import check_integer
 from prismap.characterise._classes import ErrorClasses
 from prismap.characterise._histogram import ErrorHistogram
 from prismap.characterise._model import ClassModel
@@ -102,8 +103,9 @@ def class_histograms(classes, values, errors, *, bin_width, limit_px, n_frames=1
                  for k in range(classes.n_classes))
 
 
-def fit_class_histograms(classes, histograms, *, max_components, criterion, tolerance, restarts=4, seed=0):
-    """One mixture per class: EM on each class's histogram, G by the criterion.
+def fit_class_histograms(classes, histograms, *, max_components, criterion, tolerance, restarts=4, seed=0,
+                         components=None):
+    """One mixture per class: EM on each class's histogram, G given or by the criterion.
 
     Parameters
     ----------
@@ -113,6 +115,9 @@ def fit_class_histograms(classes, histograms, *, max_components, criterion, tole
         One per class (:func:`class_histograms`, or merged over frames).
     max_components, criterion, tolerance, restarts, seed
         As in :func:`prismap.characterise.characterise_matcher`.
+    components : sequence of int or None
+        Each class's G (as :func:`choose_classes` chose it: at most the class's occupied bins); None = the
+        smallest G within ``tolerance`` of the best ``criterion`` (:func:`prismap.gmm.select_components`).
 
     Returns
     -------
@@ -126,21 +131,27 @@ def fit_class_histograms(classes, histograms, *, max_components, criterion, tole
             raise PrismapInputError(f"error class {k} ({classes.bounds(k)}) has no error to fit")
         fits, selected = fit_class(part.counts.astype(np.float64), part.edges, max_components=max_components,
                                    criterion=criterion, tolerance=tolerance, restarts=restarts, seed=seed)
+        if components is not None:
+            selected = min(int(components[k]), len(fits))
         models.append(ClassModel(tuple(fits), selected, part.n_errors / n_classified, part.statistics()))
     return tuple(models)
 
 
 def fit_classes(classes, values, errors, *, bin_width, limit_px, n_frames=1, max_components, criterion, tolerance,
-                restarts=4, seed=0):
+                restarts=4, seed=0, components=None):
     """:func:`class_histograms` of the samples, then :func:`fit_class_histograms`: ``(class_models, histograms)``."""
     histograms = class_histograms(classes, values, errors, bin_width=bin_width, limit_px=limit_px, n_frames=n_frames)
     return fit_class_histograms(classes, histograms, max_components=max_components, criterion=criterion,
-                                tolerance=tolerance, restarts=restarts, seed=seed), histograms
+                                tolerance=tolerance, restarts=restarts, seed=seed, components=components), histograms
 
 
-def choose_classes(values, errors, fold, *, bin_edges, max_classes, max_components, criterion, tolerance,
-                   seed=0, min_class_errors=MIN_CLASS_ERRORS):
-    """The candidate classes with the highest held-out log-likelihood, and the record of the search.
+def choose_classes(values, errors, fold, *, bin_edges, max_classes, max_components, seed=0,
+                   min_class_errors=MIN_CLASS_ERRORS):
+    """The candidate classes with the highest held-out log-likelihood, each class's G, and the record of the search.
+
+    Each class's G (1 .. ``max_components``) is chosen by the same held-out log-likelihood as the classes,
+    not by a criterion on the data it was fitted to: a class's rare gross errors then keep their wide
+    component wherever that predicts the other fold's errors better.
 
     Parameters
     ----------
@@ -153,16 +164,17 @@ def choose_classes(values, errors, fold, *, bin_edges, max_classes, max_componen
     bin_edges : (B + 1,) float64, pixels
         Histogram bins (as :attr:`ErrorHistogram.edges`).
     max_classes : int, >= 1
-    max_components, criterion, tolerance
-        As for the final fits (see :func:`prismap.gmm.select_components`).
+    max_components : int, >= 1
+        Largest G tried per class.
 
     Returns
     -------
     classes : ErrorClasses
     record : dict
-        ``plain_nats_per_error``, ``conditioned_nats_per_error`` (the winner's), ``n_held_out_errors`` and
-        every candidate's features, edges, number of classes and score (None when a class of it had
-        fewer than ``min_class_errors`` training errors).
+        ``plain_nats_per_error``, ``conditioned_nats_per_error`` (the winner's), ``plain_components`` (the
+        whole-image G), ``components`` (the winner's G per class), ``n_held_out_errors`` and every
+        candidate's features, edges, number of classes, score (None when a class of it had fewer than
+        ``min_class_errors`` training errors) and G per class.
     """
     if isinstance(max_classes, bool) or int(max_classes) != max_classes or max_classes < 1:
         raise PrismapInputError(f"`max_classes` must be an integer >= 1; got {max_classes!r}")
@@ -176,10 +188,10 @@ def choose_classes(values, errors, fold, *, bin_edges, max_classes, max_componen
     bin_edges = bin_edges[::factor]
     centres = 0.5 * (bin_edges[:-1] + bin_edges[1:])
     fold = np.asarray(fold)
-    options = {"max_components": max_components, "criterion": criterion, "tolerance": tolerance, "seed": seed,
-               **SEARCH_FIT}
+    options = {"max_components": check_integer(max_components, "max_components", expected="an integer >= 1",
+                                                      condition=lambda n: n >= 1), "seed": seed, **SEARCH_FIT}
     record = []
-    best, best_score = None, -np.inf
+    best, best_score, best_components = None, -np.inf, None
     for stage in ("single", "pairs"):
         pair_with = None
         if stage == "pairs":
@@ -188,35 +200,48 @@ def choose_classes(values, errors, fold, *, bin_edges, max_classes, max_componen
             pair_with = best.features[0]
         for classes in candidate_classes(values, max_classes=int(max_classes), pair_with=pair_with):
             label = classes.assign(values, np.ones(errors.shape, bool))
-            score = _held_out_score(label, classes.n_classes, index, binned, fold, bin_edges, centres,
-                                    min_class_errors, options)
+            score, components = _held_out_score(label, classes.n_classes, index, binned, fold, bin_edges, centres,
+                                                min_class_errors, options)
             record.append({"features": list(classes.features),
                            "edges": [sorted({b for b in classes.upper[:, f] if np.isfinite(b)})
                                      for f in range(len(classes.features))],
-                           "n_classes": classes.n_classes, "nats_per_error": score})
+                           "n_classes": classes.n_classes, "nats_per_error": score, "components": components})
             if score is not None and score > best_score + 1e-12:
-                best, best_score = classes, score
+                best, best_score, best_components = classes, score, components
     if best is None:
         raise PrismapInputError(
             f"too few errors to compare error classes: each fold needs at least {min_class_errors} errors"
         )
     n_held_out = int(binned.sum())
+    plain_components = record[0]["components"]
     return best, {"plain_nats_per_error": record[0]["nats_per_error"], "conditioned_nats_per_error": best_score,
-                  "n_held_out_errors": n_held_out, "min_class_errors": int(min_class_errors), "candidates": record}
+                  "plain_components": None if plain_components is None else plain_components[0],
+                  "components": best_components, "n_held_out_errors": n_held_out,
+                  "min_class_errors": int(min_class_errors), "candidates": record}
 
 
 def _held_out_score(label, n_classes, index, binned, fold, bin_edges, centres, min_class_errors, options):
-    n_bins = centres.size
-    total, count = 0.0, 0
-    for test_fold in (0, 1):
-        for k in range(n_classes):
-            in_class = binned & (label == k)
+    """Nats per held-out error of one candidate and each class's G, or ``(None, None)``.
+
+    Per class, G = 1 .. ``max_components`` are fitted on each fold and scored on the other; the class's G is
+    the one with the highest held-out log-likelihood summed over both folds, and that sum is its score.
+    """
+    n_bins, max_components = centres.size, options["max_components"]
+    total, count, components = 0.0, 0, []
+    for k in range(n_classes):
+        in_class = binned & (label == k)
+        scores = np.zeros(max_components)
+        for test_fold in (0, 1):
             train = np.bincount(index[in_class & (fold != test_fold)], minlength=n_bins).astype(np.float64)
             test = np.bincount(index[in_class & (fold == test_fold)], minlength=n_bins)
             if train.sum() < min_class_errors:
-                return None
-            fits, selected = fit_class(train, bin_edges, **options)
+                return None, None
             occupied = np.flatnonzero(test)
-            total += float(test[occupied] @ fits[selected - 1].mixture.logpdf(centres[occupied]))
-            count += int(test.sum())
-    return total / count if count else None
+            fits = fit_mixtures(bin_edges, train, max_components=int(min(max_components, np.count_nonzero(train))),
+                                **SEARCH_FIT)
+            per_g = [float(test[occupied] @ fit.mixture.logpdf(centres[occupied])) for fit in fits]
+            scores += np.pad(per_g, (0, max_components - len(per_g)), constant_values=-np.inf)
+        components.append(int(np.argmax(scores)) + 1)
+        total += float(scores.max())
+        count += int(in_class.sum())
+    return (total / count, components) if count else (None, None)
