@@ -27,7 +27,12 @@ from prismap.characterise._histogram import (
 )
 from prismap.characterise._model import HELD_OUT, ErrorModel, format_table, write_error_model
 from prismap.characterise._sample import DEFAULT_MAX_SAMPLES, PixelSample, characterised_pixels
-from prismap.characterise._select import choose_classes, class_histograms, fit_class_histograms
+from prismap.characterise._select import (
+    choose_classes,
+    class_histograms,
+    fit_class_histograms,
+    outlier_component,
+)
 from prismap.errors import PrismapInputError
 from prismap.gmm import fit_mixtures, select_components
 from prismap.stereo._base import to_grey
@@ -283,8 +288,9 @@ def _fit(histogram, parts, conditioning, matcher, dataset, fit_options, passes):
             selected = min(record["plain_components"], len(fits))
             selection = {"criterion": HELD_OUT, "held_out": record["held_out"]}
         if classes is not None:
-            conditioning["class_models"] = fit_class_histograms(classes, parts, components=record["components"],
-                                                                **fit_options)
+            conditioning["class_models"] = fit_class_histograms(
+                classes, parts, components=record["components"],
+                outlier=outlier_component(fits[selected - 1].mixture), **fit_options)
     model = ErrorModel(
         matcher=matcher.name,
         matcher_params=matcher.params(),
