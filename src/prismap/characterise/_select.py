@@ -3,8 +3,10 @@
 Candidates are the plain model (one class) and quantile bins of one feature (2 .. ``max_classes`` bins);
 then grids of quantile bins of the best single feature and each other one (at most ``max_classes``
 cells), a greedy small tree. Each is scored by two-fold
-cross-validation: fit one mixture per class (EM, G by the criterion) on one fold, add up the
-log-density of the other fold's errors under its class's mixture, swap the folds. The score is nats per
+cross-validation: fit one mixture per class and G (EM) on one fold, mix in the outlier floor
+(:func:`outlier_component` of the fold's whole-image fit), add up the log-density of the other fold's
+errors under its class's mixture, swap the folds; each class's G is the one scoring best over both
+folds. The score is nats per
 held-out error; the candidate with the highest score wins, the plain model included, so conditioning
 is only chosen where it predicts unseen errors better. Quantile edges come from the features of all
 samples (no error enters them). Errors beyond the histogram's ``+-limit_px`` are left out of every
