@@ -103,13 +103,14 @@ def _samples(seed, n=60000):
 def test_held_out_selection_finds_the_informative_feature_and_em_recovers_each_class_mixture():
     values, errors, fold = _samples(0)
     edges = ErrorHistogram.empty().edges
-    classes, record = choose_classes(values, errors, fold, bin_edges=edges, max_classes=4, max_components=3,
-                                     criterion="bic", tolerance=0.002)
+    classes, record = choose_classes(values, errors, fold, bin_edges=edges, max_classes=4, max_components=3)
     assert classes.features == ("edge_distance_px",)
     assert record["conditioned_nats_per_error"] > record["plain_nats_per_error"] + 0.1
     assert record["candidates"][0]["features"] == [] and len(record["candidates"]) > 5
+    assert record["components"] == [2] * classes.n_classes  # held-out G finds the true 2 components per class
     models, histograms = fit_classes(classes, values, errors, bin_width=1 / 32, limit_px=256.0,
-                                     max_components=3, criterion="bic", tolerance=0.002)
+                                     max_components=3, criterion="bic", tolerance=0.002,
+                                     components=record["components"])
     label = classes.assign(values, np.ones(errors.size, bool))
     assert sum(h.n_errors for h in histograms) == errors.size
     for k, model in enumerate(models):
@@ -125,13 +126,36 @@ def test_held_out_selection_finds_the_informative_feature_and_em_recovers_each_c
         np.testing.assert_allclose(fitted.sigmas, truth.sigmas, rtol=0.08)
 
 
+def test_every_class_keeps_an_outlier_floor_fitted_to_its_gross_errors():
+    """A class without gross errors still gives one a bounded log-density; a class with them gets their weight."""
+    rng = np.random.default_rng(3)
+    n = 40000
+    values = {"edge_distance_px": rng.integers(0, 10, n).astype(float)}
+    wide = GaussianMixture.gaussian(12.0, 2.0)
+    near = values["edge_distance_px"] < 3
+    core = GaussianMixture.gaussian(0.15)
+    errors = np.where(near, core.with_component(0.05, 2.0, 12.0).sample(n, rng), core.sample(n, rng))
+    classes = ErrorClasses.from_edges(("edge_distance_px",), ([2.5],))
+    models, _ = fit_classes(classes, values, errors, bin_width=1 / 32, limit_px=256.0, max_components=1,
+                            criterion="bic", tolerance=0.01, outlier=wide)
+    bare, _ = fit_classes(classes, values, errors, bin_width=1 / 32, limit_px=256.0, max_components=1,
+                          criterion="bic", tolerance=0.01)
+    far = models[1]
+    # no gross error far from edges: the floor is the one pseudo-error's weight, about 1 / N
+    assert 0.5 / (~near).sum() < far.outlier["weight"] < 3.0 / (~near).sum()
+    assert far.mixture.logpdf(np.array([30.0]))[0] > np.log(0.5 / (~near).sum()) + wide.logpdf(np.array([30.0]))[0]
+    assert bare[1].mixture.logpdf(np.array([30.0]))[0] < -300  # without the floor: hundreds of nats
+    # near edges (held to G = 1 here) the one Gaussian widens to take some of the 5 % gross errors, the floor the rest
+    assert 0.01 < models[0].outlier["weight"] < 0.06
+
+
 def test_errors_independent_of_the_features_keep_the_plain_model():
     rng = np.random.default_rng(1)
     n = 40000
     values = {"texture": rng.uniform(0, 20, n)}
     errors = FAR_FROM_EDGE.sample(n, rng)
     classes, record = choose_classes(values, errors, rng.integers(0, 2, n), bin_edges=ErrorHistogram.empty().edges,
-                                     max_classes=3, max_components=2, criterion="bic", tolerance=0.01)
+                                     max_classes=3, max_components=2)
     assert classes.features == () and record["conditioned_nats_per_error"] == record["plain_nats_per_error"]
 
 
@@ -210,7 +234,7 @@ def _conditioned_model():
     values, errors, _ = _samples(2, n=20000)
     classes = ErrorClasses.from_edges(("edge_distance_px",), ([2.5],))
     models, _ = fit_classes(classes, values, errors, bin_width=1 / 32, limit_px=256.0, max_components=2,
-                            criterion="bic", tolerance=0.01)
+                            criterion="bic", tolerance=0.01, outlier=GaussianMixture.gaussian(4.0, -2.0))
     histogram = ErrorHistogram.from_errors(errors)
     fits = fit_mixtures(histogram.edges, histogram.counts, max_components=2)
     return ErrorModel("sgbm", {"block_size": 5}, "synthetic", 1 / 32, tuple(fits), 2, {"criterion": "bic"},
@@ -230,6 +254,9 @@ def test_version_2_round_trips_and_version_1_loads_as_one_class(tmp_path):
     assert loaded.n_classes == 2 and loaded.conditioned
     np.testing.assert_array_equal(loaded.classes.upper, model.classes.upper)
     assert [m.share for m in loaded.class_models] == [m.share for m in model.class_models]
+    for mine, theirs in zip(loaded.class_mixtures, model.class_mixtures):  # the outlier component included
+        assert mine.n_components == 3
+        np.testing.assert_array_equal(mine.weights, theirs.weights)
     v1 = {key: value for key, value in data.items() if key not in ("features", "classes", "class_selection")}
     v1["format_version"] = 1
     (tmp_path / "v1.json").write_text(json.dumps(v1))
@@ -262,6 +289,9 @@ def _deep(depth):
     (lambda d: d["classes"][0].update(selected_components=3), "no 3-component fit"),
     (lambda d: d["features"].update(names=["edge_distance_px", "colour"]), r"unknown feature\(s\) \['colour'\]"),
     (lambda d: d["classes"][0]["bounds"].update(edge_distance_px="low"), "must be \\[lower or null, upper or null\\]"),
+    (lambda d: d["classes"][0]["outlier"].update(weight=1.5), r"classes\[0\]: `outlier.weight` must be a finite number"),
+    (lambda d: d["classes"][1]["outlier"].update(sigma=0), r"classes\[1\]: `outlier.sigma` must be a finite number"),
+    (lambda d: d["classes"][1]["outlier"].pop("mean"), r"`outlier`: missing field\(s\) \['mean'\]"),
 ])
 def test_hostile_version_2_files_get_one_clear_error(tmp_path, edit, message):
     data = _conditioned_model().to_dict()

@@ -14,7 +14,7 @@ import pytest
 from prismap.camera import StereoCamera
 from prismap.characterise import PixelSample, characterise_matcher, choose_classes, compute_features
 from prismap.characterise._sample import characterised_pixels
-from prismap.characterise._select import fit_classes
+from prismap.characterise._select import fit_classes, outlier_component
 from prismap.errors import PrismapInputError
 from prismap.gmm import GaussianMixture
 from prismap.io import StereoFrame
@@ -143,9 +143,10 @@ def test_an_exhaustive_sample_gives_exactly_the_in_memory_model(frames):
     result = characterise_matcher(frames, SeededEdgeMatcher(), **OPTIONS)
     values, errors, fold = _in_memory(frames)
     classes, record = choose_classes(values, errors, fold, bin_edges=result.histogram.edges, max_classes=3,
-                                     max_components=3, criterion="bic", tolerance=0.01, seed=0)
+                                     max_components=3, seed=0)
     models, histograms = fit_classes(classes, values, errors, bin_width=1 / 32, limit_px=256.0, n_frames=N_FRAMES,
-                                     max_components=3, criterion="bic", tolerance=0.01)
+                                     max_components=3, criterion="bic", tolerance=0.01,
+                                     components=record["components"], outlier=outlier_component(result.mixture))
     model = result.model
     assert model.conditioned and model.classes.features == classes.features == ("edge_distance_px",)
     np.testing.assert_array_equal(model.classes.lower, classes.lower)

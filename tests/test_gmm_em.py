@@ -4,7 +4,15 @@ import numpy as np
 import pytest
 
 from prismap.errors import PrismapInputError
-from prismap.gmm import GaussianMixture, MixtureFit, fit_histogram, fit_mixture, fit_mixtures, select_components
+from prismap.gmm import (
+    GaussianMixture,
+    MixtureFit,
+    fit_histogram,
+    fit_mixture,
+    fit_mixtures,
+    fit_outlier_weight,
+    select_components,
+)
 from prismap.gmm._kernels import em_weighted, kmeans_plus_plus
 
 TRUTH = GaussianMixture([0.70, 0.25, 0.05], [0.10, -0.30, 2.00], [0.40, 1.50, 12.00])
@@ -182,3 +190,27 @@ def test_histogram_fits_never_go_below_the_bin_resolution():
     counts = np.array([0, 0, 0, 50, 0, 0, 40, 0], dtype=float)  # two spikes, one bin each
     fit = fit_histogram(edges, counts, n_components=2, min_sigma=1e-6)
     np.testing.assert_allclose(fit.mixture.sigmas, 0.5 / np.sqrt(12.0))
+
+
+def test_outlier_weight_recovers_a_known_contamination_and_floors_at_one_pseudo_error():
+    core, outlier = GaussianMixture.gaussian(0.2), GaussianMixture.gaussian(10.0, 5.0)
+    n = 200_000
+    edges, counts = _histogram(_sample_fast(core.with_component(0.02, 5.0, 10.0), n, seed=4))
+    assert fit_outlier_weight(core, outlier, edges, counts) == pytest.approx(0.02, rel=0.05)
+    edges, counts = _histogram(_sample_fast(core, n, seed=5))
+    # no outlier in the data: w ~ prior_count / N (the core's far tail adds a few per cent)
+    assert 1.0 / n < fit_outlier_weight(core, outlier, edges, counts) < 1.2 / n
+    assert 10.0 / n < fit_outlier_weight(core, outlier, edges, counts, prior_count=10.0) < 12.0 / n
+    with pytest.raises(PrismapInputError, match="`prior_count` must be"):
+        fit_outlier_weight(core, outlier, edges, counts, prior_count=0.0)
+    with pytest.raises(PrismapInputError, match="not all 0"):
+        fit_outlier_weight(core, outlier, edges, np.zeros_like(counts))
+
+
+def test_with_component_is_the_weighted_sum_of_the_two_densities():
+    mixture = GaussianMixture([0.7, 0.3], [0.0, 1.0], [0.5, 2.0])
+    mixed = mixture.with_component(0.1, 4.0, 8.0)
+    x = np.linspace(-30.0, 30.0, 61)
+    np.testing.assert_allclose(mixed.pdf(x), 0.9 * mixture.pdf(x) + 0.1 * GaussianMixture.gaussian(8.0, 4.0).pdf(x))
+    with pytest.raises(PrismapInputError, match=r"`weight` of the added component must lie in \[0, 1\); got 1.0"):
+        mixture.with_component(1.0, 0.0, 1.0)

@@ -7,7 +7,7 @@ Format (JSON, ``format_version`` 2)::
      "bin_width_px": 0.03125,
      "statistics": {"n_frames", "n_errors", "n_gt_valid", "n_outside_bins", "coverage", "bad_1px",
                     "bad_2px", "mean_abs_error_px"},
-     "selection": {"criterion": "bic", "tolerance_nats_per_error": 0.01},
+     "selection": {"criterion": "bic", "tolerance_nats_per_error": 0.01},  # or {"criterion": "held-out", "held_out": ...}
      "selected_components": 2,
      "models": [{"n_components": 1, "weights": [...], "means": [...], "sigmas": [...],
                  "log_likelihood": ..., "aic": ..., "bic": ..., "n_samples": ..., "n_iter": ...,
@@ -15,14 +15,17 @@ Format (JSON, ``format_version`` 2)::
      "features": {"names": ["edge_distance_px"], "units": {"edge_distance_px": "px"},
                   "edge_threshold_px": 1.0, "texture_window_px": 7},
      "classes": [{"bounds": {"edge_distance_px": [null, 2.0]}, "share": 0.12, "statistics": {...},
-                  "selected_components": 3, "models": [...as above...]}, ...],
+                  "selected_components": 3, "models": [...as above...],
+                  "outlier": {"weight": 1e-4, "mean": 6.8, "sigma": 15.6}}, ...],
      "class_selection": {"held_out": "...", "plain_nats_per_error": ..., "conditioned_nats_per_error": ...,
                          "candidates": [...]}}
 
 The top-level ``models`` / ``selected_components`` are the whole-image (plain) mixture: what version 1 held,
 what a plain sensor model uses, and the model of pixels outside every class (class -1). ``classes`` tile
 the space of the named features (see :class:`~prismap.characterise.ErrorClasses`; ``null`` is an infinite
-bound); each has its own fits over G, selected G, and share of the characterised pixels. A model without
+bound); each has its own fits over G, selected G, and share of the characterised pixels, and optionally an
+outlier component (the whole-image mixture's widest) mixed into its selected mixture with the given weight,
+so no class is certain never to fail grossly (:func:`prismap.gmm.fit_outlier_weight`). A model without
 features has one class equal to the plain model. A version-1 file loads as that one class.
 
 Means and sigmas are pixels; AIC and BIC use ``k = 3G - 1`` (see :class:`prismap.gmm.MixtureFit`).
@@ -50,6 +53,9 @@ MAX_COMPONENTS = 64
 MAX_CLASSES = 64
 _FIT_FIELDS = ("log_likelihood", "aic", "bic", "n_samples", "n_iter", "converged")
 _SHARE_TOLERANCE = 1e-6
+HELD_OUT = "held-out"
+"""``selection["criterion"]`` of a conditioned characterisation: every G (the whole image's and each class's)
+chosen by the log-likelihood of held-out errors, as the classes are (:func:`prismap.characterise.choose_classes`)."""
 
 
 def _find_fit(fits, n_components):
@@ -74,16 +80,21 @@ class ClassModel:
         Share of the characterised pixels (with a computed value and ground truth) in this class.
     statistics : dict
         As ``ErrorHistogram.statistics`` of the class's errors.
+    outlier : dict or None
+        ``{"weight", "mean", "sigma"}`` (pixels): a component mixed into the selected fit; None = none.
     """
 
     fits: tuple
     selected_components: int
     share: float = 1.0
     statistics: dict = field(default_factory=dict)
+    outlier: dict | None = None
 
     def __post_init__(self):
         object.__setattr__(self, "fits", tuple(sorted(self.fits, key=lambda fit: fit.n_components)))
         self.fit(self.selected_components)
+        if self.outlier is not None:
+            _ = self.mixture  # a bad outlier component fails here, not at first use
 
     def fit(self, n_components):
         """The :class:`MixtureFit` with ``n_components`` components."""
@@ -91,8 +102,11 @@ class ClassModel:
 
     @property
     def mixture(self):
-        """The selected :class:`GaussianMixture` (pixels)."""
-        return self.fit(self.selected_components).mixture
+        """The selected :class:`GaussianMixture` (pixels), with the outlier component if there is one."""
+        fitted = self.fit(self.selected_components).mixture
+        if self.outlier is None:
+            return fitted
+        return fitted.with_component(self.outlier["weight"], self.outlier["mean"], self.outlier["sigma"])
 
 
 @dataclass(frozen=True)
@@ -110,7 +124,8 @@ class ErrorModel:
         Whole-image fits, one per G, ascending.
     selected_components : int
     selection : dict
-        How G was selected: ``{"criterion": ..., "tolerance_nats_per_error": ...}``.
+        How G was selected: ``{"criterion": "bic" or "aic", "tolerance_nats_per_error": ...}`` (the smallest G
+        within the tolerance of the best criterion), or ``{"criterion": HELD_OUT, "held_out": ...}``.
     statistics : dict
         Coverage, bad-pixel rates, mean absolute error, counts (see ``ErrorHistogram.statistics``).
     classes : ErrorClasses or None
@@ -258,7 +273,8 @@ class ErrorModel:
                          **self.feature_settings},
             "classes": [
                 {"bounds": bounds, "share": model.share, "statistics": model.statistics,
-                 "selected_components": model.selected_components, "models": _fits_to_list(model.fits)}
+                 "selected_components": model.selected_components, "models": _fits_to_list(model.fits),
+                 **({} if model.outlier is None else {"outlier": model.outlier})}
                 for bounds, model in zip(self.classes.to_list(), self.class_models)
             ],
             "class_selection": self.class_selection,
@@ -391,8 +407,15 @@ def _classes_from_dict(data, source):
         selected = _integer(entry["selected_components"], f"{at}: `selected_components`", 1, MAX_COMPONENTS)
         share = _number(entry["share"], f"{at}: `share`", low=0.0, high=1.0)
         statistics = _object(entry.get("statistics", {}), f"{at}: `statistics`")
+        outlier = None
+        if "outlier" in entry:
+            outlier = _object(entry["outlier"], f"{at}: `outlier`")
+            _require(outlier, ("weight", "mean", "sigma"), f"{at}: `outlier`")
+            outlier = {"weight": _number(outlier["weight"], f"{at}: `outlier.weight`", low=0.0, high=0.999999),
+                       "mean": _number(outlier["mean"], f"{at}: `outlier.mean`"),
+                       "sigma": _number(outlier["sigma"], f"{at}: `outlier.sigma`", low=0.0, open_low=True)}
         try:
-            models.append(ClassModel(fits, selected, share, statistics))
+            models.append(ClassModel(fits, selected, share, statistics, outlier))
         except PrismapInputError as exc:
             raise PrismapInputError(f"{at}: {exc}") from None
     try:
@@ -503,9 +526,7 @@ def format_table(model):
          f"bad-2px {_percent(stats.get('bad_2px'))}, mean |e| {_decimal(stats.get('mean_abs_error_px'))} px; "
          f"histogram bin width {model.bin_width:g} px."),
         "",
-        (f"Selected G = {model.selected_components} (marked *): the smallest G whose "
-         f"{model.selection.get('criterion', 'bic').upper()} is within "
-         f"{model.selection.get('tolerance_nats_per_error', 0)} nats per error of the best. "
+        (f"Selected G = {model.selected_components} (marked *): " + _selection_rule(model.selection) + " "
          "AIC = 2k - 2 ln L and BIC = k ln N - 2 ln L with k = 3G - 1 (the thesis printed 2G as the AIC "
          f"penalty). Rows with G > 3 list only components with weight > {TABLE_MIN_WEIGHT}, as in the thesis."),
         "",
@@ -535,6 +556,15 @@ def format_table(model):
     return "\n".join(lines + ([""] + notes if notes else []) + _class_lines(model)) + "\n"
 
 
+def _selection_rule(selection):
+    """How G was selected, in words."""
+    if selection.get("criterion") == HELD_OUT:
+        return (f"the G with the highest log-likelihood of held-out errors ({selection.get('held_out', '?')}), "
+                "as for each class.")
+    return (f"the smallest G whose {selection.get('criterion', 'bic').upper()} is within "
+            f"{selection.get('tolerance_nats_per_error', 0)} nats per error of the best.")
+
+
 def _class_lines(model):
     """The per-class view: bounds, share, bad pixels and the selected mixture of each class."""
     record = model.class_selection
@@ -548,13 +578,17 @@ def _class_lines(model):
     if not model.conditioned:
         return lines + (["", "The plain model predicts held-out errors best: one class."] if record else [])
     units = {name: FEATURE_UNITS[name] for name in model.classes.features}
-    lines += ["", "Features: " + ", ".join(f"{name} ({unit})" for name, unit in units.items()) + ".", ""]
-    width = max(m.selected_components for m in model.class_models)
+    lines += ["", "Features: " + ", ".join(f"{name} ({unit})" for name, unit in units.items()) + "."
+              + (" G \"+ 1\": the whole-image mixture's widest component mixed in with weight w."
+                 if any(m.outlier is not None for m in model.class_models) else ""), ""]
+    width = max(m.mixture.n_components for m in model.class_models)
     header = ["class", "bounds", "share", "bad-2px", "G"] + [f"{s}{j + 1}" for j in range(width) for s in ("µ", "σ", "w")]
     lines += ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     for k, class_model in enumerate(model.class_models):
         cells = [str(k), _describe(model.classes, k), _percent(class_model.share),
-                 _percent(class_model.statistics.get("bad_2px")), str(class_model.selected_components)]
+                 _percent(class_model.statistics.get("bad_2px")),
+                 str(class_model.selected_components)
+                 + ("" if class_model.outlier is None else f" + 1 (w {class_model.outlier['weight']:.1e})")]
         for mu, sigma, weight in _components(class_model.mixture):
             cells += [f"{mu:.2f}", f"{sigma:.2f}", f"{weight:.2f}"]
         cells += [""] * (len(header) - len(cells))

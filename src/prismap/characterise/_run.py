@@ -25,9 +25,14 @@ from prismap.characterise._histogram import (
     DEFAULT_LIMIT_PX,
     ErrorHistogram,
 )
-from prismap.characterise._model import ErrorModel, format_table, write_error_model
+from prismap.characterise._model import HELD_OUT, ErrorModel, format_table, write_error_model
 from prismap.characterise._sample import DEFAULT_MAX_SAMPLES, PixelSample, characterised_pixels
-from prismap.characterise._select import choose_classes, class_histograms, fit_class_histograms
+from prismap.characterise._select import (
+    choose_classes,
+    class_histograms,
+    fit_class_histograms,
+    outlier_component,
+)
 from prismap.errors import PrismapInputError
 from prismap.gmm import fit_mixtures, select_components
 from prismap.stereo._base import to_grey
@@ -189,7 +194,9 @@ def characterise_matcher(frames, matcher, *, max_components=4, bin_width=DEFAULT
     dataset : str
         Name recorded in the error model.
     criterion, tolerance
-        Selection of G, see :func:`prismap.gmm.select_components`.
+        Selection of G of a plain characterisation (``conditioned=False``), see
+        :func:`prismap.gmm.select_components`. A conditioned one chooses every G, the whole image's and each
+        class's, by the held-out log-likelihood that chooses the classes (:func:`choose_classes`).
     restarts, seed
         EM starts, see :func:`prismap.gmm.fit_mixture`; ``seed`` also seeds the class-search sample.
     conditioned : bool
@@ -239,8 +246,7 @@ def characterise_matcher(frames, matcher, *, max_components=4, bin_width=DEFAULT
     values, errors, fold, held_out = sample.arrays()
     with passes.step(f"choose error classes on {sample.n_samples} of {sample.n_seen} pixels"):
         classes, record = choose_classes(values, errors, fold, bin_edges=histogram.edges, max_classes=max_classes,
-                                         max_components=max_components, criterion=criterion, tolerance=tolerance,
-                                         seed=seed)
+                                         max_components=max_components, seed=seed)
     record = {"held_out": held_out, "n_search_frames": len(search), "n_samples": sample.n_samples,
               "n_search_pixels": sample.n_seen, **record}
     conditioning = {"class_selection": record}
@@ -270,14 +276,21 @@ def _fit(histogram, parts, conditioning, matcher, dataset, fit_options, passes):
     """Fit the whole-image mixtures and, for a conditioned model, one per class; the :class:`Characterisation`."""
     _check_fittable(histogram)
     criterion, tolerance = fit_options["criterion"], fit_options["tolerance"]
-    classes = conditioning.get("classes")
+    classes, record = conditioning.get("classes"), conditioning.get("class_selection")
     n_fits = 1 + (classes.n_classes if classes is not None else 0)
     with passes.step(f"fit {n_fits} mixture(s) by EM, G = 1..{fit_options['max_components']}"):
         fits = fit_mixtures(histogram.edges, histogram.counts, max_components=fit_options["max_components"],
                             restarts=fit_options["restarts"], seed=fit_options["seed"])
-        selected = select_components(fits, criterion=criterion, tolerance=tolerance)
+        if record is None:
+            selected = select_components(fits, criterion=criterion, tolerance=tolerance)
+            selection = {"criterion": criterion, "tolerance_nats_per_error": float(tolerance)}
+        else:  # the class search chose G by held-out log-likelihood: the whole image's and each class's alike
+            selected = min(record["plain_components"], len(fits))
+            selection = {"criterion": HELD_OUT, "held_out": record["held_out"]}
         if classes is not None:
-            conditioning["class_models"] = fit_class_histograms(classes, parts, **fit_options)
+            conditioning["class_models"] = fit_class_histograms(
+                classes, parts, components=record["components"],
+                outlier=outlier_component(fits[selected - 1].mixture), **fit_options)
     model = ErrorModel(
         matcher=matcher.name,
         matcher_params=matcher.params(),
@@ -285,7 +298,7 @@ def _fit(histogram, parts, conditioning, matcher, dataset, fit_options, passes):
         bin_width=histogram.bin_width,
         fits=tuple(fits),
         selected_components=selected,
-        selection={"criterion": criterion, "tolerance_nats_per_error": float(tolerance)},
+        selection=selection,
         statistics=histogram.statistics(),
         **conditioning,
     )

@@ -43,9 +43,12 @@ def register(subparsers):
     parser.add_argument("--bin-width", type=float, default=1 / 32, metavar="PX",
                         help="histogram bin width in pixels (default 1/32)")
     parser.add_argument("--lr-check", action="store_true", help="invalidate pixels failing the left-right check")
-    parser.add_argument("--criterion", choices=("bic", "aic"), default="bic", help="selection criterion (default bic)")
+    parser.add_argument("--criterion", choices=("bic", "aic"), default="bic",
+                        help="selection criterion of G with --plain (default bic; a conditioned model chooses every G "
+                             "by held-out log-likelihood)")
     parser.add_argument("--tolerance", type=float, default=0.01, metavar="NATS",
-                        help="select the smallest G within this many nats per error of the best (default 0.01)")
+                        help="with --plain, select the smallest G within this many nats per error of the best "
+                             "(default 0.01)")
     parser.add_argument("--seed", type=seed, default=0, help="seed of the EM restarts (default 0)")
     parser.add_argument("--plain", dest="conditioned", action="store_false",
                         help="one whole-image mixture; default: classes of pixels by confidence features, chosen by "

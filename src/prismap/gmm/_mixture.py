@@ -113,6 +113,14 @@ class GaussianMixture:
         extra = float(extra_sigma)
         return GaussianMixture(self.weights, self.means, np.sqrt(self.sigmas**2 + extra**2))
 
+    def with_component(self, weight, mean, sigma):
+        """``(1 - weight) * self + weight * N(mean, sigma^2)`` (pixels): one more component, the others scaled."""
+        weight = float(weight)
+        if not 0.0 <= weight < 1.0:
+            raise PrismapInputError(f"`weight` of the added component must lie in [0, 1); got {weight!r}")
+        return GaussianMixture(np.append((1.0 - weight) * self.weights, weight), np.append(self.means, mean),
+                               np.append(self.sigmas, sigma))
+
     def to_dict(self):
         """Plain-JSON form: ``{"weights": [...], "means": [...], "sigmas": [...]}``."""
         return {"weights": self.weights.tolist(), "means": self.means.tolist(), "sigmas": self.sigmas.tolist()}
