@@ -11,7 +11,14 @@ from prismap._progress import progress
 from prismap._validate import check_integer, check_positive
 from prismap.errors import PrismapInputError
 from prismap.experiment._cells import ExperimentResult, claim_out_dir, draw_figures, run_cells
-from prismap.experiment._results import MODELS_3D, prior_of, split_variant, variant_params, write_results
+from prismap.experiment._results import (
+    MAP_PRIOR_SUFFIX,
+    MODELS_3D,
+    prior_of,
+    split_variant,
+    variant_params,
+    write_results,
+)
 from prismap.experiment._targets import format_targets, measure_targets
 
 MATCHERS = ("bm", "sgbm", "variational")
@@ -288,9 +295,11 @@ def run_rendered_world(world, out_dir, *, n_frames=None, voxel_size_m=None, seed
     models_note = ("Each matcher's PRISM, convolution and Andert models use the error model characterised on the "
                    "characterisation frames: \"plain\" its whole-image mixture for every pixel, \"conditioned\" the "
                    "mixture of each pixel's error class (from the features of the mapped frame's own disparity and "
-                   "image); \"map prior\": PRISM with each cell's prior the map's current probability of its voxel "
-                   "instead of p0 (`prior=\"map\"`, ray mode only), a variant of conditioned PRISM, so the targets do "
-                   "not count it as a rival; time = mapping wall time (PRISM's tables and the features included).")
+                   "image)"
+                   + ("; \"map prior\": PRISM with each cell's prior the map's current probability of its voxel "
+                      "instead of p0 (`prior=\"map\"`, ray mode only), a variant of conditioned PRISM, so the targets "
+                      "do not count it as a rival" if any(m.endswith(MAP_PRIOR_SUFFIX) for m in models) else "")
+                   + "; time = mapping wall time (PRISM's tables and the features included).")
     notes = (setup, f"p0 = {p0:.4f}: the occupancy ratio of the voxels a perfect sensor observed (the scored voxels). "
              f"PRISM's pass_through = {model_params['prism']['pass_through']:.4f}: how often the drive's "
              "characterisation frames' noise-free rays cross an occupied voxel before their surface (beyond its voxel overhang) "
