@@ -140,6 +140,41 @@ def test_table_with_a_broad_front_agrees_with_direct_within_stated_bound(voxel):
     assert np.sum(rows[4] - rows[3] > 10) >= 3  # the near measurements' tables have a broad back
 
 
+SGBM_LIKE = GaussianMixture([0.84, 0.10, 0.06], [0.01, -0.04, -10.4], [0.24, 0.92, 13.6])
+
+
+@pytest.mark.parametrize(
+    ("fb", "mixture", "voxel", "p0", "near"),
+    [
+        (KITTI_FB, STREET, 0.2, 0.05, 1.5),
+        (KITTI_FB, STREET, 0.1, 0.05, 1.5),
+        (FB, SGBM_LIKE, 0.1, 0.05, 0.5),
+        (FB, MIXTURE, 0.05, 0.1, 0.5),
+    ],
+)
+def test_table_within_stated_bound_at_the_rate_grids_half_steps(fb, mixture, voxel, p0, near):
+    """Rays half-way between two keys of the rate grid (``delta = +-_LAMBDA_STEP / 2``, the largest Taylor step
+    in log lambda) and cells of 0.5-15 cm tiling 2-80 m, the short ones far in front of the measurement
+    included (where ``C`` grows slowly, so a cell's share of it follows the derivative of the Taylor terms)."""
+    rng = np.random.default_rng(13)
+    disparity = np.round(fb / np.geomspace(2.0, 60.0, 7) * 16) / 16
+    half = (np.arange(4) + 0.5) * _prism._LAMBDA_STEP
+    log_norm = np.concatenate([half - 1e-6, half + 1e-6])  # either side: the tables of both neighbouring keys
+    disparity, norm = np.repeat(disparity, log_norm.size), np.tile(np.exp(log_norm), disparity.size)
+    rays, starts, ends = [], [], []
+    for r in range(disparity.size):
+        edges = 2.0 + np.concatenate([[0.0], np.cumsum(rng.uniform(0.005, 0.15, 1100))])
+        edges = edges[edges <= 80.0]
+        rays.append(np.full(edges.size - 1, r))
+        starts.append(edges[:-1])
+        ends.append(edges[1:])
+    model = make_sensor_model("prism", focal_baseline=fb, error_model=mixture, voxel_size_m=voxel, p0=p0, near_m=near)
+    _, delta, _, _ = model._tables_for(disparity, norm)
+    assert np.abs(delta).min() > 0.499 * _prism._LAMBDA_STEP
+    _assert_table_within_tolerance(model, disparity, norm, (np.concatenate(rays), np.concatenate(starts),
+                                                            np.concatenate(ends)), moderate_min=40_000, large_min=0)
+
+
 def test_broad_segments_are_where_the_narrower_components_are_negligible():
     e_front, e_back, ratio = _prism.broad_errors(STREET)
     assert ratio == int(_prism._WIDE_SIGMAS * 10.0 / (0.3 * _prism._TABLE_STEP))
@@ -154,9 +189,6 @@ def test_broad_segments_are_where_the_narrower_components_are_negligible():
     assert np.all(log_share(np.array([e_front - 0.05, e_back + 0.05])) > _prism._BROAD_SHARE)  # and not nearer
     assert _prism.broad_errors(GaussianMixture.gaussian(0.5)) == (np.inf, -np.inf, 1)
     assert _prism.broad_errors(GaussianMixture([0.5, 0.5], [0.0, 1.0], [1.0, 1.0]))[2] == 1
-
-
-SGBM_LIKE = GaussianMixture([0.84, 0.10, 0.06], [0.01, -0.04, -10.4], [0.24, 0.92, 13.6])
 
 
 @pytest.mark.parametrize(("fb", "mixture", "near", "steep"), [(KITTI_FB, STREET, 1.5, True), (FB, SGBM_LIKE, 0.9, False)])

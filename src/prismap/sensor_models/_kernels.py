@@ -458,13 +458,30 @@ def _rate_derivatives(log_m, log_far, lam, z_far):
     return first, second - first * first
 
 
+@nb.njit(cache=True, nogil=True)
+def _rate_columns(slope, first, second, z_1, z_2, lam_s):
+    """A node's three rate columns for ``log(Q/Z)`` (Q is C or D): its first log(lam)-derivative, that one's
+    x-derivative, and its second log(lam)-derivative.
+
+    ``first``, ``second`` are Q's own (:func:`_rate_derivatives`), ``z_1``, ``z_2`` Z's, ``slope`` is
+    ``d log Q/dx`` and ``lam_s = lam (z - z0)``. As ``dQ/dz = +-q g`` and ``d log(q g)/d log lam = 1 - lam s``
+    at fixed z, ``d first/dx = slope (1 - lam s - first)`` (Z's derivatives do not depend on z): the exact
+    slope, so that the first-order term is cubic Hermite in x like the value, and a short cell's share
+    ``C(c) - C(a)`` follows the rate where ``log C`` grows slowly (in front of the measurement), where the
+    secant slope of a linear interpolation is off by up to 25 % of it.
+    """
+    return first - z_1, slope * (1.0 - lam_s - first), second - z_2
+
+
 _STEEP = 0.02
 """Bound on ``|phi''| / phi'^2`` (``phi = log(q g)``), the relative error of the endpoint asymptotic of C that
 a table's coarse front uses."""
 
-TABLE_COLUMNS = 8
-"""Columns of a PRISM table node: log(C/Z), its x-derivative, its first and second log(lambda)-derivatives,
-then the same four for ``D = Z - C`` (64 bytes: one cache line)."""
+TABLE_COLUMNS = 10
+"""Columns of a PRISM table node: log(C/Z), its x-derivative, its first log(lambda)-derivative and that one's
+x-derivative, its second log(lambda)-derivative; then the same five for ``D = Z - C`` (from column
+:data:`_D_COLUMN`). 40 bytes in float32."""
+_D_COLUMN = TABLE_COLUMNS // 2
 
 
 @nb.njit(cache=True, nogil=True)
@@ -507,8 +524,9 @@ def prism_table(shift, lam, z0, z_max, fb, ku, h, log_far, log_eps_bound, lam_sl
     """The table of one (d^, lam): a node per march panel, every ``coarse_ratio``-th one where C/Z is tiny.
 
     Node columns (see :data:`TABLE_COLUMNS`): ``log(C/Z)``, ``d log(C/Z)/dx``, the first and second
-    derivatives of ``log(C/Z)`` in ``log lam`` (from the moments, :func:`_rate_derivatives`), and the same
-    four for ``D = Z - C``. Nodes are uniform in x on each of :data:`N_SEGMENTS` segments: spacing
+    derivatives of ``log(C/Z)`` in ``log lam`` (from the moments, :func:`_rate_derivatives`), the first one
+    followed by its x-derivative (:func:`_rate_columns`), and the same five for ``D = Z - C``. Nodes are uniform
+    in x on each of :data:`N_SEGMENTS` segments: spacing
     ``H = coarse_ratio h`` up to ``x_split``; ``H_wide = wide_ratio h`` over the broad front (true
     disparities above ``shift + e_front``); ``h``; ``H_wide`` over the broad back (below ``shift + e_back``),
     both only where an interval spans at most ``wide_efolds`` prior e-folds; ``h``; then, from a node past
@@ -523,7 +541,7 @@ def prism_table(shift, lam, z0, z_max, fb, ku, h, log_far, log_eps_bound, lam_sl
 
     Returns
     -------
-    nodes : (N, 8) float64
+    nodes : (N, TABLE_COLUMNS) float64
     meta : (3 N_SEGMENTS + 3,) float64
         Per segment its first x, its first row and its spacing; then ``z_end`` (last node), ``z_infl``,
         ``log Z``.
@@ -635,21 +653,20 @@ def prism_table(shift, lam, z0, z_max, fb, ku, h, log_far, log_eps_bound, lam_sl
             row_d[:] = log_d[i]
         log_qg = math.log(lam) - lam * (zi - z0) + log_likelihood(fb / zi, shift, log_wn, means, sigmas)
         dx_dz = lam + ku / (zi * zi)
+        lam_s = lam * (zi - z0)
         nodes[row, 0] = row_c[0] - log_z
         if row_c[0] == -np.inf:
-            nodes[row, 1] = nodes[row, 2] = nodes[row, 3] = 0.0
+            nodes[row, 1:_D_COLUMN] = 0.0
         else:
             nodes[row, 1] = slope_c if not math.isnan(slope_c) else math.exp(log_qg - row_c[0]) / dx_dz
             c_1, c_2 = _rate_derivatives(row_c, -np.inf, lam, z_far)
-            nodes[row, 2] = c_1 - z_1
-            nodes[row, 3] = c_2 - z_2
+            nodes[row, 2], nodes[row, 3], nodes[row, 4] = _rate_columns(nodes[row, 1], c_1, c_2, z_1, z_2, lam_s)
         d_1, d_2 = _rate_derivatives(row_d, log_far_w, lam, z_far)
-        nodes[row, 4] = row_d[0] - log_z
-        nodes[row, 5] = -math.exp(log_qg - row_d[0]) / dx_dz
-        nodes[row, 6] = d_1 - z_1
-        nodes[row, 7] = d_2 - z_2
-    nodes[0, 2] = nodes[1, 2]
-    nodes[0, 3] = nodes[1, 3]
+        nodes[row, _D_COLUMN] = row_d[0] - log_z
+        nodes[row, _D_COLUMN + 1] = -math.exp(log_qg - row_d[0]) / dx_dz
+        nodes[row, _D_COLUMN + 2], nodes[row, _D_COLUMN + 3], nodes[row, _D_COLUMN + 4] = _rate_columns(
+            nodes[row, _D_COLUMN + 1], d_1, d_2, z_1, z_2, lam_s)
+    nodes[0, 2:_D_COLUMN] = nodes[1, 2:_D_COLUMN]
     meta = np.empty(3 * N_SEGMENTS + 3)
     x_march = x_of_z(z[0], lam, ku)
     meta[0], meta[N_SEGMENTS], meta[2 * N_SEGMENTS] = x0, 0, h_coarse
@@ -837,15 +854,19 @@ def _locate(x, s, seg_x, seg_row, seg_inv, n_seg):
 def _interpolate(nodes, o, f, step, col, delta):
     """Column ``col`` at fraction ``f`` between rows ``o`` and ``o + 1``, for a rate ``e^delta`` times the table's.
 
-    Cubic Hermite in x with the x-derivative (column ``col + 1``), plus the second-order Taylor term in
-    ``log lambda`` (columns ``col + 2``, ``col + 3``), interpolated linearly in x.
+    The value plus the first-order Taylor term in ``log lambda`` (column ``col + 2``) at each node, cubic
+    Hermite in x with their x-derivatives (columns ``col + 1``, ``col + 3``), plus the second-order term
+    (column ``col + 4``), linear in x (its factor ``delta^2 / 2`` is at most 1/800 at a half step of the rate
+    grid).
     """
     g = 1.0 - f
-    taylor_0 = delta * (nodes[o, col + 2] + 0.5 * delta * nodes[o, col + 3])
-    taylor_1 = delta * (nodes[o + 1, col + 2] + 0.5 * delta * nodes[o + 1, col + 3])
-    return ((1.0 + 2.0 * f) * g * g * nodes[o, col] + f * g * g * step * nodes[o, col + 1]
-            + f * f * (3.0 - 2.0 * f) * nodes[o + 1, col] - f * f * g * step * nodes[o + 1, col + 1]
-            + g * taylor_0 + f * taylor_1)
+    half = 0.5 * delta
+    y_0 = nodes[o, col] + delta * nodes[o, col + 2]
+    y_1 = nodes[o + 1, col] + delta * nodes[o + 1, col + 2]
+    s_0 = nodes[o, col + 1] + delta * nodes[o, col + 3]
+    s_1 = nodes[o + 1, col + 1] + delta * nodes[o + 1, col + 3]
+    return ((1.0 + 2.0 * f) * g * g * y_0 + f * f * (3.0 - 2.0 * f) * y_1 + f * g * step * (g * s_0 - f * s_1)
+            + half * delta * (g * nodes[o, col + 4] + f * nodes[o + 1, col + 4]))
 
 
 @nb.njit(cache=True, nogil=True, inline="always", error_model="numpy")
@@ -892,6 +913,7 @@ def _log_c_first(z, steep, lam, ku, h, z0, fb, shift, log_wn, means, sigmas):
 
 
 _LOG_HALF = -0.6931471805599453
+_LOG_QUARTER = 2.0 * _LOG_HALF
 _SKIP = 4
 """``side`` flag of a cell the measurement does not change (empty, or beyond the influence depth)."""
 
@@ -908,7 +930,13 @@ def prism_table_lookup(lam, table, delta, ray_of_cell, start, end, stretch, lo, 
     ``l_a[j], l_c[j]`` (cell ``lo + j``) and ``side[j]`` (bit 0: ``l_a`` is D's, bit 1: ``l_c`` is D's, or
     :data:`_SKIP`: no change), and ``lam_len[j]``, the cell's prior rate times its length (of the part in
     ``[z0, z_max]``; a skipped cell's whole length). A cell starting where the previous one of the same ray ended reuses that
-    look-up (ray casting emits cells in order; with a stretch no start is a previous end). Cells starting
+    look-up (ray casting emits cells in order; with a stretch no start is a previous end). A cell across
+    ``C/Z = 1/2`` (``D`` the smaller at its end only) whose start has ``C/Z >= 1/4`` takes ``D`` at its start
+    too, so that its share ``C(c) - C(a) = D(a) - D(c)`` is a difference within one column: with the Taylor
+    terms in ``log lambda``, at a half step of the rate grid and where most of ``C`` lies many prior e-folds
+    before the measurement, the table's ``C/Z + D/Z`` misses 1 by up to 1e-3, as much as a short cell's share
+    there. A start with ``C/Z < 1/4`` keeps its ``C`` (accurate relative to itself, which a ``1 - D/Z`` is not
+    near 0): that cell's share is above 1/4, and the miss is small against it. Cells starting
     beyond the influence depth are skipped; for a cell ending beyond the table (where the remaining
     evidence is below e^-40 of C), ``D(c)`` is integrated on the spot.
     """
@@ -970,7 +998,7 @@ def prism_table_lookup(lam, table, delta, ray_of_cell, start, end, stretch, lo, 
             o = off + k
             a_is_d = 1
             if a >= z_half and k > 0:  # C is increasing: past a depth with C/Z >= 1/2, D is the smaller
-                l_a[j] = _interpolate(nodes, o, f, seg_h[s_a], 4, dl)
+                l_a[j] = _interpolate(nodes, o, f, seg_h[s_a], _D_COLUMN, dl)
             else:
                 if k == 0:  # first interval: log C is -inf at z0
                     lca = -np.inf
@@ -982,7 +1010,7 @@ def prism_table_lookup(lam, table, delta, ray_of_cell, start, end, stretch, lo, 
                     a_is_d = 0
                     l_a[j] = lca
                 else:
-                    l_a[j] = _interpolate(nodes, o, f, seg_h[s_a], 4, dl)
+                    l_a[j] = _interpolate(nodes, o, f, seg_h[s_a], _D_COLUMN, dl)
                     z_half = min(z_half, a)
         if c > z_end:
             lcc = log_tail(c, log_z, lam_t, ku, hq, z0, z_max, fb, shift, log_far, log_wn, means, sigmas) - log_z
@@ -992,7 +1020,7 @@ def prism_table_lookup(lam, table, delta, ray_of_cell, start, end, stretch, lo, 
             o = off + k
             c_is_d = 1
             if c >= z_half and k > 0:
-                lcc = _interpolate(nodes, o, f, seg_h[s_c], 4, dl)
+                lcc = _interpolate(nodes, o, f, seg_h[s_c], _D_COLUMN, dl)
             else:
                 if k == 0:
                     lcc = _log_c_first(c, steep, lam_t, ku, seg_h[s_c], z0, fb, shift, log_wn, means, sigmas) - log_z
@@ -1001,8 +1029,12 @@ def prism_table_lookup(lam, table, delta, ray_of_cell, start, end, stretch, lo, 
                 if lcc < _LOG_HALF:
                     c_is_d = 0
                 else:
-                    lcc = _interpolate(nodes, o, f, seg_h[s_c], 4, dl)
+                    lcc = _interpolate(nodes, o, f, seg_h[s_c], _D_COLUMN, dl)
                     z_half = min(z_half, c)
+        if c_is_d and not a_is_d and l_a[j] >= _LOG_QUARTER:  # across C/Z = 1/2: see the docstring
+            k, f, s_a = _locate(lam_t * a - ku / a, s_a, seg_x, seg_row, seg_inv, n_seg)
+            l_a[j] = _interpolate(nodes, off + k, f, seg_h[s_a], _D_COLUMN, dl)
+            a_is_d = 1
         l_c[j] = lcc
         side[j] = a_is_d + 2 * c_is_d
         c_prev = c
