@@ -194,7 +194,7 @@ class Integrator(ABC):
 
     def integrate(self, accumulator, batch, model):
         """Add the batch's (voxel, increment) pairs of ``model`` to ``accumulator`` (cleared by the caller)."""
-        if getattr(model, "takes_map_prior", False):
+        if model.takes_map_prior:
             if not self.whole_rays:
                 raise PrismapInputError(
                     f"sensor model {model.name!r} with the map as prior needs whole rays: use mode='ray' "
@@ -309,7 +309,7 @@ class RayIntegrator(Integrator):
             for model, chunk, *cast in chunks:
                 ray_of_cell, cell_index, t_in, t_out = _accumulator.cast_into(accumulator, origin, *cast, voxel)
                 if cell_index.size:
-                    prior = self.map_log_odds(cell_index) if getattr(model, "takes_map_prior", False) else None
+                    prior = self.map_log_odds(cell_index) if model.takes_map_prior else None
                     pending.append((cell_index, threads.submit(self.cell_increments, model, batch, chunk, ray_of_cell,
                                                                t_in, t_out, prior)))
                 while len(pending) > MODEL_THREADS:

@@ -221,7 +221,7 @@ class OccupancyMap:
         if reach <= 0:
             raise PrismapInputError(f"`origin_w` {batch.origin_w.tolist()} lies outside the map's key range "
                                     f"{key_range_text(self.voxel_size_m)}")
-        prior = self._map_log_odds if getattr(model, "takes_map_prior", False) else None
+        prior = self._map_log_odds if model.takes_map_prior else None
         integrator = make_integrator(mode, voxel_size_m=self.voxel_size_m, max_range_m=max_range, reach_m=reach,
                                      map_log_odds=prior)
         self._accumulator.clear()

@@ -226,12 +226,13 @@ def map_sequence(sequence, config, *, progress=True, checkpoint=None, checkpoint
     indices = config.frame_indices(len(sequence))
     check_key_reach(sequence, config, indices)
     DisparitySource(sequence, config)  # refuses a bad matcher, disparity directory or error model before any work
-    if client is not None and getattr(sensor_model_for(config, sequence.camera), "takes_map_prior", False):
+    map_prior = sensor_model_for(config, sequence.camera).takes_map_prior
+    if client is not None and map_prior:
         raise PrismapInputError(
             f"sensor model {config.model!r} with the map as prior (prior='map') weighs each frame against the map "
             "before it, so chunks mapped apart on Dask cannot be merged into that map: map sequentially (no client)"
         )
-    if config.mode != "ray" and getattr(sensor_model_for(config, sequence.camera), "takes_map_prior", False):
+    if config.mode != "ray" and map_prior:
         raise PrismapInputError(f"sensor model {config.model!r} with the map as prior (prior='map') needs whole rays: "
                                 f"mode 'ray', not {config.mode!r}")
     if checkpoint is None:
