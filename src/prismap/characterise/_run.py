@@ -37,7 +37,7 @@ from prismap.errors import PrismapInputError
 from prismap.gmm import fit_mixtures, select_components
 from prismap.stereo._base import to_grey
 
-DEFAULT_MAX_CLASSES = 12
+DEFAULT_MAX_CLASSES = 24
 """Most error classes of a conditioned model (the held-out log-likelihood still chooses fewer where they predict better)."""
 DEFAULT_SEARCH_FRAMES = 16
 """Frames, evenly spread over the selection, whose pixels the class search samples."""

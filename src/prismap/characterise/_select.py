@@ -1,8 +1,10 @@
 """Choosing error classes by the log-likelihood of held-out errors.
 
-Candidates are the plain model (one class) and quantile bins of one feature (2 .. ``max_classes`` bins);
-then grids of quantile bins of the best single feature and each other one (at most ``max_classes``
-cells), a greedy small tree. Each is scored by two-fold
+Candidates are the plain model (one class) and quantile bins of one feature; then grids of quantile
+bins of the best single feature and each other one (at most ``max_classes`` cells), a greedy small
+tree. The bin counts per feature are those of :func:`bin_counts`: every count up to 6, then steps of
+at most a third up to ``max_classes`` (8, 10, 12, 16, 20, 24, ...), so a bound of 24 costs about
+twice the candidates of every count up to 12, not five times. Each candidate is scored by two-fold
 cross-validation: fit one mixture per class and G (EM) on one fold, mix in the outlier floor
 (:func:`outlier_component` of the fold's whole-image fit), add up the log-density of the other fold's
 errors under its class's mixture, swap the folds; each class's G is the one scoring best over both
@@ -11,7 +13,8 @@ held-out error; the candidate with the highest score wins, the plain model inclu
 is only chosen where it predicts unseen errors better. Quantile edges come from the features of all
 samples (no error enters them). Errors beyond the histogram's ``+-limit_px`` are left out of every
 score, as they are of every fit. Scoring fits histograms of :data:`SEARCH_BIN_WIDTH_PX` bins (EM costs
-O(bins)); the held-out log-densities are those of bin centres, the same for every candidate.
+O(bins)) from one start (:data:`SEARCH_FIT`); the held-out log-densities are those of bin centres, the
+same for every candidate.
 """
 
 import dataclasses
@@ -27,7 +30,7 @@ from prismap.gmm import GaussianMixture, fit_mixtures, fit_outlier_weight, selec
 
 MIN_CLASS_ERRORS = 1000
 """Fewest errors a class may hold in a training fold (fewer: the candidate is not tried)."""
-SEARCH_FIT = {"restarts": 2, "tol": 1e-7, "max_iter": 300}
+SEARCH_FIT = {"restarts": 1, "tol": 1e-7, "max_iter": 300}
 """EM options while scoring candidates (the final fits use the caller's)."""
 SEARCH_BIN_WIDTH_PX = 0.125
 """Bins of the held-out scoring (a whole multiple of the histogram's bins); the final fits use the histogram's."""
@@ -39,39 +42,65 @@ def quantile_edges(values, n_bins):
     Each edge lies midway between the quantile (a value of the data) and the next smaller value, so
     no sample sits on an edge and float32 / float64 copies of one feature fall in the same bin.
     """
-    finite = np.unique(values[np.isfinite(values)])
-    if finite.size < 2:
-        return np.empty(0)
-    quantiles = np.unique(np.quantile(values[np.isfinite(values)], np.arange(1, n_bins) / n_bins,
-                                      method="inverted_cdf"))
-    position = np.searchsorted(finite, quantiles)
-    position = position[position > 0]
-    return np.unique(0.5 * (finite[position - 1] + finite[position]))
+    return _SortedFeature(values).edges(n_bins)
+
+
+class _SortedFeature:
+    """One feature's finite values sorted once, so that the quantile edges of any bin count cost O(bins)."""
+
+    def __init__(self, values):
+        values = np.asarray(values)
+        self.sorted = np.sort(values[np.isfinite(values)])
+        self.distinct = self.sorted[np.r_[True, self.sorted[1:] != self.sorted[:-1]]] if self.sorted.size else self.sorted
+
+    def edges(self, n_bins):
+        """As :func:`quantile_edges` (``np.quantile(method="inverted_cdf")`` picks ``sorted[ceil(p N) - 1]``)."""
+        if self.distinct.size < 2:
+            return np.empty(0)
+        n = self.sorted.size
+        probabilities = np.arange(1, n_bins) / n_bins
+        index = np.clip(np.ceil(probabilities * n).astype(np.int64) - 1, 0, n - 1)
+        quantiles = np.unique(self.sorted[index])
+        position = np.searchsorted(self.distinct, quantiles)
+        position = position[position > 0]
+        return np.unique(0.5 * (self.distinct[position - 1] + self.distinct[position]))
+
+
+def bin_counts(max_classes):
+    """Quantile bin counts the search tries per feature: every count up to 6, then 4, 5 or 6 times a power of two
+    (8, 10, 12, 16, 20, 24, 32, ...: steps of at most a third), and ``max_classes`` itself."""
+    ladder = {n for n in range(2, 7)} | {m << k for m in (4, 5, 6) for k in range(1, max(1, max_classes).bit_length())}
+    return sorted(n for n in ladder | {max_classes} if 2 <= n <= max_classes)
 
 
 def candidate_classes(values, *, max_classes, pair_with=None):
     """Candidate :class:`ErrorClasses` (duplicates and empty splits dropped).
 
-    ``pair_with=None``: the plain model and quantile bins of each feature (2 .. ``max_classes`` bins).
-    ``pair_with=name``: grids of quantile bins of ``name`` and each other feature, at most
-    ``max_classes`` cells.
+    ``pair_with=None``: the plain model and quantile bins of each feature (each of :func:`bin_counts`).
+    ``pair_with=name``: grids of quantile bins of ``name`` and each other feature (both counts of
+    :func:`bin_counts`), at most ``max_classes`` cells.
     """
-    names = list(values)
-    edges = {(name, n): tuple(quantile_edges(values[name], n)) for name in names for n in range(2, max_classes + 1)}
+    return [ErrorClasses.from_edges(features, edges) for features, edges in
+            _candidate_specs({name: _SortedFeature(v) for name, v in values.items()}, max_classes, pair_with)]
+
+
+def _candidate_specs(features, max_classes, pair_with):
+    """``(features, edges)`` of each candidate of :func:`candidate_classes` from :class:`_SortedFeature` s."""
+    names, counts = list(features), bin_counts(max_classes)
+    edges = {(name, n): tuple(float(x) for x in features[name].edges(n)) for name in names for n in counts}
     if pair_with is None:
-        specs = [((), ())] + [((name,), (edges[name, n],)) for name in names for n in range(2, max_classes + 1)]
+        specs = [((), ())] + [((name,), (edges[name, n],)) for name in names for n in counts]
     else:
         specs = [((pair_with, other), (edges[pair_with, n1], edges[other, n2]))
                  for other in names if other != pair_with
-                 for n1 in range(2, max_classes // 2 + 1) for n2 in range(2, max_classes // n1 + 1)]
-    seen, candidates = set(), []
-    for features, feature_edges in specs:
-        key = (features, feature_edges)
-        if key in seen or any(len(e) == 0 for e in feature_edges):
+                 for n1 in counts for n2 in counts if n1 * n2 <= max_classes]
+    seen, unique = set(), []
+    for spec in specs:
+        if spec in seen or any(len(e) == 0 for e in spec[1]):
             continue
-        seen.add(key)
-        candidates.append(ErrorClasses.from_edges(features, feature_edges))
-    return candidates
+        seen.add(spec)
+        unique.append(spec)
+    return unique
 
 
 def fit_class(counts, edges, *, max_components, criterion, tolerance, **em_options):
@@ -198,48 +227,45 @@ def choose_classes(values, errors, fold, *, bin_edges, max_classes, max_componen
     factor = max(1, round(SEARCH_BIN_WIDTH_PX / width))
     while (bin_edges.size - 1) % factor:
         factor -= 1
-    index //= factor
     bin_edges = bin_edges[::factor]
-    centres = 0.5 * (bin_edges[:-1] + bin_edges[1:])
     fold = np.asarray(fold)
     options = {"max_components": check_integer(max_components, "max_components", expected="an integer >= 1",
                                                       condition=lambda n: n >= 1), "seed": seed, **SEARCH_FIT}
+    search = _Search(values, binned, (fold[binned] != 0) * (bin_edges.size - 1) + index[binned] // factor, bin_edges,
+                     int(max_classes), int(min_class_errors), options)
     too_few = f"too few errors to compare error classes: each fold needs at least {min_class_errors} errors"
-    _, plain_components = _held_out_score(np.zeros(errors.shape, np.int32), 1, index, binned, fold, bin_edges,
-                                          centres, min_class_errors, options, None)
+    plain = search.histograms((), ())
+    _, plain_components = search.score(plain, None)
     if plain_components is None:
         raise PrismapInputError(too_few)
     outliers = {}
     for test_fold in (0, 1):
-        train = np.bincount(index[binned & (fold != test_fold)], minlength=centres.size).astype(np.float64)
-        fits = fit_mixtures(bin_edges, train, max_components=plain_components[0], seed=seed, **SEARCH_FIT)
+        fits = fit_mixtures(bin_edges, plain[0, 1 - test_fold], max_components=plain_components[0], seed=seed,
+                            **SEARCH_FIT)
         outliers[test_fold] = outlier_component(fits[-1].mixture)
     record = []
     best, best_score, best_components = None, -np.inf, None
     for stage in ("single", "pairs"):
         pair_with = None
         if stage == "pairs":
-            if best is None or not best.features:
+            if best is None or not best[0]:
                 break
-            pair_with = best.features[0]
-        for classes in candidate_classes(values, max_classes=int(max_classes), pair_with=pair_with):
-            label = classes.assign(values, np.ones(errors.shape, bool))
-            score, components = _held_out_score(label, classes.n_classes, index, binned, fold, bin_edges, centres,
-                                                min_class_errors, options, outliers)
-            record.append({"features": list(classes.features),
-                           "edges": [sorted({b for b in classes.upper[:, f] if np.isfinite(b)})
-                                     for f in range(len(classes.features))],
-                           "n_classes": classes.n_classes, "nats_per_error": score, "components": components})
+            pair_with = best[0][0]
+        for features, edges in _candidate_specs(search.features, int(max_classes), pair_with):
+            score, components = search.score(search.histograms(features, edges), outliers)
+            record.append({"features": list(features), "edges": [list(e) for e in edges],
+                           "n_classes": int(np.prod([len(e) + 1 for e in edges])), "nats_per_error": score,
+                           "components": components})
             if score is not None and score > best_score + 1e-12:
-                best, best_score, best_components = classes, score, components
+                best, best_score, best_components = (features, edges), score, components
     if best is None:
         raise PrismapInputError(too_few)
-    n_held_out = int(binned.sum())
     plain_components = record[0]["components"]
-    return best, {"plain_nats_per_error": record[0]["nats_per_error"], "conditioned_nats_per_error": best_score,
-                  "plain_components": None if plain_components is None else plain_components[0],
-                  "components": best_components, "n_held_out_errors": n_held_out,
-                  "min_class_errors": int(min_class_errors), "candidates": record}
+    return ErrorClasses.from_edges(*best), {
+        "plain_nats_per_error": record[0]["nats_per_error"], "conditioned_nats_per_error": best_score,
+        "plain_components": None if plain_components is None else plain_components[0],
+        "components": best_components, "n_held_out_errors": int(binned.sum()),
+        "min_class_errors": int(min_class_errors), "candidates": record}
 
 
 def outlier_component(mixture):
@@ -248,35 +274,65 @@ def outlier_component(mixture):
     return GaussianMixture.gaussian(mixture.sigmas[j], mixture.means[j])
 
 
-def _held_out_score(label, n_classes, index, binned, fold, bin_edges, centres, min_class_errors, options, outliers):
-    """Nats per held-out error of one candidate and each class's G, or ``(None, None)``.
+class _Search:
+    """The binned held-out errors of the class search and the candidates' class histograms and scores.
 
-    Per class, G = 1 .. ``max_components`` are fitted on each fold and scored on the other (with
-    ``outliers[test_fold]`` mixed in, unless ``outliers`` is None); the class's G is the one with the
-    highest held-out log-likelihood summed over both folds, and that sum is its score.
+    Each feature's values are sorted once (:class:`_SortedFeature`) and each pixel's interval between all
+    of the feature's candidate edges found once, so a candidate's class of every pixel is one table look-up
+    per feature and its histograms one ``bincount``.
     """
-    n_bins, max_components = centres.size, options["max_components"]
-    total, count, components = 0.0, 0, []
-    for k in range(n_classes):
-        in_class = binned & (label == k)
-        scores = np.zeros(max_components)
-        for test_fold in (0, 1):
-            train = np.bincount(index[in_class & (fold != test_fold)], minlength=n_bins).astype(np.float64)
-            test = np.bincount(index[in_class & (fold == test_fold)], minlength=n_bins)
-            if train.sum() < min_class_errors:
-                return None, None
-            occupied = np.flatnonzero(test)
-            fits = fit_mixtures(bin_edges, train, max_components=int(min(max_components, np.count_nonzero(train))),
-                                seed=options["seed"], **SEARCH_FIT)
-            mixtures = [fit.mixture for fit in fits]
-            if outliers is not None:
-                mixtures = [_with_outlier(m, outliers[test_fold], bin_edges, train) for m in mixtures]
-            per_g = [float(test[occupied] @ m.logpdf(centres[occupied])) for m in mixtures]
-            scores += np.pad(per_g, (0, max_components - len(per_g)), constant_values=-np.inf)
-        components.append(int(np.argmax(scores)) + 1)
-        total += float(scores.max())
-        count += int(in_class.sum())
-    return (total / count, components) if count else (None, None)
+
+    def __init__(self, values, binned, fold_bin, bin_edges, max_classes, min_class_errors, options):
+        self.features = {name: _SortedFeature(v) for name, v in values.items()}
+        self.cuts, self.interval = {}, {}
+        for name, feature in self.features.items():
+            # every edge any candidate puts on this feature; a pixel's interval between them, found once
+            self.cuts[name] = np.unique(np.concatenate([feature.edges(n) for n in bin_counts(max_classes)] + [[]]))
+            self.interval[name] = np.searchsorted(self.cuts[name], np.asarray(values[name])[binned], side="right").astype(
+                np.min_scalar_type(self.cuts[name].size))
+        self.fold_bin = fold_bin  # (fold != 0) * bins + search bin, of each binned error
+        self.bin_edges, self.centres = bin_edges, 0.5 * (bin_edges[:-1] + bin_edges[1:])
+        self.min_class_errors, self.options = min_class_errors, options
+
+    def histograms(self, features, edges):
+        """(K, 2, bins) float64: each class's (row-major, as :meth:`ErrorClasses.from_edges`) errors per fold."""
+        label = np.zeros(self.fold_bin.shape, np.int64)
+        for name, interior in zip(features, edges):
+            # the bin of the interval below cut i is the number of edges <= cut i - 1 (-inf for interval 0)
+            lookup = np.searchsorted(np.asarray(interior), np.concatenate(([-np.inf], self.cuts[name])), side="right")
+            label = label * (len(interior) + 1) + lookup[self.interval[name]]
+        n_classes, n_bins = int(np.prod([len(e) + 1 for e in edges])), self.centres.size
+        counts = np.bincount(label * (2 * n_bins) + self.fold_bin, minlength=n_classes * 2 * n_bins)
+        return counts.reshape(n_classes, 2, n_bins).astype(np.float64)
+
+    def score(self, histograms, outliers):
+        """Nats per held-out error of one candidate and each class's G, or ``(None, None)``.
+
+        Per class, G = 1 .. ``max_components`` are fitted on each fold and scored on the other (with
+        ``outliers[test_fold]`` mixed in, unless ``outliers`` is None); the class's G is the one with the
+        highest held-out log-likelihood summed over both folds, and that sum is its score.
+        """
+        max_components = self.options["max_components"]
+        if (histograms.sum(axis=2) < self.min_class_errors).any():
+            return None, None
+        total, components = 0.0, []
+        for k in range(histograms.shape[0]):
+            scores = np.zeros(max_components)
+            for test_fold in (0, 1):
+                train, test = histograms[k, 1 - test_fold], histograms[k, test_fold]
+                occupied = np.flatnonzero(test)
+                fits = fit_mixtures(self.bin_edges, train,
+                                    max_components=int(min(max_components, np.count_nonzero(train))),
+                                    seed=self.options["seed"], **SEARCH_FIT)
+                mixtures = [fit.mixture for fit in fits]
+                if outliers is not None:
+                    mixtures = [_with_outlier(m, outliers[test_fold], self.bin_edges, train) for m in mixtures]
+                per_g = [float(test[occupied] @ m.logpdf(self.centres[occupied])) for m in mixtures]
+                scores += np.pad(per_g, (0, max_components - len(per_g)), constant_values=-np.inf)
+            components.append(int(np.argmax(scores)) + 1)
+            total += float(scores.max())
+        count = histograms.sum()
+        return (float(total / count), components) if count else (None, None)
 
 
 def _with_outlier(mixture, outlier, bin_edges, counts):

@@ -54,7 +54,7 @@ def register(subparsers):
                         help="one whole-image mixture; default: classes of pixels by confidence features, chosen by "
                              "held-out log-likelihood (the plain model is one candidate), one mixture per class")
     parser.add_argument("--max-classes", type=int, metavar="K",
-                        help="most error classes of a conditioned model (default 12)")
+                        help="most error classes of a conditioned model (default 24)")
     parser.add_argument("--search-frames", type=int, metavar="N",
                         help="frames, evenly spread, whose pixels the class search samples; every frame fills the "
                              "class histograms (default 16)")
