@@ -64,6 +64,15 @@ def test_prism_passes_through_at_the_ratio_of_the_characterisation_frames(scene)
     assert f"pass_through = {ratio:.4f}" in (out / "results.md").read_text()
 
 
+def test_prism_solid_depth_is_measured_on_the_characterisation_frames(scene):
+    out, result = scene
+    derived = {c.settings["derived_model_params"]["prism"]["solid_depth_m"] for c in result.cells}
+    assert len(derived) == 1
+    depth = derived.pop()
+    assert 0.15 < depth < 0.8  # walls, floor and ceiling are 0.2 m thick (more along oblique rays), boxes thicker
+    assert f"solid_depth_m = {depth:.3f} m" in (out / "results.md").read_text()
+
+
 @pytest.mark.parametrize(
     "kwargs, message",
     [({"n_frames": 1}, "`n_frames` must be an integer >= 2"), ({"matchers": ("sad",)}, "subset of"),

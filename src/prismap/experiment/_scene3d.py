@@ -19,6 +19,7 @@ from prismap.experiment._results import (
     variant_params,
     write_results,
 )
+from prismap.experiment._solid import SOLID_DEPTH_QUANTILE, measured_solid_depth
 from prismap.experiment._targets import format_targets, measure_targets
 
 MATCHERS = ("bm", "sgbm", "variational")
@@ -266,7 +267,7 @@ def run_rendered_world(world, out_dir, *, n_frames=None, voxel_size_m=None, seed
     truth = sequence.ground_truth
     p0 = prior_of(truth)
     largest = max(float(np.nanmax(f.disparity_gt)) for f in frames)
-    model_params = _with_pass_through(settings, scene, drive_char_frames)
+    model_params = _derived_model_params(settings, scene, drive_char_frames)
     cell_settings = dict(settings, derived_model_params=model_params)
 
     results, artifacts, error_models, mapped_likelihoods = [], [], {}, {}
@@ -303,7 +304,9 @@ def run_rendered_world(world, out_dir, *, n_frames=None, voxel_size_m=None, seed
     notes = (setup, f"p0 = {p0:.4f}: the occupancy ratio of the voxels a perfect sensor observed (the scored voxels). "
              f"PRISM's pass_through = {model_params['prism']['pass_through']:.4f}: how often the drive's "
              "characterisation frames' noise-free rays cross an occupied voxel before their surface (beyond its voxel overhang) "
-             "without stopping (`Scene3D.pass_through_ratio`).",
+             "without stopping (`Scene3D.pass_through_ratio`). "
+             f"PRISM's solid_depth_m = {model_params['prism']['solid_depth_m']:.3f} m: the depth of solid behind "
+             f"all but {SOLID_DEPTH_QUANTILE:.0%} of those rays' hits (`experiment.measured_solid_depth`).",
              models_note, _classes_note(error_models, mapped_likelihoods))
     targets = measure_targets(world, results, error_models, mapped_likelihoods)
     paths = write_results(results, out, title=spec.title, notes=notes, settings=settings,
@@ -414,14 +417,19 @@ def _match(out_dir, frames, matcher):
     return out_dir
 
 
-def _with_pass_through(settings, scene, char_frames):
-    """The run's model parameters, PRISM's ``pass_through`` measured on ``char_frames`` unless the settings set it."""
+def _derived_model_params(settings, scene, char_frames):
+    """The run's model parameters, PRISM's ``pass_through`` and ``solid_depth_m`` measured on ``char_frames``
+    unless the settings set them."""
     params = {name: dict(values) for name, values in settings["model_params"].items()}
     prism = params.setdefault("prism", {})
     if "pass_through" not in prism:
         prism["pass_through"] = scene.pass_through_ratio(char_frames, settings["voxel_size_m"],
                                                          max_depth_m=settings["max_range_m"],
                                                          subsample=settings["subsample"])
+    if "solid_depth_m" not in prism:
+        prism["solid_depth_m"] = measured_solid_depth(scene.box_lo, scene.box_hi, char_frames, settings["voxel_size_m"],
+                                                      max_depth_m=settings["max_range_m"],
+                                                      subsample=settings["subsample"])
     return params
 
 
@@ -438,8 +446,10 @@ def _mapper(sequence, disparity_dir, matcher_name, error_model, p0, model_params
 
     def build_map(cell_model):
         model_name, conditioned = split_variant(cell_model)
-        config = MappingConfig(model=model_name, model_params={**model_params.get(model_name, {}),
-                                                               **variant_params(cell_model)},
+        params = {**model_params.get(model_name, {}), **variant_params(cell_model)}
+        if params.get("prior") == "map":  # PRISM's solid depth is a p0-prior model only
+            params.pop("solid_depth_m", None)
+        config = MappingConfig(model=model_name, model_params=params,
                                voxel_size_m=settings["voxel_size_m"], p0=p0, error_model=error_model,
                                conditioned=None if conditioned else False, matcher=matcher_name,
                                disparity_source=str(Path(disparity_dir).resolve()),

@@ -137,6 +137,10 @@ PASS_THROUGH = 0.0
 """PRISM's default chance that a ray crosses an occupied cell without meeting its surface (0: every occupied
 cell stops the ray, the model of SENSOR_MODELS.md)."""
 
+SOLID_DEPTH_M = 0.0
+"""PRISM's default depth of solid behind every first surface (metres along the ray; 0: a surface is a sheet,
+the model of SENSOR_MODELS.md)."""
+
 OVERHANG_FRACTION = 0.25
 """PRISM's default share of the voxel overhang bound counted as occupied. Half the bound is its mean over
 plane positions; but a plane through voxel centres then puts the voxel just in front of it exactly on the
@@ -215,6 +219,13 @@ class PrismModel(RayModel):
         of a solid: a table's edge, a pole's side). Each cell's likelihood ratio ``R`` becomes
         ``m + (1 - m) R``, so one ray's free evidence is at most ``-log m``; measure it from a ground truth
         with :meth:`prismap.sim.Scene3D.pass_through_ratio` (docs/SENSOR_MODELS.md, "Pass-through").
+    solid_depth_m : float >= 0, metres along the ray, default :data:`SOLID_DEPTH_M`
+        Surfaces are the faces of solids: behind the first surface the ray stays inside a solid for at least
+        this distance, and a voxel holding any part of a solid is occupied. The cell ``[a, c']`` is then
+        occupied when a surface lies in ``[a - solid_depth_m / |r|, c']`` (clipped at ``near_m``), which is the
+        formula above on that stretch, with that stretch's prior in the increment. Measure it from a ground
+        truth (``prismap.experiment``: the depth of solid behind 90 % of the noise-free rays' hits;
+        docs/SENSOR_MODELS.md, "Solid depth"). Not with ``prior="map"``.
     prior : {"p0", "map"}, default "p0"
         The prior of the cells of a ray. ``"p0"``: every cell at ``p0`` (the formula above, by ``method``).
         ``"map"``: each cell at the map's current probability of its voxel (Kaufman et al. 2016; the
@@ -238,6 +249,7 @@ class PrismModel(RayModel):
     overhang_fraction: float = OVERHANG_FRACTION
     pass_through: float = PASS_THROUGH
     prior: str = "p0"
+    solid_depth_m: float = SOLID_DEPTH_M
     _cache: "_TableCache" = field(default=None, init=False, repr=False, compare=False)
     _widened: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
@@ -262,6 +274,10 @@ class PrismModel(RayModel):
         object.__setattr__(self, "pass_through", _share(self.pass_through, "pass_through", one=False))
         if self.prior not in PRIORS:
             raise PrismapInputError(f"prism: `prior` must be one of {list(PRIORS)}; got {self.prior!r}")
+        solid = check_real(self.solid_depth_m, "solid_depth_m", minimum=0.0)
+        if solid > 0 and self.prior == "map":
+            raise PrismapInputError(f"prism: `solid_depth_m` ({solid:g} m) works with prior='p0' only; got prior='map'")
+        object.__setattr__(self, "solid_depth_m", solid)
         if self.table_memory_mb is None:
             budget = None
         else:
@@ -338,6 +354,8 @@ class PrismModel(RayModel):
                 raise PrismapInputError(f"prism: `voxel_overhang_m` must be >= 0; got minimum {overhang.min()!r}")
             stretch = self.overhang_fraction * overhang / norm
         lam = self.rate_per_m * norm
+        if self.solid_depth_m > 0:  # the stretch [a - solid / |r|, c'] (cells already before near_m stay as they are)
+            start = np.minimum(start, np.maximum(start - self.solid_depth_m / norm[rays], self.near_m))
         if self.prior == "map":
             return self._map_prior_cells(lam, disparity, norm, rays, start, end, stretch, map_log_odds)
         if map_log_odds is not None:
@@ -359,12 +377,16 @@ class PrismModel(RayModel):
         """Depth beyond which every cell's ``|logit(P) - logit(p_c)| < influence_epsilon`` (metres), per ray.
 
         From the bound ``|increment(a)| <= log(1 + e^{-lambda (a - z0)} sup_{t >= a} g(t) / C(a))``, which
-        holds for a cell of any length starting at ``a``; capped at ``far_depth_m``.
+        holds for a cell of any length starting at ``a``; a cell's evaluated stretch starts ``solid_depth_m / |r|``
+        before it, so the depth moves back by that much; capped at ``far_depth_m``.
         """
         disparity = as_float_array(disparity_px, "disparity_px", ndim=1, allow_nan=False)
         norm = as_float_array(ray_norm, "ray_norm", shape=(disparity.size,))
         table, _, meta, _ = self._tables_for(disparity, norm)
-        return meta[table, _kernels.META_COLUMNS.index("z_infl")]
+        depth = meta[table, _kernels.META_COLUMNS.index("z_infl")]
+        if self.solid_depth_m > 0:
+            depth = np.minimum(depth + self.solid_depth_m / norm, self.far_depth_m)
+        return depth
 
     def with_extra_noise(self, sigma_px):
         """A copy whose error model is ``error_model.widened(sigma_px)``.
