@@ -142,35 +142,53 @@ def timed_run(sequence, config, *, look_ahead=True):
     clock.wrap(prismap.grid._kernels_project, "project_cells", "casting")
     clock.wrap(prismap.grid._kernels_project, "project_hit_miss", "casting")
     clock.wrap(prismap.grid._kernels_accumulate, "apply_frame", "merge")
+    source_call = prismap.pipeline._run.DisparitySource.__call__
+    disparity_cpu = [0.0]
+
+    def timed_source(self, index):  # CPU of the thread that computes the frame's disparity
+        start = time.thread_time()
+        try:
+            return source_call(self, index)
+        finally:
+            disparity_cpu[0] += time.thread_time() - start
+
+    clock.replace(prismap.pipeline._run.DisparitySource, "__call__", timed_source)
     try:
-        start, cpu = time.perf_counter(), time.process_time()
+        start, cpu, main_cpu = time.perf_counter(), time.process_time(), time.thread_time()
         map_sequence(sequence, config, progress=False)
-        wall, cpu = time.perf_counter() - start, time.process_time() - cpu
+        wall, cpu, main_cpu = time.perf_counter() - start, time.process_time() - cpu, time.thread_time() - main_cpu
     finally:
         prismap.pipeline._run.sensor_model_for = model_for
         clock.restore()
     stages = {name: clock.seconds.get(name, 0.0) for name in ("matching", "casting", "merge")}
     stages["model"] = sum(t.seconds for t in timers)
     stages["rays and rest"] = max(wall - sum(stages.values()), 0.0)
-    return wall, cpu, stages
+    main_cpu -= 0.0 if look_ahead else disparity_cpu[0]
+    threads = {"disparity": disparity_cpu[0], "integration": main_cpu, "workers": cpu - main_cpu - disparity_cpu[0]}
+    return wall, cpu, stages, threads
 
 
 def stages(sequence, config, n_frames, repeat):
     """Print cold and warm frames per second with the share of each stage (warm, median over repeats), then
     the same warm runs without the look-ahead, alternating with runs with it."""
-    cold, _, _ = timed_run(sequence, config)
+    cold = timed_run(sequence, config)[0]
     runs, inline = [], []
     for _ in range(repeat):
         runs.append(timed_run(sequence, config))
         inline.append(timed_run(sequence, config, look_ahead=False))
-    wall = statistics.median(w for w, _, _ in runs)
-    share = {name: statistics.median(s[name] for _, _, s in runs) / wall for name in runs[0][2]}
+    wall = statistics.median(run[0] for run in runs)
+    share = {name: statistics.median(run[2][name] for run in runs) / wall for name in runs[0][2]}
     print(f"{config.mode:<10} cold {n_frames / cold:5.2f} fps, warm {n_frames / wall:5.2f} fps "
           f"({wall / n_frames * 1e3:.0f} ms/frame, CPU {_median_ms(runs, 1, n_frames):.0f} ms/frame): "
           + ", ".join(f"{k} {v:.1%}" for k, v in share.items()))
-    wall_inline = statistics.median(w for w, _, _ in inline)
+    wall_inline = statistics.median(run[0] for run in inline)
     print(f"{'':<10} frame by frame (no look-ahead) warm {n_frames / wall_inline:5.2f} fps ({wall_inline / n_frames * 1e3:.0f} "
           f"ms/frame, CPU {_median_ms(inline, 1, n_frames):.0f} ms/frame): the look-ahead x{wall_inline / wall:.2f}")
+    threads = {name: statistics.median(run[3][name] for run in runs) / n_frames for name in runs[0][3]}
+    bound = min(1.0 / threads["disparity"], 1.0 / threads["integration"], 2.0 / sum(threads.values()))
+    print(f"{'':<10} CPU per frame with the look-ahead: disparity thread {threads['disparity'] * 1e3:.0f} ms, integration "
+          f"thread {threads['integration'] * 1e3:.0f} ms, its workers {threads['workers'] * 1e3:.0f} ms: on 2 idle cores "
+          f"at most {bound:.2f} fps (the busiest thread, or the total over 2 cores)")
     return _median_ms(runs, 1, n_frames)
 
 
