@@ -15,8 +15,13 @@ and rays and the rest (what is left of the frame). Stage seconds add up over thr
 in two threads while the next chunk is cast, in projective mode on one part of the walk while the next is walked,
 so the shares may add up past 100 % of the wall time (then "rays and rest" is 0). ``cold`` is the first run in
 this process (numba caches loaded, PRISM's tables built), ``warm`` the median of --repeat more runs (the
-pipeline keeps the model, so its tables, between runs of one config). The floor is SGBM's ``compute`` alone
-on the same frames (warm, median of --repeat).
+pipeline keeps the model, so its tables, between runs of one config). The pipeline computes the next frame's
+disparity in a background thread while it integrates this one (``pipeline._prefetch.Prefetch``), so matching
+overlaps the other stages; a second line gives warm runs without that look-ahead (each frame's disparity computed
+when the loop reaches it), alternating with the runs with it, and a third the CPU per frame of the disparity
+thread, of the integration thread and of its workers, and the frame rate they allow on 2 idle cores (the
+busiest thread's, or the total CPU over 2 cores). The floor is SGBM's ``compute`` alone on the same frames (warm,
+median of --repeat). The load average is printed before and after (the machine is shared).
 
 Dask (``--dask``): sequential, and on local Dask clusters of 1 and 2 worker processes. Two timings per
 set-up: ``cli`` is the whole ``prismap map`` command (in this process, including starting and stopping the
@@ -24,7 +29,8 @@ local cluster and writing the map file), ``warm`` is :func:`prismap.pipeline.map
 running cluster whose workers have mapped the sequence once (imports and numba caches loaded). Ratios are
 against the sequential run of the same kind.
 
-Run: ``.venv/bin/python benchmarks/bench_pipeline.py [--frames N] [--width W] [--model NAME] [--dask]``. On a 2-core
+Run: ``.venv/bin/python benchmarks/bench_pipeline.py [--frames N] [--width W] [--model NAME] [--modes ray projective]
+[--cv-threads N] [--dask]``. On a 2-core
 machine 2 workers can at best double the throughput; the merge of chunk maps runs in the client.
 """
 
