@@ -15,8 +15,13 @@ and rays and the rest (what is left of the frame). Stage seconds add up over thr
 in two threads while the next chunk is cast, in projective mode on one part of the walk while the next is walked,
 so the shares may add up past 100 % of the wall time (then "rays and rest" is 0). ``cold`` is the first run in
 this process (numba caches loaded, PRISM's tables built), ``warm`` the median of --repeat more runs (the
-pipeline keeps the model, so its tables, between runs of one config). The floor is SGBM's ``compute`` alone
-on the same frames (warm, median of --repeat).
+pipeline keeps the model, so its tables, between runs of one config). The pipeline computes the next frame's
+disparity in a background thread while it integrates this one (``pipeline._prefetch.Prefetch``), so matching
+overlaps the other stages; a second line gives warm runs without that look-ahead (each frame's disparity computed
+when the loop reaches it), alternating with the runs with it, and a third the CPU per frame of the disparity
+thread, of the integration thread and of its workers, and the frame rate they allow on 2 idle cores (the
+busiest thread's, or the total CPU over 2 cores). The floor is SGBM's ``compute`` alone on the same frames (warm,
+median of --repeat). The load average is printed before and after (the machine is shared).
 
 Dask (``--dask``): sequential, and on local Dask clusters of 1 and 2 worker processes. Two timings per
 set-up: ``cli`` is the whole ``prismap map`` command (in this process, including starting and stopping the
@@ -24,7 +29,8 @@ local cluster and writing the map file), ``warm`` is :func:`prismap.pipeline.map
 running cluster whose workers have mapped the sequence once (imports and numba caches loaded). Ratios are
 against the sequential run of the same kind.
 
-Run: ``.venv/bin/python benchmarks/bench_pipeline.py [--frames N] [--width W] [--model NAME] [--dask]``. On a 2-core
+Run: ``.venv/bin/python benchmarks/bench_pipeline.py [--frames N] [--width W] [--model NAME] [--modes ray projective]
+[--cv-threads N] [--dask]``. On a 2-core
 machine 2 workers can at best double the throughput; the merge of chunk maps runs in the client.
 """
 
@@ -36,6 +42,7 @@ import tempfile
 import time
 from pathlib import Path
 
+import cv2
 from distributed import Client, LocalCluster
 
 import prismap.grid._accumulator
@@ -75,18 +82,43 @@ class StageClock:
             finally:
                 self.seconds[stage] = self.seconds.get(stage, 0.0) + time.perf_counter() - start
 
-        setattr(module, name, timed)
-        self._undo.append((module, name, original))
+        self.replace(module, name, timed)
         return original
+
+    def replace(self, module, name, value):
+        """Set ``module.name`` to ``value`` until :meth:`restore`."""
+        self._undo.append((module, name, getattr(module, name)))
+        setattr(module, name, value)
 
     def restore(self):
         for module, name, original in reversed(self._undo):
             setattr(module, name, original)
 
 
-def timed_run(sequence, config):
-    """Wall seconds of a sequential map_sequence and the seconds of each stage inside it."""
+class InLine:
+    """:class:`prismap.pipeline._prefetch.Prefetch`'s interface without the look-ahead: each frame's disparity
+    is computed when the loop reaches it (the frame-by-frame path)."""
+
+    def __init__(self, produce, items):
+        self.produce, self.items = produce, list(items)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc_info):
+        pass
+
+    def __iter__(self):
+        for item in self.items:
+            yield item, self.produce(item)
+
+
+def timed_run(sequence, config, *, look_ahead=True):
+    """Wall and CPU seconds of a sequential map_sequence and the seconds of each stage inside it; without
+    ``look_ahead`` the frames' disparities are computed in line (:class:`InLine`)."""
     clock = StageClock()
+    if not look_ahead:
+        clock.replace(prismap.pipeline._run, "Prefetch", InLine)
     make = clock.wrap(prismap.pipeline._run, "make_matcher", "_make")
 
     def matcher(*args, **kwargs):
@@ -116,27 +148,58 @@ def timed_run(sequence, config):
     clock.wrap(prismap.grid._kernels_project, "project_cells", "casting")
     clock.wrap(prismap.grid._kernels_project, "project_hit_miss", "casting")
     clock.wrap(prismap.grid._kernels_accumulate, "apply_frame", "merge")
+    source_call = prismap.pipeline._run.DisparitySource.__call__
+    disparity_cpu = [0.0]
+
+    def timed_source(self, index):  # CPU of the thread that computes the frame's disparity
+        start = time.thread_time()
+        try:
+            return source_call(self, index)
+        finally:
+            disparity_cpu[0] += time.thread_time() - start
+
+    clock.replace(prismap.pipeline._run.DisparitySource, "__call__", timed_source)
     try:
-        start = time.perf_counter()
+        start, cpu, main_cpu = time.perf_counter(), time.process_time(), time.thread_time()
         map_sequence(sequence, config, progress=False)
-        wall = time.perf_counter() - start
+        wall, cpu, main_cpu = time.perf_counter() - start, time.process_time() - cpu, time.thread_time() - main_cpu
     finally:
         prismap.pipeline._run.sensor_model_for = model_for
         clock.restore()
     stages = {name: clock.seconds.get(name, 0.0) for name in ("matching", "casting", "merge")}
     stages["model"] = sum(t.seconds for t in timers)
     stages["rays and rest"] = max(wall - sum(stages.values()), 0.0)
-    return wall, stages
+    main_cpu -= 0.0 if look_ahead else disparity_cpu[0]
+    threads = {"disparity": disparity_cpu[0], "integration": main_cpu, "workers": cpu - main_cpu - disparity_cpu[0]}
+    return wall, cpu, stages, threads
 
 
 def stages(sequence, config, n_frames, repeat):
-    """Print cold and warm frames per second with the share of each stage (warm, median over repeats)."""
-    cold, _ = timed_run(sequence, config)
-    runs = [timed_run(sequence, config) for _ in range(repeat)]
-    wall = statistics.median(w for w, _ in runs)
-    share = {name: statistics.median(s[name] for _, s in runs) / wall for name in runs[0][1]}
+    """Print cold and warm frames per second with the share of each stage (warm, median over repeats), then
+    the same warm runs without the look-ahead, alternating with runs with it."""
+    cold = timed_run(sequence, config)[0]
+    runs, inline = [], []
+    for _ in range(repeat):
+        runs.append(timed_run(sequence, config))
+        inline.append(timed_run(sequence, config, look_ahead=False))
+    wall = statistics.median(run[0] for run in runs)
+    share = {name: statistics.median(run[2][name] for run in runs) / wall for name in runs[0][2]}
     print(f"{config.mode:<10} cold {n_frames / cold:5.2f} fps, warm {n_frames / wall:5.2f} fps "
-          f"({wall / n_frames * 1e3:.0f} ms/frame): " + ", ".join(f"{k} {v:.1%}" for k, v in share.items()))
+          f"({wall / n_frames * 1e3:.0f} ms/frame, CPU {_median_ms(runs, 1, n_frames):.0f} ms/frame): "
+          + ", ".join(f"{k} {v:.1%}" for k, v in share.items()))
+    wall_inline = statistics.median(run[0] for run in inline)
+    print(f"{'':<10} frame by frame (no look-ahead) warm {n_frames / wall_inline:5.2f} fps ({wall_inline / n_frames * 1e3:.0f} "
+          f"ms/frame, CPU {_median_ms(inline, 1, n_frames):.0f} ms/frame): the look-ahead x{wall_inline / wall:.2f}")
+    threads = {name: statistics.median(run[3][name] for run in runs) / n_frames for name in runs[0][3]}
+    bound = min(1.0 / threads["disparity"], 1.0 / threads["integration"], 2.0 / sum(threads.values()))
+    print(f"{'':<10} CPU per frame with the look-ahead: disparity thread {threads['disparity'] * 1e3:.0f} ms, integration "
+          f"thread {threads['integration'] * 1e3:.0f} ms, its workers {threads['workers'] * 1e3:.0f} ms: on 2 idle cores "
+          f"at most {bound:.2f} fps (the busiest thread, or the total over 2 cores)")
+    return _median_ms(runs, 1, n_frames)
+
+
+def _median_ms(runs, column, n_frames):
+    return statistics.median(run[column] for run in runs) / n_frames * 1e3
 
 
 def sgbm_floor(sequence, n_frames, repeat):
@@ -160,9 +223,13 @@ def main():
     parser.add_argument("--width", type=int, default=640)
     parser.add_argument("--model", default="prism")
     parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--modes", nargs="+", default=["ray", "projective"], choices=["ray", "projective"])
+    parser.add_argument("--cv-threads", type=int, default=None, help="cv2.setNumThreads before any run")
     parser.add_argument("--dask", action="store_true", help="the Dask comparison instead of the stages")
     args = parser.parse_args()
     os.environ.setdefault("PRISMAP_PROGRESS", "0")
+    if args.cv_threads is not None:
+        cv2.setNumThreads(args.cv_threads)
     if args.dask and args.model == "prism":
         parser.error("--dask runs the CLI, which takes PRISM's mixture from a characterised file: use another --model")
 
@@ -178,18 +245,17 @@ def main():
         sequence = Path(tmp) / "seq"
         scene = sim.indoor_scene(seed=0)
         write_sequence(scene.frames(camera, sim.indoor_trajectory(args.frames, seed=0), seed=0), sequence)
-        with open("/proc/loadavg") as f:
-            load = " ".join(f.read().split()[:3])
         print(f"scene: indoor_scene(seed=0), {args.frames} frames of {camera.width}x{camera.height} px "
               f"(f {camera.focal_px:.1f} px, b 0.10 m); sgbm 64 disparities, {args.model} {model_params}, "
-              f"voxel {VOXEL_M} m, max range {MAX_RANGE_M} m; load {load}")
+              f"voxel {VOXEL_M} m, max range {MAX_RANGE_M} m; OpenCV threads {cv2.getNumThreads()}; load {_load()}")
         if not args.dask:
-            for mode in ("ray", "projective"):
+            for mode in args.modes:
                 config = MappingConfig(model=args.model, model_params=model_params, error_model=error_model,
                                        voxel_size_m=VOXEL_M, max_range_m=MAX_RANGE_M, matcher="sgbm",
                                        matcher_params=MATCHER_PARAMS, mode=mode)
-                stages(sequence, config, args.frames, args.repeat)
-            print(f"floor: SGBM compute alone {sgbm_floor(sequence, args.frames, args.repeat):.2f} fps")
+                cpu_ms = stages(sequence, config, args.frames, args.repeat)
+            print(f"floor: SGBM compute alone {sgbm_floor(sequence, args.frames, args.repeat):.2f} fps (one thread); "
+                  f"the last mode's warm CPU per frame on 2 cores {2e3 / cpu_ms:.2f} fps; load {_load()}")
             return
         config = MappingConfig(model=args.model, model_params=model_params, error_model=error_model,
                                voxel_size_m=VOXEL_M, max_range_m=MAX_RANGE_M, matcher="sgbm",
@@ -208,6 +274,11 @@ def main():
     print(f"{'set-up':<16} {'cli fps':>8} {'ratio':>6} {'warm fps':>9} {'ratio':>6}")
     for label, cli_fps, warm_fps in rows:
         print(f"{label:<16} {cli_fps:8.2f} {cli_fps / rows[0][1]:6.2f} {warm_fps:9.2f} {warm_fps / rows[0][2]:6.2f}")
+
+
+def _load():
+    with open("/proc/loadavg") as f:
+        return " ".join(f.read().split()[:3])
 
 
 def _warm_seconds(sequence, config, n_workers):

@@ -2,6 +2,7 @@
 LiDAR reference maps."""
 
 import pickle
+import threading
 
 import cv2
 import numpy as np
@@ -15,10 +16,12 @@ from prismap.pipeline import (
     DisparitySource,
     build_sensor_model,
     ground_truth_from_map,
+    integrate_frames,
     lidar_reference_map,
     map_sequence,
     remove_checkpoint,
 )
+from prismap.pipeline._prefetch import THREAD_NAME, Prefetch
 from prismap.sensor_models import AndertModel, ConvolutionModel, PrismModel
 from prismap.stereo import make_matcher
 from support import CAMERA, MIXTURE, assert_same_map, config, synthetic_sequence
@@ -143,6 +146,91 @@ def test_a_sequence_without_poses_is_refused(sequence_dir, tmp_path):
     write_sequence(unposed, tmp_path / "unposed")
     with pytest.raises(PrismapInputError, match="no poses.txt; mapping needs the pose of every frame"):
         map_sequence(tmp_path / "unposed", config(), progress=False)
+
+
+# -------------------------------------------------------------------------------------- look-ahead
+def prefetch_threads():
+    return [thread for thread in threading.enumerate() if thread.name.startswith(THREAD_NAME)]
+
+
+def test_prefetch_gives_every_item_in_order_computing_at_most_one_ahead():
+    calls, seen = [], []
+    with Prefetch(lambda i: calls.append(i) or i * i, range(5)) as items:
+        for k, (item, result) in enumerate(items):
+            assert len(calls) <= k + 2  # this item and at most the next one
+            seen.append((item, result))
+    assert seen == [(i, i * i) for i in range(5)] and calls == list(range(5))
+    assert prefetch_threads() == []
+    with Prefetch(lambda i: i, []) as items:
+        assert list(items) == []
+
+
+def test_prefetch_raises_an_items_error_at_that_item_and_computes_nothing_past_it():
+    calls, seen = [], []
+
+    def produce(i):
+        calls.append(i)
+        if i == 3:
+            raise PrismapInputError(f"frame {i}: broken")
+        return i
+
+    with pytest.raises(PrismapInputError, match="^frame 3: broken$"), Prefetch(produce, range(6)) as items:
+        for item, _ in items:
+            seen.append(item)
+    assert seen == [0, 1, 2] and calls == [0, 1, 2, 3]
+    assert prefetch_threads() == []
+
+
+def test_leaving_a_prefetch_on_keyboard_interrupt_waits_for_the_running_look_ahead():
+    running, finished, calls = threading.Event(), [], []
+
+    def produce(i):
+        calls.append(i)
+        if i == 2:
+            running.set()
+            threading.Event().wait(0.05)  # still computing when the caller leaves
+            finished.append(i)
+        return i
+
+    with pytest.raises(KeyboardInterrupt), Prefetch(produce, range(6)) as items:
+        for item, _ in items:
+            if item == 1:
+                assert running.wait(5)
+                raise KeyboardInterrupt
+    assert finished == [2] and calls == [0, 1, 2]  # joined, and nothing started after it
+    assert prefetch_threads() == []
+
+
+def test_a_disparity_error_surfaces_at_its_frame_with_the_frames_before_integrated(sequence_dir, tmp_path):
+    for name in read_sequence(sequence_dir).names[:3]:
+        assert cv2.imwrite(str(tmp_path / name), cv2.imread(str(sequence_dir / "disp" / name), cv2.IMREAD_UNCHANGED))
+    cfg = config(disparity_source=str(tmp_path))
+    sequence = read_sequence(sequence_dir)
+    grid, frames_done = OccupancyMap(cfg.voxel_size_m, p0=cfg.p0), []
+    with pytest.raises(PrismapInputError, match=r"000003.png: disparity file missing"):
+        integrate_frames(grid, sequence, cfg, range(6), on_frame=lambda g: frames_done.append(g.n_frames))
+    assert frames_done == [1, 2, 3] and prefetch_threads() == []
+    assert_same_map(grid, hand_map(sequence_dir, cfg, range(3), lambda f: f.disparity_gt))
+
+
+def test_a_keyboard_interrupt_between_frames_stops_the_look_ahead(sequence_dir, monkeypatch):
+    cfg = config(disparity_source="matcher", matcher="bm", matcher_params={"num_disparities": 16, "block_size": 7},
+                 model="ideal", error_model=None)
+    computed, original = [], DisparitySource.__call__
+
+    def counted(self, index):
+        computed.append(index)
+        return original(self, index)
+
+    def interrupt(grid):
+        if grid.n_frames == 2:
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(DisparitySource, "__call__", counted)
+    grid = OccupancyMap(cfg.voxel_size_m, p0=cfg.p0)
+    with pytest.raises(KeyboardInterrupt):
+        integrate_frames(grid, read_sequence(sequence_dir), cfg, range(6), on_frame=interrupt)
+    assert grid.n_frames == 2 and computed == [0, 1, 2] and prefetch_threads() == []
 
 
 # ------------------------------------------------------------------------------------- checkpoints

@@ -13,6 +13,7 @@ from prismap.grid import KEY_LIMIT, OccupancyMap, key_limit_m, key_range_text
 from prismap.io import BagSequence, Sequence, read_kitti_disparity, read_sequence
 from prismap.pipeline._checkpoint import open_checkpoint, run_fingerprint, save_checkpoint
 from prismap.pipeline._config import DISPARITY_FROM_MATCHER, DISPARITY_FROM_SEQUENCE, MappingConfig
+from prismap.pipeline._prefetch import Prefetch
 from prismap.sensor_models import ConditionedModel
 from prismap.stereo import make_matcher
 
@@ -126,15 +127,22 @@ def integrate_frames(grid, sequence, config, indices, *, on_frame=None):
     indices : iterable of int
     on_frame : callable or None
         Called with ``grid`` after each frame (progress bars, checkpoints).
+
+    Notes
+    -----
+    The next frame's disparity (read, match, classify: :class:`DisparitySource`) is computed in a background
+    thread while this one is integrated (:class:`~prismap.pipeline._prefetch.Prefetch`); the map is that of
+    the frames one after the other, and an error of frame k's disparity is raised after frame k - 1 is
+    integrated and ``on_frame`` called, as without the look-ahead.
     """
     model = sensor_model_for(config, sequence.camera)
     source = DisparitySource(sequence, config)
-    for index in indices:
-        disparity, pose, ray_class = source(index)
-        grid.integrate_disparity(disparity, sequence.camera, pose, model, mode=config.mode, policy=config.policy,
-                                 max_range_m=config.max_range_m, subsample=config.subsample, ray_class=ray_class)
-        if on_frame is not None:
-            on_frame(grid)
+    with Prefetch(source, indices) as frames:
+        for _, (disparity, pose, ray_class) in frames:
+            grid.integrate_disparity(disparity, sequence.camera, pose, model, mode=config.mode, policy=config.policy,
+                                     max_range_m=config.max_range_m, subsample=config.subsample, ray_class=ray_class)
+            if on_frame is not None:
+                on_frame(grid)
     return grid
 
 
