@@ -6,9 +6,9 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from prismap import sim
 from prismap.camera import StereoCamera
 from prismap.errors import PrismapInputError
-from prismap.experiment import measured_solid_depth, solid_depth_along_rays
 from prismap.gmm import GaussianMixture
 from prismap.sensor_models import PrismModel
 from prismap.sensor_models._prism import TABLE_TOLERANCE
@@ -125,11 +125,11 @@ def test_solid_depth_along_rays_matches_hand_derived_depths():
     origins = np.zeros((4, 3))
     directions = np.array([[1.0, 0.0, 0.0], [1.0, 0.0, 0.0], diagonal, [1.0, 0.0, 0.0]])
     hits = np.array([1.0, 5.0, np.sqrt(2.0), 3.5])  # the last one lies in no box
-    depth = solid_depth_along_rays(lo, hi, origins, directions, hits, cap_m=1.5)
+    depth = sim.solid_depth_along_rays(lo, hi, origins, directions, hits, cap_m=1.5)
     # touching boxes continue the solid ([1, 2] then [2, 2.2]); the gap to 2.3 ends it; the slab [5, 5.1];
     # 45 degrees through x in [1, 2] leaves by y = 1 at x = 1: the wall's depth along the ray is 0 there
     np.testing.assert_allclose(depth, [1.2, 0.1, 0.0, 0.0], atol=1e-5)
-    assert solid_depth_along_rays(lo, hi, origins[:1], directions[:1], hits[:1], cap_m=0.5)[0] == pytest.approx(0.5)
+    assert sim.solid_depth_along_rays(lo, hi, origins[:1], directions[:1], hits[:1], cap_m=0.5)[0] == pytest.approx(0.5)
 
 
 def test_solid_depth_along_rays_matches_brute_force():
@@ -141,12 +141,12 @@ def test_solid_depth_along_rays_matches_brute_force():
     box = rng.integers(12, size=40)
     entry = rng.uniform(lo[box], hi[box])  # a point inside a box, reached from 3 m before it
     origins, hits = entry - 3.0 * directions, np.full(40, 3.0)
-    depth = solid_depth_along_rays(lo, hi, origins, directions, hits, cap_m=2.0)
+    depth = sim.solid_depth_along_rays(lo, hi, origins, directions, hits, cap_m=2.0)
     expected = [_march(lo, hi, o, d, 3.0, 2.0) for o, d in zip(origins, directions)]
     np.testing.assert_allclose(depth, expected, atol=2e-4)
 
 
-def test_measured_solid_depth_is_the_quantile_of_the_hits_depths():
+def test_scene_solid_depth_is_the_quantile_of_the_hits_depths():
     """A camera facing two walls at 2 m: left half 0.3 m thick, right half 0.1 m; along a ray of norm |r| the
     solid is ``thickness |r|`` deep, so the quantile is that of those values."""
     camera = StereoCamera(focal_px=20.0, cx_px=7.5, cy_px=5.5, baseline_m=0.1, width=16, height=12)
@@ -159,10 +159,11 @@ def test_measured_solid_depth_is_the_quantile_of_the_hits_depths():
     norm = np.linalg.norm(camera.pixel_rays(), axis=2)
     thickness = np.where(np.arange(16) < 7, 0.3, 0.1)[None, :] * norm
     keep = np.isfinite(depth)
+    scene = sim.Scene3D.from_boxes(lo, hi)
     for quantile in (0.1, 0.5, 0.9):
-        measured = measured_solid_depth(lo, hi, [frame], 0.1, quantile=quantile)
+        measured = scene.solid_depth([frame], 0.1, quantile=quantile)
         assert measured == pytest.approx(np.quantile(thickness[keep], quantile), abs=1e-5)
-    sub = measured_solid_depth(lo, hi, [frame], 0.1, subsample=2, quantile=0.5)
+    sub = scene.solid_depth([frame], 0.1, subsample=2, quantile=0.5)
     assert sub == pytest.approx(np.quantile(thickness[::2, ::2][keep[::2, ::2]], 0.5), abs=1e-5)
     with pytest.raises(PrismapInputError, match="no ray of `frames` meets a surface within `max_depth_m`"):
-        measured_solid_depth(lo, hi, [frame], 0.1, max_depth_m=1.0)
+        scene.solid_depth([frame], 0.1, max_depth_m=1.0)

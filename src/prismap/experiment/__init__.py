@@ -23,7 +23,6 @@ from prismap.experiment._scene3d import (
     run_street3d,
     split_frames,
 )
-from prismap.experiment._solid import SOLID_DEPTH_QUANTILE, measured_solid_depth, solid_depth_along_rays
 from prismap.experiment._targets import Target, measure_targets
 
 __all__ = [
@@ -41,7 +40,6 @@ __all__ = [
     "Target",
     "format_results_table",
     "measure_targets",
-    "measured_solid_depth",
     "prior_of",
     "read_results",
     "run_office2d",
@@ -49,7 +47,6 @@ __all__ = [
     "run_scene3d",
     "run_street3d",
     "score_grid",
-    "solid_depth_along_rays",
     "split_frames",
     "write_results",
 ]

@@ -19,7 +19,6 @@ from prismap.experiment._results import (
     variant_params,
     write_results,
 )
-from prismap.experiment._solid import SOLID_DEPTH_QUANTILE, measured_solid_depth
 from prismap.experiment._targets import format_targets, measure_targets
 
 MATCHERS = ("bm", "sgbm", "variational")
@@ -301,12 +300,14 @@ def run_rendered_world(world, out_dir, *, n_frames=None, voxel_size_m=None, seed
                       "instead of p0 (`prior=\"map\"`, ray mode only), a variant of conditioned PRISM, so the targets "
                       "do not count it as a rival" if any(m.endswith(MAP_PRIOR_SUFFIX) for m in models) else "")
                    + "; time = mapping wall time (PRISM's tables and the features included).")
+    from prismap.sim import SOLID_DEPTH_QUANTILE
+
     notes = (setup, f"p0 = {p0:.4f}: the occupancy ratio of the voxels a perfect sensor observed (the scored voxels). "
              f"PRISM's pass_through = {model_params['prism']['pass_through']:.4f}: how often the drive's "
              "characterisation frames' noise-free rays cross an occupied voxel before their surface (beyond its voxel overhang) "
              "without stopping (`Scene3D.pass_through_ratio`). "
              f"PRISM's solid_depth_m = {model_params['prism']['solid_depth_m']:.3f} m: the depth of solid behind "
-             f"all but {SOLID_DEPTH_QUANTILE:.0%} of those rays' hits (`experiment.measured_solid_depth`).",
+             f"all but {SOLID_DEPTH_QUANTILE:.0%} of those rays' hits (`Scene3D.solid_depth`).",
              models_note, _classes_note(error_models, mapped_likelihoods))
     targets = measure_targets(world, results, error_models, mapped_likelihoods)
     paths = write_results(results, out, title=spec.title, notes=notes, settings=settings,
@@ -427,9 +428,8 @@ def _derived_model_params(settings, scene, char_frames):
                                                          max_depth_m=settings["max_range_m"],
                                                          subsample=settings["subsample"])
     if "solid_depth_m" not in prism:
-        prism["solid_depth_m"] = measured_solid_depth(scene.box_lo, scene.box_hi, char_frames, settings["voxel_size_m"],
-                                                      max_depth_m=settings["max_range_m"],
-                                                      subsample=settings["subsample"])
+        prism["solid_depth_m"] = scene.solid_depth(char_frames, settings["voxel_size_m"],
+                                                   max_depth_m=settings["max_range_m"], subsample=settings["subsample"])
     return params
 
 

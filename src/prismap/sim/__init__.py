@@ -6,6 +6,7 @@ from prismap.sim._poses import pose_from_heading, poses_from_se2
 from prismap.sim._scene3d import Scene3D, indoor_scene, indoor_trajectory
 from prismap.sim._street import street_scene, street_trajectory, street_trajectory_between
 from prismap.sim._textures import PHOTOGRAPHS, texture_bank
+from prismap.sim._truth import SOLID_DEPTH_QUANTILE, solid_depth_along_rays
 from prismap.sim._world2d import (
     DisparityFrame,
     StereoScanner2D,
@@ -17,6 +18,7 @@ from prismap.sim._world2d import (
 
 __all__ = [
     "PHOTOGRAPHS",
+    "SOLID_DEPTH_QUANTILE",
     "DisparityFrame",
     "Scene3D",
     "StereoScanner2D",
@@ -29,6 +31,7 @@ __all__ = [
     "poses_from_se2",
     "scaled_camera",
     "simple_world",
+    "solid_depth_along_rays",
     "street_scene",
     "street_trajectory",
     "street_trajectory_between",

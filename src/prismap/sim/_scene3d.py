@@ -14,7 +14,7 @@ from prismap.io._frame import StereoFrame
 from prismap.sim._kernels import cast_view, shade_view
 from prismap.sim._poses import pose_from_heading
 from prismap.sim._textures import PHOTOGRAPHS, texture_bank
-from prismap.sim._truth import ground_truth, pass_through_ratio
+from prismap.sim._truth import SOLID_DEPTH_QUANTILE, ground_truth, pass_through_ratio, solid_depth
 
 # brightness by face normal axis (x, y, z) and side (the face at the box's lo, at its hi): a fixed light
 _SHADE = np.array([[0.80, 0.90], [0.70, 0.85], [0.55, 1.00]])
@@ -149,6 +149,12 @@ class Scene3D:
         (see ``prismap.sim._truth.pass_through_ratio``): PRISM's ``pass_through`` for this world."""
         return pass_through_ratio(self.box_lo, self.box_hi, frames, voxel_size_m, max_depth_m=max_depth_m,
                                   subsample=subsample)
+
+    def solid_depth(self, frames, voxel_size_m, *, max_depth_m=np.inf, subsample=1, quantile=SOLID_DEPTH_QUANTILE):
+        """Depth of solid behind all but ``quantile`` of the noise-free hits of ``frames`` (metres along the
+        ray; see ``prismap.sim._truth.solid_depth``): PRISM's ``solid_depth_m`` for this world."""
+        return solid_depth(self.box_lo, self.box_hi, frames, voxel_size_m, max_depth_m=max_depth_m,
+                           subsample=subsample, quantile=quantile)
 
 
 ROOM_M = (14.0, 9.0, 3.0)  # interior of the indoor scene: x, y, z extents from the origin
