@@ -941,7 +941,9 @@ def prism_table_lookup(lam, table, delta, ray_of_cell, start, end, stretch, lo, 
     there. A start with ``C/Z < 1/4`` keeps its ``C`` (accurate relative to itself, which a ``1 - D/Z`` is not
     near 0): that cell's share is above 1/4, and the miss is small against it. Cells starting
     beyond the influence depth are skipped; for a cell ending beyond the table (where the remaining
-    evidence is below e^-40 of C), ``D(c)`` is integrated on the spot.
+    evidence is below e^-40 of C), ``D(c)`` is integrated on the spot, and so is ``C`` in the table's first
+    interval: both at the ray's own rate, over the ray's ``Z`` (the table's by the nodes' Taylor term, from
+    the meta columns ``log_z_1``, ``log_z_2``), not the table's rate and ``Z``.
     """
     r_prev = -1
     c_prev = -1.0
