@@ -264,6 +264,29 @@ def test_table_maps_agree_with_direct_maps_within_the_stated_bound(mode):
             assert np.all(np.abs(maps["table", policy][1] - maps["direct", policy][1]) <= bound), (overhang, policy)
 
 
+def test_table_combination_keeps_a_tiny_d_at_either_end():
+    """prism_table_combine against the log-space combination (``_kernels.combine``) for cells whose end has
+    ``D/Z`` down to e^-36 (the looked-up side used as it is, not as ``1 - (1 - D/Z)``, where it would vanish
+    beside ``q_c C(a)/Z``), starts with tiny ``C/Z`` or with ``D`` the smaller, and priors of 0.05-0.9."""
+    l_c = -np.array([0.1, 2.0, 20.0, 30.0, 36.0])  # log D/Z at the end
+    l_a = -np.array([3.0, 25.0, 33.0, 40.0])  # log C/Z at the start, and log D/Z for a start behind C/Z = 1/2
+    lam_len = np.array([0.05, 0.5, 2.3])
+    grid = np.array(list(itertools.product(l_a, l_c, lam_len, (0, 1))))
+    la, lc, length, a_is_d = grid.T
+    ok = ~a_is_d.astype(bool) | (la > lc)  # D only shrinks with depth
+    la, lc, length, a_is_d = la[ok], lc[ok], length[ok], a_is_d[ok].astype(np.int8)
+    n = la.size
+    side = a_is_d + 2
+    post, ratio, fix_value = np.empty(n), np.empty(n), np.empty(n)
+    fixed = _kernels.prism_table_combine(0, n, la, lc, np.exp(la), np.exp(lc), side, length, post, ratio,
+                                         np.empty(n, dtype=np.int64), fix_value, 0.0)
+    assert fixed == 0  # the linear-space pass, not the log-space fallback
+    other_a, other_c = np.log(-np.expm1(la)), np.log(-np.expm1(lc))
+    expected = np.array([_kernels.combine(*((oa, a) if d else (a, oa)), oc, c, ln)[1]
+                         for a, oa, c, oc, ln, d in zip(la, other_a, lc, other_c, length, a_is_d)])
+    np.testing.assert_allclose(np.log(ratio), expected, rtol=1e-9, atol=1e-9)
+
+
 @pytest.mark.parametrize("method", ["table", "direct"])
 def test_finite_and_in_unit_interval_from_10cm_to_200m_with_high_rate(method):
     rate = 50.0  # per metre: p0 = 1 - e^-5 for 0.1 m cells

@@ -1065,8 +1065,8 @@ def prism_table_combine(lo, hi, l_a, l_c, e_a, e_c, side, lam_len, post, ratio, 
         p_c, q_c = _cell_prior(lam_len[j])
         c_a = 1.0 - e_a[j] if s & 1 else e_a[j]
         c_c = 1.0 - e_c[j] if s & 2 else e_c[j]
-        d_a = 1.0 - c_a
-        d_c = 1.0 - c_c
+        d_a = e_a[j] if s & 1 else 1.0 - e_a[j]  # the looked-up side as it is: D(c)/Z below 1e-16 of q_c C(a)/Z
+        d_c = e_c[j] if s & 2 else 1.0 - e_c[j]  # would vanish in 1 - (1 - D/Z)
         # the cell's share C(c) - C(a) from the side that is small (accurate) at c
         delta = max(c_c - c_a, 0.0) if c_c < 0.5 else max(d_a - d_c, 0.0)
         num = p_c * c_a + delta
