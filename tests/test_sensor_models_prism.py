@@ -113,11 +113,9 @@ def test_table_agrees_with_direct_within_stated_bound(mixture, voxel, p0):
 def _assert_table_within_tolerance(model, disparity, norm, cells, *, moderate_min=500, large_min=50):
     p_table, inc_table = model.cell_posteriors(disparity, norm, *cells)
     p_direct, inc_direct = model.cell_posteriors(disparity, norm, *cells, method="direct")
-    err = np.abs(inc_table - inc_direct)
     moderate = np.abs(inc_direct) <= TABLE_TOLERANCE["large"]
     assert moderate.sum() >= moderate_min and (~moderate).sum() >= large_min
-    assert np.all(err[moderate] <= TABLE_TOLERANCE["abs"] + TABLE_TOLERANCE["rel"] * np.abs(inc_direct[moderate]))
-    assert np.all(err[~moderate] <= TABLE_TOLERANCE["large_rel"] * np.abs(inc_direct[~moderate]))
+    assert np.all(np.abs(inc_table - inc_direct) <= _table_bound(inc_direct))
     assert np.abs(p_table - p_direct).max() <= TABLE_TOLERANCE["posterior"]
 
 
@@ -191,26 +189,102 @@ def test_broad_segments_are_where_the_narrower_components_are_negligible():
     assert _prism.broad_errors(GaussianMixture([0.5, 0.5], [0.0, 1.0], [1.0, 1.0]))[2] == 1
 
 
-@pytest.mark.parametrize(("fb", "mixture", "near", "steep"), [(KITTI_FB, STREET, 1.5, True), (FB, SGBM_LIKE, 0.9, False)])
-def test_cells_in_a_tables_first_interval_agree_with_direct(fb, mixture, near, steep):
+FRAME_MIXTURE = GaussianMixture([0.9, 0.1], [0.0, 0.0], [0.3, 3.0])
+
+
+@pytest.mark.parametrize(
+    ("fb", "mixture", "voxel", "p0", "near", "depth", "steep"),
+    [(KITTI_FB, STREET, 0.2, 0.05, 1.5, 5.0, True), (FB, SGBM_LIKE, 0.2, 0.05, 0.9, 5.0 * FB / KITTI_FB, False),
+     (13.125, FRAME_MIXTURE, 0.1, 0.1, 0.5, 3.0, False)],  # the last: tests/test_grid_frames.py's small frame
+)
+def test_cells_in_a_tables_first_interval_agree_with_direct(fb, mixture, voxel, p0, near, depth, steep):
     """Cells ending between near_m and a table's first node: C from the steep front's asymptotic, or (no
-    steep front) from one panel over the interval."""
-    model = make_sensor_model("prism", focal_baseline=fb, error_model=mixture, voxel_size_m=0.2, p0=0.05, near_m=near)
-    depths = np.array([5.0, 12.0, 30.0, 60.0]) * fb / KITTI_FB
-    disparity = np.round(fb / depths * 16) / 16
-    model.influence_depth(disparity, np.ones(4))  # builds the tables
+    steep front) from one panel over the interval, at the ray's own rate and with the ray's Z, for rays on
+    the rate grid's keys and half-way between them (far in front of the measurement the rate term of
+    log(C/Z) is about 1 - lambda_z z^ per unit of log lambda_z: several nats at a half step)."""
+    model = make_sensor_model("prism", focal_baseline=fb, error_model=mixture, voxel_size_m=voxel, p0=p0, near_m=near)
+    step = _prism._LAMBDA_STEP
+    norm = np.exp(np.array([0.0, 0.5 * step - 1e-6, 0.5 * step + 1e-6, 1.5 * step - 1e-6]))  # a key, half steps
+    disparity = np.repeat(np.round(fb / (depth * np.array([1.0, 2.4, 6.0, 12.0])) * 16) / 16, norm.size)
+    norm = np.tile(norm, disparity.size // norm.size)
+    table, delta, meta, _ = model._tables_for(disparity, norm)
+    assert np.abs(delta[norm > 1]).min() > 0.499 * step
     column = _kernels.META_COLUMNS.index
-    meta = model._cache.meta
-    assert np.all((meta[:, column("row_1")] > 0) == steep)  # a coarse front or none
-    first = []
-    for m in meta:
+    assert np.all((meta[table, column("row_1")] > 0) == steep)  # a coarse front or none
+    ends = []
+    for m in meta[table]:
         segment = next(k for k in range(_kernels.N_SEGMENTS) if m[column(f"row_{k + 1}")] > 0)  # holds row 0
-        first.append(_kernels.z_of_x(m[column(f"x_{segment}")] + m[column(f"h_{segment}")], m[column("lam")],
-                                     model._ku()))
-    ends = np.concatenate([np.geomspace(near + 1e-4, z1, 12) for z1 in first])
-    rays = np.repeat(np.arange(4), 12)
-    _assert_table_within_tolerance(model, disparity, np.ones(4), (rays, np.full(rays.size, near - 0.5), ends),
+        first = _kernels.z_of_x(m[column(f"x_{segment}")] + m[column(f"h_{segment}")], m[column("lam")], model._ku())
+        ends.append(np.geomspace(near + 1e-4, first, 12))
+    rays = np.repeat(np.arange(disparity.size), 12)
+    _assert_table_within_tolerance(model, disparity, norm, (rays, np.full(rays.size, near - 0.5), np.concatenate(ends)),
                                    moderate_min=0, large_min=0)
+
+
+def _table_bound(inc_direct):
+    """:data:`TABLE_TOLERANCE`'s bound on ``|inc_table - inc_direct|`` (log-odds) at each direct increment."""
+    size = np.abs(inc_direct)
+    return np.where(size <= TABLE_TOLERANCE["large"], TABLE_TOLERANCE["abs"] + TABLE_TOLERANCE["rel"] * size,
+                    TABLE_TOLERANCE["large_rel"] * size)
+
+
+@pytest.mark.parametrize("mode", ["ray", "projective"])
+def test_table_maps_agree_with_direct_maps_within_the_stated_bound(mode):
+    """A whole frame (tests/test_grid_frames.py's small frame, disparities on the 1/16 px grid, ray norms
+    1-1.2 across all rate offsets) mapped with tabulated and with direct PRISM, with and without the voxel
+    overhang: every voxel's increment (log-odds minus prior) within the cell bound taken at the largest
+    direct increment of that voxel's cells, for the mean of the frame's increments (a mean of errors within
+    their cells' bounds is within the bound of the largest) and for the largest one (``max-abs``). Cells ending
+    right after near_m (in the tables' first interval) are part of ray mode's map."""
+    from test_grid_frames import small_frame
+
+    from prismap.grid import OccupancyMap
+    from prismap.grid._logodds import LOG_ODDS_STEP
+
+    camera, pose, disparity = small_frame()
+    disparity = np.rint(disparity * 16) / 16
+    prior = np.log(0.1 / 0.9)
+    for overhang in (0.0, _prism.OVERHANG_FRACTION):
+        maps = {}
+        for method, policy in itertools.product(("table", "direct"), ("mean", "max-abs")):
+            model = make_sensor_model("prism", focal_baseline=camera.focal_baseline, voxel_size_m=0.1, p0=0.1,
+                                      error_model=FRAME_MIXTURE, near_m=0.5, method=method,
+                                      overhang_fraction=overhang)
+            grid = OccupancyMap(0.1, p0=0.1)
+            grid.integrate_disparity(disparity, camera, pose, model, mode=mode, max_range_m=6.0, subsample=6,
+                                     policy=policy)
+            keys, log, _ = grid.known_voxels()
+            order = np.lexsort(keys.T)
+            maps[method, policy] = keys[order], log[order] - prior
+        keys, largest = maps["direct", "max-abs"]
+        assert keys.shape[0] > 20_000
+        bound = _table_bound(largest) + LOG_ODDS_STEP  # and the map's fixed-point rounding
+        for policy in ("mean", "max-abs"):
+            np.testing.assert_array_equal(maps["table", policy][0], keys)
+            assert np.all(np.abs(maps["table", policy][1] - maps["direct", policy][1]) <= bound), (overhang, policy)
+
+
+def test_table_combination_keeps_a_tiny_d_at_either_end():
+    """prism_table_combine against the log-space combination (``_kernels.combine``) for cells whose end has
+    ``D/Z`` down to e^-36 (the looked-up side used as it is, not as ``1 - (1 - D/Z)``, where it would vanish
+    beside ``q_c C(a)/Z``), starts with tiny ``C/Z`` or with ``D`` the smaller, and priors of 0.05-0.9."""
+    l_c = -np.array([0.1, 2.0, 20.0, 30.0, 36.0])  # log D/Z at the end
+    l_a = -np.array([3.0, 25.0, 33.0, 40.0])  # log C/Z at the start, and log D/Z for a start behind C/Z = 1/2
+    lam_len = np.array([0.05, 0.5, 2.3])
+    grid = np.array(list(itertools.product(l_a, l_c, lam_len, (0, 1))))
+    la, lc, length, a_is_d = grid.T
+    ok = ~a_is_d.astype(bool) | (la > lc)  # D only shrinks with depth
+    la, lc, length, a_is_d = la[ok], lc[ok], length[ok], a_is_d[ok].astype(np.int8)
+    n = la.size
+    side = a_is_d + 2
+    post, ratio, fix_value = np.empty(n), np.empty(n), np.empty(n)
+    fixed = _kernels.prism_table_combine(0, n, la, lc, np.exp(la), np.exp(lc), side, length, post, ratio,
+                                         np.empty(n, dtype=np.int64), fix_value, 0.0)
+    assert fixed == 0  # the linear-space pass, not the log-space fallback
+    other_a, other_c = np.log(-np.expm1(la)), np.log(-np.expm1(lc))
+    expected = np.array([_kernels.combine(*((oa, a) if d else (a, oa)), oc, c, ln)[1]
+                         for a, oa, c, oc, ln, d in zip(la, other_a, lc, other_c, length, a_is_d)])
+    np.testing.assert_allclose(np.log(ratio), expected, rtol=1e-9, atol=1e-9)
 
 
 @pytest.mark.parametrize("method", ["table", "direct"])

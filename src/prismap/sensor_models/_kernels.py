@@ -542,9 +542,10 @@ def prism_table(shift, lam, z0, z_max, fb, ku, h, log_far, log_eps_bound, lam_sl
     Returns
     -------
     nodes : (N, TABLE_COLUMNS) float64
-    meta : (3 N_SEGMENTS + 3,) float64
+    meta : (3 N_SEGMENTS + 5,) float64
         Per segment its first x, its first row and its spacing; then ``z_end`` (last node), ``z_infl``,
-        ``log Z``.
+        ``log Z`` and its first and second derivatives in ``log lam`` (a ray's ``log Z`` by the Taylor
+        term of the nodes, for the look-ups that integrate on the spot at the ray's own rate).
     """
     h_coarse = coarse_ratio * h
     h_wide = wide_ratio * h
@@ -667,7 +668,7 @@ def prism_table(shift, lam, z0, z_max, fb, ku, h, log_far, log_eps_bound, lam_sl
         nodes[row, _D_COLUMN + 2], nodes[row, _D_COLUMN + 3], nodes[row, _D_COLUMN + 4] = _rate_columns(
             nodes[row, _D_COLUMN + 1], d_1, d_2, z_1, z_2, lam_s)
     nodes[0, 2:_D_COLUMN] = nodes[1, 2:_D_COLUMN]
-    meta = np.empty(3 * N_SEGMENTS + 3)
+    meta = np.empty(3 * N_SEGMENTS + 5)
     x_march = x_of_z(z[0], lam, ku)
     meta[0], meta[N_SEGMENTS], meta[2 * N_SEGMENTS] = x0, 0, h_coarse
     for r in range(4):
@@ -678,7 +679,7 @@ def prism_table(shift, lam, z0, z_max, fb, ku, h, log_far, log_eps_bound, lam_sl
     meta[N_SEGMENTS - 1] = _march_x(i_back, x_march, counts, h_wide, h)
     meta[2 * N_SEGMENTS - 1] = n_coarse + i_back
     meta[3 * N_SEGMENTS - 1] = max(back, 1) * widths[last]
-    meta[3 * N_SEGMENTS:] = z[n], z[i_infl], log_z
+    meta[3 * N_SEGMENTS:] = z[n], z[i_infl], log_z, z_1, z_2
     return nodes, meta
 
 
@@ -792,12 +793,14 @@ def prism_direct_cells(
 
 
 META_COLUMNS = ("lam", *(f"x_{k}" for k in range(N_SEGMENTS)), *(f"row_{k}" for k in range(N_SEGMENTS)),
-                *(f"h_{k}" for k in range(N_SEGMENTS)), "z_end", "z_infl", "log_z", "shift", "log_far", "offset", "length")
+                *(f"h_{k}" for k in range(N_SEGMENTS)), "z_end", "z_infl", "log_z", "log_z_1", "log_z_2", "shift", "log_far",
+                "offset", "length")
 """Columns of the per-table metadata matrix that :func:`prism_table_lookup` reads (one row per table): the
 rate, :func:`prism_table`'s meta (per segment its first x, first row and spacing, then ``z_end``, ``z_infl``,
-``log Z``), then the shift, far term, first row and row count of its nodes."""
+``log Z`` and its two derivatives in ``log lam``), then the shift, far term, first row and row count of its nodes."""
 _LAM, _X, _ROW, _SPACING = 0, 1, 1 + N_SEGMENTS, 1 + 2 * N_SEGMENTS
-_Z_END, _Z_INFL, _LOG_Z, _SHIFT, _LOG_FAR, _OFFSET, _LENGTH = range(1 + 3 * N_SEGMENTS, 8 + 3 * N_SEGMENTS)
+_Z_END, _Z_INFL, _LOG_Z, _LOG_Z_1, _LOG_Z_2, _SHIFT, _LOG_FAR, _OFFSET, _LENGTH = range(1 + 3 * N_SEGMENTS,
+                                                                                      10 + 3 * N_SEGMENTS)
 
 
 @nb.njit(cache=True, nogil=True)
@@ -938,7 +941,9 @@ def prism_table_lookup(lam, table, delta, ray_of_cell, start, end, stretch, lo, 
     there. A start with ``C/Z < 1/4`` keeps its ``C`` (accurate relative to itself, which a ``1 - D/Z`` is not
     near 0): that cell's share is above 1/4, and the miss is small against it. Cells starting
     beyond the influence depth are skipped; for a cell ending beyond the table (where the remaining
-    evidence is below e^-40 of C), ``D(c)`` is integrated on the spot.
+    evidence is below e^-40 of C), ``D(c)`` is integrated on the spot, and so is ``C`` in the table's first
+    interval: both at the ray's own rate, over the ray's ``Z`` (the table's by the nodes' Taylor term, from
+    the meta columns ``log_z_1``, ``log_z_2``), not the table's rate and ``Z``.
     """
     r_prev = -1
     c_prev = -1.0
@@ -948,7 +953,7 @@ def prism_table_lookup(lam, table, delta, ray_of_cell, start, end, stretch, lo, 
     seg_h = np.empty(N_SEGMENTS)
     seg_inv = np.empty(N_SEGMENTS)
     seg_row = np.empty(N_SEGMENTS + 1, dtype=np.int64)
-    lam_t = z_end = z_infl = dl = shift = log_z = log_far = stretch_r = 0.0
+    lam_t = lam_r = z_end = z_infl = dl = shift = log_z = log_far = stretch_r = 0.0
     z_half = np.inf
     off = n_seg = s_a = s_c = 0
     steep = False
@@ -977,7 +982,8 @@ def prism_table_lookup(lam, table, delta, ray_of_cell, start, end, stretch, lo, 
             z_end = meta[t, _Z_END]
             z_infl = meta[t, _Z_INFL]
             shift = meta[t, _SHIFT]
-            log_z = meta[t, _LOG_Z]
+            lam_r = lam[r]
+            log_z = meta[t, _LOG_Z] + dl * (meta[t, _LOG_Z_1] + 0.5 * dl * meta[t, _LOG_Z_2])  # the ray's
             log_far = meta[t, _LOG_FAR]
             off = int(meta[t, _OFFSET])
             stretch_r = stretch[r]
@@ -1003,7 +1009,7 @@ def prism_table_lookup(lam, table, delta, ray_of_cell, start, end, stretch, lo, 
                 if k == 0:  # first interval: log C is -inf at z0
                     lca = -np.inf
                     if a > z0:
-                        lca = _log_c_first(a, steep, lam_t, ku, seg_h[s_a], z0, fb, shift, log_wn, means, sigmas) - log_z
+                        lca = _log_c_first(a, steep, lam_r, ku, seg_h[s_a], z0, fb, shift, log_wn, means, sigmas) - log_z
                 else:
                     lca = _interpolate(nodes, o, f, seg_h[s_a], 0, dl)
                 if lca < _LOG_HALF:
@@ -1013,7 +1019,7 @@ def prism_table_lookup(lam, table, delta, ray_of_cell, start, end, stretch, lo, 
                     l_a[j] = _interpolate(nodes, o, f, seg_h[s_a], _D_COLUMN, dl)
                     z_half = min(z_half, a)
         if c > z_end:
-            lcc = log_tail(c, log_z, lam_t, ku, hq, z0, z_max, fb, shift, log_far, log_wn, means, sigmas) - log_z
+            lcc = log_tail(c, log_z, lam_r, ku, hq, z0, z_max, fb, shift, log_far, log_wn, means, sigmas) - log_z
             c_is_d = 1
         else:
             k, f, s_c = _locate(lam_t * c - ku / c, s_c, seg_x, seg_row, seg_inv, n_seg)
@@ -1023,7 +1029,7 @@ def prism_table_lookup(lam, table, delta, ray_of_cell, start, end, stretch, lo, 
                 lcc = _interpolate(nodes, o, f, seg_h[s_c], _D_COLUMN, dl)
             else:
                 if k == 0:
-                    lcc = _log_c_first(c, steep, lam_t, ku, seg_h[s_c], z0, fb, shift, log_wn, means, sigmas) - log_z
+                    lcc = _log_c_first(c, steep, lam_r, ku, seg_h[s_c], z0, fb, shift, log_wn, means, sigmas) - log_z
                 else:
                     lcc = _interpolate(nodes, o, f, seg_h[s_c], 0, dl)
                 if lcc < _LOG_HALF:
@@ -1059,8 +1065,8 @@ def prism_table_combine(lo, hi, l_a, l_c, e_a, e_c, side, lam_len, post, ratio, 
         p_c, q_c = _cell_prior(lam_len[j])
         c_a = 1.0 - e_a[j] if s & 1 else e_a[j]
         c_c = 1.0 - e_c[j] if s & 2 else e_c[j]
-        d_a = 1.0 - c_a
-        d_c = 1.0 - c_c
+        d_a = e_a[j] if s & 1 else 1.0 - e_a[j]  # the looked-up side as it is: D(c)/Z below 1e-16 of q_c C(a)/Z
+        d_c = e_c[j] if s & 2 else 1.0 - e_c[j]  # would vanish in 1 - (1 - D/Z)
         # the cell's share C(c) - C(a) from the side that is small (accurate) at c
         delta = max(c_c - c_a, 0.0) if c_c < 0.5 else max(d_a - d_c, 0.0)
         num = p_c * c_a + delta

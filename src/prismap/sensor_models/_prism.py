@@ -36,8 +36,14 @@ TABLE_TOLERANCE = {"abs": 5e-3, "rel": 1e-3, "large": 50.0, "large_rel": 2e-2, "
 any ray norm): ``|inc_table - inc_direct| <= abs + rel |inc_direct|`` where ``|inc_direct| <= large``
 (posterior within e^-50 of 0 or 1), ``<= large_rel |inc_direct|`` beyond, and ``|P_table - P_direct| <=
 posterior``. It includes the cut at the influence depth (``influence_epsilon``) and the rate term (a ray's
-``lambda_z`` up to half a ``_LAMBDA_STEP`` from its table's in log). Checked by ``tests/test_sensor_models_prism.py``,
-rays half-way between rate keys included, where the worst cells use under half of each term."""
+``lambda_z`` up to half a ``_LAMBDA_STEP`` from its table's in log). A map voxel's increment from one frame (policy
+``mean`` or ``max-abs``) is then within the bound at the largest direct increment of its cells. Checked by
+``tests/test_sensor_models_prism.py``, rays half-way between rate keys included (where the worst cells use under
+half of each term), cells in a table's first interval, and whole frames in ray and projective mode. Not covered:
+a cell whose ``1 - P`` is below about e^-30 because it spans the whole likelihood peak and ends past the influence
+depth (a narrow one-Gaussian error at short range, or a cell tens of metres long): its ``D(c)`` then comes from the
+table's four back intervals or its end's tail bound (e^-40 of ``C``; ``"direct"`` cuts its tail there too), and
+the increment (30-50) is off by up to about 7 % (``P`` is 1 in float64 either way)."""
 
 _QUAD_STEP = 0.25  # x-width of one Gauss-Legendre panel (x: one unit per prior e-fold or narrowest sigma)
 _TABLE_STEP = 0.5  # table node spacing in x, also the width of its march's panels
@@ -167,7 +173,9 @@ class PrismModel(RayModel):
       component matters (:func:`broad_errors`: far in front of and behind the measurement, where outliers
       alone produce it), and 4 nodes beyond. Cubic Hermite in ``x`` with exact derivatives; each ray uses the
       table of the nearest rate plus a second-order Taylor term in ``log lambda_z`` (from stored moments; the
-      first-order term cubic Hermite in x with its exact x-derivative, the second linear), and a cell across
+      first-order term cubic Hermite in x with its exact x-derivative, the second linear; what a look-up
+      integrates on the spot, in a table's first interval or beyond its end, at the ray's own rate and over
+      the ray's ``Z`` by that term), and a cell across
       ``C/Z = 1/2`` takes ``D`` at both ends. Nodes are stored in float32 (their rounding is far below the
       tolerance), 40 bytes a node. Error against
       ``"direct"``: within :data:`TABLE_TOLERANCE` for disparities on the step grid; off-grid disparities
