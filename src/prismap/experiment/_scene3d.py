@@ -436,7 +436,7 @@ def format_error_correlation(correlations):
              "evidence as if their errors were independent (docs/SENSOR_MODELS.md, section 3): a correlation above 0 "
              "and gross errors that repeat more often than they strike are evidence counted more than once, most "
              "where a model is sure of the surface.", "",
-             "| matcher | pairs | correlation (\|e\| <= 3 px) | gross (\|e\| > 1 px) | gross after gross |",
+             r"| matcher | pairs | correlation (\|e\| <= 3 px) | gross (\|e\| > 1 px) | gross after gross |",
              "|---|---|---|---|---|"]
     lines += [f"| {name} | {c.n_pairs} | {c.correlation:.3f} | {c.gross_rate:.2%} | {c.gross_repeat:.2%} |"
               for name, c in correlations.items()]
