@@ -196,7 +196,9 @@ def run_rendered_world(world, out_dir, *, n_frames=None, voxel_size_m=None, seed
     with every model of ``models``, using that matcher's error model. Maps are scored on the voxels a
     perfect sensor observed from the mapping frames within ``max_range_m``; ``p0`` is their occupancy ratio.
     The targets include the log-likelihood of the mapping frames' errors under each error model
-    (:func:`mapped_log_likelihood`), the test of a characterisation on errors it never saw.
+    (:func:`mapped_log_likelihood`), the test of a characterisation on errors it never saw; a last section
+    measures how each matcher's errors repeat in consecutive mapping frames (:func:`mapped_error_correlation`),
+    which the maps' fusion assumes they do not.
 
     Parameters
     ----------
