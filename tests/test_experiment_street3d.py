@@ -112,3 +112,24 @@ def test_bad_street_options_are_named(tmp_path):
     with pytest.raises(PrismapInputError, match="world 'scene3d' has no drive between its frames"):
         run_scene3d(tmp_path, between_frames=2)
     assert not (tmp_path / "settings.json").exists()  # refused before anything is written
+
+
+def test_the_results_say_how_the_errors_repeat_across_mapping_frames(street):
+    import json
+
+    from prismap.characterise import frame_error_correlation
+    from prismap.io import read_kitti_disparity, read_sequence
+
+    out, _ = street
+    sequence = read_sequence(out / "sequence")
+    frames = list(sequence)
+    disparities = [read_kitti_disparity(out / "sgbm" / "disparity" / f"{i:06d}.png") for i in range(len(frames))]
+    expected = frame_error_correlation(frames, disparities, sequence.camera, lag=1)
+    stored = json.loads((out / "results.json").read_text())["error_correlation"]["sgbm"]
+    assert stored == expected.to_dict()
+    assert stored["n_pairs"] > 1000 and 0.0 <= stored["gross_rate"] <= 1.0
+    # the street's SGBM errors repeat: correlated, and a gross error is followed by another far more often than one strikes
+    assert stored["correlation"] > 0.1 and stored["gross_repeat"] > 2 * stored["gross_rate"]
+    results = (out / "results.md").read_text()
+    assert "## Errors repeated across frames" in results
+    assert f"| sgbm | {expected.n_pairs} | {expected.correlation:.3f} |" in results

@@ -1,6 +1,7 @@
 """Errors of a stereo matcher against ground truth, their histograms, fitted error models and tables."""
 
 from prismap.characterise._classes import NO_CLASS, ErrorClasses
+from prismap.characterise._correlation import ErrorCorrelation, frame_error_correlation
 from prismap.characterise._features import (
     FEATURE_UNITS,
     PixelFeatures,
@@ -30,6 +31,7 @@ __all__ = [
     "Characterisation",
     "ClassModel",
     "ErrorClasses",
+    "ErrorCorrelation",
     "ErrorHistogram",
     "ErrorModel",
     "PixelFeatures",
@@ -40,6 +42,7 @@ __all__ = [
     "discontinuity_mask",
     "disparity_gradient",
     "format_table",
+    "frame_error_correlation",
     "load_error_model",
     "write_characterisation",
     "write_error_model",

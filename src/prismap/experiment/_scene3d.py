@@ -196,7 +196,9 @@ def run_rendered_world(world, out_dir, *, n_frames=None, voxel_size_m=None, seed
     with every model of ``models``, using that matcher's error model. Maps are scored on the voxels a
     perfect sensor observed from the mapping frames within ``max_range_m``; ``p0`` is their occupancy ratio.
     The targets include the log-likelihood of the mapping frames' errors under each error model
-    (:func:`mapped_log_likelihood`), the test of a characterisation on errors it never saw.
+    (:func:`mapped_log_likelihood`), the test of a characterisation on errors it never saw; a last section
+    measures how each matcher's errors repeat in consecutive mapping frames (:func:`mapped_error_correlation`),
+    which the maps' fusion assumes they do not.
 
     Parameters
     ----------
@@ -269,7 +271,7 @@ def run_rendered_world(world, out_dir, *, n_frames=None, voxel_size_m=None, seed
     model_params = _derived_model_params(settings, scene, drive_char_frames)
     cell_settings = dict(settings, derived_model_params=model_params)
 
-    results, artifacts, error_models, mapped_likelihoods = [], [], {}, {}
+    results, artifacts, error_models, mapped_likelihoods, correlations = [], [], {}, {}, {}
     layer = math.floor((spec.slice_height_m + shift) / voxel)
     for matcher_name in settings["matchers"]:
         matcher = _matcher(matcher_name, largest)
@@ -279,6 +281,7 @@ def run_rendered_world(world, out_dir, *, n_frames=None, voxel_size_m=None, seed
         error_models[matcher_name] = error_model
         disparity_dir = _match(out / matcher_name / "disparity", map_frames, matcher)
         mapped_likelihoods[matcher_name] = mapped_log_likelihood(error_model, map_frames, disparity_dir)
+        correlations[matcher_name] = mapped_error_correlation(sequence, disparity_dir, sequence.camera)
         build_map = _mapper(sequence, disparity_dir, matcher_name, error_model, p0, model_params, settings)
         cells, maps = run_cells(out, matcher_name, models, build_map, truth, cell_settings)
         results += cells
@@ -311,7 +314,9 @@ def run_rendered_world(world, out_dir, *, n_frames=None, voxel_size_m=None, seed
              models_note, _classes_note(error_models, mapped_likelihoods))
     targets = measure_targets(world, results, error_models, mapped_likelihoods)
     paths = write_results(results, out, title=spec.title, notes=notes, settings=settings,
-                          sections=(format_targets(targets),), extra={"targets": [t.to_dict() for t in targets]})
+                          sections=(format_targets(targets), format_error_correlation(correlations)),
+                          extra={"targets": [t.to_dict() for t in targets],
+                                 "error_correlation": {name: c.to_dict() for name, c in correlations.items()}})
     artifacts = [(paths["table"], f"Scores of every matcher x sensor model: {spec.title} (Markdown)."),
                  (paths["json"], "The same scores with reliability bins and histograms (JSON).")] + artifacts
     return ExperimentResult(world, tuple(results), p0, settings, tuple(artifacts))
@@ -383,13 +388,10 @@ def mapped_log_likelihood(error_model, frames, disparity_dir):
     -------
     dict: ``conditioned_nats_per_error``, ``plain_nats_per_error`` (nats per error) and ``n_errors``.
     """
-    from prismap.io import read_kitti_disparity
-
     mixtures = error_model.class_mixtures if error_model.conditioned else (error_model.mixture,)
     conditioned = plain = 0.0
     count = 0
-    for index, frame in enumerate(frames):
-        disparity = read_kitti_disparity(Path(disparity_dir) / f"{index:06d}.png")
+    for frame, disparity in zip(frames, _disparities(disparity_dir, len(frames))):
         if error_model.conditioned:
             label = error_model.classify_frame(frame.left, frame.right, disparity)
         else:
@@ -404,6 +406,51 @@ def mapped_log_likelihood(error_model, frames, disparity_dir):
         raise PrismapInputError("no mapping frame has a pixel with both a computed and a true disparity")
     return {"conditioned_nats_per_error": conditioned / count, "plain_nats_per_error": plain / count,
             "n_errors": count}
+
+
+def mapped_error_correlation(frames, disparity_dir, camera):
+    """How the matcher's errors at one surface point repeat in consecutive mapping frames: the independence
+    the map's fusion assumes (:func:`prismap.characterise.frame_error_correlation`, ``lag=1``).
+
+    Parameters
+    ----------
+    frames : Sequence or sequence of StereoFrame
+        The mapping frames in drive order as mapped (the written sequence), with ``disparity_gt`` (pixels) and
+        ``T_world_cam``.
+    disparity_dir : Path
+        The matcher's disparity of frame ``i`` as ``{i:06d}.png`` (see :func:`_match`).
+    camera : StereoCamera
+
+    Returns
+    -------
+    prismap.characterise.ErrorCorrelation
+    """
+    from prismap.characterise import frame_error_correlation
+
+    return frame_error_correlation(frames, list(_disparities(disparity_dir, len(frames))), camera, lag=1)
+
+
+def format_error_correlation(correlations):
+    """Markdown section: each matcher's :func:`mapped_error_correlation` and what it means for the fused maps."""
+    lines = ["## Errors repeated across frames", "",
+             "Each mapping frame's pixels placed at their true depth and paired with the pixel of the next mapping "
+             "frame that sees the same surface point (`characterise.frame_error_correlation`). The map adds frames' "
+             "evidence as if their errors were independent (docs/SENSOR_MODELS.md, section 3): a correlation above 0 "
+             "and gross errors that repeat more often than they strike are evidence counted more than once, most "
+             "where a model is sure of the surface.", "",
+             r"| matcher | pairs | correlation (\|e\| <= 3 px) | gross (\|e\| > 1 px) | gross after gross |",
+             "|---|---|---|---|---|"]
+    lines += [f"| {name} | {c.n_pairs} | {c.correlation:.3f} | {c.gross_rate:.2%} | {c.gross_repeat:.2%} |"
+              for name, c in correlations.items()]
+    return "\n".join(lines + [""])
+
+
+def _disparities(disparity_dir, n_frames):
+    """The matcher's disparity (pixels, NaN = invalid) of frames ``0 .. n_frames - 1`` from ``disparity_dir``."""
+    from prismap.io import read_kitti_disparity
+
+    for index in range(n_frames):
+        yield read_kitti_disparity(Path(disparity_dir) / f"{index:06d}.png")
 
 
 def _match(out_dir, frames, matcher):
