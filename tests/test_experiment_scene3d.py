@@ -82,3 +82,16 @@ def test_prism_solid_depth_is_measured_on_the_characterisation_frames(scene):
 def test_bad_scene_options_are_named(tmp_path, kwargs, message):
     with pytest.raises(PrismapInputError, match=message):
         run_scene3d(tmp_path, quick=True, **kwargs)
+
+
+def test_conditioned_prism_passes_through_at_each_class_s_ratio(scene):
+    out, result = scene
+    from prismap.characterise import load_error_model
+
+    n_classes = load_error_model(out / "sgbm" / "characterisation" / "error_model.json").n_classes
+    conditioned = result.cell("sgbm", "prism_conditioned").settings["derived_model_params"]["prism"]
+    ratios = np.array(conditioned["class_pass_through"])
+    assert ratios.shape == (n_classes,) and n_classes > 1 and np.all((ratios >= 0) & (ratios < 1))
+    assert ratios.max() > 2 * ratios.min()  # rays near the disparity edges pass far more occupied voxels
+    assert len(list((out / "sgbm" / "characterisation_disparity").glob("*.png"))) == 4
+    assert "class_pass_through" in (out / "results.md").read_text()

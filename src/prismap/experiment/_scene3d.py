@@ -279,8 +279,12 @@ def run_rendered_world(world, out_dir, *, n_frames=None, voxel_size_m=None, seed
         error_models[matcher_name] = error_model
         disparity_dir = _match(out / matcher_name / "disparity", map_frames, matcher)
         mapped_likelihoods[matcher_name] = mapped_log_likelihood(error_model, map_frames, disparity_dir)
-        build_map = _mapper(sequence, disparity_dir, matcher_name, error_model, p0, model_params, settings)
-        cells, maps = run_cells(out, matcher_name, models, build_map, truth, cell_settings)
+        matcher_params = _class_model_params(model_params, settings, scene, drive_char_frames, error_model,
+                                             _match(out / matcher_name / "characterisation_disparity",
+                                                    drive_char_frames, matcher))
+        build_map = _mapper(sequence, disparity_dir, matcher_name, error_model, p0, matcher_params, settings)
+        cells, maps = run_cells(out, matcher_name, models, build_map, truth,
+                                dict(cell_settings, derived_model_params=matcher_params))
         results += cells
         artifacts += char_artifacts
         artifacts += draw_figures(out, matcher_name, cells, maps, truth, layer=layer,
@@ -307,7 +311,10 @@ def run_rendered_world(world, out_dir, *, n_frames=None, voxel_size_m=None, seed
              "characterisation frames' noise-free rays cross an occupied voxel before their surface (beyond its voxel overhang) "
              "without stopping (`Scene3D.pass_through_ratio`). "
              f"PRISM's solid_depth_m = {model_params['prism']['solid_depth_m']:.3f} m: the depth of solid behind "
-             f"all but {SOLID_DEPTH_QUANTILE:.0%} of those rays' hits (`Scene3D.solid_depth`).",
+             f"all but {SOLID_DEPTH_QUANTILE:.0%} of those rays' hits (`Scene3D.solid_depth`). "
+             "Conditioned PRISM takes the pass-through ratio of each error class's rays (`class_pass_through`, "
+             "the classes of the matcher's disparity of those frames; see each cell's settings): passes crowd at "
+             "the silhouettes of solids, where the classes by distance to a disparity edge put them.",
              models_note, _classes_note(error_models, mapped_likelihoods))
     targets = measure_targets(world, results, error_models, mapped_likelihoods)
     paths = write_results(results, out, title=spec.title, notes=notes, settings=settings,
@@ -407,7 +414,7 @@ def mapped_log_likelihood(error_model, frames, disparity_dir):
 
 
 def _match(out_dir, frames, matcher):
-    """Write the matcher's disparity of each mapping frame as ``NNNNNN.png`` (uint16, value / 256 px, 0 = invalid)."""
+    """Write the matcher's disparity of each of ``frames`` as ``NNNNNN.png`` (uint16, value / 256 px, 0 = invalid)."""
     from prismap.io import write_disparity_png
 
     out_dir = Path(out_dir)
@@ -433,22 +440,45 @@ def _derived_model_params(settings, scene, char_frames):
     return params
 
 
+def _class_model_params(model_params, settings, scene, char_frames, error_model, disparity_dir):
+    """``model_params`` with PRISM's ``class_pass_through`` for a conditioned ``error_model`` (unless the settings
+    set it): the pass-through ratio of the rays of each class of the matcher's disparity of ``char_frames``
+    (``disparity_dir``, see :func:`_match`), measured as the whole ratio is."""
+    from prismap.io import read_kitti_disparity
+    from prismap.sensor_models import CLASS_PASS_THROUGH
+
+    prism = model_params["prism"]
+    if not error_model.conditioned or CLASS_PASS_THROUGH in prism:
+        return model_params
+    labels = [error_model.classify_frame(frame.left, frame.right,
+                                         read_kitti_disparity(Path(disparity_dir) / f"{index:06d}.png"))
+              for index, frame in enumerate(char_frames)]
+    ratios = scene.pass_through_ratio(char_frames, settings["voxel_size_m"], max_depth_m=settings["max_range_m"],
+                                      subsample=settings["subsample"], ray_classes=labels,
+                                      n_classes=error_model.n_classes)
+    return dict(model_params, prism=dict(prism, **{CLASS_PASS_THROUGH: [float(m) for m in ratios]}))
+
+
 def _mapper(sequence, disparity_dir, matcher_name, error_model, p0, model_params, settings):
     """``build_map(cell_model)``: the pipeline's map of the mapping frames from the matcher's disparities.
 
     ``model_params``: model name -> its parameters (the settings' with what the run derived).
 
     ``cell_model`` is a model name, plain, or with :data:`~prismap.experiment.CONDITIONED_SUFFIX`: conditioned
-    on the error model's classes (plain when the characterisation chose none), then optionally
+    on the error model's classes (plain when the characterisation chose none; PRISM then takes
+    ``class_pass_through``), then optionally
     :data:`~prismap.experiment.MAP_PRIOR_SUFFIX`: PRISM with the map as prior.
     """
     from prismap.pipeline import MappingConfig, map_sequence
+    from prismap.sensor_models import CLASS_PASS_THROUGH
 
     def build_map(cell_model):
         model_name, conditioned = split_variant(cell_model)
         params = {**model_params.get(model_name, {}), **variant_params(cell_model)}
         if params.get("prior") == "map":  # PRISM's solid depth is a p0-prior model only
             params.pop("solid_depth_m", None)
+        if not conditioned:  # one pass-through per error class is for conditioned PRISM
+            params.pop(CLASS_PASS_THROUGH, None)
         config = MappingConfig(model=model_name, model_params=params,
                                voxel_size_m=settings["voxel_size_m"], p0=p0, error_model=error_model,
                                conditioned=None if conditioned else False, matcher=matcher_name,
