@@ -170,16 +170,22 @@ def _jeffreys(passes):
     return (passes.sum() + 0.5) / (passes.sum() + passes.size + 1.0)
 
 
-def test_pass_through_ratio_of_a_thin_rail_matches_dense_sampling():
+WALL = ([-9.0, -9.0, 3.05], [9.0, 9.0, 3.5])
+RAIL = ([-9.0, 0.012, 1.512], [9.0, 0.03, 1.53])
+
+
+def _rail_scene():
     """A wall at 3.05 m and a thin rail in front of it that fills a voxel row only partly."""
-    wall = ([-9.0, -9.0, 3.05], [9.0, 9.0, 3.5])
-    rail = ([-9.0, 0.012, 1.512], [9.0, 0.03, 1.53])
-    scene = sim.Scene3D.from_boxes([wall[0], rail[0]], [wall[1], rail[1]])
+    return sim.Scene3D.from_boxes([WALL[0], RAIL[0]], [WALL[1], RAIL[1]])
+
+
+def test_pass_through_ratio_of_a_thin_rail_matches_dense_sampling():
+    scene = _rail_scene()
     frame = _frame(scene)
     got = scene.pass_through_ratio([frame], VOXEL)
     assert 0 < got < 0.2
     assert got == pytest.approx(_reference_ratio(scene, frame), abs=1e-12)
-    alone = sim.Scene3D.from_boxes([wall[0]], [wall[1]])
+    alone = sim.Scene3D.from_boxes([WALL[0]], [WALL[1]])
     # a wall seen head-on: every ray stops on it, and 256 rays bound the ratio at the prior's half a pass
     assert alone.pass_through_ratio([_frame(alone)], VOXEL) == pytest.approx(0.5 / 257, rel=1e-12)
 
@@ -191,12 +197,6 @@ def test_pass_through_ratio_bad_input_is_named():
         scene.pass_through_ratio([frame], VOXEL, subsample=0)
     with pytest.raises(PrismapInputError, match="no ray"):
         scene.pass_through_ratio([frame], VOXEL, max_depth_m=1.0)
-
-
-def _rail_scene():
-    wall = ([-9.0, -9.0, 3.05], [9.0, 9.0, 3.5])
-    rail = ([-9.0, 0.012, 1.512], [9.0, 0.03, 1.53])
-    return sim.Scene3D.from_boxes([wall[0], rail[0]], [wall[1], rail[1]])
 
 
 def test_pass_through_ratio_by_class_matches_dense_sampling_of_each_class():
