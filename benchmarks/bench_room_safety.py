@@ -72,15 +72,16 @@ def noise_free_crossings(sequence, truth, voxel, settings):
     return passes, stops
 
 
-def exact_map(run, sequence, settings, error_model, params, p0):
-    """Plain PRISM's map of the mapping frames' exact disparities (rounded to 1/16 px), the run's parameters."""
+def exact_map(sequence, settings, matcher, error_model, params, p0):
+    """Plain PRISM's map of the mapping frames' exact disparities (rounded to 1/16 px), the run's parameters and
+    ``matcher``'s whole-image error mixture."""
     with tempfile.TemporaryDirectory() as directory:
         for index in range(len(sequence)):
             exact = np.asarray(sequence[index].disparity_gt, float)
             write_disparity_png(Path(directory) / f"{index:06d}.png", np.round(exact * 16) / 16, "exact disparity")
         prism = {k: v for k, v in params.get("prism", {}).items() if k != CLASS_PASS_THROUGH}
         config = MappingConfig(model="prism", model_params=prism, voxel_size_m=settings["voxel_size_m"], p0=p0,
-                               error_model=error_model, conditioned=False, matcher="exact", disparity_source=directory,
+                               error_model=error_model, conditioned=False, matcher=matcher, disparity_source=directory,
                                max_range_m=settings["max_range_m"], subsample=settings["subsample"],
                                mode=settings["mode"])
         return map_sequence(sequence, config)
@@ -105,7 +106,7 @@ def main(run_dir, matcher="bm", exact=""):
     share[occupied] = solid_share(keys[occupied], base.box_lo + shift, base.box_hi + shift, voxel)
     groups = {"both": plain & conditioned, "plain only": plain & ~conditioned,
               "conditioned only": conditioned & ~plain, "all occupied": occupied}
-    exact_free = called_free(exact_map(run, sequence, settings, error_model, params, p0), truth, p0)[0] if exact else None
+    exact_free = called_free(exact_map(sequence, settings, matcher, error_model, params, p0), truth, p0)[0] if exact else None
     for name, group in groups.items():
         faces = np.bincount(exposed[group], minlength=4)
         line = (f"{matcher} {name:16s} {int(group.sum()):6d} voxels | solid share median {np.median(share[group]):.3f}, "

@@ -84,14 +84,26 @@ def test_bad_scene_options_are_named(tmp_path, kwargs, message):
         run_scene3d(tmp_path, quick=True, **kwargs)
 
 
-def test_conditioned_prism_passes_through_at_each_class_s_ratio(scene):
-    out, result = scene
+def test_class_pass_through_is_measured_per_class_only_when_asked(scene):
+    """Off by default; on, one ratio per class of the matcher's own disparity (here of the mapped frames)."""
+    from prismap import sim
     from prismap.characterise import load_error_model
+    from prismap.experiment._scene3d import _class_model_params
+    from prismap.io import read_sequence
 
-    n_classes = load_error_model(out / "sgbm" / "characterisation" / "error_model.json").n_classes
-    conditioned = result.cell("sgbm", "prism_conditioned").settings["derived_model_params"]["prism"]
-    ratios = np.array(conditioned["class_pass_through"])
-    assert ratios.shape == (n_classes,) and n_classes > 1 and np.all((ratios >= 0) & (ratios < 1))
-    assert ratios.max() > 2 * ratios.min()  # rays near the disparity edges pass far more occupied voxels
-    assert len(list((out / "sgbm" / "characterisation_disparity").glob("*.png"))) == 4
-    assert "class_pass_through" in (out / "results.md").read_text()
+    out, result = scene
+    conditioned = result.cell("sgbm", "prism_conditioned").settings
+    assert "class_pass_through" not in conditioned["derived_model_params"]["prism"]
+    assert "class_pass_through" not in conditioned and not (out / "sgbm" / "characterisation_disparity").exists()
+    error_model = load_error_model(out / "sgbm" / "characterisation" / "error_model.json")
+    sequence = read_sequence(out / "sequence")
+    frames = [sequence[i] for i in range(3)]
+    shift = conditioned["grid_offset_m"]
+    base = sim.indoor_scene(seed=0)
+    world = sim.Scene3D.from_boxes(base.box_lo + shift, base.box_hi + shift)
+    params = _class_model_params(conditioned["derived_model_params"], conditioned, world, frames, error_model,
+                                 out / "sgbm" / "disparity")
+    ratios = np.array(params["prism"]["class_pass_through"])
+    assert ratios.shape == (error_model.n_classes,) and error_model.n_classes > 1
+    assert np.all((ratios > 0) & (ratios < 1)) and ratios.max() > 2 * ratios.min()  # passes crowd near edges
+    assert params["prism"]["pass_through"] == conditioned["derived_model_params"]["prism"]["pass_through"]
