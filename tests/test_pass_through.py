@@ -162,7 +162,8 @@ def _reference_passes(scene, frame):
 
 
 def _reference_ratio(scene, frame):
-    return _jeffreys(_reference_passes(scene, frame))
+    passes = _reference_passes(scene, frame)
+    return passes.sum() / (passes.sum() + passes.size)
 
 
 def _jeffreys(passes):
@@ -186,8 +187,7 @@ def test_pass_through_ratio_of_a_thin_rail_matches_dense_sampling():
     assert 0 < got < 0.2
     assert got == pytest.approx(_reference_ratio(scene, frame), abs=1e-12)
     alone = sim.Scene3D.from_boxes([WALL[0]], [WALL[1]])
-    # a wall seen head-on: every ray stops on it, and 256 rays bound the ratio at the prior's half a pass
-    assert alone.pass_through_ratio([_frame(alone)], VOXEL) == pytest.approx(0.5 / 257, rel=1e-12)
+    assert alone.pass_through_ratio([_frame(alone)], VOXEL) == 0.0  # a wall seen head-on: every ray stops on it
 
 
 def test_pass_through_ratio_bad_input_is_named():
@@ -211,6 +211,9 @@ def test_pass_through_ratio_by_class_matches_dense_sampling_of_each_class():
         assert got[k] == pytest.approx(_jeffreys(passes[labels == k]), abs=1e-12)
     assert got[0] > 0.3 and got[1] < 0.01  # the passes are all on the rows that cross the rail
     assert got[2] == pytest.approx(_reference_ratio(scene, frame), abs=1e-12)  # no ray: the whole ratio
+    alone = sim.Scene3D.from_boxes([WALL[0]], [WALL[1]])  # no ray passes: Jeffreys' half a pass in 257
+    only = alone.pass_through_ratio([_frame(alone)], VOXEL, ray_classes=[np.zeros((16, 16), int)], n_classes=1)
+    assert only[0] == pytest.approx(0.5 / 257, rel=1e-12)
 
 
 @pytest.mark.parametrize(

@@ -112,14 +112,15 @@ def pass_through_ratio(box_lo, box_hi, frames, voxel_size_m, *, max_depth_m=np.i
     (:func:`prismap.grid.frame_overhang_m`, from the true disparity) before the surface are passes (the
     voxels within the overhang may hold the hit surface itself, which the overhang models). With surfaces
     that stop a ray with probability ``h`` each, a ray passes ``(1 - h) / h`` of them on average before its
-    hit, so ``1 - h = passes / (passes + rays)``; the estimate is the posterior mean under Jeffreys' prior,
-    ``(passes + 1/2) / (passes + rays + 1)``, so that a class whose rays never passed one (tens of thousands of
-    rays far from every silhouette) still bounds a ray's free evidence instead of claiming certainty.
+    hit, so ``1 - h = passes / (passes + rays)``.
 
     With ``ray_classes`` the ratio is taken over the rays of each pixel class apart: passes crowd at the
     silhouettes of solids (the box edges a ray grazes on its way to the wall behind), which a conditioned
     error model's classes pick out by the distance to the nearest disparity discontinuity, so a
-    conditioned PRISM gives each class its own ratio (``class_pass_through``).
+    conditioned PRISM gives each class its own ratio (``class_pass_through``). A class's ratio is the posterior
+    mean under Jeffreys' prior, ``(passes + 1/2) / (passes + rays + 1)``: a class whose rays never passed an
+    occupied voxel (tens of thousands of rays far from every silhouette) still bounds a ray's free evidence
+    instead of claiming certainty.
 
     Parameters
     ----------
@@ -136,7 +137,7 @@ def pass_through_ratio(box_lo, box_hi, frames, voxel_size_m, *, max_depth_m=np.i
 
     Returns
     -------
-    float in (0, 1), or with ``ray_classes`` (n_classes,) float64 in (0, 1): the ratio of each class's rays;
+    float in [0, 1), or with ``ray_classes`` (n_classes,) float64 in (0, 1): the ratio of each class's rays;
     a class none of whose rays meets a surface takes the ratio of all rays.
     """
     voxel = check_positive(voxel_size_m, "voxel_size_m")
@@ -161,7 +162,7 @@ def pass_through_ratio(box_lo, box_hi, frames, voxel_size_m, *, max_depth_m=np.i
         rays_hit += np.bincount(label[hit], minlength=n_bins)
     if rays_hit.sum() == 0:
         raise PrismapInputError("no ray of `frames` meets a surface within `max_depth_m`: no pass-through ratio")
-    whole = (passes.sum() + 0.5) / (passes.sum() + rays_hit.sum() + 1.0)
+    whole = passes.sum() / (passes.sum() + rays_hit.sum())
     if labels is None:
         return float(whole)
     return np.where(rays_hit[:-1] > 0, (passes[:-1] + 0.5) / (passes[:-1] + rays_hit[:-1] + 1.0), whole)
