@@ -33,6 +33,7 @@ from prismap.experiment._results import prior_of
 from prismap.grid import pack_keys
 from prismap.io import load_map, read_sequence, write_disparity_png
 from prismap.pipeline import MappingConfig, map_sequence
+from prismap.sensor_models import CLASS_PASS_THROUGH
 
 SHARED_CELL_M = 0.01
 
@@ -125,7 +126,8 @@ def main(run_dir, matcher="sgbm", variants="independent,shared,patches", models=
                 disparity[disparity <= 0] = np.nan
                 write_disparity_png(Path(disparity_dir) / f"{index:06d}.png", disparity, f"{variant} disparity")
             for model in models.split(","):
-                config = MappingConfig(model=model, model_params=model_params.get(model, {}),
+                plain_params = {k: v for k, v in model_params.get(model, {}).items() if k != CLASS_PASS_THROUGH}
+                config = MappingConfig(model=model, model_params=plain_params,
                                        voxel_size_m=settings["voxel_size_m"], p0=p0, error_model=error_model,
                                        conditioned=False, matcher=matcher, disparity_source=disparity_dir,
                                        max_range_m=settings["max_range_m"], subsample=settings["subsample"],

@@ -22,6 +22,7 @@ from prismap.evaluate import align_to_ground_truth, score_map
 from prismap.experiment._results import split_variant
 from prismap.pipeline import MappingConfig
 from prismap.pipeline._run import integrate_frames, new_map
+from prismap.sensor_models import CLASS_PASS_THROUGH
 
 
 def main(run_dir, matcher="sgbm", models="prism_conditioned,convolution", counts="1,2,5,all"):
@@ -34,6 +35,8 @@ def main(run_dir, matcher="sgbm", models="prism_conditioned,convolution", counts
         name, _, prior = cell.partition(":")
         model, conditioned = split_variant(name)
         model_params = dict(params.get(model, {}), **({"prior": prior} if prior else {}))
+        if not conditioned:  # one pass-through per error class is for conditioned PRISM
+            model_params.pop(CLASS_PASS_THROUGH, None)
         config = MappingConfig(model=model, model_params=model_params, voxel_size_m=settings["voxel_size_m"], p0=p0,
                                error_model=error_model, conditioned=None if conditioned else False, matcher=matcher,
                                disparity_source=str((run / matcher / "disparity").resolve()),

@@ -82,3 +82,28 @@ def test_prism_solid_depth_is_measured_on_the_characterisation_frames(scene):
 def test_bad_scene_options_are_named(tmp_path, kwargs, message):
     with pytest.raises(PrismapInputError, match=message):
         run_scene3d(tmp_path, quick=True, **kwargs)
+
+
+def test_class_pass_through_is_measured_per_class_only_when_asked(scene):
+    """Off by default; on, one ratio per class of the matcher's own disparity (here of the mapped frames)."""
+    from prismap import sim
+    from prismap.characterise import load_error_model
+    from prismap.experiment._scene3d import _class_model_params
+    from prismap.io import read_sequence
+
+    out, result = scene
+    conditioned = result.cell("sgbm", "prism_conditioned").settings
+    assert "class_pass_through" not in conditioned["derived_model_params"]["prism"]
+    assert "class_pass_through" not in conditioned and not (out / "sgbm" / "characterisation_disparity").exists()
+    error_model = load_error_model(out / "sgbm" / "characterisation" / "error_model.json")
+    sequence = read_sequence(out / "sequence")
+    frames = [sequence[i] for i in range(3)]
+    shift = conditioned["grid_offset_m"]
+    base = sim.indoor_scene(seed=0)
+    world = sim.Scene3D.from_boxes(base.box_lo + shift, base.box_hi + shift)
+    params = _class_model_params(conditioned["derived_model_params"], conditioned, world, frames, error_model,
+                                 out / "sgbm" / "disparity")
+    ratios = np.array(params["prism"]["class_pass_through"])
+    assert ratios.shape == (error_model.n_classes,) and error_model.n_classes > 1
+    assert np.all((ratios > 0) & (ratios < 1)) and ratios.max() > 2 * ratios.min()  # passes crowd near edges
+    assert params["prism"]["pass_through"] == conditioned["derived_model_params"]["prism"]["pass_through"]

@@ -140,15 +140,16 @@ def _frame(scene):
     return scene.render(CAMERA, np.eye(4), noise_sigma=0.0)
 
 
-def _reference_ratio(scene, frame):
-    """Dense sampling along each ray instead of the voxel traversal; the overhang of a wall seen head-on."""
+def _reference_passes(scene, frame):
+    """(H * W,) passes of each ray by dense sampling along it instead of the voxel traversal; the overhang of a
+    wall seen head-on."""
     depth = frame.extras["depth_m"]
     rays = CAMERA.pixel_rays(depth.shape).reshape(-1, 3)
     depth = depth.reshape(-1)
     key_lo = np.floor(scene.box_lo / VOXEL).astype(int)
     key_hi = np.floor(scene.box_hi / VOXEL).astype(int)
-    passes = 0
-    for ray, z in zip(rays, depth):
+    passes = np.zeros(depth.size, dtype=np.int64)
+    for index, (ray, z) in enumerate(zip(rays, depth)):
         norm = np.linalg.norm(ray)
         overhang = VOXEL / (1.0 / norm)  # normal (0, 0, 1): |n|_1 = 1, cos = 1/|r|
         samples = np.floor(np.arange(0.0, z, 1e-4)[:, None] * ray / VOXEL).astype(np.int64)
@@ -156,20 +157,36 @@ def _reference_ratio(scene, frame):
         for key in samples[np.concatenate(([0], changes))]:  # the voxels in the order the ray meets them
             exit_t = min(((key[a] + (ray[a] > 0)) * VOXEL) / ray[a] for a in range(3) if ray[a] != 0)
             occupied = np.any(np.all((key >= key_lo) & (key <= key_hi), axis=1))
-            passes += occupied and exit_t < z - overhang / norm
-    return passes / (passes + depth.size)
+            passes[index] += occupied and exit_t < z - overhang / norm
+    return passes
+
+
+def _reference_ratio(scene, frame):
+    passes = _reference_passes(scene, frame)
+    return passes.sum() / (passes.sum() + passes.size)
+
+
+def _jeffreys(passes):
+    """The ratio's estimate from each ray's passes: the posterior mean under Jeffreys' prior."""
+    return (passes.sum() + 0.5) / (passes.sum() + passes.size + 1.0)
+
+
+WALL = ([-9.0, -9.0, 3.05], [9.0, 9.0, 3.5])
+RAIL = ([-9.0, 0.012, 1.512], [9.0, 0.03, 1.53])
+
+
+def _rail_scene():
+    """A wall at 3.05 m and a thin rail in front of it that fills a voxel row only partly."""
+    return sim.Scene3D.from_boxes([WALL[0], RAIL[0]], [WALL[1], RAIL[1]])
 
 
 def test_pass_through_ratio_of_a_thin_rail_matches_dense_sampling():
-    """A wall at 3.05 m and a thin rail in front of it that fills a voxel row only partly."""
-    wall = ([-9.0, -9.0, 3.05], [9.0, 9.0, 3.5])
-    rail = ([-9.0, 0.012, 1.512], [9.0, 0.03, 1.53])
-    scene = sim.Scene3D.from_boxes([wall[0], rail[0]], [wall[1], rail[1]])
+    scene = _rail_scene()
     frame = _frame(scene)
     got = scene.pass_through_ratio([frame], VOXEL)
     assert 0 < got < 0.2
     assert got == pytest.approx(_reference_ratio(scene, frame), abs=1e-12)
-    alone = sim.Scene3D.from_boxes([wall[0]], [wall[1]])
+    alone = sim.Scene3D.from_boxes([WALL[0]], [WALL[1]])
     assert alone.pass_through_ratio([_frame(alone)], VOXEL) == 0.0  # a wall seen head-on: every ray stops on it
 
 
@@ -180,3 +197,34 @@ def test_pass_through_ratio_bad_input_is_named():
         scene.pass_through_ratio([frame], VOXEL, subsample=0)
     with pytest.raises(PrismapInputError, match="no ray"):
         scene.pass_through_ratio([frame], VOXEL, max_depth_m=1.0)
+
+
+def test_pass_through_ratio_by_class_matches_dense_sampling_of_each_class():
+    """Rows through the rail's silhouette in one class, the others in another, one column without a class."""
+    scene = _rail_scene()
+    frame = _frame(scene)
+    passes = _reference_passes(scene, frame).reshape(16, 16)
+    labels = np.where(passes.any(axis=1)[:, None], 0, 1) * np.ones((1, 16), dtype=np.int64)
+    labels[:, 3] = -1
+    got = scene.pass_through_ratio([frame], VOXEL, ray_classes=[labels], n_classes=3)
+    for k in (0, 1):
+        assert got[k] == pytest.approx(_jeffreys(passes[labels == k]), abs=1e-12)
+    assert got[0] > 0.3 and got[1] < 0.01  # the passes are all on the rows that cross the rail
+    assert got[2] == pytest.approx(_reference_ratio(scene, frame), abs=1e-12)  # no ray: the whole ratio
+    alone = sim.Scene3D.from_boxes([WALL[0]], [WALL[1]])  # no ray passes: Jeffreys' half a pass in 257
+    only = alone.pass_through_ratio([_frame(alone)], VOXEL, ray_classes=[np.zeros((16, 16), int)], n_classes=1)
+    assert only[0] == pytest.approx(0.5 / 257, rel=1e-12)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [({"n_classes": 2}, "`n_classes` .* needs `ray_classes`"),
+     ({"ray_classes": [np.zeros((16, 16), int)] * 2, "n_classes": 1}, r"one array per frame \(1\); got 2"),
+     ({"ray_classes": [np.zeros((8, 16), int)], "n_classes": 1}, r"frame's shape \(16, 16\); got shape \(8, 16\)"),
+     ({"ray_classes": [np.full((16, 16), 2)], "n_classes": 2}, r"must lie in \[-1, 1\]"),
+     ({"ray_classes": [np.zeros((16, 16), int)]}, "n_classes")],
+)
+def test_bad_ray_classes_are_named(kwargs, message):
+    scene = _rail_scene()
+    with pytest.raises(PrismapInputError, match=message):
+        scene.pass_through_ratio([_frame(scene)], VOXEL, **kwargs)

@@ -159,3 +159,36 @@ def test_conditioned_prism_gives_each_class_its_rays_overhangs():
     with pytest.raises(PrismapInputError, match="voxel_overhang_m"):
         model.cell_posteriors(disparity, norm, rays, start, end, ray_class=ray_class, voxel_overhang_m=overhang[:3])
     assert not conditioned_sensor_model("andert", CAMERA, error_model=_error_model(), **SETTINGS).takes_voxel_overhang
+
+
+def test_class_pass_through_gives_each_class_its_own_and_equals_that_class_by_hand():
+    values = (0.02, 0.3, 0.0)
+    model = conditioned_sensor_model("prism", CAMERA, error_model=_error_model(), pass_through=0.1,
+                                     class_pass_through=values, **SETTINGS)
+    assert [m.pass_through for m in model.class_models] == list(values) and model.plain.pass_through == 0.1
+    disparity, norm, ray_class, rays, start, end = _rays(seed=3)
+    posterior, increment = model.cell_posteriors(disparity, norm, rays, start, end, ray_class=ray_class)
+    for k in (-1, 0, 1, 2):
+        by_hand = conditioned_sensor_model("prism", CAMERA, error_model=WHOLE if k < 0 else CLASS_MIXTURES[k],
+                                           pass_through=0.1 if k < 0 else values[k], **SETTINGS)
+        cells = ray_class[rays] == k
+        want = by_hand.cell_posteriors(disparity, norm, rays[cells], start[cells], end[cells])
+        np.testing.assert_array_equal(posterior[cells], want[0])
+        np.testing.assert_array_equal(increment[cells], want[1])
+    # a thinner pass-through lets a ray's free evidence go deeper: class 2 (m = 0) below class 1 (m = 0.3)
+    free = model.cell_posteriors(np.array([20.0, 20.0]), np.ones(2), np.array([0, 1]), np.full(2, 1.0),
+                                 np.full(2, 1.1), ray_class=np.array([1, 2]))[1]
+    assert free[1] < free[0] < 0 and free[0] >= np.log(0.3) - 1e-12
+
+
+def test_bad_class_pass_through_is_named():
+    with pytest.raises(PrismapInputError, match=r"`class_pass_through` must hold one value per class \(3\); got 2"):
+        conditioned_sensor_model("prism", CAMERA, error_model=_error_model(), class_pass_through=(0.1, 0.2), **SETTINGS)
+    with pytest.raises(PrismapInputError, match="`class_pass_through` needs PRISM with a conditioned error model"):
+        conditioned_sensor_model("andert", CAMERA, error_model=_error_model(), class_pass_through=(0.1,) * 3, **SETTINGS)
+    plain = ErrorModel("sgbm", {}, "test", 1 / 32, (_fit(WHOLE),), 2)
+    with pytest.raises(PrismapInputError, match="`class_pass_through` needs PRISM with a conditioned error model"):
+        conditioned_sensor_model("prism", CAMERA, error_model=plain, class_pass_through=(0.1,), **SETTINGS)
+    with pytest.raises(PrismapInputError, match="pass_through"):
+        conditioned_sensor_model("prism", CAMERA, error_model=_error_model(), class_pass_through=(0.1, 1.0, 0.2),
+                                 **SETTINGS)

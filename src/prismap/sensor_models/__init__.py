@@ -9,6 +9,7 @@ from prismap.sensor_models._base import (
 )
 from prismap.sensor_models._classic import AndertModel, ConvolutionModel, HitMissModel, IdealModel
 from prismap.sensor_models._conditioned import (
+    CLASS_PASS_THROUGH,
     USES_MIXTURE,
     USES_SIGMA,
     ConditionedModel,
@@ -24,6 +25,7 @@ from prismap.sensor_models._prism import (
 )
 
 __all__ = [
+    "CLASS_PASS_THROUGH",
     "USES_MIXTURE",
     "USES_SIGMA",
     "AndertModel",

@@ -24,6 +24,9 @@ USES_MIXTURE = "prism"
 USES_SIGMA = ("convolution", "andert")
 """Models built from a class's mixture (PRISM) or from its dominant sigma; others ignore the error model."""
 
+CLASS_PASS_THROUGH = "class_pass_through"
+"""PRISM parameter of a conditioned run: one ``pass_through`` per class (the plain sub-model keeps ``pass_through``)."""
+
 
 @dataclass(frozen=True, eq=False)
 class ConditionedModel(InverseSensorModel):
@@ -209,7 +212,10 @@ def conditioned_sensor_model(name, camera, *, voxel_size_m, p0, error_model, **p
         :class:`ConditionedModel` for ``prism``, ``convolution`` and ``andert``; a plain one, a mixture,
         or the models that ignore the error (``ideal``, ``hitmiss``) give the plain model.
     **params
-        The model's own parameters (as for :func:`prismap.pipeline.build_sensor_model`).
+        The model's own parameters (as for :func:`prismap.pipeline.build_sensor_model`). PRISM also takes
+        ``class_pass_through`` (:data:`CLASS_PASS_THROUGH`): a sequence of one ``pass_through`` per class,
+        measured like the whole one over each class's rays (``prismap.sim.Scene3D.pass_through_ratio`` with
+        ``ray_classes``); class ``k``'s model gets value ``k``, the plain model ``pass_through``.
 
     Returns
     -------
@@ -226,9 +232,21 @@ def conditioned_sensor_model(name, camera, *, voxel_size_m, p0, error_model, **p
         raise PrismapInputError(
             f"`error_model` must be an ErrorModel or a GaussianMixture; got {type(error_model).__name__}"
         )
+    params = dict(params)
+    per_class = params.pop(CLASS_PASS_THROUGH, None)
     build = {"focal_baseline": camera.focal_baseline, "doffs_px": camera.doffs_px, "voxel_size_m": voxel_size_m,
              "p0": p0, **params}
     plain = model_for_mixture(name, whole, **build)
+    if per_class is not None:
+        if name != USES_MIXTURE or not class_mixtures:
+            raise PrismapInputError(f"`{CLASS_PASS_THROUGH}` needs PRISM with a conditioned error model; got model "
+                                    f"{name!r} with {len(class_mixtures)} classes")
+        per_class = np.asarray(per_class, dtype=np.float64).reshape(-1)
+        if per_class.size != len(class_mixtures):
+            raise PrismapInputError(f"`{CLASS_PASS_THROUGH}` must hold one value per class ({len(class_mixtures)}); "
+                                    f"got {per_class.size}")
+        return ConditionedModel(plain, tuple(model_for_mixture(name, mixture, **{**build, "pass_through": float(m)})
+                                             for mixture, m in zip(class_mixtures, per_class)))
     if not class_mixtures or (name != USES_MIXTURE and name not in USES_SIGMA):
         return plain
     return ConditionedModel(plain, tuple(model_for_mixture(name, mixture, **build) for mixture in class_mixtures))

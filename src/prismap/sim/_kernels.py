@@ -175,10 +175,10 @@ def mark_visible(mask, key_lo, voxel_size, planar_z, rotation_wc, position_w, fo
 
 
 @numba.njit(cache=True, nogil=True)
-def count_occupied_before(occupied, bounds_lo, ray_of_cell, keys, t_out, t_limit):
-    """How many cells (``keys``, (C, 3)) leave their ray before ``t_limit[ray]`` inside an ``occupied`` voxel
-    (a dense (X, Y, Z) bool volume whose first voxel has key ``bounds_lo``)."""
-    count = 0
+def occupied_before_per_ray(occupied, bounds_lo, ray_of_cell, keys, t_out, t_limit, n_rays):
+    """(n_rays,) int64: per ray, how many of its cells (``keys``, (C, 3)) it leaves before ``t_limit[ray]``
+    inside an ``occupied`` voxel (a dense (X, Y, Z) bool volume whose first voxel has key ``bounds_lo``)."""
+    counts = np.zeros(n_rays, dtype=np.int64)
     nx, ny, nz = occupied.shape
     for i in range(keys.shape[0]):
         if t_out[i] < t_limit[ray_of_cell[i]]:
@@ -186,5 +186,5 @@ def count_occupied_before(occupied, bounds_lo, ray_of_cell, keys, t_out, t_limit
             y = keys[i, 1] - bounds_lo[1]
             z = keys[i, 2] - bounds_lo[2]
             if 0 <= x < nx and 0 <= y < ny and 0 <= z < nz and occupied[x, y, z]:
-                count += 1
-    return count
+                counts[ray_of_cell[i]] += 1
+    return counts

@@ -144,11 +144,13 @@ class Scene3D:
         """
         return ground_truth(self.box_lo, self.box_hi, frames, voxel_size_m, max_depth_m=max_depth_m)
 
-    def pass_through_ratio(self, frames, voxel_size_m, *, max_depth_m=np.inf, subsample=1):
+    def pass_through_ratio(self, frames, voxel_size_m, *, max_depth_m=np.inf, subsample=1, ray_classes=None,
+                           n_classes=None):
         """How often a ray crosses an occupied voxel without meeting its surface there, seen by ``frames``
-        (see ``prismap.sim._truth.pass_through_ratio``): PRISM's ``pass_through`` for this world."""
+        (see ``prismap.sim._truth.pass_through_ratio``): PRISM's ``pass_through`` for this world, or with
+        ``ray_classes`` one per pixel class (``class_pass_through``)."""
         return pass_through_ratio(self.box_lo, self.box_hi, frames, voxel_size_m, max_depth_m=max_depth_m,
-                                  subsample=subsample)
+                                  subsample=subsample, ray_classes=ray_classes, n_classes=n_classes)
 
     def solid_depth(self, frames, voxel_size_m, *, max_depth_m=np.inf, subsample=1, quantile=SOLID_DEPTH_QUANTILE):
         """Depth of solid behind all but ``quantile`` of the noise-free hits of ``frames`` (metres along the

@@ -6,7 +6,7 @@ from prismap._validate import as_float_array, check_integer, check_positive
 from prismap.errors import PrismapInputError
 from prismap.grid import crossed_voxels, frame_overhang_m
 from prismap.io._sequence import GroundTruthOccupancy
-from prismap.sim._kernels import count_occupied_before, mark_visible
+from prismap.sim._kernels import mark_visible, occupied_before_per_ray
 
 
 def solid_key_ranges(box_lo, box_hi, voxel_size_m):
@@ -102,7 +102,8 @@ def _occupied_volume(box_lo, box_hi, voxel_size_m, planar):
     return occupied, bounds_lo
 
 
-def pass_through_ratio(box_lo, box_hi, frames, voxel_size_m, *, max_depth_m=np.inf, subsample=1):
+def pass_through_ratio(box_lo, box_hi, frames, voxel_size_m, *, max_depth_m=np.inf, subsample=1, ray_classes=None,
+                       n_classes=None):
     """How often a ray crosses an occupied voxel without meeting its surface there: PRISM's ``pass_through``.
 
     A voxel is occupied when any part of a solid lies in it, so a ray can cross one and go on (a table's
@@ -113,6 +114,14 @@ def pass_through_ratio(box_lo, box_hi, frames, voxel_size_m, *, max_depth_m=np.i
     that stop a ray with probability ``h`` each, a ray passes ``(1 - h) / h`` of them on average before its
     hit, so ``1 - h = passes / (passes + rays)``.
 
+    With ``ray_classes`` the ratio is taken over the rays of each pixel class apart: passes crowd at the
+    silhouettes of solids (the box edges a ray grazes on its way to the wall behind), which a conditioned
+    error model's classes pick out by the distance to the nearest disparity discontinuity, so a
+    conditioned PRISM gives each class its own ratio (``class_pass_through``). A class's ratio is the posterior
+    mean under Jeffreys' prior, ``(passes + 1/2) / (passes + rays + 1)``: a class whose rays never passed an
+    occupied voxel (tens of thousands of rays far from every silhouette) still bounds a ray's free evidence
+    instead of claiming certainty.
+
     Parameters
     ----------
     box_lo, box_hi : (B, 3) float, metres, world frame
@@ -120,28 +129,68 @@ def pass_through_ratio(box_lo, box_hi, frames, voxel_size_m, *, max_depth_m=np.i
     voxel_size_m : float, metres
     max_depth_m : float, metres of camera depth
     subsample : int >= 1, pixel step
+    ray_classes : sequence of (H, W) int arrays or None
+        One per frame: the class of each pixel (-1 = none), e.g.
+        :meth:`prismap.characterise.ErrorModel.classify_frame` of the matcher's disparity of that frame.
+    n_classes : int >= 1 or None
+        Number of classes (with ``ray_classes`` only).
 
     Returns
     -------
-    float in [0, 1)
+    float in [0, 1), or with ``ray_classes`` (n_classes,) float64 in (0, 1): the ratio of each class's rays;
+    a class none of whose rays meets a surface takes the ratio of all rays.
     """
     voxel = check_positive(voxel_size_m, "voxel_size_m")
     step = check_integer(subsample, "subsample", expected="an integer >= 1", condition=lambda n: n >= 1)
+    frames = list(frames)
+    labels = _ray_class_labels(ray_classes, n_classes, frames)
+    n_bins = 1 if labels is None else n_classes + 1  # the last bin: pixels without a class
     occupied, bounds_lo = _occupied_volume(box_lo, box_hi, voxel, False)
-    passes = rays_hit = 0
+    passes, rays_hit = np.zeros(n_bins, dtype=np.int64), np.zeros(n_bins, dtype=np.int64)
     for index, frame in enumerate(frames):
         camera, pose, depth = _true_view(index, frame)
         depth = np.where(np.isnan(depth), np.inf, depth)[::step, ::step].reshape(-1)
         rays_cam = camera.pixel_rays(frame.disparity_gt.shape)[::step, ::step].reshape(-1, 3)
         overhang = frame_overhang_m(frame.disparity_gt, camera, pose[:3, :3], voxel, step, rays_cam)
         hit = depth <= max_depth_m
-        rays_hit += int(hit.sum())
         ray, keys, _, t_out = crossed_voxels(pose[:3, 3], rays_cam @ pose[:3, :3].T, np.where(hit, depth, 0.0), voxel)
         limit = depth - overhang / np.sqrt((rays_cam**2).sum(axis=1))
-        passes += count_occupied_before(occupied, bounds_lo, ray, keys, t_out, limit)
-    if rays_hit == 0:
+        per_ray = occupied_before_per_ray(occupied, bounds_lo, ray, keys, t_out, limit, depth.size)
+        label = np.zeros(depth.size, dtype=np.int64) if labels is None else labels[index][::step, ::step].reshape(-1)
+        label = np.where(label < 0, n_bins - 1, label)
+        passes += np.bincount(label, weights=per_ray, minlength=n_bins).astype(np.int64)
+        rays_hit += np.bincount(label[hit], minlength=n_bins)
+    if rays_hit.sum() == 0:
         raise PrismapInputError("no ray of `frames` meets a surface within `max_depth_m`: no pass-through ratio")
-    return passes / (passes + rays_hit)
+    whole = passes.sum() / (passes.sum() + rays_hit.sum())
+    if labels is None:
+        return float(whole)
+    return np.where(rays_hit[:-1] > 0, (passes[:-1] + 0.5) / (passes[:-1] + rays_hit[:-1] + 1.0), whole)
+
+
+def _ray_class_labels(ray_classes, n_classes, frames):
+    """``ray_classes`` as a list of (H, W) int64 arrays checked against ``frames`` and ``n_classes``; None stays None."""
+    if ray_classes is None:
+        if n_classes is not None:
+            raise PrismapInputError(f"`n_classes` ({n_classes!r}) needs `ray_classes`")
+        return None
+    count = check_integer(n_classes, "n_classes", expected="an integer >= 1 with `ray_classes`",
+                          condition=lambda n: n >= 1)
+    labels = list(ray_classes)
+    if len(labels) != len(frames):
+        raise PrismapInputError(f"`ray_classes` must hold one array per frame ({len(frames)}); got {len(labels)}")
+    checked = []
+    for index, (label, frame) in enumerate(zip(labels, frames)):
+        label = np.asarray(label)
+        shape = np.shape(frame.disparity_gt)
+        if label.shape != shape or not np.issubdtype(label.dtype, np.integer):
+            raise PrismapInputError(f"`ray_classes[{index}]` must be integers of the frame's shape {shape}; got "
+                                    f"shape {label.shape}, dtype {label.dtype}")
+        if label.size and (label.min() < -1 or label.max() >= count):
+            raise PrismapInputError(f"`ray_classes[{index}]` must lie in [-1, {count - 1}]; got values in "
+                                    f"[{label.min()}, {label.max()}]")
+        checked.append(label.astype(np.int64))
+    return checked
 
 
 _STEP_M = 1e-6  # how far past a box's exit face the march looks for the next box (metres)
