@@ -247,22 +247,23 @@ def test_hit_miss_cast_gives_the_map_of_the_cell_path(policy, ndim):
     assert_same_map(*maps)
 
 
-def test_sort_by_ray_is_a_stable_sort_with_used_rays_and_their_ranks():
-    from prismap.grid._kernels_project import sort_by_ray
+def test_group_by_ray_is_a_stable_sort_by_first_appearance_with_used_rays_and_their_ranks():
+    from prismap.grid._kernels_project import group_by_ray
 
     rng = np.random.default_rng(11)
     ray_of_cell = rng.integers(0, 50, 400) * 2  # odd rays and some even ones have no cell
-    rows = rng.integers(0, 10_000, 400)
     t_in, t_out = rng.random(400), rng.random(400)
-    got_rows, got_in, got_out, used, local = sort_by_ray(ray_of_cell, 103, rows, t_in, t_out)
-    order = np.argsort(ray_of_cell, kind="stable")
-    np.testing.assert_array_equal(got_rows, rows[order])
+    order, got_in, got_out, used, local = group_by_ray(ray_of_cell, 103, t_in, t_out)
+    first = np.unique(ray_of_cell, return_index=True)[1]
+    np.testing.assert_array_equal(used, ray_of_cell[np.sort(first)])  # rays by their first cell
+    rank = np.empty(103, dtype=np.int64)
+    rank[used] = np.arange(used.size)
+    np.testing.assert_array_equal(order, np.argsort(rank[ray_of_cell], kind="stable"))
     np.testing.assert_array_equal(got_in, t_in[order])
     np.testing.assert_array_equal(got_out, t_out[order])
-    np.testing.assert_array_equal(used, np.unique(ray_of_cell))
     np.testing.assert_array_equal(used[local], ray_of_cell[order])
     empty = np.empty(0)
-    assert sort_by_ray(np.empty(0, dtype=np.int64), 5, rows[:0], empty, empty)[3].size == 0
+    assert group_by_ray(np.empty(0, dtype=np.int64), 5, empty, empty)[3].size == 0
 
 
 def test_frustum_box_holds_the_origin_and_every_stop_point_with_a_voxel_margin():

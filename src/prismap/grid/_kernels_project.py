@@ -347,36 +347,40 @@ def frustum_box(origin, rays, t_stop, voxel_size):
 
 
 @numba.njit(cache=True, nogil=True)
-def sort_by_ray(ray_of_cell, n_rays, cell_index, t_in, t_out):
-    """Cells grouped by ray, in their order within a ray (a counting sort).
+def group_by_ray(ray_of_cell, n_rays, t_in, t_out):
+    """Cells grouped by ray, the rays in the order of their first cell and each ray's cells in their order (a
+    counting sort over the rays that have cells: nothing of it but one fill costs per ray of the frame).
 
-    Returns the sorted ``cell_index, t_in, t_out`` (C,), the rays that have cells ``used (U,)``
-    (increasing) and, per sorted cell, the index of its ray in ``used`` (C,).
+    Returns ``order`` (C,) int64 (grouped cell ``j`` is cell ``order[j]``), the grouped ``t_in, t_out`` (C,),
+    the rays that have cells ``used (U,)`` int64, and per grouped cell the index of its ray in ``used`` (C,).
     """
-    counts = np.zeros(n_rays + 1, dtype=np.int64)
-    for i in range(ray_of_cell.size):
-        counts[ray_of_cell[i] + 1] += 1
-    n_used = 0
-    for r in range(n_rays):
-        if counts[r + 1] > 0:
-            n_used += 1
-        counts[r + 1] += counts[r]
-    used = np.empty(n_used, dtype=np.int64)
-    local = np.empty(ray_of_cell.size, dtype=np.int64)
+    n = ray_of_cell.size
+    slot = np.full(n_rays, -1, dtype=np.int32)
+    used = np.empty(n, dtype=np.int64)
+    first_local = np.empty(n, dtype=np.int64)
     u = 0
-    for r in range(n_rays):
-        if counts[r + 1] > counts[r]:
-            used[u] = r
-            local[counts[r] : counts[r + 1]] = u
-            u += 1
-    sorted_index = np.empty(cell_index.size, dtype=np.int64)
-    sorted_in = np.empty(t_in.size)
-    sorted_out = np.empty(t_out.size)
-    for i in range(ray_of_cell.size):
+    for i in range(n):
         r = ray_of_cell[i]
-        j = counts[r]
-        counts[r] = j + 1
-        sorted_index[j] = cell_index[i]
-        sorted_in[j] = t_in[i]
-        sorted_out[j] = t_out[i]
-    return sorted_index, sorted_in, sorted_out, used, local
+        if slot[r] < 0:
+            slot[r] = u
+            used[u] = r
+            u += 1
+        first_local[i] = slot[r]
+    counts = np.zeros(u + 1, dtype=np.int64)
+    for i in range(n):
+        counts[first_local[i] + 1] += 1
+    for k in range(u):
+        counts[k + 1] += counts[k]
+    order = np.empty(n, dtype=np.int64)
+    local = np.empty(n, dtype=np.int64)
+    grouped_in = np.empty(n)
+    grouped_out = np.empty(n)
+    for i in range(n):
+        k = first_local[i]
+        j = counts[k]
+        counts[k] = j + 1
+        order[j] = i
+        local[j] = k
+        grouped_in[j] = t_in[i]
+        grouped_out[j] = t_out[i]
+    return order, grouped_in, grouped_out, used[:u], local
