@@ -438,8 +438,10 @@ class ProjectiveIntegrator(Integrator):
         """The model's increments of one part's cells ((C,) float64, in the walk's order): the cells go through
         the model grouped by ray (models keep per-ray state from cell to cell, and a ray's cells share a table's
         nodes), one call per noise group, on the rays some voxel uses (models cost per ray too)."""
-        order, t_in, t_out, used, local = _kernels_project.group_by_ray(ray_of_cell, len(batch), t_in, t_out)
         increment = np.empty(ray_of_cell.size)
+        if ray_of_cell.size == 0:  # a part that sees nothing: no model call
+            return increment
+        order, t_in, t_out, used, local = _kernels_project.group_by_ray(ray_of_cell, len(batch), t_in, t_out)
         if len(groups) == 1:  # no pose noise: the loop below with every used ray in the group, minus its copies
             increment[order] = self.cell_increments(groups[0][0], batch, used, local, t_in, t_out)
             return increment
