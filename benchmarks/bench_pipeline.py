@@ -145,7 +145,7 @@ def timed_run(sequence, config, *, look_ahead=True):
 
     prismap.pipeline._run.sensor_model_for = timed_model
     clock.wrap(prismap.grid._accumulator, "cast_into", "casting")
-    clock.wrap(prismap.grid._kernels_project, "project_cells", "casting")
+    clock.wrap(prismap.grid._kernels_project, "project_part", "casting")
     clock.wrap(prismap.grid._kernels_project, "project_hit_miss", "casting")
     clock.wrap(prismap.grid._kernels_accumulate, "apply_frame", "merge")
     source_call = prismap.pipeline._run.DisparitySource.__call__

@@ -247,22 +247,23 @@ def test_hit_miss_cast_gives_the_map_of_the_cell_path(policy, ndim):
     assert_same_map(*maps)
 
 
-def test_sort_by_ray_is_a_stable_sort_with_used_rays_and_their_ranks():
-    from prismap.grid._kernels_project import sort_by_ray
+def test_group_by_ray_is_a_stable_sort_by_first_appearance_with_used_rays_and_their_ranks():
+    from prismap.grid._kernels_project import group_by_ray
 
     rng = np.random.default_rng(11)
     ray_of_cell = rng.integers(0, 50, 400) * 2  # odd rays and some even ones have no cell
-    rows = rng.integers(0, 10_000, 400)
     t_in, t_out = rng.random(400), rng.random(400)
-    got_rows, got_in, got_out, used, local = sort_by_ray(ray_of_cell, 103, rows, t_in, t_out)
-    order = np.argsort(ray_of_cell, kind="stable")
-    np.testing.assert_array_equal(got_rows, rows[order])
+    order, got_in, got_out, used, local = group_by_ray(ray_of_cell, 103, t_in, t_out)
+    first = np.unique(ray_of_cell, return_index=True)[1]
+    np.testing.assert_array_equal(used, ray_of_cell[np.sort(first)])  # rays by their first cell
+    rank = np.empty(103, dtype=np.int64)
+    rank[used] = np.arange(used.size)
+    np.testing.assert_array_equal(order, np.argsort(rank[ray_of_cell], kind="stable"))
     np.testing.assert_array_equal(got_in, t_in[order])
     np.testing.assert_array_equal(got_out, t_out[order])
-    np.testing.assert_array_equal(used, np.unique(ray_of_cell))
     np.testing.assert_array_equal(used[local], ray_of_cell[order])
     empty = np.empty(0)
-    assert sort_by_ray(np.empty(0, dtype=np.int64), 5, rows[:0], empty, empty)[3].size == 0
+    assert group_by_ray(np.empty(0, dtype=np.int64), 5, empty, empty)[3].size == 0
 
 
 def test_frustum_box_holds_the_origin_and_every_stop_point_with_a_voxel_margin():
@@ -292,21 +293,29 @@ def test_rotate_rays_equals_the_matrix_product():
 
 def _project(key_min, shape, origin, R_cam_world, focal, cx, cy, ray_index, rays, t_stop, exclusive, voxel_size, *,
              capacity=64, bits=(2, 2, 2), acc=None, parts=1):
-    """The projective integrator's kept voxels through its wrapper (subsample 1), by default from an empty
-    accumulator that is grown (and the walk resumed) many times, the walk's lines in ``parts`` parts:
+    """The projective walk's kept voxels (subsample 1), its lines in ``parts`` parts whose cell arrays start with
+    room for ``capacity`` cells, registered in order in an accumulator (by default empty, so grown many times):
     ``(ray, key, t_in, t_out)`` with keys read back through the accumulator's blocks."""
     from prismap.grid import _accumulator, _kernels_project
-    from prismap.grid._integrators import ProjectiveIntegrator
 
     acc = _accumulator.new_accumulator(bits) if acc is None else acc
     stops = _kernels_project.stop_image(ray_index, t_stop)
     geometry = (key_min, shape, origin, R_cam_world, focal, cx, cy, 1.0, ray_index, rays, exclusive, stops,
                 _kernels_project.tile_stops(stops), voxel_size)
     cuts = np.linspace(0, _kernels_project.walk_lines(R_cam_world, shape), parts + 1).astype(np.int64)
-    walked = list(ProjectiveIntegrator(voxel_size_m=voxel_size)._project_cells(acc, geometry, capacity, cuts))
-    assert len(walked) == parts
-    ray, rows, t_in, t_out = (np.concatenate(column) for column in zip(*walked))
-    return ray, acc.voxel_keys().reshape(-1, 3)[rows], t_in, t_out
+    max_cells = _accumulator.frame_budget_bytes() // 32
+    walked = [_kernels_project.project_part(*geometry, start, stop, capacity, max_cells)
+              for start, stop in zip(cuts[:-1], cuts[1:])]
+    keys, ray, t_in, t_out = (np.concatenate([part[k][: part[4]] for part in walked]) for k in range(4))
+    n_before = acc.payload["acc"][: len(acc), :, 1].sum()
+    _accumulator.scatter_keys(acc, keys, np.arange(keys.shape[0], dtype=np.float64))
+    # Each cell lands in the row of its key: the row's only increment is the cell's index.
+    rows = acc.payload["acc"][: len(acc)].reshape(-1, 4)
+    filled = np.flatnonzero(rows[:, 1] > 0)
+    assert rows[:, 1].sum() - n_before == keys.shape[0] == filled.size
+    order = np.argsort(rows[filled, 0], kind="stable")
+    np.testing.assert_array_equal(acc.voxel_keys().reshape(-1, 3)[filled[order]], keys)
+    return ray, keys, t_in, t_out
 
 
 def _small_view():
@@ -332,16 +341,6 @@ def test_projected_cells_do_not_depend_on_the_room_they_start_with():
         assert got[0].size == full[0].size > 7
         for a, b in zip(full, got):
             np.testing.assert_array_equal(a, b)
-
-
-def test_a_frame_projecting_onto_more_cells_than_the_memory_bound_is_refused(monkeypatch):
-    from prismap.grid import _accumulator
-
-    acc = _accumulator.new_accumulator((2, 2, 2))
-    acc.reserve(1000)  # room for every block: only the cells' bound applies
-    monkeypatch.setattr(_accumulator, "frame_budget_bytes", lambda: 32 * 20)  # room for 20 cells
-    with pytest.raises(PrismapInputError, match=r"the frame projects onto \d+ voxels, more than 20 \(docs/errors.md\)"):
-        _project(*_small_view(), capacity=7, acc=acc)
 
 
 def test_the_walk_runs_along_the_world_axis_nearest_the_image_rows():

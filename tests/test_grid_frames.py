@@ -244,6 +244,24 @@ def test_projective_prism_maps_do_not_depend_on_the_walks_parts(monkeypatch, ove
         assert_same_map(maps[0], other)
 
 
+def test_a_frame_projecting_onto_more_cells_than_the_memory_bound_is_refused(monkeypatch):
+    # The bound holds for the cells of all parts together (each part's walk only counts beyond it), checked by
+    # the integrator before any part's voxels enter the accumulator; the map is left as it was.
+    from prismap.grid import _accumulator, _integrators
+
+    camera, pose, disparity = small_frame()
+    grid = OccupancyMap(0.1, p0=0.5)
+    model = HitMissModel(camera.focal_baseline)  # cells through cell_posteriors, not the hit/miss walk
+    cells = 20
+    for parts in (1, 3):
+        monkeypatch.setattr(_integrators, "PROJECTIVE_PARTS", parts)
+        monkeypatch.setattr(_accumulator, "frame_budget_bytes", lambda: 32 * cells)
+        with pytest.raises(PrismapInputError, match=rf"the frame projects onto at least \d+ voxels, more than {cells} "
+                                                    r"\(docs/errors.md\)"):
+            grid.integrate_disparity(disparity, camera, pose, model, mode="projective", max_range_m=12.0)
+        assert grid.n_known == 0
+
+
 def test_ray_mode_models_in_threads_give_the_map_of_one_thread(monkeypatch):
     """Ray mode runs the model on chunks in MODEL_THREADS threads beside the cast and adds the increments in
     chunk order; the map equals the one of one model thread, voxel for voxel (PRISM with the overhang's

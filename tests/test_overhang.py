@@ -7,9 +7,11 @@ from prismap.camera import StereoCamera, plane_normals
 from prismap.errors import PrismapInputError
 from prismap.gmm import GaussianMixture
 from prismap.grid import OccupancyMap
+from prismap.grid._kernels_project import rotate_rays
 from prismap.grid._overhang import OVERHANG_CAP_VOXELS, frame_overhang_m, voxel_overhang_m
 from prismap.sensor_models import make_sensor_model
 from prismap.sensor_models._prism import TABLE_TOLERANCE
+from support import assert_same_map
 
 CAMERA = StereoCamera(500.0, 160.0, 120.0, 0.1, width=320, height=240)
 MIXTURE = GaussianMixture([0.9, 0.1], [0.0, -0.5], [0.3, 3.0])
@@ -203,3 +205,27 @@ def test_a_grazing_floor_stays_in_the_map_without_a_false_layer_above():
     floor_on, above_on = means[0.25]
     assert floor_on > floor_off + 0.05
     assert above_off < above_on < 0.05  # raised a little (noise), still below the prior: no false layer
+
+
+def test_integrate_disparity_gives_the_overhang_it_fits_to_the_model_as_integrate_rays_would():
+    """The plane fits run beside the frame's set-up (a background thread); the map equals one integrated from
+    the same rays with the overhang given, invalid pixels included; a given overhang is checked."""
+    camera = StereoCamera(80.0, 80.0, 60.0, 0.3, width=160, height=120)
+    disparity, pose = _floor_frame(camera, 1.2, 0.05)
+    disparity[:10, :30] = np.nan  # dropped rays: the overhang follows the kept ones
+    model = make_sensor_model("prism", focal_baseline=camera.focal_baseline, error_model=GaussianMixture.gaussian(0.2),
+                              voxel_size_m=0.1, p0=0.05, overhang_fraction=0.25)
+    fitted, given = OccupancyMap(0.1, p0=0.05), OccupancyMap(0.1, p0=0.05)
+    fitted.integrate_disparity(disparity, camera, pose, model, max_range_m=8.0)
+    rays_cam = camera.pixel_rays(disparity.shape).reshape(-1, 3)
+    overhang = frame_overhang_m(disparity, camera, pose[:3, :3], 0.1, 1, rays_cam)
+    rays_w = rotate_rays(rays_cam, np.ascontiguousarray(pose[:3, :3]))  # as integrate_disparity rotates them
+    given.integrate_rays(pose[:3, 3], rays_w, disparity.reshape(-1), model, max_range_m=8.0,
+                         voxel_overhang_m=overhang)
+    assert fitted.n_known > 1000
+    assert_same_map(fitted, given)
+    bad = overhang.copy()
+    bad[np.flatnonzero(np.isfinite(disparity.reshape(-1)))[0]] = -0.1
+    with pytest.raises(PrismapInputError, match="`voxel_overhang_m` must be finite and >= 0 at every valid ray"):
+        given.integrate_rays(pose[:3, 3], rays_w, disparity.reshape(-1), model, max_range_m=8.0,
+                             voxel_overhang_m=bad)

@@ -102,3 +102,17 @@ def scatter(accumulator, cell_index, increment):
     """Add the cells' increments to their accumulator rows."""
     acc = accumulator.payload["acc"]
     _kernels_accumulate.scatter(acc.reshape(-1, acc.shape[2]), cell_index, increment)
+
+
+def scatter_keys(accumulator, keys, increment):
+    """Register voxels ``keys`` ((C, 3) int32) in the accumulator in their order, growing it as needed, and add
+    each one's increment ((C,) float64) to its row. It reallocates the accumulator's arrays: nothing else may
+    use them meanwhile."""
+    done = 0
+    while True:
+        table = accumulator
+        done = _kernels_accumulate.scatter_keys(table.table, table.block_keys, table.n_blocks, table.payload["acc"],
+                                                table.payload["links"], table.bits, keys, increment, done)
+        if done >= keys.shape[0]:
+            return
+        grow(accumulator, 0)

@@ -44,9 +44,12 @@ MAX_FRAME_CELLS = 1 << 30
 """Voxel visits one frame may ask for: the sum over rays of the voxels between the origin and the stop depth
 (ray mode), or the voxels of the frustum's key box (projective mode)."""
 
-PROJECTIVE_PARTS = 8
-"""Parts (ranges of the walk's lines) of a projective frame: the model runs on one part's cells while the next
-part is walked."""
+PROJECTIVE_PARTS = 16
+"""Parts (ranges of the walk's lines) of a projective frame: each is walked and run through the model by one of
+:data:`PROJECTIVE_THREADS` threads while the others take the next parts."""
+
+PROJECTIVE_THREADS = 2
+"""Threads walking the parts of a projective frame and running their cells through the model."""
 
 BLOCK_FILL = 0.5
 """Share of the voxels of the accumulator blocks a projective frame touches that it keeps, to reserve the
@@ -362,11 +365,13 @@ class ProjectiveIntegrator(Integrator):
     influencing), give each the ray of the pixel its centre projects to, one update each. Needs the
     batch's :class:`ImageProjection`.
 
-    The key box is walked in lines along the image rows, registering each kept voxel in the accumulator as
-    it is found (``_kernels_project.project_cells``); the cells then go, grouped by ray, through the model
-    and are scattered, in :data:`PROJECTIVE_PARTS` parts of the lines: a worker thread runs the model on
-    part k while this thread walks part k + 1. A voxel is visited once per frame, so the map does not
-    depend on the parts. Hit/miss models are added while walking (``project_hit_miss``: no cell arrays)."""
+    The key box is walked in lines along the image rows (``_kernels_project.project_part``), in
+    :data:`PROJECTIVE_PARTS` parts of the lines; :data:`PROJECTIVE_THREADS` threads take the parts in turn
+    and run each part's cells, grouped by ray, through the model. This thread registers every part's voxels
+    in the accumulator and adds their increments, in part order (``_accumulator.scatter_keys``): the
+    accumulator has one writer and its blocks the order of a walk in one thread. A voxel is visited once per
+    frame, so the map depends neither on the parts nor on the threads. Hit/miss models are added while
+    walking (``project_hit_miss``: no cell arrays)."""
 
     name = "projective"
 
@@ -399,34 +404,47 @@ class ProjectiveIntegrator(Integrator):
         _accumulator.expect(accumulator, capacity / (BLOCK_FILL * accumulator.block_voxels))
         n_lines = int(_kernels_project.walk_lines(image.R_cam_world, shape))
         cuts = np.linspace(0, n_lines, min(PROJECTIVE_PARTS, n_lines) + 1).astype(np.int64)
-        pending = []
+        max_cells = _accumulator.frame_budget_bytes() // 32  # 32 bytes per kept cell
+        part_capacity = int(min(box, capacity) / (cuts.size - 1)) + 4096
 
-        def wait():
-            while pending:
-                pending.pop().result()
+        def part(start, stop):
+            keys, ray_of_cell, t_in, t_out, m = _kernels_project.project_part(*geometry, start, stop, part_capacity,
+                                                                              max_cells)
+            if m > keys.shape[0]:  # over the bound: counted only
+                return keys, None, m
+            cells = (ray_of_cell[:m], t_in[:m], t_out[:m])
+            return keys[:m], self._part_increments(batch, groups, group_of_ray, *cells), m
 
-        with ThreadPoolExecutor(max_workers=1) as worker:
-            # A part's cells go through the model in the worker while this thread walks the next part (the walk
-            # releases the GIL). The walk only creates blocks and fills their rows while the worker scatters into
-            # rows of blocks created before; the accumulator grows only once the worker is idle.
-            for cells in self._project_cells(accumulator, geometry, int(min(box, capacity)), cuts, wait):
-                wait()
-                pending.append(worker.submit(self._model_and_scatter, accumulator, batch, groups, group_of_ray,
-                                             cells))
-            wait()
+        with ThreadPoolExecutor(max_workers=PROJECTIVE_THREADS) as threads:
+            parts = [threads.submit(part, start, stop) for start, stop in zip(cuts[:-1], cuts[1:])]
+            try:
+                cells = 0
+                for future in parts:
+                    keys, increment, m = future.result()
+                    cells += m
+                    if cells > max_cells:
+                        raise PrismapInputError(
+                            f"the frame projects onto at least {cells} voxels, more than {max_cells} (docs/errors.md) "
+                            f"at `voxel_size_m`={self.voxel_size_m:g}: lower `max_range_m` (now {self.max_range_m:g} m) "
+                            "or raise the voxel size"
+                        )
+                    if m:
+                        _accumulator.scatter_keys(accumulator, keys, increment)
+            finally:
+                for future in parts:
+                    future.cancel()
 
-    def _model_and_scatter(self, accumulator, batch, groups, group_of_ray, cells):
-        """One part's cells (``ray_of_cell, rows, t_in, t_out``) through the model, grouped by ray (models keep
-        per-ray state from cell to cell), and scattered; one model call per noise group, on the rays some
-        voxel uses (models cost per ray too)."""
-        ray_of_cell, rows, t_in, t_out = cells
-        if ray_of_cell.size == 0:
-            return
-        rows, t_in, t_out, used, local = _kernels_project.sort_by_ray(ray_of_cell, len(batch), rows, t_in, t_out)
+    def _part_increments(self, batch, groups, group_of_ray, ray_of_cell, t_in, t_out):
+        """The model's increments of one part's cells ((C,) float64, in the walk's order): the cells go through
+        the model grouped by ray (models keep per-ray state from cell to cell, and a ray's cells share a table's
+        nodes), one call per noise group, on the rays some voxel uses (models cost per ray too)."""
+        increment = np.empty(ray_of_cell.size)
+        if ray_of_cell.size == 0:  # a part that sees nothing: no model call
+            return increment
+        order, t_in, t_out, used, local = _kernels_project.group_by_ray(ray_of_cell, len(batch), t_in, t_out)
         if len(groups) == 1:  # no pose noise: the loop below with every used ray in the group, minus its copies
-            inc = self.cell_increments(groups[0][0], batch, used, local, t_in, t_out)
-            _accumulator.scatter(accumulator, rows, inc)
-            return
+            increment[order] = self.cell_increments(groups[0][0], batch, used, local, t_in, t_out)
+            return increment
         group_of_used = group_of_ray[used]
         group_of_cell = group_of_used[local]
         for g, (model, _) in enumerate(groups):
@@ -434,40 +452,9 @@ class ProjectiveIntegrator(Integrator):
             mine = np.flatnonzero(group_of_cell == g)
             if in_group.any():
                 rank = np.cumsum(in_group) - 1  # index of each used ray among the group's used rays
-                inc = self.cell_increments(model, batch, used[in_group], rank[local[mine]], t_in[mine], t_out[mine])
-                _accumulator.scatter(accumulator, rows[mine], inc)
-
-    def _project_cells(self, accumulator, geometry, capacity, cuts, before_grow=lambda: None):
-        """The frame's kept voxels, registered in the accumulator, part by part: yields ``ray_of_cell, rows,
-        t_in, t_out`` of the walk's lines ``cuts[k]`` to ``cuts[k + 1] - 1`` (``cuts`` (P + 1,) int64, from 0
-        to ``_kernels_project.walk_lines``) in the walk's order (``geometry``: the arguments of
-        ``_kernels_project.project_cells`` after the accumulator's). The cell arrays start with room for
-        ``capacity`` cells; ``before_grow()`` is called before the accumulator grows (it must wait for every
-        user of the accumulator's arrays)."""
-        max_cells = _accumulator.frame_budget_bytes() // 32  # 32 bytes per kept cell
-        capacity = min(capacity, max_cells)
-        cells = (np.empty(capacity, dtype=np.int64), np.empty(capacity, dtype=np.int64), np.empty(capacity),
-                 np.empty(capacity))
-        m = 0
-        for start, stop in zip(cuts[:-1], cuts[1:]):
-            first, line = m, start
-            while True:
-                table = accumulator
-                *cells, m, line = _kernels_project.project_cells(table.table, table.block_keys, table.n_blocks,
-                                                                 table.payload["acc"], table.payload["links"],
-                                                                 table.bits, *geometry, *cells, m, line, stop,
-                                                                 max_cells)
-                if m > max_cells:
-                    raise PrismapInputError(
-                        f"the frame projects onto {m} voxels, more than {max_cells} (docs/errors.md) "
-                        f"at `voxel_size_m`={self.voxel_size_m:g}: lower `max_range_m` (now {self.max_range_m:g} m) "
-                        "or raise the voxel size"
-                    )
-                if line < 0:
-                    break
-                before_grow()
-                _accumulator.grow(accumulator, 0)
-            yield [column[first:m] for column in cells]
+                increment[order[mine]] = self.cell_increments(model, batch, used[in_group], rank[local[mine]],
+                                                              t_in[mine], t_out[mine])
+        return increment
 
 
 def _project_hit_miss(accumulator, geometry, t_stop, exclusive, model):

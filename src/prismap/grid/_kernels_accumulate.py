@@ -11,7 +11,7 @@ Called only by the grid's wrappers. Every kernel releases the GIL.
 import numba
 import numpy as np
 
-from prismap.grid._kernels_hash import find_block, insert_block
+from prismap.grid._kernels_hash import EMPTY, find_block, insert_block
 from prismap.grid._keys import PACKED_STEPS, split_key
 from prismap.grid._logodds import LOG_ODDS_STEP, Q_MAX, Q_MIN
 from prismap.grid._policies import combine
@@ -105,6 +105,30 @@ def scatter(acc, cell_index, increment):
     """
     for i in range(cell_index.size):
         add_increment(acc, cell_index[i], np.float32(increment[i]))
+
+
+SCATTER_RUN = 1024
+"""Keys :func:`scatter_keys` registers per :func:`register_run` call (its rows scratch stays in L1)."""
+
+
+@numba.njit(cache=True, nogil=True)
+def scatter_keys(table, block_keys, n_blocks, acc, links, bits, keys, increment, start):
+    """Register voxels ``keys[start:]`` ((C, 3) int32) in the accumulator in order (:func:`register_run`) and
+    add each one's increment (:func:`add_increment`). Returns the index of the first key not done: ``C``, or
+    less when a new block found the accumulator full (grow it and call again from there)."""
+    rows = acc.reshape((acc.shape[0] * acc.shape[1], acc.shape[2]))
+    scratch = np.empty(SCATTER_RUN, dtype=np.int64)
+    last_block, last_slot = EMPTY, np.int64(-1)
+    n = keys.shape[0]
+    for lo in range(start, n, SCATTER_RUN):
+        hi = min(lo + SCATTER_RUN, n)
+        done, last_block, last_slot = register_run(table, block_keys, n_blocks, acc, links, keys, lo, hi, bits,
+                                                   scratch, last_block, last_slot)
+        for i in range(lo, done):
+            add_increment(rows, scratch[i - lo], np.float32(increment[i]))
+        if done < hi:
+            return done
+    return n
 
 
 @numba.njit(cache=True, nogil=True, inline="always")

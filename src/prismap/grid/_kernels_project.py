@@ -1,7 +1,8 @@
 """numba kernels of projective integration: voxels of a key box projected into the image, frustum bounds.
 
-Called only by the grid's wrappers, which check and convert first. The walk kernels register the voxels they
-keep in the frame accumulator as they go (``_kernels_accumulate``). Every kernel releases the GIL.
+Called only by the grid's wrappers, which check and convert first. :func:`project_part` only finds the cells
+(the integrator registers them in the frame accumulator in the walk's order, ``_kernels_accumulate.scatter_keys``);
+:func:`project_hit_miss` registers and adds as it goes. Every kernel releases the GIL.
 """
 
 import numba
@@ -104,23 +105,24 @@ def _walk_setup(R_cam_world, shape, focal, cx, cy, subsample, voxel_size):
 
 
 @numba.njit(cache=True, nogil=True)
-def project_cells(table, block_keys, n_blocks, acc, links, bits, key_min, shape, origin, R_cam_world, focal, cx, cy,
-                  subsample, ray_index, rays, exclusive, stops, tile_stop, voxel_size, ray_of_cell, cell_index, t_in,
-                  t_out, m, start, stop, max_cells):
-    """Voxels of a key box seen by a pixel ray (:func:`_line_cells`), registered in the frame accumulator as
-    they are found (``_kernels_accumulate.register_run``), on lines ``start`` to ``stop - 1``.
+def project_part(key_min, shape, origin, R_cam_world, focal, cx, cy, subsample, ray_index, rays, exclusive, stops,
+                 tile_stop, voxel_size, start, stop, capacity, max_cells):
+    """Voxels of a key box seen by a pixel ray (:func:`_line_cells`) on lines ``start`` to ``stop - 1``, in the
+    walk's order; the accumulator is not touched, so parts of the lines may be walked in several threads.
 
     The box is walked in lines along the world axis nearest the image's rows (:func:`_loop_axes`), so that
     consecutive voxels read neighbouring pixels; lines are numbered ``i0 * n1 + i1`` (outer, middle axis).
-    Cells are appended to ``ray_of_cell, cell_index`` (accumulator rows), ``t_in, t_out`` from row ``m``
-    on; the arrays grow by half when full, up to ``max_cells``: beyond it voxels are only counted (the
-    count exceeds the arrays' length; the caller refuses the frame). Returns the arrays (possibly new),
-    the cell count and the first line not done, -1 when all are: a new block found the accumulator full
-    (grow it and call again from that line). :func:`walk_lines` gives the number of lines.
+    Returns ``keys (M, 3) int32, ray_of_cell (M,) int64, t_in, t_out (M,) float64`` and the cell count ``m``:
+    the arrays start with room for ``capacity`` cells and grow by half when full, up to ``max_cells``; beyond
+    it voxels are only counted (``m`` exceeds the arrays' length; the caller refuses the frame).
+    :func:`walk_lines` gives the number of lines.
     """
     walk, _ = _walk_setup(R_cam_world, shape, focal, cx, cy, subsample, voxel_size)
     line_keys, line_ray, line_t0, line_t1 = walk[9], walk[10], walk[11], walk[12]
-    last_block, last_slot = EMPTY, np.int64(-1)
+    size = max(min(capacity, max_cells), 16)
+    keys, ray_of_cell = np.empty((size, 3), dtype=np.int32), np.empty(size, dtype=np.int64)
+    t_in, t_out = np.empty(size), np.empty(size)
+    m = 0
     for line in range(start, stop):
         c = _line_cells(line, walk, key_min, shape, origin, R_cam_world, focal, subsample, ray_index, rays, exclusive,
                         stops, tile_stop, voxel_size)
@@ -130,26 +132,24 @@ def project_cells(table, block_keys, n_blocks, acc, links, bits, key_min, shape,
             if m + c > max_cells:  # over the bound: only count
                 m += c
                 continue
-            size = min(max(m + m // 2, m + c, 16), max_cells)
-            ray_of_cell, cell_index, t_in, t_out = _grown(ray_of_cell, cell_index, t_in, t_out, m, size)
-        done, last_block, last_slot = register_run(table, block_keys, n_blocks, acc, links, line_keys, 0, c, bits,
-                                                   cell_index[m:], last_block, last_slot)
-        if done < c:
-            return ray_of_cell, cell_index, t_in, t_out, m, line
+            keys, ray_of_cell, t_in, t_out = _grown(keys, ray_of_cell, t_in, t_out, m,
+                                                    min(max(m + m // 2, m + c), max_cells))
+        keys[m : m + c] = line_keys[:c]
         ray_of_cell[m : m + c] = line_ray[:c]
         t_in[m : m + c] = line_t0[:c]
         t_out[m : m + c] = line_t1[:c]
         m += c
-    return ray_of_cell, cell_index, t_in, t_out, m, -1
+    return keys, ray_of_cell, t_in, t_out, m
 
 
 @numba.njit(cache=True, nogil=True)
 def project_hit_miss(table, block_keys, n_blocks, acc, links, bits, key_min, shape, origin, R_cam_world, focal, cx, cy,
                      subsample, ray_index, rays, exclusive, stops, tile_stop, voxel_size, z_hit, l_hit, l_miss, start):
-    """:func:`project_cells` for a hit/miss model: each kept voxel of interval ``[t_in, t_out)`` on ray ``i``
+    """:func:`project_part` for a hit/miss model: each kept voxel of interval ``[t_in, t_out)`` on ray ``i``
     gets ``l_hit`` if it holds ``z_hit[i]``, ``l_miss`` if it ends at or before it, 0 beyond (the rule of
     ``sensor_models._kernels.hitmiss_cells``), added to its accumulator row as ``_kernels_accumulate.scatter``
-    adds; no cell arrays. Returns the first line not done, -1 when all are (as :func:`project_cells`)."""
+    adds; no cell arrays. Returns the first line not done, -1 when all are: a new block found the accumulator full (grow it and call
+    again from that line)."""
     walk, n_lines = _walk_setup(R_cam_world, shape, focal, cx, cy, subsample, voxel_size)
     line_keys, line_ray, line_t0, line_t1, line_rows = walk[9], walk[10], walk[11], walk[12], walk[13]
     hit, miss, zero = np.float32(l_hit), np.float32(l_miss), np.float32(0.0)
@@ -178,11 +178,11 @@ TILE = 8
 
 
 @numba.njit(cache=True, nogil=True)
-def _grown(ray_of_cell, cell_index, t_in, t_out, m, size):
+def _grown(keys, ray_of_cell, t_in, t_out, m, size):
     """The cell arrays with room for ``size`` cells, their first ``m`` rows kept."""
-    grown = (np.empty(size, dtype=np.int64), np.empty(size, dtype=np.int64), np.empty(size), np.empty(size))
-    grown[0][:m] = ray_of_cell[:m]
-    grown[1][:m] = cell_index[:m]
+    grown = (np.empty((size, 3), dtype=np.int32), np.empty(size, dtype=np.int64), np.empty(size), np.empty(size))
+    grown[0][:m] = keys[:m]
+    grown[1][:m] = ray_of_cell[:m]
     grown[2][:m] = t_in[:m]
     grown[3][:m] = t_out[:m]
     return grown
@@ -190,14 +190,14 @@ def _grown(ray_of_cell, cell_index, t_in, t_out, m, size):
 
 @numba.njit(cache=True, nogil=True)
 def walk_lines(R_cam_world, shape):
-    """Number of lines of the walk of :func:`project_cells` over a key box of ``shape`` (3,)."""
+    """Number of lines of the walk of :func:`project_part` over a key box of ``shape`` (3,)."""
     a0, a1, _ = _loop_axes(R_cam_world)
     return shape[a0] * shape[a1]
 
 
 @numba.njit(cache=True, nogil=True)
 def _loop_axes(R_cam_world):
-    """World axes ``(outer, middle, inner)`` of the walk of :func:`project_cells`: the inner one nearest the camera's
+    """World axes ``(outer, middle, inner)`` of the walk of :func:`project_part`: the inner one nearest the camera's
     x (image rows), the middle one nearest its y among the others, the outer one the last."""
     inner = 0
     for a in range(1, 3):
@@ -347,36 +347,40 @@ def frustum_box(origin, rays, t_stop, voxel_size):
 
 
 @numba.njit(cache=True, nogil=True)
-def sort_by_ray(ray_of_cell, n_rays, cell_index, t_in, t_out):
-    """Cells grouped by ray, in their order within a ray (a counting sort).
+def group_by_ray(ray_of_cell, n_rays, t_in, t_out):
+    """Cells grouped by ray, the rays in the order of their first cell and each ray's cells in their order (a
+    counting sort over the rays that have cells: nothing of it but one fill costs per ray of the frame).
 
-    Returns the sorted ``cell_index, t_in, t_out`` (C,), the rays that have cells ``used (U,)``
-    (increasing) and, per sorted cell, the index of its ray in ``used`` (C,).
+    Returns ``order`` (C,) int64 (grouped cell ``j`` is cell ``order[j]``), the grouped ``t_in, t_out`` (C,),
+    the rays that have cells ``used (U,)`` int64, and per grouped cell the index of its ray in ``used`` (C,).
     """
-    counts = np.zeros(n_rays + 1, dtype=np.int64)
-    for i in range(ray_of_cell.size):
-        counts[ray_of_cell[i] + 1] += 1
-    n_used = 0
-    for r in range(n_rays):
-        if counts[r + 1] > 0:
-            n_used += 1
-        counts[r + 1] += counts[r]
-    used = np.empty(n_used, dtype=np.int64)
-    local = np.empty(ray_of_cell.size, dtype=np.int64)
+    n = ray_of_cell.size
+    slot = np.full(n_rays, -1, dtype=np.int32)
+    used = np.empty(n, dtype=np.int64)
+    first_local = np.empty(n, dtype=np.int64)
     u = 0
-    for r in range(n_rays):
-        if counts[r + 1] > counts[r]:
-            used[u] = r
-            local[counts[r] : counts[r + 1]] = u
-            u += 1
-    sorted_index = np.empty(cell_index.size, dtype=np.int64)
-    sorted_in = np.empty(t_in.size)
-    sorted_out = np.empty(t_out.size)
-    for i in range(ray_of_cell.size):
+    for i in range(n):
         r = ray_of_cell[i]
-        j = counts[r]
-        counts[r] = j + 1
-        sorted_index[j] = cell_index[i]
-        sorted_in[j] = t_in[i]
-        sorted_out[j] = t_out[i]
-    return sorted_index, sorted_in, sorted_out, used, local
+        if slot[r] < 0:
+            slot[r] = u
+            used[u] = r
+            u += 1
+        first_local[i] = slot[r]
+    counts = np.zeros(u + 1, dtype=np.int64)
+    for i in range(n):
+        counts[first_local[i] + 1] += 1
+    for k in range(u):
+        counts[k + 1] += counts[k]
+    order = np.empty(n, dtype=np.int64)
+    local = np.empty(n, dtype=np.int64)
+    grouped_in = np.empty(n)
+    grouped_out = np.empty(n)
+    for i in range(n):
+        k = first_local[i]
+        j = counts[k]
+        counts[k] = j + 1
+        order[j] = i
+        local[j] = k
+        grouped_in[j] = t_in[i]
+        grouped_out[j] = t_out[i]
+    return order, grouped_in, grouped_out, used[:u], local

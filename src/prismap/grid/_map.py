@@ -1,5 +1,8 @@
 """The occupancy map: an unbounded sparse grid of hashed voxel blocks holding log-odds and counts."""
 
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import replace
+
 import numpy as np
 from scipy.special import expit
 
@@ -172,23 +175,26 @@ class OccupancyMap:
         d = disparity.reshape(-1).copy()
         d[~(d + camera.doffs_px > 0)] = np.nan
         rotation, origin = pose[:3, :3], pose[:3, 3]
-        noise = None
-        if pose_covariance is not None:
-            noise = pose_noise_px(d, rays_cam, rotation, pose_covariance, camera.focal_baseline, camera.doffs_px)
-        image = None
-        if mode == "projective":
-            ray_index = np.arange(d.size, dtype=np.int32).reshape(disparity.shape)
-            image = ImageProjection(np.ascontiguousarray(rotation.T), camera.focal_px, camera.cx_px, camera.cy_px,
-                                    step, ray_index)
-        rays_w = _kernels_project.rotate_rays(np.ascontiguousarray(rays_cam), np.ascontiguousarray(rotation))
-        overhang = None
-        if model.takes_voxel_overhang:
-            overhang = frame_overhang_m(disparity_px, camera, rotation, self.voxel_size_m, step, rays_cam)
-        batch = self._batch(origin, rays_w, d, noise, classes, image, overhang)
+        with ThreadPoolExecutor(max_workers=1) as side:
+            overhang = None  # the plane fits run beside the batch's set-up (both in kernels that release the GIL)
+            if model.takes_voxel_overhang:
+                overhang = side.submit(frame_overhang_m, disparity_px, camera, rotation, self.voxel_size_m, step,
+                                       rays_cam)
+            noise = None
+            if pose_covariance is not None:
+                noise = pose_noise_px(d, rays_cam, rotation, pose_covariance, camera.focal_baseline, camera.doffs_px)
+            image = None
+            if mode == "projective":
+                ray_index = np.arange(d.size, dtype=np.int32).reshape(disparity.shape)
+                image = ImageProjection(np.ascontiguousarray(rotation.T), camera.focal_px, camera.cx_px, camera.cy_px,
+                                        step, ray_index)
+            rays_w = _kernels_project.rotate_rays(np.ascontiguousarray(rays_cam), np.ascontiguousarray(rotation))
+            batch = self._batch(origin, rays_w, d, noise, classes, image, overhang)
         self._integrate(batch, model, mode, policy, max_range_m)
 
     def _batch(self, origin_w, rays_w, disparity_px, extra_noise_px, ray_class, image, voxel_overhang_m):
-        """The checked :class:`RayBatch` of a frame, its invalid rays dropped."""
+        """The checked :class:`RayBatch` of a frame, its invalid rays dropped; ``voxel_overhang_m`` may be a
+        Future of the array, waited for last."""
         origin = self._points(origin_w, "origin_w", single=True)
         rays = self._points(rays_w, "rays_w", as_direction=True)
         n = rays.shape[0]
@@ -203,13 +209,17 @@ class OccupancyMap:
             if not np.all(noise[valid] >= 0) or not np.all(np.isfinite(noise[valid])):
                 raise PrismapInputError("`extra_noise_px` must be finite and >= 0 at every valid ray")
         classes = None if ray_class is None else _class_array(ray_class, "ray_class", (n,))
-        overhang = None
+        batch = RayBatch(origin, rays, disparity, ray_norm, noise, classes, image)
+        if not valid.all():  # a dense frame skips these copies
+            batch = batch.subset(valid)
         if voxel_overhang_m is not None:
+            if isinstance(voxel_overhang_m, Future):  # computed beside this set-up
+                voxel_overhang_m = voxel_overhang_m.result()
             overhang = as_float_array(voxel_overhang_m, "voxel_overhang_m", shape=(n,))
             if not np.all(overhang[valid] >= 0) or not np.all(np.isfinite(overhang[valid])):
                 raise PrismapInputError("`voxel_overhang_m` must be finite and >= 0 at every valid ray")
-        batch = RayBatch(origin, rays, disparity, ray_norm, noise, classes, image, overhang)
-        return batch if valid.all() else batch.subset(valid)  # a dense frame skips these copies
+            batch = replace(batch, voxel_overhang_m=overhang if valid.all() else overhang[valid])
+        return batch
 
     def _integrate(self, batch, model, mode, policy, max_range_m):
         """One frame: the model checked against the map, the integrator of ``mode``, one update per voxel."""
