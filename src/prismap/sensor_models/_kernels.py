@@ -372,7 +372,7 @@ def prism_march(shift, lam, z0, z_max, fb, ku, hq, log_far, log_eps_bound, lam_s
     evidence is below e^-40 of ``C``.
     """
     return _march(shift, lam, z0, z0, np.full(3, -np.inf), np.zeros(3, dtype=np.int64), hq, z_max, fb, ku, hq,
-                  log_far, log_eps_bound, lam_slack, i_min, log_wn, means, sigmas)
+                  log_far, log_eps_bound, lam_slack, i_min, 1, log_wn, means, sigmas)[:6]
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
@@ -496,16 +496,22 @@ def _log_sup_tail_block(z, first, count, z_max, fb, shift, log_wn, means, inv_si
 
 @nb.njit(cache=True, nogil=True, error_model="numpy")
 def _march(shift, lam, z0, z_start, log_c_start, counts, h_wide, z_max, fb, ku, hq, log_far, log_eps_bound,
-           lam_slack, i_min, log_wn, means, sigmas):
+           lam_slack, i_min, far_ratio, log_wn, means, sigmas):
     """:func:`prism_march` from ``z_start``, where the moments of C are ``log_c_start`` (3,), on panels of
     x-width ``h_wide`` (``counts[0]``: a table's broad front), ``hq`` (``counts[1]``), ``h_wide``
-    (``counts[2]``: its broad back), then ``hq`` to the end (:func:`_march_x`). Panels and tail bounds are
+    (``counts[2]``: its broad back), then ``hq`` (:func:`_march_x`), and with ``far_ratio > 1`` from the first
+    node of that last run past the influence node (``i_far``, -1 if none) panels about ``far_ratio`` times
+    wider to the end, a multiple of 4 of them, all of one width ``h_far``, and the march stops only on every 4th
+    of them (a table's back: 4 equal intervals from ``i_far``). Past the influence depth ``D < (e^eps - 1) C``,
+    so ``D``'s relative error there (below about 2e-3 on panels of x-width 2 a narrow component 5 sigmas
+    away, far less elsewhere) moves a cell's increment by a thousandth of it. Panels and tail bounds are
     evaluated :data:`_MARCH_BLOCK` at a time (:func:`_log_panel_block`, :func:`_log_sup_tail_block`), the
-    running sums and the stop node by node."""
+    running sums and the stop node by node. Returns :func:`prism_march`'s values, then ``i_far`` and ``h_far``."""
     x0 = x_of_z(z_start, lam, ku)
     x_end = x_of_z(z_max, lam, ku)
     last = counts[0] + counts[1] + counts[2]
     n_max = last + max(1, int(math.ceil((x_end - _march_x(last, x0, counts, h_wide, hq)) / hq)))
+    fine_run = last if counts[2] > 0 else counts[0]  # first node of the run of hq panels that ends the march
     z = np.empty(n_max + 1)
     log_c = np.full((n_max + 1, 3), -np.inf)
     log_c[0] = log_c_start
@@ -515,29 +521,50 @@ def _march(shift, lam, z0, z_start, log_c_start, counts, h_wide, z_max, fb, ku, 
     scratch = np.empty((means.size + 5, _MARCH_GL * _MARCH_BLOCK))
     z[0] = z_start
     i_infl = -1
+    i_far = -1
+    x_far = h_far = hq
     n = n_max
+    stopped = False
     tail = -np.inf
     slack = -math.log1p(-lam_slack)  # a rate lam (1 - s) has C(a) >= (1 - s) C(a; lam)
-    for first in range(1, n_max + 1, _MARCH_BLOCK):
+    first = 1
+    while first <= n_max and not stopped:
         count = min(_MARCH_BLOCK, n_max + 1 - first)
         for i in range(first, first + count):
-            z[i] = z_max if i == n_max else z_of_x(_march_x(i, x0, counts, h_wide, hq), lam, ku)
+            if i == n_max:
+                z[i] = z_max
+            elif i_far >= 0:
+                z[i] = z_of_x(x_far + (i - i_far) * h_far, lam, ku)
+            else:
+                z[i] = z_of_x(_march_x(i, x0, counts, h_wide, hq), lam, ku)
         _log_panel_block(z, first, count, lam, z0, fb, shift, log_wn, means, inv_sigmas, panel, scratch)
         _log_sup_tail_block(z, first, count, z_max, fb, shift, log_wn, means, inv_sigmas, sup, scratch)
+        following = first + count
         for i in range(first, first + count):
             for k in range(3):
                 log_c[i, k] = logaddexp(log_c[i - 1, k], panel[i, k])
             bound = -lam * (z[i] - z0) + max(sup[i], log_far)
             if i_infl < 0 and bound + lam_slack * lam * (z[i] - z0) + slack - log_c[i, 0] < log_eps_bound:
                 i_infl = i
-            if i < n_max and i >= i_min and bound - log_c[i, 0] < -40.0:
+            if (i < n_max and i >= i_min and (i_far < 0 or (i - i_far) % 4 == 0)
+                    and bound - log_c[i, 0] < -40.0):
                 n = i
                 tail = bound
+                stopped = True
                 break
-        if n < n_max:
-            break
+            if far_ratio > 1 and i_far < 0 and 0 <= i_infl < i and i >= fine_run:
+                x_i = _march_x(i, x0, counts, h_wide, hq)
+                if x_end - x_i >= 8.0 * far_ratio * hq:  # room to spare in the arrays
+                    i_far = i
+                    x_far = x_i
+                    n_far = 4 * int(math.ceil((x_end - x_i) / (4.0 * far_ratio * hq)))
+                    h_far = (x_end - x_i) / n_far
+                    n_max = n = i + n_far
+                    following = i + 1
+                    break
+        first = following
     log_far_w = -np.inf
-    if n == n_max:
+    if not stopped:
         tail = log_far_w = -lam * (z_max - z0) + log_far
         if i_infl < 0:
             i_infl = n_max
@@ -549,7 +576,7 @@ def _march(shift, lam, z0, z_start, log_c_start, counts, h_wide, z_max, fb, ku, 
         for k in range(3):
             log_d[i - 1, k] = logaddexp(log_d[i, k], panel[i, k])
     log_z = logaddexp(log_c[n, 0], tail)
-    return z[: n + 1], log_c[: n + 1], log_d, log_z, log_far_w, i_infl
+    return z[: n + 1], log_c[: n + 1], log_d, log_z, log_far_w, i_infl, i_far, h_far
 
 
 @nb.njit(cache=True, nogil=True)
@@ -628,6 +655,9 @@ def _log_c_asymptotic(z, lam, z0, fb, shift, log_wn, means, sigmas):
     phi, phi_z = _log_qg_slope(z, lam, z0, fb, shift, log_wn, means, sigmas)
     return phi - math.log(phi_z)
 
+
+_FAR_RATIO = 4
+"""A table's march past its influence node: panels about this many times the fine width (:func:`_march`)."""
 
 N_SEGMENTS = 6
 """Segments of a table's node grid, each uniform in x: coarse front, broad front, fine, broad back, fine, back."""
@@ -709,9 +739,9 @@ def prism_table(shift, lam, z0, z_max, fb, ku, h, log_far, log_eps_bound, lam_sl
         counts[1] = max(int(math.ceil((x_back_wide - x_fine) / h)), 1)
         x_fine += counts[1] * h
         counts[2] = max(int((min(x_lam, x_end - h) - x_fine) / h_wide), 0)
-        z, log_c, log_d, log_z, log_far_w, i_infl = _march(
+        z, log_c, log_d, log_z, log_far_w, i_infl, i_far, h_far = _march(
             shift, lam, z0, z_split, log_c_start, counts, h_wide, z_max, fb, ku, h, log_far, log_eps_bound,
-            lam_slack, counts[0] + 2, log_wn, means, sigmas,
+            lam_slack, counts[0] + 2, _FAR_RATIO, log_wn, means, sigmas,
         )
         fit = n_coarse
         while fit > 0 and _log_c_asymptotic(z_of_x(x0 + fit * h_coarse, lam, ku), lam, z0, fb, shift, log_wn,
@@ -734,6 +764,10 @@ def prism_table(shift, lam, z0, z_max, fb, ku, h, log_far, log_eps_bound, lam_sl
             uniform = starts[r]
     # fine up to a node past the influence depth, then 4 equal intervals to the end (on the march's nodes)
     first_back = max(min(i_infl + 1, n), uniform)
+    back_width = widths[last]
+    if i_far >= 0:  # the march's far panels: 4 equal intervals of them from i_far
+        first_back = i_far
+        back_width = h_far
     back = (n - first_back) // 4
     n_back = 4 if back > 0 else 0
     i_back = n - n_back * back
@@ -793,7 +827,7 @@ def prism_table(shift, lam, z0, z_max, fb, ku, h, log_far, log_eps_bound, lam_sl
         meta[2 * N_SEGMENTS + 1 + r] = widths[r]
     meta[N_SEGMENTS - 1] = _march_x(i_back, x_march, counts, h_wide, h)
     meta[2 * N_SEGMENTS - 1] = n_coarse + i_back
-    meta[3 * N_SEGMENTS - 1] = max(back, 1) * widths[last]
+    meta[3 * N_SEGMENTS - 1] = max(back, 1) * back_width
     meta[3 * N_SEGMENTS:] = z[n], z[i_infl], log_z, z_1, z_2
     return nodes, meta
 
