@@ -495,6 +495,52 @@ def _log_sup_tail_block(z, first, count, z_max, fb, shift, log_wn, means, inv_si
 
 
 @nb.njit(cache=True, nogil=True, error_model="numpy")
+def _log_cumsum_block(terms, out, first, count, step, scratch):
+    """``out[i] = log(e^out[i - step] + e^terms[i'])`` row by row (3 columns each) for ``count`` rows ``i = first,
+    first + step, ...`` (``step`` +1 or -1; ``i' = i`` forward, ``i + 1`` backward: a cumulative log-sum-exp
+    either way): in linear space against each column's largest value, exps and logs in vectorised loops, where
+    no finite value of the block lies more than e^690 below that largest (nothing underflows), else by
+    :func:`logaddexp` row by row. ``scratch``: (3 count,) float64 or longer."""
+    shift_in = 0 if step > 0 else 1
+    top = np.empty(3)
+    for k in range(3):
+        top[k] = out[first - step, k]
+    for j in range(count):
+        i = first + j * step + shift_in
+        for k in range(3):
+            top[k] = max(top[k], terms[i, k])
+    linear = True
+    for k in range(3):
+        floor = top[k] - 690.0
+        if top[k] == -np.inf or (out[first - step, k] > -np.inf and out[first - step, k] < floor):
+            linear = False
+        for j in range(count):
+            v = terms[first + j * step + shift_in, k]
+            if v > -np.inf and v < floor:
+                linear = False
+    if not linear:
+        for j in range(count):
+            i = first + j * step
+            for k in range(3):
+                out[i, k] = logaddexp(out[i - step, k], terms[i + shift_in, k])
+        return
+    for j in range(count):
+        i = first + j * step + shift_in
+        for k in range(3):
+            scratch[3 * j + k] = fast_exp(terms[i, k] - top[k])
+    for k in range(3):
+        acc = fast_exp(out[first - step, k] - top[k])
+        for j in range(count):
+            acc += scratch[3 * j + k]
+            scratch[3 * j + k] = acc
+    for q in range(3 * count):
+        scratch[q] = fast_log(scratch[q])
+    for j in range(count):
+        for k in range(3):
+            out[first + j * step, k] = top[k] + scratch[3 * j + k]
+
+
+@nb.njit(cache=True, nogil=True, error_model="numpy")
 def _march(shift, lam, z0, z_start, log_c_start, counts, h_wide, z_max, fb, ku, hq, log_far, log_eps_bound,
            lam_slack, i_min, far_ratio, log_wn, means, sigmas):
     """:func:`prism_march` from ``z_start``, where the moments of C are ``log_c_start`` (3,), on panels of
@@ -539,10 +585,9 @@ def _march(shift, lam, z0, z_start, log_c_start, counts, h_wide, z_max, fb, ku, 
                 z[i] = z_of_x(_march_x(i, x0, counts, h_wide, hq), lam, ku)
         _log_panel_block(z, first, count, lam, z0, fb, shift, log_wn, means, inv_sigmas, panel, scratch)
         _log_sup_tail_block(z, first, count, z_max, fb, shift, log_wn, means, inv_sigmas, sup, scratch)
+        _log_cumsum_block(panel, log_c, first, count, 1, scratch[0])
         following = first + count
         for i in range(first, first + count):
-            for k in range(3):
-                log_c[i, k] = logaddexp(log_c[i - 1, k], panel[i, k])
             bound = -lam * (z[i] - z0) + max(sup[i], log_far)
             if i_infl < 0 and bound + lam_slack * lam * (z[i] - z0) + slack - log_c[i, 0] < log_eps_bound:
                 i_infl = i
@@ -572,9 +617,8 @@ def _march(shift, lam, z0, z_start, log_c_start, counts, h_wide, z_max, fb, ku, 
     log_s = math.log(z[n] - z0)
     for k in range(3):
         log_d[n, k] = tail + k * log_s
-    for i in range(n, 0, -1):
-        for k in range(3):
-            log_d[i - 1, k] = logaddexp(log_d[i, k], panel[i, k])
+    for last_row in range(n - 1, -1, -_MARCH_BLOCK):
+        _log_cumsum_block(panel, log_d, last_row, min(_MARCH_BLOCK, last_row + 1), -1, scratch[0])
     log_z = logaddexp(log_c[n, 0], tail)
     return z[: n + 1], log_c[: n + 1], log_d, log_z, log_far_w, i_infl, i_far, h_far
 
