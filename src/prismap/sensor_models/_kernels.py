@@ -985,6 +985,9 @@ def prism_direct_cells(
     return post, inc
 
 
+_PACK_ROWS = 192
+"""Rows a table :func:`prism_tables` makes room for at first (a street table has about 170)."""
+
 META_COLUMNS = ("lam", *(f"x_{k}" for k in range(N_SEGMENTS)), *(f"row_{k}" for k in range(N_SEGMENTS)),
                 *(f"h_{k}" for k in range(N_SEGMENTS)), "z_end", "z_infl", "log_z", "log_z_1", "log_z_2", "shift", "log_far",
                 "offset", "length")
@@ -1003,29 +1006,34 @@ def prism_tables(shifts, lams, log_fars, z0, z_max, fb, ku, h, log_eps_bound, la
 
     Returns ``nodes`` (N, :data:`TABLE_COLUMNS`) float32, every table's rows back to back (their rounding is
     far below ``TABLE_TOLERANCE``), and ``meta`` (K, ``len(META_COLUMNS)``) float64, one row per table
-    (``offset``: its first row in ``nodes``). One call builds a batch without a Python step per table.
+    (``offset``: its first row in ``nodes``). One call builds a batch without a Python step per table, each
+    table packed as soon as it is built (its float64 rows reuse the memory of the one before: holding a whole
+    batch in float64 first doubles its memory and page faults), into room for :data:`_PACK_ROWS` rows a table
+    that grows by half when full; ``nodes`` may be a view of that room.
     """
     n_tables = shifts.size
     meta = np.empty((n_tables, _LENGTH + 1))
-    built = []
+    packed = np.empty((_PACK_ROWS * n_tables, TABLE_COLUMNS), dtype=np.float32)
     total = 0
     for k in range(n_tables):
         nodes, table_meta = prism_table(shifts[k], lams[k], z0, z_max, fb, ku, h, log_fars[k], log_eps_bound,
                                         lam_slack, coarse_ratio, coarse_below, e_front, e_back, wide_ratio,
                                         wide_efolds, log_wn, means, sigmas)
-        built.append(nodes)
+        rows = nodes.shape[0]
+        if total + rows > packed.shape[0]:
+            grown = np.empty((max(total + rows, packed.shape[0] + packed.shape[0] // 2), TABLE_COLUMNS),
+                             dtype=np.float32)
+            grown[:total] = packed[:total]
+            packed = grown
+        packed[total : total + rows] = nodes
         meta[k, _LAM] = lams[k]
         meta[k, _X : _SHIFT] = table_meta
         meta[k, _SHIFT] = shifts[k]
         meta[k, _LOG_FAR] = log_fars[k]
         meta[k, _OFFSET] = total
-        meta[k, _LENGTH] = nodes.shape[0]
-        total += nodes.shape[0]
-    packed = np.empty((total, TABLE_COLUMNS), dtype=np.float32)
-    for k in range(n_tables):
-        offset = int(meta[k, _OFFSET])
-        packed[offset : offset + built[k].shape[0]] = built[k]
-    return packed, meta
+        meta[k, _LENGTH] = rows
+        total += rows
+    return packed[:total], meta
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
