@@ -720,9 +720,10 @@ def prism_table(shift, lam, z0, z_max, fb, ku, h, log_far, log_eps_bound, lam_sl
     disparities above ``shift + e_front``); ``h``; ``H_wide`` over the broad back (below ``shift + e_back``),
     both only where an interval spans at most ``wide_efolds`` prior e-folds; ``h``; then, from a node past
     the influence depth (beyond which only the cells that straddle it look up), four equal intervals to
-    the end of the march. The march's panels are the node intervals (8-point Gauss-Legendre is exact far
-    below the tolerance on half a narrowest sigma, and on a broad segment, where only the widest error
-    component is not negligible, on a quarter of its sigma).
+    the end of the march. The march's panels are the node intervals (:data:`_MARCH_GL`-point Gauss-Legendre
+    is exact far below the tolerance on half a narrowest sigma, and on a broad segment, where only the widest
+    error component is not negligible, on a quarter of its sigma), and past the influence node, where only the
+    four back intervals remain, :data:`_FAR_RATIO` times wider (:func:`_march`).
 
     Before ``x_split`` ``q g`` rises steeply (``|phi''| / phi'^2 < _STEEP``, ``phi = log(q g)``) and
     ``C/Z < e^coarse_below``: there ``C`` is its endpoint (Laplace) asymptotic ``q g / (q g)'`` (relative
@@ -1107,7 +1108,8 @@ def combine_small(l_a, l_c, a_is_d, c_is_d, lam_len):
 @nb.njit(cache=True, nogil=True)
 def _log_c_first(z, steep, lam, ku, h, z0, fb, shift, log_wn, means, sigmas):
     """``log C(z)`` in a table's first interval (``z0 < z``, x-width ``h``): one Gauss-Legendre panel, as
-    the table's march integrated that interval, or where ``q g`` rises steeply (``steep``: the interval
+    the table's march integrated that interval (8 points here, :data:`_MARCH_GL` there: they agree to about
+    1e-10), or where ``q g`` rises steeply (``steep``: the interval
     is in the coarse front) the endpoint asymptotic with the start's cut, ``C = q g / phi' (1 -
     e^{-phi' (z - z0)})``, exact for an exponential ``q g``."""
     if not steep:
