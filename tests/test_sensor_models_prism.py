@@ -622,3 +622,51 @@ def test_log_sums_skip_underflowing_exps_without_changing_a_bit():
         best = v.max()
         plain = best + np.log(np.sum(np.exp(v - best)))
         np.testing.assert_allclose(_kernels.log_likelihood(u, 1.0, log_wn, means, sigmas), plain, rtol=1e-15)
+
+
+def test_march_blocks_match_the_one_panel_rule_and_the_tail_bound():
+    """_log_panel_block (6 points, 16 panels at once) against _log_panel_moments (8 points, one panel) on a street
+    table's fine panels (x-width 0.5) and broad ones (x-width 8), and _log_sup_tail_block against _log_sup_tail."""
+    model = make_sensor_model("prism", focal_baseline=KITTI_FB, error_model=STREET, voxel_size_m=0.2, p0=0.05,
+                              near_m=1.5)
+    log_wn, means, sigmas = model._mixture_arrays()
+    lam, ku, shift = model.rate_per_m * 1.1, model._ku(), KITTI_FB / 12.0
+    for width in (0.5, 8.0):
+        z = np.array([_kernels.z_of_x(x, lam, ku) for x in _kernels.x_of_z(1.5, lam, ku) + width * np.arange(40)])
+        out = np.full((z.size, 3), np.nan)
+        sup = np.full(z.size, np.nan)
+        scratch = np.empty((means.size + 5, _kernels._MARCH_GL * _kernels._MARCH_BLOCK))
+        for first in range(1, z.size, _kernels._MARCH_BLOCK):
+            count = min(_kernels._MARCH_BLOCK, z.size - first)
+            _kernels._log_panel_block(z, first, count, lam, 1.5, KITTI_FB, shift, log_wn, means, 1 / sigmas, out,
+                                      scratch)
+            _kernels._log_sup_tail_block(z, first, count, 80.0, KITTI_FB, shift, log_wn, means, 1 / sigmas, sup,
+                                         scratch)
+        ref = np.array([_kernels._log_panel_moments(a, b, lam, 1.5, KITTI_FB, shift, log_wn, means, sigmas)
+                        for a, b in zip(z[:-1], z[1:])])
+        np.testing.assert_allclose(out[1:], ref, rtol=0, atol=1e-8 if width < 1 else 1e-6)
+        sup_ref = [_kernels._log_sup_tail(v, 80.0, KITTI_FB, shift, log_wn, means, sigmas) for v in z[1:]]
+        np.testing.assert_allclose(sup[1:], sup_ref, rtol=1e-13, atol=1e-12)
+
+
+@pytest.mark.parametrize("step", [1, -1])
+def test_log_cumsum_block_matches_a_running_logaddexp_through_minus_inf_and_underflow(step):
+    """Cumulative log-sum-exp of 16 rows at a time, forward and backward, against numpy's running logaddexp: terms
+    spread over 60 nats (the linear path), with -inf terms and a -inf start, and over 2,000 nats (a block
+    that would underflow: the row-by-row path)."""
+    rng = np.random.default_rng(7)
+    for spread in (60.0, 2000.0):
+        terms = rng.uniform(-spread, 0.0, (41, 3))
+        terms[5, 1] = terms[17, 0] = -np.inf
+        out = np.full((41, 3), np.nan)
+        if step > 0:
+            out[0] = [-np.inf, -3.0, 1.0]
+            for first in range(1, 41, 16):
+                _kernels._log_cumsum_block(terms, out, first, min(16, 41 - first), 1, np.empty(48))
+            ref = np.logaddexp.accumulate(np.vstack([out[:1], terms[1:]]), axis=0)
+        else:
+            out[40] = [-np.inf, -3.0, 1.0]
+            for last in range(39, -1, -16):
+                _kernels._log_cumsum_block(terms, out, last, min(16, last + 1), -1, np.empty(48))
+            ref = np.logaddexp.accumulate(np.vstack([out[40:], terms[40:0:-1]]), axis=0)[::-1]
+        np.testing.assert_allclose(out, ref, rtol=1e-14, atol=1e-13)

@@ -372,7 +372,7 @@ def prism_march(shift, lam, z0, z_max, fb, ku, hq, log_far, log_eps_bound, lam_s
     evidence is below e^-40 of ``C``.
     """
     return _march(shift, lam, z0, z0, np.full(3, -np.inf), np.zeros(3, dtype=np.int64), hq, z_max, fb, ku, hq,
-                  log_far, log_eps_bound, lam_slack, i_min, log_wn, means, sigmas)
+                  log_far, log_eps_bound, lam_slack, i_min, 1, log_wn, means, sigmas)[:6]
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
@@ -389,40 +389,227 @@ def _march_x(i, x0, counts, h_wide, h):
     return x + i * h
 
 
-@nb.njit(cache=True, nogil=True)
+_MARCH_BLOCK = 16
+"""Panels a march evaluates at once (:func:`_log_panel_block`): 288 exps in vectorised loops for a 3-component
+mixture; the march's stop wastes at most this many less one."""
+_MARCH_GL = 6
+"""Gauss-Legendre points of a march's panel: on half a narrowest sigma (or, in a broad segment, a quarter of the
+widest sigma, at most half a prior e-fold) the rule's relative error is below about 1e-10 where the integrand
+matters, and below 5e-8 ten sigmas out (the direct method's 8 points on half as wide panels are the reference)."""
+_MARCH_GL_X, _MARCH_GL_W = np.polynomial.legendre.leggauss(_MARCH_GL)
+_MARCH_GL_LOG_W = np.log(_MARCH_GL_W)
+
+
+_EXP_TERM_FLOOR = -700.0
+
+
+@nb.njit(cache=True, nogil=True, inline="always", error_model="numpy")
+def _exp_term(x):
+    """``exp(x)`` (:func:`fast_exp`) for a term of a sum of at least 1: below e^-700 it is e^-700, which adds
+    nothing to such a sum, instead of a subnormal or 0 (subnormal arithmetic costs about a hundred cycles)."""
+    return fast_exp(max(x, _EXP_TERM_FLOOR))
+
+
+@nb.njit(cache=True, nogil=True, error_model="numpy")
+def _log_panel_block(z, first, count, lam, z0, fb, shift, log_wn, means, inv_sigmas, out, scratch):
+    """Logs of ``int_{z[i-1]}^{z[i]} (t - z0)^k q g dt`` (k = 0, 1, 2) into ``out[i]`` for ``count`` panels from
+    ``i = first``, by :data:`_MARCH_GL`-point Gauss-Legendre, each panel's terms scaled by its largest one, in
+    loops over all the block's points that LLVM vectorises (exps by :func:`_exp_term`). ``scratch``:
+    (J + 5, _MARCH_GL _MARCH_BLOCK) float64, J = ``means.size``."""
+    n_gl = _MARCH_GL
+    n_pts = n_gl * count
+    n_comp = means.size
+    s = scratch[n_comp]
+    u = scratch[n_comp + 1]
+    base = scratch[n_comp + 2]
+    top = scratch[n_comp + 3]
+    w = scratch[n_comp + 4]
+    for q in range(n_pts):
+        i = first + q // n_gl
+        half = 0.5 * (z[i] - z[i - 1])
+        zq = z[i - 1] + half + half * _MARCH_GL_X[q % n_gl]
+        s[q] = zq - z0
+        u[q] = fb / zq - shift
+        base[q] = _MARCH_GL_LOG_W[q % n_gl] - lam * s[q]
+        top[q] = -np.inf
+        w[q] = 0.0
+    for j in range(n_comp):
+        e = scratch[j]
+        for q in range(n_pts):
+            t = (u[q] - means[j]) * inv_sigmas[j]
+            e[q] = base[q] + log_wn[j] - 0.5 * t * t
+            top[q] = max(top[q], e[q])
+    for p in range(count):  # each panel's largest term, at each of its points
+        m = top[n_gl * p]
+        for q in range(n_gl * p + 1, n_gl * (p + 1)):
+            m = max(m, top[q])
+        for q in range(n_gl * p, n_gl * (p + 1)):
+            top[q] = m
+    for j in range(n_comp):
+        e = scratch[j]
+        for q in range(n_pts):
+            w[q] += _exp_term(e[q] - top[q])
+    log_lam = math.log(lam)
+    for p in range(count):
+        m0 = m1 = m2 = 0.0
+        for q in range(n_gl * p, n_gl * (p + 1)):
+            ws = w[q] * s[q]
+            m0 += w[q]
+            m1 += ws
+            m2 += ws * s[q]
+        i = first + p
+        out[i, 0], out[i, 1], out[i, 2] = m0, m1, m2
+        base[p] = top[n_gl * p] + log_lam + math.log(0.5 * (z[i] - z[i - 1]))
+    for i in range(first, first + count):
+        for k in range(3):
+            out[i, k] = fast_log(out[i, k])
+    for p in range(count):
+        for k in range(3):
+            out[first + p, k] += base[p]
+
+
+@nb.njit(cache=True, nogil=True, error_model="numpy")
+def _log_sup_tail_block(z, first, count, z_max, fb, shift, log_wn, means, inv_sigmas, out, scratch):
+    """:func:`_log_sup_tail` at ``z[first:first + count]`` into ``out[first:...]``, in vectorised loops (exps by
+    :func:`_exp_term`); ``scratch`` as :func:`_log_panel_block`'s."""
+    n_comp = means.size
+    u_lo = fb / z_max
+    top = scratch[n_comp]
+    total = scratch[n_comp + 1]
+    for q in range(count):
+        top[q] = -np.inf
+        total[q] = 0.0
+    for j in range(n_comp):
+        e = scratch[j]
+        for q in range(count):
+            mode = min(max(shift + means[j], u_lo), fb / z[first + q])
+            t = (mode - shift - means[j]) * inv_sigmas[j]
+            e[q] = log_wn[j] - 0.5 * t * t
+            top[q] = max(top[q], e[q])
+    for j in range(n_comp):
+        e = scratch[j]
+        for q in range(count):
+            total[q] += _exp_term(e[q] - top[q])
+    for q in range(count):
+        out[first + q] = top[q] + fast_log(total[q])
+
+
+@nb.njit(cache=True, nogil=True, error_model="numpy")
+def _log_cumsum_block(terms, out, first, count, step, scratch):
+    """``out[i] = log(e^out[i - step] + e^terms[i'])`` row by row (3 columns each) for ``count`` rows ``i = first,
+    first + step, ...`` (``step`` +1 or -1; ``i' = i`` forward, ``i + 1`` backward: a cumulative log-sum-exp
+    either way): in linear space against each column's largest value, exps and logs in vectorised loops, where
+    no finite value of the block lies more than e^690 below that largest (nothing underflows), else by
+    :func:`logaddexp` row by row. ``scratch``: (3 count,) float64 or longer."""
+    shift_in = 0 if step > 0 else 1
+    top = np.empty(3)
+    for k in range(3):
+        top[k] = out[first - step, k]
+    for j in range(count):
+        i = first + j * step + shift_in
+        for k in range(3):
+            top[k] = max(top[k], terms[i, k])
+    linear = True
+    for k in range(3):
+        floor = top[k] - 690.0
+        if top[k] == -np.inf or (out[first - step, k] > -np.inf and out[first - step, k] < floor):
+            linear = False
+        for j in range(count):
+            v = terms[first + j * step + shift_in, k]
+            if v > -np.inf and v < floor:
+                linear = False
+    if not linear:
+        for j in range(count):
+            i = first + j * step
+            for k in range(3):
+                out[i, k] = logaddexp(out[i - step, k], terms[i + shift_in, k])
+        return
+    for j in range(count):
+        i = first + j * step + shift_in
+        for k in range(3):
+            scratch[3 * j + k] = fast_exp(terms[i, k] - top[k])
+    for k in range(3):
+        acc = fast_exp(out[first - step, k] - top[k])
+        for j in range(count):
+            acc += scratch[3 * j + k]
+            scratch[3 * j + k] = acc
+    for q in range(3 * count):
+        scratch[q] = fast_log(scratch[q])
+    for j in range(count):
+        for k in range(3):
+            out[first + j * step, k] = top[k] + scratch[3 * j + k]
+
+
+@nb.njit(cache=True, nogil=True, error_model="numpy")
 def _march(shift, lam, z0, z_start, log_c_start, counts, h_wide, z_max, fb, ku, hq, log_far, log_eps_bound,
-           lam_slack, i_min, log_wn, means, sigmas):
+           lam_slack, i_min, far_ratio, log_wn, means, sigmas):
     """:func:`prism_march` from ``z_start``, where the moments of C are ``log_c_start`` (3,), on panels of
     x-width ``h_wide`` (``counts[0]``: a table's broad front), ``hq`` (``counts[1]``), ``h_wide``
-    (``counts[2]``: its broad back), then ``hq`` to the end (:func:`_march_x`)."""
+    (``counts[2]``: its broad back), then ``hq`` (:func:`_march_x`), and with ``far_ratio > 1`` from the first
+    node of that last run past the influence node (``i_far``, -1 if none) panels about ``far_ratio`` times
+    wider to the end, a multiple of 4 of them, all of one width ``h_far``, and the march stops only on every 4th
+    of them (a table's back: 4 equal intervals from ``i_far``). Past the influence depth ``D < (e^eps - 1) C``,
+    so ``D``'s relative error there (below about 2e-3 on panels of x-width 2 a narrow component 5 sigmas
+    away, far less elsewhere) moves a cell's increment by a thousandth of it. Panels and tail bounds are
+    evaluated :data:`_MARCH_BLOCK` at a time (:func:`_log_panel_block`, :func:`_log_sup_tail_block`), the
+    running sums and the stop node by node. Returns :func:`prism_march`'s values, then ``i_far`` and ``h_far``."""
     x0 = x_of_z(z_start, lam, ku)
     x_end = x_of_z(z_max, lam, ku)
     last = counts[0] + counts[1] + counts[2]
     n_max = last + max(1, int(math.ceil((x_end - _march_x(last, x0, counts, h_wide, hq)) / hq)))
+    fine_run = last if counts[2] > 0 else counts[0]  # first node of the run of hq panels that ends the march
     z = np.empty(n_max + 1)
     log_c = np.full((n_max + 1, 3), -np.inf)
     log_c[0] = log_c_start
     panel = np.full((n_max + 1, 3), -np.inf)
+    sup = np.empty(n_max + 1)
+    inv_sigmas = 1.0 / sigmas
+    scratch = np.empty((means.size + 5, _MARCH_GL * _MARCH_BLOCK))
     z[0] = z_start
     i_infl = -1
+    i_far = -1
+    x_far = h_far = hq
     n = n_max
+    stopped = False
     tail = -np.inf
     slack = -math.log1p(-lam_slack)  # a rate lam (1 - s) has C(a) >= (1 - s) C(a; lam)
-    for i in range(1, n_max + 1):
-        z[i] = z_max if i == n_max else z_of_x(_march_x(i, x0, counts, h_wide, hq), lam, ku)
-        panel[i, 0], panel[i, 1], panel[i, 2] = _log_panel_moments(z[i - 1], z[i], lam, z0, fb, shift, log_wn,
-                                                                    means, sigmas)
-        for k in range(3):
-            log_c[i, k] = logaddexp(log_c[i - 1, k], panel[i, k])
-        bound = -lam * (z[i] - z0) + max(_log_sup_tail(z[i], z_max, fb, shift, log_wn, means, sigmas), log_far)
-        if i_infl < 0 and bound + lam_slack * lam * (z[i] - z0) + slack - log_c[i, 0] < log_eps_bound:
-            i_infl = i
-        if i < n_max and i >= i_min and bound - log_c[i, 0] < -40.0:
-            n = i
-            tail = bound
-            break
+    first = 1
+    while first <= n_max and not stopped:
+        count = min(_MARCH_BLOCK, n_max + 1 - first)
+        for i in range(first, first + count):
+            if i == n_max:
+                z[i] = z_max
+            elif i_far >= 0:
+                z[i] = z_of_x(x_far + (i - i_far) * h_far, lam, ku)
+            else:
+                z[i] = z_of_x(_march_x(i, x0, counts, h_wide, hq), lam, ku)
+        _log_panel_block(z, first, count, lam, z0, fb, shift, log_wn, means, inv_sigmas, panel, scratch)
+        _log_sup_tail_block(z, first, count, z_max, fb, shift, log_wn, means, inv_sigmas, sup, scratch)
+        _log_cumsum_block(panel, log_c, first, count, 1, scratch[0])
+        following = first + count
+        for i in range(first, first + count):
+            bound = -lam * (z[i] - z0) + max(sup[i], log_far)
+            if i_infl < 0 and bound + lam_slack * lam * (z[i] - z0) + slack - log_c[i, 0] < log_eps_bound:
+                i_infl = i
+            if (i < n_max and i >= i_min and (i_far < 0 or (i - i_far) % 4 == 0)
+                    and bound - log_c[i, 0] < -40.0):
+                n = i
+                tail = bound
+                stopped = True
+                break
+            if far_ratio > 1 and i_far < 0 and 0 <= i_infl < i and i >= fine_run:
+                x_i = _march_x(i, x0, counts, h_wide, hq)
+                if x_end - x_i >= 8.0 * far_ratio * hq:  # room to spare in the arrays
+                    i_far = i
+                    x_far = x_i
+                    n_far = 4 * int(math.ceil((x_end - x_i) / (4.0 * far_ratio * hq)))
+                    h_far = (x_end - x_i) / n_far
+                    n_max = n = i + n_far
+                    following = i + 1
+                    break
+        first = following
     log_far_w = -np.inf
-    if n == n_max:
+    if not stopped:
         tail = log_far_w = -lam * (z_max - z0) + log_far
         if i_infl < 0:
             i_infl = n_max
@@ -430,11 +617,10 @@ def _march(shift, lam, z0, z_start, log_c_start, counts, h_wide, z_max, fb, ku, 
     log_s = math.log(z[n] - z0)
     for k in range(3):
         log_d[n, k] = tail + k * log_s
-    for i in range(n, 0, -1):
-        for k in range(3):
-            log_d[i - 1, k] = logaddexp(log_d[i, k], panel[i, k])
+    for last_row in range(n - 1, -1, -_MARCH_BLOCK):
+        _log_cumsum_block(panel, log_d, last_row, min(_MARCH_BLOCK, last_row + 1), -1, scratch[0])
     log_z = logaddexp(log_c[n, 0], tail)
-    return z[: n + 1], log_c[: n + 1], log_d, log_z, log_far_w, i_infl
+    return z[: n + 1], log_c[: n + 1], log_d, log_z, log_far_w, i_infl, i_far, h_far
 
 
 @nb.njit(cache=True, nogil=True)
@@ -514,6 +700,9 @@ def _log_c_asymptotic(z, lam, z0, fb, shift, log_wn, means, sigmas):
     return phi - math.log(phi_z)
 
 
+_FAR_RATIO = 4
+"""A table's march past its influence node: panels about this many times the fine width (:func:`_march`)."""
+
 N_SEGMENTS = 6
 """Segments of a table's node grid, each uniform in x: coarse front, broad front, fine, broad back, fine, back."""
 
@@ -531,9 +720,10 @@ def prism_table(shift, lam, z0, z_max, fb, ku, h, log_far, log_eps_bound, lam_sl
     disparities above ``shift + e_front``); ``h``; ``H_wide`` over the broad back (below ``shift + e_back``),
     both only where an interval spans at most ``wide_efolds`` prior e-folds; ``h``; then, from a node past
     the influence depth (beyond which only the cells that straddle it look up), four equal intervals to
-    the end of the march. The march's panels are the node intervals (8-point Gauss-Legendre is exact far
-    below the tolerance on half a narrowest sigma, and on a broad segment, where only the widest error
-    component is not negligible, on a quarter of its sigma).
+    the end of the march. The march's panels are the node intervals (:data:`_MARCH_GL`-point Gauss-Legendre
+    is exact far below the tolerance on half a narrowest sigma, and on a broad segment, where only the widest
+    error component is not negligible, on a quarter of its sigma), and past the influence node, where only the
+    four back intervals remain, :data:`_FAR_RATIO` times wider (:func:`_march`).
 
     Before ``x_split`` ``q g`` rises steeply (``|phi''| / phi'^2 < _STEEP``, ``phi = log(q g)``) and
     ``C/Z < e^coarse_below``: there ``C`` is its endpoint (Laplace) asymptotic ``q g / (q g)'`` (relative
@@ -594,9 +784,9 @@ def prism_table(shift, lam, z0, z_max, fb, ku, h, log_far, log_eps_bound, lam_sl
         counts[1] = max(int(math.ceil((x_back_wide - x_fine) / h)), 1)
         x_fine += counts[1] * h
         counts[2] = max(int((min(x_lam, x_end - h) - x_fine) / h_wide), 0)
-        z, log_c, log_d, log_z, log_far_w, i_infl = _march(
+        z, log_c, log_d, log_z, log_far_w, i_infl, i_far, h_far = _march(
             shift, lam, z0, z_split, log_c_start, counts, h_wide, z_max, fb, ku, h, log_far, log_eps_bound,
-            lam_slack, counts[0] + 2, log_wn, means, sigmas,
+            lam_slack, counts[0] + 2, _FAR_RATIO, log_wn, means, sigmas,
         )
         fit = n_coarse
         while fit > 0 and _log_c_asymptotic(z_of_x(x0 + fit * h_coarse, lam, ku), lam, z0, fb, shift, log_wn,
@@ -619,6 +809,10 @@ def prism_table(shift, lam, z0, z_max, fb, ku, h, log_far, log_eps_bound, lam_sl
             uniform = starts[r]
     # fine up to a node past the influence depth, then 4 equal intervals to the end (on the march's nodes)
     first_back = max(min(i_infl + 1, n), uniform)
+    back_width = widths[last]
+    if i_far >= 0:  # the march's far panels: 4 equal intervals of them from i_far
+        first_back = i_far
+        back_width = h_far
     back = (n - first_back) // 4
     n_back = 4 if back > 0 else 0
     i_back = n - n_back * back
@@ -678,7 +872,7 @@ def prism_table(shift, lam, z0, z_max, fb, ku, h, log_far, log_eps_bound, lam_sl
         meta[2 * N_SEGMENTS + 1 + r] = widths[r]
     meta[N_SEGMENTS - 1] = _march_x(i_back, x_march, counts, h_wide, h)
     meta[2 * N_SEGMENTS - 1] = n_coarse + i_back
-    meta[3 * N_SEGMENTS - 1] = max(back, 1) * widths[last]
+    meta[3 * N_SEGMENTS - 1] = max(back, 1) * back_width
     meta[3 * N_SEGMENTS:] = z[n], z[i_infl], log_z, z_1, z_2
     return nodes, meta
 
@@ -792,6 +986,9 @@ def prism_direct_cells(
     return post, inc
 
 
+_PACK_ROWS = 192
+"""Rows a table :func:`prism_tables` makes room for at first (a street table has about 170)."""
+
 META_COLUMNS = ("lam", *(f"x_{k}" for k in range(N_SEGMENTS)), *(f"row_{k}" for k in range(N_SEGMENTS)),
                 *(f"h_{k}" for k in range(N_SEGMENTS)), "z_end", "z_infl", "log_z", "log_z_1", "log_z_2", "shift", "log_far",
                 "offset", "length")
@@ -810,29 +1007,34 @@ def prism_tables(shifts, lams, log_fars, z0, z_max, fb, ku, h, log_eps_bound, la
 
     Returns ``nodes`` (N, :data:`TABLE_COLUMNS`) float32, every table's rows back to back (their rounding is
     far below ``TABLE_TOLERANCE``), and ``meta`` (K, ``len(META_COLUMNS)``) float64, one row per table
-    (``offset``: its first row in ``nodes``). One call builds a batch without a Python step per table.
+    (``offset``: its first row in ``nodes``). One call builds a batch without a Python step per table, each
+    table packed as soon as it is built (its float64 rows reuse the memory of the one before: holding a whole
+    batch in float64 first doubles its memory and page faults), into room for :data:`_PACK_ROWS` rows a table
+    that grows by half when full; ``nodes`` may be a view of that room.
     """
     n_tables = shifts.size
     meta = np.empty((n_tables, _LENGTH + 1))
-    built = []
+    packed = np.empty((_PACK_ROWS * n_tables, TABLE_COLUMNS), dtype=np.float32)
     total = 0
     for k in range(n_tables):
         nodes, table_meta = prism_table(shifts[k], lams[k], z0, z_max, fb, ku, h, log_fars[k], log_eps_bound,
                                         lam_slack, coarse_ratio, coarse_below, e_front, e_back, wide_ratio,
                                         wide_efolds, log_wn, means, sigmas)
-        built.append(nodes)
+        rows = nodes.shape[0]
+        if total + rows > packed.shape[0]:
+            grown = np.empty((max(total + rows, packed.shape[0] + packed.shape[0] // 2), TABLE_COLUMNS),
+                             dtype=np.float32)
+            grown[:total] = packed[:total]
+            packed = grown
+        packed[total : total + rows] = nodes
         meta[k, _LAM] = lams[k]
         meta[k, _X : _SHIFT] = table_meta
         meta[k, _SHIFT] = shifts[k]
         meta[k, _LOG_FAR] = log_fars[k]
         meta[k, _OFFSET] = total
-        meta[k, _LENGTH] = nodes.shape[0]
-        total += nodes.shape[0]
-    packed = np.empty((total, TABLE_COLUMNS), dtype=np.float32)
-    for k in range(n_tables):
-        offset = int(meta[k, _OFFSET])
-        packed[offset : offset + built[k].shape[0]] = built[k]
-    return packed, meta
+        meta[k, _LENGTH] = rows
+        total += rows
+    return packed[:total], meta
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
@@ -906,7 +1108,8 @@ def combine_small(l_a, l_c, a_is_d, c_is_d, lam_len):
 @nb.njit(cache=True, nogil=True)
 def _log_c_first(z, steep, lam, ku, h, z0, fb, shift, log_wn, means, sigmas):
     """``log C(z)`` in a table's first interval (``z0 < z``, x-width ``h``): one Gauss-Legendre panel, as
-    the table's march integrated that interval, or where ``q g`` rises steeply (``steep``: the interval
+    the table's march integrated that interval (8 points here, :data:`_MARCH_GL` there: they agree to about
+    1e-10), or where ``q g`` rises steeply (``steep``: the interval
     is in the coarse front) the endpoint asymptotic with the start's cut, ``C = q g / phi' (1 -
     e^{-phi' (z - z0)})``, exact for an exponential ``q g``."""
     if not steep:

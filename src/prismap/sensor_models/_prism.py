@@ -455,7 +455,8 @@ class PrismModel(RayModel):
     def _build_tables(self, keys):
         """The tables of ``keys`` ((K,) int64): ``nodes`` (N, ``_kernels.TABLE_COLUMNS``) float32 back to back and
         their ``meta`` rows (K, ``len(_kernels.META_COLUMNS)``), ``offset`` from the first row of ``nodes``
-        (``_kernels.prism_tables``), in :data:`_BUILD_THREADS` threads for a large batch."""
+        (``_kernels.prism_tables``), in :data:`_BUILD_THREADS` threads for a large batch (``nodes`` then a list
+        of each thread's arrays, to be read back to back: :meth:`_TableCache.rows` copies them in)."""
         key_d, key_l = np.divmod(np.asarray(keys, dtype=np.int64), _KEY_L_SPAN)
         disparity = key_d * self.disparity_step_px
         lam = self.rate_per_m * np.exp(key_l * _LAMBDA_STEP)
@@ -487,7 +488,7 @@ class PrismModel(RayModel):
                 share_meta[:, _OFFSET] += first
                 meta[t::_BUILD_THREADS] = share_meta
                 first += share_nodes.shape[0]
-            nodes = np.concatenate([share_nodes for share_nodes, _ in shares])
+            nodes = [share_nodes for share_nodes, _ in shares]  # the cache copies them in; no concatenation
         if n and meta[:, _LENGTH].min() < 2:
             raise PrismapInputError(f"prism: near_m={self.near_m} to far_depth_m={self.far_depth_m} is too short to tabulate")
         return nodes, meta
@@ -610,7 +611,8 @@ class _TableCache:
 
     def rows(self, keys, build):
         """Metadata row of each (distinct) key, calling ``build(missing keys)`` for absent ones (it returns
-        their ``nodes`` and ``meta`` rows, offsets from its first node: ``PrismModel._build_tables``)."""
+        their ``nodes``, an array or a list of arrays read back to back, and ``meta`` rows, offsets from its first
+        node: ``PrismModel._build_tables``)."""
         rows = self._find(keys)
         missing = keys[rows < 0]
         self.hits += keys.size - missing.size
@@ -619,7 +621,7 @@ class _TableCache:
             nodes, meta = build(missing)
             meta[:, _OFFSET] += self.nodes.shape[0]
             first = self.keys.size
-            self._append_nodes(nodes)
+            self._append_nodes(nodes if isinstance(nodes, list) else [nodes])
             self.meta = np.concatenate([self.meta, meta])
             self.keys = np.concatenate([self.keys, missing])
             self.last_used = np.concatenate([self.last_used, np.zeros(missing.size, dtype=np.int64)])
@@ -632,16 +634,19 @@ class _TableCache:
             rows = self._evict(rows)
         return rows
 
-    def _append_nodes(self, nodes):
-        """Append rows to ``nodes``: into the room behind them (rows no reader indexes yet), else into a new
-        array half as large again as needed, so that a sequence copies its tables a few times, not every call."""
-        n, m = self.nodes.shape[0], nodes.shape[0]
+    def _append_nodes(self, parts):
+        """Append the rows of the arrays ``parts``, one after another, to ``nodes``: into the room behind them (rows
+        no reader indexes yet), else into a new array half as large again as needed, so that a sequence copies its
+        tables a few times, not every call."""
+        n, m = self.nodes.shape[0], sum(part.shape[0] for part in parts)
         if n + m > self._node_room.shape[0]:
             room = np.empty((n + m + (n + m) // 2, _kernels.TABLE_COLUMNS), dtype=np.float32)
             room[:n] = self.nodes
             self._node_room = room
-        self._node_room[n : n + m] = nodes
-        self.nodes = self._node_room[: n + m]
+        for part in parts:
+            self._node_room[n : n + part.shape[0]] = part
+            n += part.shape[0]
+        self.nodes = self._node_room[:n]
 
     def _sort(self):
         self.order = np.argsort(self.keys, kind="stable")
