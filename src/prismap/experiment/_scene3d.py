@@ -505,15 +505,13 @@ def _class_model_params(model_params, settings, scene, char_frames, error_model,
     """``model_params`` with PRISM's ``class_pass_through`` for a conditioned ``error_model`` (unless the settings
     set it): the pass-through ratio of the rays of each class of the matcher's disparity of ``char_frames``
     (``disparity_dir``, see :func:`_match`), measured as the whole ratio is."""
-    from prismap.io import read_kitti_disparity
     from prismap.sensor_models import CLASS_PASS_THROUGH
 
     prism = model_params["prism"]
     if not error_model.conditioned or CLASS_PASS_THROUGH in prism:
         return model_params
-    labels = [error_model.classify_frame(frame.left, frame.right,
-                                         read_kitti_disparity(Path(disparity_dir) / f"{index:06d}.png"))
-              for index, frame in enumerate(char_frames)]
+    labels = [error_model.classify_frame(frame.left, frame.right, disparity)
+              for frame, disparity in zip(char_frames, _disparities(disparity_dir, len(char_frames)))]
     ratios = scene.pass_through_ratio(char_frames, settings["voxel_size_m"], max_depth_m=settings["max_range_m"],
                                       subsample=settings["subsample"], ray_classes=labels,
                                       n_classes=error_model.n_classes)
