@@ -4,13 +4,13 @@ import numpy as np
 import pytest
 from test_characterise_correlation import CAMERA, _frames, _world_x
 
-from prismap.characterise._fusion import MIN_PAIRS, fit_fusion, fusion_block, fusion_from_block
+from prismap.characterise._fusion import MIN_PAIRS, fit_fusion, fusion_block, fusion_from_block, path_order
 from prismap.errors import PrismapInputError
 from prismap.grid import PersistentFailure
 
 
 def test_fit_reads_rate_and_persistence_of_failures_fixed_to_the_world():
-    frames = _frames(5)
+    frames = _frames(5)[::-1]  # any order: the fit pairs them along the path
     rng = np.random.default_rng(11)
     disparities = []
     for frame in frames:
@@ -28,10 +28,15 @@ def test_fit_reads_rate_and_persistence_of_failures_fixed_to_the_world():
     assert loose["rate"] == pytest.approx(0.1, abs=0.01) and loose["persistence"] == pytest.approx(0.1, abs=0.02)
 
 
-def test_fit_refuses_too_few_pairs():
+def test_fit_refuses_too_few_pairs_and_frames_without_poses():
     frames = _frames(2)
     with pytest.raises(PrismapInputError, match="surface points"):
         fit_fusion(frames, [f.disparity_gt * np.nan for f in frames], CAMERA)
+    with pytest.raises(PrismapInputError, match="at least 2 frames"):
+        fit_fusion(frames[:1], [frames[0].disparity_gt], CAMERA)
+    unposed = [type(f)(f.left, f.right, f.camera, f.disparity_gt, None, f.name) for f in frames]
+    with pytest.raises(PrismapInputError, match="frame 0 .* no pose"):
+        fit_fusion(unposed, [f.disparity_gt for f in frames], CAMERA)
 
 
 def test_block_round_trip_and_errors():
@@ -46,3 +51,11 @@ def test_block_round_trip_and_errors():
         fusion_from_block({"model": "persistent-failure", "rate": 0.1})
     with pytest.raises(PrismapInputError, match="field 'fusion': `persistence`"):
         fusion_from_block({"model": "persistent-failure", "rate": 0.3, "persistence": 0.1})
+
+
+def test_characterisation_frames_are_ordered_along_the_path():
+    drive_and_between = np.array([[4.0, 0, 0], [8.0, 0, 0], [5.0, 0, 0], [7.0, 0, 0], [9.0, 0, 0], [11.0, 0, 0]])
+    assert path_order(drive_and_between) == [0, 2, 3, 1, 4, 5]
+    angle = np.linspace(0, 2 * np.pi, 8, endpoint=False)
+    loop = np.stack([3.8 * np.cos(angle), 2.0 * np.sin(angle), np.zeros(8)], axis=1)
+    assert path_order(loop) in ([0, 1, 2, 3, 4, 5, 6, 7], [0, 7, 6, 5, 4, 3, 2, 1])

@@ -42,12 +42,3 @@ def test_a_confident_mistake_costs_less_when_read_with_failures():
     assert "| bm | prism | persistent failure |" in text and "r = 0.0500, q = 0.500" in text
     assert rows[0].to_dict()["log_loss"] == pytest.approx(independent.log_loss)
 
-
-def test_characterisation_frames_are_ordered_along_the_path():
-    from prismap.experiment._fusion import _path_order
-
-    drive_and_between = np.array([[4.0, 0, 0], [8.0, 0, 0], [5.0, 0, 0], [7.0, 0, 0], [9.0, 0, 0], [11.0, 0, 0]])
-    assert _path_order(drive_and_between) == [0, 2, 3, 1, 4, 5]
-    angle = np.linspace(0, 2 * np.pi, 8, endpoint=False)
-    loop = np.stack([3.8 * np.cos(angle), 2.0 * np.sin(angle), np.zeros(8)], axis=1)
-    assert _path_order(loop) in ([0, 1, 2, 3, 4, 5, 6, 7], [0, 7, 6, 5, 4, 3, 2, 1])

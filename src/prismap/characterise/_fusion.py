@@ -12,6 +12,8 @@ the failure state's rate ``r`` and the share of gross errors after a gross error
 
 import math
 
+import numpy as np
+
 from prismap.characterise._correlation import frame_error_correlation
 from prismap.errors import PrismapInputError
 from prismap.grid import PersistentFailure
@@ -33,7 +35,9 @@ def fit_fusion(frames, disparities, camera, *, gross_px=FUSION_GROSS_PX):
     Parameters
     ----------
     frames : sequence of StereoFrame
-        In drive order (consecutive frames see the same surfaces), each with ``disparity_gt`` and ``T_world_cam``.
+        Each with ``disparity_gt`` and ``T_world_cam``; paired in the order of the camera's path (a greedy chain
+        of nearest positions from the first frame), so frames of a drive and frames from the positions between
+        its own may come in any order.
     disparities : sequence of (H, W) float, pixels, NaN = invalid
         The matcher's disparity of each frame.
     camera : StereoCamera
@@ -46,8 +50,16 @@ def fit_fusion(frames, disparities, camera, *, gross_px=FUSION_GROSS_PX):
         The fusion block (module docstring); ``persistence`` is at least ``rate`` (a failure never makes the
         next one rarer than its base rate) and is the rate itself when no gross error had a successor.
     """
-    correlation = frame_error_correlation(frames, disparities, camera, lag=1, gross_px=gross_px,
-                                          limit_px=max(gross_px, 3.0))
+    frames, disparities = list(frames), list(disparities)
+    if len(disparities) != len(frames) or len(frames) < 2:
+        raise PrismapInputError(f"fusion fit: needs at least 2 frames and one disparity image per frame; got "
+                                f"{len(frames)} frames and {len(disparities)} disparity images")
+    for index, frame in enumerate(frames):
+        if frame.T_world_cam is None:
+            raise PrismapInputError(f"fusion fit: frame {index} ({frame.name or 'unnamed'}) has no pose `T_world_cam`")
+    order = path_order(np.array([frame.T_world_cam[:3, 3] for frame in frames]))
+    correlation = frame_error_correlation([frames[i] for i in order], [disparities[i] for i in order], camera,
+                                          lag=1, gross_px=gross_px, limit_px=max(gross_px, 3.0))
     if correlation.n_pairs < MIN_PAIRS:
         raise PrismapInputError(f"fusion fit: {correlation.n_pairs} surface points seen in consecutive frames; "
                                 f"need at least {MIN_PAIRS} (more or closer characterisation frames)")
@@ -56,6 +68,17 @@ def fit_fusion(frames, disparities, camera, *, gross_px=FUSION_GROSS_PX):
     persistence = rate if math.isnan(repeat) else max(repeat, rate)
     return {"model": "persistent-failure", "rate": rate, "persistence": persistence, "gross_px": float(gross_px),
             "n_pairs": correlation.n_pairs}
+
+
+def path_order(positions):
+    """Indices of ``positions`` ((N, 3), metres) along a greedy chain of nearest positions from the first."""
+    order, left = [0], set(range(1, len(positions)))
+    while left:
+        here = positions[order[-1]]
+        nearest = min(left, key=lambda i: float(np.sum((positions[i] - here) ** 2)))
+        order.append(nearest)
+        left.remove(nearest)
+    return order
 
 
 def fusion_from_block(block, *, source="error model"):

@@ -37,41 +37,6 @@ class FusionRow:
                 **{name: _plain(getattr(self.scores, name)) for _, name, _ in FUSION_COLUMNS}}
 
 
-def fit_run_failures(frames, disparities, camera):
-    """The persistent-failure block of one matcher from a run's characterisation frames.
-
-    Parameters
-    ----------
-    frames : sequence of StereoFrame
-        The characterisation frames (the drive's and those between its positions), with truth and poses.
-    disparities : sequence of (H, W) float, pixels
-        The matcher's disparity of each.
-    camera : StereoCamera
-
-    Returns
-    -------
-    dict
-        The fusion block (:func:`prismap.characterise.fit_fusion`) of the frames in the order of the camera's
-        path: by distance travelled from the first frame's position along the chain of nearest positions, so
-        the between frames of a street fall between the drive's and the room's loop keeps its order.
-    """
-    from prismap.characterise import fit_fusion
-
-    order = _path_order(np.array([frame.T_world_cam[:3, 3] for frame in frames]))
-    return fit_fusion([frames[i] for i in order], [disparities[i] for i in order], camera)
-
-
-def _path_order(positions):
-    """Indices of ``positions`` (N, 3) along a greedy nearest-neighbour chain from the first."""
-    order, left = [0], set(range(1, len(positions)))
-    while left:
-        here = positions[order[-1]]
-        nearest = min(left, key=lambda i: float(np.sum((positions[i] - here) ** 2)))
-        order.append(nearest)
-        left.remove(nearest)
-    return order
-
-
 def fused_probabilities(log_odds, counts, p0, failure):
     """``P(occupied)`` of voxels with stored ``log_odds`` and ``counts`` under every reading of :data:`FUSIONS`.
 
