@@ -18,7 +18,8 @@ Format (JSON, ``format_version`` 2)::
                   "selected_components": 3, "models": [...as above...],
                   "outlier": {"weight": 1e-4, "mean": 6.8, "sigma": 15.6}}, ...],
      "class_selection": {"held_out": "...", "plain_nats_per_error": ..., "conditioned_nats_per_error": ...,
-                         "candidates": [...]}}
+                         "candidates": [...]},
+     "fusion": {"model": "persistent-failure", "rate": ..., "persistence": ..., ...}}  # optional
 
 The top-level ``models`` / ``selected_components`` are the whole-image (plain) mixture: what version 1 held,
 what a plain sensor model uses, and the model of pixels outside every class (class -1). ``classes`` tile
@@ -26,7 +27,9 @@ the space of the named features (see :class:`~prismap.characterise.ErrorClasses`
 bound); each has its own fits over G, selected G, and share of the characterised pixels, and optionally an
 outlier component (the whole-image mixture's widest) mixed into its selected mixture with the given weight,
 so no class is certain never to fail grossly (:func:`prismap.gmm.fit_outlier_weight`). A model without
-features has one class equal to the plain model. A version-1 file loads as that one class.
+features has one class equal to the plain model. A version-1 file loads as that one class. The optional
+``fusion`` block says how the matcher's failures repeat across views (:mod:`prismap.characterise._fusion`);
+without it maps fuse frames independently.
 
 Means and sigmas are pixels; AIC and BIC use ``k = 3G - 1`` (see :class:`prismap.gmm.MixtureFit`).
 """
@@ -39,6 +42,7 @@ from prismap._files import write_text_atomic
 from prismap.characterise._class_model import ClassModel, _describe, _find_fit
 from prismap.characterise._classes import ErrorClasses
 from prismap.characterise._features import FEATURE_UNITS, LR_FEATURE, compute_features
+from prismap.characterise._fusion import fusion_from_block
 from prismap.characterise._model_json import (
     MAX_COMPONENTS,
     _classes_from_dict,
@@ -96,6 +100,9 @@ class ErrorModel:
         ``edge_threshold_px`` and ``texture_window_px`` the features were computed with.
     class_selection : dict
         How the classes were chosen: held-out data, held-out log-likelihoods (nats per error).
+    fusion : dict or None
+        The fusion block (:func:`prismap.characterise.fit_fusion`): how the matcher's failures repeat across
+        views; None = not measured (independent fusion).
     """
 
     matcher: str
@@ -110,8 +117,10 @@ class ErrorModel:
     class_models: tuple = ()
     feature_settings: dict = field(default_factory=dict)
     class_selection: dict = field(default_factory=dict)
+    fusion: dict | None = None
 
     def __post_init__(self):
+        fusion_from_block(self.fusion)
         object.__setattr__(self, "fits", tuple(sorted(self.fits, key=lambda fit: fit.n_components)))
         self.fit(self.selected_components)
         classes = ErrorClasses.single() if self.classes is None else self.classes
@@ -238,7 +247,13 @@ class ErrorModel:
                 for bounds, model in zip(self.classes.to_list(), self.class_models)
             ],
             "class_selection": self.class_selection,
+            **({} if self.fusion is None else {"fusion": self.fusion}),
         }
+
+    @property
+    def persistent_failure(self):
+        """The :class:`prismap.grid.PersistentFailure` of the fusion block, or None (independent fusion)."""
+        return fusion_from_block(self.fusion)
 
     @classmethod
     def from_dict(cls, data, *, source="error model"):
@@ -269,6 +284,9 @@ class ErrorModel:
         extra = {}
         if version >= 2:
             extra = _classes_from_dict(data, source)
+        if data.get("fusion") is not None:
+            fusion_from_block(data["fusion"], source=source)
+            extra["fusion"] = dict(data["fusion"])
         try:
             return cls(matcher["name"], dict(params), data["dataset"], bin_width, fits, selected, selection,
                        statistics, **extra)
