@@ -4,6 +4,9 @@ from pathlib import Path
 
 from prismap.errors import PrismapInputError
 
+MAX_STAMP_GAP_S = 86400.0
+"""Largest ``--pair-tolerance`` and ``--pose-gap`` (seconds, one day): a bag's stamps are int64 nanoseconds."""
+
 
 def add_bag_arguments(parser, *, poses):
     """Add ``--bag`` and its topic options to ``parser``; ``poses`` adds ``--pose-topic``/``--tf-frames``/``--pose-gap``."""
@@ -40,8 +43,9 @@ def open_bag_argument(args):
         raise PrismapInputError("--bag needs --left TOPIC and --right TOPIC")
     for option in ("pair_tolerance", "pose_gap"):
         value = getattr(args, option, 1.0)
-        if not value > 0:
-            raise PrismapInputError(f"--{option.replace('_', '-')} must be > 0 seconds; got {value}")
+        if not 0 < value <= MAX_STAMP_GAP_S:
+            raise PrismapInputError(f"--{option.replace('_', '-')} must lie in (0, {MAX_STAMP_GAP_S:g}] seconds "
+                                    f"(MAX_STAMP_GAP_S); got {value}")
     tf_frames = None
     if getattr(args, "tf_frames", None):
         world, sep, camera = args.tf_frames.partition(":")

@@ -4,6 +4,7 @@ import ast
 import contextlib
 import logging
 import math
+import os
 from pathlib import Path
 
 from prismap._validate import check_positive, check_probability
@@ -75,8 +76,9 @@ def run(args):
 
     if args.checkpoint_every < 0:
         raise PrismapInputError(f"--checkpoint-every must be >= 0; got {args.checkpoint_every}")
-    if args.workers is not None and args.workers < 1:
-        raise PrismapInputError(f"--workers must be >= 1; got {args.workers}")
+    if args.workers is not None and not 1 <= args.workers <= usable_cores():
+        raise PrismapInputError(f"--workers must lie in [1, {usable_cores()}] (the cores this process may use); "
+                                f"got {args.workers}")
     sequence = _open_input(args, read_sequence)
     model_params = parse_params(args.model_param, "--model-param")
     if args.map_prior:
@@ -120,6 +122,14 @@ def _open_input(args, read_sequence):
     if args.workers is not None or args.scheduler is not None or args.checkpoint_every:
         raise PrismapInputError("--bag runs here, without checkpoints: drop --workers/--scheduler/--checkpoint-every")
     return open_bag_argument(args)
+
+
+def usable_cores():
+    """Cores this process may run on (its CPU affinity): the most ``--workers`` a local cluster gets."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        return os.cpu_count() or 1
 
 
 def parse_params(items, option):
