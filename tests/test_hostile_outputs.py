@@ -72,9 +72,6 @@ CASES = {
     # item 13: one line instead of a traceback
     "--out of 300 characters": (None, [*MAP, "--out", "WORK/" + "x" * 296 + ".npz"],
                                 "the file name has 300 bytes; at most 200"),
-    "--pair-tolerance inf": (None, ["map", "--bag", "WORK/none.bag", "--left", "/l", "--right", "/r", "--pose-topic",
-                                    "/odom", "--voxel", "0.1", "--pair-tolerance", "inf", "--out", "WORK/o.npz"],
-                             "--pair-tolerance must lie in (0, 86400] seconds"),
     # item 12: workers bound by the cores
     "--workers 1000": (None, [*MAP, "--workers", "1000", "--out", "WORK/o.npz"], "--workers must lie in [1, "),
     # item 18: a refused run leaves no directory behind
