@@ -183,3 +183,53 @@ def test_a_kill_between_the_staged_map_and_its_rename_still_resumes(sequence, ch
     assert resumed.n_frames == 3
     for mine, theirs in zip(resumed.known_voxels(), whole.known_voxels()):
         assert np.array_equal(mine, theirs)
+
+
+# ------------------------------------------------------------------ items 13 and 18: a full disk, one line, no DIR
+@pytest.fixture(scope="module")
+def sequence_map(sequence, tmp_path_factory):
+    """A map of the sequence's first frame at the ground truth's voxel size (for evaluate)."""
+    path = tmp_path_factory.mktemp("seqmap25") / "m.npz"
+    save_map(map_sequence(sequence, config(model="hitmiss", frames=(0, 1)), progress=False), path)
+    return path
+
+
+FULL_DISK = {
+    "models compare --out DIR": ["models", "compare", "--error-model", "EM", "--out", "WORK/cmp"],
+    "evaluate --out DIR": ["evaluate", "--map", "SEQMAP", "--gt", "SEQ", "--out", "WORK/ev"],
+    "characterise --out DIR": ["characterise", "--dataset", "SEQ/mb", "--matcher", "bm", "--plain", "--out",
+                               "WORK/a/ch"],
+    "export .mcap": ["export", "MAP", "--to", "WORK/m.mcap"],
+    "export rosbag2 mcap": ["export", "MAP", "--to", "WORK/bag", "--format", "rosbag2"],
+    "export rosbag2 sqlite3": ["export", "MAP", "--to", "WORK/d/bag", "--format", "rosbag2", "--storage", "sqlite3"],
+}
+
+
+@pytest.mark.parametrize("name", list(FULL_DISK))
+def test_a_full_disk_is_one_line_and_leaves_no_directory(name, sequence, error_model, small_map, sequence_map,
+                                                         tmp_path):
+    from test_hostile_inputs import _middlebury_folder
+
+    seq, work = tmp_path / "seq", tmp_path / "work"
+    shutil.copytree(sequence, seq)
+    _middlebury_folder(seq / "mb")
+    work.mkdir()
+    argv = [a.replace("SEQMAP", str(sequence_map)).replace("SEQ", str(seq)).replace("WORK", str(work))
+            .replace("EM", str(error_model)).replace("MAP", str(small_map)) for a in FULL_DISK[name]]
+    if argv[0] == "characterise":  # numba caches its kernels on the first run: not under the file-size limit
+        assert _prismap([*argv[:-1], str(tmp_path / "warm")], tmp_path)[0] == 0
+        shutil.rmtree(tmp_path / "warm")
+    status, stderr = _prismap(argv, tmp_path, file_size_limit=2048)
+    lines = stderr.strip().splitlines()
+    assert status == 2, stderr
+    assert len(lines) == 1 and lines[0].startswith(f"prismap {argv[0]}: error: {work}"), stderr
+    assert "cannot write (File too large" in lines[0] or "cannot write (disk I/O error)" in lines[0]
+    assert list(work.iterdir()) == []
+
+
+def test_a_refused_experiment_writes_no_settings(tmp_path):
+    status, stderr = _prismap(["experiment", "--world", "office2d", "--quick", "--voxel", "1e-9", "--out",
+                               str(tmp_path / "exp")], tmp_path)
+    assert status == 2 and len(stderr.strip().splitlines()) == 1, stderr
+    assert "`voxel_size_m` = 1e-09" in stderr
+    assert list(tmp_path.iterdir()) == []

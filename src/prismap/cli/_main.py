@@ -10,6 +10,7 @@ checked before the run starts (it may not be one of the run's inputs, :func:`run
 import argparse
 import contextlib
 import importlib
+import shutil
 import signal
 import sys
 from pathlib import Path
@@ -52,7 +53,7 @@ def main(argv=None):
         return 2
     signal.signal(signal.SIGTERM, _terminate)  # unwind on SIGTERM, so temporaries and locks are removed
     try:
-        with _output_lock(args):
+        with _output_lock(args), _removed_if_refused(args):
             return int(args.func(args) or 0)
     except PrismapInputError as exc:
         print(f"prismap {args.command}: error: {exc}", file=sys.stderr)
@@ -96,6 +97,24 @@ def run_inputs(args):
         else:
             inputs.append((role, value))
     return inputs
+
+
+@contextlib.contextmanager
+def _removed_if_refused(args):
+    """Remove the ``--out`` directory this run created when the run is refused (bad input, a full disk).
+
+    A directory that existed before is left as it was (an experiment resumes from it); an interrupted
+    run keeps what it wrote, for the same reason.
+    """
+    out = getattr(args, "out", None)
+    if out is None or getattr(args, "out_is_file", False) or out.exists():
+        yield
+        return
+    try:
+        yield
+    except (PrismapInputError, OSError, cv2.error):
+        shutil.rmtree(out, ignore_errors=True)
+        raise
 
 
 def _output_lock(args):

@@ -29,14 +29,14 @@ MAX_DISTANCES = 16
 INFLUENCE_REACH = 1.5
 """The influence table runs to this multiple of the largest measured distance."""
 MIN_DISPARITY_PX = 1.0
-"""Smallest disparity (pixels) a compared distance may have: beyond it the rounding to 1/16 px moves the
-measurement by more than 3 %."""
+"""Smallest disparity ``f b / z`` (pixels, before the offset ``doffs``) a compared distance may have: beyond
+it the rounding to 1/16 px moves the measurement by more than 3 %."""
 
 
 def check_distances(distances_m, setup, far_depth_m):
     """``distances_m`` sorted, each within the rig's range, or raise naming the first that is not.
 
-    A distance must be positive, have a disparity of at least :data:`MIN_DISPARITY_PX` on this rig, and
+    A distance must be positive, have a disparity ``f b / z`` of at least :data:`MIN_DISPARITY_PX`, and
     with :data:`INFLUENCE_REACH` times it stay within PRISM's ``far_depth_m`` (where the influence table
     ends); at most :data:`MAX_DISTANCES` of them.
     """
@@ -46,7 +46,7 @@ def check_distances(distances_m, setup, far_depth_m):
     if len(distances) > MAX_DISTANCES:
         raise PrismapInputError(f"`distances_m` holds {len(distances)} distances; at most {MAX_DISTANCES} "
                                 "(MAX_DISTANCES)")
-    limit = min(setup.distance_of(MIN_DISPARITY_PX), far_depth_m / INFLUENCE_REACH)
+    limit = min(setup.focal_baseline / MIN_DISPARITY_PX, far_depth_m / INFLUENCE_REACH)
     if distances[-1] > limit:
         raise PrismapInputError(
             f"`distances_m`: {distances[-1]:g} m lies beyond this rig's range of {limit:.4g} m (a disparity of at "
