@@ -2,7 +2,6 @@
 subprocess under the address-space limit of ``test_hostile``: exit 2, one line, nothing left behind."""
 
 import pytest
-
 from test_hostile import _prismap, _tree
 from test_io_rosbag import LEFT, RIGHT, frames, write_bag  # noqa: F401 (frames is a fixture)
 

@@ -5,10 +5,10 @@ and chunks of 1-7 frames."""
 
 import numpy as np
 import pytest
+from test_pipeline_dask import assert_identical_maps
 
 from prismap.pipeline import map_sequence
 from support import conditioned_error_model, config, synthetic_sequence
-from test_pipeline_dask import assert_identical_maps
 
 distributed = pytest.importorskip("distributed")
 

@@ -10,10 +10,10 @@ import shutil
 import cv2
 import numpy as np
 import pytest
+from test_hostile import _calib, _prismap, _tree
 
 from prismap.io import write_pfm
 from support import CAMERA, synthetic_sequence
-from test_hostile import _calib, _prismap, _tree
 
 MAP = ["map", "--disparity-dir", "SEQ/disp", "--model", "hitmiss", "--voxel", "0.1"]
 CHARACTERISE = ["characterise", "--dataset", "SEQ/mb", "--matcher", "bm", "--out", "WORK/ch"]

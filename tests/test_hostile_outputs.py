@@ -10,6 +10,7 @@ import subprocess
 
 import numpy as np
 import pytest
+from test_hostile import _prismap, _tree
 
 from prismap.characterise import ErrorModel, write_error_model
 from prismap.errors import PrismapInputError
@@ -18,7 +19,6 @@ from prismap.grid import OccupancyMap
 from prismap.io import load_map, save_map
 from prismap.pipeline import map_sequence
 from support import config, synthetic_sequence
-from test_hostile import _prismap, _tree
 
 MAP = ["map", "--disparity-dir", "SEQ/disp", "--model", "hitmiss", "--voxel", "0.1"]
 

@@ -3,8 +3,10 @@
 Each command module (``prismap/cli/_<name>.py``) defines ``register(subparsers)``, which adds its parser
 and sets ``func=run`` with ``run(args) -> int``. Bad input (:class:`PrismapInputError`) is printed as one
 line on stderr without a traceback, with exit status 2; so are OpenCV's own errors and any operation the
-operating system refuses (``OSError``: a full disk, a name too long). A command's ``--out`` (registered with :func:`prismap.cli._args.add_out`) is
-checked before the run starts (it may not be one of the run's inputs, :func:`run_inputs`) and locked (``fcntl``) for its whole duration, so two runs never share it.
+operating system refuses (``OSError``: a full disk, a name too long). A command's ``--out`` (registered
+with :func:`prismap.cli._args.add_out`) is checked before the run starts (it may not be one of the run's
+inputs, :func:`run_inputs`) and locked (``fcntl``) for its whole duration, so two runs never share it; a
+refused run removes the ``--out`` directory it created.
 """
 
 import argparse

@@ -10,7 +10,6 @@ import numpy as np
 
 from prismap.errors import PrismapInputError
 
-
 MAX_READ_BYTES = 256 << 20
 """Largest binary file read whole (bytes) unless its reader bounds it from its header (PNG, PFM)."""
 MAX_TEXT_BYTES = 64 << 20
