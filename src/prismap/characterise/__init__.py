@@ -10,6 +10,7 @@ from prismap.characterise._features import (
     discontinuity_mask,
     disparity_gradient,
 )
+from prismap.characterise._fusion import FUSION_MODELS, fit_fusion, fusion_block, fusion_from_block
 from prismap.characterise._histogram import ErrorHistogram
 from prismap.characterise._model import ErrorModel, load_error_model, write_error_model
 from prismap.characterise._model_table import format_table
@@ -23,6 +24,7 @@ from prismap.characterise._select import choose_classes
 
 __all__ = [
     "FEATURE_UNITS",
+    "FUSION_MODELS",
     "NO_CLASS",
     "Characterisation",
     "ClassModel",
@@ -37,8 +39,11 @@ __all__ = [
     "compute_features",
     "discontinuity_mask",
     "disparity_gradient",
+    "fit_fusion",
     "format_table",
     "frame_error_correlation",
+    "fusion_block",
+    "fusion_from_block",
     "load_error_model",
     "write_characterisation",
     "write_error_model",
