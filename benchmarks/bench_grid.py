@@ -44,7 +44,7 @@ from prismap.characterise import characterise_matcher, load_error_model, write_e
 from prismap.gmm import GaussianMixture  # noqa: E402
 from prismap.grid import OccupancyMap  # noqa: E402
 from prismap.pipeline import MappingConfig  # noqa: E402
-from prismap.sensor_models import make_sensor_model  # noqa: E402
+from prismap.sensor_models import ConditionedModel, make_sensor_model  # noqa: E402
 from prismap.stereo import make_matcher  # noqa: E402
 from support import planes_frame, world_points  # noqa: E402
 
@@ -244,7 +244,9 @@ def street_method(name, mode, voxel, scale, n_frames, world=None):
         out["map_bytes"] = 0
     else:
         model = street_model(name, camera, voxel, error_model)
-        grid = OccupancyMap(voxel, p0=model.p0)
+        grid = OccupancyMap(voxel, p0=getattr(model, "plain", model).p0)
+        if not isinstance(model, ConditionedModel):
+            classes = [None] * len(poses)
         clock(lambda disparity, pose, ray_class: grid.integrate_disparity(
             disparity, camera, pose, model, mode=mode, max_range_m=max_range, ray_class=ray_class),
             zip(disparities, poses, classes))
