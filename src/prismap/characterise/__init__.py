@@ -22,12 +22,15 @@ from prismap.characterise._run import (
     characterise_matcher,
     write_characterisation,
 )
+from prismap.characterise._rig import RIG_RTOL, check_rig, describe_rig, rig_differences
 from prismap.characterise._sample import PixelSample
+from prismap.characterise._self import SelfCharacterisation, lag_agreement, self_characterise
 from prismap.characterise._select import choose_classes
 
 __all__ = [
     "FEATURE_UNITS",
     "NO_CLASS",
+    "RIG_RTOL",
     "Characterisation",
     "ClassModel",
     "ErrorClasses",
@@ -36,14 +39,20 @@ __all__ = [
     "ErrorModel",
     "PixelFeatures",
     "PixelSample",
+    "SelfCharacterisation",
     "characterise_matcher",
+    "check_rig",
     "choose_classes",
     "compute_features",
+    "describe_rig",
     "discontinuity_mask",
     "disparity_gradient",
     "format_table",
+    "lag_agreement",
     "frame_error_correlation",
     "load_error_model",
+    "rig_differences",
+    "self_characterise",
     "write_characterisation",
     "write_error_model",
 ]

@@ -281,10 +281,10 @@ def self_characterise(frames, matcher, *, min_lag=None, max_lag=DEFAULT_MAX_LAG,
     if counts.size == 0:
         raise PrismapInputError(f"no pixel of any frame has a reference from {min_references} other frame(s) at least "
                                 f"{min_lag} frame(s) away: the frames see no common surface")
-    one_frame_sigma = _robust_sigma(np.concatenate(pair_differences)) / np.sqrt(2.0)
+    carried_sigma = _robust_sigma(np.concatenate(pair_differences)) / np.sqrt(2.0)
     values, shares = np.unique(counts, return_counts=True)
     factor = float(sum(share * median_variance(n) for n, share in zip(values, shares)) / counts.size)
-    reference_variance = factor * one_frame_sigma**2 if np.isfinite(one_frame_sigma) else 0.0
+    reference_variance = factor * carried_sigma**2 if np.isfinite(carried_sigma) else 0.0
     options.setdefault("search_frames", len(reference_frames_))
     result = characterise_matcher(reference_frames_, matcher, dataset=dataset, progress=progress, **options)
     record = {"method": "median of other frames' disparities carried by the poses (docs/SENSOR_MODELS.md, "
@@ -292,7 +292,7 @@ def self_characterise(frames, matcher, *, min_lag=None, max_lag=DEFAULT_MAX_LAG,
               "n_frames": len(frames), "frames_without_reference": unreferenced, "near_m": near_m,
               "lag_agreement": agreement, "min_lag": int(min_lag),
               "n_references": n_references, "min_references": min_references,
-              "mean_references": float(counts.mean()), "one_frame_sigma_px": one_frame_sigma,
+              "mean_references": float(counts.mean()), "carried_sigma_px": carried_sigma,
               "reference_variance_px2": reference_variance, "min_sigma_share": MIN_SIGMA_SHARE}
     model = remove_reference_noise(result.model, reference_variance)
     return SelfCharacterisation(dataclasses.replace(result, model=model), record)

@@ -5,8 +5,9 @@ from pathlib import Path
 from prismap.errors import PrismapInputError
 
 
-def add_bag_arguments(parser, *, poses):
-    """Add ``--bag`` and its topic options to ``parser``; ``poses`` adds ``--pose-topic``/``--tf-frames``/``--pose-gap``."""
+def add_bag_arguments(parser, *, poses, truth=False):
+    """Add ``--bag`` and its topic options to ``parser``; ``poses`` adds ``--pose-topic``/``--tf-frames``/``--pose-gap``,
+    ``truth`` adds ``--truth-topic``."""
     from prismap.io._rosbag import MAX_POSE_GAP_S, PAIR_TOLERANCE_S
 
     group = parser.add_argument_group(
@@ -27,7 +28,7 @@ def add_bag_arguments(parser, *, poses):
         source.add_argument("--tf-frames", metavar="WORLD:CAMERA", help="compose the /tf + /tf_static chain instead")
         group.add_argument("--pose-gap", type=float, default=MAX_POSE_GAP_S, metavar="S",
                            help=f"largest spacing of the pose samples around an image stamp (default {MAX_POSE_GAP_S})")
-    else:
+    if truth:
         group.add_argument("--truth-topic", metavar="TOPIC",
                            help="ground truth: stereo_msgs/DisparityImage or depth image (32FC1 m, 16UC1 mm)")
 
