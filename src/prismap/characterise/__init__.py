@@ -17,15 +17,15 @@ from prismap.characterise._model import (
     load_error_model,
     write_error_model,
 )
+from prismap.characterise._rig import RIG_RTOL, check_rig, describe_rig, rig_differences
 from prismap.characterise._run import (
     Characterisation,
     characterise_matcher,
     write_characterisation,
 )
-from prismap.characterise._rig import RIG_RTOL, check_rig, describe_rig, rig_differences
 from prismap.characterise._sample import PixelSample
-from prismap.characterise._self import SelfCharacterisation, lag_agreement, self_characterise
 from prismap.characterise._select import choose_classes
+from prismap.characterise._self import SelfCharacterisation, lag_agreement, self_characterise
 
 __all__ = [
     "FEATURE_UNITS",

@@ -23,9 +23,12 @@ from prismap.experiment._scene3d import (
     run_street3d,
     split_frames,
 )
+from prismap.experiment._sources3d import SOURCES, run_error_sources
 from prismap.experiment._targets import Target, measure_targets
 
 __all__ = [
+    "SOURCES",
+    "run_error_sources",
     "CONDITIONED_SUFFIX",
     "MAP_PRIOR_SUFFIX",
     "MATCHERS",
