@@ -97,8 +97,9 @@ def run(args):
         raise PrismapInputError("--sequence is the input of --self; with ground truth give --dataset PATH")
     if (args.dataset is None) == (args.bag is None):
         raise PrismapInputError("give exactly one of --dataset NAME|PATH and --bag PATH")
-    if args.bag is not None and not args.truth_topic:
-        raise PrismapInputError("--bag: characterising needs ground truth; give --truth-topic TOPIC")
+    if args.bag is not None and not (args.truth_topic or args.lidar_topic):
+        raise PrismapInputError("--bag: characterising needs ground truth; give --truth-topic TOPIC or "
+                                "--lidar-topic TOPIC")
     frames = _load_frames(args)
     args.dataset = args.dataset or str(args.bag)
     options = {"left_right_check": True} if args.lr_check else {}
@@ -143,8 +144,8 @@ def _run_self(args, bin_width):
     from prismap.io import read_sequence
     from prismap.stereo import make_matcher
 
-    if args.dataset is not None or args.truth_topic:
-        raise PrismapInputError("--self uses no ground truth: drop --dataset and --truth-topic")
+    if args.dataset is not None or args.truth_topic or args.lidar_topic:
+        raise PrismapInputError("--self uses no ground truth: drop --dataset, --truth-topic and --lidar-topic")
     if (args.sequence is None) == (args.bag is None):
         raise PrismapInputError("--self: give exactly one of --sequence DIR and --bag PATH")
     if args.bag is not None:
