@@ -6,7 +6,14 @@ import json
 import pytest
 
 from prismap.camera import StereoCamera
-from prismap.characterise import ErrorModel, check_rig, describe_rig, load_error_model, rig_differences, write_error_model
+from prismap.characterise import (
+    ErrorModel,
+    check_rig,
+    describe_rig,
+    load_error_model,
+    rig_differences,
+    write_error_model,
+)
 from prismap.cli import main
 from prismap.errors import PrismapInputError
 from prismap.gmm import GaussianMixture, MixtureFit
