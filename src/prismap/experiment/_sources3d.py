@@ -167,7 +167,7 @@ def run_error_sources(world, out_dir, *, quick=False, n_frames=None, seed=0, mat
     model_params = _derived_model_params(settings, scene, drive_char_frames)
     largest = max(float(np.nanmax(f.disparity_gt)) for f in char_frames + map_frames)
     lidar_frames = [replace(f, disparity_gt=lidar_disparity(scene, f, rng=seed + i)) for i, f in enumerate(char_frames)]
-    cells = {(c.matcher, c.model, "ground-truth"): c for c in base.results}
+    cells = {(c.matcher, c.model, "ground-truth"): c for c in base.cells}
     likelihood, error_models = {}, {}
     for name in matchers:
         matcher = _matcher(name, largest)
