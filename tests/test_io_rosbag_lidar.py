@@ -6,12 +6,12 @@ between scan and image is compensated, and bad input fails naming the problem wi
 import numpy as np
 import pytest
 from scipy import ndimage
+from test_io_rosbag import LEFT, RIGHT, BagWriter, projections, stamp
 
 from prismap.cli import main
 from prismap.errors import PrismapInputError
 from prismap.io import read_bag
 from support import CAMERA
-from test_io_rosbag import LEFT, RIGHT, BagWriter, projections, stamp
 
 LIDAR_TOPIC = "/velodyne_points"
 SCAN_DELAY_NS = 30_000_000

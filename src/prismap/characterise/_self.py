@@ -286,7 +286,8 @@ def self_characterise(frames, matcher, *, min_lag=None, max_lag=DEFAULT_MAX_LAG,
     factor = float(sum(share * median_variance(n) for n, share in zip(values, shares)) / counts.size)
     reference_variance = factor * carried_sigma**2 if np.isfinite(carried_sigma) else 0.0
     options.setdefault("search_frames", len(reference_frames_))
-    result = characterise_matcher(reference_frames_, matcher, dataset=dataset, progress=progress, **options)
+    result = characterise_matcher(reference_frames_, matcher, dataset=dataset, progress=progress, source="self",
+                                  **options)
     record = {"method": "median of other frames' disparities carried by the poses (docs/SENSOR_MODELS.md, "
                         "Self-characterisation)",
               "n_frames": len(frames), "frames_without_reference": unreferenced, "near_m": near_m,
@@ -294,7 +295,7 @@ def self_characterise(frames, matcher, *, min_lag=None, max_lag=DEFAULT_MAX_LAG,
               "n_references": n_references, "min_references": min_references,
               "mean_references": float(counts.mean()), "carried_sigma_px": carried_sigma,
               "reference_variance_px2": reference_variance, "min_sigma_share": MIN_SIGMA_SHARE}
-    model = remove_reference_noise(result.model, reference_variance)
+    model = dataclasses.replace(remove_reference_noise(result.model, reference_variance), provenance=record)
     return SelfCharacterisation(dataclasses.replace(result, model=model), record)
 
 

@@ -111,6 +111,7 @@ def run(args):
     result = characterise_matcher(
         frames, matcher, max_components=args.max_components, bin_width=bin_width, dataset=args.dataset,
         criterion=args.criterion, tolerance=args.tolerance, seed=args.seed, conditioned=args.conditioned,
+        source="lidar" if args.lidar_topic else "ground-truth",
         **{name: getattr(args, name) for name in ("max_classes", "search_frames", "max_samples")
            if getattr(args, name) is not None},
     )

@@ -42,7 +42,7 @@ def _rendered(world, settings):
     """The run's scene, its drive's characterisation frames, all its characterisation frames and its mapping frames,
     rendered again exactly as :func:`run_rendered_world` did (same seed)."""
     from prismap import sim
-    from prismap.experiment._scene3d import WORLDS, split_frames
+    from prismap.experiment._worlds3d import WORLDS, split_frames
 
     spec, seed = WORLDS[world](), settings["seed"]
     n_drive, n_between = settings["n_frames"], settings["between_frames"]
@@ -61,13 +61,13 @@ def _rendered(world, settings):
 
 def _motorcycle_model(folder, matcher_name):
     """The matcher characterised on Middlebury's Motorcycle pair (reused when its files exist)."""
-    from prismap.experiment._scene3d import _characterise, _matcher
+    from prismap.experiment._steps3d import characterise_frames, matcher_for
     from prismap.io import load_middlebury_motorcycle
 
     frame = load_middlebury_motorcycle()
     truth = frame.disparity_gt
-    matcher = _matcher(matcher_name, float(np.max(truth[np.isfinite(truth)])))
-    return _characterise(folder, [frame], matcher, "middlebury-motorcycle")[0]
+    matcher = matcher_for(matcher_name, float(np.max(truth[np.isfinite(truth)])))
+    return characterise_frames(folder, [frame], matcher, "middlebury-motorcycle")[0]
 
 
 def _self_model(folder, frames, matcher):
@@ -143,15 +143,15 @@ def run_error_sources(world, out_dir, *, quick=False, n_frames=None, seed=0, mat
     from dataclasses import replace
 
     from prismap.experiment._cells import run_cells
+    from prismap.experiment._report3d import mapped_log_likelihood
     from prismap.experiment._results import prior_of
-    from prismap.experiment._scene3d import (
-        _characterise,
-        _derived_model_params,
-        _disparities,
-        _mapper,
-        _matcher,
-        mapped_log_likelihood,
-        run_rendered_world,
+    from prismap.experiment._scene3d import run_rendered_world
+    from prismap.experiment._steps3d import (
+        characterise_frames,
+        derived_model_params,
+        mapper,
+        matcher_for,
+        read_disparities,
     )
     from prismap.io import read_sequence
     from prismap.sim import lidar_disparity
@@ -164,24 +164,24 @@ def run_error_sources(world, out_dir, *, quick=False, n_frames=None, seed=0, mat
     sequence = read_sequence(out / "ground-truth" / "sequence")
     truth = sequence.ground_truth
     p0 = prior_of(truth)
-    model_params = _derived_model_params(settings, scene, drive_char_frames)
+    model_params = derived_model_params(settings, scene, drive_char_frames)
     largest = max(float(np.nanmax(f.disparity_gt)) for f in char_frames + map_frames)
     lidar_frames = [replace(f, disparity_gt=lidar_disparity(scene, f, rng=seed + i)) for i, f in enumerate(char_frames)]
     cells = {(c.matcher, c.model, "ground-truth"): c for c in base.cells}
     likelihood, error_models = {}, {}
     for name in matchers:
-        matcher = _matcher(name, largest)
+        matcher = matcher_for(name, largest)
         disparity_dir = out / "ground-truth" / name / "disparity"
         error_models[name] = {
-            "ground-truth": _characterise(out / "ground-truth" / name / "characterisation", char_frames, matcher,
-                                          "")[0],
-            "lidar": _characterise(out / "lidar" / name / "characterisation", lidar_frames, matcher,
-                                   f"{scene.name} characterisation frames, simulated LiDAR")[0],
+            "ground-truth": characterise_frames(out / "ground-truth" / name / "characterisation", char_frames,
+                                                matcher, "")[0],
+            "lidar": characterise_frames(out / "lidar" / name / "characterisation", lidar_frames, matcher,
+                                         f"{scene.name} characterisation frames, simulated LiDAR", source="lidar")[0],
             "self": _self_model(out / "self" / name / "characterisation", map_frames, matcher),
             "motorcycle": _motorcycle_model(out / "motorcycle" / name / "characterisation", name),
         }
         for source in SOURCES[1:]:
-            build_map = _mapper(sequence, disparity_dir, name, error_models[name][source], p0, model_params, settings)
+            build_map = mapper(sequence, disparity_dir, name, error_models[name][source], p0, model_params, settings)
             for cell in run_cells(out / source, name, models, build_map, truth,
                                   dict(settings, derived_model_params=model_params, source=source))[0]:
                 cells[(name, cell.model, source)] = cell
@@ -189,7 +189,7 @@ def run_error_sources(world, out_dir, *, quick=False, n_frames=None, seed=0, mat
                             for source, model in error_models[name].items()}
         likelihood[name]["self_by_class"] = class_log_likelihoods(
             error_models[name]["self"], error_models[name]["ground-truth"], map_frames,
-            list(_disparities(disparity_dir, len(map_frames))))
+            list(read_disparities(disparity_dir, len(map_frames))))
     document = {"world": world, "settings": settings, "p0": p0,
                 "cells": [{"matcher": m, "model": model, "source": s, "scores": _scores(c)}
                           for (m, model, s), c in sorted(cells.items(), key=_order)],
