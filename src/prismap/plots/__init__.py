@@ -2,7 +2,7 @@
 
 from prismap.plots._characterise import plot_class_fits, plot_error_fits, plot_error_tails
 from prismap.plots._evaluate import plot_probability_histograms, plot_reliability
-from prismap.plots._maps import plot_map_slices
+from prismap.plots._maps import plot_map_3d, plot_map_slices
 from prismap.plots._models import plot_divergence, plot_influence, plot_prism_sweeps, plot_ray_profiles
 
 __all__ = [
@@ -11,6 +11,7 @@ __all__ = [
     "plot_error_fits",
     "plot_error_tails",
     "plot_influence",
+    "plot_map_3d",
     "plot_map_slices",
     "plot_prism_sweeps",
     "plot_probability_histograms",

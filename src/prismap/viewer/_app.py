@@ -89,7 +89,7 @@ class MapViewer:
         try:
             import viser
         except ImportError:
-            raise PrismapInputError("prismap view needs the optional `viser` module: pip install 'prismap[view]'") from None
+            raise PrismapInputError("prismap view needs the optional `viser` module: pip install -e '.[view]'") from None
 
         start = time.perf_counter()
         keys, _, _ = grid.known_voxels()
