@@ -95,7 +95,8 @@ def run_demo(out_dir, *, quick=False, seed=0):
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise PrismapInputError(f"--out {out}: exists and is not a directory")
-    steps = [(f"characterise {m}", lambda m=m: _characterise_motorcycle(out / "characterise" / m, m)) for m in MATCHERS]
+    steps = [(f"characterise {m}", lambda m=m: _characterise_motorcycle(out / "characterise" / m, m, quick=quick))
+             for m in MATCHERS]
     steps.append(("models compare", lambda: _compare_models(out / "models", out / "characterise" / "sgbm")))
     experiments = {}
     steps += [(e.world, lambda e=e: _experiment(out, e, experiments, quick=quick, seed=seed)) for e in EXPERIMENTS]
@@ -150,7 +151,12 @@ def _render_3d(out, experiments):
                   "beside the ground truth's occupied voxels (left), coloured by height, the top layer left out.")
 
 
-def _characterise_motorcycle(folder, matcher_name):
+QUICK_MAX_CLASSES = 4
+"""``--quick`` characterises each matcher conditioned on at most this many error classes: the class search's
+candidates grow with the bound, and at the default bound it is most of a quick run's time."""
+
+
+def _characterise_motorcycle(folder, matcher_name, *, quick):
     """The matcher's error model on the Motorcycle pair (reused when its files exist)."""
     from prismap.characterise import characterise_matcher, load_error_model, write_characterisation
     from prismap.experiment._scene3d import _matcher
@@ -161,7 +167,9 @@ def _characterise_motorcycle(folder, matcher_name):
         frame = load_middlebury_motorcycle()
         truth = frame.disparity_gt
         matcher = _matcher(matcher_name, float(np.max(truth[np.isfinite(truth)])))
-        write_characterisation(characterise_matcher([frame], matcher, dataset="middlebury-motorcycle"), folder)
+        options = {"max_classes": QUICK_MAX_CLASSES} if quick else {}
+        write_characterisation(characterise_matcher([frame], matcher, dataset="middlebury-motorcycle", **options),
+                               folder)
     model = load_error_model(model_path)
     mixture = model.mixture
     largest = mixture.weights.argmax()
