@@ -2,6 +2,7 @@
 from the experiment runs' ``results.json`` files (``docs/results/*.json``)."""
 
 import argparse
+import json
 import os
 from pathlib import Path
 
@@ -23,6 +24,7 @@ def cli_reference():
     lines = []
     for name, parser in _walk(build_parser(), ()):
         lines += [f"## `{' '.join(('prismap', *name))}`", "", "```text", parser.format_help().rstrip(), "```", ""]
+    # included under cli.md's title: its headings are that page's sections
     return "\n".join(lines)
 
 
@@ -36,13 +38,13 @@ def _walk(parser, name):
 
 def results_tables(folder):
     """One table per ``results.json`` of ``folder``: every matcher x model with its scores and the run's settings."""
-    from prismap.experiment._results import format_results_table, read_results
+    from prismap.experiment._results import RESULTS_FORMAT, format_results_table, read_results
 
     lines = []
     for path in sorted(folder.glob("*.json")):
-        import json
-
         document = json.loads(path.read_text(encoding="utf-8"))
+        if not isinstance(document, dict) or document.get("format") != RESULTS_FORMAT:
+            continue  # another kind of JSON kept beside the runs
         settings = document.get("settings", {})
         shown = ", ".join(f"{k} = {settings[k]}" for k in ("n_frames", "voxel_size_m", "subsample", "matchers")
                           if k in settings)

@@ -34,7 +34,8 @@ extensions = [
     "sphinx_gallery.gen_gallery",
 ]
 source_suffix = {".rst": "restructuredtext", ".md": "markdown"}
-exclude_patterns = ["_build", "results", "examples/README.md", "images/README.md"]
+# the generated pages are included by cli.md and results.md; the gallery's sources are read by sphinx-gallery
+exclude_patterns = ["_build", "results", "examples", "_generated/cli-reference.md", "_generated/results-tables.md"]
 root_doc = "index"
 
 myst_enable_extensions = ["dollarmath"]

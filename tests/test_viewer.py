@@ -91,6 +91,8 @@ def test_view_refuses_bad_inputs(tmp_path, capsys):
     assert "--port must lie in [0, 65535]" in capsys.readouterr().err
     assert main(["view", str(path), "--poses", str(tmp_path / "nowhere")]) == 2
     assert "no such sequence folder or pose file" in capsys.readouterr().err
+    assert main(["view", str(path), "--colour", "agreement", "--port", "0"]) == 2
+    assert "colouring by agreement needs the ground truth (--gt TRUTH.npz)" in capsys.readouterr().err
 
 
 OUR_CHECKBOXES = "[...document.querySelectorAll('input[type=checkbox]')].filter(e => !e.id.startsWith('mantine-'))"

@@ -14,7 +14,7 @@ import matplotlib.pyplot as plt
 from prismap.experiment import run_office2d
 
 with tempfile.TemporaryDirectory() as folder:
-    result = run_office2d(Path(folder), quick=True, n_frames=12)
+    result = run_office2d(Path(folder), quick=True, n_frames=8)
     slices = next(path for path, _ in result.artifacts if Path(path).name.startswith("map_slices"))
     image = plt.imread(slices)
 for cell in result.cells:

@@ -156,7 +156,8 @@ def plot_map_3d(grid, truth, *, path=None, title="", threshold=0.5, max_height_m
         centres = (shown + 0.5) * voxel
         ax = fig.add_subplot(1, 2, i + 1, projection="3d")
         ax.scatter(centres[:, 0], centres[:, 1], centres[:, 2], c=centres[:, 2], cmap="viridis", marker="s",
-                   s=2.0, linewidths=0, depthshade=True, vmin=(lo[2] + 0.5) * voxel, vmax=(top + 0.5) * voxel)
+                   s=float(np.clip(3e4 / max(len(centres), 1), 1.5, 10.0)), linewidths=0, depthshade=True,
+                   vmin=(lo[2] + 0.5) * voxel, vmax=(top + 0.5) * voxel)
         ax.set(xlim=(lo[0] * voxel, (hi[0] + 1) * voxel), ylim=(lo[1] * voxel, (hi[1] + 1) * voxel),
                zlim=(lo[2] * voxel, (top + 1) * voxel), xlabel="x (m)", ylabel="y (m)", zlabel="z (m)")
         ax.set_box_aspect((hi[0] - lo[0] + 1, hi[1] - lo[1] + 1, top - lo[2] + 1))

@@ -90,6 +90,8 @@ class MapViewer:
         Where the server listens (port 0: a free one, see :attr:`port`).
     budget : int
         :data:`POINT_BUDGET`.
+    agreement : bool
+        Start with the map coloured by agreement with ``truth`` (needs it) instead of P(occupied).
 
     Notes
     -----
@@ -99,7 +101,8 @@ class MapViewer:
     that fits the budget is sent.
     """
 
-    def __init__(self, grid, *, truth=None, poses_w=None, host="127.0.0.1", port=8080, budget=POINT_BUDGET):
+    def __init__(self, grid, *, truth=None, poses_w=None, host="127.0.0.1", port=8080, budget=POINT_BUDGET,
+                 agreement=False):
         try:
             import viser
         except ImportError:
@@ -137,6 +140,8 @@ class MapViewer:
             self.truth_offset_w[0] = max(hi_w[0], truth_hi[0]) - min(lo_w[0], truth_lo[0]) + 1.0
             lo_w, hi_w = np.minimum(lo_w, truth_lo), np.maximum(hi_w, truth_hi)
 
+        if agreement and self.agreement is None:
+            raise PrismapInputError("colouring by agreement needs the ground truth (--gt TRUTH.npz)")
         self.server = viser.ViserServer(host=host, port=port, verbose=False)
         self.port = self.server.get_port()
         scene, gui = self.server.scene, self.server.gui
@@ -150,7 +155,7 @@ class MapViewer:
                          "(violet 0, teal 0.5, yellow 1); grey: unobserved inside the map's box.")
         with_truth = self.agreement is not None
         self.colour_by = gui.add_dropdown("colour by", COLOUR_MODES if with_truth else COLOUR_MODES[:1],
-                                          initial_value=COLOUR_MODES[0], visible=with_truth)
+                                          initial_value=COLOUR_MODES[int(bool(agreement))], visible=with_truth)
         self.threshold = gui.add_slider("P(occupied) >=", 0.0, 1.0, 0.01, 0.0)
         self.show = {name: gui.add_checkbox(name, name == "occupied") for name in ("occupied", "unknown", "free")}
         gui.add_markdown("**Agreement with the truth** (colour by: agreement; the map's thresholds decide free "
