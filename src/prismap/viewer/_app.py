@@ -10,7 +10,6 @@ from prismap.errors import PrismapInputError
 from prismap.viewer._voxels import (
     AGREEMENT,
     AGREEMENT_COLORS,
-    AGREEMENT_LEGEND,
     COLORMAP,
     UNKNOWN_COLOR,
     agreement_codes,
@@ -62,6 +61,15 @@ def _height_greys(z_m):
     span = max(float(z.max() - z.min()), 1e-9) if len(z) else 1.0
     level = 70 + 150 * (z - (z.min() if len(z) else 0.0)) / span
     return np.repeat(level.astype(np.uint8)[:, None], 3, axis=1)
+
+
+def agreement_legend():
+    """HTML legend of :data:`AGREEMENT`: a swatch of each colour and its name (shown by the checkboxes below it)."""
+    rows = "".join(
+        f'<div><span style="display:inline-block;width:0.9em;height:0.9em;margin-right:0.4em;vertical-align:middle;'
+        f'background:rgb({r},{g},{b})"></span>{name}</div>' for (r, g, b), name in zip(AGREEMENT_COLORS, AGREEMENT))
+    return ('<div style="font-size:0.85em;padding:0.3em 0.5em"><b>Agreement with the truth</b> (colour by: '
+            f"agreement; the map's thresholds decide free and occupied){rows}</div>")
 
 
 def _framing_box(level, occupied_threshold):
@@ -158,10 +166,9 @@ class MapViewer:
                                           initial_value=COLOUR_MODES[int(bool(agreement))], visible=with_truth)
         self.threshold = gui.add_slider("P(occupied) >=", 0.0, 1.0, 0.01, 0.0)
         self.show = {name: gui.add_checkbox(name, name == "occupied") for name in ("occupied", "unknown", "free")}
-        gui.add_markdown("**Agreement with the truth** (colour by: agreement; the map's thresholds decide free "
-                         "and occupied):", visible=with_truth)
-        self.show_agreement = [gui.add_checkbox(f"{AGREEMENT_LEGEND[code]} {name}", code in AGREEMENT_SHOWN,
-                                                visible=with_truth) for code, name in enumerate(AGREEMENT)]
+        gui.add_html(agreement_legend(), visible=with_truth)
+        self.show_agreement = [gui.add_checkbox(name, code in AGREEMENT_SHOWN, visible=with_truth)
+                               for code, name in enumerate(AGREEMENT)]
         z_lo, z_hi = float(z_lo), float(z_hi)
         start_hi = z_top if z_top is not None and z_lo < z_top < z_hi else z_hi
         self.z_range = gui.add_multi_slider("height z (m)", z_lo, z_hi, base.size_m, (z_lo, start_hi))

@@ -210,10 +210,7 @@ voxel of the pyramid shows it (a danger voxel is never hidden by coarsening)."""
 
 AGREEMENT_COLORS = np.array([(150, 150, 150), (85, 172, 238), (120, 177, 89), (244, 144, 12), (221, 46, 68)],
                             dtype=np.uint8)
-"""RGB of each :data:`AGREEMENT` code: grey, blue, green, orange, red (the legend's square emoji)."""
-
-AGREEMENT_LEGEND = ("⬜", "🟦", "🟩", "🟧", "🟥")
-"""The legend's swatch of each :data:`AGREEMENT` code."""
+"""RGB of each :data:`AGREEMENT` code: grey, blue, green, orange, red."""
 
 
 def agreement_codes(keys, probability, truth, *, free_threshold=0.5, occupied_threshold=0.5):
