@@ -81,15 +81,9 @@ def _checked_weights(weights, total):
     return weights
 
 
-class _WeightedBar:
-    """A tqdm bar advanced by each item's weight (see :func:`progress`)."""
-
-    def __init__(self, iterable, weights, bar):
-        total = len(iterable) if hasattr(iterable, "__len__") else None
-        self.iterable = iterable
-        self.weights = _checked_weights(weights, total)
-        self.n = 0
-        self._bar = bar
+class _Progress:
+    """What every progress display shares: iterating counts each item done (``update``), and ``with``
+    closes it."""
 
     def __iter__(self):
         for item in self.iterable:
@@ -102,6 +96,17 @@ class _WeightedBar:
     def __exit__(self, *exc):
         self.close()
 
+
+class _WeightedBar(_Progress):
+    """A tqdm bar advanced by each item's weight (see :func:`progress`)."""
+
+    def __init__(self, iterable, weights, bar):
+        total = len(iterable) if hasattr(iterable, "__len__") else None
+        self.iterable = iterable
+        self.weights = _checked_weights(weights, total)
+        self.n = 0
+        self._bar = bar
+
     def update(self, n=1):
         """Count ``n`` more items done; the bar moves by their weights."""
         self._bar.update(sum(self.weights[self.n:self.n + n]))
@@ -112,7 +117,7 @@ class _WeightedBar:
         self._bar.close()
 
 
-class LineProgress:
+class LineProgress(_Progress):
     """Progress as plain lines: at the first item, about every 10 % of ``total``, and at the end.
 
     Without a known total, at items 1, 2, 4, 8, ... Each line reads
@@ -137,17 +142,6 @@ class LineProgress:
         self._start = clock()
         self._next = 1
         self._closed = False
-
-    def __iter__(self):
-        for item in self.iterable:
-            yield item
-            self.update()
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        self.close()
 
     def update(self, n=1):
         """Count ``n`` more items done; write a line when a 10 % step (or the end) is reached."""

@@ -93,12 +93,7 @@ def plot_map_slices(maps_by_model, truth, *, layer, path=None, title="", scores_
     for ax in axes.flat[len(panels):]:
         ax.set_axis_off()
     fig.colorbar(image, ax=axes, shrink=0.8, label="P(occupied); light blue = unknown")
-    if title:
-        fig.suptitle(title)
-    if path is not None:
-        with atomic_path(path) as tmp:
-            fig.savefig(tmp, dpi=110)
-    return fig
+    return _finish(fig, title, path, dpi=110)
 
 
 MAX_POINTS_3D = 60_000
@@ -163,11 +158,16 @@ def plot_map_3d(grid, truth, *, path=None, title="", threshold=0.5, max_height_m
         ax.set_box_aspect((hi[0] - lo[0] + 1, hi[1] - lo[1] + 1, top - lo[2] + 1))
         ax.view_init(elev=elev, azim=azim)
         ax.set_title(label, fontsize="small")
+    return _finish(fig, title, path, dpi=90)
+
+
+def _finish(fig, title, path, *, dpi):
+    """Title ``fig`` and save it to ``path`` (if any) atomically; return it."""
     if title:
         fig.suptitle(title)
     if path is not None:
         with atomic_path(path) as tmp:
-            fig.savefig(tmp, dpi=90)
+            fig.savefig(tmp, dpi=dpi)
     return fig
 
 
