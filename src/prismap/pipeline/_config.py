@@ -230,9 +230,10 @@ class MappingConfig:
         ``"prism conditioned, sgbm"`` or ``"hit_miss, disparities from sgbm/disparity"``.
 
         The variant (``plain``: the whole-image mixture; ``conditioned``: each pixel's class mixture) is
-        named when the run has an error model.
+        named when the model uses the run's error model (``prism``, ``convolution``, ``andert``).
         """
-        variant = "" if self.error_model is None else (" conditioned" if self.conditioned else " plain")
+        uses_error_model = self.error_model is not None and (self.model == "prism" or self.model in USES_SIGMA)
+        variant = (" conditioned" if self.conditioned else " plain") if uses_error_model else ""
         if self.disparity_source == DISPARITY_FROM_MATCHER:
             source = self.matcher
         elif self.disparity_source == DISPARITY_FROM_SEQUENCE:
