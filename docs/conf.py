@@ -42,6 +42,7 @@ myst_enable_extensions = ["dollarmath"]
 myst_heading_anchors = 3
 suppress_warnings = ["myst.xref_missing"]  # links to source files and folders outside the site stay as text
 
+templates_path = ["_templates"]  # autosummary: one page per class and function of each subpackage
 autosummary_generate = True
 autosummary_imported_members = True   # the subpackages export what their private modules define
 autosummary_ignore_module_all = False  # ... exactly what ``__all__`` lists
