@@ -314,3 +314,23 @@ def test_map_refuses_a_conditioned_model_it_cannot_use(sequence_dir, tmp_path, c
     assert (message or "lr_disagreement_px, which needs the matcher's left-right check") in err
     assert "Traceback" not in err and err.count("\n") == 1 and not out.exists()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["lr.json"]
+
+
+def test_map_writes_the_command_that_reproduces_it(sequence_dir, conditioned_model_path, tmp_path, capsys):
+    import shlex
+
+    out = tmp_path / "first.npz"
+    assert main(map_args(sequence_dir, out, "--model", "prism", "--error-model", str(conditioned_model_path),
+                         "--frames", "1:3", "--plain", "--model-param", "pass_through=0.05", "--p0", "0.08")) == 0
+    printed = capsys.readouterr().out
+    record = json.loads(out.with_suffix(".run.json").read_text())
+    assert f"reproduce with: {record['command']}" in printed and shlex.split(record["command"]) == record["argv"]
+    argv = record["argv"]
+    for option, value in (("--p0", "0.08"), ("--voxel", str(VOXEL)), ("--max-range", "8.0"), ("--frames", "1:3"),
+                          ("--subsample", "1"), ("--mode", "ray"), ("--out", str(out))):
+        assert argv[argv.index(option) + 1] == value, option
+    assert "--plain" in argv and "--model-param=pass_through=0.05" in argv and "--matcher-param=num_disparities=16" in argv
+    assert record["settings"]["p0"] == 0.08 and record["settings"]["conditioned"] is False
+    again = tmp_path / "again.npz"
+    assert main(argv[2:-1] + [str(again)]) == 0  # the recorded command, writing elsewhere
+    assert_same_map(load_map(again), load_map(out))

@@ -9,12 +9,17 @@ MAX_STAMP_GAP_S = 86400.0
 
 
 def add_bag_arguments(parser, *, poses, truth=False):
-    """Add ``--bag`` and its topic options to ``parser``; ``poses`` adds ``--pose-topic``/``--tf-frames``/``--pose-gap``,
-    ``truth`` adds ``--truth-topic``."""
+    """Add ``--bag`` and its topic options to ``parser``.
+
+    ``poses`` (``prismap map``) adds ``--pose-topic``/``--tf-frames``/``--pose-gap`` and names ``--sequence`` as
+    the input the bag replaces; without it (``prismap characterise``) the bag replaces ``--dataset``. ``truth``
+    adds ``--truth-topic``.
+    """
     from prismap.io._rosbag import MAX_POSE_GAP_S, PAIR_TOLERANCE_S
 
+    instead = "--sequence" if poses else "--dataset"
     group = parser.add_argument_group(
-        "ROS bag input", "a ROS 1 .bag, a ROS 2 bag directory (sqlite3 or MCAP) or a .mcap file instead of --sequence")
+        "ROS bag input", f"a ROS 1 .bag, a ROS 2 bag directory (sqlite3 or MCAP) or a .mcap file instead of {instead}")
     group.add_argument("--bag", type=Path, metavar="PATH", help="the bag")
     group.add_argument("--left", metavar="TOPIC", help="left image topic (sensor_msgs/Image or CompressedImage)")
     group.add_argument("--right", metavar="TOPIC", help="right image topic")
