@@ -56,11 +56,11 @@ def open_bag_argument(args):
 
     if not (args.left and args.right):
         raise PrismapInputError("--bag needs --left TOPIC and --right TOPIC")
-    for option in ("pair_tolerance", "pose_gap"):
+    for option in ("pair_tolerance", "pose_gap", "scan_tolerance"):
         value = getattr(args, option, 1.0)
         if not 0 < value <= MAX_STAMP_GAP_S:
-            raise PrismapInputError(f"--{option.replace('_', '-')} must lie in (0, {MAX_STAMP_GAP_S:g}] seconds "
-                                    f"(MAX_STAMP_GAP_S); got {value}")
+            raise PrismapInputError(f"--{option.replace('_', '-')} must lie in (0, {MAX_STAMP_GAP_S:g}] seconds; "
+                                    f"got {value}")
     tf_frames = None
     if getattr(args, "tf_frames", None):
         world, sep, camera = args.tf_frames.partition(":")
@@ -70,8 +70,6 @@ def open_bag_argument(args):
     options = {"pose_topic": getattr(args, "pose_topic", None), "tf_frames": tf_frames,
                "truth_topic": getattr(args, "truth_topic", None)}
     if getattr(args, "lidar_topic", None):
-        if not args.scan_tolerance > 0:
-            raise PrismapInputError(f"--scan-tolerance must be > 0 seconds; got {args.scan_tolerance}")
         options.update(lidar_topic=args.lidar_topic, scan_tolerance_s=args.scan_tolerance,
                        T_cam_lidar=None if args.lidar_extrinsics is None else read_extrinsics(args.lidar_extrinsics))
     elif getattr(args, "lidar_extrinsics", None) is not None:
