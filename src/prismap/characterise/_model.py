@@ -19,6 +19,10 @@ Format (JSON, ``format_version`` 2)::
                   "outlier": {"weight": 1e-4, "mean": 6.8, "sigma": 15.6}}, ...],
      "class_selection": {"held_out": "...", "plain_nats_per_error": ..., "conditioned_nats_per_error": ...,
                          "candidates": [...]},
+     "source": "ground-truth",  # or "lidar", "self": what the errors were measured against
+     "rig": {"focal_px": 721.5, "baseline_m": 0.54, "width": 1242, "height": 375, "matcher": "sgbm",
+             "matcher_params": {...}},  # or null: the rig it was made on (see characterise/_rig.py)
+     "provenance": {...},  # how a self-characterised model was made (min_lag, references, ...)
      "fusion": {"model": "persistent-failure", "rate": ..., "persistence": ..., ...}}  # optional
 
 The top-level ``models`` / ``selected_components`` are the whole-image (plain) mixture: what version 1 held,
@@ -31,7 +35,9 @@ features has one class equal to the plain model. A version-1 file loads as that 
 ``fusion`` block says how the matcher's failures repeat across views (:mod:`prismap.characterise._fusion`);
 without it maps fuse frames independently.
 
-Means and sigmas are pixels; AIC and BIC use ``k = 3G - 1`` (see :class:`prismap.gmm.MixtureFit`).
+Means and sigmas are pixels; AIC and BIC use ``k = 3G - 1`` (see :class:`prismap.gmm.MixtureFit`). ``source``,
+``rig`` and ``provenance`` are optional (a file without them was measured against ground truth on an unrecorded
+rig).
 """
 
 import json
@@ -51,6 +57,7 @@ from prismap.characterise._model_json import (
     _integer,
     _number,
     _object,
+    _provenance_from_dict,
     _require,
 )
 from prismap.errors import PrismapInputError
@@ -66,6 +73,10 @@ READABLE_VERSIONS = (1, 2)
 
 
 _SHARE_TOLERANCE = 1e-6
+
+
+SOURCES = ("ground-truth", "lidar", "self")
+"""What an error model's errors were measured against: exact disparity, a LiDAR's, or the sequence's own frames."""
 
 
 HELD_OUT = "held-out"
@@ -100,6 +111,12 @@ class ErrorModel:
         ``edge_threshold_px`` and ``texture_window_px`` the features were computed with.
     class_selection : dict
         How the classes were chosen: held-out data, held-out log-likelihoods (nats per error).
+    source : str
+        One of :data:`SOURCES`.
+    rig : dict or None
+        The rig it was made on (:func:`prismap.characterise.describe_rig`); None = not recorded.
+    provenance : dict
+        How it was made beyond the fields above (a self-characterisation's record).
     fusion : dict or None
         The fusion block (:func:`prismap.characterise.fit_fusion`): how the matcher's failures repeat across
         views; None = not measured (independent fusion).
@@ -117,9 +134,14 @@ class ErrorModel:
     class_models: tuple = ()
     feature_settings: dict = field(default_factory=dict)
     class_selection: dict = field(default_factory=dict)
+    source: str = "ground-truth"
+    rig: dict | None = None
+    provenance: dict = field(default_factory=dict)
     fusion: dict | None = None
 
     def __post_init__(self):
+        if self.source not in SOURCES:
+            raise PrismapInputError(f"error model `source` must be one of {list(SOURCES)}; got {self.source!r}")
         fusion_from_block(self.fusion)
         object.__setattr__(self, "fits", tuple(sorted(self.fits, key=lambda fit: fit.n_components)))
         self.fit(self.selected_components)
@@ -247,6 +269,9 @@ class ErrorModel:
                 for bounds, model in zip(self.classes.to_list(), self.class_models)
             ],
             "class_selection": self.class_selection,
+            "source": self.source,
+            "rig": self.rig,
+            "provenance": self.provenance,
             **({} if self.fusion is None else {"fusion": self.fusion}),
         }
 
@@ -281,9 +306,9 @@ class ErrorModel:
         fits = _fits_from_list(data["models"], f"{source}: models")
         selection = _object(data.get("selection", {}), f"{source}: `selection`")
         statistics = _object(data.get("statistics", {}), f"{source}: `statistics`")
-        extra = {}
+        extra = _provenance_from_dict(data, source)
         if version >= 2:
-            extra = _classes_from_dict(data, source)
+            extra.update(_classes_from_dict(data, source))
         if data.get("fusion") is not None:
             fusion_from_block(data["fusion"], source=source)
             extra["fusion"] = dict(data["fusion"])

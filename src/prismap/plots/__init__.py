@@ -7,7 +7,7 @@ from prismap.plots._evaluate import (
     plot_reliability,
     plot_reliability_logit,
 )
-from prismap.plots._maps import plot_map_slices
+from prismap.plots._maps import plot_map_3d, plot_map_slices
 from prismap.plots._models import plot_divergence, plot_influence, plot_prism_sweeps, plot_ray_profiles
 
 __all__ = [
@@ -17,6 +17,7 @@ __all__ = [
     "plot_error_fits",
     "plot_error_tails",
     "plot_influence",
+    "plot_map_3d",
     "plot_map_slices",
     "plot_prism_sweeps",
     "plot_probability_histograms",

@@ -3,6 +3,7 @@ textured 3-D box scenes (an indoor room, a KITTI-like street, a second street: t
 
 from prismap.sim._avenue import avenue_scene
 from prismap.sim._cameras import avenue_camera, kitti_camera, scaled_camera, tsukuba_camera
+from prismap.sim._lidar import LIDAR_FROM_CAMERA_M, lidar_disparity, lidar_scan
 from prismap.sim._poses import pose_from_heading, poses_from_se2
 from prismap.sim._scene3d import Scene3D, indoor_scene, indoor_trajectory
 from prismap.sim._street import street_scene, street_trajectory, street_trajectory_between
@@ -18,6 +19,7 @@ from prismap.sim._world2d import (
 )
 
 __all__ = [
+    "LIDAR_FROM_CAMERA_M",
     "OTHER_PHOTOGRAPHS",
     "PHOTOGRAPHS",
     "SOLID_DEPTH_QUANTILE",
@@ -30,6 +32,8 @@ __all__ = [
     "indoor_scene",
     "indoor_trajectory",
     "kitti_camera",
+    "lidar_disparity",
+    "lidar_scan",
     "office_world",
     "pose_from_heading",
     "poses_from_se2",
