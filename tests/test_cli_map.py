@@ -62,7 +62,7 @@ def test_map_then_evaluate_writes_the_pipelines_map_and_its_scores(sequence_dir,
         max_range_m=8.0, frames=(1, 5), policy="max-abs"), progress=False)
     grid = load_map(out)
     assert_same_map(grid, expected)
-    assert sorted(tmp_path.iterdir()) == [out]  # no checkpoint or temporary file left behind
+    assert sorted(tmp_path.iterdir()) == sorted([out, out.with_suffix(".run.json")])  # no checkpoint or temporary file
 
     assert main(["evaluate", "--map", str(out), "--gt", str(sequence_dir)]) == 0
     printed = capsys.readouterr().out
