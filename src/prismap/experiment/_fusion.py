@@ -59,16 +59,21 @@ def compare_run_fusions(out_dir, char_frames, matcher, camera, maps, truth):
 
     Returns
     -------
-    block : dict
+    block : dict or None
         The fitted fusion block (:func:`prismap.characterise.fit_fusion`), also stored in the matcher's error
-        model file (``out_dir/characterisation/error_model.json``).
+        model file (``out_dir/characterisation/error_model.json``); None when the frames cannot fit one (too few
+        surface points seen from consecutive positions), and then no rows.
     rows : list of FusionRow
     """
     from prismap.characterise import fit_fusion, fusion_from_block, load_error_model, write_error_model
+    from prismap.errors import PrismapInputError
     from prismap.experiment._steps3d import match_frames, read_disparities
 
     disparity_dir = match_frames(Path(out_dir) / "fusion_disparity", char_frames, matcher)
-    block = fit_fusion(char_frames, list(read_disparities(disparity_dir, len(char_frames))), camera)
+    try:
+        block = fit_fusion(char_frames, list(read_disparities(disparity_dir, len(char_frames))), camera)
+    except PrismapInputError:
+        return None, []
     model_path = Path(out_dir) / "characterisation" / "error_model.json"
     write_error_model(replace(load_error_model(model_path), fusion=block), model_path)
     failure = fusion_from_block(block)
@@ -120,14 +125,16 @@ def compare_fusions(maps, truth, failures):
 
 
 def format_fusion_section(rows, failures):
-    """Markdown section: the fitted failure models (matcher -> PersistentFailure) and every map under every
-    reading."""
+    """Markdown section: the fitted failure models (matcher -> PersistentFailure, None = not fitted) and every map
+    under every reading."""
     lines = ["## Fusion of repeated failures", "",
              "Each error-model map read three ways from the same stored sums: the independent sum; the persistent "
              "failure state (rate r and persistence q fitted on the characterisation frames, errors beyond "
              "3 px; docs/SENSOR_MODELS.md); the independent sum clamped to that model's one-view bound "
-             "[r p0, 1 - r (1 - p0)]. " + "; ".join(f"{name}: r = {f.rate:.4f}, q = {f.persistence:.3f}"
-                                                     for name, f in failures.items()) + ".", "",
+             "[r p0, 1 - r (1 - p0)]. " + "; ".join(
+                 f"{name}: r = {f.rate:.4f}, q = {f.persistence:.3f}" if f is not None else
+                 f"{name}: not fitted (too few surface points seen from consecutive characterisation positions)"
+                 for name, f in failures.items()) + ".", "",
              "| matcher | model | fusion | " + " | ".join(label for label, _, _ in FUSION_COLUMNS) + " |",
              "|---|---|---|" + "---|" * len(FUSION_COLUMNS)]
     for row in rows:
