@@ -16,6 +16,12 @@ from prismap.sensor_models._conditioned import (
     conditioned_sensor_model,
     model_for_mixture,
 )
+from prismap.sensor_models._failure import (
+    blend_increments,
+    evidence_bound,
+    failure_floor,
+    log_failure_posterior,
+)
 from prismap.sensor_models._prism import (
     PrismModel,
     estimate_prior_from_likelihood,
@@ -35,8 +41,12 @@ __all__ = [
     "IdealModel",
     "InverseSensorModel",
     "PrismModel",
+    "blend_increments",
     "conditioned_sensor_model",
     "estimate_prior_from_likelihood",
+    "evidence_bound",
+    "failure_floor",
+    "log_failure_posterior",
     "log_mean_likelihood",
     "make_sensor_model",
     "model_defaults",

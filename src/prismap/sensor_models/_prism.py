@@ -26,6 +26,7 @@ from prismap.errors import PrismapInputError
 from prismap.gmm import GaussianMixture
 from prismap.sensor_models import _kernels
 from prismap.sensor_models._base import register_model
+from prismap.sensor_models._failure import blend_increments, log_failure_posterior
 from prismap.sensor_models._params import RayModel
 
 INFLUENCE_EPSILON = 1e-3
@@ -66,6 +67,7 @@ _TAIL_STEP = 1.0  # prior="map": x-width of the panels of a ray's tail beyond it
 _TAIL_REST = -20.0  # prior="map": the tail's march stops where the rest is below e^-20 of the evidence before
 _CHUNK_CELLS = 4096  # cells per look-up/exp/combine/log round: its 8 scratch arrays (228 KiB) stay in L2
 _OFFSET, _LENGTH = _kernels.META_COLUMNS.index("offset"), _kernels.META_COLUMNS.index("length")
+_LOG_Z, _LOG_Z_1, _LOG_Z_2 = (_kernels.META_COLUMNS.index(name) for name in ("log_z", "log_z_1", "log_z_2"))
 
 
 def _log_diff_ndtr(hi, lo):
@@ -99,7 +101,8 @@ def prism_discrete_posteriors(disparity_px, cell_edges_depth_m, mixture, *, foca
     Cell ``k`` (1-based) is the first occupied one with ``pi_k = p0 (1 - p0)^(k-1)`` and then produces
     ``d^`` with ``L_k``, ``g`` averaged uniformly in disparity over the cell; no occupied cell gives
     ``pi_far = (1 - p0)^n`` and ``L_far``, ``g`` averaged over true disparities in ``(0, f b / z_n]``.
-    ``P(m_i | d^) = (p0 sum_{k<i} pi_k L_k + pi_i L_i) / (sum_k pi_k L_k + pi_far L_far)``.
+    ``P(m_i | d^) = (p0 sum_{k<i} pi_k L_k + pi_i L_i) / (sum_k pi_k L_k + pi_far L_far)``. A mixture with a
+    failure component adds its floor to every likelihood: ``L -> (1 - w_f) L + w_f / W``.
 
     Parameters
     ----------
@@ -126,14 +129,21 @@ def prism_discrete_posteriors(disparity_px, cell_edges_depth_m, mixture, *, foca
     d = float(disparity_px)
     u = fb / edges
     n = edges.size - 1
-    log_l = log_mean_likelihood(u[1:], u[:-1], d, mixture, doffs_px)
+    log_l = _with_floor(log_mean_likelihood(u[1:], u[:-1], d, mixture, doffs_px), mixture)
     log_pi = np.log(p0) + np.arange(n) * np.log1p(-p0)
-    log_far = n * np.log1p(-p0) + log_mean_likelihood(0.0, u[-1], d, mixture, doffs_px)
+    log_far = n * np.log1p(-p0) + _with_floor(log_mean_likelihood(0.0, u[-1], d, mixture, doffs_px), mixture)
     terms = log_pi + log_l
     before = np.concatenate(([-np.inf], np.logaddexp.accumulate(terms)[:-1]))
     log_num = np.logaddexp(np.log(p0) + before, terms)
     log_norm = np.logaddexp(np.logaddexp.reduce(terms), log_far)
     return np.exp(log_num - log_norm)
+
+
+def _with_floor(log_likelihood, mixture):
+    """``log((1 - w_f) L + w_f / W)`` of the Gaussians' ``log L``: the likelihood with the failure floor."""
+    if mixture.failure_weight == 0.0:
+        return log_likelihood
+    return np.logaddexp(np.log1p(-mixture.failure_weight) + log_likelihood, np.log(mixture.failure_density))
 
 
 PRIORS = ("p0", "map")
@@ -364,22 +374,49 @@ class PrismModel(RayModel):
         lam = self.rate_per_m * norm
         if self.solid_depth_m > 0:  # the stretch [a - solid / |r|, c'] (cells already before near_m stay as they are)
             start = np.minimum(start, np.maximum(start - self.solid_depth_m / norm[rays], self.near_m))
+        cell_rate = lam[rays]
         if self.prior == "map":
-            return self._map_prior_cells(lam, disparity, norm, rays, start, end, stretch, map_log_odds)
-        if map_log_odds is not None:
+            result = self._map_prior_cells(lam, disparity, norm, rays, start, end, stretch, map_log_odds)
+            if self.error_model.failure_weight > 0:
+                cell_rate = np.logaddexp(0.0, map_log_odds) / self.voxel_size_m * norm[rays] \
+                    if map_log_odds is not None else cell_rate
+            method = "table"
+        elif map_log_odds is not None:
             raise PrismapInputError("prism: `map_log_odds` is used only with prior='map'; this model has prior='p0'")
-        if method == "direct":
-            end = end + stretch[rays]
+        elif method == "direct":
             order = np.argsort(rays, kind="stable")
             ray_start = np.searchsorted(rays[order], np.arange(disparity.size + 1))
-            return _kernels.prism_direct_cells(
-                disparity + self.doffs_px, lam, order, ray_start, start, end, self.near_m, self.far_depth_m,
-                self.focal_baseline, self._ku(), _QUAD_STEP, self._log_far(disparity), *self._mixture_arrays(),
-                self.pass_through,
+            result = _kernels.prism_direct_cells(
+                disparity + self.doffs_px, lam, order, ray_start, start, end + stretch[rays], self.near_m,
+                self.far_depth_m, self.focal_baseline, self._ku(), _QUAD_STEP, self._log_far(disparity),
+                *self._mixture_arrays(), self.pass_through,
             )
-        if method != "table":
+        elif method == "table":
+            result = self._table_cells(lam, disparity, norm, rays, start, end, stretch)
+        else:
             raise PrismapInputError(f"prism: `method` must be 'table' or 'direct'; got {method!r}")
-        return self._table_cells(lam, disparity, norm, rays, start, end, stretch)
+        if self.error_model.failure_weight == 0:
+            return result
+        return self._with_failures(result, method, lam, disparity, norm, rays, start, end + stretch[rays], cell_rate)
+
+    def _with_failures(self, result, method, lam, disparity, norm, rays, start, end, cell_rate):
+        """The cells' ``(posterior, increment)`` of ``result`` (the Gaussians' PRISM) blended with their priors by
+        each ray's failure posterior (:func:`prismap.sensor_models.blend_increments`; docs/SENSOR_MODELS.md,
+        "Matcher failures"). The ray's ``Z`` is the table's (``method="table"``, also for ``prior="map"``, where
+        it is the marginal under ``p0``) or marched (``"direct"``); ``cell_rate`` (per metre of depth) gives each
+        cell's prior over ``[start, end]`` clipped to ``[near_m, far_depth_m]``."""
+        if method == "table":
+            table, delta, meta, _ = self._tables_for(disparity, norm)
+            log_z = meta[table, _LOG_Z] + delta * (meta[table, _LOG_Z_1] + 0.5 * delta * meta[table, _LOG_Z_2])
+        else:
+            log_z = _kernels.prism_log_evidence(disparity + self.doffs_px, lam, self.near_m, self.far_depth_m,
+                                                self.focal_baseline, self._ku(), _QUAD_STEP, self._log_far(disparity),
+                                                *self._mixture_arrays())
+        log_fail, log_ok = log_failure_posterior(self.error_model, log_z)
+        length = np.clip(end, self.near_m, self.far_depth_m) - np.clip(start, self.near_m, self.far_depth_m)
+        with np.errstate(divide="ignore"):
+            prior_log_odds = np.log(np.expm1(cell_rate * np.maximum(length, 0.0)))
+        return blend_increments(result[1], prior_log_odds, log_fail[rays], log_ok[rays])
 
     def influence_depth(self, disparity_px, ray_norm):
         """Depth beyond which every cell's ``|logit(P) - logit(p_c)| < influence_epsilon`` (metres), per ray.
@@ -743,8 +780,9 @@ def estimate_prior_from_likelihood(disparity_px, ray_norm, *, error_model, focal
 
     def negative_log_likelihood(log_p0):
         lam = -np.log1p(-np.exp(log_p0)) / model.voxel_size_m * norm
-        return -_kernels.prism_log_evidence(shift, lam, model.near_m, model.far_depth_m, model.focal_baseline,
-                                           model._ku(), _QUAD_STEP, log_far, log_wn, means, sigmas).sum()
+        return -_with_floor(_kernels.prism_log_evidence(shift, lam, model.near_m, model.far_depth_m,
+                                                        model.focal_baseline, model._ku(), _QUAD_STEP, log_far, log_wn,
+                                                        means, sigmas), error_model).sum()
 
     result = minimize_scalar(negative_log_likelihood, bounds=(np.log(lo), np.log(hi)), method="bounded",
                              options={"xatol": 1e-3})
