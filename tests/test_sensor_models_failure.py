@@ -147,3 +147,40 @@ def test_andert_and_convolution_blend_with_their_no_information_value():
     assert built.failure_floor == pytest.approx(eps) and built.sigma_px == pytest.approx(0.4)
     plain = model_for_mixture("convolution", GAUSSIANS, focal_baseline=FB, doffs_px=0.0, voxel_size_m=0.1, p0=0.05)
     assert plain.failure_floor == 0.0
+
+
+@pytest.mark.parametrize("gross", [True, False])
+def test_one_frame_moves_no_voxel_beyond_the_bound_through_the_map_update(gross):
+    """A frame of gross failures (disparities uniform over the search range) and a frame of the true scene with
+    seeded mixture errors, integrated projectively with PRISM: every voxel's log-odds change stays within
+    ``evidence_bound`` of the mixture, at the voxel stretch priors projective integration can give."""
+    from prismap.grid import OccupancyMap
+    from support import planes_frame
+
+    camera, pose, depth = planes_frame(width=64, height=48)
+    rng = np.random.default_rng(11 if gross else 12)
+    truth = camera.focal_baseline / depth
+    search = (0.0, 48.0)
+    mixture = GaussianMixture([0.9, 0.1], [0.0, -0.2], [0.3, 1.5], 0.01, search)
+    if gross:
+        disparity = rng.uniform(*search, truth.shape)
+    else:
+        disparity = truth - mixture.sample(truth.size, rng, truth_px=truth.ravel()).reshape(truth.shape)
+    disparity = np.clip(np.round(disparity * 16) / 16, 0.25, None)
+    p0, voxel = 0.05, 0.2
+    changes = []
+    for error_model in (mixture, mixture.gaussian_part()):
+        model = PrismModel(error_model=error_model, focal_baseline=camera.focal_baseline, voxel_size_m=voxel, p0=p0,
+                           near_m=1.0, far_depth_m=40.0, overhang_fraction=0.0)
+        grid = OccupancyMap(voxel, p0=p0)
+        grid.integrate_disparity(disparity, camera, pose, model, mode="projective", max_range_m=30.0)
+        changes.append(grid.known_voxels()[1] - logit(p0))
+    change, plain = changes
+    norm_max = float(np.linalg.norm(camera.pixel_rays(), axis=-1).max())
+    low = evidence_bound(mixture, 1 - (1 - p0) ** (np.sqrt(3.0) * norm_max))[0]  # the longest stretch
+    high = evidence_bound(mixture, p0)[1]  # a voxel's depth along a ray is at least the voxel's
+    quantum = 2.0 ** -19
+    assert change.size > 300
+    assert change.min() >= low - quantum and change.max() <= high + quantum
+    assert change.min() < 0.5 * low  # not vacuous: a frame reaches a good part of it
+    assert plain.min() < 2 * low  # the Gaussians alone let the same frame claim far more
