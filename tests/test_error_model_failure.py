@@ -91,3 +91,24 @@ def test_written_model_round_trips_its_failure_component(tmp_path, failures):
     loaded = load_error_model(tmp_path / "model.json")
     assert loaded.mixture.failure_weight == result.model.mixture.failure_weight
     assert loaded.mixture.search_range_px == result.model.mixture.search_range_px
+
+
+def test_a_version_2_file_with_a_failure_component_is_refused_and_version_3_names_it(tmp_path):
+    from prismap.characterise import format_table, write_error_model
+    from prismap.errors import PrismapInputError
+
+    path = _version_2_file(tmp_path / "old.json")
+    data = json.loads(path.read_text())
+    data["models"][0].update(failure_weight=0.01, search_range_px=[0.0, 64.0])
+    path.write_text(json.dumps(data))
+    with pytest.raises(PrismapInputError, match="needs format_version 3; this file says 2"):
+        load_error_model(path)
+    data["format_version"] = 3
+    data["classes"][0]["models"][0].update(failure_weight=0.02, search_range_px=[0.0, 64.0])
+    path.write_text(json.dumps(data))
+    model = load_error_model(path)
+    assert model.mixture.failure_weight == 0.01 and model.class_mixtures[0].failure_weight == 0.02
+    write_error_model(model, tmp_path / "again.json")
+    assert json.loads((tmp_path / "again.json").read_text())["format_version"] == 3
+    table = format_table(model)
+    assert "0..64 px (W = 64 px)" in table and "| w_f |" in table and "1.0e-02" in table

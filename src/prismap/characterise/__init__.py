@@ -1,5 +1,6 @@
 """Errors of a stereo matcher against ground truth, their histograms, fitted error models and tables."""
 
+from prismap.characterise._class_model import ClassModel
 from prismap.characterise._classes import NO_CLASS, ErrorClasses
 from prismap.characterise._correlation import ErrorCorrelation, frame_error_correlation
 from prismap.characterise._features import (
@@ -10,13 +11,8 @@ from prismap.characterise._features import (
     disparity_gradient,
 )
 from prismap.characterise._histogram import ErrorHistogram
-from prismap.characterise._model import (
-    ClassModel,
-    ErrorModel,
-    format_table,
-    load_error_model,
-    write_error_model,
-)
+from prismap.characterise._model import ErrorModel, load_error_model, write_error_model
+from prismap.characterise._model_table import format_table
 from prismap.characterise._run import (
     Characterisation,
     characterise_matcher,

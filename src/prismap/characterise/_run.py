@@ -25,7 +25,8 @@ from prismap.characterise._histogram import (
     DEFAULT_LIMIT_PX,
     ErrorHistogram,
 )
-from prismap.characterise._model import HELD_OUT, ErrorModel, format_table, write_error_model
+from prismap.characterise._model import HELD_OUT, ErrorModel, write_error_model
+from prismap.characterise._model_table import format_table
 from prismap.characterise._sample import DEFAULT_MAX_SAMPLES, PixelSample, characterised_pixels
 from prismap.characterise._select import (
     choose_classes,
