@@ -34,14 +34,14 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
-import octomap  # noqa: E402
+import octomap
 
-from prismap import sim  # noqa: E402
-from prismap.camera import StereoCamera  # noqa: E402
-from prismap.gmm import GaussianMixture  # noqa: E402
-from prismap.grid import OccupancyMap  # noqa: E402
-from prismap.sensor_models import make_sensor_model  # noqa: E402
-from support import planes_frame, world_points  # noqa: E402
+from prismap import sim
+from prismap.camera import StereoCamera, integrate_disparity
+from prismap.gmm import GaussianMixture
+from prismap.grid import OccupancyMap
+from prismap.sensor_models import make_sensor_model
+from support import planes_frame, world_points
 
 VOXEL = 0.1
 STREET_MIXTURE = GaussianMixture(np.array([0.80, 0.15, 0.05]), np.array([0.0, -0.1, -2.0]),
@@ -165,7 +165,7 @@ def street_method(name, mode, voxel, scale, n_frames):
         grid = OccupancyMap(voxel, p0=model.p0)
         for disparity, pose in zip(disparities, poses):
             start, start_cpu = time.perf_counter(), time.process_time()
-            grid.integrate_disparity(disparity, camera, pose, model, mode=mode, max_range_m=max_range)
+            integrate_disparity(grid, disparity, camera, pose, model, mode=mode, max_range_m=max_range)
             wall.append(time.perf_counter() - start)
             cpu.append(time.process_time() - start_cpu)
         out["map_bytes"] = grid.nbytes()
@@ -279,12 +279,12 @@ def main():
     depth = camera.focal_baseline / disparity
     warm = OccupancyMap(VOXEL, p0=0.5)
     for mode in ("ray", "projective"):
-        warm.integrate_disparity(disparity[:40, :40], camera, pose, model, mode=mode, max_range_m=12.0)
+        integrate_disparity(warm, disparity[:40, :40], camera, pose, model, mode=mode, max_range_m=12.0)
 
     def frame(mode):
         def go(ism):
             grid = OccupancyMap(VOXEL, p0=ism.p0 if hasattr(ism, "p0") else 0.5)
-            grid.integrate_disparity(disparity, camera, pose, ism, mode=mode, max_range_m=12.0)
+            integrate_disparity(grid, disparity, camera, pose, ism, mode=mode, max_range_m=12.0)
             return grid
         return go
 

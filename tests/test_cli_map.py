@@ -97,7 +97,7 @@ def test_evaluate_with_out_writes_json_and_reliability_figure(sequence_dir, tmp_
     (["--p0", "1.5"], "`--p0` must lie in (0, 1); got 1.5"),
     (["--frames", "4:4"], "--frames '4:4': the range is empty or malformed"),
     (["--frames", "7:"], "frames 7: select no frame of a sequence of 6 frames"),
-    (["--frames", "a:b"], "--frames 'a:b': expected A:B"),
+    (["--frames", "a:b"], "--frames must look like A:B with integers A and B"),
     (["--model-param", "p_hit"], "--model-param 'p_hit': expected KEY=VALUE"),
     (["--model", "hitmiss", "--model-param", "eta=3"], "sensor model 'hitmiss': bad parameter(s) ['eta']"),
     (["--disparity-dir", "/nonexistent/disp"], "--disparity-dir /nonexistent/disp: directory not found"),

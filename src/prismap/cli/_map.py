@@ -6,7 +6,7 @@ import logging
 import math
 from pathlib import Path
 
-from prismap._validate import check_positive, check_probability
+from prismap._validate import check_positive, check_probability, parse_frame_range
 from prismap.cli._args import add_out
 from prismap.cli._bag import add_bag_arguments, open_bag_argument
 from prismap.errors import PrismapInputError
@@ -138,13 +138,9 @@ def parse_params(items, option):
 
 def parse_frames(text):
     """``"A:B"`` (either side may be empty) as ``(start, stop)``; raises for an empty or bad range."""
-    first, sep, last = text.partition(":")
-    try:
-        start = int(first) if first.strip() else 0
-        stop = int(last) if last.strip() else None
-    except ValueError:
-        raise PrismapInputError(f"--frames {text!r}: expected A:B with integers A < B (either may be omitted)") from None
-    if not sep or start < 0 or (stop is not None and stop <= start):
+    start, stop = parse_frame_range(text, "--frames")
+    start = 0 if start is None else start
+    if start < 0 or (stop is not None and stop <= start):
         raise PrismapInputError(f"--frames {text!r}: the range is empty or malformed; expected A:B with 0 <= A < B")
     return (start, stop)
 

@@ -74,6 +74,7 @@ def run_office2d(out_dir, *, n_frames=None, voxel_size_m=None, seed=0, quick=Fal
     ExperimentResult
     """
     from prismap import sim
+    from prismap.camera import integrate_disparity
     from prismap.grid import OccupancyMap
     from prismap.pipeline import build_sensor_model
 
@@ -103,7 +104,7 @@ def run_office2d(out_dir, *, n_frames=None, voxel_size_m=None, seed=0, quick=Fal
         model = build_sensor_model(model_name, scanner.camera, voxel_size_m=voxel, p0=p0, error_model=error_model)
         grid = OccupancyMap(voxel, p0=p0)
         for frame in progress(frames, total=len(frames), desc=f"office2d {model_name}", unit="frame"):
-            grid.integrate_disparity(frame.disparity, frame.camera, frame.T_world_cam, model, max_range_m=reach_m)
+            integrate_disparity(grid, frame.disparity, frame.camera, frame.T_world_cam, model, max_range_m=reach_m)
         return grid
 
     results, maps = run_cells(out, ERROR_SOURCE, models, build_map, truth, settings)

@@ -25,7 +25,7 @@ MAP_PRIOR_SUFFIX = "_map_prior"
 the map's current probability (ray mode only)."""
 MODELS_3D_MAP_PRIOR = (*MODELS_3D, "prism" + CONDITIONED_SUFFIX + MAP_PRIOR_SUFFIX)
 """:data:`MODELS_3D` and conditioned PRISM with the map as prior: a ray-mode run's opt-in (``models=``), not the
-default, since that row costs about 3 times conditioned PRISM's time and did not win (README, the 3-D room)."""
+default: it costs several times conditioned PRISM's time (README, the 3-D room)."""
 
 
 def split_variant(name):

@@ -70,13 +70,12 @@ def _scene3d_world():
 
 STREET_BETWEEN_FRAMES = 32
 """Extra characterisation frames of the full street, from positions between the drive's: with the drive's own
-4 the per-class mixtures see the rare gross errors of every class (on 4 frames alone a class fitted no outlier
-component and gave some errors of the mapped frames log-densities near -5800)."""
+4 the per-class mixtures see the rare gross errors of every class."""
 
 
 STREET_NEAR_M = 1.5
 """PRISM's ``near_m`` on the street: no surface is nearer than 1.8 m to the drive. PRISM's tables grow like
-``1 / near_m``; at its default 0.1 m they outgrow the cache on this sequence and PRISM maps several times slower."""
+``1 / near_m``, so the default 0.1 m would build tables far larger than the street needs."""
 
 
 def _street3d_world():

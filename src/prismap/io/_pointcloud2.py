@@ -15,7 +15,7 @@ import numpy as np
 from prismap._files import atomic_path
 from prismap._validate import check_probability
 from prismap.errors import PrismapInputError
-from prismap.grid import OccupancyMap
+from prismap.grid import OccupancyMap, key_to_center
 from prismap.io._rosbag import require_rosbags
 
 POINT_FIELDS = ("x", "y", "z", "probability")
@@ -92,7 +92,7 @@ def _points(grid, min_probability):
         keep = probability >= check_probability(min_probability, "min_probability", open_interval=False)
         keys, probability = keys[keep], probability[keep]
     points = np.empty(len(keys), dtype=[(name, "<f4") for name in POINT_FIELDS])
-    centers = (keys + 0.5) * grid.voxel_size_m
+    centers = key_to_center(keys, grid.voxel_size_m)
     points["x"], points["y"], points["z"] = centers.T
     points["probability"] = probability
     return points

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from prismap._validate import check_positive, check_probability
+from prismap._validate import check_integer, check_positive, check_probability
 from prismap.characterise import ErrorModel
 from prismap.errors import PrismapInputError
 from prismap.gmm import GaussianMixture
@@ -22,6 +22,7 @@ DISPARITY_FROM_SEQUENCE = "sequence"
 RESERVED_MODEL_PARAMS = {
     "voxel_size_m": "the map's voxel size (--voxel)", "p0": "the map's prior (--p0)",
     "error_model": "--error-model", "focal_baseline": "the camera", "doffs_px": "the camera",
+    "measurement": "the camera (disparities)",
 }
 """Sensor model arguments the run sets itself, with where they come from; a model parameter may not set them."""
 
@@ -193,9 +194,8 @@ class MappingConfig:
             raise PrismapInputError(f"`policy` must be one of {list(POLICIES)} or None; got {self.policy!r}")
         max_range = float(self.max_range_m)
         set_("max_range_m", max_range if max_range == math.inf else check_positive(max_range, "max_range_m"))
-        if isinstance(self.subsample, bool) or int(self.subsample) != self.subsample or self.subsample < 1:
-            raise PrismapInputError(f"`subsample` must be an integer >= 1; got {self.subsample!r}")
-        set_("subsample", int(self.subsample))
+        set_("subsample", check_integer(self.subsample, "subsample", expected="an integer >= 1",
+                                        condition=lambda n: n >= 1))
         set_("frames", _check_frames(self.frames))
 
     @property

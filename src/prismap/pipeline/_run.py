@@ -8,6 +8,7 @@ import numpy as np
 
 from prismap._files import exclusive_lock
 from prismap._progress import progress as progress_bar
+from prismap.camera import integrate_disparity
 from prismap.errors import PrismapInputError
 from prismap.grid import KEY_LIMIT, OccupancyMap, key_limit_m, key_range_text
 from prismap.io import BagSequence, Sequence, read_kitti_disparity, read_sequence
@@ -139,7 +140,7 @@ def integrate_frames(grid, sequence, config, indices, *, on_frame=None):
     source = DisparitySource(sequence, config)
     with Prefetch(source, indices) as frames:
         for _, (disparity, pose, ray_class) in frames:
-            grid.integrate_disparity(disparity, sequence.camera, pose, model, mode=config.mode, policy=config.policy,
+            integrate_disparity(grid, disparity, sequence.camera, pose, model, mode=config.mode, policy=config.policy,
                                      max_range_m=config.max_range_m, subsample=config.subsample, ray_class=ray_class)
             if on_frame is not None:
                 on_frame(grid)
