@@ -20,8 +20,9 @@ def matcher_for(name, largest_disparity_px):
     return make_matcher(name, num_disparities=16 * math.ceil((largest_disparity_px + 1) / 16))
 
 
-def characterise_frames(out_dir, frames, matcher, dataset):
-    """The matcher's error mixture (characterised once, then read back) and its table and figures."""
+def characterise_frames(out_dir, frames, matcher, dataset, *, source="ground-truth"):
+    """The matcher's error mixture (characterised once, then read back) and its table and figures; ``source``
+    says what the frames' ``disparity_gt`` is (see :func:`prismap.characterise.characterise_matcher`)."""
     from prismap.characterise import characterise_matcher, load_error_model, write_characterisation
 
     paths = {"model": out_dir / "error_model.json", "table": out_dir / "table.md",
@@ -29,7 +30,8 @@ def characterise_frames(out_dir, frames, matcher, dataset):
     if not all(p.is_file() for p in paths.values()):
         # the class search samples every frame: classes chosen on a subset of the street's frames predicted the
         # mapping frames' errors worse (README, conditioned error models)
-        characterisation = characterise_matcher(frames, matcher, dataset=dataset, search_frames=len(frames))
+        characterisation = characterise_matcher(frames, matcher, dataset=dataset, search_frames=len(frames),
+                                                source=source)
         paths = write_characterisation(characterisation, out_dir)
     name = matcher.name
     artifacts = [
