@@ -92,6 +92,7 @@ def test_evaluate_with_out_writes_json_and_reliability_figure(sequence_dir, tmp_
 @pytest.mark.parametrize(("argv", "message"), [
     (["--sequence", "/nonexistent/seq"], "--sequence /nonexistent/seq: sequence directory not found"),
     (["--model", "prism"], "sensor model 'prism' needs an error model (--error-model MODEL.json)"),
+    (["--model", "andert"], "sensor model 'andert' needs an error model (--error-model MODEL.json) or --model-param"),
     (["--model", "prism", "--error-model", "/nonexistent/m.json"], "error model /nonexistent/m.json: no such file"),
     (["--voxel", "0"], "`--voxel` must be a finite number > 0; got 0.0"),
     (["--p0", "1.5"], "`--p0` must lie in (0, 1); got 1.5"),

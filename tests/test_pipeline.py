@@ -66,7 +66,7 @@ def test_build_sensor_model_gives_each_model_its_noise():
 
 @pytest.mark.parametrize(("name", "params", "message"), [
     ("prism", {}, "'prism' needs an error model"),
-    ("andert", {}, "needs an error model (--error-model MODEL.json) or an explicit sigma_px"),
+    ("andert", {}, "needs an error model (`error_model`) or an explicit sigma_px"),
     ("hitmiss", {"sigma_px": 1.0}, "sensor model 'hitmiss': bad parameter(s) ['sigma_px']"),
     ("octree", {}, "unknown sensor model 'octree'"),
 ])

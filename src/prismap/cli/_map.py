@@ -80,6 +80,8 @@ def run(args):
     """Map the sequence and write the map; return the exit status."""
     from prismap.io import read_sequence, save_map
     from prismap.pipeline import MappingConfig, map_sequence, remove_checkpoint
+    from prismap.pipeline._config import needs_error_model
+    from prismap.sensor_models import model_names
 
     if args.checkpoint_every < 0:
         raise PrismapInputError(f"--checkpoint-every must be >= 0; got {args.checkpoint_every}")
@@ -92,6 +94,9 @@ def run(args):
         if args.model != "prism":
             raise PrismapInputError(f"--map-prior is an option of --model prism; got --model {args.model}")
         model_params["prior"] = "map"
+    if args.error_model is None and args.model in model_names() and needs_error_model(args.model, model_params):
+        raise PrismapInputError(f"sensor model {args.model!r} needs an error model (--error-model MODEL.json)"
+                                + (" or --model-param sigma_px=..." if args.model != "prism" else ""))
     config = MappingConfig(
         model=args.model, voxel_size_m=check_positive(args.voxel, "--voxel"), p0=check_probability(args.p0, "--p0"),
         error_model=_error_model(args.error_model), conditioned=False if args.plain else None,

@@ -13,7 +13,13 @@ from prismap.characterise import ErrorModel
 from prismap.errors import PrismapInputError
 from prismap.gmm import GaussianMixture
 from prismap.grid import POLICIES
-from prismap.sensor_models import USES_SIGMA, conditioned_sensor_model, model_defaults, model_for_mixture, model_names
+from prismap.sensor_models import (
+    conditioned_sensor_model,
+    error_model_use,
+    model_defaults,
+    model_for_mixture,
+    model_names,
+)
 from prismap.stereo import matcher_names
 
 MODES = ("ray", "projective")
@@ -56,6 +62,13 @@ def _check_error_model(error_model):
     )
 
 
+def needs_error_model(name, params):
+    """Whether the sensor model ``name`` with its ``params`` needs a matcher's error model: PRISM always,
+    convolution and Andert unless ``params`` give ``sigma_px`` (each model's ``error_model_use``)."""
+    use = error_model_use(name)
+    return use == "mixture" or (use == "sigma" and "sigma_px" not in params)
+
+
 def build_sensor_model(name, camera, *, voxel_size_m, p0, error_model=None, **params):
     """The inverse sensor model ``name`` for ``camera`` on a map of ``voxel_size_m`` and prior ``p0``.
 
@@ -86,13 +99,9 @@ def build_sensor_model(name, camera, *, voxel_size_m, p0, error_model=None, **pa
     mixture = _as_mixture(error_model)
     params = dict(params)
     _check_model_params(params, "model parameter")
-    if mixture is None:
-        if name == "prism":
-            raise PrismapInputError("sensor model 'prism' needs an error model (--error-model MODEL.json)")
-        if name in USES_SIGMA and "sigma_px" not in params:
-            raise PrismapInputError(
-                f"sensor model {name!r} needs an error model (--error-model MODEL.json) or an explicit sigma_px"
-            )
+    if mixture is None and needs_error_model(name, params):
+        raise PrismapInputError(f"sensor model {name!r} needs an error model (`error_model`)"
+                                + (" or an explicit sigma_px" if error_model_use(name) == "sigma" else ""))
     return model_for_mixture(name, mixture, focal_baseline=camera.focal_baseline, doffs_px=camera.doffs_px,
                              voxel_size_m=voxel_size_m, p0=p0, **params)
 
@@ -232,7 +241,7 @@ class MappingConfig:
         The variant (``plain``: the whole-image mixture; ``conditioned``: each pixel's class mixture) is
         named when the model uses the run's error model (``prism``, ``convolution``, ``andert``).
         """
-        uses_error_model = self.error_model is not None and (self.model == "prism" or self.model in USES_SIGMA)
+        uses_error_model = self.error_model is not None and error_model_use(self.model) is not None
         variant = (" conditioned" if self.conditioned else " plain") if uses_error_model else ""
         if self.disparity_source == DISPARITY_FROM_MATCHER:
             source = self.matcher

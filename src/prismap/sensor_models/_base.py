@@ -39,6 +39,9 @@ class InverseSensorModel(ABC):
     name = "base"
     default_policy = "mean"
     """Name of the per-frame policy the map uses with this model by default (the grid owns the policies)."""
+    error_model_use = None
+    """What the model takes from a matcher's error model: ``"mixture"`` (the whole Gaussian mixture, as
+    ``error_model``), ``"sigma"`` (its dominant sigma, as ``sigma_px``) or None (nothing)."""
     measurement = "disparity"
     """What the first argument of :meth:`cell_posteriors` and :meth:`influence_depth` holds: ``"disparity"``
     (pixels) or ``"range"`` (metres along the ray); the map refuses a batch of another kind."""
@@ -124,6 +127,14 @@ def model_defaults(name):
         raise PrismapInputError(f"unknown sensor model {name!r}; expected one of {list(_REGISTRY)}") from None
     return {f.name: f.default for f in dataclasses.fields(cls)
             if f.init and not f.name.startswith("_") and isinstance(f.default, (bool, int, float, str, type(None)))}
+
+
+def error_model_use(name):
+    """What the model called ``name`` takes from an error model (its class's ``error_model_use``)."""
+    try:
+        return _REGISTRY[name].error_model_use
+    except KeyError:
+        raise PrismapInputError(f"unknown sensor model {name!r}; expected one of {list(_REGISTRY)}") from None
 
 
 def make_sensor_model(name, **params):

@@ -146,6 +146,7 @@ class ConvolutionModel(_ProfileModel):
     """
 
     name = "convolution"
+    error_model_use = "sigma"
     default_policy = "mean"
     sigma_px: float = 0.5
 
@@ -199,6 +200,7 @@ class AndertModel(RayModel):
     """
 
     name = "andert"
+    error_model_use = "sigma"
     default_policy = "max"
     sigma_px: float = 0.5
     eta: float = 0.1

@@ -158,6 +158,7 @@ class PrismModel(RayModel):
     """
 
     name = "prism"
+    error_model_use = "mixture"
     default_policy = "mean"
     error_model: GaussianMixture | None = None
     near_m: float = 0.1
