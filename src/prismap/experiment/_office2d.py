@@ -3,7 +3,7 @@
 import numpy as np
 
 from prismap._progress import progress
-from prismap._validate import check_positive
+from prismap._validate import check_integer, check_positive
 from prismap.errors import PrismapInputError
 from prismap.experiment._cells import ExperimentResult, claim_out_dir, draw_figures, run_cells
 from prismap.experiment._results import MODELS, prior_of, write_results
@@ -30,8 +30,8 @@ def office2d_settings(*, n_frames=None, voxel_size_m=None, seed=0, quick=False, 
     sizes = dict(OFFICE_SIZES[bool(quick)])
     if voxel_size_m is not None:
         sizes["voxel_size_m"] = check_positive(voxel_size_m, "voxel_size_m")
-    if n_frames is not None and (isinstance(n_frames, bool) or int(n_frames) != n_frames or n_frames < 1):
-        raise PrismapInputError(f"`n_frames` must be a positive integer or None; got {n_frames!r}")
+    if n_frames is not None:
+        check_integer(n_frames, "n_frames", expected="a positive integer or None", condition=lambda n: n >= 1)
     if not isinstance(error_model, GaussianMixture):
         raise PrismapInputError(f"`error_model` must be a GaussianMixture; got {type(error_model).__name__}")
     return {"world": "office2d", "quick": bool(quick), "seed": int(seed), "n_frames": n_frames,

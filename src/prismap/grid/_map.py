@@ -337,6 +337,19 @@ class OccupancyMap:
         keys = store.voxel_keys()[known].astype(np.int32)
         return keys, from_fixed(store.payload["log"][:n][known]), count[known]
 
+    def known_probabilities(self):
+        """Every observed voxel with its occupancy probability (one pass over the storage, no second look-up).
+
+        Returns
+        -------
+        keys : (N, 3) int32, voxel keys
+        probability : (N,) float64
+        log_odds : (N,) float64, multiples of ``2**-20``
+        counts : (N,) uint16, >= 1
+        """
+        keys, log, counts = self.known_voxels()
+        return keys, _probability(log), log, counts
+
     def occupied_voxels(self):
         """Voxels in the occupied state.
 

@@ -95,8 +95,7 @@ def write_pointcloud2(grid, path, *, storage=None, frame_id="map", topic="/prism
 
 def _points(grid, min_probability):
     """(N,) structured float32 array of the voxel centres (metres, world frame) and their probability."""
-    keys, _, _ = grid.known_voxels()
-    probability = grid.probability_at_keys(keys)
+    keys, probability, _, _ = grid.known_probabilities()
     if min_probability is not None:
         keep = probability >= check_probability(min_probability, "min_probability", open_interval=False)
         keys, probability = keys[keep], probability[keep]
