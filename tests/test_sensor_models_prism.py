@@ -5,6 +5,7 @@ import itertools
 import numpy as np
 import pytest
 
+from prismap.camera import integrate_disparity
 from prismap.errors import PrismapInputError
 from prismap.gmm import GaussianMixture
 from prismap.sensor_models import (
@@ -256,7 +257,7 @@ def test_table_maps_agree_with_direct_maps_within_the_stated_bound(mode):
                                       error_model=FRAME_MIXTURE, near_m=0.5, method=method,
                                       overhang_fraction=overhang)
             grid = OccupancyMap(0.1, p0=0.1)
-            grid.integrate_disparity(disparity, camera, pose, model, mode=mode, max_range_m=6.0, subsample=6,
+            integrate_disparity(grid, disparity, camera, pose, model, mode=mode, max_range_m=6.0, subsample=6,
                                      policy=policy)
             keys, log, _ = grid.known_voxels()
             order = np.lexsort(keys.T)

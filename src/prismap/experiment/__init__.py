@@ -30,7 +30,6 @@ __all__ = [
     "MODELS_3D",
     "MODELS_3D_MAP_PRIOR",
     "SGBM_LIKE_MIXTURE",
-    "SOLID_DEPTH_QUANTILE",
     "WORLDS",
     "CellResult",
     "ExperimentResult",

@@ -78,8 +78,7 @@ OVERHANG_FRACTION = 0.25
 """PRISM's default share of the voxel overhang bound counted as occupied. Half the bound is its mean over
 plane positions; but a plane through voxel centres then puts the voxel just in front of it exactly on the
 boundary, where every frame adds an even chance of occupancy and the fused map grows a false layer in front
-of walls. A quarter keeps most of the grazing floor and no such layer (see the commit message and
-docs/SENSOR_MODELS.md for the measurements)."""
+of walls. A quarter keeps most of the grazing floor and no such layer (docs/SENSOR_MODELS.md, "Voxel overhang")."""
 
 
 @register_model
@@ -159,6 +158,7 @@ class PrismModel(RayModel):
     """
 
     name = "prism"
+    error_model_use = "mixture"
     default_policy = "mean"
     error_model: GaussianMixture | None = None
     near_m: float = 0.1
