@@ -332,3 +332,23 @@ def test_lidar_input_errors():
         lidar_reference_map([(np.zeros((4, 2)), np.eye(4))], 0.1, progress=False)
     with pytest.raises(PrismapInputError, match=r"`scans\[0\]` must be a \(points, T_world_sensor\) pair"):
         lidar_reference_map([np.zeros((4, 3))], 0.1, progress=False)
+
+
+def test_progress_labels_name_the_model_its_variant_and_the_disparities(tmp_path):
+    from prismap.characterise import ErrorModel
+    from prismap.pipeline import MappingConfig
+    from support import MIXTURE, conditioned_error_model
+
+    conditioned = conditioned_error_model(feature="texture", edges=(20.0, 30.0))
+    assert isinstance(conditioned, ErrorModel)
+    folder = tmp_path / "sgbm" / "disparity"
+    folder.mkdir(parents=True)
+    cases = [
+        (MappingConfig(model="prism", error_model=conditioned), "prism conditioned, sgbm"),
+        (MappingConfig(model="prism", error_model=conditioned, conditioned=False, matcher="bm"), "prism plain, bm"),
+        (MappingConfig(model="convolution", error_model=MIXTURE, disparity_source="sequence"),
+         "convolution plain, the sequence's disparities"),
+        (MappingConfig(model="hitmiss", error_model=conditioned, conditioned=False, disparity_source=str(folder)),
+         "hitmiss, disparities from sgbm/disparity"),
+    ]
+    assert [config.label for config, _ in cases] == [label for _, label in cases]

@@ -10,6 +10,7 @@ from prismap.characterise._features import (
     discontinuity_mask,
     disparity_gradient,
 )
+from prismap.characterise._fusion import FUSION_MODELS, fit_fusion, fusion_block, fusion_from_block
 from prismap.characterise._histogram import ErrorHistogram
 from prismap.characterise._model import ErrorModel, load_error_model, write_error_model
 from prismap.characterise._model_table import format_table
@@ -25,6 +26,7 @@ from prismap.characterise._self import SelfCharacterisation, lag_agreement, self
 
 __all__ = [
     "FEATURE_UNITS",
+    "FUSION_MODELS",
     "NO_CLASS",
     "RIG_RTOL",
     "Characterisation",
@@ -43,9 +45,12 @@ __all__ = [
     "describe_rig",
     "discontinuity_mask",
     "disparity_gradient",
+    "fit_fusion",
     "format_table",
     "lag_agreement",
     "frame_error_correlation",
+    "fusion_block",
+    "fusion_from_block",
     "load_error_model",
     "rig_differences",
     "self_characterise",

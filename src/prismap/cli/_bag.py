@@ -4,14 +4,22 @@ from pathlib import Path
 
 from prismap.errors import PrismapInputError
 
+MAX_STAMP_GAP_S = 86400.0
+"""Largest ``--pair-tolerance`` and ``--pose-gap`` (seconds, one day): a bag's stamps are int64 nanoseconds."""
+
 
 def add_bag_arguments(parser, *, poses, truth=False):
-    """Add ``--bag`` and its topic options to ``parser``; ``poses`` adds ``--pose-topic``/``--tf-frames``/``--pose-gap``,
-    ``truth`` adds ``--truth-topic``."""
+    """Add ``--bag`` and its topic options to ``parser``.
+
+    ``poses`` (``prismap map``) adds ``--pose-topic``/``--tf-frames``/``--pose-gap`` and names ``--sequence`` as
+    the input the bag replaces; without it (``prismap characterise``) the bag replaces ``--dataset``. ``truth``
+    adds ``--truth-topic``.
+    """
     from prismap.io._rosbag import MAX_POSE_GAP_S, PAIR_TOLERANCE_S
 
+    instead = "--sequence" if poses else "--dataset"
     group = parser.add_argument_group(
-        "ROS bag input", "a ROS 1 .bag, a ROS 2 bag directory (sqlite3 or MCAP) or a .mcap file instead of --sequence")
+        "ROS bag input", f"a ROS 1 .bag, a ROS 2 bag directory (sqlite3 or MCAP) or a .mcap file instead of {instead}")
     group.add_argument("--bag", type=Path, metavar="PATH", help="the bag")
     group.add_argument("--left", metavar="TOPIC", help="left image topic (sensor_msgs/Image or CompressedImage)")
     group.add_argument("--right", metavar="TOPIC", help="right image topic")
@@ -48,10 +56,11 @@ def open_bag_argument(args):
 
     if not (args.left and args.right):
         raise PrismapInputError("--bag needs --left TOPIC and --right TOPIC")
-    for option in ("pair_tolerance", "pose_gap"):
+    for option in ("pair_tolerance", "pose_gap", "scan_tolerance"):
         value = getattr(args, option, 1.0)
-        if not value > 0:
-            raise PrismapInputError(f"--{option.replace('_', '-')} must be > 0 seconds; got {value}")
+        if not 0 < value <= MAX_STAMP_GAP_S:
+            raise PrismapInputError(f"--{option.replace('_', '-')} must lie in (0, {MAX_STAMP_GAP_S:g}] seconds; "
+                                    f"got {value}")
     tf_frames = None
     if getattr(args, "tf_frames", None):
         world, sep, camera = args.tf_frames.partition(":")
@@ -61,8 +70,6 @@ def open_bag_argument(args):
     options = {"pose_topic": getattr(args, "pose_topic", None), "tf_frames": tf_frames,
                "truth_topic": getattr(args, "truth_topic", None)}
     if getattr(args, "lidar_topic", None):
-        if not args.scan_tolerance > 0:
-            raise PrismapInputError(f"--scan-tolerance must be > 0 seconds; got {args.scan_tolerance}")
         options.update(lidar_topic=args.lidar_topic, scan_tolerance_s=args.scan_tolerance,
                        T_cam_lidar=None if args.lidar_extrinsics is None else read_extrinsics(args.lidar_extrinsics))
     elif getattr(args, "lidar_extrinsics", None) is not None:

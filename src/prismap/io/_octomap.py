@@ -17,7 +17,7 @@ def _octomap():
         import octomap
     except ImportError:
         raise PrismapInputError(
-            "OctoMap export needs the optional `octomap` module: pip install 'prismap[octomap]' (octomap-python)"
+            "OctoMap export needs the optional `octomap` module: pip install -e '.[octomap]' (octomap-python)"
         ) from None
     return octomap
 

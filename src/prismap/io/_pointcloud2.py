@@ -7,12 +7,13 @@ centres, metres, the map's world frame) and ``probability`` (P(occupied)), all f
 
 import os
 import shutil
+import sqlite3
 import tempfile
 from pathlib import Path
 
 import numpy as np
 
-from prismap._files import atomic_path
+from prismap._files import atomic_path, make_parents, remove_if_empty
 from prismap._validate import check_probability
 from prismap.errors import PrismapInputError
 from prismap.grid import OccupancyMap
@@ -66,9 +67,11 @@ def write_pointcloud2(grid, path, *, storage=None, frame_id="map", topic="/prism
     points = _points(grid, min_probability)
     typestore = get_typestore(Stores.ROS2_HUMBLE)
     message = _message(typestore, points, frame_id, stamp_ns)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    staging = Path(tempfile.mkdtemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp"))
+    created = make_parents(path)
+    staging = None
+    done = False
     try:
+        staging = Path(tempfile.mkdtemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp"))
         bag = staging / path.stem
         plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
         with Writer(bag, version=9, storage_plugin=plugin) as writer:
@@ -79,8 +82,14 @@ def write_pointcloud2(grid, path, *, storage=None, frame_id="map", topic="/prism
                 os.replace(bag / f"{bag.name}.mcap", tmp)
         else:
             os.rename(bag, path)
+        done = True
+    except (OSError, sqlite3.Error) as exc:
+        raise PrismapInputError(f"{path}: cannot write ({getattr(exc, 'strerror', None) or exc})") from None
     finally:
-        shutil.rmtree(staging, ignore_errors=True)
+        if staging is not None:
+            shutil.rmtree(staging, ignore_errors=True)
+        if not done:
+            remove_if_empty(created)
     return len(points)
 
 

@@ -4,6 +4,7 @@ import hashlib
 import json
 import math
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -222,6 +223,25 @@ class MappingConfig:
                                             error_model=self.error_model, **self.model_options)
         return build_sensor_model(self.model, camera, voxel_size_m=self.voxel_size_m, p0=self.p0,
                                   error_model=self.mixture, **self.model_options)
+
+    @property
+    def label(self):
+        """What the run maps with, for progress lines: model, variant, disparities, e.g.
+        ``"prism conditioned, sgbm"`` or ``"hit_miss, disparities from sgbm/disparity"``.
+
+        The variant (``plain``: the whole-image mixture; ``conditioned``: each pixel's class mixture) is
+        named when the model uses the run's error model (``prism``, ``convolution``, ``andert``).
+        """
+        uses_error_model = self.error_model is not None and (self.model == "prism" or self.model in USES_SIGMA)
+        variant = (" conditioned" if self.conditioned else " plain") if uses_error_model else ""
+        if self.disparity_source == DISPARITY_FROM_MATCHER:
+            source = self.matcher
+        elif self.disparity_source == DISPARITY_FROM_SEQUENCE:
+            source = "the sequence's disparities"
+        else:
+            folder = Path(self.disparity_source)
+            source = f"disparities from {folder.parent.name}/{folder.name}"
+        return f"{self.model}{variant}, {source}"
 
     def frame_indices(self, n_frames):
         """``range`` of the frames of a sequence of ``n_frames`` this config maps; raises if empty."""
