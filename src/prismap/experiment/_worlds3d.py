@@ -136,3 +136,37 @@ def split_frames(n_frames, every):
     """Indices ``(characterisation, mapping)``: every ``every``-th frame (from 0) characterises, the rest map."""
     indices = np.arange(n_frames)
     return indices[indices % every == 0], indices[indices % every != 0]
+
+
+def render_world(settings):
+    """Render the frames of a run with ``settings`` (:func:`scene3d_settings`): the same images for the same settings.
+
+    The world's scene and the drive (then the positions between, ``between_frames``) are translated by
+    ``grid_offset_m`` on every axis, and rendered with one noise stream seeded by ``seed``.
+
+    Returns
+    -------
+    scene : Scene3D
+        The translated scene.
+    camera : StereoCamera
+    drive_char_frames, char_frames, map_frames : list of StereoFrame
+        The drive's characterisation frames (every ``characterise_every``-th), those and the frames between
+        (every characterisation frame), and the drive's other frames (the mapping frames).
+    """
+    from prismap import sim
+    from prismap._progress import progress
+
+    spec, seed = WORLDS[settings["world"]](), settings["seed"]
+    n_drive, n_between = settings["n_frames"], settings["between_frames"]
+    char_index, map_index = split_frames(n_drive, settings["characterise_every"])
+    poses = spec.trajectory(n_drive, seed)
+    if n_between:
+        poses = np.concatenate([poses, spec.between_trajectory(n_drive, n_between, seed)])
+    camera = spec.camera(settings["image_scale"])
+    base, shift = spec.scene(seed), settings["grid_offset_m"]
+    scene = sim.Scene3D(base.box_lo + shift, base.box_hi + shift, base.box_texture, base.box_texel_m, base.box_tint,
+                        name=base.name)
+    poses[:, :3, 3] += shift
+    frames = list(progress(scene.frames(camera, poses, seed=seed), total=len(poses), desc="render", unit="frame"))
+    drive_char_frames = [frames[i] for i in char_index]
+    return scene, camera, drive_char_frames, drive_char_frames + frames[n_drive:], [frames[i] for i in map_index]
