@@ -71,9 +71,9 @@ def time_call(model, batch, repeat=1, **kwargs):
 
 def table_stages(prism, batch, repeat=5):
     """Nanoseconds per cell of each stage of tabulated PRISM's cell update on ``batch`` (tables warm): the two
-    table look-ups per cell (``_kernels.prism_table_lookup``), the two vectorised exps, the combination and
+    table look-ups per cell (``_kernels_lookup.prism_table_lookup``), the two vectorised exps, the combination and
     the vectorised log, each run alone over the whole batch in blocks as ``prism_table_cells`` runs them."""
-    from prismap.sensor_models import _kernels, _prism
+    from prismap.sensor_models import _kernels_lookup, _kernels_math, _prism
 
     disparity, norm, rays, start, end = (np.ascontiguousarray(a) for a in batch)
     n = start.size
@@ -90,24 +90,24 @@ def table_stages(prism, batch, repeat=5):
 
     def lookup():
         for lo, hi in blocks:
-            _kernels.prism_table_lookup(lam, table, delta, rays, start, end, stretch, lo, hi, prism.near_m,
+            _kernels_lookup.prism_table_lookup(lam, table, delta, rays, start, end, stretch, lo, hi, prism.near_m,
                                         prism.far_depth_m, prism.focal_baseline, prism._ku(), _prism._QUAD_STEP,
                                         meta, nodes, log_wn, means, sigmas, l_a[lo:hi], l_c[lo:hi], side[lo:hi],
                                         lam_len[lo:hi])
 
     def exps():
         for lo, hi in blocks:
-            _kernels.exp_into(l_a[lo:hi], e_a[lo:hi], hi - lo)
-            _kernels.exp_into(l_c[lo:hi], e_c[lo:hi], hi - lo)
+            _kernels_math.exp_into(l_a[lo:hi], e_a[lo:hi], hi - lo)
+            _kernels_math.exp_into(l_c[lo:hi], e_c[lo:hi], hi - lo)
 
     def combination():
         for lo, hi in blocks:
-            _kernels.prism_table_combine(lo, hi, l_a[lo:hi], l_c[lo:hi], e_a[lo:hi], e_c[lo:hi], side[lo:hi],
+            _kernels_lookup.prism_table_combine(lo, hi, l_a[lo:hi], l_c[lo:hi], e_a[lo:hi], e_c[lo:hi], side[lo:hi],
                                          lam_len[lo:hi], post, ratio[lo:hi], fix_index, fix_value, prism.pass_through)
 
     def logs():
         for lo, hi in blocks:
-            _kernels.log_into(ratio[lo:hi], inc[lo:hi], hi - lo)
+            _kernels_math.log_into(ratio[lo:hi], inc[lo:hi], hi - lo)
 
     out = {}
     for name, stage in (("look-ups", lookup), ("exps", exps), ("combination", combination), ("log", logs)):

@@ -101,7 +101,7 @@ def test_evaluate_with_out_writes_json_and_reliability_figure(sequence_dir, tmp_
     (["--model-param", "p_hit"], "--model-param 'p_hit': expected KEY=VALUE"),
     (["--model", "hitmiss", "--model-param", "eta=3"], "sensor model 'hitmiss': bad parameter(s) ['eta']"),
     (["--disparity-dir", "/nonexistent/disp"], "--disparity-dir /nonexistent/disp: directory not found"),
-    (["--workers", "0"], "--workers must be >= 1; got 0"),
+    (["--workers", "0"], "--workers must lie in [1, "),
 ])
 def test_map_errors_exit_2_with_a_one_line_message(sequence_dir, tmp_path, capsys, argv, message):
     args = map_args(sequence_dir, tmp_path / "m.npz", "--model", "ideal")
@@ -165,8 +165,8 @@ def test_a_killed_run_resumes_to_the_uninterrupted_map(tmp_path):
     assert_same_map(load_map(out), uninterrupted)  # exact
 
     # a checkpoint left by a run of other options or inputs is refused, not resumed or overwritten
-    meta.write_text(json.dumps({"format": "prismap-map-checkpoint", "format_version": 1, "fingerprint": "0" * 64,
-                                "frames_done": 0}))
+    meta.write_text(json.dumps({"format": "prismap-map-checkpoint", "format_version": 2, "fingerprint": "0" * 64,
+                                "frames_done": 0, "map_sha256": []}))
     refused = subprocess.run(command, env=env, capture_output=True, text=True, timeout=300)
     assert refused.returncode == 2 and "refusing to resume" in refused.stderr and "Traceback" not in refused.stderr
 

@@ -88,7 +88,7 @@ def test_class_pass_through_is_measured_per_class_only_when_asked(scene):
     """Off by default; on, one ratio per class of the matcher's own disparity (here of the mapped frames)."""
     from prismap import sim
     from prismap.characterise import load_error_model
-    from prismap.experiment._scene3d import _class_model_params
+    from prismap.experiment._steps3d import class_model_params
     from prismap.io import read_sequence
 
     out, result = scene
@@ -101,7 +101,7 @@ def test_class_pass_through_is_measured_per_class_only_when_asked(scene):
     shift = conditioned["grid_offset_m"]
     base = sim.indoor_scene(seed=0)
     world = sim.Scene3D.from_boxes(base.box_lo + shift, base.box_hi + shift)
-    params = _class_model_params(conditioned["derived_model_params"], conditioned, world, frames, error_model,
+    params = class_model_params(conditioned["derived_model_params"], conditioned, world, frames, error_model,
                                  out / "sgbm" / "disparity")
     ratios = np.array(params["prism"]["class_pass_through"])
     assert ratios.shape == (error_model.n_classes,) and error_model.n_classes > 1

@@ -8,7 +8,7 @@ from scipy.stats import norm
 from prismap.characterise import compute_features, load_error_model
 from prismap.errors import PrismapInputError
 from prismap.experiment import WORLDS, run_scene3d, run_street3d
-from prismap.experiment._scene3d import mapped_log_likelihood
+from prismap.experiment._report3d import mapped_log_likelihood
 from prismap.stereo._base import to_grey
 
 MODELS_TESTED = ("hitmiss", "prism", "prism_conditioned")

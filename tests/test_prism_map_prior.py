@@ -13,7 +13,7 @@ from prismap.grid import OccupancyMap, make_integrator
 from prismap.grid._integrators import RayBatch
 from prismap.pipeline import map_sequence
 from prismap.sensor_models import ConditionedModel, InverseSensorModel, PrismModel
-from prismap.sensor_models._prism import log_mean_likelihood, prism_discrete_posteriors
+from prismap.sensor_models._prism_discrete import log_mean_likelihood, prism_discrete_posteriors
 from support import MIXTURE, config, synthetic_sequence
 
 MIX = GaussianMixture([0.7, 0.25, 0.05], [0.0, 0.3, -1.0], [0.4, 1.2, 8.0])

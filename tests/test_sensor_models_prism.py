@@ -9,8 +9,13 @@ from prismap.errors import PrismapInputError
 from prismap.gmm import GaussianMixture
 from prismap.sensor_models import (
     PrismModel,
-    _kernels,
+    _kernels_direct,
+    _kernels_lookup,
+    _kernels_march,
+    _kernels_math,
+    _kernels_table,
     _prism,
+    _prism_cache,
     estimate_prior_from_likelihood,
     make_sensor_model,
     prior_from_ground_truth,
@@ -133,7 +138,7 @@ def test_table_with_a_broad_front_agrees_with_direct_within_stated_bound(voxel):
     disparity = np.round(KITTI_FB / depths * 16) / 16
     _assert_table_within_tolerance(model, disparity, rng.uniform(1.0, 1.3, depths.size), _random_cells(rng, depths))
     meta = model._cache.meta
-    rows = [meta[:, _kernels.META_COLUMNS.index(f"row_{k}")] for k in range(_kernels.N_SEGMENTS)]
+    rows = [meta[:, _kernels_table.META_COLUMNS.index(f"row_{k}")] for k in range(_kernels_table.N_SEGMENTS)]
     assert np.all(rows[2] - rows[1] > 10)  # a broad front, and the cells above crossed it
     assert np.sum(rows[4] - rows[3] > 10) >= 3  # the near measurements' tables have a broad back
 
@@ -209,12 +214,12 @@ def test_cells_in_a_tables_first_interval_agree_with_direct(fb, mixture, voxel, 
     norm = np.tile(norm, disparity.size // norm.size)
     table, delta, meta, _ = model._tables_for(disparity, norm)
     assert np.abs(delta[norm > 1]).min() > 0.499 * step
-    column = _kernels.META_COLUMNS.index
+    column = _kernels_table.META_COLUMNS.index
     assert np.all((meta[table, column("row_1")] > 0) == steep)  # a coarse front or none
     ends = []
     for m in meta[table]:
-        segment = next(k for k in range(_kernels.N_SEGMENTS) if m[column(f"row_{k + 1}")] > 0)  # holds row 0
-        first = _kernels.z_of_x(m[column(f"x_{segment}")] + m[column(f"h_{segment}")], m[column("lam")], model._ku())
+        segment = next(k for k in range(_kernels_table.N_SEGMENTS) if m[column(f"row_{k + 1}")] > 0)  # holds row 0
+        first = _kernels_march.z_of_x(m[column(f"x_{segment}")] + m[column(f"h_{segment}")], m[column("lam")], model._ku())
         ends.append(np.geomspace(near + 1e-4, first, 12))
     rays = np.repeat(np.arange(disparity.size), 12)
     _assert_table_within_tolerance(model, disparity, norm, (rays, np.full(rays.size, near - 0.5), np.concatenate(ends)),
@@ -265,7 +270,7 @@ def test_table_maps_agree_with_direct_maps_within_the_stated_bound(mode):
 
 
 def test_table_combination_keeps_a_tiny_d_at_either_end():
-    """prism_table_combine against the log-space combination (``_kernels.combine``) for cells whose end has
+    """prism_table_combine against the log-space combination (``_kernels_direct.combine``) for cells whose end has
     ``D/Z`` down to e^-36 (the looked-up side used as it is, not as ``1 - (1 - D/Z)``, where it would vanish
     beside ``q_c C(a)/Z``), starts with tiny ``C/Z`` or with ``D`` the smaller, and priors of 0.05-0.9."""
     l_c = -np.array([0.1, 2.0, 20.0, 30.0, 36.0])  # log D/Z at the end
@@ -278,11 +283,11 @@ def test_table_combination_keeps_a_tiny_d_at_either_end():
     n = la.size
     side = a_is_d + 2
     post, ratio, fix_value = np.empty(n), np.empty(n), np.empty(n)
-    fixed = _kernels.prism_table_combine(0, n, la, lc, np.exp(la), np.exp(lc), side, length, post, ratio,
+    fixed = _kernels_lookup.prism_table_combine(0, n, la, lc, np.exp(la), np.exp(lc), side, length, post, ratio,
                                          np.empty(n, dtype=np.int64), fix_value, 0.0)
     assert fixed == 0  # the linear-space pass, not the log-space fallback
     other_a, other_c = np.log(-np.expm1(la)), np.log(-np.expm1(lc))
-    expected = np.array([_kernels.combine(*((oa, a) if d else (a, oa)), oc, c, ln)[1]
+    expected = np.array([_kernels_direct.combine(*((oa, a) if d else (a, oa)), oc, c, ln)[1]
                          for a, oa, c, oc, ln, d in zip(la, other_a, lc, other_c, length, a_is_d)])
     np.testing.assert_allclose(np.log(ratio), expected, rtol=1e-9, atol=1e-9)
 
@@ -448,8 +453,8 @@ def test_calls_from_two_threads_under_a_thrashing_cache_equal_serial_calls():
 def _fake_tables(keys):
     """Tables of 100 nodes whose only content is their key (the cache never looks inside but for the offsets
     and lengths)."""
-    nodes = np.repeat(np.asarray(keys, dtype=np.float32), 100)[:, None] * np.ones(_kernels.TABLE_COLUMNS, np.float32)
-    meta = np.repeat(np.asarray(keys, dtype=np.float64)[:, None], len(_kernels.META_COLUMNS), axis=1)
+    nodes = np.repeat(np.asarray(keys, dtype=np.float32), 100)[:, None] * np.ones(_kernels_table.TABLE_COLUMNS, np.float32)
+    meta = np.repeat(np.asarray(keys, dtype=np.float64)[:, None], len(_kernels_table.META_COLUMNS), axis=1)
     meta[:, _prism._OFFSET] = 100.0 * np.arange(len(keys))
     meta[:, _prism._LENGTH] = 100.0
     return nodes, meta
@@ -457,10 +462,10 @@ def _fake_tables(keys):
 
 @pytest.mark.parametrize(("budget_tables", "rebuilt"), [(None, False), (6, True)])
 def test_auto_table_budget_keeps_a_frame_asked_for_in_chunks(budget_tables, rebuilt):
-    node_bytes = _prism._TableCache(None, 0).nodes.itemsize
-    table_bytes = 100 * _kernels.TABLE_COLUMNS * node_bytes + len(_kernels.META_COLUMNS) * 8
+    node_bytes = _prism_cache.TableCache(None, 0).nodes.itemsize
+    table_bytes = 100 * _kernels_table.TABLE_COLUMNS * node_bytes + len(_kernels_table.META_COLUMNS) * 8
     budget = None if budget_tables is None else budget_tables * table_bytes
-    cache = _prism._TableCache(budget, floor_bytes=table_bytes)
+    cache = _prism_cache.TableCache(budget, floor_bytes=table_bytes)
     frame = np.arange(10, dtype=np.int64)
     for _ in range(2):  # two frames seeing the same keys: the whole frame at once, then in two chunks
         for keys in (frame, frame[:5], frame[5:]):
@@ -484,7 +489,7 @@ def test_rate_derivatives_of_the_evidence_match_finite_differences(depth, max_ra
     log_far = float(model._log_far(shift))
 
     def march(lam):
-        return _kernels.prism_march(shift, lam, model.near_m, max_range, FB, model._ku(), 0.25, log_far,
+        return _kernels_march.prism_march(shift, lam, model.near_m, max_range, FB, model._ku(), 0.25, log_far,
                                     -7.0, 0.0, 4, log_wn, means, sigmas)
 
     lam, eps = 0.8, 1e-3
@@ -492,7 +497,7 @@ def test_rate_derivatives_of_the_evidence_match_finite_differences(depth, max_ra
     if max_range == 20.0:
         assert log_far_w - log_z > -12  # the far term matters here
     total = np.logaddexp(log_c[-1], log_d[-1])
-    first, second = _kernels._rate_derivatives(total, log_far_w, lam, max_range - model.near_m)
+    first, second = _kernels_march._rate_derivatives(total, log_far_w, lam, max_range - model.near_m)
     lo, mid, hi = (march(lam * np.exp(k * eps))[3] for k in (-1, 0, 1))
     assert first == pytest.approx((hi - lo) / (2 * eps), rel=1e-5, abs=1e-6)
     assert second == pytest.approx((hi - 2 * mid + lo) / eps**2, rel=1e-3, abs=1e-3)
@@ -523,14 +528,14 @@ def test_endpoint_asymptotic_of_the_evidence_matches_fine_quadrature_where_steep
     log_wn, means, sigmas = model._mixture_arrays()
     shift, lam = _on_grid([3.0])[0], model.rate_per_m
     for depth in (0.3, 0.8, 1.5):  # measured at 3 m
-        slope = _kernels._log_qg_slope(depth, lam, 0.1, FB, shift, log_wn, means, sigmas)[1]
-        hi, lo = (_kernels._log_qg_slope(depth * (1 + e), lam, 0.1, FB, shift, log_wn, means, sigmas)[0]
+        slope = _kernels_table._log_qg_slope(depth, lam, 0.1, FB, shift, log_wn, means, sigmas)[1]
+        hi, lo = (_kernels_table._log_qg_slope(depth * (1 + e), lam, 0.1, FB, shift, log_wn, means, sigmas)[0]
                   for e in (1e-5, -1e-5))
         assert (hi - lo) / (2e-5 * depth) == pytest.approx(slope, rel=1e-6)  # the slope is d phi / dz
-        asymptotic = _kernels._log_c_asymptotic(depth, lam, 0.1, FB, shift, log_wn, means, sigmas)
-        quadrature = _kernels.log_integral(0.1, depth, lam, model._ku(), 0.01, 0.1, FB, shift, log_wn, means, sigmas)
-        curvature = (_kernels._log_qg_slope(depth * (1 + 1e-5), lam, 0.1, FB, shift, log_wn, means, sigmas)[1]
-                     - _kernels._log_qg_slope(depth * (1 - 1e-5), lam, 0.1, FB, shift, log_wn, means, sigmas)[1]
+        asymptotic = _kernels_table._log_c_asymptotic(depth, lam, 0.1, FB, shift, log_wn, means, sigmas)
+        quadrature = _kernels_march.log_integral(0.1, depth, lam, model._ku(), 0.01, 0.1, FB, shift, log_wn, means, sigmas)
+        curvature = (_kernels_table._log_qg_slope(depth * (1 + 1e-5), lam, 0.1, FB, shift, log_wn, means, sigmas)[1]
+                     - _kernels_table._log_qg_slope(depth * (1 - 1e-5), lam, 0.1, FB, shift, log_wn, means, sigmas)[1]
                      ) / (2e-5 * depth)
         correction = abs(curvature) / slope**2  # the first neglected term, relative
         assert asymptotic < -40 and abs(asymptotic - quadrature) < 2 * correction + 1e-4
@@ -541,7 +546,7 @@ def test_table_keys_match_numpy_unique_of_the_packed_keys():
     rng = np.random.default_rng(21)
     disparity = np.round(rng.uniform(0.5, 80.0, 5000), 1)  # repeated disparities: few distinct keys
     log_norm = np.log(rng.choice([1.0, 1.02, 1.3, 1.9], 5000))
-    unique, inverse = _kernels.table_keys(disparity, log_norm, 1 / 16, _prism._LAMBDA_STEP, _prism._KEY_L_SPAN)
+    unique, inverse = _kernels_lookup.table_keys(disparity, log_norm, 1 / 16, _prism._LAMBDA_STEP, _prism._KEY_L_SPAN)
     key = (np.rint(disparity * 16).astype(np.int64) * _prism._KEY_L_SPAN
            + np.minimum(np.rint(log_norm / _prism._LAMBDA_STEP).astype(np.int64), _prism._KEY_L_SPAN - 1))
     np.testing.assert_array_equal(unique[inverse], key)
@@ -570,7 +575,7 @@ def test_vectorised_exp_and_log_match_numpy_over_the_whole_range():
              1e-300, 709.78, 709.782712893384, 709.7827128933841, 710.0, np.inf, np.nan]
     x = np.concatenate([rng.uniform(-760.0, 720.0, 200_000), rng.uniform(-1.0, 1.0, 20_000), edges])
     got = np.empty_like(x)
-    _kernels.exp_into(x, got, x.size)
+    _kernels_math.exp_into(x, got, x.size)
     with np.errstate(over="ignore", under="ignore"):
         want = np.exp(x)
     normal = np.isfinite(want) & (want >= np.finfo(np.float64).tiny)
@@ -584,20 +589,20 @@ def test_vectorised_exp_and_log_match_numpy_over_the_whole_range():
                         [5e-324, 1e-310, np.finfo(np.float64).tiny, np.finfo(np.float64).max, 1.0, 0.5, 2.0, 0.0,
                          -0.0, -1.0, np.inf, -np.inf, np.nan]])
     got = np.empty_like(y)
-    _kernels.log_into(y, got, y.size)
+    _kernels_math.log_into(y, got, y.size)
     with np.errstate(divide="ignore", invalid="ignore"):
         want = np.log(y)
     finite = np.isfinite(want) & (want != 0.0)
     assert np.max(np.abs(got[finite] / want[finite] - 1.0)) <= 1e-13
     np.testing.assert_array_equal(got[~finite], want[~finite])
     partial = np.full(4, -7.0)
-    _kernels.exp_into(np.zeros(4), partial, 2)  # only the first n elements are written
+    _kernels_math.exp_into(np.zeros(4), partial, 2)  # only the first n elements are written
     np.testing.assert_array_equal(partial, [1.0, 1.0, -7.0, -7.0])
 
 
 def test_cell_prior_matches_expm1_on_both_sides_of_its_series_switch():
     x = np.concatenate([np.geomspace(1e-12, 0.2, 200), np.nextafter(0.2, [0.0, 1.0]), np.geomspace(0.2, 60.0, 200)])
-    p, q = np.array([_kernels._cell_prior(v) for v in x]).T
+    p, q = np.array([_kernels_lookup._cell_prior(v) for v in x]).T
     np.testing.assert_allclose(p, -np.expm1(-x), rtol=1e-11, atol=0)
     np.testing.assert_allclose(q, np.exp(-x), rtol=1e-11, atol=0)
 
@@ -611,8 +616,8 @@ def test_log_sums_skip_underflowing_exps_without_changing_a_bit():
     for x in a:
         for gap in gaps:
             b = x + gap
-            assert _kernels.logaddexp(x, b) == x + np.log1p(np.exp(b - x))
-            assert _kernels.logaddexp(b, x) == _kernels.logaddexp(x, b)
+            assert _kernels_math.logaddexp(x, b) == x + np.log1p(np.exp(b - x))
+            assert _kernels_math.logaddexp(b, x) == _kernels_math.logaddexp(x, b)
     # a narrow component thousands of sigmas away from u contributes nothing, exactly as before
     log_wn = np.log([0.8, 0.2]) - np.log([0.3, 10.0]) - 0.5 * np.log(2 * np.pi)
     means, sigmas = np.array([0.0, -2.0]), np.array([0.3, 10.0])
@@ -621,7 +626,7 @@ def test_log_sums_skip_underflowing_exps_without_changing_a_bit():
         v = log_wn - 0.5 * t * t
         best = v.max()
         plain = best + np.log(np.sum(np.exp(v - best)))
-        np.testing.assert_allclose(_kernels.log_likelihood(u, 1.0, log_wn, means, sigmas), plain, rtol=1e-15)
+        np.testing.assert_allclose(_kernels_march.log_likelihood(u, 1.0, log_wn, means, sigmas), plain, rtol=1e-15)
 
 
 def test_march_blocks_match_the_one_panel_rule_and_the_tail_bound():
@@ -632,20 +637,20 @@ def test_march_blocks_match_the_one_panel_rule_and_the_tail_bound():
     log_wn, means, sigmas = model._mixture_arrays()
     lam, ku, shift = model.rate_per_m * 1.1, model._ku(), KITTI_FB / 12.0
     for width in (0.5, 8.0):
-        z = np.array([_kernels.z_of_x(x, lam, ku) for x in _kernels.x_of_z(1.5, lam, ku) + width * np.arange(40)])
+        z = np.array([_kernels_march.z_of_x(x, lam, ku) for x in _kernels_march.x_of_z(1.5, lam, ku) + width * np.arange(40)])
         out = np.full((z.size, 3), np.nan)
         sup = np.full(z.size, np.nan)
-        scratch = np.empty((means.size + 5, _kernels._MARCH_GL * _kernels._MARCH_BLOCK))
-        for first in range(1, z.size, _kernels._MARCH_BLOCK):
-            count = min(_kernels._MARCH_BLOCK, z.size - first)
-            _kernels._log_panel_block(z, first, count, lam, 1.5, KITTI_FB, shift, log_wn, means, 1 / sigmas, out,
+        scratch = np.empty((means.size + 5, _kernels_march._MARCH_GL * _kernels_march._MARCH_BLOCK))
+        for first in range(1, z.size, _kernels_march._MARCH_BLOCK):
+            count = min(_kernels_march._MARCH_BLOCK, z.size - first)
+            _kernels_march._log_panel_block(z, first, count, lam, 1.5, KITTI_FB, shift, log_wn, means, 1 / sigmas, out,
                                       scratch)
-            _kernels._log_sup_tail_block(z, first, count, 80.0, KITTI_FB, shift, log_wn, means, 1 / sigmas, sup,
+            _kernels_march._log_sup_tail_block(z, first, count, 80.0, KITTI_FB, shift, log_wn, means, 1 / sigmas, sup,
                                          scratch)
-        ref = np.array([_kernels._log_panel_moments(a, b, lam, 1.5, KITTI_FB, shift, log_wn, means, sigmas)
+        ref = np.array([_kernels_march._log_panel_moments(a, b, lam, 1.5, KITTI_FB, shift, log_wn, means, sigmas)
                         for a, b in zip(z[:-1], z[1:])])
         np.testing.assert_allclose(out[1:], ref, rtol=0, atol=1e-8 if width < 1 else 1e-6)
-        sup_ref = [_kernels._log_sup_tail(v, 80.0, KITTI_FB, shift, log_wn, means, sigmas) for v in z[1:]]
+        sup_ref = [_kernels_march._log_sup_tail(v, 80.0, KITTI_FB, shift, log_wn, means, sigmas) for v in z[1:]]
         np.testing.assert_allclose(sup[1:], sup_ref, rtol=1e-13, atol=1e-12)
 
 
@@ -662,11 +667,11 @@ def test_log_cumsum_block_matches_a_running_logaddexp_through_minus_inf_and_unde
         if step > 0:
             out[0] = [-np.inf, -3.0, 1.0]
             for first in range(1, 41, 16):
-                _kernels._log_cumsum_block(terms, out, first, min(16, 41 - first), 1, np.empty(48))
+                _kernels_march._log_cumsum_block(terms, out, first, min(16, 41 - first), 1, np.empty(48))
             ref = np.logaddexp.accumulate(np.vstack([out[:1], terms[1:]]), axis=0)
         else:
             out[40] = [-np.inf, -3.0, 1.0]
             for last in range(39, -1, -16):
-                _kernels._log_cumsum_block(terms, out, last, min(16, last + 1), -1, np.empty(48))
+                _kernels_march._log_cumsum_block(terms, out, last, min(16, last + 1), -1, np.empty(48))
             ref = np.logaddexp.accumulate(np.vstack([out[40:], terms[40:0:-1]]), axis=0)[::-1]
         np.testing.assert_allclose(out, ref, rtol=1e-14, atol=1e-13)

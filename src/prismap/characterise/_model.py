@@ -18,7 +18,11 @@ Format (JSON, ``format_version`` 2)::
                   "selected_components": 3, "models": [...as above...],
                   "outlier": {"weight": 1e-4, "mean": 6.8, "sigma": 15.6}}, ...],
      "class_selection": {"held_out": "...", "plain_nats_per_error": ..., "conditioned_nats_per_error": ...,
-                         "candidates": [...]}}
+                         "candidates": [...]},
+     "source": "ground-truth",  # or "lidar", "self": what the errors were measured against
+     "rig": {"focal_px": 721.5, "baseline_m": 0.54, "width": 1242, "height": 375, "matcher": "sgbm",
+             "matcher_params": {...}},  # or null: the rig it was made on (see characterise/_rig.py)
+     "provenance": {...}}  # how a self-characterised model was made (min_lag, references, ...)
 
 The top-level ``models`` / ``selected_components`` are the whole-image (plain) mixture: what version 1 held,
 what a plain sensor model uses, and the model of pixels outside every class (class -1). ``classes`` tile
@@ -28,85 +32,52 @@ outlier component (the whole-image mixture's widest) mixed into its selected mix
 so no class is certain never to fail grossly (:func:`prismap.gmm.fit_outlier_weight`). A model without
 features has one class equal to the plain model. A version-1 file loads as that one class.
 
-Means and sigmas are pixels; AIC and BIC use ``k = 3G - 1`` (see :class:`prismap.gmm.MixtureFit`).
+Means and sigmas are pixels; AIC and BIC use ``k = 3G - 1`` (see :class:`prismap.gmm.MixtureFit`). ``source``,
+``rig`` and ``provenance`` are optional (a file without them was measured against ground truth on an unrecorded
+rig).
 """
 
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
-
 from prismap._files import write_text_atomic
+from prismap.characterise._class_model import ClassModel, _describe, _find_fit
 from prismap.characterise._classes import ErrorClasses
 from prismap.characterise._features import FEATURE_UNITS, LR_FEATURE, compute_features
+from prismap.characterise._model_json import (
+    MAX_COMPONENTS,
+    _classes_from_dict,
+    _fits_from_list,
+    _fits_to_list,
+    _integer,
+    _number,
+    _object,
+    _provenance_from_dict,
+    _require,
+)
 from prismap.errors import PrismapInputError
-from prismap.gmm import GaussianMixture, MixtureFit
 from prismap.stereo._base import to_grey
 
 FORMAT = "prismap-error-model"
+
+
 FORMAT_VERSION = 2
+
+
 READABLE_VERSIONS = (1, 2)
-TABLE_MIN_WEIGHT = 0.1
-MAX_COMPONENTS = 64
-"""Largest G a file may hold (EM never fits more; the bound keeps a hostile file from building huge arrays)."""
-MAX_CLASSES = 64
-_FIT_FIELDS = ("log_likelihood", "aic", "bic", "n_samples", "n_iter", "converged")
+
+
 _SHARE_TOLERANCE = 1e-6
+
+
+SOURCES = ("ground-truth", "lidar", "self")
+"""What an error model's errors were measured against: exact disparity, a LiDAR's, or the sequence's own frames."""
+
+
 HELD_OUT = "held-out"
 """``selection["criterion"]`` of a conditioned characterisation: every G (the whole image's and each class's)
 chosen by the log-likelihood of held-out errors, as the classes are (:func:`prismap.characterise.choose_classes`)."""
-
-
-def _find_fit(fits, n_components):
-    for fit in fits:
-        if fit.n_components == n_components:
-            return fit
-    raise PrismapInputError(
-        f"error model has no {n_components}-component fit; it has G = {[f.n_components for f in fits]}"
-    )
-
-
-@dataclass(frozen=True)
-class ClassModel:
-    """The fitted mixtures of one class of pixels.
-
-    Attributes
-    ----------
-    fits : tuple of MixtureFit
-        One per G, ascending.
-    selected_components : int
-    share : float in (0, 1]
-        Share of the characterised pixels (with a computed value and ground truth) in this class.
-    statistics : dict
-        As ``ErrorHistogram.statistics`` of the class's errors.
-    outlier : dict or None
-        ``{"weight", "mean", "sigma"}`` (pixels): a component mixed into the selected fit; None = none.
-    """
-
-    fits: tuple
-    selected_components: int
-    share: float = 1.0
-    statistics: dict = field(default_factory=dict)
-    outlier: dict | None = None
-
-    def __post_init__(self):
-        object.__setattr__(self, "fits", tuple(sorted(self.fits, key=lambda fit: fit.n_components)))
-        self.fit(self.selected_components)
-        if self.outlier is not None:
-            _ = self.mixture  # a bad outlier component fails here, not at first use
-
-    def fit(self, n_components):
-        """The :class:`MixtureFit` with ``n_components`` components."""
-        return _find_fit(self.fits, n_components)
-
-    @property
-    def mixture(self):
-        """The selected :class:`GaussianMixture` (pixels), with the outlier component if there is one."""
-        fitted = self.fit(self.selected_components).mixture
-        if self.outlier is None:
-            return fitted
-        return fitted.with_component(self.outlier["weight"], self.outlier["mean"], self.outlier["sigma"])
 
 
 @dataclass(frozen=True)
@@ -136,6 +107,12 @@ class ErrorModel:
         ``edge_threshold_px`` and ``texture_window_px`` the features were computed with.
     class_selection : dict
         How the classes were chosen: held-out data, held-out log-likelihoods (nats per error).
+    source : str
+        One of :data:`SOURCES`.
+    rig : dict or None
+        The rig it was made on (:func:`prismap.characterise.describe_rig`); None = not recorded.
+    provenance : dict
+        How it was made beyond the fields above (a self-characterisation's record).
     """
 
     matcher: str
@@ -150,8 +127,13 @@ class ErrorModel:
     class_models: tuple = ()
     feature_settings: dict = field(default_factory=dict)
     class_selection: dict = field(default_factory=dict)
+    source: str = "ground-truth"
+    rig: dict | None = None
+    provenance: dict = field(default_factory=dict)
 
     def __post_init__(self):
+        if self.source not in SOURCES:
+            raise PrismapInputError(f"error model `source` must be one of {list(SOURCES)}; got {self.source!r}")
         object.__setattr__(self, "fits", tuple(sorted(self.fits, key=lambda fit: fit.n_components)))
         self.fit(self.selected_components)
         classes = ErrorClasses.single() if self.classes is None else self.classes
@@ -278,6 +260,9 @@ class ErrorModel:
                 for bounds, model in zip(self.classes.to_list(), self.class_models)
             ],
             "class_selection": self.class_selection,
+            "source": self.source,
+            "rig": self.rig,
+            "provenance": self.provenance,
         }
 
     @classmethod
@@ -306,172 +291,14 @@ class ErrorModel:
         fits = _fits_from_list(data["models"], f"{source}: models")
         selection = _object(data.get("selection", {}), f"{source}: `selection`")
         statistics = _object(data.get("statistics", {}), f"{source}: `statistics`")
-        extra = {}
+        extra = _provenance_from_dict(data, source)
         if version >= 2:
-            extra = _classes_from_dict(data, source)
+            extra.update(_classes_from_dict(data, source))
         try:
             return cls(matcher["name"], dict(params), data["dataset"], bin_width, fits, selected, selection,
                        statistics, **extra)
         except PrismapInputError as exc:
             raise PrismapInputError(f"{source}: {exc}") from None
-
-
-def _describe(classes, k):
-    bounds = classes.bounds(k)
-    return ", ".join(f"{name} in [{lo:g}, {hi:g})" for name, (lo, hi) in bounds.items()) or "all pixels"
-
-
-def _fits_to_list(fits):
-    return [{"n_components": fit.n_components, **fit.mixture.to_dict(), **{k: getattr(fit, k) for k in _FIT_FIELDS}}
-            for fit in fits]
-
-
-def _fits_from_list(entries, where):
-    if not isinstance(entries, list) or not entries:
-        raise PrismapInputError(f"{where}: must be a non-empty list")
-    if len(entries) > MAX_COMPONENTS:
-        raise PrismapInputError(f"{where}: holds {len(entries)} fits; at most {MAX_COMPONENTS} are allowed")
-    fits = []
-    for index, entry in enumerate(entries):
-        at = f"{where}[{index}]"
-        _require(entry, ("n_components", "weights", "means", "sigmas", *_FIT_FIELDS), at)
-        n_components = _integer(entry["n_components"], f"{at}: `n_components`", 1, MAX_COMPONENTS)
-        for name in ("weights", "means", "sigmas"):
-            values = entry[name]
-            if not isinstance(values, list) or not all(_is_number(v) for v in values):
-                raise PrismapInputError(f"{at}: `{name}` must be a list of numbers")
-            if len(values) != n_components:
-                raise PrismapInputError(
-                    f"{at}: `n_components` is {n_components} but `{name}` has {len(values)} value(s)"
-                )
-        mixture = GaussianMixture.from_dict(entry, source=at)
-        if not isinstance(entry["converged"], bool):
-            raise PrismapInputError(f"{at}: `converged` must be true or false; got {entry['converged']!r}")
-        fits.append(MixtureFit(
-            mixture,
-            _number(entry["log_likelihood"], f"{at}: `log_likelihood`"),
-            _number(entry["aic"], f"{at}: `aic`"),
-            _number(entry["bic"], f"{at}: `bic`"),
-            _number(entry["n_samples"], f"{at}: `n_samples`", low=0.0),
-            _integer(entry["n_iter"], f"{at}: `n_iter`", 0, 10**9),
-            entry["converged"],
-        ))
-    counts = [fit.n_components for fit in fits]
-    if len(set(counts)) != len(counts):
-        raise PrismapInputError(f"{where}: G = {counts} repeats a component count")
-    return fits
-
-
-def _classes_from_dict(data, source):
-    """The class fields of a version-2 file as keyword arguments of :class:`ErrorModel`."""
-    _require(data, ("features", "classes"), source)
-    features = _object(data["features"], f"{source}: `features`")
-    _require(features, ("names",), f"{source}: `features`")
-    names = features["names"]
-    if not isinstance(names, list) or not all(isinstance(n, str) for n in names) or len(names) > len(FEATURE_UNITS):
-        raise PrismapInputError(f"{source}: `features.names` must be a list of feature names")
-    unknown = [n for n in names if n not in FEATURE_UNITS]
-    if unknown:
-        raise PrismapInputError(f"{source}: unknown feature(s) {unknown}; known: {list(FEATURE_UNITS)}")
-    settings = {}
-    if names:
-        _require(features, ("edge_threshold_px", "texture_window_px"), f"{source}: `features`")
-        settings = {
-            "edge_threshold_px": _number(features["edge_threshold_px"], f"{source}: `features.edge_threshold_px`",
-                                         low=0.0, open_low=True, high=1e6),
-            "texture_window_px": _integer(features["texture_window_px"], f"{source}: `features.texture_window_px`",
-                                          1, 10**4),
-        }
-    entries = data["classes"]
-    if not isinstance(entries, list) or not entries:
-        raise PrismapInputError(f"{source}: `classes` must be a non-empty list")
-    if len(entries) > MAX_CLASSES:
-        raise PrismapInputError(f"{source}: `classes` holds {len(entries)} classes; at most {MAX_CLASSES} are allowed")
-    lower, upper, models = [], [], []
-    for k, entry in enumerate(entries):
-        at = f"{source}: classes[{k}]"
-        _require(entry, ("bounds", "share", "selected_components", "models"), at)
-        bounds = _object(entry["bounds"], f"{at}: `bounds`")
-        if sorted(bounds) != sorted(names):
-            raise PrismapInputError(f"{at}: `bounds` must name exactly the features {names}; got {sorted(bounds)}")
-        low, high = [], []
-        for name in names:
-            pair = bounds[name]
-            if not isinstance(pair, list) or len(pair) != 2 or not all(v is None or _is_number(v) for v in pair):
-                raise PrismapInputError(f"{at}: bounds of {name!r} must be [lower or null, upper or null]")
-            low.append(-np.inf if pair[0] is None else _number(pair[0], f"{at}: lower bound of {name!r}"))
-            high.append(np.inf if pair[1] is None else _number(pair[1], f"{at}: upper bound of {name!r}"))
-        lower.append(low)
-        upper.append(high)
-        fits = _fits_from_list(entry["models"], f"{at}: models")
-        selected = _integer(entry["selected_components"], f"{at}: `selected_components`", 1, MAX_COMPONENTS)
-        share = _number(entry["share"], f"{at}: `share`", low=0.0, high=1.0)
-        statistics = _object(entry.get("statistics", {}), f"{at}: `statistics`")
-        outlier = None
-        if "outlier" in entry:
-            outlier = _object(entry["outlier"], f"{at}: `outlier`")
-            _require(outlier, ("weight", "mean", "sigma"), f"{at}: `outlier`")
-            outlier = {"weight": _number(outlier["weight"], f"{at}: `outlier.weight`", low=0.0, high=0.999999),
-                       "mean": _number(outlier["mean"], f"{at}: `outlier.mean`"),
-                       "sigma": _number(outlier["sigma"], f"{at}: `outlier.sigma`", low=0.0, open_low=True)}
-        try:
-            models.append(ClassModel(fits, selected, share, statistics, outlier))
-        except PrismapInputError as exc:
-            raise PrismapInputError(f"{at}: {exc}") from None
-    try:
-        classes = ErrorClasses(tuple(names), np.array(lower).reshape(len(entries), len(names)),
-                               np.array(upper).reshape(len(entries), len(names)))
-    except PrismapInputError as exc:
-        raise PrismapInputError(f"{source}: {exc}") from None
-    return {"classes": classes, "class_models": tuple(models), "feature_settings": settings,
-            "class_selection": _object(data.get("class_selection", {}), f"{source}: `class_selection`")}
-
-
-def _is_number(value):
-    return isinstance(value, (int, float)) and not isinstance(value, bool)
-
-
-def _number(value, where, *, low=-np.inf, high=np.inf, open_low=False):
-    """``float(value)`` for a finite JSON number in range, else a one-line error naming ``where``."""
-    if not _is_number(value):
-        raise PrismapInputError(f"{where} must be a number; got {type(value).__name__} {_short(value)}")
-    try:
-        number = float(value)
-    except OverflowError:
-        number = np.inf
-    if not np.isfinite(number) or number < low or number > high or (open_low and number == low):
-        interval = f"{'(' if open_low else '['}{low:g}, {high:g}]"
-        raise PrismapInputError(f"{where} must be a finite number in {interval}; got {_short(value)}")
-    return number
-
-
-def _integer(value, where, low, high):
-    """``int(value)`` for a whole JSON number in ``[low, high]`` (2.0 is 2; 2.7 and "2" are errors)."""
-    if not _is_number(value) or (isinstance(value, float) and not (np.isfinite(value) and value.is_integer())):
-        raise PrismapInputError(f"{where} must be a whole number; got {_short(value)}")
-    number = int(value)
-    if not low <= number <= high:
-        raise PrismapInputError(f"{where} must lie in [{low}, {high}]; got {_short(value)}")
-    return number
-
-
-def _object(value, where):
-    if not isinstance(value, dict):
-        raise PrismapInputError(f"{where} must be a JSON object; got {type(value).__name__}")
-    return dict(value)
-
-
-def _short(value):
-    text = repr(value)
-    return text if len(text) <= 40 else text[:37] + "..."
-
-
-def _require(data, fields, source):
-    if not isinstance(data, dict):
-        raise PrismapInputError(f"{source}: expected a JSON object; got {type(data).__name__}")
-    missing = [name for name in fields if name not in data]
-    if missing:
-        raise PrismapInputError(f"{source}: missing field(s) {missing}")
 
 
 def write_error_model(model, path):
@@ -506,104 +333,3 @@ def load_error_model(path):
     except (UnicodeDecodeError, ValueError) as exc:  # JSONDecodeError, and integers too long to convert
         raise PrismapInputError(f"error model {path}: not valid JSON ({str(exc)[:120]})") from None
     return ErrorModel.from_dict(data, source=f"error model {path}")
-
-
-def format_table(model):
-    """Markdown table of the fits in the layout of the thesis's tables 3.1-3.3.
-
-    One row per G with AIC, BIC and ``mu, sigma, w`` per component, heaviest component first. Like the
-    thesis, rows with more than three components list only the components with weight > 0.1 (the
-    rest are summed in a note); the selected G is marked. A conditioned model adds a per-class table:
-    each class's bounds, share of pixels, bad-2px rate and selected mixture, and the held-out
-    log-likelihoods that chose the classes.
-    """
-    stats = model.statistics
-    lines = [
-        f"# Disparity error model: {model.matcher} on {model.dataset}",
-        "",
-        (f"Errors e = d_true - d_computed (px): {stats.get('n_errors', '?')} from {stats.get('n_frames', '?')} "
-         f"frame(s); coverage {_percent(stats.get('coverage'))}, bad-1px {_percent(stats.get('bad_1px'))}, "
-         f"bad-2px {_percent(stats.get('bad_2px'))}, mean |e| {_decimal(stats.get('mean_abs_error_px'))} px; "
-         f"histogram bin width {model.bin_width:g} px."),
-        "",
-        (f"Selected G = {model.selected_components} (marked *): " + _selection_rule(model.selection) + " "
-         "AIC = 2k - 2 ln L and BIC = k ln N - 2 ln L with k = 3G - 1 (the thesis printed 2G as the AIC "
-         f"penalty). Rows with G > 3 list only components with weight > {TABLE_MIN_WEIGHT}, as in the thesis."),
-        "",
-    ]
-    shown = []
-    for fit in model.fits:
-        components = _components(fit.mixture)
-        if fit.n_components > 3:
-            components = [c for c in components if c[2] > TABLE_MIN_WEIGHT]
-        shown.append((fit, components))
-    width = max(len(components) for _, components in shown)
-    header = ["G", "AIC", "BIC"] + [f"{s}{j + 1}" for j in range(width) for s in ("µ", "σ", "w")]
-    lines += ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    notes = []
-    for fit, components in shown:
-        mark = "*" if fit.n_components == model.selected_components else ""
-        cells = [f"{fit.n_components}{mark}", f"{fit.aic:.6g}", f"{fit.bic:.6g}"]
-        for mu, sigma, weight in components:
-            cells += [f"{mu:.2f}", f"{sigma:.2f}", f"{weight:.2f}"]
-        cells += [""] * (len(header) - len(cells))
-        lines.append("| " + " | ".join(cells) + " |")
-        hidden = fit.n_components - len(components)
-        if hidden:
-            rest = 1.0 - sum(c[2] for c in components)
-            notes.append(f"G = {fit.n_components}: {hidden} component(s) with weight <= {TABLE_MIN_WEIGHT} "
-                         f"(together {rest:.2f}) not shown.")
-    return "\n".join(lines + ([""] + notes if notes else []) + _class_lines(model)) + "\n"
-
-
-def _selection_rule(selection):
-    """How G was selected, in words."""
-    if selection.get("criterion") == HELD_OUT:
-        return (f"the G with the highest log-likelihood of held-out errors ({selection.get('held_out', '?')}), "
-                "as for each class.")
-    return (f"the smallest G whose {selection.get('criterion', 'bic').upper()} is within "
-            f"{selection.get('tolerance_nats_per_error', 0)} nats per error of the best.")
-
-
-def _class_lines(model):
-    """The per-class view: bounds, share, bad pixels and the selected mixture of each class."""
-    record = model.class_selection
-    lines = []
-    if record:
-        lines += ["", "## Error classes", "",
-                  (f"Chosen by held-out log-likelihood ({record.get('held_out', '?')}): plain "
-                   f"{_decimal(record.get('plain_nats_per_error'))} nats per error, chosen classes "
-                   f"{_decimal(record.get('conditioned_nats_per_error'))} nats per error over "
-                   f"{record.get('n_held_out_errors', '?')} held-out errors.")]
-    if not model.conditioned:
-        return lines + (["", "The plain model predicts held-out errors best: one class."] if record else [])
-    units = {name: FEATURE_UNITS[name] for name in model.classes.features}
-    lines += ["", "Features: " + ", ".join(f"{name} ({unit})" for name, unit in units.items()) + "."
-              + (" G \"+ 1\": the whole-image mixture's widest component mixed in with weight w."
-                 if any(m.outlier is not None for m in model.class_models) else ""), ""]
-    width = max(m.mixture.n_components for m in model.class_models)
-    header = ["class", "bounds", "share", "bad-2px", "G"] + [f"{s}{j + 1}" for j in range(width) for s in ("µ", "σ", "w")]
-    lines += ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    for k, class_model in enumerate(model.class_models):
-        cells = [str(k), _describe(model.classes, k), _percent(class_model.share),
-                 _percent(class_model.statistics.get("bad_2px")),
-                 str(class_model.selected_components)
-                 + ("" if class_model.outlier is None else f" + 1 (w {class_model.outlier['weight']:.1e})")]
-        for mu, sigma, weight in _components(class_model.mixture):
-            cells += [f"{mu:.2f}", f"{sigma:.2f}", f"{weight:.2f}"]
-        cells += [""] * (len(header) - len(cells))
-        lines.append("| " + " | ".join(cells) + " |")
-    return lines
-
-
-def _components(mixture):
-    order = sorted(range(mixture.n_components), key=lambda j: -mixture.weights[j])
-    return [(mixture.means[j], mixture.sigmas[j], mixture.weights[j]) for j in order]
-
-
-def _percent(value):
-    return "?" if value is None else f"{100 * value:.1f} %"
-
-
-def _decimal(value):
-    return "?" if value is None else f"{value:.3f}"

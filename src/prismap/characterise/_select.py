@@ -22,9 +22,9 @@ import dataclasses
 import numpy as np
 
 from prismap._validate import check_integer
+from prismap.characterise._class_model import ClassModel
 from prismap.characterise._classes import ErrorClasses
 from prismap.characterise._histogram import ErrorHistogram
-from prismap.characterise._model import ClassModel
 from prismap.errors import PrismapInputError
 from prismap.gmm import GaussianMixture, fit_mixtures, fit_outlier_weight, select_components
 

@@ -5,7 +5,9 @@ import contextlib
 import json
 import logging
 import math
+import os
 import shlex
+import sys
 from pathlib import Path
 
 from prismap._files import write_text_atomic
@@ -52,6 +54,9 @@ def register(subparsers):
                              "2016; the same as --model-param prior=map); ray mode, not on Dask")
     parser.add_argument("--plain", action="store_true",
                         help="use the error model's whole-image mixture for every pixel, not its classes")
+    parser.add_argument("--strict-rig", action="store_true",
+                        help="refuse an error model made on another rig (focal length, baseline, image size, matcher "
+                             "or its parameters differ; default: print a warning naming both)")
     parser.add_argument("--voxel", required=True, type=float, metavar="M", help="voxel size in metres")
     parser.add_argument("--p0", type=float, default=0.05, help="prior occupancy of a voxel (default 0.05)")
     parser.add_argument("--mode", choices=("ray", "projective"), default="ray", help="integration mode (default ray)")
@@ -78,8 +83,9 @@ def run(args):
 
     if args.checkpoint_every < 0:
         raise PrismapInputError(f"--checkpoint-every must be >= 0; got {args.checkpoint_every}")
-    if args.workers is not None and args.workers < 1:
-        raise PrismapInputError(f"--workers must be >= 1; got {args.workers}")
+    if args.workers is not None and not 1 <= args.workers <= usable_cores():
+        raise PrismapInputError(f"--workers must lie in [1, {usable_cores()}] (the cores this process may use); "
+                                f"got {args.workers}")
     sequence = _open_input(args, read_sequence)
     model_params = parse_params(args.model_param, "--model-param")
     if args.map_prior:
@@ -96,6 +102,7 @@ def run(args):
         frames=parse_frames(args.frames),
     )
     model_text = _error_text(config, sequence.camera)  # a bad model option fails here, not on a frame or a worker
+    _check_rig(config, sequence, args)
     checkpoint = None
     if args.checkpoint_every:
         checkpoint = args.out.with_name(args.out.name.removesuffix(".npz") + ".checkpoint.npz")
@@ -195,6 +202,14 @@ def _open_input(args, read_sequence):
     return open_bag_argument(args)
 
 
+def usable_cores():
+    """Cores this process may run on (its CPU affinity): the most ``--workers`` a local cluster gets."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        return os.cpu_count() or 1
+
+
 def parse_params(items, option):
     """``["k=v", ...]`` as a dict; values are Python literals (numbers, booleans, strings)."""
     params = {}
@@ -238,6 +253,24 @@ def _error_text(config, camera):
     if isinstance(model, ConditionedModel):
         return f"conditioned on {model.n_classes} error classes"
     return "plain"
+
+
+def _check_rig(config, sequence, args):
+    """Warn (or refuse with ``--strict-rig``) when the error model was made on another rig than this run's."""
+    from prismap.characterise import ErrorModel, check_rig, describe_rig
+    from prismap.pipeline._config import DISPARITY_FROM_MATCHER
+    from prismap.stereo import make_matcher
+
+    if not isinstance(config.error_model, ErrorModel):
+        return
+    matcher, params = None, None
+    if config.disparity_source == DISPARITY_FROM_MATCHER:
+        matcher = config.matcher
+        params = make_matcher(config.matcher, **config.matcher_options).params()
+    rig = describe_rig(sequence.camera, None, matcher, params)
+    message = check_rig(config.error_model, rig, strict=args.strict_rig, where=f"--error-model {args.error_model}")
+    if message:
+        print(f"prismap map: warning: {message}", file=sys.stderr)
 
 
 def _disparity_dir(path):

@@ -86,13 +86,13 @@ def run_office2d(out_dir, *, n_frames=None, voxel_size_m=None, seed=0, quick=Fal
             raise PrismapInputError(f"`n_frames` must be at most {len(poses)} (the scans of the office tour); "
                                     f"got {n_frames}")
         poses = poses[np.unique(np.linspace(0, len(poses) - 1, int(n_frames)).round().astype(int))]
-    out = claim_out_dir(out_dir, settings)
     voxel = settings["voxel_size_m"]
     scanner = sim.StereoScanner2D(n_rays=settings["n_rays"], fov_deg=settings["fov_deg"],
                                   baseline_m=settings["baseline_m"], max_depth_m=settings["max_depth_m"],
                                   error_model=error_model)
     frames = list(scanner.frames(world, poses, seed=seed))
-    truth = world.ground_truth(frames, voxel, max_depth_m=settings["max_depth_m"])
+    truth = world.ground_truth(frames, voxel, max_depth_m=settings["max_depth_m"])  # refuses absurd voxel sizes
+    out = claim_out_dir(out_dir, settings)  # after every check of the settings: a refused run writes nothing
     p0 = prior_of(truth)
 
     # rays stop where the scored cells do: the farthest ray reaches max_depth_m of camera depth at |r| times it

@@ -5,6 +5,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from scipy.special import logit
 
 from prismap._files import write_text_atomic
 from prismap.errors import PrismapInputError
@@ -54,8 +55,9 @@ def model_label(name, names=()):
     return f"{model} ({', '.join(variant)})" if variant else model
 
 RESULTS_FORMAT = "prismap-experiment-results"
-RESULTS_VERSION = 2
-"""Version 2 added the safety score (``safety_occupied_called_free``, ``safety_threshold``) to the scores."""
+RESULTS_VERSION = 3
+"""Version 2 added the safety score (``safety_occupied_called_free``, ``safety_threshold``) to the scores; version 3
+the "confident and wrong" rates, the logit-spaced reliability bins and the per-frame evidence histograms."""
 
 
 @dataclass(frozen=True)
@@ -104,13 +106,18 @@ class CellResult:
             raise PrismapInputError(f"{source}: malformed experiment cell ({type(exc).__name__}: {exc})") from None
 
 
+_INTEGER_ARRAYS = ("bin_counts", "hist_free", "hist_occupied", "logit_bin_counts", "evidence_one_view",
+                   "evidence_per_view")
+"""The :class:`MapScores` arrays of counts (integers in JSON)."""
+
+
 def scores_from_dict(data):
     """A :class:`MapScores` from :meth:`MapScores.to_dict` output (null back to NaN, lists to arrays)."""
     values = {}
     for name, value in data.items():
         if isinstance(value, list):
             value = np.array([np.nan if v is None else v for v in value])
-            if name in ("bin_counts", "hist_free", "hist_occupied"):
+            if name in _INTEGER_ARRAYS:
                 value = value.astype(np.int64)
         elif value is None:
             value = float("nan")
@@ -119,11 +126,12 @@ def scores_from_dict(data):
 
 
 def score_grid(grid, truth):
-    """Score ``grid`` (OccupancyMap) on every voxel ``truth`` (GroundTruthOccupancy) observed; unknown = ``grid.p0``."""
-    keys = grid.known_voxels()[0]
+    """Score ``grid`` (OccupancyMap) on every voxel ``truth`` (GroundTruthOccupancy) observed; unknown = ``grid.p0``.
+    The per-frame evidence histograms cover every voxel the map observed."""
+    keys, log, counts = grid.known_voxels()
     probability, occupied = align_to_ground_truth(keys, grid.probability_at_keys(keys), truth.occupied_keys,
                                                   truth.observed_keys, p0=grid.p0)
-    return score_map(probability, occupied)
+    return score_map(probability, occupied, evidence=(log - logit(grid.p0), counts))
 
 
 def prior_of(truth):

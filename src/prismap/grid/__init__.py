@@ -14,12 +14,15 @@ Design notes (one owner per concept):
 - ``_overhang``: how far before its hit a voxel a ray crosses can still hold the (locally planar) surface,
   per ray, from the disparity image's plane normals (:func:`prismap.camera.plane_normals`); passed to the
   models that ``takes_voxel_overhang`` (PRISM).
+- ``_fusion``: :class:`PersistentFailure`, how a voxel's stored sums (log-odds, count) read as a probability when
+  a matcher's failures persist across views; the stored sums stay plain additions.
 - ``_traverse``: :func:`crossed_voxels`, the checked traversal for callers outside the integrators (the
   map's queries, the simulator's ground truth).
 - ``_kernels_hash``, ``_kernels_traverse``, ``_kernels_project``, ``_kernels_accumulate``: numba kernels,
   called only by the wrappers of this package.
 """
 
+from prismap.grid._fusion import PersistentFailure
 from prismap.grid._integrators import INTEGRATOR_NAMES, ImageProjection, Integrator, RayBatch, make_integrator
 from prismap.grid._keys import (
     KEY_LIMIT,
@@ -49,6 +52,7 @@ __all__ = [
     "ImageProjection",
     "Integrator",
     "OccupancyMap",
+    "PersistentFailure",
     "RayBatch",
     "crossed_voxels",
     "frame_overhang_m",

@@ -147,18 +147,23 @@ class GroundTruthFrames(LazyFrames):
         Raises
         ------
         PrismapInputError
-            A disparity at or beyond the image width, or no valid ground-truth pixel at all.
+            A disparity at or beyond the image width, no valid ground-truth pixel at all, or none above 0 px.
         """
-        largest = -np.inf
+        largest, where = -np.inf, None
         for position in progress_bar(range(len(self)), total=len(self), desc="ground truth", unit="frame",
                                      enabled=progress):
             disparity = self.disparity_gt(position)
             valid = np.isfinite(disparity)
-            if valid.any():
-                largest = max(largest, float(disparity[valid].max()))
+            if valid.any() and float(disparity[valid].max()) > largest:
+                largest, where = float(disparity[valid].max()), self._where(self.indices[position])
         if largest == -np.inf:
             raise PrismapInputError(f"{self.source}: the dataset has no valid ground-truth disparity to characterise "
                                     f"against ({len(self)} frames)")
+        if largest <= 0:
+            raise PrismapInputError(
+                f"{where}: every valid ground-truth disparity of {self.source} is <= 0 px (the largest, {largest:.6g} "
+                f"px, is in this file); a disparity (left x - right x) is positive, so it cannot set the search range"
+            )
         return largest
 
     def _where(self, index):

@@ -18,44 +18,77 @@ like a KITTI-layout :class:`~prismap.io.Sequence`: same attributes, same :class:
   an image left without a partner is an error (a bag is not silently thinned).
 - Ground truth (optional, for ``characterise``): a ``stereo_msgs/DisparityImage`` topic (pixels, values
   below ``min_disparity`` invalid) or a depth ``sensor_msgs/Image`` (``32FC1`` metres or ``16UC1``
-  millimetres, 0 invalid), stamped like the left images.
+  millimetres, 0 invalid), stamped like the left images; or a LiDAR's ``sensor_msgs/PointCloud2`` scans
+  (thesis fig. 3.16): each left image takes the scan nearest in time (within ``scan_tolerance_s``), moved
+  into the left camera by the LiDAR-to-camera transform (given, or from ``/tf_static`` between the scan's
+  and the left CameraInfo's frame ids) and, with a pose source, by the camera's motion between the scan's
+  stamp and the image's; then projected with occlusion handling (:func:`prismap.io.points_to_disparity`).
 """
 
 import contextlib
 import sqlite3
 import struct
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import cv2
 import numpy as np
-from scipy.spatial.transform import Rotation, Slerp
 
-from prismap.camera import StereoCamera
 from prismap.errors import PrismapInputError
 from prismap.io._frame import StereoFrame, frame_index
+from prismap.io._rosbag_messages import _ENCODINGS, _decode, _pixels, _rig
+from prismap.io._rosbag_poses import _interpolate, _pose_series, _seconds, _stamp_ns, _tf_poses
 
 PAIR_TOLERANCE_S = 0.005
 """Default largest |stamp difference| of a left and a right image of one frame, seconds."""
+
+
 MAX_POSE_GAP_S = 0.25
 """Default largest spacing of the two pose samples an image stamp is interpolated between, seconds."""
 
+
 IMAGE = "sensor_msgs/msg/Image"
+
+
 COMPRESSED = "sensor_msgs/msg/CompressedImage"
+
+
 CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
+
+
 DISPARITY = "stereo_msgs/msg/DisparityImage"
+
+
 ODOMETRY = "nav_msgs/msg/Odometry"
+
+
 POSE_STAMPED = "geometry_msgs/msg/PoseStamped"
+
+
 TF = "tf2_msgs/msg/TFMessage"
-_ENCODINGS = {"mono8": 1, "rgb8": 3, "bgr8": 3}
+
+
+POINTCLOUD2 = "sensor_msgs/msg/PointCloud2"
+
+
+SCAN_TOLERANCE_S = 0.05
+"""Default largest |stamp difference| of a left image and the LiDAR scan that is its ground truth, seconds."""
+
+
+LIDAR_OCCLUSION_WINDOW_PX = 2
+"""Half-width of the window in which a nearer LiDAR point hides a farther one (see ``points_to_disparity``)."""
+
+
 _DEPTH_ENCODINGS = {"32FC1": (np.float32, 1.0), "16UC1": (np.uint16, 1e-3)}
-_DISTORTIONS = ("plumb_bob", "rational_polynomial", "equidistant", "")
+
+
 _DAMAGE = (struct.error, EOFError, KeyError, IndexError, ValueError, OSError, sqlite3.DatabaseError)
 """What rosbags raises, besides its own errors, for a file cut short."""
 
 
 def read_bag(path, *, left, right, left_info=None, right_info=None, pose_topic=None, tf_frames=None,
-             truth_topic=None, rectified=None, pair_tolerance_s=PAIR_TOLERANCE_S, max_pose_gap_s=MAX_POSE_GAP_S):
+             truth_topic=None, rectified=None, pair_tolerance_s=PAIR_TOLERANCE_S, max_pose_gap_s=MAX_POSE_GAP_S,
+             lidar_topic=None, T_cam_lidar=None, scan_tolerance_s=SCAN_TOLERANCE_S):
     """Open a stereo recording in a ROS bag as a sequence (see the module docstring).
 
     Parameters
@@ -73,6 +106,12 @@ def read_bag(path, *, left, right, left_info=None, right_info=None, pose_topic=N
         Without either, frames have no pose (enough for ``characterise``).
     truth_topic : str or None
         Ground-truth ``stereo_msgs/DisparityImage`` or depth image topic, giving ``disparity_gt``.
+    lidar_topic : str or None
+        ``sensor_msgs/PointCloud2`` scans giving ``disparity_gt`` instead (module docstring).
+    T_cam_lidar : (4, 4) float or None
+        LiDAR -> left camera transform; None = from ``/tf_static``.
+    scan_tolerance_s : float, seconds
+        Largest |stamp difference| of an image and its scan.
     rectified : bool or None
         Whether the images are already rectified. None: yes when both image topics contain ``image_rect``
         or the calibration needs no remapping (``D = 0``, ``R = I``, ``K = P[:, :3]``), else no.
@@ -88,11 +127,13 @@ def read_bag(path, *, left, right, left_info=None, right_info=None, pose_topic=N
     PrismapInputError
         The bag is missing or unreadable (e.g. truncated); a topic is missing or of the wrong type; an image
         encoding is unsupported; a camera_info has a zero focal length or is not a rectified stereo pair; an
-        image has no partner or no pose within the tolerances. The message names the topic (and stamp).
+        image has no partner or no pose within the tolerances; no LiDAR-to-camera transform; a scan too far
+        in time from its image, or with no point in the image. The message names the topic (and stamp).
     """
     return BagSequence(path, left=left, right=right, left_info=left_info, right_info=right_info,
                        pose_topic=pose_topic, tf_frames=tf_frames, truth_topic=truth_topic, rectified=rectified,
-                       pair_tolerance_s=pair_tolerance_s, max_pose_gap_s=max_pose_gap_s)
+                       pair_tolerance_s=pair_tolerance_s, max_pose_gap_s=max_pose_gap_s, lidar_topic=lidar_topic,
+                       T_cam_lidar=T_cam_lidar, scan_tolerance_s=scan_tolerance_s)
 
 
 class BagSequence:
@@ -117,11 +158,14 @@ class BagSequence:
     ground_truth = None
 
     def __init__(self, path, *, left, right, left_info=None, right_info=None, pose_topic=None, tf_frames=None,
-                 truth_topic=None, rectified=None, pair_tolerance_s=PAIR_TOLERANCE_S, max_pose_gap_s=MAX_POSE_GAP_S):
+                 truth_topic=None, rectified=None, pair_tolerance_s=PAIR_TOLERANCE_S, max_pose_gap_s=MAX_POSE_GAP_S,
+                 lidar_topic=None, T_cam_lidar=None, scan_tolerance_s=SCAN_TOLERANCE_S):
         self.path = Path(path)
         self._access = None
         if pose_topic is not None and tf_frames is not None:
             raise PrismapInputError("give a pose topic or tf frames (WORLD:CAMERA), not both")
+        if truth_topic is not None and lidar_topic is not None:
+            raise PrismapInputError("give a ground-truth topic or a LiDAR topic, not both")
         left_info = left_info or _info_topic(left)
         right_info = right_info or _info_topic(right)
         with _open(self.path) as reader:
@@ -134,11 +178,14 @@ class BagSequence:
                 wanted[truth_topic] = (DISPARITY, IMAGE)
             if tf_frames is not None:
                 wanted["/tf"] = (TF,)
+            if lidar_topic is not None:
+                wanted[lidar_topic] = (POINTCLOUD2,)
             for topic, types in wanted.items():
                 _check_topic(connections, topic, types, self.path)
-            topics = list(wanted) + (["/tf_static"] if "/tf_static" in connections and tf_frames else [])
+            static = "/tf_static" in connections and (tf_frames or (lidar_topic and T_cam_lidar is None))
+            topics = list(wanted) + (["/tf_static"] if static else [])
             messages = _scan(reader, [c for t in topics for c in connections[t]], self.path)
-        self._topics = {"left": left, "right": right, "truth": truth_topic}
+        self._topics = {"left": left, "right": right, "truth": truth_topic or lidar_topic}
         self._types = {topic: connections[topic][0].msgtype for topic in topics}
         self._left, self._right = messages[left], messages[right]
         if not self._left:
@@ -164,6 +211,20 @@ class BagSequence:
         elif tf_frames is not None:
             self.poses = _tf_poses(messages["/tf"], messages.get("/tf_static", []), tf_frames, self.stamps_ns,
                                    max_pose_gap_s)
+        self._lidar = None
+        if lidar_topic is not None:
+            camera_frame = messages[left_info][0][2].header.frame_id
+            self._lidar = _lidar_setup(messages, lidar_topic, T_cam_lidar, camera_frame, self._left, left,
+                                       scan_tolerance_s)
+            self._truth = self._lidar.scans
+            if self.poses is not None:  # the camera's motion between each scan and its image
+                scan_stamps = np.array([stamp for stamp, _, _ in self._truth], dtype=np.int64)
+                if pose_topic is not None:
+                    at_scan = _interpolate(series, scan_stamps, max_pose_gap_s, pose_topic)
+                else:
+                    at_scan = _tf_poses(messages["/tf"], messages.get("/tf_static", []), tf_frames, scan_stamps,
+                                        max_pose_gap_s)
+                self._lidar = replace(self._lidar, image_from_scan=np.linalg.inv(self.poses) @ at_scan)
 
     def _check_encodings(self, messages, left, right, truth_topic):
         checks = [(left, _ENCODINGS), (right, _ENCODINGS)]
@@ -209,7 +270,9 @@ class BagSequence:
         if right.shape != left.shape:
             raise PrismapInputError(f"{self.path}: frame {index}: right image shape {right.shape} != left {left.shape}")
         disparity = None
-        if self._truth is not None:
+        if self._lidar is not None:
+            disparity = self._lidar.disparity(found["truth"], index, self.camera, self.path)
+        elif self._truth is not None:
             disparity = self._disparity(found["truth"])
         pose = None if self.poses is None else self.poses[index].copy()
         return StereoFrame(left, right, self.camera, disparity, pose,
@@ -222,7 +285,7 @@ class BagSequence:
     def disparity_gt(self, index):
         """Ground-truth disparity of frame ``index`` from the truth topic: (H, W) float32, pixels, NaN = unknown."""
         if self._truth is None:
-            raise PrismapInputError(f"{self.path}: no ground-truth topic was given (--truth-topic)")
+            raise PrismapInputError(f"{self.path}: no ground-truth topic was given (--truth-topic or --lidar-topic)")
         return self[index].disparity_gt
 
     def _reader(self):
@@ -265,6 +328,66 @@ class BagSequence:
         dtype, scale = _DEPTH_ENCODINGS[msg.encoding]
         depth = _pixels(msg, topic, {msg.encoding: (dtype, 1)}).astype(np.float64) * scale
         return self.camera.disparity_from_depth(np.where(depth > 0, depth, np.nan)).astype(np.float32)
+
+
+@dataclass(frozen=True)
+class _Lidar:
+    """How a bag's LiDAR scans become each frame's ground-truth disparity.
+
+    Attributes
+    ----------
+    topic : str
+    scans : list of (stamp ns, bag time ns, frame id)
+        The scan of each frame.
+    T_cam_lidar : (4, 4) float64
+    image_from_scan : (N, 4, 4) float64 or None
+        Per frame, the camera at the scan's stamp -> the camera at the image's (None: no pose source, no
+        motion compensation).
+    """
+
+    topic: str
+    scans: list
+    T_cam_lidar: np.ndarray
+    image_from_scan: np.ndarray | None = None
+
+    def disparity(self, msg, index, camera, path):
+        """Frame ``index``'s ground-truth disparity from its scan ``msg`` (occlusions handled)."""
+        from prismap.io._pointcloud2 import pointcloud2_xyz
+        from prismap.io._velodyne import points_to_disparity
+
+        where = f"{path}: topic {self.topic} at stamp {_seconds(self.scans[index][0])} s"
+        points = pointcloud2_xyz(msg, where)
+        T = self.T_cam_lidar if self.image_from_scan is None else self.image_from_scan[index] @ self.T_cam_lidar
+        disparity = points_to_disparity(points @ T[:3, :3].T + T[:3, 3], camera,
+                                        occlusion_window_px=LIDAR_OCCLUSION_WINDOW_PX)
+        if not np.isfinite(disparity).any():
+            raise PrismapInputError(f"{where}: none of the scan's {len(points)} points lies in front of the camera "
+                                    "inside its image (wrong extrinsics, or a scan of another direction?)")
+        return disparity
+
+
+def _lidar_setup(messages, topic, T_cam_lidar, camera_frame, left_items, left, tolerance_s):
+    """The :class:`_Lidar` of a bag: each left image's scan (of ``messages[topic]``, nearest in time to each of
+    ``left_items``) and the LiDAR-to-camera transform (``T_cam_lidar``, else ``/tf_static``)."""
+    scans = messages[topic]
+    if not scans:
+        raise PrismapInputError(f"topic {topic} has no scans")
+    index, _ = _pair(left_items, scans, left, topic, tolerance_s, both=False)
+    frame_ids = {meta for _, _, meta in scans}
+    if len(frame_ids) != 1:
+        raise PrismapInputError(f"topic {topic}: scans come in several frames {sorted(frame_ids)}; expected one")
+    if T_cam_lidar is None:
+        lidar_frame = frame_ids.pop()
+        if "/tf_static" not in messages:
+            raise PrismapInputError(f"no transform from the LiDAR frame {lidar_frame!r} to the camera frame "
+                                    f"{camera_frame!r}: the bag has no /tf_static; give --lidar-extrinsics FILE")
+        try:
+            first = np.array([left_items[0][0]], dtype=np.int64)
+            T_cam_lidar = _tf_poses([], messages["/tf_static"], (camera_frame, lidar_frame), first, 0.0)[0]
+        except PrismapInputError as exc:
+            raise PrismapInputError(f"no transform from the LiDAR frame {lidar_frame!r} to the camera frame "
+                                    f"{camera_frame!r} in /tf_static ({exc}); give --lidar-extrinsics FILE") from None
+    return _Lidar(topic, [scans[i] for i in index], np.asarray(T_cam_lidar, dtype=np.float64))
 
 
 def _info_topic(image_topic):
@@ -374,7 +497,9 @@ def _scan(reader, connections, path):
     for connection, bag_time, raw in reader.messages(connections):
         msg = _deserialize(reader, raw, connection, path)
         stamp = _stamp_ns(msg.header) if hasattr(msg, "header") else bag_time
-        if connection.msgtype in (IMAGE, DISPARITY):
+        if connection.msgtype == POINTCLOUD2:
+            msg = msg.header.frame_id.strip("/")  # points are read again on access
+        elif connection.msgtype in (IMAGE, DISPARITY):
             image = msg.image if connection.msgtype == DISPARITY else msg
             msg = _ImageMeta(image.encoding, (image.height, image.width))
         elif connection.msgtype == COMPRESSED:
@@ -383,15 +508,6 @@ def _scan(reader, connections, path):
     for items in out.values():
         items.sort(key=lambda item: item[0])
     return out
-
-
-def _stamp_ns(header):
-    return int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
-
-
-def _seconds(stamp_ns):
-    """A stamp in nanoseconds as exact decimal seconds, for messages."""
-    return f"{int(stamp_ns) // 1_000_000_000}.{int(stamp_ns) % 1_000_000_000:09d}"
 
 
 def _pair(first, second, first_topic, second_topic, tolerance_s, *, both=True):
@@ -425,180 +541,3 @@ def _pair(first, second, first_topic, second_topic, tolerance_s, *, both=True):
             f"within {tolerance_s} s ({b.size - j.size} unpaired)"
         )
     return np.arange(a.size), j
-
-
-def _field(msg, name):
-    """A CameraInfo matrix field: ROS 2 spells it lower case (``k``), ROS 1 upper case (``K``)."""
-    return np.asarray(getattr(msg, name) if hasattr(msg, name) else getattr(msg, name.upper()), dtype=np.float64)
-
-
-def _rig(left_infos, right_infos, left_topic, right_topic, shape, rectified):
-    """The rectified camera and the remap tables ``((x, y) left, (x, y) right)``, or None when rectified."""
-    infos = []
-    for topic, items in ((left_topic, left_infos), (right_topic, right_infos)):
-        if not items:
-            raise PrismapInputError(f"topic {topic} has no camera_info message")
-        msg = items[0][2]
-        K, D, R, P = _field(msg, "k").reshape(3, 3), _field(msg, "d"), _field(msg, "r").reshape(3, 3), \
-            _field(msg, "p").reshape(3, 4)
-        if not (K[0, 0] > 0 and K[1, 1] > 0 and P[0, 0] > 0 and P[1, 1] > 0):
-            raise PrismapInputError(
-                f"topic {topic}: camera_info has a zero or negative focal length (K fx, fy = {K[0, 0]}, {K[1, 1]}; "
-                f"P fx, fy = {P[0, 0]}, {P[1, 1]}): the camera is not calibrated"
-            )
-        if (msg.height, msg.width) != shape and msg.height and msg.width:
-            raise PrismapInputError(f"topic {topic}: camera_info is for {msg.width}x{msg.height} images; "
-                                    f"the images are {shape[1]}x{shape[0]}")
-        infos.append((topic, msg.distortion_model, K, D, R, P))
-    try:
-        camera = StereoCamera.from_kitti_projections(infos[0][5], infos[1][5], width=shape[1], height=shape[0])
-    except PrismapInputError as exc:
-        raise PrismapInputError(f"topics {left_topic}, {right_topic}: the P matrices are not a rectified stereo "
-                                f"pair as stereo_image_proc publishes them (right P[0, 3] = -fx * baseline): {exc}") from None
-    if rectified is None:
-        rectified = all(not np.any(D) and np.allclose(R, np.eye(3)) and np.allclose(K, P[:, :3])
-                        for _, _, K, D, R, P in infos)
-    if rectified:
-        return camera, None
-    maps = []
-    for topic, model, K, D, R, P in infos:
-        if model not in _DISTORTIONS:
-            raise PrismapInputError(f"topic {topic}: distortion model {model!r} not supported; expected one of "
-                                    f"{[m for m in _DISTORTIONS if m]}")
-        size = (shape[1], shape[0])
-        if model == "equidistant":
-            maps.append(cv2.fisheye.initUndistortRectifyMap(K, D[:4], R, P[:, :3], size, cv2.CV_32FC1))
-        else:
-            maps.append(cv2.initUndistortRectifyMap(K, D, R, P[:, :3], size, cv2.CV_32FC1))
-    return camera, maps
-
-
-def _pixels(msg, topic, encodings):
-    """The (H, W[, C]) array of a ``sensor_msgs/Image`` whose encoding is in ``encodings`` {name: (dtype, channels)}."""
-    if msg.encoding not in encodings:
-        raise PrismapInputError(f"topic {topic}: image encoding {msg.encoding!r} is not supported; "
-                                f"expected one of {sorted(encodings)}")
-    dtype, channels = encodings[msg.encoding]
-    dtype = np.dtype(dtype).newbyteorder(">" if msg.is_bigendian else "<")
-    row_bytes = msg.width * channels * dtype.itemsize
-    data = np.asarray(msg.data, dtype=np.uint8)
-    if msg.step < row_bytes or data.size < msg.step * msg.height:
-        raise PrismapInputError(f"topic {topic}: image data of {data.size} bytes is too short for "
-                                f"{msg.width}x{msg.height} {msg.encoding} (step {msg.step})")
-    rows = data[:msg.step * msg.height].reshape(msg.height, msg.step)[:, :row_bytes]
-    values = np.ascontiguousarray(rows).view(dtype).reshape(msg.height, msg.width, channels)
-    return values[..., 0] if channels == 1 else values
-
-
-def _decode(msg, topic):
-    """An image message as (H, W) grey or (H, W, 3) RGB uint8."""
-    if hasattr(msg, "encoding"):
-        image = _pixels(msg, topic, {name: (np.uint8, c) for name, c in _ENCODINGS.items()})
-        return np.ascontiguousarray(image[..., ::-1]) if msg.encoding == "bgr8" else image
-    image = cv2.imdecode(np.asarray(msg.data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
-    if image is None or image.dtype != np.uint8 or image.ndim not in (2, 3):
-        raise PrismapInputError(f"topic {topic}: compressed image (format {msg.format!r}) does not decode to 8 bits")
-    if image.ndim == 3:
-        image = cv2.cvtColor(image, cv2.COLOR_BGRA2RGB if image.shape[2] == 4 else cv2.COLOR_BGR2RGB)
-    return image
-
-
-def _pose_series(items, topic):
-    """``(stamps ns, translations (N, 3), Rotation)`` of an Odometry or PoseStamped topic."""
-    if not items:
-        raise PrismapInputError(f"topic {topic} has no pose messages")
-    poses = [msg.pose.pose if hasattr(msg, "child_frame_id") else msg.pose for _, _, msg in items]
-    stamps = np.array([stamp for stamp, _, _ in items], dtype=np.int64)
-    translations = np.array([[p.position.x, p.position.y, p.position.z] for p in poses])
-    quaternions = np.array([[p.orientation.x, p.orientation.y, p.orientation.z, p.orientation.w] for p in poses])
-    return _series(stamps, translations, quaternions, topic)
-
-
-def _series(stamps, translations, quaternions, what):
-    norms = np.linalg.norm(quaternions, axis=1)
-    if not np.all(np.isfinite(translations)) or not np.all(np.abs(norms - 1) < 1e-3):
-        raise PrismapInputError(f"{what}: poses must be finite with unit quaternions; got norms in "
-                                f"[{norms.min():.6g}, {norms.max():.6g}]")
-    stamps, first = np.unique(stamps, return_index=True)
-    return stamps, translations[first], Rotation.from_quat(quaternions[first])
-
-
-def _interpolate(series, stamps_ns, max_gap_s, what):
-    """(N, 4, 4) poses of ``series`` at ``stamps_ns``: linear position, slerp rotation, bounded gap."""
-    times, translations, rotations = series
-    t = np.asarray(stamps_ns, dtype=np.int64)
-    after = np.searchsorted(times, t)
-    exact = (after < times.size) & (times[np.minimum(after, times.size - 1)] == t)
-    inside = (after > 0) & (after < times.size)
-    gap = np.where(inside, times[np.clip(after, 1, times.size - 1)] - times[np.clip(after - 1, 0, times.size - 1)], 0)
-    bad = ~exact & (~inside | (gap > max_gap_s * 1e9))
-    if np.any(bad):
-        stamp = t[np.argmax(bad)]
-        raise PrismapInputError(
-            f"{what}: no pose within {max_gap_s} s around the image stamp {_seconds(stamp)} s (samples span "
-            f"{_seconds(times[0])}-{_seconds(times[-1])} s; {int(bad.sum())} image(s) without a pose)"
-        )
-    seconds = (times - times[0]) * 1e-9
-    query = (t - times[0]) * 1e-9
-    poses = np.tile(np.eye(4), (t.size, 1, 1))
-    for axis in range(3):
-        poses[:, axis, 3] = np.interp(query, seconds, translations[:, axis])
-    poses[:, :3, :3] = (Slerp(seconds, rotations)(query) if times.size > 1 else rotations[np.zeros(t.size, int)]).as_matrix()
-    return poses
-
-
-def _tf_poses(dynamic, static, frames, stamps_ns, max_gap_s):
-    """``T_world_cam`` at ``stamps_ns`` from ``/tf`` and ``/tf_static`` messages: WORLD -> ... -> CAMERA, edge by edge.
-
-    A dynamic edge is interpolated at each stamp (:func:`_interpolate`); a static one holds its last value.
-    """
-    world, camera = frames
-    edges = {}  # child -> (parent, [(stamp, translation, quaternion)], static)
-    for items, is_static in ((dynamic, False), (static, True)):
-        for _, _, msg in items:
-            for transform in msg.transforms:
-                child, parent = transform.child_frame_id.strip("/"), transform.header.frame_id.strip("/")
-                t, q = transform.transform.translation, transform.transform.rotation
-                entry = edges.setdefault(child, (parent, [], is_static))
-                if entry[0] != parent or entry[2] != is_static:
-                    raise PrismapInputError(f"/tf: frame {child!r} has two parents or is both static and dynamic "
-                                            f"({entry[0]!r}, {parent!r})")
-                entry[1].append((_stamp_ns(transform.header), [t.x, t.y, t.z], [q.x, q.y, q.z, q.w]))
-    world, camera = world.strip("/"), camera.strip("/")
-
-    def chain(frame):
-        path = [frame]
-        while path[-1] in edges:
-            path.append(edges[path[-1]][0])
-            if len(path) > len(edges) + 1:
-                raise PrismapInputError(f"/tf: the frames above {frame!r} form a loop")
-        return path
-
-    up_camera, up_world = chain(camera), chain(world)
-    common = next((f for f in up_camera if f in up_world), None)
-    if common is None:
-        raise PrismapInputError(f"/tf, /tf_static: no chain of transforms joins frames {world!r} and {camera!r}; "
-                                f"known frames are {sorted(set(edges) | {p for p, _ in edges.values()})}")
-
-    def to_ancestor(path):
-        """(N, 4, 4) T_ancestor_frame along ``path`` (frame first, ancestor last)."""
-        T = np.tile(np.eye(4), (len(stamps_ns), 1, 1))
-        for child in path[:-1]:
-            parent, samples, is_static = edges[child]
-            samples = sorted(samples, key=lambda s: s[0])
-            what = f"{'/tf_static' if is_static else '/tf'} {parent} -> {child}"
-            if is_static:
-                samples = samples[-1:]
-            stamps = np.array([s[0] for s in samples], dtype=np.int64)
-            series = _series(stamps, np.array([s[1] for s in samples]), np.array([s[2] for s in samples]), what)
-            if is_static:
-                step = np.eye(4)
-                step[:3, :3], step[:3, 3] = series[2].as_matrix()[0], series[1][0]
-            else:
-                step = _interpolate(series, stamps_ns, max_gap_s, what)
-            T = step @ T
-        return T
-
-    T_common_cam = to_ancestor(up_camera[:up_camera.index(common) + 1])
-    T_common_world = to_ancestor(up_world[:up_world.index(common) + 1])
-    return np.linalg.inv(T_common_world) @ T_common_cam

@@ -255,7 +255,7 @@ def _map_frames(sequence, config, indices, progress, checkpoint, checkpoint_ever
     fingerprint = None
     if checkpoint is not None:
         fingerprint = run_fingerprint(sequence, config)
-        grid = open_checkpoint(checkpoint, fingerprint)
+        grid = open_checkpoint(checkpoint, fingerprint, config, len(indices))
     grid = new_map(config) if grid is None else grid
     todo = indices[grid.n_frames:]
     bar = progress_bar(total=len(indices), desc=f"map {config.label}", unit="frame", enabled=None if progress else False)

@@ -16,13 +16,9 @@ from prismap.sensor_models._conditioned import (
     conditioned_sensor_model,
     model_for_mixture,
 )
-from prismap.sensor_models._prism import (
-    PrismModel,
-    estimate_prior_from_likelihood,
-    log_mean_likelihood,
-    prior_from_ground_truth,
-    prism_discrete_posteriors,
-)
+from prismap.sensor_models._prism import PrismModel
+from prismap.sensor_models._prism_discrete import log_mean_likelihood, prism_discrete_posteriors
+from prismap.sensor_models._prism_prior import estimate_prior_from_likelihood, prior_from_ground_truth
 
 __all__ = [
     "CLASS_PASS_THROUGH",

@@ -14,7 +14,7 @@ from scipy.special import logit, ndtri
 
 from prismap._validate import check_positive, check_probability
 from prismap.errors import PrismapInputError
-from prismap.sensor_models import _kernels
+from prismap.sensor_models import _kernels_classic
 from prismap.sensor_models._base import register_model
 from prismap.sensor_models._params import RayModel
 
@@ -74,7 +74,7 @@ class IdealModel(_ProfileModel):
         _, norm, rays, start, end, z_hat = self._prepare(
             disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m
         )
-        return _kernels.ideal_cells(z_hat, norm, rays, start, end, 0.5 * self.alpha_m, self.p_free, self.p_occ, self.p0)
+        return _kernels_classic.ideal_cells(z_hat, norm, rays, start, end, 0.5 * self.alpha_m, self.p_free, self.p_occ, self.p0)
 
     def influence_depth(self, disparity_px, ray_norm):
         """End of the occupied band: ``z^ + alpha / (2 |r|)`` (metres)."""
@@ -112,7 +112,7 @@ class HitMissModel(RayModel):
 
     def cell_posteriors(self, disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m):
         _, _, rays, start, end, z_hat = self._prepare(disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m)
-        return _kernels.hitmiss_cells(z_hat, rays, start, end, logit(self.p_hit), logit(self.p_miss), self.p0)
+        return _kernels_classic.hitmiss_cells(z_hat, rays, start, end, logit(self.p_hit), logit(self.p_miss), self.p0)
 
     def influence_depth(self, disparity_px, ray_norm):
         """The measured depth itself (the grid includes the cell that contains it)."""
@@ -155,7 +155,7 @@ class ConvolutionModel(_ProfileModel):
         _, norm, rays, start, end, z_hat = self._prepare(
             disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m
         )
-        return _kernels.convolution_cells(
+        return _kernels_classic.convolution_cells(
             z_hat, self._sigma_depth(z_hat, self.sigma_px), norm, rays, start, end,
             0.5 * self.alpha_m, self.p_free, self.p_occ, self.p0,
         )
@@ -213,7 +213,7 @@ class AndertModel(RayModel):
         _, norm, rays, start, end, z_hat = self._prepare(
             disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m
         )
-        return _kernels.andert_cells(
+        return _kernels_classic.andert_cells(
             z_hat, self._sigma_depth(z_hat, self.sigma_px), norm, rays, start, end,
             self.eta, self.p_min, self.p_max, self.p0,
         )

@@ -13,20 +13,19 @@ L. Matthies, S. Shafer, "Error modeling in stereo navigation", IEEE J. Robotics 
 
 import dataclasses
 import os
-import threading
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.optimize import minimize_scalar
-from scipy.special import log_ndtr, logsumexp
 
-from prismap._validate import as_float_array, check_positive, check_probability, check_real
+from prismap._validate import as_float_array, check_positive, check_real
 from prismap.errors import PrismapInputError
 from prismap.gmm import GaussianMixture
-from prismap.sensor_models import _kernels
+from prismap.sensor_models import _kernels_direct, _kernels_lookup, _kernels_map_prior, _kernels_table
 from prismap.sensor_models._base import register_model
 from prismap.sensor_models._params import RayModel
+from prismap.sensor_models._prism_cache import _LENGTH, _OFFSET, TableCache
+from prismap.sensor_models._prism_discrete import log_mean_likelihood
 
 INFLUENCE_EPSILON = 1e-3
 """Default log-odds bound beyond the influence depth: every later cell has ``|increment| < epsilon``."""
@@ -56,8 +55,6 @@ MAX_TABLE_NODES = 1 << 20
 """Most nodes one table may need (32 MiB of float32 rows; see ``PrismModel._check_table_size``)."""
 AUTO_TABLE_FLOOR_MB = 64.0
 """Least table cache budget (MiB) of a model with ``table_memory_mb=None``."""
-AUTO_TABLE_CALLS = 2
-"""A model with ``table_memory_mb=None`` keeps this many times the tables of its largest call."""
 _LAMBDA_STEP = 0.1  # table grid in log(lambda_z): one table every ~10 % of ray norm, the nearest one per ray
 _LAMBDA_SLACK = float(np.expm1(_LAMBDA_STEP / 2))  # relative rate gap a table's influence depth covers
 _KEY_L_SPAN = 1 << 16  # table key = disparity key * span + rate key
@@ -65,76 +62,6 @@ _BUILD_THREADS = min(2, os.cpu_count() or 1)  # threads building one call's miss
 _TAIL_STEP = 1.0  # prior="map": x-width of the panels of a ray's tail beyond its last cell
 _TAIL_REST = -20.0  # prior="map": the tail's march stops where the rest is below e^-20 of the evidence before
 _CHUNK_CELLS = 4096  # cells per look-up/exp/combine/log round: its 8 scratch arrays (228 KiB) stay in L2
-_OFFSET, _LENGTH = _kernels.META_COLUMNS.index("offset"), _kernels.META_COLUMNS.index("length")
-
-
-def _log_diff_ndtr(hi, lo):
-    """``log(Phi(hi) - Phi(lo))`` for ``hi >= lo``, accurate in both tails."""
-    hi, lo = np.broadcast_arrays(np.asarray(hi, dtype=np.float64), np.asarray(lo, dtype=np.float64))
-    upper = lo > 0  # both in the upper tail: use the mirrored pair
-    a = np.where(upper, -lo, hi)
-    b = np.where(upper, -hi, lo)
-    log_a = log_ndtr(a)
-    with np.errstate(divide="ignore"):
-        return log_a + np.log(-np.expm1(np.minimum(log_ndtr(b) - log_a, 0.0)))
-
-
-def log_mean_likelihood(u_lo, u_hi, disparity_px, mixture, doffs_px=0.0):
-    """Log of ``g`` averaged over true disparities uniform in ``[u_lo, u_hi]`` (pixels); arrays broadcast.
-
-    ``g(u) = sum_j w_j N(u - doffs - d^; mu_j, sigma_j^2)``, so the average is a sum of normal-CDF
-    differences divided by ``u_hi - u_lo``.
-    """
-    u_lo, u_hi, d = np.broadcast_arrays(*(np.asarray(v, dtype=np.float64) for v in (u_lo, u_hi, disparity_px)))
-    shift = (d + doffs_px)[..., None] + mixture.means
-    terms = np.log(mixture.weights) + _log_diff_ndtr(
-        (u_hi[..., None] - shift) / mixture.sigmas, (u_lo[..., None] - shift) / mixture.sigmas
-    )
-    return logsumexp(terms, axis=-1) - np.log(u_hi - u_lo)
-
-
-def prism_discrete_posteriors(disparity_px, cell_edges_depth_m, mixture, *, focal_baseline, doffs_px=0.0, p0=0.05):
-    """The thesis's discrete PRISM on one ray of equal cells: O(n) with prefix sums, in log space.
-
-    Cell ``k`` (1-based) is the first occupied one with ``pi_k = p0 (1 - p0)^(k-1)`` and then produces
-    ``d^`` with ``L_k``, ``g`` averaged uniformly in disparity over the cell; no occupied cell gives
-    ``pi_far = (1 - p0)^n`` and ``L_far``, ``g`` averaged over true disparities in ``(0, f b / z_n]``.
-    ``P(m_i | d^) = (p0 sum_{k<i} pi_k L_k + pi_i L_i) / (sum_k pi_k L_k + pi_far L_far)``.
-
-    Parameters
-    ----------
-    disparity_px : float, pixels
-        Measured disparity ``d^``.
-    cell_edges_depth_m : (n + 1,) float64, metres, increasing, > 0
-        Cell boundaries along the ray (depth); the spec's cells are equal, any increasing edges work.
-    mixture : GaussianMixture
-        Disparity error model ``e = d_true - d^``.
-    focal_baseline : float, pixel-metres
-    doffs_px : float, pixels
-    p0 : float in (0, 1)
-        Prior occupancy of one cell.
-
-    Returns
-    -------
-    posterior : (n,) float64 in [0, 1]
-    """
-    edges = as_float_array(cell_edges_depth_m, "cell_edges_depth_m", ndim=1, allow_nan=False)
-    if edges.size < 2 or edges[0] <= 0 or np.any(np.diff(edges) <= 0):
-        raise PrismapInputError("`cell_edges_depth_m` must hold >= 2 increasing depths > 0")
-    fb = check_positive(focal_baseline, "focal_baseline")
-    p0 = check_probability(p0, "p0")
-    d = float(disparity_px)
-    u = fb / edges
-    n = edges.size - 1
-    log_l = log_mean_likelihood(u[1:], u[:-1], d, mixture, doffs_px)
-    log_pi = np.log(p0) + np.arange(n) * np.log1p(-p0)
-    log_far = n * np.log1p(-p0) + log_mean_likelihood(0.0, u[-1], d, mixture, doffs_px)
-    terms = log_pi + log_l
-    before = np.concatenate(([-np.inf], np.logaddexp.accumulate(terms)[:-1]))
-    log_num = np.logaddexp(np.log(p0) + before, terms)
-    log_norm = np.logaddexp(np.logaddexp.reduce(terms), log_far)
-    return np.exp(log_num - log_norm)
-
 
 PRIORS = ("p0", "map")
 """Values of PRISM's ``prior``: every cell at ``p0``, or each cell at the map's current probability."""
@@ -166,25 +93,11 @@ class PrismModel(RayModel):
     gives a far measurement. ``cell_posteriors`` uses ``method``:
 
     - ``"table"`` (default): ``log(C/Z)`` and ``log(D/Z)`` tabulated per (``d^`` rounded to
-      ``disparity_step_px``, ``lambda_z`` on a 10 % grid) on a grid uniform in
-      ``x = lambda_z z - f b / (sigma_min z)``: a node every half prior e-fold or narrowest sigma from
-      where ``C/Z > e^-40`` to the influence depth; every 32 before (``C`` from its endpoint asymptotic
-      there), every quarter widest sigma (at most half a prior e-fold) where only the widest error
-      component matters (:func:`broad_errors`: far in front of and behind the measurement, where outliers
-      alone produce it), and 4 nodes beyond. Cubic Hermite in ``x`` with exact derivatives; each ray uses the
-      table of the nearest rate plus a second-order Taylor term in ``log lambda_z`` (from stored moments; the
-      first-order term cubic Hermite in x with its exact x-derivative, the second linear; what a look-up
-      integrates on the spot, in a table's first interval or beyond its end, at the ray's own rate and over
-      the ray's ``Z`` by that term), and a cell across
-      ``C/Z = 1/2`` takes ``D`` at both ends. Nodes are stored in float32 (their rounding is far below the
-      tolerance), 40 bytes a node. Error against
-      ``"direct"``: within :data:`TABLE_TOLERANCE` for disparities on the step grid; off-grid disparities
-      are rounded (a shift of at most half a step).
-      Tables are cached on the model (one model per error model and camera; each
-      :meth:`with_extra_noise` copy has its own), least recently used ones dropped beyond the budget
-      (``table_memory_mb``), so a sequence pays for each table about once. A cell costs a look-up at each
-      end (the start's reused from the previous cell when it starts where that one ended, which a voxel
-      overhang's stretch rules out), two exps and a log in vectorised loops, and a division or two.
+      ``disparity_step_px``, ``lambda_z`` on a 10 % grid), cubic Hermite in
+      ``x = lambda_z z - f b / (sigma_min z)`` with a second-order Taylor term in ``log lambda_z``, within
+      :data:`TABLE_TOLERANCE` of ``"direct"``; tables are cached on the model (each :meth:`with_extra_noise` copy
+      has its own), least recently used ones dropped beyond ``table_memory_mb``. The grid, the look-up and what
+      a cell costs: docs/SENSOR_MODELS.md, "The tables".
     - ``"direct"``: quadrature ray by ray (8-point Gauss-Legendre panels of x-width 0.25) with every cell
       boundary a panel edge.
 
@@ -240,7 +153,7 @@ class PrismModel(RayModel):
         grid hands it over as ``map_log_odds`` because :attr:`takes_map_prior`), so a frame's evidence is
         weighed against what earlier frames found. Each ray's cells must then tile it from the camera (ray
         casting; projective integration has no whole rays). The exact discrete posterior
-        (``_kernels.prism_map_prior_cells``: ``g`` averaged uniformly in disparity over each cell, the
+        (``_kernels_map_prior.prism_map_prior_cells``: ``g`` averaged uniformly in disparity over each cell, the
         prior rate beyond the ray's last cell); ``method`` and the tables are not used.
         docs/SENSOR_MODELS.md, "The map as prior".
     """
@@ -258,7 +171,7 @@ class PrismModel(RayModel):
     pass_through: float = PASS_THROUGH
     prior: str = "p0"
     solid_depth_m: float = SOLID_DEPTH_M
-    _cache: "_TableCache" = field(default=None, init=False, repr=False, compare=False)
+    _cache: "TableCache" = field(default=None, init=False, repr=False, compare=False)
     _widened: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     def __post_init__(self):
@@ -291,7 +204,7 @@ class PrismModel(RayModel):
         else:
             object.__setattr__(self, "table_memory_mb", check_positive(self.table_memory_mb, "table_memory_mb"))
             budget = int(self.table_memory_mb * 2**20)
-        object.__setattr__(self, "_cache", _TableCache(budget, int(AUTO_TABLE_FLOOR_MB * 2**20)))
+        object.__setattr__(self, "_cache", TableCache(budget, int(AUTO_TABLE_FLOOR_MB * 2**20)))
         self._check_table_size()
 
     def _check_table_size(self):
@@ -372,7 +285,7 @@ class PrismModel(RayModel):
             end = end + stretch[rays]
             order = np.argsort(rays, kind="stable")
             ray_start = np.searchsorted(rays[order], np.arange(disparity.size + 1))
-            return _kernels.prism_direct_cells(
+            return _kernels_direct.prism_direct_cells(
                 disparity + self.doffs_px, lam, order, ray_start, start, end, self.near_m, self.far_depth_m,
                 self.focal_baseline, self._ku(), _QUAD_STEP, self._log_far(disparity), *self._mixture_arrays(),
                 self.pass_through,
@@ -391,7 +304,7 @@ class PrismModel(RayModel):
         disparity = as_float_array(disparity_px, "disparity_px", ndim=1, allow_nan=False)
         norm = as_float_array(ray_norm, "ray_norm", shape=(disparity.size,))
         table, _, meta, _ = self._tables_for(disparity, norm)
-        depth = meta[table, _kernels.META_COLUMNS.index("z_infl")]
+        depth = meta[table, _kernels_table.META_COLUMNS.index("z_infl")]
         if self.solid_depth_m > 0:
             depth = np.minimum(depth + self.solid_depth_m / norm, self.far_depth_m)
         return depth
@@ -407,7 +320,7 @@ class PrismModel(RayModel):
         return self._widened[extra]
 
     def _map_prior_cells(self, lam, disparity, norm, rays, start, end, stretch, map_log_odds):
-        """:meth:`cell_posteriors` with the map as prior (``_kernels.prism_map_prior_cells``).
+        """:meth:`cell_posteriors` with the map as prior (``_kernels_map_prior.prism_map_prior_cells``).
 
         A voxel of probability ``P_v`` has surface rate ``-log(1 - P_v) / voxel_size_m`` per metre of ray
         (``log1p(e^l)``, softplus of its log-odds ``l``), so a ray's stretch of length ``s`` in it has prior
@@ -424,7 +337,7 @@ class PrismModel(RayModel):
         cell_rate = np.logaddexp(0.0, log_odds) / self.voxel_size_m * norm[rays]  # per metre of depth
         log_w = np.log(self.error_model.weights)
         log_wn, means, sigmas = self._mixture_arrays()
-        return _kernels.prism_map_prior_cells(
+        return _kernels_map_prior.prism_map_prior_cells(
             disparity + self.doffs_px, lam, order, ray_start, start, end, stretch, cell_rate, self.near_m,
             self.far_depth_m, self.focal_baseline, self._ku(), _TAIL_STEP, _TAIL_REST, self._log_far(disparity), log_wn,
             log_w, means, sigmas, self.pass_through,
@@ -433,10 +346,10 @@ class PrismModel(RayModel):
     # ------------------------------------------------------------------ tables
     def _table_cells(self, lam, disparity, norm, rays, start, end, stretch):
         """Tabulated posteriors and increments of the cells ``[start, end + stretch[rays]]``
-        (``_kernels.prism_table_cells``: table look-ups, vectorised exp, combination, vectorised log)."""
+        (``_kernels_lookup.prism_table_cells``: table look-ups, vectorised exp, combination, vectorised log)."""
         table, delta, meta, nodes = self._tables_for(disparity, norm)
         log_wn, means, sigmas = self._mixture_arrays()
-        return _kernels.prism_table_cells(lam, table, delta, rays, start, end, stretch, _CHUNK_CELLS, self.near_m,
+        return _kernels_lookup.prism_table_cells(lam, table, delta, rays, start, end, stretch, _CHUNK_CELLS, self.near_m,
                                           self.far_depth_m, self.focal_baseline, self._ku(), _QUAD_STEP, meta, nodes,
                                           log_wn, means, sigmas, self.pass_through)
 
@@ -445,7 +358,7 @@ class PrismModel(RayModel):
         the cache's ``meta`` and ``nodes`` arrays those rows index: taken under the cache's lock, so a call in
         another thread that builds or evicts (new arrays, new rows) leaves this call's view intact."""
         log_norm = np.log(np.maximum(norm, 1.0))
-        unique, inverse = _kernels.table_keys(disparity, log_norm, self.disparity_step_px, _LAMBDA_STEP, _KEY_L_SPAN)
+        unique, inverse = _kernels_lookup.table_keys(disparity, log_norm, self.disparity_step_px, _LAMBDA_STEP, _KEY_L_SPAN)
         with self._cache.lock:
             rows = self._cache.rows(unique, self._build_tables)
             meta, nodes = self._cache.meta, self._cache.nodes
@@ -453,10 +366,10 @@ class PrismModel(RayModel):
         return rows[inverse], log_norm - key_l * _LAMBDA_STEP, meta, nodes
 
     def _build_tables(self, keys):
-        """The tables of ``keys`` ((K,) int64): ``nodes`` (N, ``_kernels.TABLE_COLUMNS``) float32 back to back and
-        their ``meta`` rows (K, ``len(_kernels.META_COLUMNS)``), ``offset`` from the first row of ``nodes``
-        (``_kernels.prism_tables``), in :data:`_BUILD_THREADS` threads for a large batch (``nodes`` then a list
-        of each thread's arrays, to be read back to back: :meth:`_TableCache.rows` copies them in)."""
+        """The tables of ``keys`` ((K,) int64): ``nodes`` (N, ``_kernels_table.TABLE_COLUMNS``) float32 back to back and
+        their ``meta`` rows (K, ``len(_kernels_table.META_COLUMNS)``), ``offset`` from the first row of ``nodes``
+        (``_kernels_table.prism_tables``), in :data:`_BUILD_THREADS` threads for a large batch (``nodes`` then a list
+        of each thread's arrays, to be read back to back: :meth:`TableCache.rows` copies them in)."""
         key_d, key_l = np.divmod(np.asarray(keys, dtype=np.int64), _KEY_L_SPAN)
         disparity = key_d * self.disparity_step_px
         lam = self.rate_per_m * np.exp(key_l * _LAMBDA_STEP)
@@ -468,7 +381,7 @@ class PrismModel(RayModel):
         e_front, e_back, wide_ratio = broad_errors(self.error_model)
 
         def build(share):
-            return _kernels.prism_tables(
+            return _kernels_table.prism_tables(
                 shift[share], lam[share], log_far[share], self.near_m, self.far_depth_m, self.focal_baseline, ku,
                 _TABLE_STEP, log_eps_bound, _LAMBDA_SLACK, _COARSE_RATIO, _COARSE_BELOW, e_front, e_back, wide_ratio,
                 _WIDE_EFOLDS, log_wn, means, sigmas,
@@ -557,195 +470,3 @@ def broad_errors(mixture):
             e_back = min(e_back, (-lin + np.sqrt(disc)) / (2.0 * a))
     wide_ratio = int(_WIDE_SIGMAS * sd[b] / (sd.min() * _TABLE_STEP))
     return float(e_front), float(e_back), max(min(wide_ratio, _COARSE_RATIO), 1)
-
-
-class _TableCache:
-    """PRISM tables packed in one node array, least recently used ones evicted beyond a memory budget.
-
-    ``meta`` has one row per table (``_kernels.META_COLUMNS``, float64: the grid's positions), ``nodes`` the
-    rows of every table back to back (float32: values and slopes, rounded far below ``TABLE_TOLERANCE``).
-    Tables used by the current call are never evicted, so one call may exceed the budget. A budget of
-    ``None`` is the larger of ``floor_bytes`` and :data:`AUTO_TABLE_CALLS` times the bytes of the largest
-    call's tables so far (:attr:`limit_bytes`). ``hits`` and ``builds`` count the distinct keys of every
-    call found in the cache and built (a thrashing cache builds the same keys again and again). Callers
-    hold ``lock`` around :meth:`rows` and their reads of ``meta`` and ``nodes``: a build replaces them by
-    longer ones (it writes new nodes only behind the rows an earlier ``nodes`` holds, into room kept for them:
-    at most half the nodes' bytes more than :attr:`nbytes`), an eviction by new arrays with rows renumbered.
-    """
-
-    def __init__(self, budget_bytes, floor_bytes):
-        self.budget_bytes = budget_bytes
-        self.floor_bytes = floor_bytes
-        self.largest_call_bytes = 0
-        self.keys = np.empty(0, dtype=np.int64)
-        self.order = np.empty(0, dtype=np.int64)  # rows by increasing key and those keys: binary search
-        self.sorted_keys = self.keys
-        self.meta = np.empty((0, len(_kernels.META_COLUMNS)))
-        self.nodes = np.empty((0, _kernels.TABLE_COLUMNS), dtype=np.float32)
-        self._node_room = self.nodes  # self.nodes is its head; new tables go in behind
-        self.last_used = np.empty(0, dtype=np.int64)
-        self.clock = 0
-        self.hits = 0
-        self.builds = 0
-        self.lock = threading.Lock()
-
-    @property
-    def nbytes(self):
-        """Bytes held by the nodes and metadata."""
-        return self.nodes.nbytes + self.meta.nbytes
-
-    def __len__(self):
-        return self.keys.size
-
-    @property
-    def limit_bytes(self):
-        """Bytes beyond which least recently used tables are dropped."""
-        if self.budget_bytes is not None:
-            return self.budget_bytes
-        return max(self.floor_bytes, AUTO_TABLE_CALLS * self.largest_call_bytes)
-
-    def _table_bytes(self):
-        """Bytes of each table (its nodes and metadata row)."""
-        return (self.meta[:, _LENGTH] * (self.nodes.itemsize * _kernels.TABLE_COLUMNS)
-                + self.meta.itemsize * self.meta.shape[1])
-
-    def rows(self, keys, build):
-        """Metadata row of each (distinct) key, calling ``build(missing keys)`` for absent ones (it returns
-        their ``nodes``, an array or a list of arrays read back to back, and ``meta`` rows, offsets from its first
-        node: ``PrismModel._build_tables``)."""
-        rows = self._find(keys)
-        missing = keys[rows < 0]
-        self.hits += keys.size - missing.size
-        self.builds += missing.size
-        if missing.size:
-            nodes, meta = build(missing)
-            meta[:, _OFFSET] += self.nodes.shape[0]
-            first = self.keys.size
-            self._append_nodes(nodes if isinstance(nodes, list) else [nodes])
-            self.meta = np.concatenate([self.meta, meta])
-            self.keys = np.concatenate([self.keys, missing])
-            self.last_used = np.concatenate([self.last_used, np.zeros(missing.size, dtype=np.int64)])
-            self._sort()
-            rows[rows < 0] = first + np.arange(missing.size)
-        self.clock += 1
-        self.last_used[rows] = self.clock
-        self.largest_call_bytes = max(self.largest_call_bytes, int(self._table_bytes()[rows].sum()))
-        if self.nbytes > self.limit_bytes:
-            rows = self._evict(rows)
-        return rows
-
-    def _append_nodes(self, parts):
-        """Append the rows of the arrays ``parts``, one after another, to ``nodes``: into the room behind them (rows
-        no reader indexes yet), else into a new array half as large again as needed, so that a sequence copies its
-        tables a few times, not every call."""
-        n, m = self.nodes.shape[0], sum(part.shape[0] for part in parts)
-        if n + m > self._node_room.shape[0]:
-            room = np.empty((n + m + (n + m) // 2, _kernels.TABLE_COLUMNS), dtype=np.float32)
-            room[:n] = self.nodes
-            self._node_room = room
-        for part in parts:
-            self._node_room[n : n + part.shape[0]] = part
-            n += part.shape[0]
-        self.nodes = self._node_room[:n]
-
-    def _sort(self):
-        self.order = np.argsort(self.keys, kind="stable")
-        self.sorted_keys = self.keys[self.order]
-
-    def _find(self, keys):
-        """Row of each key, -1 where absent."""
-        if not self.keys.size:
-            return np.full(keys.size, -1, dtype=np.int64)
-        at = np.minimum(np.searchsorted(self.sorted_keys, keys), self.keys.size - 1)
-        return np.where(self.sorted_keys[at] == keys, self.order[at], -1)
-
-    def _evict(self, rows):
-        """Drop the least recently used tables (never those of ``rows``) until within budget; new rows."""
-        size = self._table_bytes()
-        order = np.argsort(self.last_used, kind="stable")
-        order = order[self.last_used[order] < self.clock]
-        excess = self.nbytes - self.limit_bytes
-        drop = order[: np.searchsorted(np.cumsum(size[order]), excess) + 1]
-        keep = np.setdiff1d(np.arange(self.keys.size), drop)
-        starts = self.meta[keep, _OFFSET].astype(np.int64)
-        lengths = self.meta[keep, _LENGTH].astype(np.int64)
-        self.nodes = self._node_room = np.concatenate([self.nodes[s : s + n] for s, n in zip(starts, lengths)])
-        self.meta = self.meta[keep]
-        self.meta[:, _OFFSET] = np.concatenate(([0], np.cumsum(lengths)[:-1]))
-        self.keys = self.keys[keep]
-        self.last_used = self.last_used[keep]
-        self._sort()
-        new_row = np.full(len(keep) + len(drop), -1, dtype=np.int64)
-        new_row[keep] = np.arange(keep.size)
-        return new_row[rows]
-
-
-def prior_from_ground_truth(occupied):
-    """``p0`` as the occupancy ratio of a ground-truth map: the fraction of its known cells that are occupied.
-
-    Parameters
-    ----------
-    occupied : (N,) bool
-        Occupancy of every known cell of a ground-truth map with the target voxel size.
-
-    Returns
-    -------
-    float in (0, 1), kept at least ``1 / (N + 2)`` away from 0 and 1 (Laplace's rule).
-    """
-    occupied = np.asarray(occupied)
-    if occupied.size == 0 or occupied.dtype != bool:
-        raise PrismapInputError(
-            f"`occupied` must be a non-empty bool array; got dtype {occupied.dtype}, size {occupied.size}"
-        )
-    return float((occupied.sum() + 1.0) / (occupied.size + 2.0))
-
-
-def estimate_prior_from_likelihood(disparity_px, ray_norm, *, error_model, focal_baseline, doffs_px=0.0,
-                                   voxel_size_m=0.1, near_m=0.1, far_depth_m=200.0, max_rays=2000, seed=0,
-                                   bounds=(1e-4, 0.9)):
-    """``p0`` maximising the measurements' likelihood under PRISM's forward model.
-
-    Each measured disparity has density ``Z(d^; lambda_z)`` (the normaliser of section 5, a proper density
-    in ``d^``); the estimate maximises ``sum_i log Z_i`` over ``p0`` (bounded scalar search in ``log p0``).
-    Uses at most ``max_rays`` rays drawn with ``seed``. Rays are treated as independent, which they are
-    not quite (neighbouring pixels see the same surface): fine for one number.
-
-    Parameters
-    ----------
-    disparity_px : (R,) float64, pixels, finite
-    ray_norm : (R,) float64, ``|r|`` of each ray
-    error_model : GaussianMixture
-    focal_baseline, doffs_px, voxel_size_m, near_m, far_depth_m
-        As for :class:`PrismModel`.
-    bounds : (float, float)
-        Search interval of ``p0``.
-
-    Returns
-    -------
-    float
-        The maximum-likelihood ``p0`` for cells of ``voxel_size_m``.
-    """
-    disparity = as_float_array(disparity_px, "disparity_px", ndim=1, allow_nan=False)
-    norm = as_float_array(ray_norm, "ray_norm", shape=(disparity.size,), allow_nan=False)
-    if disparity.size == 0:
-        raise PrismapInputError("`disparity_px` is empty: nothing to estimate p0 from")
-    lo, hi = (check_probability(b, "bounds") for b in bounds)
-    if lo >= hi:
-        raise PrismapInputError(f"`bounds` must be increasing; got {bounds}")
-    if disparity.size > max_rays:
-        pick = np.random.default_rng(seed).choice(disparity.size, size=int(max_rays), replace=False)
-        disparity, norm = disparity[pick], norm[pick]
-    model = PrismModel(error_model=error_model, focal_baseline=focal_baseline, doffs_px=doffs_px,
-                       voxel_size_m=voxel_size_m, near_m=near_m, far_depth_m=far_depth_m)
-    shift = disparity + model.doffs_px
-    log_far = model._log_far(disparity)
-    log_wn, means, sigmas = model._mixture_arrays()
-
-    def negative_log_likelihood(log_p0):
-        lam = -np.log1p(-np.exp(log_p0)) / model.voxel_size_m * norm
-        return -_kernels.prism_log_evidence(shift, lam, model.near_m, model.far_depth_m, model.focal_baseline,
-                                           model._ku(), _QUAD_STEP, log_far, log_wn, means, sigmas).sum()
-
-    result = minimize_scalar(negative_log_likelihood, bounds=(np.log(lo), np.log(hi)), method="bounded",
-                             options={"xatol": 1e-3})
-    return float(np.exp(result.x))

@@ -13,7 +13,7 @@ from prismap.errors import PrismapInputError
 from prismap.io._frame import StereoFrame
 from prismap.sim._kernels import cast_view, shade_view
 from prismap.sim._poses import pose_from_heading
-from prismap.sim._textures import PHOTOGRAPHS, texture_bank
+from prismap.sim._textures import FIRST_OTHER, PHOTOGRAPHS, texture_bank
 from prismap.sim._truth import SOLID_DEPTH_QUANTILE, ground_truth, pass_through_ratio, solid_depth
 
 # brightness by face normal axis (x, y, z) and side (the face at the box's lo, at its hi): a fixed light
@@ -198,7 +198,7 @@ def indoor_scene(*, seed=0):
         for _ in range(2):
             size = rng.uniform([0.3, 0.3, 0.3], [0.9, 0.9, 1.4])
             corner = rng.uniform([x0, y0], [x1 - size[0], y1 - size[1]])
-            texture = int(rng.integers(len(texture_bank())))
+            texture = int(rng.integers(FIRST_OTHER))
             texel, tint = rng.uniform(0.005, 0.015), rng.uniform(0.6, 1.0, 3)
             boxes.append(((*corner, 0.0), (*(corner + size[:2]), size[2]), texture, texel, tint))
     lo, hi, texture, texel, tint = (np.array(column) for column in zip(*boxes))

@@ -1,6 +1,8 @@
 """The interactive 3-D map viewer: a viser server (its own web client) showing an occupancy map's voxels
 coloured by P(occupied), with controls, the camera trajectory and the ground truth beside the map."""
 
+import socket
+import threading
 import time
 from pathlib import Path
 
@@ -150,7 +152,7 @@ class MapViewer:
 
         if agreement and self.agreement is None:
             raise PrismapInputError("colouring by agreement needs the ground truth (--gt TRUTH.npz)")
-        self.server = viser.ViserServer(host=host, port=port, verbose=False)
+        self.server = _start_server(viser, host, port)
         self.port = self.server.get_port()
         scene, gui = self.server.scene, self.server.gui
         scene.set_up_direction("+z")
@@ -285,3 +287,40 @@ class MapViewer:
     def stop(self):
         """Stop the server."""
         self.server.stop()
+
+
+READY_TIMEOUT_S = 30.0
+"""Longest wait (seconds) for the viser server to say it listens before ``prismap view`` gives up."""
+
+
+def _start_server(viser, host, port):
+    """A running ``viser.ViserServer`` on ``host``, or a one-line error.
+
+    The address is bound once first (port 0), so an address this machine does not have is refused at
+    once instead of viser retrying a thousand ports; the server then has :data:`READY_TIMEOUT_S` to report
+    that it listens (its own wait has no deadline).
+    """
+    try:
+        infos = socket.getaddrinfo(host, 0, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)
+        with socket.socket(infos[0][0], socket.SOCK_STREAM) as probe:
+            probe.bind(infos[0][4])
+    except (OSError, UnicodeError) as exc:
+        raise PrismapInputError(f"--host {host}: cannot listen on this address "
+                                f"({getattr(exc, 'strerror', None) or exc})") from None
+    started = {}
+
+    def start():
+        try:
+            started["server"] = viser.ViserServer(host=host, port=port, verbose=False)
+        except OSError as exc:
+            started["error"] = exc
+
+    thread = threading.Thread(target=start, daemon=True)
+    thread.start()
+    thread.join(READY_TIMEOUT_S)
+    if "error" in started:
+        raise started["error"]
+    if "server" not in started:
+        raise PrismapInputError(f"--host {host} --port {port}: the viewer did not start listening within "
+                                f"{READY_TIMEOUT_S:g} s (READY_TIMEOUT_S)")
+    return started["server"]

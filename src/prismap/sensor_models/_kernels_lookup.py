@@ -1,0 +1,355 @@
+"""numba kernels of PRISM's tabulated cell update: table look-ups (cubic Hermite in x with a Taylor term in the
+rate), the combination in linear space except near underflow, and the table keys of a batch of rays.
+
+The tabulated update exponentiates the smaller of ``log C`` and ``log D`` and combines in linear space; its exp
+and log are the vectorised :func:`~prismap.sensor_models._kernels_math.exp_into` and
+:func:`~prismap.sensor_models._kernels_math.log_into`.
+"""
+
+import math
+
+import numba as nb
+import numpy as np
+
+from prismap.sensor_models._kernels_direct import combine, log_tail, pass_through_log
+from prismap.sensor_models._kernels_march import log_integral
+from prismap.sensor_models._kernels_math import exp_into, fast_exp, log1mexp, log_into
+from prismap.sensor_models._kernels_table import (
+    _D_COLUMN,
+    _LAM,
+    _LENGTH,
+    _LOG_FAR,
+    _LOG_Z,
+    _LOG_Z_1,
+    _LOG_Z_2,
+    _OFFSET,
+    _ROW,
+    _SHIFT,
+    _SPACING,
+    _X,
+    _Z_END,
+    _Z_INFL,
+    N_SEGMENTS,
+    _log_qg_slope,
+)
+
+_FASTMATH = {"nsz", "arcp", "contract", "afn", "reassoc"}  # never nnan/ninf: NaN marks values not looked up
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _locate(x, s, seg_x, seg_row, seg_inv, n_seg):
+    """Row (from the table's first) of the node left of ``x``, the fraction to the next, and the segment:
+    the last of the ``n_seg`` non-empty segments (``seg_x``, ``seg_row``, ``seg_inv``: first x, first row,
+    inverse spacing; ``seg_row[n_seg]`` is the table's last row) that starts at or before ``x``, or the first.
+
+    The search starts at segment ``s`` (the previous look-up's): along a ray, where x only grows, it costs
+    a comparison or two.
+    """
+    while s > 0 and x < seg_x[s]:
+        s -= 1
+    while s + 1 < n_seg and x >= seg_x[s + 1]:
+        s += 1
+    v = (x - seg_x[s]) * seg_inv[s]
+    k = min(max(int(v), 0), seg_row[s + 1] - seg_row[s] - 1)
+    return seg_row[s] + k, min(max(v - k, 0.0), 1.0), s
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _interpolate(nodes, o, f, step, col, delta):
+    """Column ``col`` at fraction ``f`` between rows ``o`` and ``o + 1``, for a rate ``e^delta`` times the table's.
+
+    The value plus the first-order Taylor term in ``log lambda`` (column ``col + 2``) at each node, cubic
+    Hermite in x with their x-derivatives (columns ``col + 1``, ``col + 3``), plus the second-order term
+    (column ``col + 4``), linear in x (its factor ``delta^2 / 2`` is at most 1/800 at a half step of the rate
+    grid).
+    """
+    g = 1.0 - f
+    half = 0.5 * delta
+    y_0 = nodes[o, col] + delta * nodes[o, col + 2]
+    y_1 = nodes[o + 1, col] + delta * nodes[o + 1, col + 2]
+    s_0 = nodes[o, col + 1] + delta * nodes[o, col + 3]
+    s_1 = nodes[o + 1, col + 1] + delta * nodes[o + 1, col + 3]
+    return ((1.0 + 2.0 * f) * g * g * y_0 + f * f * (3.0 - 2.0 * f) * y_1 + f * g * step * (g * s_0 - f * s_1)
+            + half * delta * (g * nodes[o, col + 4] + f * nodes[o + 1, col + 4]))
+
+
+@nb.njit(cache=True, nogil=True, inline="always", error_model="numpy")
+def _cell_prior(x):
+    """``(1 - e^-x, e^-x)`` for ``x >= 0``: below 0.2 a degree-8 series in Estrin form (relative error
+    < 1e-11, no dependency chain), else through :func:`fast_exp`; both are computed and one selected, so
+    that a loop over cells stays branch-free."""
+    q = fast_exp(-x)
+    x2 = x * x
+    p = x * ((1.0 - 0.5 * x) + x2 * (1.0 / 6.0 - x * (1.0 / 24.0))
+             + x2 * x2 * ((1.0 / 120.0 - x * (1.0 / 720.0)) + x2 * (1.0 / 5040.0 - x * (1.0 / 40320.0))))
+    small = x < 0.2
+    return (p if small else 1.0 - q), (1.0 - p if small else q)
+
+
+@nb.njit(cache=True, nogil=True)
+def combine_small(l_a, l_c, a_is_d, c_is_d, lam_len):
+    """:func:`combine` from the log of the smaller of ``C/Z``, ``D/Z`` at each end (``*_is_d``: it is D's).
+
+    The other one is ``log(1 - e^small)``. Far in front of the measurement (``C(c)/Z < e^-600``, so
+    ``D/Z = 1`` to that precision) ``P Z = C(c) - e^{-lam_len} C(a)`` and ``(1 - P) Z = D(c)``: two
+    transcendentals fewer than the general case.
+    """
+    if not c_is_d and l_c < -600.0 and lam_len > 0.0:
+        l_ca = log1mexp(l_a) if a_is_d else l_a
+        log_num = l_c + math.log1p(-math.exp(min(l_ca - l_c, 0.0) - lam_len))
+        return math.exp(log_num), log_num - lam_len - log1mexp(-lam_len)
+    other_a = log1mexp(l_a)
+    other_c = log1mexp(l_c)
+    return combine(other_a if a_is_d else l_a, l_a if a_is_d else other_a,
+                   other_c if c_is_d else l_c, l_c if c_is_d else other_c, lam_len)
+
+
+@nb.njit(cache=True, nogil=True)
+def _log_c_first(z, steep, lam, ku, h, z0, fb, shift, log_wn, means, sigmas):
+    """``log C(z)`` in a table's first interval (``z0 < z``, x-width ``h``): one Gauss-Legendre panel, as
+    the table's march integrated that interval (8 points here, :data:`_MARCH_GL` there: they agree to about
+    1e-10), or where ``q g`` rises steeply (``steep``: the interval
+    is in the coarse front) the endpoint asymptotic with the start's cut, ``C = q g / phi' (1 -
+    e^{-phi' (z - z0)})``, exact for an exponential ``q g``."""
+    if not steep:
+        return log_integral(z0, z, lam, ku, h, z0, fb, shift, log_wn, means, sigmas)
+    phi, phi_z = _log_qg_slope(z, lam, z0, fb, shift, log_wn, means, sigmas)
+    return phi - math.log(phi_z) + log1mexp(-phi_z * (z - z0))
+
+
+_LOG_HALF = -0.6931471805599453
+_LOG_QUARTER = 2.0 * _LOG_HALF
+_SKIP = 4
+"""``side`` flag of a cell the measurement does not change (empty, or beyond the influence depth)."""
+
+
+@nb.njit(cache=True, nogil=True, fastmath=_FASTMATH)
+def prism_table_lookup(lam, table, delta, ray_of_cell, start, end, stretch, lo, hi, z0, z_max, fb, ku, hq, meta,
+                       nodes, log_wn, means, sigmas, l_a, l_c, side, lam_len):
+    """First stage of tabulated PRISM on cells ``lo:hi``: per cell end, the log of the smaller of C/Z, D/Z.
+
+    A cell is ``[start[i], end[i] + stretch[r]]`` (``stretch``: the ray's voxel overhang share, depth metres).
+    Per ray one table (``table[r]``, the ray's rate ``e^delta[r]`` times the table's). A look-up
+    interpolates ``log(C/Z)`` and, only where ``C/Z > 1/2``, ``log(D/Z)`` (``C/Z + D/Z = 1``); past a depth
+    of the ray already found to have ``C/Z >= 1/2`` only ``log(D/Z)``, as ``C`` only grows. Writes
+    ``l_a[j], l_c[j]`` (cell ``lo + j``) and ``side[j]`` (bit 0: ``l_a`` is D's, bit 1: ``l_c`` is D's, or
+    :data:`_SKIP`: no change), and ``lam_len[j]``, the cell's prior rate times its length (of the part in
+    ``[z0, z_max]``; a skipped cell's whole length). A cell starting where the previous one of the same ray ended reuses that
+    look-up (ray casting emits cells in order; with a stretch no start is a previous end). A cell across
+    ``C/Z = 1/2`` (``D`` the smaller at its end only) whose start has ``C/Z >= 1/4`` takes ``D`` at its start
+    too, so that its share ``C(c) - C(a) = D(a) - D(c)`` is a difference within one column: with the Taylor
+    terms in ``log lambda``, at a half step of the rate grid and where most of ``C`` lies many prior e-folds
+    before the measurement, the table's ``C/Z + D/Z`` misses 1 by up to 1e-3, as much as a short cell's share
+    there. A start with ``C/Z < 1/4`` keeps its ``C`` (accurate relative to itself, which a ``1 - D/Z`` is not
+    near 0): that cell's share is above 1/4, and the miss is small against it. Cells starting
+    beyond the influence depth are skipped; for a cell ending beyond the table (where the remaining
+    evidence is below e^-40 of C), ``D(c)`` is integrated on the spot, and so is ``C`` in the table's first
+    interval: both at the ray's own rate, over the ray's ``Z`` (the table's by the nodes' Taylor term, from
+    the meta columns ``log_z_1``, ``log_z_2``), not the table's rate and ``Z``.
+    """
+    r_prev = -1
+    c_prev = -1.0
+    lcc = 0.0
+    c_is_d = 0
+    seg_x = np.empty(N_SEGMENTS)
+    seg_h = np.empty(N_SEGMENTS)
+    seg_inv = np.empty(N_SEGMENTS)
+    seg_row = np.empty(N_SEGMENTS + 1, dtype=np.int64)
+    lam_t = lam_r = z_end = z_infl = dl = shift = log_z = log_far = stretch_r = 0.0
+    z_half = np.inf
+    off = n_seg = s_a = s_c = 0
+    steep = False
+    for i in range(lo, hi):
+        j = i - lo
+        r = ray_of_cell[i]
+        if r != r_prev:
+            r_prev = r
+            c_prev = -1.0
+            t = table[r]
+            dl = delta[r]
+            lam_t = meta[t, _LAM]
+            n_seg = 0  # the non-empty segments, in order
+            for k in range(N_SEGMENTS):
+                first = int(meta[t, _ROW + k])
+                if (int(meta[t, _ROW + k + 1]) if k + 1 < N_SEGMENTS else int(meta[t, _LENGTH]) - 1) > first:
+                    seg_x[n_seg] = meta[t, _X + k]
+                    seg_row[n_seg] = first
+                    seg_h[n_seg] = meta[t, _SPACING + k]
+                    seg_inv[n_seg] = 1.0 / seg_h[n_seg]
+                    n_seg += 1
+            seg_row[n_seg] = int(meta[t, _LENGTH]) - 1
+            steep = int(meta[t, _ROW + 1]) > 0  # a coarse front: C from its endpoint asymptotic there
+            s_a = s_c = 0
+            z_half = np.inf  # least depth of the ray known to have C/Z >= 1/2
+            z_end = meta[t, _Z_END]
+            z_infl = meta[t, _Z_INFL]
+            shift = meta[t, _SHIFT]
+            lam_r = lam[r]
+            log_z = meta[t, _LOG_Z] + dl * (meta[t, _LOG_Z_1] + 0.5 * dl * meta[t, _LOG_Z_2])  # the ray's
+            log_far = meta[t, _LOG_FAR]
+            off = int(meta[t, _OFFSET])
+            stretch_r = stretch[r]
+        a = max(start[i], z0)
+        c = min(end[i] + stretch_r, z_max)
+        if c <= a or a >= z_infl:
+            side[j] = _SKIP
+            l_a[j] = l_c[j] = 0.0
+            lam_len[j] = lam[r] * max(end[i] + stretch_r - start[i], 0.0)
+            c_prev = -1.0
+            continue
+        lam_len[j] = lam[r] * (c - a)
+        if a == c_prev:
+            l_a[j] = lcc
+            a_is_d = c_is_d
+        else:
+            k, f, s_a = _locate(lam_t * a - ku / a, s_a, seg_x, seg_row, seg_inv, n_seg)
+            o = off + k
+            a_is_d = 1
+            if a >= z_half and k > 0:  # C is increasing: past a depth with C/Z >= 1/2, D is the smaller
+                l_a[j] = _interpolate(nodes, o, f, seg_h[s_a], _D_COLUMN, dl)
+            else:
+                if k == 0:  # first interval: log C is -inf at z0
+                    lca = -np.inf
+                    if a > z0:
+                        lca = _log_c_first(a, steep, lam_r, ku, seg_h[s_a], z0, fb, shift, log_wn, means, sigmas) - log_z
+                else:
+                    lca = _interpolate(nodes, o, f, seg_h[s_a], 0, dl)
+                if lca < _LOG_HALF:
+                    a_is_d = 0
+                    l_a[j] = lca
+                else:
+                    l_a[j] = _interpolate(nodes, o, f, seg_h[s_a], _D_COLUMN, dl)
+                    z_half = min(z_half, a)
+        if c > z_end:
+            lcc = log_tail(c, log_z, lam_r, ku, hq, z0, z_max, fb, shift, log_far, log_wn, means, sigmas) - log_z
+            c_is_d = 1
+        else:
+            k, f, s_c = _locate(lam_t * c - ku / c, s_c, seg_x, seg_row, seg_inv, n_seg)
+            o = off + k
+            c_is_d = 1
+            if c >= z_half and k > 0:
+                lcc = _interpolate(nodes, o, f, seg_h[s_c], _D_COLUMN, dl)
+            else:
+                if k == 0:
+                    lcc = _log_c_first(c, steep, lam_r, ku, seg_h[s_c], z0, fb, shift, log_wn, means, sigmas) - log_z
+                else:
+                    lcc = _interpolate(nodes, o, f, seg_h[s_c], 0, dl)
+                if lcc < _LOG_HALF:
+                    c_is_d = 0
+                else:
+                    lcc = _interpolate(nodes, o, f, seg_h[s_c], _D_COLUMN, dl)
+                    z_half = min(z_half, c)
+        if c_is_d and not a_is_d and l_a[j] >= _LOG_QUARTER:  # across C/Z = 1/2: see the docstring
+            k, f, s_a = _locate(lam_t * a - ku / a, s_a, seg_x, seg_row, seg_inv, n_seg)
+            l_a[j] = _interpolate(nodes, off + k, f, seg_h[s_a], _D_COLUMN, dl)
+            a_is_d = 1
+        l_c[j] = lcc
+        side[j] = a_is_d + 2 * c_is_d
+        c_prev = c
+
+
+@nb.njit(cache=True, nogil=True, error_model="numpy")  # no fastmath: it inlines fast_exp
+def prism_table_combine(lo, hi, l_a, l_c, e_a, e_c, side, lam_len, post, ratio, fix_index, fix_value, pass_through):
+    """Second stage on cells ``lo:hi``: posterior (into ``post[lo:hi]``) and ``ratio[j]``, the increment's exp.
+
+    ``e_a``, ``e_c`` are ``exp(l_a)``, ``exp(l_c)`` of :func:`prism_table_lookup` (:func:`exp_into`), so
+    ``C/Z`` and ``D/Z`` at both ends are at hand in linear space: ``P Z = p_c C(a) + C(c) - C(a)``,
+    ``(1 - P) Z = (1 - p_c) C(a) + D(c)`` and the increment is ``log(ratio)`` with
+    ``ratio = P (1 - p_c) / ((1 - P) p_c)``, ``p_c = 1 - e^-lam_len``. A first, branch-free pass (it
+    vectorises) does every cell so; a second one redoes the few it marked (``ratio`` -1): skipped cells
+    (``ratio = 1``, the posterior the prior's) and cells near underflow (a log below -600 or
+    ``lam_len > 40``), which go through :func:`combine_small`: ``ratio = 1``, listed in ``fix_index``
+    (offset from ``lo``) and ``fix_value``. Returns how many. ``pass_through``: the chance that a ray passes an
+    occupied cell, ``ratio -> m + (1 - m) ratio`` (:func:`pass_through_log`; 0: never, bit for bit).
+    """
+    for j in range(hi - lo):
+        s = side[j]
+        p_c, q_c = _cell_prior(lam_len[j])
+        c_a = 1.0 - e_a[j] if s & 1 else e_a[j]
+        c_c = 1.0 - e_c[j] if s & 2 else e_c[j]
+        d_a = e_a[j] if s & 1 else 1.0 - e_a[j]  # the looked-up side as it is: D(c)/Z below 1e-16 of q_c C(a)/Z
+        d_c = e_c[j] if s & 2 else 1.0 - e_c[j]  # would vanish in 1 - (1 - D/Z)
+        # the cell's share C(c) - C(a) from the side that is small (accurate) at c
+        delta = max(c_c - c_a, 0.0) if c_c < 0.5 else max(d_a - d_c, 0.0)
+        num = p_c * c_a + delta
+        den = q_c * c_a + d_c
+        ok = ((s != _SKIP) & (min(l_a[j], l_c[j]) >= -600.0) & (lam_len[j] <= 40.0) & (num > 0.0) & (den > 0.0)
+              & (p_c > 0.0))
+        thinned = pass_through + (1.0 - pass_through) * ((num * q_c) / (den * p_c))  # = the ratio when m = 0
+        post[lo + j] = num / (num + den) if pass_through == 0.0 else p_c * thinned / (p_c * thinned + q_c)
+        ratio[j] = thinned if ok else -1.0
+    n_fix = 0
+    for j in range(hi - lo):
+        if ratio[j] >= 0.0:
+            continue
+        ratio[j] = 1.0
+        if side[j] == _SKIP:
+            post[lo + j] = -math.expm1(-lam_len[j])
+            continue
+        post[lo + j], fix_value[n_fix] = combine_small(l_a[j], l_c[j], side[j] & 1, side[j] & 2, lam_len[j])
+        if pass_through > 0.0:
+            post[lo + j], fix_value[n_fix] = pass_through_log(fix_value[n_fix], lam_len[j], pass_through)
+        fix_index[n_fix] = j
+        n_fix += 1
+    return n_fix
+
+
+@nb.njit(cache=True, nogil=True)
+def prism_table_cells(lam, table, delta, ray_of_cell, start, end, stretch, block, z0, z_max, fb, ku, hq, meta, nodes,
+                      log_wn, means, sigmas, pass_through):
+    """Tabulated PRISM on every cell ``[start[i], end[i] + stretch[r]]``: posterior and increment, (C,) each.
+
+    Blocks of ``block`` cells go through :func:`prism_table_lookup`, :func:`exp_into` (both ends),
+    :func:`prism_table_combine` and :func:`log_into`; the scratch arrays of a block stay in the core's
+    cache and the GIL stays released for the whole call. ``pass_through``: see :func:`prism_table_combine`.
+    """
+    n = start.size
+    post = np.empty(n)
+    inc = np.empty(n)
+    size = max(min(n, block), 1)
+    l_a, l_c, e_a, e_c = np.empty(size), np.empty(size), np.empty(size), np.empty(size)
+    lam_len, ratio, fix_value = np.empty(size), np.empty(size), np.empty(size)
+    side = np.empty(size, dtype=np.int8)
+    fix_index = np.empty(size, dtype=np.int64)
+    for lo in range(0, n, size):
+        hi = min(lo + size, n)
+        m = hi - lo
+        prism_table_lookup(lam, table, delta, ray_of_cell, start, end, stretch, lo, hi, z0, z_max, fb, ku, hq, meta,
+                           nodes, log_wn, means, sigmas, l_a, l_c, side, lam_len)
+        exp_into(l_a, e_a, m)
+        exp_into(l_c, e_c, m)
+        n_fix = prism_table_combine(lo, hi, l_a, l_c, e_a, e_c, side, lam_len, post, ratio, fix_index, fix_value,
+                                    pass_through)
+        log_into(ratio, inc[lo:hi], m)
+        for k in range(n_fix):
+            inc[lo + fix_index[k]] = fix_value[k]
+    return post, inc
+
+@nb.njit(cache=True, nogil=True)
+def table_keys(disparity, log_norm, disparity_step, lambda_step, key_l_span):
+    """PRISM's table key of every ray and the distinct keys (first-seen order), by open addressing.
+
+    ``key = rint(d / disparity_step) * key_l_span + min(rint(log|r| / lambda_step), key_l_span - 1)``.
+    Returns ``unique (K,) int64`` and ``inverse (R,) int64`` (``unique[inverse] = key``); a hash table
+    instead of a sort: O(R) for the ~300 k rays of a frame and their ~2 k keys.
+    """
+    n = disparity.size
+    size = 64
+    while size < 2 * n:
+        size *= 2
+    mask = size - 1
+    slots = np.full(size, -1, dtype=np.int64)
+    unique = np.empty(n, dtype=np.int64)
+    inverse = np.empty(n, dtype=np.int64)
+    k = 0
+    for i in range(n):
+        key = np.int64(np.rint(disparity[i] / disparity_step)) * key_l_span + min(
+            np.int64(np.rint(log_norm[i] / lambda_step)), key_l_span - 1)
+        h = np.int64((np.uint64(key) * np.uint64(0x9E3779B97F4A7C15)) >> np.uint64(32)) & mask
+        while slots[h] >= 0 and unique[slots[h]] != key:
+            h = (h + 1) & mask
+        if slots[h] < 0:
+            slots[h] = k
+            unique[k] = key
+            k += 1
+        inverse[i] = slots[h]
+    return unique[:k], inverse

@@ -1,0 +1,420 @@
+"""numba kernels of PRISM's integration along one ray: the likelihood, Gauss-Legendre panels, and the march
+that gives ``log C`` and ``log D = log(Z - C)`` and the moments of ``Q`` in the surface rate.
+
+PRISM carries ``log C`` and ``log D`` as logarithms so that nothing underflows from 0.1 m to 200 m with
+surface rates up to 50 per metre. The wrappers (``_prism``) validate and convert; the kernels assume.
+"""
+
+import math
+
+import numba as nb
+import numpy as np
+
+from prismap.sensor_models._kernels_math import _EXP_NORMAL, fast_exp, fast_log, logaddexp
+
+_GL_X, _GL_W = np.polynomial.legendre.leggauss(8)
+_GL_LOG_W = np.log(_GL_W)
+
+# ---------------------------------------------------------------------------------------------- PRISM
+# A ray is described by ``shift = d^ + doffs`` (pixels) and its surface rate ``lam`` (per metre of depth).
+# The integration coordinate ``x(z) = lam*z - ku/z`` with ``ku = f*b / sigma_min`` grows by one unit per
+# e-fold of the prior ``q`` and per narrowest sigma of disparity, so panels of fixed x-width resolve both.
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _log_sum_exp_add(best, total, v):
+    """One step of a streaming log-sum-exp: the sum so far is ``exp(best) * total``; add ``exp(v)``."""
+    if v > best:
+        return v, (total * math.exp(best - v) if best - v > _EXP_NORMAL else 0.0) + 1.0
+    return best, total + (math.exp(v - best) if v - best > _EXP_NORMAL else 0.0)
+
+
+@nb.njit(cache=True, nogil=True)
+def log_likelihood(u, shift, log_wn, means, sigmas):
+    """``log g``: the mixture density of the error ``u - shift`` (``u`` = true disparity + 0, pixels)."""
+    best = -np.inf
+    total = 0.0
+    for j in range(means.size):
+        t = (u - shift - means[j]) / sigmas[j]
+        best, total = _log_sum_exp_add(best, total, log_wn[j] - 0.5 * t * t)
+    return best + math.log(total)
+
+
+@nb.njit(cache=True, nogil=True)
+def _log_sup_tail(z, z_max, fb, shift, log_wn, means, sigmas):
+    """Log of an upper bound of ``g`` on true depths ``[z, z_max]`` (sum of per-component maxima)."""
+    u_hi = fb / z
+    u_lo = fb / z_max
+    best = -np.inf
+    total = 0.0
+    for j in range(means.size):
+        mode = min(max(shift + means[j], u_lo), u_hi)
+        t = (mode - shift - means[j]) / sigmas[j]
+        best, total = _log_sum_exp_add(best, total, log_wn[j] - 0.5 * t * t)
+    return best + math.log(total)
+
+
+@nb.njit(cache=True, nogil=True)
+def x_of_z(z, lam, ku):
+    return lam * z - ku / z
+
+
+@nb.njit(cache=True, nogil=True)
+def z_of_x(x, lam, ku):
+    root = math.sqrt(x * x + 4.0 * lam * ku)
+    if x >= 0.0:
+        return (x + root) / (2.0 * lam)
+    return 2.0 * ku / (root - x)
+
+
+@nb.njit(cache=True, nogil=True)
+def _log_panel_moments(z1, z2, lam, z0, fb, shift, log_wn, means, sigmas):
+    """Logs of ``int_{z1}^{z2} (z - z0)^k q g dz``, k = 0, 1, 2, by 8-point Gauss-Legendre (one panel)."""
+    half = 0.5 * (z2 - z1)
+    if half <= 0.0:
+        return -np.inf, -np.inf, -np.inf
+    mid = 0.5 * (z1 + z2)
+    best = -np.inf
+    m0 = m1 = m2 = 0.0
+    log_lam = math.log(lam)
+    for i in range(8):
+        z = mid + half * _GL_X[i]
+        s = z - z0
+        v = _GL_LOG_W[i] + log_lam - lam * s + log_likelihood(fb / z, shift, log_wn, means, sigmas)
+        if v > best:
+            scale = math.exp(best - v)
+            m0 *= scale
+            m1 *= scale
+            m2 *= scale
+            best = v
+            e = 1.0
+        else:
+            e = math.exp(v - best)
+        m0 += e
+        m1 += e * s
+        m2 += e * s * s
+    base = best + math.log(half)
+    return base + math.log(m0), base + math.log(m1), base + math.log(m2)
+
+
+@nb.njit(cache=True, nogil=True)
+def _log_panel(z1, z2, lam, z0, fb, shift, log_wn, means, sigmas):
+    """Log of ``int_{z1}^{z2} q g dz`` by 8-point Gauss-Legendre (one panel)."""
+    return _log_panel_moments(z1, z2, lam, z0, fb, shift, log_wn, means, sigmas)[0]
+
+
+@nb.njit(cache=True, nogil=True)
+def log_integral(z1, z2, lam, ku, hq, z0, fb, shift, log_wn, means, sigmas):
+    """Log of ``int_{z1}^{z2} q g dz`` with panels of x-width at most ``hq``."""
+    if z2 <= z1:
+        return -np.inf
+    x1 = x_of_z(z1, lam, ku)
+    x2 = x_of_z(z2, lam, ku)
+    n = max(1, int(math.ceil((x2 - x1) / hq)))
+    out = -np.inf
+    za = z1
+    for k in range(1, n + 1):
+        zb = z2 if k == n else z_of_x(x1 + (x2 - x1) * k / n, lam, ku)
+        out = logaddexp(out, _log_panel(za, zb, lam, z0, fb, shift, log_wn, means, sigmas))
+        za = zb
+    return out
+
+
+@nb.njit(cache=True, nogil=True)
+def prism_march(shift, lam, z0, z_max, fb, ku, hq, log_far, log_eps_bound, lam_slack, i_min, log_wn, means, sigmas):
+    """Cumulative evidence of one (d^, lam) on the x-grid of spacing ``hq`` from ``z0``.
+
+    Returns ``z`` (nodes); ``log_c`` (n, 3): logs of ``C`` and of its moments ``int_{z0}^{z} (t - z0)^k q g dt``
+    (k = 1, 2) at the nodes, not normalised; ``log_d`` (n, 3): the same beyond ``z`` (the far measurement
+    counted as a mass at ``z_max``); ``log Z``; the log of the far term ``e^{-lam (z_max - z0)} g_far``
+    (-inf when the march stopped early); and the index of the first node from which every later cell's
+    increment is bounded by epsilon (``log_eps_bound`` = ``log(expm1(epsilon))``) for every rate within a
+    factor ``1 +- lam_slack`` of ``lam``. The march stops (not before node ``i_min``) once the remaining
+    evidence is below e^-40 of ``C``.
+    """
+    return _march(shift, lam, z0, z0, np.full(3, -np.inf), np.zeros(3, dtype=np.int64), hq, z_max, fb, ku, hq,
+                  log_far, log_eps_bound, lam_slack, i_min, 1, log_wn, means, sigmas)[:6]
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _march_x(i, x0, counts, h_wide, h):
+    """x of node ``i`` of a march from ``x0`` whose panels are ``counts[0]`` of ``h_wide``, ``counts[1]`` of
+    ``h``, ``counts[2]`` of ``h_wide``, then ``h``."""
+    widths = (h_wide, h, h_wide)
+    x = x0
+    for r in range(3):
+        if i <= counts[r]:
+            return x + i * widths[r]
+        x += counts[r] * widths[r]
+        i -= counts[r]
+    return x + i * h
+
+
+_MARCH_BLOCK = 16
+"""Panels a march evaluates at once (:func:`_log_panel_block`): 288 exps in vectorised loops for a 3-component
+mixture; the march's stop wastes at most this many less one."""
+_MARCH_GL = 6
+"""Gauss-Legendre points of a march's panel: on half a narrowest sigma (or, in a broad segment, a quarter of the
+widest sigma, at most half a prior e-fold) the rule's relative error is below about 1e-10 where the integrand
+matters, and below 5e-8 ten sigmas out (the direct method's 8 points on half as wide panels are the reference)."""
+_MARCH_GL_X, _MARCH_GL_W = np.polynomial.legendre.leggauss(_MARCH_GL)
+_MARCH_GL_LOG_W = np.log(_MARCH_GL_W)
+
+
+_EXP_TERM_FLOOR = -700.0
+
+
+@nb.njit(cache=True, nogil=True, inline="always", error_model="numpy")
+def _exp_term(x):
+    """``exp(x)`` (:func:`fast_exp`) for a term of a sum of at least 1: below e^-700 it is e^-700, which adds
+    nothing to such a sum, instead of a subnormal or 0 (subnormal arithmetic costs about a hundred cycles)."""
+    return fast_exp(max(x, _EXP_TERM_FLOOR))
+
+
+@nb.njit(cache=True, nogil=True, error_model="numpy")
+def _log_panel_block(z, first, count, lam, z0, fb, shift, log_wn, means, inv_sigmas, out, scratch):
+    """Logs of ``int_{z[i-1]}^{z[i]} (t - z0)^k q g dt`` (k = 0, 1, 2) into ``out[i]`` for ``count`` panels from
+    ``i = first``, by :data:`_MARCH_GL`-point Gauss-Legendre, each panel's terms scaled by its largest one, in
+    loops over all the block's points that LLVM vectorises (exps by :func:`_exp_term`). ``scratch``:
+    (J + 5, _MARCH_GL _MARCH_BLOCK) float64, J = ``means.size``."""
+    n_gl = _MARCH_GL
+    n_pts = n_gl * count
+    n_comp = means.size
+    s = scratch[n_comp]
+    u = scratch[n_comp + 1]
+    base = scratch[n_comp + 2]
+    top = scratch[n_comp + 3]
+    w = scratch[n_comp + 4]
+    for q in range(n_pts):
+        i = first + q // n_gl
+        half = 0.5 * (z[i] - z[i - 1])
+        zq = z[i - 1] + half + half * _MARCH_GL_X[q % n_gl]
+        s[q] = zq - z0
+        u[q] = fb / zq - shift
+        base[q] = _MARCH_GL_LOG_W[q % n_gl] - lam * s[q]
+        top[q] = -np.inf
+        w[q] = 0.0
+    for j in range(n_comp):
+        e = scratch[j]
+        for q in range(n_pts):
+            t = (u[q] - means[j]) * inv_sigmas[j]
+            e[q] = base[q] + log_wn[j] - 0.5 * t * t
+            top[q] = max(top[q], e[q])
+    for p in range(count):  # each panel's largest term, at each of its points
+        m = top[n_gl * p]
+        for q in range(n_gl * p + 1, n_gl * (p + 1)):
+            m = max(m, top[q])
+        for q in range(n_gl * p, n_gl * (p + 1)):
+            top[q] = m
+    for j in range(n_comp):
+        e = scratch[j]
+        for q in range(n_pts):
+            w[q] += _exp_term(e[q] - top[q])
+    log_lam = math.log(lam)
+    for p in range(count):
+        m0 = m1 = m2 = 0.0
+        for q in range(n_gl * p, n_gl * (p + 1)):
+            ws = w[q] * s[q]
+            m0 += w[q]
+            m1 += ws
+            m2 += ws * s[q]
+        i = first + p
+        out[i, 0], out[i, 1], out[i, 2] = m0, m1, m2
+        base[p] = top[n_gl * p] + log_lam + math.log(0.5 * (z[i] - z[i - 1]))
+    for i in range(first, first + count):
+        for k in range(3):
+            out[i, k] = fast_log(out[i, k])
+    for p in range(count):
+        for k in range(3):
+            out[first + p, k] += base[p]
+
+
+@nb.njit(cache=True, nogil=True, error_model="numpy")
+def _log_sup_tail_block(z, first, count, z_max, fb, shift, log_wn, means, inv_sigmas, out, scratch):
+    """:func:`_log_sup_tail` at ``z[first:first + count]`` into ``out[first:...]``, in vectorised loops (exps by
+    :func:`_exp_term`); ``scratch`` as :func:`_log_panel_block`'s."""
+    n_comp = means.size
+    u_lo = fb / z_max
+    top = scratch[n_comp]
+    total = scratch[n_comp + 1]
+    for q in range(count):
+        top[q] = -np.inf
+        total[q] = 0.0
+    for j in range(n_comp):
+        e = scratch[j]
+        for q in range(count):
+            mode = min(max(shift + means[j], u_lo), fb / z[first + q])
+            t = (mode - shift - means[j]) * inv_sigmas[j]
+            e[q] = log_wn[j] - 0.5 * t * t
+            top[q] = max(top[q], e[q])
+    for j in range(n_comp):
+        e = scratch[j]
+        for q in range(count):
+            total[q] += _exp_term(e[q] - top[q])
+    for q in range(count):
+        out[first + q] = top[q] + fast_log(total[q])
+
+
+@nb.njit(cache=True, nogil=True, error_model="numpy")
+def _log_cumsum_block(terms, out, first, count, step, scratch):
+    """``out[i] = log(e^out[i - step] + e^terms[i'])`` row by row (3 columns each) for ``count`` rows ``i = first,
+    first + step, ...`` (``step`` +1 or -1; ``i' = i`` forward, ``i + 1`` backward: a cumulative log-sum-exp
+    either way): in linear space against each column's largest value, exps and logs in vectorised loops, where
+    no finite value of the block lies more than e^690 below that largest (nothing underflows), else by
+    :func:`logaddexp` row by row. ``scratch``: (3 count,) float64 or longer."""
+    shift_in = 0 if step > 0 else 1
+    top = np.empty(3)
+    for k in range(3):
+        top[k] = out[first - step, k]
+    for j in range(count):
+        i = first + j * step + shift_in
+        for k in range(3):
+            top[k] = max(top[k], terms[i, k])
+    linear = True
+    for k in range(3):
+        floor = top[k] - 690.0
+        if top[k] == -np.inf or (out[first - step, k] > -np.inf and out[first - step, k] < floor):
+            linear = False
+        for j in range(count):
+            v = terms[first + j * step + shift_in, k]
+            if v > -np.inf and v < floor:
+                linear = False
+    if not linear:
+        for j in range(count):
+            i = first + j * step
+            for k in range(3):
+                out[i, k] = logaddexp(out[i - step, k], terms[i + shift_in, k])
+        return
+    for j in range(count):
+        i = first + j * step + shift_in
+        for k in range(3):
+            scratch[3 * j + k] = fast_exp(terms[i, k] - top[k])
+    for k in range(3):
+        acc = fast_exp(out[first - step, k] - top[k])
+        for j in range(count):
+            acc += scratch[3 * j + k]
+            scratch[3 * j + k] = acc
+    for q in range(3 * count):
+        scratch[q] = fast_log(scratch[q])
+    for j in range(count):
+        for k in range(3):
+            out[first + j * step, k] = top[k] + scratch[3 * j + k]
+
+
+@nb.njit(cache=True, nogil=True, error_model="numpy")
+def _march(shift, lam, z0, z_start, log_c_start, counts, h_wide, z_max, fb, ku, hq, log_far, log_eps_bound,
+           lam_slack, i_min, far_ratio, log_wn, means, sigmas):
+    """:func:`prism_march` from ``z_start``, where the moments of C are ``log_c_start`` (3,), on panels of
+    x-width ``h_wide`` (``counts[0]``: a table's broad front), ``hq`` (``counts[1]``), ``h_wide``
+    (``counts[2]``: its broad back), then ``hq`` (:func:`_march_x`), and with ``far_ratio > 1`` from the first
+    node of that last run past the influence node (``i_far``, -1 if none) panels about ``far_ratio`` times
+    wider to the end, a multiple of 4 of them, all of one width ``h_far``, and the march stops only on every 4th
+    of them (a table's back: 4 equal intervals from ``i_far``). Past the influence depth ``D < (e^eps - 1) C``,
+    so ``D``'s relative error there (below about 2e-3 on panels of x-width 2 a narrow component 5 sigmas
+    away, far less elsewhere) moves a cell's increment by a thousandth of it. Panels and tail bounds are
+    evaluated :data:`_MARCH_BLOCK` at a time (:func:`_log_panel_block`, :func:`_log_sup_tail_block`), the
+    running sums and the stop node by node. Returns :func:`prism_march`'s values, then ``i_far`` and ``h_far``."""
+    x0 = x_of_z(z_start, lam, ku)
+    x_end = x_of_z(z_max, lam, ku)
+    last = counts[0] + counts[1] + counts[2]
+    n_max = last + max(1, int(math.ceil((x_end - _march_x(last, x0, counts, h_wide, hq)) / hq)))
+    fine_run = last if counts[2] > 0 else counts[0]  # first node of the run of hq panels that ends the march
+    z = np.empty(n_max + 1)
+    log_c = np.full((n_max + 1, 3), -np.inf)
+    log_c[0] = log_c_start
+    panel = np.full((n_max + 1, 3), -np.inf)
+    sup = np.empty(n_max + 1)
+    inv_sigmas = 1.0 / sigmas
+    scratch = np.empty((means.size + 5, _MARCH_GL * _MARCH_BLOCK))
+    z[0] = z_start
+    i_infl = -1
+    i_far = -1
+    x_far = h_far = hq
+    n = n_max
+    stopped = False
+    tail = -np.inf
+    slack = -math.log1p(-lam_slack)  # a rate lam (1 - s) has C(a) >= (1 - s) C(a; lam)
+    first = 1
+    while first <= n_max and not stopped:
+        count = min(_MARCH_BLOCK, n_max + 1 - first)
+        for i in range(first, first + count):
+            if i == n_max:
+                z[i] = z_max
+            elif i_far >= 0:
+                z[i] = z_of_x(x_far + (i - i_far) * h_far, lam, ku)
+            else:
+                z[i] = z_of_x(_march_x(i, x0, counts, h_wide, hq), lam, ku)
+        _log_panel_block(z, first, count, lam, z0, fb, shift, log_wn, means, inv_sigmas, panel, scratch)
+        _log_sup_tail_block(z, first, count, z_max, fb, shift, log_wn, means, inv_sigmas, sup, scratch)
+        _log_cumsum_block(panel, log_c, first, count, 1, scratch[0])
+        following = first + count
+        for i in range(first, first + count):
+            bound = -lam * (z[i] - z0) + max(sup[i], log_far)
+            if i_infl < 0 and bound + lam_slack * lam * (z[i] - z0) + slack - log_c[i, 0] < log_eps_bound:
+                i_infl = i
+            if (i < n_max and i >= i_min and (i_far < 0 or (i - i_far) % 4 == 0)
+                    and bound - log_c[i, 0] < -40.0):
+                n = i
+                tail = bound
+                stopped = True
+                break
+            if far_ratio > 1 and i_far < 0 and 0 <= i_infl < i and i >= fine_run:
+                x_i = _march_x(i, x0, counts, h_wide, hq)
+                if x_end - x_i >= 8.0 * far_ratio * hq:  # room to spare in the arrays
+                    i_far = i
+                    x_far = x_i
+                    n_far = 4 * int(math.ceil((x_end - x_i) / (4.0 * far_ratio * hq)))
+                    h_far = (x_end - x_i) / n_far
+                    n_max = n = i + n_far
+                    following = i + 1
+                    break
+        first = following
+    log_far_w = -np.inf
+    if not stopped:
+        tail = log_far_w = -lam * (z_max - z0) + log_far
+        if i_infl < 0:
+            i_infl = n_max
+    log_d = np.empty((n + 1, 3))
+    log_s = math.log(z[n] - z0)
+    for k in range(3):
+        log_d[n, k] = tail + k * log_s
+    for last_row in range(n - 1, -1, -_MARCH_BLOCK):
+        _log_cumsum_block(panel, log_d, last_row, min(_MARCH_BLOCK, last_row + 1), -1, scratch[0])
+    log_z = logaddexp(log_c[n, 0], tail)
+    return z[: n + 1], log_c[: n + 1], log_d, log_z, log_far_w, i_infl, i_far, h_far
+
+
+@nb.njit(cache=True, nogil=True)
+def _rate_derivatives(log_m, log_far, lam, z_far):
+    """First and second derivatives of ``log Q`` in ``log lam`` from the logs of Q's moments (``log_m`` (3,)).
+
+    ``Q = J + F``: ``J = int lam e^{-lam s} g`` has moments ``M_k``; the far term ``F = e^{-lam L} g_far``
+    (``L = z_far``, log -inf when absent) carries no factor ``lam``. For one mass at ``s``,
+    ``J' = J (1 - lam s)`` and ``J'' = J (1 - 3 lam s + lam^2 s^2)``; ``F' = -lam L F``,
+    ``F'' = (lam^2 L^2 - lam L) F``.
+    """
+    far = math.exp(log_far - log_m[0])
+    m1 = lam * math.exp(log_m[1] - log_m[0])
+    m2 = lam * lam * math.exp(log_m[2] - log_m[0])
+    lam_l = lam * z_far
+    j = 1.0 - far
+    m1 -= far * lam_l
+    m2 -= far * lam_l * lam_l
+    first = j - m1 - far * lam_l
+    second = j - 3.0 * m1 + m2 + far * (lam_l * lam_l - lam_l)
+    return first, second - first * first
+
+
+@nb.njit(cache=True, nogil=True)
+def _rate_columns(slope, first, second, z_1, z_2, lam_s):
+    """A node's three rate columns for ``log(Q/Z)`` (Q is C or D): its first log(lam)-derivative, that one's
+    x-derivative, and its second log(lam)-derivative.
+
+    ``first``, ``second`` are Q's own (:func:`_rate_derivatives`), ``z_1``, ``z_2`` Z's, ``slope`` is
+    ``d log Q/dx`` and ``lam_s = lam (z - z0)``. As ``dQ/dz = +-q g`` and ``d log(q g)/d log lam = 1 - lam s``
+    at fixed z, ``d first/dx = slope (1 - lam s - first)`` (Z's derivatives do not depend on z): the exact
+    slope, so that the first-order term is cubic Hermite in x like the value, and a short cell's share
+    ``C(c) - C(a)`` follows the rate where ``log C`` grows slowly (in front of the measurement), where the
+    secant slope of a linear interpolation is off by up to 25 % of it.
+    """
+    return first - z_1, slope * (1.0 - lam_s - first), second - z_2

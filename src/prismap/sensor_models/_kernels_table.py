@@ -1,0 +1,287 @@
+"""numba kernels that build PRISM's tables: one node grid per (measured disparity, surface rate), packed
+back to back with a metadata row each (:data:`META_COLUMNS`)."""
+
+import math
+
+import numba as nb
+import numpy as np
+
+from prismap.sensor_models._kernels_march import (
+    _march,
+    _march_x,
+    _rate_columns,
+    _rate_derivatives,
+    log_likelihood,
+    x_of_z,
+    z_of_x,
+)
+from prismap.sensor_models._kernels_math import log1mexp, logaddexp
+
+_STEEP = 0.02
+"""Bound on ``|phi''| / phi'^2`` (``phi = log(q g)``), the relative error of the endpoint asymptotic of C that
+a table's coarse front uses."""
+
+TABLE_COLUMNS = 10
+"""Columns of a PRISM table node: log(C/Z), its x-derivative, its first log(lambda)-derivative and that one's
+x-derivative, its second log(lambda)-derivative; then the same five for ``D = Z - C`` (from column
+:data:`_D_COLUMN`). 40 bytes in float32."""
+_D_COLUMN = TABLE_COLUMNS // 2
+
+
+@nb.njit(cache=True, nogil=True)
+def _log_qg_slope(z, lam, z0, fb, shift, log_wn, means, sigmas):
+    """``log(q g)`` at depth ``z`` and its derivative in z (1/metre)."""
+    u = fb / z
+    best = -np.inf
+    total = 0.0
+    slope = 0.0  # sum of weights times d log N_j / du
+    for j in range(means.size):
+        t = (u - shift - means[j]) / sigmas[j]
+        v = log_wn[j] - 0.5 * t * t
+        if v > best:
+            scale = math.exp(best - v)
+            total *= scale
+            slope *= scale
+            best = v
+            e = 1.0
+        else:
+            e = math.exp(v - best)
+        total += e
+        slope -= e * t / sigmas[j]
+    return math.log(lam) - lam * (z - z0) + best + math.log(total), -lam - slope / total * fb / (z * z)
+
+
+@nb.njit(cache=True, nogil=True)
+def _log_c_asymptotic(z, lam, z0, fb, shift, log_wn, means, sigmas):
+    """``log C(z)`` where ``q g`` rises steeply: ``C = q g / (d log(q g)/dz) (1 + O(phi''/phi'^2))``."""
+    phi, phi_z = _log_qg_slope(z, lam, z0, fb, shift, log_wn, means, sigmas)
+    return phi - math.log(phi_z)
+
+
+_FAR_RATIO = 4
+"""A table's march past its influence node: panels about this many times the fine width (:func:`_march`)."""
+
+N_SEGMENTS = 6
+"""Segments of a table's node grid, each uniform in x: coarse front, broad front, fine, broad back, fine, back."""
+
+
+@nb.njit(cache=True, nogil=True)
+def prism_table(shift, lam, z0, z_max, fb, ku, h, log_far, log_eps_bound, lam_slack, coarse_ratio, coarse_below,
+                e_front, e_back, wide_ratio, wide_efolds, log_wn, means, sigmas):
+    """The table of one (d^, lam): a node per march panel, every ``coarse_ratio``-th one where C/Z is tiny.
+
+    Node columns (see :data:`TABLE_COLUMNS`): ``log(C/Z)``, ``d log(C/Z)/dx``, the first and second
+    derivatives of ``log(C/Z)`` in ``log lam`` (from the moments, :func:`_rate_derivatives`), the first one
+    followed by its x-derivative (:func:`_rate_columns`), and the same five for ``D = Z - C``. Nodes are uniform
+    in x on each of :data:`N_SEGMENTS` segments: spacing
+    ``H = coarse_ratio h`` up to ``x_split``; ``H_wide = wide_ratio h`` over the broad front (true
+    disparities above ``shift + e_front``); ``h``; ``H_wide`` over the broad back (below ``shift + e_back``),
+    both only where an interval spans at most ``wide_efolds`` prior e-folds; ``h``; then, from a node past
+    the influence depth (beyond which only the cells that straddle it look up), four equal intervals to
+    the end of the march. The march's panels are the node intervals (:data:`_MARCH_GL`-point Gauss-Legendre
+    is exact far below the tolerance on half a narrowest sigma, and on a broad segment, where only the widest
+    error component is not negligible, on a quarter of its sigma), and past the influence node, where only the
+    four back intervals remain, :data:`_FAR_RATIO` times wider (:func:`_march`).
+
+    Before ``x_split`` ``q g`` rises steeply (``|phi''| / phi'^2 < _STEEP``, ``phi = log(q g)``) and
+    ``C/Z < e^coarse_below``: there ``C`` is its endpoint (Laplace) asymptotic ``q g / (q g)'`` (relative
+    error about ``phi''/phi'^2``), all its mass at ``z``; quadrature starts at ``x_split``.
+
+    Returns
+    -------
+    nodes : (N, TABLE_COLUMNS) float64
+    meta : (3 N_SEGMENTS + 5,) float64
+        Per segment its first x, its first row and its spacing; then ``z_end`` (last node), ``z_infl``,
+        ``log Z`` and its first and second derivatives in ``log lam`` (a ray's ``log Z`` by the Taylor
+        term of the nodes, for the look-ups that integrate on the spot at the ray's own rate).
+    """
+    h_coarse = coarse_ratio * h
+    h_wide = wide_ratio * h
+    x0 = x_of_z(z0, lam, ku)
+    x_end = x_of_z(z_max, lam, ku)
+    x_front = x0  # broad front: [x_split, x_front); broad back: [x_back_wide, x_lam)
+    x_back_wide = x_lam = x_end
+    if wide_ratio > 1:
+        if h_wide > wide_efolds:  # an interval spans dz = h_wide / (lam + ku / z^2)
+            x_lam = min(x_end, x_of_z(math.sqrt(ku / (lam * (h_wide / wide_efolds - 1.0))), lam, ku))
+        u_front = shift + e_front
+        u_back = shift + e_back
+        if e_front == -np.inf or u_front <= fb / z_max:
+            x_front = x_end
+        elif u_front < np.inf:
+            x_front = x_of_z(fb / u_front, lam, ku)
+        if u_back == np.inf:
+            x_back_wide = x0
+        elif u_back > fb / z_max:
+            x_back_wide = x_of_z(fb / u_back, lam, ku)
+    x_front = min(x_front, x_lam, x_end - 4.0 * h_wide)  # the fine part keeps a few panels before z_max
+    x_back_wide = min(x_back_wide, x_end - 2.0 * h)
+    n_steep = 0  # coarse nodes after z0 where q g is steep
+    while x0 + (n_steep + 2) * h_coarse < x_end:
+        z = z_of_x(x0 + (n_steep + 1) * h_coarse, lam, ku)
+        slope = _log_qg_slope(z, lam, z0, fb, shift, log_wn, means, sigmas)[1]
+        curvature = (_log_qg_slope(z * (1.0 + 1e-5), lam, z0, fb, shift, log_wn, means, sigmas)[1]
+                     - _log_qg_slope(z * (1.0 - 1e-5), lam, z0, fb, shift, log_wn, means, sigmas)[1]) / (2e-5 * z)
+        if not slope > 0.0 or abs(curvature) > _STEEP * slope * slope:
+            break
+        n_steep += 1
+    log_c_start = np.full(3, -np.inf)
+    counts = np.zeros(3, dtype=np.int64)
+    n_coarse = n_steep
+    log_z = np.nan
+    while True:  # once, or twice if the first Z shows the steep part reaching above e^coarse_below
+        x_split = x0 + n_coarse * h_coarse
+        z_split = z_of_x(x_split, lam, ku) if n_coarse > 0 else z0
+        if n_coarse > 0:
+            log_c = _log_c_asymptotic(z_split, lam, z0, fb, shift, log_wn, means, sigmas)
+            log_s = math.log(z_split - z0)
+            for k in range(3):
+                log_c_start[k] = log_c + k * log_s
+        counts[0] = max(int((x_front - x_split) / h_wide), 0)
+        x_fine = x_split + counts[0] * h_wide
+        counts[1] = max(int(math.ceil((x_back_wide - x_fine) / h)), 1)
+        x_fine += counts[1] * h
+        counts[2] = max(int((min(x_lam, x_end - h) - x_fine) / h_wide), 0)
+        z, log_c, log_d, log_z, log_far_w, i_infl, i_far, h_far = _march(
+            shift, lam, z0, z_split, log_c_start, counts, h_wide, z_max, fb, ku, h, log_far, log_eps_bound,
+            lam_slack, counts[0] + 2, _FAR_RATIO, log_wn, means, sigmas,
+        )
+        fit = n_coarse
+        while fit > 0 and _log_c_asymptotic(z_of_x(x0 + fit * h_coarse, lam, ku), lam, z0, fb, shift, log_wn,
+                                            means, sigmas) - log_z >= coarse_below:
+            fit -= 1
+        if fit == n_coarse:
+            break
+        n_coarse = fit
+    n = z.size - 1
+    starts = np.array([0, counts[0], counts[0] + counts[1], counts[0] + counts[1] + counts[2]])  # march regions
+    widths = np.array([h_wide, h, h_wide, h])
+    last = 3
+    while starts[last] >= n:
+        last -= 1
+    uniform = starts[last]  # first node of the uniform run of panels that ends the march
+    for r in range(last - 1, -1, -1):
+        if starts[r] < starts[r + 1]:
+            if widths[r] != widths[last]:
+                break
+            uniform = starts[r]
+    # fine up to a node past the influence depth, then 4 equal intervals to the end (on the march's nodes)
+    first_back = max(min(i_infl + 1, n), uniform)
+    back_width = widths[last]
+    if i_far >= 0:  # the march's far panels: 4 equal intervals of them from i_far
+        first_back = i_far
+        back_width = h_far
+    back = (n - first_back) // 4
+    n_back = 4 if back > 0 else 0
+    i_back = n - n_back * back
+    z_far = z_max - z0 if log_far_w > -np.inf else z[-1] - z0
+    log_total = np.empty(3)
+    for k in range(3):
+        log_total[k] = logaddexp(log_c[-1, k], log_d[-1, k])
+    z_1, z_2 = _rate_derivatives(log_total, log_far_w, lam, z_far)
+    nodes = np.empty((n_coarse + i_back + 1 + n_back, TABLE_COLUMNS))
+    row_c = np.empty(3)
+    row_d = np.empty(3)
+    for row in range(nodes.shape[0]):
+        slope_c = np.nan
+        xi = x0 + row * h_coarse
+        if 0 < row <= n_coarse:  # the slope of the asymptotic, also at x_split (the end of a coarse interval)
+            slope_c = (_log_c_asymptotic(z_of_x(xi + 0.25 * h, lam, ku), lam, z0, fb, shift, log_wn, means, sigmas)
+                       - _log_c_asymptotic(z_of_x(xi - 0.25 * h, lam, ku), lam, z0, fb, shift, log_wn, means,
+                                           sigmas)) / (0.5 * h)
+        if row < n_coarse:
+            zi = z_of_x(xi, lam, ku) if row > 0 else z0
+            row_c[:] = -np.inf
+            if row > 0:
+                log_c_z = _log_c_asymptotic(zi, lam, z0, fb, shift, log_wn, means, sigmas)
+                log_s = math.log(zi - z0)
+                for k in range(3):
+                    row_c[k] = log_c_z + k * log_s
+            for k in range(3):  # D = everything minus the (tiny) C
+                row_d[k] = log_total[k] + log1mexp(row_c[k] - log_total[k])
+        else:
+            i = row - n_coarse if row <= n_coarse + i_back else i_back + (row - n_coarse - i_back) * back
+            zi = z[i]
+            row_c[:] = log_c[i]
+            row_d[:] = log_d[i]
+        log_qg = math.log(lam) - lam * (zi - z0) + log_likelihood(fb / zi, shift, log_wn, means, sigmas)
+        dx_dz = lam + ku / (zi * zi)
+        lam_s = lam * (zi - z0)
+        nodes[row, 0] = row_c[0] - log_z
+        if row_c[0] == -np.inf:
+            nodes[row, 1:_D_COLUMN] = 0.0
+        else:
+            nodes[row, 1] = slope_c if not math.isnan(slope_c) else math.exp(log_qg - row_c[0]) / dx_dz
+            c_1, c_2 = _rate_derivatives(row_c, -np.inf, lam, z_far)
+            nodes[row, 2], nodes[row, 3], nodes[row, 4] = _rate_columns(nodes[row, 1], c_1, c_2, z_1, z_2, lam_s)
+        d_1, d_2 = _rate_derivatives(row_d, log_far_w, lam, z_far)
+        nodes[row, _D_COLUMN] = row_d[0] - log_z
+        nodes[row, _D_COLUMN + 1] = -math.exp(log_qg - row_d[0]) / dx_dz
+        nodes[row, _D_COLUMN + 2], nodes[row, _D_COLUMN + 3], nodes[row, _D_COLUMN + 4] = _rate_columns(
+            nodes[row, _D_COLUMN + 1], d_1, d_2, z_1, z_2, lam_s)
+    nodes[0, 2:_D_COLUMN] = nodes[1, 2:_D_COLUMN]
+    meta = np.empty(3 * N_SEGMENTS + 5)
+    x_march = x_of_z(z[0], lam, ku)
+    meta[0], meta[N_SEGMENTS], meta[2 * N_SEGMENTS] = x0, 0, h_coarse
+    for r in range(4):
+        i = min(starts[r], i_back)
+        meta[1 + r] = _march_x(i, x_march, counts, h_wide, h)
+        meta[N_SEGMENTS + 1 + r] = n_coarse + i
+        meta[2 * N_SEGMENTS + 1 + r] = widths[r]
+    meta[N_SEGMENTS - 1] = _march_x(i_back, x_march, counts, h_wide, h)
+    meta[2 * N_SEGMENTS - 1] = n_coarse + i_back
+    meta[3 * N_SEGMENTS - 1] = max(back, 1) * back_width
+    meta[3 * N_SEGMENTS:] = z[n], z[i_infl], log_z, z_1, z_2
+    return nodes, meta
+
+
+
+_PACK_ROWS = 192
+"""Rows a table :func:`prism_tables` makes room for at first (a street table has about 170)."""
+
+META_COLUMNS = ("lam", *(f"x_{k}" for k in range(N_SEGMENTS)), *(f"row_{k}" for k in range(N_SEGMENTS)),
+                *(f"h_{k}" for k in range(N_SEGMENTS)), "z_end", "z_infl", "log_z", "log_z_1", "log_z_2", "shift", "log_far",
+                "offset", "length")
+"""Columns of the per-table metadata matrix that :func:`prism_table_lookup` reads (one row per table): the
+rate, :func:`prism_table`'s meta (per segment its first x, first row and spacing, then ``z_end``, ``z_infl``,
+``log Z`` and its two derivatives in ``log lam``), then the shift, far term, first row and row count of its nodes."""
+_LAM, _X, _ROW, _SPACING = 0, 1, 1 + N_SEGMENTS, 1 + 2 * N_SEGMENTS
+_Z_END, _Z_INFL, _LOG_Z, _LOG_Z_1, _LOG_Z_2, _SHIFT, _LOG_FAR, _OFFSET, _LENGTH = range(1 + 3 * N_SEGMENTS,
+                                                                                      10 + 3 * N_SEGMENTS)
+
+
+@nb.njit(cache=True, nogil=True)
+def prism_tables(shifts, lams, log_fars, z0, z_max, fb, ku, h, log_eps_bound, lam_slack, coarse_ratio, coarse_below,
+                 e_front, e_back, wide_ratio, wide_efolds, log_wn, means, sigmas):
+    """:func:`prism_table` of every ``(shifts[k], lams[k], log_fars[k])``, packed for the table cache.
+
+    Returns ``nodes`` (N, :data:`TABLE_COLUMNS`) float32, every table's rows back to back (their rounding is
+    far below ``TABLE_TOLERANCE``), and ``meta`` (K, ``len(META_COLUMNS)``) float64, one row per table
+    (``offset``: its first row in ``nodes``). One call builds a batch without a Python step per table, each
+    table packed as soon as it is built (its float64 rows reuse the memory of the one before: holding a whole
+    batch in float64 first doubles its memory and page faults), into room for :data:`_PACK_ROWS` rows a table
+    that grows by half when full; ``nodes`` may be a view of that room.
+    """
+    n_tables = shifts.size
+    meta = np.empty((n_tables, _LENGTH + 1))
+    packed = np.empty((_PACK_ROWS * n_tables, TABLE_COLUMNS), dtype=np.float32)
+    total = 0
+    for k in range(n_tables):
+        nodes, table_meta = prism_table(shifts[k], lams[k], z0, z_max, fb, ku, h, log_fars[k], log_eps_bound,
+                                        lam_slack, coarse_ratio, coarse_below, e_front, e_back, wide_ratio,
+                                        wide_efolds, log_wn, means, sigmas)
+        rows = nodes.shape[0]
+        if total + rows > packed.shape[0]:
+            grown = np.empty((max(total + rows, packed.shape[0] + packed.shape[0] // 2), TABLE_COLUMNS),
+                             dtype=np.float32)
+            grown[:total] = packed[:total]
+            packed = grown
+        packed[total : total + rows] = nodes
+        meta[k, _LAM] = lams[k]
+        meta[k, _X : _SHIFT] = table_meta
+        meta[k, _SHIFT] = shifts[k]
+        meta[k, _LOG_FAR] = log_fars[k]
+        meta[k, _OFFSET] = total
+        meta[k, _LENGTH] = rows
+        total += rows
+    return packed[:total], meta

@@ -1,0 +1,133 @@
+"""PRISM's table cache: the tables of every (measured disparity, surface rate) a model has met, packed in one
+node array, least recently used ones dropped beyond a memory budget."""
+
+import threading
+
+import numpy as np
+
+from prismap.sensor_models import _kernels_table
+
+AUTO_TABLE_CALLS = 2
+"""A model with ``table_memory_mb=None`` keeps this many times the tables of its largest call."""
+_OFFSET, _LENGTH = _kernels_table.META_COLUMNS.index("offset"), _kernels_table.META_COLUMNS.index("length")
+
+
+class TableCache:
+    """PRISM tables packed in one node array, least recently used ones evicted beyond a memory budget.
+
+    ``meta`` has one row per table (``_kernels_table.META_COLUMNS``, float64: the grid's positions), ``nodes`` the
+    rows of every table back to back (float32: values and slopes, rounded far below ``TABLE_TOLERANCE``).
+    Tables used by the current call are never evicted, so one call may exceed the budget. A budget of
+    ``None`` is the larger of ``floor_bytes`` and :data:`AUTO_TABLE_CALLS` times the bytes of the largest
+    call's tables so far (:attr:`limit_bytes`). ``hits`` and ``builds`` count the distinct keys of every
+    call found in the cache and built (a thrashing cache builds the same keys again and again). Callers
+    hold ``lock`` around :meth:`rows` and their reads of ``meta`` and ``nodes``: a build replaces them by
+    longer ones (it writes new nodes only behind the rows an earlier ``nodes`` holds, into room kept for them:
+    at most half the nodes' bytes more than :attr:`nbytes`), an eviction by new arrays with rows renumbered.
+    """
+
+    def __init__(self, budget_bytes, floor_bytes):
+        self.budget_bytes = budget_bytes
+        self.floor_bytes = floor_bytes
+        self.largest_call_bytes = 0
+        self.keys = np.empty(0, dtype=np.int64)
+        self.order = np.empty(0, dtype=np.int64)  # rows by increasing key and those keys: binary search
+        self.sorted_keys = self.keys
+        self.meta = np.empty((0, len(_kernels_table.META_COLUMNS)))
+        self.nodes = np.empty((0, _kernels_table.TABLE_COLUMNS), dtype=np.float32)
+        self._node_room = self.nodes  # self.nodes is its head; new tables go in behind
+        self.last_used = np.empty(0, dtype=np.int64)
+        self.clock = 0
+        self.hits = 0
+        self.builds = 0
+        self.lock = threading.Lock()
+
+    @property
+    def nbytes(self):
+        """Bytes held by the nodes and metadata."""
+        return self.nodes.nbytes + self.meta.nbytes
+
+    def __len__(self):
+        return self.keys.size
+
+    @property
+    def limit_bytes(self):
+        """Bytes beyond which least recently used tables are dropped."""
+        if self.budget_bytes is not None:
+            return self.budget_bytes
+        return max(self.floor_bytes, AUTO_TABLE_CALLS * self.largest_call_bytes)
+
+    def _table_bytes(self):
+        """Bytes of each table (its nodes and metadata row)."""
+        return (self.meta[:, _LENGTH] * (self.nodes.itemsize * _kernels_table.TABLE_COLUMNS)
+                + self.meta.itemsize * self.meta.shape[1])
+
+    def rows(self, keys, build):
+        """Metadata row of each (distinct) key, calling ``build(missing keys)`` for absent ones (it returns
+        their ``nodes``, an array or a list of arrays read back to back, and ``meta`` rows, offsets from its first
+        node: ``PrismModel._build_tables``)."""
+        rows = self._find(keys)
+        missing = keys[rows < 0]
+        self.hits += keys.size - missing.size
+        self.builds += missing.size
+        if missing.size:
+            nodes, meta = build(missing)
+            meta[:, _OFFSET] += self.nodes.shape[0]
+            first = self.keys.size
+            self._append_nodes(nodes if isinstance(nodes, list) else [nodes])
+            self.meta = np.concatenate([self.meta, meta])
+            self.keys = np.concatenate([self.keys, missing])
+            self.last_used = np.concatenate([self.last_used, np.zeros(missing.size, dtype=np.int64)])
+            self._sort()
+            rows[rows < 0] = first + np.arange(missing.size)
+        self.clock += 1
+        self.last_used[rows] = self.clock
+        self.largest_call_bytes = max(self.largest_call_bytes, int(self._table_bytes()[rows].sum()))
+        if self.nbytes > self.limit_bytes:
+            rows = self._evict(rows)
+        return rows
+
+    def _append_nodes(self, parts):
+        """Append the rows of the arrays ``parts``, one after another, to ``nodes``: into the room behind them (rows
+        no reader indexes yet), else into a new array half as large again as needed, so that a sequence copies its
+        tables a few times, not every call."""
+        n, m = self.nodes.shape[0], sum(part.shape[0] for part in parts)
+        if n + m > self._node_room.shape[0]:
+            room = np.empty((n + m + (n + m) // 2, _kernels_table.TABLE_COLUMNS), dtype=np.float32)
+            room[:n] = self.nodes
+            self._node_room = room
+        for part in parts:
+            self._node_room[n : n + part.shape[0]] = part
+            n += part.shape[0]
+        self.nodes = self._node_room[:n]
+
+    def _sort(self):
+        self.order = np.argsort(self.keys, kind="stable")
+        self.sorted_keys = self.keys[self.order]
+
+    def _find(self, keys):
+        """Row of each key, -1 where absent."""
+        if not self.keys.size:
+            return np.full(keys.size, -1, dtype=np.int64)
+        at = np.minimum(np.searchsorted(self.sorted_keys, keys), self.keys.size - 1)
+        return np.where(self.sorted_keys[at] == keys, self.order[at], -1)
+
+    def _evict(self, rows):
+        """Drop the least recently used tables (never those of ``rows``) until within budget; new rows."""
+        size = self._table_bytes()
+        order = np.argsort(self.last_used, kind="stable")
+        order = order[self.last_used[order] < self.clock]
+        excess = self.nbytes - self.limit_bytes
+        drop = order[: np.searchsorted(np.cumsum(size[order]), excess) + 1]
+        keep = np.setdiff1d(np.arange(self.keys.size), drop)
+        starts = self.meta[keep, _OFFSET].astype(np.int64)
+        lengths = self.meta[keep, _LENGTH].astype(np.int64)
+        self.nodes = self._node_room = np.concatenate([self.nodes[s : s + n] for s, n in zip(starts, lengths)])
+        self.meta = self.meta[keep]
+        self.meta[:, _OFFSET] = np.concatenate(([0], np.cumsum(lengths)[:-1]))
+        self.keys = self.keys[keep]
+        self.last_used = self.last_used[keep]
+        self._sort()
+        new_row = np.full(len(keep) + len(drop), -1, dtype=np.int64)
+        new_row[keep] = np.arange(keep.size)
+        return new_row[rows]
