@@ -170,7 +170,7 @@ def _characterise_motorcycle(folder, matcher_name, *, quick):
         truth = frame.disparity_gt
         matcher = matcher_for(matcher_name, float(np.max(truth[np.isfinite(truth)])))
         options = {"max_classes": QUICK_MAX_CLASSES} if quick else {}
-        write_characterisation(characterisematcher_for([frame], matcher, dataset="middlebury-motorcycle", **options),
+        write_characterisation(characterise_matcher([frame], matcher, dataset="middlebury-motorcycle", **options),
                                folder)
     model = load_error_model(model_path)
     mixture = model.mixture
