@@ -333,5 +333,5 @@ def test_map_writes_the_command_that_reproduces_it(sequence_dir, conditioned_mod
     assert "--plain" in argv and "--model-param=pass_through=0.05" in argv and "--matcher-param=num_disparities=16" in argv
     assert record["settings"]["p0"] == 0.08 and record["settings"]["conditioned"] is False
     again = tmp_path / "again.npz"
-    assert main(argv[2:-1] + [str(again)]) == 0  # the recorded command, writing elsewhere
+    assert main(argv[1:-1] + [str(again)]) == 0  # the recorded command, writing elsewhere
     assert_same_map(load_map(again), load_map(out))
