@@ -49,7 +49,7 @@ def narrow_error_model(tmp_path_factory):
     return path
 
 
-def _prismap(argv, cwd, *, file_size_limit=None):
+def _prismap(argv, cwd, *, file_size_limit=None, timeout=300):
     """Run the real command (this tree's ``prismap``) under :data:`MEMORY_LIMIT`; (status, stderr)."""
 
     def limits():
@@ -61,7 +61,7 @@ def _prismap(argv, cwd, *, file_size_limit=None):
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(SRC), os.environ.get("PYTHONPATH", "")]),
            "MPLBACKEND": "Agg"}
     done = subprocess.run([sys.executable, "-c", "import sys; from prismap.cli import main; sys.exit(main())", *argv], cwd=cwd, env=env, capture_output=True,
-                          text=True, timeout=300, preexec_fn=limits)
+                          text=True, timeout=timeout, preexec_fn=limits)
     return done.returncode, done.stderr
 
 

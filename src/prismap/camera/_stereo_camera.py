@@ -4,6 +4,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from prismap._depth import depth_from_disparity, disparity_from_depth
 from prismap._validate import as_float_array, check_positive
 from prismap.errors import PrismapInputError
 
@@ -14,6 +15,9 @@ BASELINE_RANGE_M = (1e-6, 1e4)
 #: ``focal_px * baseline_m``, the depth of a 1 px disparity, metres: depths from a sub-millimetre near
 #: range to 1000 km at 1 px, so that depths, voxel keys and disparity search ranges stay finite and bounded.
 DEPTH_AT_ONE_PIXEL_RANGE_M = (1e-6, 1e6)
+#: Largest ``|cx_px|``, ``|cy_px|`` and ``|doffs_px|``, pixels: a hundred times the widest image
+#: (``MAX_IMAGE_PIXELS``) takes; beyond it every pixel's ray or depth is degenerate.
+MAX_OFFSET_PX = 1e6
 
 
 @dataclass(frozen=True)
@@ -49,6 +53,9 @@ class StereoCamera:
             value = float(getattr(self, name))
             if not np.isfinite(value):
                 raise PrismapInputError(f"`{name}` must be finite; got {value!r}")
+            if abs(value) >= MAX_OFFSET_PX:
+                raise PrismapInputError(f"`{name}` must lie in (-{MAX_OFFSET_PX:g}, {MAX_OFFSET_PX:g}) px "
+                                        f"(MAX_OFFSET_PX); got {value:g}")
             object.__setattr__(self, name, value)
         for name in ("width", "height"):
             value = getattr(self, name)
@@ -56,6 +63,9 @@ class StereoCamera:
                 if int(value) != value or value <= 0:
                     raise PrismapInputError(f"`{name}` must be a positive integer; got {value!r}")
                 object.__setattr__(self, name, int(value))
+        if self.width is not None and self.doffs_px <= -self.width:
+            raise PrismapInputError(f"`doffs_px` must be > -{self.width} px (minus the image width): no disparity "
+                                    f"of the image gives a positive depth otherwise; got {self.doffs_px:g}")
 
     @classmethod
     def from_kitti_projections(cls, P2, P3, *, width=None, height=None):
@@ -162,17 +172,11 @@ class StereoCamera:
 
     def depth_from_disparity(self, disparity_px):
         """Depth ``z = f b / (d + doffs)`` (metres); NaN where ``d + doffs <= 0`` or ``d`` is not finite."""
-        d = np.asarray(disparity_px, dtype=np.float64) + self.doffs_px
-        with np.errstate(divide="ignore", invalid="ignore"):
-            depth = self.focal_baseline / d
-        return np.where(np.isfinite(d) & (d > 0), depth, np.nan)
+        return depth_from_disparity(disparity_px, self.focal_baseline, self.doffs_px)
 
     def disparity_from_depth(self, depth_m):
         """Disparity ``d = f b / z - doffs`` (pixels); NaN where ``z <= 0`` or not finite."""
-        z = np.asarray(depth_m, dtype=np.float64)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            disparity = self.focal_baseline / z - self.doffs_px
-        return np.where(np.isfinite(z) & (z > 0), disparity, np.nan)
+        return disparity_from_depth(depth_m, self.focal_baseline, self.doffs_px)
 
     def project(self, points_cam):
         """Pixel coordinates ``(u, v) = (f x / z + cx, f y / z + cy)`` of points in the left camera frame.

@@ -19,7 +19,11 @@ Format (JSON, ``format_version`` 3)::
                   "selected_components": 3, "models": [...as above...],
                   "outlier": {"weight": 1e-4, "mean": 6.8, "sigma": 15.6}}, ...],
      "class_selection": {"held_out": "...", "plain_nats_per_error": ..., "conditioned_nats_per_error": ...,
-                         "candidates": [...]}}
+                         "candidates": [...]},
+     "source": "ground-truth",  # or "lidar", "self": what the errors were measured against
+     "rig": {"focal_px": 721.5, "baseline_m": 0.54, "width": 1242, "height": 375, "matcher": "sgbm",
+             "matcher_params": {...}},  # or null: the rig it was made on (see characterise/_rig.py)
+     "provenance": {...}}  # how a self-characterised model was made (min_lag, references, ...)
 
 The top-level ``models`` / ``selected_components`` are the whole-image (plain) mixture: what version 1 held,
 what a plain sensor model uses, and the model of pixels outside every class (class -1). ``classes`` tile
@@ -35,7 +39,8 @@ need no ``outlier`` then (docs/SENSOR_MODELS.md section 8). Files of versions 1 
 component and map exactly as they did; a failure component in them is refused.
 
 Means and sigmas are pixels; AIC and BIC use ``k = 3G - 1``, ``3G`` with a failure component (see
-:class:`prismap.gmm.MixtureFit`).
+:class:`prismap.gmm.MixtureFit`). ``source``, ``rig`` and ``provenance`` are optional (a file without them was
+measured against ground truth on an unrecorded rig).
 """
 
 import json
@@ -54,6 +59,7 @@ from prismap.characterise._model_json import (
     _integer,
     _number,
     _object,
+    _provenance_from_dict,
     _require,
 )
 from prismap.errors import PrismapInputError
@@ -69,6 +75,10 @@ READABLE_VERSIONS = (1, 2, 3)
 
 
 _SHARE_TOLERANCE = 1e-6
+
+
+SOURCES = ("ground-truth", "lidar", "self")
+"""What an error model's errors were measured against: exact disparity, a LiDAR's, or the sequence's own frames."""
 
 
 HELD_OUT = "held-out"
@@ -103,6 +113,12 @@ class ErrorModel:
         ``edge_threshold_px`` and ``texture_window_px`` the features were computed with.
     class_selection : dict
         How the classes were chosen: held-out data, held-out log-likelihoods (nats per error).
+    source : str
+        One of :data:`SOURCES`.
+    rig : dict or None
+        The rig it was made on (:func:`prismap.characterise.describe_rig`); None = not recorded.
+    provenance : dict
+        How it was made beyond the fields above (a self-characterisation's record).
     """
 
     matcher: str
@@ -117,8 +133,13 @@ class ErrorModel:
     class_models: tuple = ()
     feature_settings: dict = field(default_factory=dict)
     class_selection: dict = field(default_factory=dict)
+    source: str = "ground-truth"
+    rig: dict | None = None
+    provenance: dict = field(default_factory=dict)
 
     def __post_init__(self):
+        if self.source not in SOURCES:
+            raise PrismapInputError(f"error model `source` must be one of {list(SOURCES)}; got {self.source!r}")
         object.__setattr__(self, "fits", tuple(sorted(self.fits, key=lambda fit: fit.n_components)))
         self.fit(self.selected_components)
         classes = ErrorClasses.single() if self.classes is None else self.classes
@@ -245,6 +266,9 @@ class ErrorModel:
                 for bounds, model in zip(self.classes.to_list(), self.class_models)
             ],
             "class_selection": self.class_selection,
+            "source": self.source,
+            "rig": self.rig,
+            "provenance": self.provenance,
         }
 
     @classmethod
@@ -273,9 +297,9 @@ class ErrorModel:
         fits = _fits_from_list(data["models"], f"{source}: models")
         selection = _object(data.get("selection", {}), f"{source}: `selection`")
         statistics = _object(data.get("statistics", {}), f"{source}: `statistics`")
-        extra = {}
+        extra = _provenance_from_dict(data, source)
         if version >= 2:
-            extra = _classes_from_dict(data, source)
+            extra.update(_classes_from_dict(data, source))
         mixtures = [fit.mixture for fit in fits] + [fit.mixture for model in extra.get("class_models", ())
                                                     for fit in model.fits]
         if version < 3 and any(mixture.search_range_px is not None for mixture in mixtures):

@@ -2,6 +2,7 @@
 
 from pathlib import Path
 
+from prismap._files import check_output
 from prismap.errors import PrismapInputError
 
 FORMATS = {".ply": "ply", ".ot": "ot", ".bt": "bt", ".mcap": "mcap"}
@@ -48,6 +49,7 @@ def run(args):
         raise PrismapInputError(f"--to {args.to}: --format {kind} files end in .{kind}")
     if kind == "rosbag2" and args.to.suffix in FORMATS:
         raise PrismapInputError(f"--to {args.to}: a ROS 2 bag is a directory; its name must not end in {args.to.suffix}")
+    check_output(args.to, "--to", directory=kind == "rosbag2", inputs=[("the map file", args.map)])
     grid = load_map(args.map)
     if kind == "ply":
         count = write_ply(grid, args.to)

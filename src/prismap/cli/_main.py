@@ -2,16 +2,20 @@
 
 Each command module (``prismap/cli/_<name>.py``) defines ``register(subparsers)``, which adds its parser
 and sets ``func=run`` with ``run(args) -> int``. Bad input (:class:`PrismapInputError`) is printed as one
-line on stderr without a traceback, with exit status 2; so are OpenCV's own errors and a write the
-operating system refuses. A command's ``--out`` (registered with :func:`prismap.cli._args.add_out`) is
-checked before the run starts and locked (``fcntl``) for its whole duration, so two runs never share it.
+line on stderr without a traceback, with exit status 2; so are OpenCV's own errors and any operation the
+operating system refuses (``OSError``: a full disk, a name too long). A command's ``--out`` (registered
+with :func:`prismap.cli._args.add_out`) is checked before the run starts (it may not be one of the run's
+inputs, :func:`run_inputs`) and locked (``fcntl``) for its whole duration, so two runs never share it; a
+refused run removes the ``--out`` directory it created.
 """
 
 import argparse
 import contextlib
 import importlib
+import shutil
 import signal
 import sys
+from pathlib import Path
 
 import cv2
 
@@ -49,19 +53,24 @@ def main(argv=None):
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
+    name = " ".join(filter(None, (args.command, getattr(args, "action", None))))  # e.g. "models compare"
     signal.signal(signal.SIGTERM, _terminate)  # unwind on SIGTERM, so temporaries and locks are removed
     try:
-        with _output_lock(args):
+        with _output_lock(args), _removed_if_refused(args):
             return int(args.func(args) or 0)
     except PrismapInputError as exc:
-        print(f"prismap {args.command}: error: {exc}", file=sys.stderr)
+        print(f"prismap {name}: error: {exc}", file=sys.stderr)
         return 2
     except cv2.error as exc:
-        print(f"prismap {args.command}: error: OpenCV {exc.func or 'call'} refused the input: "
+        print(f"prismap {name}: error: OpenCV {exc.func or 'call'} refused the input: "
               f"{(exc.err or str(exc)).strip().splitlines()[0]}", file=sys.stderr)
         return 2
+    except OSError as exc:
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(f"prismap {args.command}: error: {where}{exc.strerror or exc}", file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
-        print(f"prismap {args.command}: interrupted", file=sys.stderr)
+        print(f"prismap {name}: interrupted", file=sys.stderr)
         return 130
 
 
@@ -69,12 +78,54 @@ def _terminate(signum, frame):
     raise SystemExit(128 + signum)
 
 
+SEQUENCE_INPUTS = ("calib.txt", "poses.txt", "image_2", "image_3", "disp", "velodyne", "occupancy.npz")
+"""What a sequence directory's readers read (``prismap.io.read_sequence``): an output may not be one of them."""
+
+
+def run_inputs(args):
+    """``(role, path)`` of every file or directory argument of ``args`` but ``--out``: what the run reads.
+
+    A sequence directory (one with ``image_2``) contributes the inputs its readers open
+    (:data:`SEQUENCE_INPUTS`, and a KITTI tree's ``ROOT/poses/NN.txt``), so outputs may still be written beside
+    them; any other directory is an input as a whole.
+    """
+    inputs = []
+    for key, value in sorted(vars(args).items()):
+        if key == "out" or not isinstance(value, Path):
+            continue
+        role = f"--{key.replace('_', '-')}" if key != "map" else "the map file"
+        if (value / "image_2").is_dir():
+            inputs += [(role, value / name) for name in SEQUENCE_INPUTS]
+            inputs.append((role, value.parent.parent / "poses" / f"{value.name}.txt"))
+        else:
+            inputs.append((role, value))
+    return inputs
+
+
+@contextlib.contextmanager
+def _removed_if_refused(args):
+    """Remove the ``--out`` directory this run created when the run is refused (bad input, a full disk).
+
+    A directory that existed before is left as it was (an experiment resumes from it); an interrupted
+    run keeps what it wrote, for the same reason.
+    """
+    out = getattr(args, "out", None)
+    if out is None or getattr(args, "out_is_file", False) or out.exists():
+        yield
+        return
+    try:
+        yield
+    except (PrismapInputError, OSError, cv2.error):
+        shutil.rmtree(out, ignore_errors=True)
+        raise
+
+
 def _output_lock(args):
     """Check ``args.out`` and hold its lock for the run (a null context for commands without ``--out``)."""
     out = getattr(args, "out", None)
     if out is None:
         return contextlib.nullcontext()
-    check_output(out, directory=not getattr(args, "out_is_file", False))
+    check_output(out, directory=not getattr(args, "out_is_file", False), inputs=run_inputs(args))
     return exclusive_lock(out)
 
 

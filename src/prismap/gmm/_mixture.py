@@ -100,7 +100,7 @@ class GaussianMixture:
         return GaussianMixture(self.weights, self.means, self.sigmas)
 
     def with_failure(self, failure_weight, search_range_px):
-        """This mixture's Gaussians with the failure component ``w_f`` over ``search_range_px`` (pixels)."""
+        """The Gaussians of this mixture with the failure component ``w_f`` over ``search_range_px`` (pixels)."""
         return GaussianMixture(self.weights, self.means, self.sigmas, failure_weight, search_range_px)
 
     @property

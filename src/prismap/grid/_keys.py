@@ -35,6 +35,20 @@ KEY_LIMIT = PACK_OFFSET << min(BLOCK_BITS[3])
 The 2-D blocks are at least as wide on x and y, and a 2-D map's z key is 0."""
 
 
+MAX_VOXEL_SIZE_M = 1e6
+"""Largest voxel edge (metres) a map takes: its key range then spans +-4.2e12 m, finite in float32 (PLY and
+PointCloud2 coordinates) with room to spare."""
+
+
+def check_voxel_size(voxel_size_m, name="voxel_size_m"):
+    """``float(voxel_size_m)`` if it is a finite number in (0, :data:`MAX_VOXEL_SIZE_M`], else raise naming ``name``."""
+    size = check_positive(voxel_size_m, name)
+    if size > MAX_VOXEL_SIZE_M:
+        raise PrismapInputError(f"`{name}` must be at most {MAX_VOXEL_SIZE_M:g} m (MAX_VOXEL_SIZE_M: voxel centres "
+                                f"must stay finite in float32); got {size:g}")
+    return size
+
+
 def key_limit_m(voxel_size_m):
     """Distance from the world origin (metres, per axis) that the key range covers at this voxel size."""
     return KEY_LIMIT * float(voxel_size_m)

@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from prismap._progress import progress as progress_bar
-from prismap._validate import check_integer
+from prismap._validate import check_integer, parse_frame_range
 from prismap.errors import PrismapInputError
 from prismap.io._frame import LazyFrames
 from prismap.io._kitti import KITTI_DISPARITIES, KittiOdometry, KittiRaw, KittiStereo
@@ -147,18 +147,23 @@ class GroundTruthFrames(LazyFrames):
         Raises
         ------
         PrismapInputError
-            A disparity at or beyond the image width, or no valid ground-truth pixel at all.
+            A disparity at or beyond the image width, no valid ground-truth pixel at all, or none above 0 px.
         """
-        largest = -np.inf
+        largest, where = -np.inf, None
         for position in progress_bar(range(len(self)), total=len(self), desc="ground truth", unit="frame",
                                      enabled=progress):
             disparity = self.disparity_gt(position)
             valid = np.isfinite(disparity)
-            if valid.any():
-                largest = max(largest, float(disparity[valid].max()))
+            if valid.any() and float(disparity[valid].max()) > largest:
+                largest, where = float(disparity[valid].max()), self._where(self.indices[position])
         if largest == -np.inf:
             raise PrismapInputError(f"{self.source}: the dataset has no valid ground-truth disparity to characterise "
                                     f"against ({len(self)} frames)")
+        if largest <= 0:
+            raise PrismapInputError(
+                f"{where}: every valid ground-truth disparity of {self.source} is <= 0 px (the largest, {largest:.6g} "
+                f"px, is in this file); a disparity (left x - right x) is positive, so it cannot set the search range"
+            )
         return largest
 
     def _where(self, index):
@@ -185,13 +190,7 @@ def _select(frames, every, count, dataset):
         start, stop = 0, count
     else:
         if isinstance(frames, str):
-            parts = frames.split(":")
-            try:
-                if len(parts) != 2:
-                    raise ValueError
-                start, stop = (int(p) if p.strip() else None for p in parts)
-            except ValueError:
-                raise PrismapInputError(f"`frames` must look like A:B (A or B may be empty); got {frames!r}") from None
+            start, stop = parse_frame_range(frames, "`frames`")
         else:
             if not isinstance(frames, (tuple, list)) or len(frames) != 2:
                 raise PrismapInputError(f"`frames` must be 'A:B', (start, stop) or None; got {frames!r}")

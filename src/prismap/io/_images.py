@@ -43,16 +43,49 @@ def read_png(path, what, flags=cv2.IMREAD_UNCHANGED):
     (H, W) or (H, W, C) ndarray
     """
     path = Path(path)
-    data = read_bytes(path, what)
+    data = read_bytes(path, what, max_bytes=_png_byte_bound(path, what), bound="its header's pixels")
     height, width, bytes_per_pixel = _png_header(data, path, what)
-    if width * height > MAX_IMAGE_PIXELS:
-        raise PrismapInputError(f"{path}: {what} declares {width}x{height} pixels, more than the limit of "
-                                f"{MAX_IMAGE_PIXELS} pixels (MAX_IMAGE_PIXELS)")
+    check_image_pixels(path, what, width, height)
     check_memory(width * height * bytes_per_pixel, f"{path}: decoding the {width}x{height} {what}")
     image = cv2.imdecode(np.frombuffer(data, np.uint8), flags)
     if image is None:
         raise PrismapInputError(f"{path}: {what} cannot be decoded (truncated or corrupt PNG)")
     return image
+
+
+def check_image_pixels(path, what, width, height):
+    """Refuse an image that declares more than :data:`MAX_IMAGE_PIXELS` (every image source, before decoding)."""
+    if width * height > MAX_IMAGE_PIXELS:
+        raise PrismapInputError(f"{path}: {what} declares {width}x{height} pixels, more than the limit of "
+                                f"{MAX_IMAGE_PIXELS} pixels (MAX_IMAGE_PIXELS)")
+
+
+PNG_SLACK_BYTES = 1 << 20
+"""Bytes a PNG may hold beyond its compressed pixels (ancillary chunks: text, colour profiles)."""
+
+
+def png_max_bytes(width, height, bit_depth, colour_type):
+    """Most bytes a PNG of this header needs: its filtered rows stored uncompressed (deflate's worst case adds
+    5 bytes per 64 KiB block) plus :data:`PNG_SLACK_BYTES`."""
+    samples = {0: 1, 2: 3, 3: 1, 4: 2, 6: 4}.get(colour_type, 4)
+    raw = height * (1 + (width * samples * max(bit_depth, 1) + 7) // 8)
+    return raw + raw // 1024 + PNG_SLACK_BYTES
+
+
+def _png_byte_bound(path, what):
+    """The size :func:`read_png` reads of ``path`` at most, from its IHDR before the rest is read."""
+    if not path.is_file():
+        raise PrismapInputError(f"{path}: {what} not found")
+    try:
+        with open(path, "rb") as handle:
+            head = handle.read(len(PNG_SIGNATURE) + 8 + 13)
+    except OSError as exc:
+        raise PrismapInputError(f"{path}: cannot read the {what} ({exc.strerror or exc})") from None
+    if len(head) < 29 or head[:8] != PNG_SIGNATURE or head[12:16] != b"IHDR":
+        return PNG_SLACK_BYTES  # refused by _png_header once read
+    width, height, bit_depth, colour_type = struct.unpack(">IIBB", head[16:26])
+    check_image_pixels(path, what, width, height)
+    return png_max_bytes(width, height, bit_depth, colour_type)
 
 
 def _png_header(data, path, what):

@@ -15,6 +15,7 @@ import numpy as np
 from prismap._files import atomic_path
 from prismap.errors import PrismapInputError
 from prismap.grid import OccupancyMap
+from prismap.grid._keys import check_voxel_size
 from prismap.io._npz import INTEGER, REAL, TEXT, array_field, read_npz
 
 FORMAT = "prismap-map"
@@ -65,7 +66,8 @@ def load_map(path):
     ------
     PrismapInputError
         The file is missing, not an ``.npz`` archive, truncated, of another format or version, lacks a
-        field, holds a field of the wrong type or rank, a negative ``n_frames``, a key twice, or declares
+        field, holds a field of the wrong type or rank, a negative ``n_frames``, a voxel size beyond
+        :data:`~prismap.grid._keys.MAX_VOXEL_SIZE_M`, a key twice, or declares
         more voxels than the memory budget holds; the message names the file and the problem.
     """
     path = Path(path)
@@ -81,6 +83,10 @@ def load_map(path):
         )
     if fields["n_frames"] < 0:
         raise PrismapInputError(f"{path}: `n_frames` must be >= 0; got {fields['n_frames']}")
+    try:
+        check_voxel_size(fields["voxel_size_m"])
+    except PrismapInputError as exc:
+        raise PrismapInputError(f"{path}: {exc}") from None
     keys = fields["keys"]
     if len(np.unique(keys, axis=0)) != len(keys):
         raise PrismapInputError(f"{path}: `keys` holds {len(keys) - len(np.unique(keys, axis=0))} duplicate voxel keys")

@@ -9,7 +9,11 @@ import numpy as np
 
 from prismap._files import atomic_path
 from prismap.errors import PrismapInputError
+from prismap.io._images import check_image_pixels
 from prismap.io._text import read_bytes
+
+HEADER_BYTES = 256
+"""Bytes a PFM header fits in (three short lines)."""
 
 
 def read_pfm(path):
@@ -24,7 +28,7 @@ def read_pfm(path):
     array : (H, W) or (H, W, 3) float32
         Rows top to bottom, native byte order; infinities (Middlebury: unknown) are kept.
     """
-    raw = read_bytes(path, "PFM file")
+    raw = read_bytes(path, "PFM file", max_bytes=_byte_bound(path), bound="its header's size")
     header, offset = _header(raw)
     if len(header) < 4 or header[0] not in (b"Pf", b"PF"):
         raise PrismapInputError(f"{path}: not a PFM file (expected a 'Pf' or 'PF' header); got {raw[:16]!r}")
@@ -67,6 +71,24 @@ def write_pfm(path, array):
     header = magic + b"\n%d %d\n-1\n" % (data.shape[1], data.shape[0])
     with atomic_path(path) as tmp:
         tmp.write_bytes(header + np.ascontiguousarray(np.flipud(data)).tobytes())
+
+
+def _byte_bound(path):
+    """The most bytes a PFM may hold: its header (read alone first), the samples it declares and
+    :data:`HEADER_BYTES` of trailing slack."""
+    try:
+        with open(path, "rb") as handle:
+            head = handle.read(HEADER_BYTES)
+    except OSError:
+        return HEADER_BYTES  # read_bytes names the problem
+    header, offset = _header(head)
+    try:
+        width, height = int(header[1]), int(header[2])
+    except (IndexError, ValueError):
+        return HEADER_BYTES  # refused with the header's message once read
+    channels = 3 if header[0] == b"PF" else 1
+    check_image_pixels(path, "PFM file", width, height)
+    return HEADER_BYTES + offset + max(width, 0) * max(height, 0) * channels * 4
 
 
 def _header(raw):

@@ -10,22 +10,52 @@ import numpy as np
 
 from prismap.errors import PrismapInputError
 
+MAX_READ_BYTES = 256 << 20
+"""Largest binary file read whole (bytes) unless its reader bounds it from its header (PNG, PFM)."""
+MAX_TEXT_BYTES = 64 << 20
+"""Largest text file read whole (bytes): calibrations, pose and track files, error models (64 MiB holds
+about 400,000 KITTI pose lines)."""
 
-def read_bytes(path, what):
-    """The bytes of ``path``; ``what`` names the file's role in messages (e.g. ``"velodyne scan"``)."""
+
+def file_size(path, what):
+    """Size of ``path`` in bytes, or a not-found / cannot-read message naming ``what``."""
     path = Path(path)
     if not path.is_file():
         raise PrismapInputError(f"{path}: {what} not found")
     try:
-        return path.read_bytes()
+        return path.stat().st_size
     except OSError as exc:
         raise PrismapInputError(f"{path}: cannot read the {what} ({exc.strerror or exc})") from None
 
 
-def read_text(path, what):
-    """The UTF-8 text of ``path``; ``what`` names the file's role in messages (e.g. ``"KITTI pose file"``)."""
+def check_size(path, what, size, max_bytes, bound="MAX_READ_BYTES"):
+    """Refuse a file of ``size`` bytes above ``max_bytes``, before it is read (``bound`` names the limit)."""
+    if size > max_bytes:
+        raise PrismapInputError(f"{path}: {what} holds {size} bytes, more than the limit of {max_bytes} bytes "
+                                f"({bound})")
+
+
+def read_bytes(path, what, *, max_bytes=MAX_READ_BYTES, bound="MAX_READ_BYTES"):
+    """The bytes of ``path``; ``what`` names the file's role in messages (e.g. ``"velodyne scan"``).
+
+    A file of more than ``max_bytes`` is refused from its size before any byte is read (a sparse file of
+    gigabytes would otherwise exhaust memory); ``bound`` names that limit in the message.
+    """
+    path = Path(path)
+    check_size(path, what, file_size(path, what), max_bytes, bound)
     try:
-        return read_bytes(path, what).decode("utf-8")
+        with open(path, "rb") as handle:
+            data = handle.read(max_bytes + 1)
+    except OSError as exc:
+        raise PrismapInputError(f"{path}: cannot read the {what} ({exc.strerror or exc})") from None
+    check_size(path, what, len(data), max_bytes, bound)  # the file grew meanwhile
+    return data
+
+
+def read_text(path, what):
+    """The UTF-8 text of ``path`` (at most :data:`MAX_TEXT_BYTES`); ``what`` names the file's role in messages."""
+    try:
+        return read_bytes(path, what, max_bytes=MAX_TEXT_BYTES, bound="MAX_TEXT_BYTES").decode("utf-8")
     except UnicodeDecodeError as exc:
         raise PrismapInputError(f"{path}: {what} is not UTF-8 text (byte {exc.start})") from None
 

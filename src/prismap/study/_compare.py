@@ -11,7 +11,7 @@ from prismap._progress import progress
 from prismap._validate import check_positive, check_probability
 from prismap.camera import StereoCamera
 from prismap.errors import PrismapInputError
-from prismap.sensor_models import failure_floor
+from prismap.sensor_models import PrismModel, failure_floor
 from prismap.study._ray_models import CAMERAS, RaySetup, compare_models, influence_distances, prism_sweeps
 
 COMPARE_FILES = {
@@ -23,6 +23,37 @@ COMPARE_FILES = {
     "json": "models_compare.json",
 }
 """What :func:`run_models_compare` writes into its output directory."""
+
+MAX_DISTANCES = 16
+"""Most measured distances one comparison takes (each costs a PRISM profile per model and sweep)."""
+INFLUENCE_REACH = 1.5
+"""The influence table runs to this multiple of the largest measured distance."""
+MIN_DISPARITY_PX = 1.0
+"""Smallest disparity ``f b / z`` (pixels, before the offset ``doffs``) a compared distance may have: beyond
+it the rounding to 1/16 px moves the measurement by more than 3 %."""
+
+
+def check_distances(distances_m, setup, far_depth_m):
+    """``distances_m`` sorted, each within the rig's range, or raise naming the first that is not.
+
+    A distance must be positive, have a disparity ``f b / z`` of at least :data:`MIN_DISPARITY_PX`, and
+    with :data:`INFLUENCE_REACH` times it stay within PRISM's ``far_depth_m`` (where the influence table
+    ends); at most :data:`MAX_DISTANCES` of them.
+    """
+    distances = sorted(check_positive(d, "distances_m") for d in distances_m)
+    if not distances:
+        raise PrismapInputError("`distances_m` is empty")
+    if len(distances) > MAX_DISTANCES:
+        raise PrismapInputError(f"`distances_m` holds {len(distances)} distances; at most {MAX_DISTANCES} "
+                                "(MAX_DISTANCES)")
+    limit = min(setup.focal_baseline / MIN_DISPARITY_PX, far_depth_m / INFLUENCE_REACH)
+    if distances[-1] > limit:
+        raise PrismapInputError(
+            f"`distances_m`: {distances[-1]:g} m lies beyond this rig's range of {limit:.4g} m (a disparity of at "
+            f"least {MIN_DISPARITY_PX:g} px at f*b {setup.focal_baseline:.4g} px*m, and {INFLUENCE_REACH:g} times "
+            f"the distance within PRISM's far_depth_m {far_depth_m:g} m)"
+        )
+    return distances
 
 
 @dataclass(frozen=True)
@@ -58,7 +89,7 @@ def run_models_compare(error_model, out_dir, *, camera="middlebury-motorcycle", 
     voxel_size_m : float, metres
     p0 : float in (0, 1)
     distances_m : sequence of float, metres
-        Measured distances of the profiles and divergences.
+        Measured distances of the profiles and divergences (:func:`check_distances`).
     source : str
         Where the error model came from, for the tables.
 
@@ -75,16 +106,12 @@ def run_models_compare(error_model, out_dir, *, camera="middlebury-motorcycle", 
         label, rig = camera, CAMERAS[camera]
     else:
         raise PrismapInputError(f"`camera` must be one of {sorted(CAMERAS)} or a StereoCamera; got {camera!r}")
-    distances = sorted(check_positive(d, "distances_m") for d in distances_m)
-    if not distances:
-        raise PrismapInputError("`distances_m` is empty")
     voxel = check_positive(voxel_size_m, "voxel_size_m")
     p0 = check_probability(p0, "p0")
     mixture = error_model.mixture
     setup = RaySetup(focal_baseline=rig["focal_px"] * rig["baseline_m"], doffs_px=rig["doffs_px"],
                      voxel_size_m=voxel, p0=p0)
-    for s in distances:
-        setup.disparity_at(s)  # fail early on distances the camera cannot resolve
+    distances = check_distances(distances_m, setup, PrismModel.far_depth_m)
     out = Path(out_dir)
     paths = {key: out / name for key, name in COMPARE_FILES.items()}
 

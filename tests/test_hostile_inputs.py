@@ -1,0 +1,96 @@
+"""Hostile input, round two (issue 25): absurd calibrations and ground truth, and files too large to read whole.
+
+Each case runs the real ``prismap`` in a subprocess under the address-space limit of ``test_hostile`` (3 GB)
+and asserts exit 2, one line naming the file and the problem, and nothing written or left behind.
+"""
+
+import os
+import shutil
+
+import cv2
+import numpy as np
+import pytest
+from test_hostile import _calib, _prismap, _tree
+
+from prismap.io import write_pfm
+from support import CAMERA, synthetic_sequence
+
+MAP = ["map", "--disparity-dir", "SEQ/disp", "--model", "hitmiss", "--voxel", "0.1"]
+CHARACTERISE = ["characterise", "--dataset", "SEQ/mb", "--matcher", "bm", "--out", "WORK/ch"]
+SPARSE_BYTES = 3 << 30
+"""A file of 3 GB that takes no disk: reading it whole exceeds the subprocess's address-space limit."""
+
+
+@pytest.fixture(scope="module")
+def sequence(tmp_path_factory):
+    seq = synthetic_sequence(tmp_path_factory.mktemp("hostile25in") / "seq", n_frames=2)
+    _middlebury_folder(seq / "mb")
+    return seq
+
+
+def _middlebury_folder(folder, *, height=24, width=40, doffs=3.0, disparity=None):
+    rng = np.random.default_rng(0)
+    folder.mkdir(exist_ok=True)
+    for name in ("im0.png", "im1.png"):
+        cv2.imwrite(str(folder / name), rng.integers(0, 256, (height, width, 3), dtype=np.uint8))
+    (folder / "calib.txt").write_text(
+        f"cam0=[100.5 0 {width / 2}; 0 100.5 {height / 2}; 0 0 1]\n"
+        f"cam1=[100.5 0 {width / 2 + 3}; 0 100.5 {height / 2}; 0 0 1]\n"
+        f"doffs={doffs}\nbaseline=120.5\nwidth={width}\nheight={height}\nndisp=32\nvmin=2\nvmax=20\n")
+    if disparity is None:
+        disparity = rng.uniform(2, 20, (height, width)).astype(np.float32)
+    write_pfm(folder / "disp0.pfm", disparity)
+
+
+def _sparse(path):
+    """``path`` grown to :data:`SPARSE_BYTES` with zeros after its valid content (a sparse file)."""
+    os.truncate(path, SPARSE_BYTES)
+
+
+# name -> (prepare(seq), argv with SEQ/WORK placeholders, expected text in the message)
+CASES = {
+    # item 3: absurd calibrations
+    "calib.txt cx 1e300": (lambda s: _calib_cx(s, 1e300), [*MAP, "--out", "WORK/o.npz"],
+                           "calib.txt: `cx_px` must lie in (-1e+06, 1e+06) px"),
+    "Middlebury doffs -1e5": (lambda s: _middlebury_folder(s / "mb", doffs=-1e5), CHARACTERISE,
+                              "mb/calib.txt: `doffs_px` must be > -40 px"),
+    # item 17: ground truth that cannot set the search range
+    "ground truth all negative": (lambda s: _middlebury_folder(s / "mb", disparity=np.full((24, 40), -3.0, np.float32)),
+                                  CHARACTERISE, "mb/disp0.pfm: every valid ground-truth disparity"),
+    # item 10: files far larger than their content needs
+    "calib.txt of 3 GB": (lambda s: _sparse(s / "calib.txt"), [*MAP, "--out", "WORK/o.npz"],
+                          "calib.txt: KITTI calibration file holds 3221225472 bytes, more than the limit"),
+    "poses.txt of 3 GB": (lambda s: _sparse(s / "poses.txt"), [*MAP, "--out", "WORK/o.npz"],
+                          "poses.txt: pose file holds 3221225472 bytes, more than the limit"),
+    "disp0.pfm of 3 GB": (lambda s: _sparse(s / "mb" / "disp0.pfm"), CHARACTERISE,
+                          "disp0.pfm: PFM file holds 3221225472 bytes, more than the limit"),
+    "PNG of 3 GB": (lambda s: _sparse(s / "image_2" / "000001.png"), [*MAP, "--out", "WORK/o.npz"],
+                    "000001.png: left image holds 3221225472 bytes, more than the limit"),
+}
+
+
+def _calib_cx(seq, cx):
+    _calib(seq, CAMERA.focal_px, CAMERA.baseline_m)
+    text = (seq / "calib.txt").read_text().split("\n")
+    text = [" ".join([*line.split()[:3], repr(cx), *line.split()[4:]]) for line in text if line]
+    (seq / "calib.txt").write_text("\n".join(text) + "\n")
+
+
+@pytest.mark.parametrize("name", list(CASES))
+def test_hostile_input_exits_2_with_one_line_and_writes_nothing(name, sequence, tmp_path):
+    prepare, argv, expected = CASES[name]
+    seq, work = tmp_path / "seq", tmp_path / "work"
+    shutil.copytree(sequence, seq)
+    work.mkdir()
+    prepare(seq)
+    before = _tree(work)
+    argv = [a.replace("SEQ", str(seq)).replace("WORK", str(work)) for a in argv]
+    if argv[0] == "map":
+        argv[1:1] = ["--sequence", str(seq)]
+    status, stderr = _prismap(argv, tmp_path)
+    lines = stderr.strip().splitlines()
+    assert status == 2, stderr
+    assert len(lines) == 1 and lines[0].startswith(f"prismap {argv[0]}"), stderr
+    assert expected in lines[0]
+    assert _tree(work) == before
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
