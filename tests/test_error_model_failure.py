@@ -6,6 +6,7 @@ import json
 import numpy as np
 import pytest
 
+from prismap.camera import integrate_disparity
 from prismap.characterise import characterise_matcher, load_error_model
 from prismap.grid import OccupancyMap
 from prismap.sensor_models import conditioned_sensor_model, failure_floor
@@ -42,7 +43,7 @@ def test_a_version_2_file_has_no_failure_component_and_maps_as_its_gaussians(tmp
             sensor = conditioned_sensor_model(name, camera, voxel_size_m=0.2, p0=0.05, error_model=error_model,
                                               **({"near_m": 1.0, "far_depth_m": 40.0} if name == "prism" else {}))
             grid = OccupancyMap(0.2, p0=0.05)
-            grid.integrate_disparity(disparity, camera, pose, sensor, mode="projective", max_range_m=20.0)
+            integrate_disparity(grid, disparity, camera, pose, sensor, mode="projective", max_range_m=20.0)
             maps.append(grid.known_voxels())
     for old, new in zip(maps[:2], maps[2:]):
         np.testing.assert_array_equal(old[0], new[0])

@@ -154,6 +154,7 @@ def test_one_frame_moves_no_voxel_beyond_the_bound_through_the_map_update(gross)
     """A frame of gross failures (disparities uniform over the search range) and a frame of the true scene with
     seeded mixture errors, integrated projectively with PRISM: every voxel's log-odds change stays within
     ``evidence_bound`` of the mixture, at the voxel stretch priors projective integration can give."""
+    from prismap.camera import integrate_disparity
     from prismap.grid import OccupancyMap
     from support import planes_frame
 
@@ -173,7 +174,7 @@ def test_one_frame_moves_no_voxel_beyond_the_bound_through_the_map_update(gross)
         model = PrismModel(error_model=error_model, focal_baseline=camera.focal_baseline, voxel_size_m=voxel, p0=p0,
                            near_m=1.0, far_depth_m=40.0, overhang_fraction=0.0)
         grid = OccupancyMap(voxel, p0=p0)
-        grid.integrate_disparity(disparity, camera, pose, model, mode="projective", max_range_m=30.0)
+        integrate_disparity(grid, disparity, camera, pose, model, mode="projective", max_range_m=30.0)
         changes.append(grid.known_voxels()[1] - logit(p0))
     change, plain = changes
     norm_max = float(np.linalg.norm(camera.pixel_rays(), axis=-1).max())
