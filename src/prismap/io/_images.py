@@ -109,6 +109,56 @@ def _png_header(data, path, what):
     return height, width, channels * (2 if bit_depth == 16 else 1)
 
 
+_JPEG_FRAME_MARKERS = frozenset(range(0xC0, 0xD0)) - {0xC4, 0xC8, 0xCC}
+"""JPEG start-of-frame markers (SOF0-SOF15 but DHT, JPG and DAC), whose segment holds the image size."""
+
+
+def _jpeg_header(data, where):
+    """``(height, width, components)`` from a JPEG's start-of-frame segment, or a message naming ``where``."""
+    offset = 2
+    while offset + 4 <= len(data):
+        if data[offset] != 0xFF:
+            break
+        marker = data[offset + 1]
+        if marker == 0xFF:
+            offset += 1
+            continue
+        if marker in (0xD8, 0x01) or 0xD0 <= marker <= 0xD7:
+            offset += 2
+            continue
+        length = struct.unpack(">H", data[offset + 2:offset + 4])[0]
+        if marker in _JPEG_FRAME_MARKERS and offset + 10 <= len(data) and length >= 8:
+            height, width, components = struct.unpack(">HHB", data[offset + 5:offset + 10])
+            return height, width, components
+        if marker == 0xDA or length < 2:
+            break
+        offset += 2 + length
+    raise PrismapInputError(f"{where} cannot be decoded (a JPEG without a readable frame header)")
+
+
+def check_encoded_image(data, where):
+    """Check a PNG or JPEG held in memory (a bag's CompressedImage) before it is decoded.
+
+    Its declared size must be within :data:`MAX_IMAGE_PIXELS` and the memory budget, as for image files;
+    a PNG's chunks are checked too (libpng then never prints its own message). Other formats are refused.
+
+    Returns
+    -------
+    (height, width) : pixels
+    """
+    data = bytes(data)
+    if data[:len(PNG_SIGNATURE)] == PNG_SIGNATURE:
+        height, width, bytes_per_pixel = _png_header(data, where, "image")
+    elif data[:3] == b"\xff\xd8\xff":
+        height, width, components = _jpeg_header(data, where)
+        bytes_per_pixel = max(components, 1)
+    else:
+        raise PrismapInputError(f"{where}: compressed image is neither PNG nor JPEG (starts {data[:8]!r})")
+    check_image_pixels(where, "compressed image", width, height)
+    check_memory(width * height * bytes_per_pixel, f"{where}: decoding the {width}x{height} compressed image")
+    return height, width
+
+
 def read_image(path, what, *, colour):
     """An 8-bit PNG image in RGB order.
 
