@@ -4,10 +4,10 @@ address-space limit of ``test_hostile``: exit 2, one line naming the topic or op
 import cv2
 import numpy as np
 import pytest
-
-from support import CAMERA
 from test_hostile import _png_bomb, _prismap, _tree
 from test_io_rosbag import LEFT, RIGHT, BagWriter, frames, projections, stamp, write_bag  # noqa: F401 (a fixture)
+
+from support import CAMERA
 
 MAP_BAG = ["map", "--bag", "BAG", "--left", LEFT, "--right", RIGHT, "--pose-topic", "/odom", "--voxel", "0.1"]
 
