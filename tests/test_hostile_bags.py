@@ -80,3 +80,12 @@ def test_a_compressed_image_of_another_format_is_refused(frames, tmp_path):  # n
     bag = _hostile_bag(tmp_path / "bmp.bag", frames, image=lambda f: cv2.imencode(".bmp", f.left)[1].tobytes())
     line = _run([*MAP_BAG, "--out", "WORK/o.npz"], tmp_path, bag)
     assert "compressed image is neither PNG nor JPEG" in line
+
+
+def test_a_malformed_ros2_metadata_yaml_is_one_line(tmp_path):
+    """Item 16: the YAML parser's message spans 8 lines."""
+    bag = tmp_path / "bag"
+    bag.mkdir()
+    (bag / "metadata.yaml").write_text("rosbag2_bagfile_information:\n  version: [1\n  storage_identifier: mcap\n")
+    line = _run([*MAP_BAG, "--out", "WORK/o.npz"], tmp_path, bag)
+    assert f"{bag}: not a readable ROS bag" in line and "metadata.yaml" in line
