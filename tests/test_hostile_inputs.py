@@ -85,6 +85,15 @@ PNG_FAULTS = {
 }
 
 
+def _frames_of_16000x8000(seq):
+    """Every image a valid 16000x8000 colour PNG (under MAX_IMAGE_PIXELS), without ground truth of the old size."""
+    data = cv2.imencode(".png", np.zeros((8000, 16000, 3), np.uint8))[1].tobytes()
+    for image in (*seq.glob("image_2/*.png"), *seq.glob("image_3/*.png")):
+        image.write_bytes(data)
+    shutil.rmtree(seq / "disp")
+    (seq / "occupancy.npz").unlink()
+
+
 def _calib_cx(seq, cx):
     _calib(seq, CAMERA.focal_px, CAMERA.baseline_m)
     text = (seq / "calib.txt").read_text().split("\n")
@@ -108,6 +117,10 @@ CASES = {
     **{f"PNG with {fault}": (lambda s, fault=fault: _png_of(s, PNG_FAULTS[fault]), [*MAP, "--out", "WORK/o.npz"],
                              "000001.png: left image cannot be decoded (truncated or corrupt PNG")
        for fault in PNG_FAULTS},
+    # item 11: a frame under the pixel limit that the matcher cannot match in the memory budget
+    "SGBM on 16000x8000": (_frames_of_16000x8000, ["map", "--matcher", "sgbm", "--model", "hitmiss", "--voxel", "0.1",
+                                                   "--frames", "0:1", "--out", "WORK/o.npz"],
+                           "sgbm: matching a 16000x8000 pair needs"),
     # item 17: ground truth that cannot set the search range
     "ground truth all negative": (lambda s: _middlebury_folder(s / "mb", disparity=np.full((24, 40), -3.0, np.float32)),
                                   CHARACTERISE, "mb/disp0.pfm: every valid ground-truth disparity"),
