@@ -27,6 +27,7 @@ import resource
 import statistics
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -34,14 +35,18 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
-import octomap  # noqa: E402
+import dufomap
+import octomap
 
-from prismap import sim  # noqa: E402
-from prismap.camera import StereoCamera  # noqa: E402
-from prismap.gmm import GaussianMixture  # noqa: E402
-from prismap.grid import OccupancyMap  # noqa: E402
-from prismap.sensor_models import make_sensor_model  # noqa: E402
-from support import planes_frame, world_points  # noqa: E402
+from prismap import sim
+from prismap.camera import StereoCamera, integrate_disparity
+from prismap.characterise import characterise_matcher, load_error_model, write_error_model
+from prismap.gmm import GaussianMixture
+from prismap.grid import OccupancyMap
+from prismap.pipeline import MappingConfig
+from prismap.sensor_models import ConditionedModel, make_sensor_model
+from prismap.stereo import make_matcher
+from support import planes_frame, world_points
 
 VOXEL = 0.1
 STREET_MIXTURE = GaussianMixture(np.array([0.80, 0.15, 0.05]), np.array([0.0, -0.1, -2.0]),
@@ -49,14 +54,20 @@ STREET_MIXTURE = GaussianMixture(np.array([0.80, 0.15, 0.05]), np.array([0.0, -0
 """Disparity error of scenes (a) and (c): a 0.3 px core, a 1 px shoulder and 5 % outliers of sigma 10 px."""
 STREET_RANGE_M = (2.0, 80.0)
 STREET_NEAR_M = 1.5  # PRISM's near_m on the street (no surface nearer than 1.8 m to the drive)
-STREET_METHODS = {  # label: (model name, mode)
+STREET_METHODS = {  # label: (model name, mode; UFOMap's: threads)
     "OctoMap insertPointCloud": ("octomap", None),
+    "UFOMap run, 1 thread": ("ufomap", "1"),
+    "UFOMap run, 2 threads": ("ufomap", "2"),
     "hit/miss, ray": ("hitmiss", "ray"),
     "hit/miss, projective": ("hitmiss", "projective"),
     "Andert, projective": ("andert", "projective"),
     "PRISM, ray": ("prism", "ray"),
     "PRISM, projective": ("prism", "projective"),
+    "PRISM conditioned, ray": ("conditioned", "ray"),
+    "PRISM conditioned, projective": ("conditioned", "projective"),
 }
+CHARACTERISE_FRAMES = 4
+"""Scene (c) with ``--conditioned``: SGBM is characterised on this many of the world's first frames."""
 
 
 def hitmiss(camera):
@@ -134,79 +145,184 @@ def street_frames(scale, n_frames):
     return camera, poses, disparities
 
 
-def street_model(name, camera, voxel):
+def sgbm_world(scale, n_frames, directory):
+    """Scene (c) from images, as ``prismap map`` sees it: write ``world.npz`` and ``error_model.json`` to ``directory``.
+
+    The street's stereo pairs (``scene.frames(seed=0)``), SGBM's disparities (``make_matcher("sgbm")``, its
+    defaults), the error model characterised on the first :data:`CHARACTERISE_FRAMES` frames (conditioned, the
+    class count ``characterise_matcher`` picks) and each pixel's class (``ErrorModel.classify_frame``, as
+    ``pipeline.DisparitySource`` computes it). Skipped when both files exist (``--world-dir`` reuses them).
+    """
+    directory = Path(directory)
+    world, model_path = directory / "world.npz", directory / "error_model.json"
+    if world.is_file() and model_path.is_file():
+        return world
+    directory.mkdir(parents=True, exist_ok=True)
+    camera = sim.kitti_camera(scale=scale)
+    poses = sim.street_trajectory(n_frames, seed=0)
+    frames = list(sim.street_scene(seed=0).frames(camera, poses, seed=0))
+    matcher = make_matcher("sgbm")
+    start = time.perf_counter()
+    error_model = characterise_matcher(frames[:CHARACTERISE_FRAMES], matcher, progress=False).model
+    print(f"  characterised SGBM on {min(CHARACTERISE_FRAMES, n_frames)} frames in {time.perf_counter() - start:.0f} s: "
+          f"{error_model.n_classes} classes", flush=True)
+    disparities, classes = [], []
+    for frame in frames:
+        disparity, lr_disagreement = matcher.compute_with_confidence(frame.left, frame.right)
+        disparities.append(disparity.astype(np.float32))
+        classes.append(error_model.classify_frame(frame.left, frame.right, disparity, lr_disagreement).astype(np.int16))
+    write_error_model(error_model, model_path)
+    np.savez(world, poses=poses, disparities=np.stack(disparities), classes=np.stack(classes))
+    return world
+
+
+def load_world(scale, n_frames, world):
+    """Camera, poses, disparities (NaN = invalid), classes and error model of scene (c): measured (``world``, from
+    :func:`sgbm_world`) or synthetic (``world`` None: :func:`street_frames`, no classes, :data:`STREET_MIXTURE`)."""
+    if world is None:
+        camera, poses, disparities = street_frames(scale, n_frames)
+        return camera, poses, disparities, [None] * len(poses), STREET_MIXTURE
+    data = np.load(world)
+    error_model = load_error_model(Path(world).with_name("error_model.json"))
+    return (sim.kitti_camera(scale=scale), data["poses"], list(data["disparities"].astype(np.float64)),
+            list(data["classes"].astype(np.int32)), error_model)
+
+
+def street_model(name, camera, voxel, error_model):
+    """The sensor model ``name`` of scene (c). Synthetic: p0 0.05, PRISM's near_m :data:`STREET_NEAR_M`. Measured
+    (an ErrorModel): what ``prismap map --model prism --error-model M`` builds (``MappingConfig.sensor_model``,
+    defaults), plain (the whole-image mixture) or conditioned."""
+    if not isinstance(error_model, GaussianMixture):
+        model = "prism" if name == "conditioned" else name
+        config = MappingConfig(model=model, voxel_size_m=voxel, error_model=error_model,
+                               conditioned=name == "conditioned")
+        return config.sensor_model(camera)
     common = {"focal_baseline": camera.focal_baseline, "doffs_px": camera.doffs_px, "voxel_size_m": voxel}
     if name == "hitmiss":
         return make_sensor_model("hitmiss", p0=0.5, **common)
     if name == "andert":
-        return make_sensor_model("andert", sigma_px=float(STREET_MIXTURE.sigmas[0]), **common)
-    return make_sensor_model("prism", p0=0.05, error_model=STREET_MIXTURE, near_m=STREET_NEAR_M, **common)
+        return make_sensor_model("andert", sigma_px=float(error_model.sigmas[0]), **common)
+    return make_sensor_model("prism", p0=0.05, error_model=error_model, near_m=STREET_NEAR_M, **common)
 
 
-def street_method(name, mode, voxel, scale, n_frames):
+def cloud(camera, pose, disparity):
+    """World points (N, 3) of a disparity image's valid pixels."""
+    valid = np.isfinite(disparity)
+    depth = np.where(valid, camera.focal_baseline / (disparity + camera.doffs_px), np.nan)
+    return world_points(camera, pose, depth)[valid.ravel()]
+
+
+def street_method(name, mode, voxel, scale, n_frames, world=None):
     """Map scene (c) with one method in this (fresh) process; per-frame wall and CPU seconds and memory."""
-    camera, poses, disparities = street_frames(scale, n_frames)
+    camera, poses, disparities, classes, error_model = load_world(scale, n_frames, world)
     max_range = STREET_RANGE_M[1]
     rss_before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
     wall, cpu, out = [], [], {}
+
+    def clock(insert, inputs):
+        for item in inputs:
+            start, start_cpu = time.perf_counter(), time.process_time()
+            insert(*item)
+            wall.append(time.perf_counter() - start)
+            cpu.append(time.process_time() - start_cpu)
+
+    if name in ("octomap", "ufomap"):  # the clouds are computed before the clock starts
+        clouds = [(cloud(camera, pose, disparity), pose) for disparity, pose in zip(disparities, poses)]
     if name == "octomap":
         tree = octomap.OcTree(voxel)
-        for disparity, pose in zip(disparities, poses):
-            valid = np.isfinite(disparity)
-            depth = np.where(valid, camera.focal_baseline / (disparity + camera.doffs_px), np.nan)
-            points = world_points(camera, pose, depth)[valid.ravel()]
-            start, start_cpu = time.perf_counter(), time.process_time()
-            tree.insertPointCloud(points, np.ascontiguousarray(pose[:3, 3]), maxrange=max_range)
-            wall.append(time.perf_counter() - start)
-            cpu.append(time.process_time() - start_cpu)
+        clock(lambda points, pose: tree.insertPointCloud(points, np.ascontiguousarray(pose[:3, 3]), maxrange=max_range),
+              clouds)
         out["map_bytes"] = tree.memoryUsage()
+    elif name == "ufomap":
+        # UFOMap through DUFOMap's binding: free space to and a hit at each world point within the max range
+        # (it has no max range; OctoMap also casts free space along the farther points' rays), no hit or unknown
+        # inflation (d_s 0, d_p 0): the plain occupancy insert.
+        ufo = dufomap.dufomap(voxel, 0.0, 0, num_threads=int(mode))
+        clouds = [(points[np.linalg.norm(points - pose[:3, 3], axis=1) <= max_range].astype(np.float32), pose)
+                  for points, pose in clouds]
+        clock(lambda points, pose: ufo.run(points, pose, cloud_transform=False), clouds)
+        out["map_bytes"] = 0
     else:
-        model = street_model(name, camera, voxel)
-        grid = OccupancyMap(voxel, p0=model.p0)
-        for disparity, pose in zip(disparities, poses):
-            start, start_cpu = time.perf_counter(), time.process_time()
-            grid.integrate_disparity(disparity, camera, pose, model, mode=mode, max_range_m=max_range)
-            wall.append(time.perf_counter() - start)
-            cpu.append(time.process_time() - start_cpu)
+        model = street_model(name, camera, voxel, error_model)
+        grid = OccupancyMap(voxel, p0=getattr(model, "plain", model).p0)
+        if not isinstance(model, ConditionedModel):
+            classes = [None] * len(poses)
+        clock(lambda disparity, pose, ray_class: integrate_disparity(
+            grid, disparity, camera, pose, model, mode=mode, max_range_m=max_range, ray_class=ray_class),
+            zip(disparities, poses, classes))
         out["map_bytes"] = grid.nbytes()
-        if name == "prism":
-            cache = model._cache
-            out.update(tables=len(cache), table_bytes=cache.nbytes, table_hits=cache.hits, table_builds=cache.builds)
+        caches = [m._cache for m in getattr(model, "class_models", ()) + (getattr(model, "plain", model),)
+                  if hasattr(m, "_cache")]
+        if caches:
+            out.update(tables=sum(len(c) for c in caches), table_bytes=sum(c.nbytes for c in caches),
+                       table_hits=sum(c.hits for c in caches), table_builds=sum(c.builds for c in caches))
     out.update(wall=wall, cpu=cpu,
                rss_rise=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024 - rss_before)
     return out
 
 
 def street(args):
-    """Scene (c): every method in its own process, interleaved, --repeat times; a table of medians."""
-    camera = sim.kitti_camera(scale=args.scale)
+    """Scene (c): every method in its own process, interleaved, --repeat times, on each rig (--scales) and voxel
+    size; a table of medians per set-up, then the worst ratio of each method over the set-ups."""
     methods = {label: STREET_METHODS[label] for label in STREET_METHODS
-               if args.methods is None or any(word.lower() in label.lower() for word in args.methods)}
-    for voxel in args.voxels:
-        print(f"\nscene (c): street, {camera.width}x{camera.height} px (f {camera.focal_px:g} px, b "
-              f"{camera.baseline_m:g} m), {args.frames} frames, depths {STREET_RANGE_M[0]:g}-{STREET_RANGE_M[1]:g} m, "
-              f"{voxel} m voxels, rays cut at {STREET_RANGE_M[1]:g} m, errors {mixture_text()}; load {_load()}")
-        runs = {label: [] for label in methods}
-        for _ in range(args.repeat):
-            for label, (name, mode) in methods.items():
-                command = [sys.executable, __file__, "--street-method", name, str(mode), str(voxel), str(args.scale),
-                           str(args.frames)]
-                runs[label].append(json.loads(subprocess.run(command, check=True, capture_output=True,
-                                                             text=True).stdout.splitlines()[-1]))
-        octo = _street_summary(runs.get("OctoMap insertPointCloud") or runs[next(iter(runs))])
-        print(f"{'method':<26} {'cold s':>7} {'CPU':>6} {'steady s':>8} {'CPU':>6} {'x Octo':>6} {'x CPU':>6} "
-              f"{'cold/st':>7} {'RSS MB':>7} {'map MB':>7}  tables")
-        for label, results in runs.items():
-            row = _street_summary(results)
-            tables = ""
-            if "tables" in results[-1]:
-                last = results[-1]
-                hit_rate = last["table_hits"] / max(last["table_hits"] + last["table_builds"], 1)
-                tables = (f"{last['tables']} tables, {last['table_bytes'] / 2**20:.1f} MB, {last['table_builds']} built, "
-                          f"hit rate {hit_rate:.3f}")
-            print(f"{label:<26} {row['cold']:7.2f} {row['cold_cpu']:6.2f} {row['steady']:8.3f} {row['steady_cpu']:6.3f} "
-                  f"{octo['steady'] / row['steady']:6.2f} {octo['steady_cpu'] / row['steady_cpu']:6.2f} "
-                  f"{row['cold'] / row['steady']:7.2f} {row['rss'] / 2**20:7.0f} {row['map'] / 2**20:7.1f}  {tables}")
+               if (args.conditioned or "conditioned" not in label)
+               and (args.methods is None or any(word.lower() in label.lower() for word in args.methods))}
+    worst = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for scale in args.scales:
+            camera = sim.kitti_camera(scale=scale)
+            world, errors = None, mixture_text()
+            if args.conditioned:
+                world = sgbm_world(scale, args.frames, Path(args.world_dir or tmp) / f"street_{scale:g}_{args.frames}")
+                error_model = load_error_model(world.with_name("error_model.json"))
+                errors = f"SGBM (its defaults) characterised on {CHARACTERISE_FRAMES} frames, {error_model.n_classes} classes"
+            for voxel in args.voxels:
+                print(f"\nscene (c): street, {camera.width}x{camera.height} px (f {camera.focal_px:g} px, b "
+                      f"{camera.baseline_m:g} m), {args.frames} frames, depths {STREET_RANGE_M[0]:g}-{STREET_RANGE_M[1]:g} m, "
+                      f"{voxel} m voxels, rays cut at {STREET_RANGE_M[1]:g} m, errors {errors}; load {_load()}", flush=True)
+                runs = {label: [] for label in methods}
+                for _ in range(args.repeat):
+                    for label, (name, mode) in methods.items():
+                        command = [sys.executable, __file__, "--street-method", name, str(mode), str(voxel), str(scale),
+                                   str(args.frames), str(world or "")]
+                        runs[label].append(json.loads(subprocess.run(command, check=True, capture_output=True,
+                                                                     text=True).stdout.splitlines()[-1]))
+                _street_table(runs, worst)
+                print(f"load {_load()}")
+    print(f"\nworst over rigs {args.scales} and voxels {args.voxels} (steady state): x Octo lowest; x UFO lowest; "
+          "conditioned / plain PRISM of the same mode: time and peak RSS rise highest")
+    for label, figures in worst.items():
+        print(f"{label:<30} " + "  ".join(f"{key} {value:.2f}" for key, value in figures.items()))
+
+
+def _street_table(runs, worst):
+    """Print one set-up's table and fold its ratios into ``worst`` (label: {figure: worst value so far})."""
+    summary = {label: _street_summary(results) for label, results in runs.items()}
+    octo = summary.get("OctoMap insertPointCloud") or next(iter(summary.values()))
+    ufo = min((row for label, row in summary.items() if label.startswith("UFOMap")), key=lambda row: row["steady"],
+              default=None)
+    print(f"{'method':<30} {'cold s':>7} {'CPU':>6} {'steady s':>8} {'CPU':>6} {'x Octo':>6} {'x CPU':>6} {'x UFO':>6} "
+          f"{'cold/st':>7} {'RSS MB':>7} {'map MB':>7}  tables")
+    for label, row in summary.items():
+        last = runs[label][-1]
+        tables = ""
+        if "tables" in last:
+            hit_rate = last["table_hits"] / max(last["table_hits"] + last["table_builds"], 1)
+            tables = (f"{last['tables']} tables, {last['table_bytes'] / 2**20:.1f} MB, {last['table_builds']} built, "
+                      f"hit rate {hit_rate:.3f}")
+        figures = {"x Octo": octo["steady"] / row["steady"]}
+        if ufo is not None:
+            figures["x UFO"] = ufo["steady"] / row["steady"]
+        plain = summary.get(label.replace(" conditioned", ""))
+        if plain is not None and plain is not row:
+            figures["time / plain"] = row["steady"] / plain["steady"]
+            figures["RSS / plain"] = row["rss"] / max(plain["rss"], 1)
+        for key, value in figures.items():
+            kept = worst.setdefault(label, {}).get(key, value)
+            worst[label][key] = max(kept, value) if "plain" in key else min(kept, value)
+        print(f"{label:<30} {row['cold']:7.2f} {row['cold_cpu']:6.2f} {row['steady']:8.3f} {row['steady_cpu']:6.3f} "
+              f"{figures['x Octo']:6.2f} {octo['steady_cpu'] / row['steady_cpu']:6.2f} {figures.get('x UFO', np.nan):6.2f} "
+              f"{row['cold'] / row['steady']:7.2f} {row['rss'] / 2**20:7.0f} {row['map'] / 2**20:7.1f}  {tables}", flush=True)
 
 
 def _street_summary(results):
@@ -258,16 +374,20 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--street", action="store_true", help="scene (c) only")
-    parser.add_argument("--scale", type=float, default=1.0, help="scene (c): kitti_camera scale (0.5: 621x188)")
+    parser.add_argument("--scales", type=float, nargs="+", default=[1.0, 0.5],
+                        help="scene (c): kitti_camera scales, the rigs (1: 1242x375, f 720 px; 0.5: 621x188, f 360 px)")
+    parser.add_argument("--conditioned", action="store_true",
+                        help="scene (c) from images: SGBM's disparities, its conditioned error model, PRISM conditioned")
+    parser.add_argument("--world-dir", help="scene (c) --conditioned: keep (and reuse) the matched world here")
     parser.add_argument("--frames", type=int, default=10, help="scene (c): frames along the street")
     parser.add_argument("--voxels", type=float, nargs="+", default=[0.2, 0.1], help="scene (c): voxel sizes (m)")
     parser.add_argument("--methods", nargs="+", help="scene (c): only the methods whose label contains one of these "
                         "words (e.g. OctoMap PRISM); ratios are to OctoMap, or to the first method without it")
-    parser.add_argument("--street-method", nargs=5, help=argparse.SUPPRESS)  # one process of scene (c)
+    parser.add_argument("--street-method", nargs=6, help=argparse.SUPPRESS)  # one process of scene (c)
     args = parser.parse_args()
     if args.street_method:
-        name, mode, voxel, scale, frames = args.street_method
-        print(json.dumps(street_method(name, mode, float(voxel), float(scale), int(frames))))
+        name, mode, voxel, scale, frames, world = args.street_method
+        print(json.dumps(street_method(name, mode, float(voxel), float(scale), int(frames), world or None)))
         return
     if args.street:
         street(args)
@@ -279,12 +399,12 @@ def main():
     depth = camera.focal_baseline / disparity
     warm = OccupancyMap(VOXEL, p0=0.5)
     for mode in ("ray", "projective"):
-        warm.integrate_disparity(disparity[:40, :40], camera, pose, model, mode=mode, max_range_m=12.0)
+        integrate_disparity(warm, disparity[:40, :40], camera, pose, model, mode=mode, max_range_m=12.0)
 
     def frame(mode):
         def go(ism):
             grid = OccupancyMap(VOXEL, p0=ism.p0 if hasattr(ism, "p0") else 0.5)
-            grid.integrate_disparity(disparity, camera, pose, ism, mode=mode, max_range_m=12.0)
+            integrate_disparity(grid, disparity, camera, pose, ism, mode=mode, max_range_m=12.0)
             return grid
         return go
 

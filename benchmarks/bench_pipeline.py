@@ -3,9 +3,12 @@
 Scene: the seeded indoor room of ``prismap.sim`` (``indoor_scene(seed=0)``) along ``indoor_trajectory``,
 rendered to ``--frames`` stereo pairs (default 16) by a New-Tsukuba-like camera scaled to ``--width`` pixels
 (default 640 x 480, f = 615 px, baseline 0.10 m) and written as a KITTI-layout sequence in a temporary
-directory. Every run maps the same frames with SGBM (64 disparities), the ``--model`` sensor model (default
-PRISM with :data:`prismap.experiment.SGBM_LIKE_MIXTURE`, near_m 0.9 m = f b / 64 px; convolution and Andert
-take sigma 0.5 px), 0.1 m voxels, 8 m max range.
+directory. Every run maps the same frames with SGBM (64 disparities), the ``--model`` sensor model (convolution
+and Andert take sigma 0.5 px), 0.1 m voxels, 8 m max range. PRISM (the default) runs as ``prismap map`` does by
+default: SGBM is characterised on the sequence's first :data:`CHARACTERISE_FRAMES` frames
+(:func:`prismap.characterise.characterise_matcher`, conditioned, the class count it picks), the model's own
+parameters are its defaults, and the stages are timed twice per mode: conditioned (each pixel's class from its
+features, the default) and plain (the whole-image mixture), with their ratio.
 
 Stages (default): :func:`prismap.pipeline.map_sequence`, sequential, in ray and projective mode, with the
 library's calls wrapped here to time them: matching (the matcher's ``compute_with_confidence``), model (the sensor model's
@@ -51,15 +54,16 @@ import prismap.grid._kernels_project
 import prismap.pipeline._run
 from prismap import sim
 from prismap.camera import StereoCamera
+from prismap.characterise import characterise_matcher
 from prismap.cli import main as prismap_main
-from prismap.experiment import SGBM_LIKE_MIXTURE
 from prismap.io import read_sequence, write_sequence
 from prismap.pipeline import MappingConfig, map_sequence
 from prismap.stereo import make_matcher
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_grid import TimedModel  # noqa: E402
+from bench_grid import TimedModel
 
+CHARACTERISE_FRAMES = 4
 VOXEL_M = 0.1
 MAX_RANGE_M = 8.0
 MATCHER_PARAMS = {"num_disparities": 64}
@@ -231,29 +235,40 @@ def main():
     if args.cv_threads is not None:
         cv2.setNumThreads(args.cv_threads)
     if args.dask and args.model == "prism":
-        parser.error("--dask runs the CLI, which takes PRISM's mixture from a characterised file: use another --model")
+        parser.error("--dask runs the CLI, which takes PRISM's error model from a characterised file: use another --model")
 
     scale = args.width / 640
     camera = StereoCamera(615.0 * scale, 320.0 * scale - 0.5, 240.0 * scale - 0.5, 0.10,
                           width=args.width, height=int(480 * scale))
     model_params = {"sigma_px": 0.5} if args.model in ("convolution", "andert") else {}
-    error_model = None
-    if args.model == "prism":
-        model_params = {"near_m": 0.9}
-        error_model = SGBM_LIKE_MIXTURE
     with tempfile.TemporaryDirectory() as tmp:
         sequence = Path(tmp) / "seq"
         scene = sim.indoor_scene(seed=0)
-        write_sequence(scene.frames(camera, sim.indoor_trajectory(args.frames, seed=0), seed=0), sequence)
+        frames = list(scene.frames(camera, sim.indoor_trajectory(args.frames, seed=0), seed=0))
+        write_sequence(frames, sequence)
+        error_model, variants = None, [(None, "")]
+        if args.model == "prism":
+            error_model = characterise_matcher(frames[:CHARACTERISE_FRAMES], make_matcher("sgbm", **MATCHER_PARAMS),
+                                               progress=False).model
+            variants = [(True, "conditioned"), (False, "plain")] if error_model.conditioned else [(False, "plain")]
+        del frames
         print(f"scene: indoor_scene(seed=0), {args.frames} frames of {camera.width}x{camera.height} px "
-              f"(f {camera.focal_px:.1f} px, b 0.10 m); sgbm 64 disparities, {args.model} {model_params}, "
-              f"voxel {VOXEL_M} m, max range {MAX_RANGE_M} m; OpenCV threads {cv2.getNumThreads()}; load {_load()}")
+              f"(f {camera.focal_px:.1f} px, b 0.10 m); sgbm 64 disparities, {args.model} {model_params}"
+              + (f" with SGBM's error model from {CHARACTERISE_FRAMES} frames ({error_model.n_classes} classes)"
+                 if error_model is not None else "")
+              + f", voxel {VOXEL_M} m, max range {MAX_RANGE_M} m; OpenCV threads {cv2.getNumThreads()}; load {_load()}")
         if not args.dask:
             for mode in args.modes:
-                config = MappingConfig(model=args.model, model_params=model_params, error_model=error_model,
-                                       voxel_size_m=VOXEL_M, max_range_m=MAX_RANGE_M, matcher="sgbm",
-                                       matcher_params=MATCHER_PARAMS, mode=mode)
-                cpu_ms = stages(sequence, config, args.frames, args.repeat)
+                cpu = {}
+                for conditioned, label in variants:
+                    config = MappingConfig(model=args.model, model_params=model_params, error_model=error_model,
+                                           conditioned=conditioned, voxel_size_m=VOXEL_M, max_range_m=MAX_RANGE_M,
+                                           matcher="sgbm", matcher_params=MATCHER_PARAMS, mode=mode)
+                    if label:
+                        print(label)
+                    cpu_ms = cpu[label] = stages(sequence, config, args.frames, args.repeat)
+                if len(cpu) == 2:
+                    print(f"{mode}: conditioned / plain warm CPU per frame {cpu['conditioned'] / cpu['plain']:.2f}")
             print(f"floor: SGBM compute alone {sgbm_floor(sequence, args.frames, args.repeat):.2f} fps (one thread); "
                   f"the last mode's warm CPU per frame on 2 cores {2e3 / cpu_ms:.2f} fps; load {_load()}")
             return

@@ -3,6 +3,7 @@ the report's Markdown-to-HTML tables, and ``prismap experiment`` through the com
 
 import contextlib
 import io
+import json
 import re
 
 import pytest
@@ -46,14 +47,29 @@ def test_markdown_tables_become_html_tables():
         "<tr><td>ideal</td><td class=num>n/a</td></tr></tbody></table>")
 
 
-def test_html_report_has_a_section_per_step_and_loads_in_chromium(quick_demo, tmp_path):
+def test_html_report_leads_with_the_answer_and_loads_in_chromium(quick_demo, tmp_path):
     out, _ = quick_demo
     page = (out / "index.html").read_text()
-    sources = re.findall(r'<img src="([^"]+)"', page)
-    assert len(sources) >= 3 * 2 + 4 + 3 * 3 and all((out / s).is_file() for s in sources)
-    titles = re.findall(r"<h2>([^<]+)</h2>", page)
+    tops = re.findall(r"<h2[^>]*>([^<]+)</h2>", page)
+    assert tops == ["Which model wins", "PRISM against OctoMap", "The maps", "Details"]
+    titles = re.findall(r"<h3>([^<]+)</h3>", page)
     assert [t.split(". ", 1)[1].split()[0] for t in titles] == ["Stereo", "Sensor", "2-D", "3-D", "Street,"]
-    assert page.count("<table>") >= 3 + 1 + 3 and "PRISM Brier" in page
+    # self-contained: every image embedded, the first of them the 3-D render, then the map slices
+    sources = re.findall(r'<img src="([^"]+)"', page)
+    assert len(sources) >= 1 + 3 + 3 * 2 + 4 + 3 * 3 and all(s.startswith("data:image/png;base64,") for s in sources)
+    assert (out / "map3d.png").is_file() and page.index("map3d.png") < page.index("map_slices")
+    # every winner row names a world and matcher of the runs; PRISM against OctoMap for each 3-D world
+    summary = page[page.index('id="summary"'):page.index('id="headline"')]
+    assert summary.count("<tr>") == 1 + 3 and ">scene3d<" in summary and ">street3d<" in summary
+    headline = page[page.index('id="headline"'):page.index('id="maps"')]
+    assert ">scene3d<" in headline and ">street3d<" in headline and " vs " in headline
+    # each map file linked with the command that opens it; the targets left out; tables folded
+    maps = re.findall(r'<a href="([^"]+\.npz)">', page)
+    assert "scene3d/cells/sgbm__prism_conditioned.npz" in maps and all((out / m).is_file() for m in maps)
+    assert f"prismap view {out}/scene3d/cells/sgbm__prism_conditioned.npz --gt {out}/scene3d/sequence/occupancy.npz" in page
+    assert "Targets" not in page and "NOT MET" not in page and page.count("<details>") >= 3 + 3
+    folded = re.findall(r"<details><summary>(.*?)</summary>", page)
+    assert any("thesis tables 3.1-3.3" in f for f in folded) and "PRISM Brier" in page
     if find_chromium() is None:
         reason = "no chromium on PATH (.ci/run installs Debian's chromium; install it to run the browser tests)"
         print(reason)
@@ -74,3 +90,21 @@ def test_experiment_command_rejects_bad_options(tmp_path, capsys):
     assert "`n_frames` must be a positive integer" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         main(["experiment", "--world", "mars", "--out", str(tmp_path)])
+
+
+def test_each_3d_map_of_the_demo_names_the_command_that_makes_it_again(quick_demo, tmp_path):
+    import shlex
+
+    from prismap.io import load_map
+    from support import assert_same_map
+
+    out, _ = quick_demo
+    records = sorted((out / "scene3d" / "cells").glob("*.run.json"))
+    assert len(records) == len(list((out / "scene3d" / "cells").glob("*.npz"))) >= 2
+    assert "sgbm__hitmiss.run.json" in (out / "index.html").read_text()
+    record = json.loads((out / "scene3d" / "cells" / "sgbm__hitmiss.run.json").read_text())
+    argv = shlex.split(record["command"])
+    assert argv[:2] == ["prismap", "map"] and argv[-2:] == ["--out", str((out / "scene3d/cells/sgbm__hitmiss.npz").resolve())]
+    again = tmp_path / "again.npz"
+    assert main(argv[1:-1] + [str(again)]) == 0
+    assert_same_map(load_map(again), load_map(out / "scene3d" / "cells" / "sgbm__hitmiss.npz"))

@@ -62,7 +62,7 @@ def test_map_then_evaluate_writes_the_pipelines_map_and_its_scores(sequence_dir,
         max_range_m=8.0, frames=(1, 5), policy="max-abs"), progress=False)
     grid = load_map(out)
     assert_same_map(grid, expected)
-    assert sorted(tmp_path.iterdir()) == [out]  # no checkpoint or temporary file left behind
+    assert sorted(tmp_path.iterdir()) == sorted([out, out.with_suffix(".run.json")])  # no checkpoint or temporary file
 
     assert main(["evaluate", "--map", str(out), "--gt", str(sequence_dir)]) == 0
     printed = capsys.readouterr().out
@@ -92,12 +92,13 @@ def test_evaluate_with_out_writes_json_and_reliability_figure(sequence_dir, tmp_
 @pytest.mark.parametrize(("argv", "message"), [
     (["--sequence", "/nonexistent/seq"], "--sequence /nonexistent/seq: sequence directory not found"),
     (["--model", "prism"], "sensor model 'prism' needs an error model (--error-model MODEL.json)"),
+    (["--model", "andert"], "sensor model 'andert' needs an error model (--error-model MODEL.json) or --model-param"),
     (["--model", "prism", "--error-model", "/nonexistent/m.json"], "error model /nonexistent/m.json: no such file"),
     (["--voxel", "0"], "`--voxel` must be a finite number > 0; got 0.0"),
     (["--p0", "1.5"], "`--p0` must lie in (0, 1); got 1.5"),
     (["--frames", "4:4"], "--frames '4:4': the range is empty or malformed"),
     (["--frames", "7:"], "frames 7: select no frame of a sequence of 6 frames"),
-    (["--frames", "a:b"], "--frames 'a:b': expected A:B"),
+    (["--frames", "a:b"], "--frames must look like A:B with integers A and B"),
     (["--model-param", "p_hit"], "--model-param 'p_hit': expected KEY=VALUE"),
     (["--model", "hitmiss", "--model-param", "eta=3"], "sensor model 'hitmiss': bad parameter(s) ['eta']"),
     (["--disparity-dir", "/nonexistent/disp"], "--disparity-dir /nonexistent/disp: directory not found"),
@@ -314,3 +315,23 @@ def test_map_refuses_a_conditioned_model_it_cannot_use(sequence_dir, tmp_path, c
     assert (message or "lr_disagreement_px, which needs the matcher's left-right check") in err
     assert "Traceback" not in err and err.count("\n") == 1 and not out.exists()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["lr.json"]
+
+
+def test_map_writes_the_command_that_reproduces_it(sequence_dir, conditioned_model_path, tmp_path, capsys):
+    import shlex
+
+    out = tmp_path / "first.npz"
+    assert main(map_args(sequence_dir, out, "--model", "prism", "--error-model", str(conditioned_model_path),
+                         "--frames", "1:3", "--plain", "--model-param", "pass_through=0.05", "--p0", "0.08")) == 0
+    printed = capsys.readouterr().out
+    record = json.loads(out.with_suffix(".run.json").read_text())
+    assert f"reproduce with: {record['command']}" in printed and shlex.split(record["command"]) == record["argv"]
+    argv = record["argv"]
+    for option, value in (("--p0", "0.08"), ("--voxel", str(VOXEL)), ("--max-range", "8.0"), ("--frames", "1:3"),
+                          ("--subsample", "1"), ("--mode", "ray"), ("--out", str(out))):
+        assert argv[argv.index(option) + 1] == value, option
+    assert "--plain" in argv and "--model-param=pass_through=0.05" in argv and "--matcher-param=num_disparities=16" in argv
+    assert record["settings"]["p0"] == 0.08 and record["settings"]["conditioned"] is False
+    again = tmp_path / "again.npz"
+    assert main(argv[1:-1] + [str(again)]) == 0  # the recorded command, writing elsewhere
+    assert_same_map(load_map(again), load_map(out))

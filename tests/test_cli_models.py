@@ -68,7 +68,7 @@ def test_bad_options_exit_2_with_a_message(prismap, error_model_path, tmp_path, 
     status = prismap(["models", "compare", "--error-model", str(error_model_path), "--out", str(tmp_path), *options])
     assert status == 2
     err = capsys.readouterr().err
-    assert err.startswith("prismap models: error:") and message in err
+    assert err.startswith("prismap models compare: error:") and message in err
     assert not list(tmp_path.iterdir())
 
 

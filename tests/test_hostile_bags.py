@@ -52,7 +52,7 @@ def _run(argv, tmp_path, bag):
 def test_a_pairing_tolerance_beyond_a_day_is_one_line(bag, tmp_path, value):
     """Item 13: inf overflowed converting to nanoseconds (a traceback)."""
     line = _run([*MAP_BAG, "--pair-tolerance", value, "--out", "WORK/o.npz"], tmp_path, bag)
-    assert "--pair-tolerance must lie in (0, 86400] seconds (MAX_STAMP_GAP_S)" in line
+    assert "--pair-tolerance must lie in (0, 86400] seconds; got" in line
 
 
 def test_compressed_png_bombs_are_refused_from_their_header(frames, tmp_path):  # noqa: F811

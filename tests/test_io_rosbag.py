@@ -387,7 +387,7 @@ def test_cli_characterise_bag_fits_the_ground_truth_topic_like_the_library(bags,
     (["--tf-frames", "odom"], "--tf-frames 'odom': expected WORLD:CAMERA frame ids"),
     (["--pose-topic", "/odom", "--workers", "1"], "--bag runs here, without checkpoints"),
     (["--pose-topic", "/odom", "--sequence", "seq"], "give exactly one of --sequence DIR and --bag PATH"),
-    (["--pose-topic", "/odom", "--pair-tolerance", "0"], "--pair-tolerance must be > 0 seconds; got 0.0"),
+    (["--pose-topic", "/odom", "--pair-tolerance", "0"], "--pair-tolerance must lie in (0, 86400] seconds; got 0.0"),
 ])
 def test_cli_map_bag_option_errors(bags, tmp_path, capsys, extra, message):
     out = tmp_path / "map.npz"

@@ -8,6 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
+from prismap.camera import integrate_disparity
 from prismap.errors import PrismapInputError
 from prismap.gmm import GaussianMixture
 from prismap.grid import OccupancyMap
@@ -40,7 +41,7 @@ def hand_map(sequence_dir, cfg, indices, disparity_of):
     grid = OccupancyMap(cfg.voxel_size_m, p0=cfg.p0)
     for index in indices:
         frame = sequence[index]
-        grid.integrate_disparity(disparity_of(frame), sequence.camera, frame.T_world_cam, model, mode=cfg.mode,
+        integrate_disparity(grid, disparity_of(frame), sequence.camera, frame.T_world_cam, model, mode=cfg.mode,
                                  policy=cfg.policy, max_range_m=cfg.max_range_m, subsample=cfg.subsample)
     return grid
 
@@ -65,7 +66,7 @@ def test_build_sensor_model_gives_each_model_its_noise():
 
 @pytest.mark.parametrize(("name", "params", "message"), [
     ("prism", {}, "'prism' needs an error model"),
-    ("andert", {}, "needs an error model (--error-model MODEL.json) or an explicit sigma_px"),
+    ("andert", {}, "needs an error model (`error_model`) or an explicit sigma_px"),
     ("hitmiss", {"sigma_px": 1.0}, "sensor model 'hitmiss': bad parameter(s) ['sigma_px']"),
     ("octree", {}, "unknown sensor model 'octree'"),
 ])
@@ -92,6 +93,8 @@ def test_config_is_hashable_picklable_and_fingerprinted_by_content():
     ({"mode": "octree"}, "`mode` must be one of"),
     ({"policy": "vote"}, "`policy` must be one of"),
     ({"subsample": 0}, "`subsample` must be an integer >= 1"),
+    ({"subsample": "a"}, "`subsample` must be an integer >= 1; got 'a'"),
+    ({"subsample": 1.5}, "`subsample` must be an integer >= 1; got 1.5"),
     ({"frames": (3, 3)}, "`frames` 3:3 is empty"),
     ({"frames": (-1, None)}, "`frames` must hold integers >= 0"),
     ({"matcher": "census"}, "unknown matcher 'census'"),
@@ -332,3 +335,23 @@ def test_lidar_input_errors():
         lidar_reference_map([(np.zeros((4, 2)), np.eye(4))], 0.1, progress=False)
     with pytest.raises(PrismapInputError, match=r"`scans\[0\]` must be a \(points, T_world_sensor\) pair"):
         lidar_reference_map([np.zeros((4, 3))], 0.1, progress=False)
+
+
+def test_progress_labels_name_the_model_its_variant_and_the_disparities(tmp_path):
+    from prismap.characterise import ErrorModel
+    from prismap.pipeline import MappingConfig
+    from support import MIXTURE, conditioned_error_model
+
+    conditioned = conditioned_error_model(feature="texture", edges=(20.0, 30.0))
+    assert isinstance(conditioned, ErrorModel)
+    folder = tmp_path / "sgbm" / "disparity"
+    folder.mkdir(parents=True)
+    cases = [
+        (MappingConfig(model="prism", error_model=conditioned), "prism conditioned, sgbm"),
+        (MappingConfig(model="prism", error_model=conditioned, conditioned=False, matcher="bm"), "prism plain, bm"),
+        (MappingConfig(model="convolution", error_model=MIXTURE, disparity_source="sequence"),
+         "convolution plain, the sequence's disparities"),
+        (MappingConfig(model="hitmiss", error_model=conditioned, conditioned=False, disparity_source=str(folder)),
+         "hitmiss, disparities from sgbm/disparity"),
+    ]
+    assert [config.label for config, _ in cases] == [label for _, label in cases]

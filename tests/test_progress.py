@@ -83,3 +83,30 @@ def test_a_piped_command_prints_progress_lines(tmp_path):
     assert result.returncode == 0, result.stderr
     assert [line.split(" (")[0] for line in result.stderr.splitlines()] == [
         "demo: 1/4 steps", "demo: 2/4 steps", "demo: 3/4 steps", "demo: 4/4 steps"]
+
+
+def test_weighted_lines_estimate_from_the_work_done_not_the_count():
+    # 3 cheap steps then one that costs 7 times their sum: after the cheap ones 30 % is done, not 75 %
+    out = io.StringIO()
+    items = list(LineProgress("abcd", desc="demo", unit="step", stream=out, clock=Clock(), weights=[1, 1, 1, 7]))
+    assert items == list("abcd")
+    lines = out.getvalue().splitlines()
+    # clock: start 0, the k-th line at k s; time left = elapsed / done * (1 - done)
+    assert lines[2] == "demo: 3/4 steps (30% of the work), 3.0 s elapsed, ~7.0 s left"
+    assert lines[3] == "demo: 4/4 steps (100% of the work), 4.0 s elapsed, ~0.0 s left"
+
+
+@pytest.mark.parametrize(("weights", "message"), [([1, 0], "finite and > 0"), ([1, 2, 3], "one weight per item")])
+def test_bad_weights_are_refused(weights, message):
+    with pytest.raises(ValueError, match=message):
+        LineProgress(range(2), weights=weights, stream=io.StringIO())
+
+
+def test_a_weighted_bar_moves_by_weight(monkeypatch):
+    monkeypatch.setenv("PRISMAP_PROGRESS", "bar")
+    tty = FakeTty()
+    monkeypatch.setattr(_progress.sys, "stderr", tty)
+    bar = progress(range(3), desc="demo", weights=[1, 2, 7])
+    seen = [(item, bar._bar.n) for item in bar]
+    assert seen == [(0, 0), (1, 1.0), (2, 3.0)] and bar._bar.n == 10.0
+    assert "% of the work" in tty.getvalue()

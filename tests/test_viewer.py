@@ -18,8 +18,11 @@ from prismap.errors import PrismapInputError
 from prismap.grid import OccupancyMap
 from prismap.io import save_map
 from prismap.viewer import (
+    AGREEMENT,
+    agreement_codes,
     probability_colors,
     select,
+    select_codes,
     unobserved_cells,
     voxel_classes,
     voxel_pyramid,
@@ -88,6 +91,8 @@ def test_view_refuses_bad_inputs(tmp_path, capsys):
     assert "--port must lie in [0, 65535]" in capsys.readouterr().err
     assert main(["view", str(path), "--poses", str(tmp_path / "nowhere")]) == 2
     assert "no such sequence folder or pose file" in capsys.readouterr().err
+    assert main(["view", str(path), "--colour", "agreement", "--port", "0"]) == 2
+    assert "colouring by agreement needs the ground truth (--gt TRUTH.npz)" in capsys.readouterr().err
 
 
 OUR_CHECKBOXES = "[...document.querySelectorAll('input[type=checkbox]')].filter(e => !e.id.startsWith('mantine-'))"
@@ -164,3 +169,36 @@ def test_view_serves_the_map_in_the_colormap_colours(tmp_path, chromium):
     finally:
         server.kill()
         server.wait(timeout=10)
+
+
+def test_agreement_codes_match_a_voxel_by_voxel_reading_and_danger_survives_coarsening():
+    from prismap.io import GroundTruthOccupancy
+
+    rng = np.random.default_rng(7)
+    keys = np.unique(rng.integers(-6, 6, size=(400, 3)), axis=0)
+    probability = rng.choice([0.1, 0.3, 0.5, 0.8, 0.95], size=len(keys))
+    truth_occupied = keys[rng.random(len(keys)) < 0.4]
+    observed = keys[rng.random(len(keys)) < 0.7]
+    truth = GroundTruthOccupancy(0.1, truth_occupied, np.unique(np.concatenate([observed, truth_occupied[:5]]), axis=0))
+    codes = agreement_codes(keys, probability, truth, free_threshold=0.2, occupied_threshold=0.7)
+    occupied = set(map(tuple, truth.occupied_keys))
+    seen = set(map(tuple, truth.observed_keys))
+    names = []
+    for key, p in zip(map(tuple, keys), probability):
+        state = "free" if p < 0.2 else "occupied" if p >= 0.7 else "undecided"
+        if key not in seen or state == "undecided":
+            names.append(AGREEMENT[0])
+        elif key in occupied:
+            names.append("correct occupied" if state == "occupied" else "occupied called free (danger)")
+        else:
+            names.append("correct free" if state == "free" else "free called occupied")
+    assert [AGREEMENT[c] for c in codes] == names
+    assert set(codes) == set(range(len(AGREEMENT)))  # every case is exercised
+    # a coarse voxel holding a danger voxel shows the danger; the selection counts agree with brute force
+    pyramid = voxel_pyramid(keys, codes, 0.1, min_voxels=1)
+    level, mask = select_codes(pyramid, shown=(4,), budget=int(np.sum(codes == 4)) - 1)  # too many at full size
+    danger = {key for key, c in brute_coarse(keys, codes, level.level).items() if c == 4}
+    assert level.level >= 1 and set(map(tuple, level.keys[mask])) == danger
+    level, mask = select_codes(pyramid, shown=(2, 3), z_range_m=(0.0, 0.3))
+    expected = [(c in (2, 3)) and 0.0 <= (k[2] + 0.5) * 0.1 <= 0.3 for k, c in zip(keys, codes)]
+    assert level.level == 0 and mask.tolist() == expected

@@ -38,7 +38,7 @@ def progress_mode(enabled=None, stream=None):
     return "bar" if isatty is not None and isatty() else "lines"
 
 
-def progress(iterable=None, *, total=None, desc=None, unit="it", enabled=None):
+def progress(iterable=None, *, total=None, desc=None, unit="it", enabled=None, weights=None):
     """Wrap ``iterable`` (or count ``update`` calls up to ``total``) and show the progress on stderr.
 
     Parameters
@@ -52,6 +52,9 @@ def progress(iterable=None, *, total=None, desc=None, unit="it", enabled=None):
         What an item is, e.g. ``"frame"``.
     enabled : bool or None
         See :func:`progress_mode`.
+    weights : sequence of float, optional
+        Each item's expected share of the work (any positive scale, e.g. its measured seconds), when the
+        items differ in cost: the percentage and the time left then follow the weight done, not the count.
 
     Returns
     -------
@@ -60,30 +63,27 @@ def progress(iterable=None, *, total=None, desc=None, unit="it", enabled=None):
     """
     mode = progress_mode(enabled)
     if mode == "lines":
-        return LineProgress(iterable, total=total, desc=desc, unit=unit)
-    return tqdm(iterable, total=total, desc=desc, unit=unit, disable=mode == "off", leave=False, file=sys.stderr)
+        return LineProgress(iterable, total=total, desc=desc, unit=unit, weights=weights)
+    if weights is None:
+        return tqdm(iterable, total=total, desc=desc, unit=unit, disable=mode == "off", leave=False, file=sys.stderr)
+    bar = tqdm(total=float(sum(weights)), desc=desc, disable=mode == "off", leave=False, file=sys.stderr,
+               bar_format="{desc}: {percentage:3.0f}% of the work|{bar}| {elapsed} elapsed, ~{remaining} left")
+    return _WeightedBar(iterable, weights, bar)
 
 
-class LineProgress:
-    """Progress as plain lines: at the first item, about every 10 % of ``total``, and at the end.
+def _checked_weights(weights, total):
+    """``weights`` as a list of floats > 0, one per item (``total`` of them when known)."""
+    weights = [float(w) for w in weights]
+    if not weights or not all(math.isfinite(w) and w > 0 for w in weights):
+        raise ValueError(f"progress weights must be finite and > 0; got {weights}")
+    if total is not None and len(weights) != total:
+        raise ValueError(f"progress needs one weight per item: {len(weights)} weights for {total} items")
+    return weights
 
-    Without a known total, at items 1, 2, 4, 8, ... Each line reads
-    ``DESC: N/TOTAL UNITs (P%), E elapsed, ~R left``.
-    """
 
-    def __init__(self, iterable=None, *, total=None, desc=None, unit="it", stream=None, clock=time.monotonic):
-        if total is None and iterable is not None and hasattr(iterable, "__len__"):
-            total = len(iterable)
-        self.iterable = iterable
-        self.total = None if total is None else int(total)
-        self.desc = desc or "progress"
-        self.unit = unit
-        self.n = 0
-        self._stream = sys.stderr if stream is None else stream
-        self._clock = clock
-        self._start = clock()
-        self._next = 1
-        self._closed = False
+class _Progress:
+    """What every progress display shares: iterating counts each item done (``update``), and ``with``
+    closes it."""
 
     def __iter__(self):
         for item in self.iterable:
@@ -95,6 +95,53 @@ class LineProgress:
 
     def __exit__(self, *exc):
         self.close()
+
+
+class _WeightedBar(_Progress):
+    """A tqdm bar advanced by each item's weight (see :func:`progress`)."""
+
+    def __init__(self, iterable, weights, bar):
+        total = len(iterable) if hasattr(iterable, "__len__") else None
+        self.iterable = iterable
+        self.weights = _checked_weights(weights, total)
+        self.n = 0
+        self._bar = bar
+
+    def update(self, n=1):
+        """Count ``n`` more items done; the bar moves by their weights."""
+        self._bar.update(sum(self.weights[self.n:self.n + n]))
+        self.n += n
+
+    def close(self):
+        """Remove the bar."""
+        self._bar.close()
+
+
+class LineProgress(_Progress):
+    """Progress as plain lines: at the first item, about every 10 % of ``total``, and at the end.
+
+    Without a known total, at items 1, 2, 4, 8, ... Each line reads
+    ``DESC: N/TOTAL UNITs (P%), E elapsed, ~R left``; with ``weights`` (one per item, see :func:`progress`)
+    ``(P% of the work)``, P and the time left from the weight done.
+    """
+
+    def __init__(self, iterable=None, *, total=None, desc=None, unit="it", stream=None, clock=time.monotonic,
+                 weights=None):
+        if total is None and iterable is not None and hasattr(iterable, "__len__"):
+            total = len(iterable)
+        self.weights = None if weights is None else _checked_weights(weights, total)
+        if self.weights is not None:
+            total = len(self.weights)
+        self.iterable = iterable
+        self.total = None if total is None else int(total)
+        self.desc = desc or "progress"
+        self.unit = unit
+        self.n = 0
+        self._stream = sys.stderr if stream is None else stream
+        self._clock = clock
+        self._start = clock()
+        self._next = 1
+        self._closed = False
 
     def update(self, n=1):
         """Count ``n`` more items done; write a line when a 10 % step (or the end) is reached."""
@@ -119,8 +166,12 @@ class LineProgress:
         elapsed = self._clock() - self._start
         text = f"{self.desc}: {self.n}"
         if self.total:
-            text += f"/{self.total} {self.unit}s ({100 * self.n / self.total:.0f}%), {_duration(elapsed)} elapsed"
-            left = elapsed / self.n * max(self.total - self.n, 0)
+            if self.weights is None:
+                done, share = self.n / self.total, ""
+            else:
+                done, share = sum(self.weights[:self.n]) / sum(self.weights), " of the work"
+            text += f"/{self.total} {self.unit}s ({100 * done:.0f}%{share}), {_duration(elapsed)} elapsed"
+            left = elapsed / done * max(1 - done, 0)
             text += f", ~{_duration(left)} left"
         else:
             text += f" {self.unit}s, {_duration(elapsed)} elapsed"

@@ -15,3 +15,7 @@ KITTI_CAMERA = StereoCamera(focal_px=721.5377, cx_px=609.5593, cy_px=172.854, ba
 KITTI_LIKE_CAMERA = StereoCamera(focal_px=720.0, cx_px=620.5, cy_px=187.0, baseline_m=0.54, width=1242, height=375)
 """The simulated street's idealised KITTI-like rig: 1242x375, f = 720 px, principal point at the image centre,
 baseline 0.54 m (``prismap.sim.kitti_camera`` scales it)."""
+
+AVENUE_CAMERA = StereoCamera(focal_px=358.0, cx_px=311.2, cy_px=92.0, baseline_m=0.54, width=620, height=188)
+"""The simulated avenue's rig (``prismap.sim.avenue_camera`` scales it): 620x188, f = 358 px, baseline 0.54 m,
+principal point off the image centre; close to the street's half-size KITTI-like rig, not equal to it."""

@@ -18,7 +18,11 @@ Format (JSON, ``format_version`` 2)::
                   "selected_components": 3, "models": [...as above...],
                   "outlier": {"weight": 1e-4, "mean": 6.8, "sigma": 15.6}}, ...],
      "class_selection": {"held_out": "...", "plain_nats_per_error": ..., "conditioned_nats_per_error": ...,
-                         "candidates": [...]}}
+                         "candidates": [...]},
+     "source": "ground-truth",  # or "lidar", "self": what the errors were measured against
+     "rig": {"focal_px": 721.5, "baseline_m": 0.54, "width": 1242, "height": 375, "matcher": "sgbm",
+             "matcher_params": {...}},  # or null: the rig it was made on (see characterise/_rig.py)
+     "provenance": {...}}  # how a self-characterised model was made (min_lag, references, ...)
 
 The top-level ``models`` / ``selected_components`` are the whole-image (plain) mixture: what version 1 held,
 what a plain sensor model uses, and the model of pixels outside every class (class -1). ``classes`` tile
@@ -28,7 +32,9 @@ outlier component (the whole-image mixture's widest) mixed into its selected mix
 so no class is certain never to fail grossly (:func:`prismap.gmm.fit_outlier_weight`). A model without
 features has one class equal to the plain model. A version-1 file loads as that one class.
 
-Means and sigmas are pixels; AIC and BIC use ``k = 3G - 1`` (see :class:`prismap.gmm.MixtureFit`).
+Means and sigmas are pixels; AIC and BIC use ``k = 3G - 1`` (see :class:`prismap.gmm.MixtureFit`). ``source``,
+``rig`` and ``provenance`` are optional (a file without them was measured against ground truth on an unrecorded
+rig).
 """
 
 import json
@@ -47,6 +53,7 @@ from prismap.characterise._model_json import (
     _integer,
     _number,
     _object,
+    _provenance_from_dict,
     _require,
     error_bound_px,
 )
@@ -64,6 +71,10 @@ READABLE_VERSIONS = (1, 2)
 
 
 _SHARE_TOLERANCE = 1e-6
+
+
+SOURCES = ("ground-truth", "lidar", "self")
+"""What an error model's errors were measured against: exact disparity, a LiDAR's, or the sequence's own frames."""
 
 
 HELD_OUT = "held-out"
@@ -98,6 +109,12 @@ class ErrorModel:
         ``edge_threshold_px`` and ``texture_window_px`` the features were computed with.
     class_selection : dict
         How the classes were chosen: held-out data, held-out log-likelihoods (nats per error).
+    source : str
+        One of :data:`SOURCES`.
+    rig : dict or None
+        The rig it was made on (:func:`prismap.characterise.describe_rig`); None = not recorded.
+    provenance : dict
+        How it was made beyond the fields above (a self-characterisation's record).
     """
 
     matcher: str
@@ -112,8 +129,13 @@ class ErrorModel:
     class_models: tuple = ()
     feature_settings: dict = field(default_factory=dict)
     class_selection: dict = field(default_factory=dict)
+    source: str = "ground-truth"
+    rig: dict | None = None
+    provenance: dict = field(default_factory=dict)
 
     def __post_init__(self):
+        if self.source not in SOURCES:
+            raise PrismapInputError(f"error model `source` must be one of {list(SOURCES)}; got {self.source!r}")
         object.__setattr__(self, "fits", tuple(sorted(self.fits, key=lambda fit: fit.n_components)))
         self.fit(self.selected_components)
         classes = ErrorClasses.single() if self.classes is None else self.classes
@@ -240,6 +262,9 @@ class ErrorModel:
                 for bounds, model in zip(self.classes.to_list(), self.class_models)
             ],
             "class_selection": self.class_selection,
+            "source": self.source,
+            "rig": self.rig,
+            "provenance": self.provenance,
         }
 
     @classmethod
@@ -269,9 +294,9 @@ class ErrorModel:
         fits = _fits_from_list(data["models"], f"{source}: models", bound_px)
         selection = _object(data.get("selection", {}), f"{source}: `selection`")
         statistics = _object(data.get("statistics", {}), f"{source}: `statistics`")
-        extra = {}
+        extra = _provenance_from_dict(data, source)
         if version >= 2:
-            extra = _classes_from_dict(data, source, bound_px)
+            extra.update(_classes_from_dict(data, source, bound_px))
         try:
             return cls(matcher["name"], dict(params), data["dataset"], bin_width, fits, selected, selection,
                        statistics, **extra)

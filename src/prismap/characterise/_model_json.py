@@ -156,6 +156,34 @@ def _classes_from_dict(data, source, bound_px=MAX_ERROR_PX):
             "class_selection": _object(data.get("class_selection", {}), f"{source}: `class_selection`")}
 
 
+def _provenance_from_dict(data, source):
+    """The optional ``source``, ``rig`` and ``provenance`` fields as keyword arguments of :class:`ErrorModel`."""
+    extra = {}
+    if "source" in data:
+        if not isinstance(data["source"], str):
+            raise PrismapInputError(f"{source}: `source` must be a string; got {_short(data['source'])}")
+        extra["source"] = data["source"]
+    rig = data.get("rig")
+    if rig is not None:
+        rig = _object(rig, f"{source}: `rig`")
+        _require(rig, ("focal_px", "baseline_m"), f"{source}: `rig`")
+        checked = {name: _number(rig[name], f"{source}: `rig.{name}`", low=0.0, open_low=True)
+                   for name in ("focal_px", "baseline_m")}
+        for name in ("width", "height"):
+            value = rig.get(name)
+            checked[name] = None if value is None else _integer(value, f"{source}: `rig.{name}`", 1, 10**6)
+        matcher = rig.get("matcher")
+        if matcher is not None and not isinstance(matcher, str):
+            raise PrismapInputError(f"{source}: `rig.matcher` must be a string or null; got {_short(matcher)}")
+        params = rig.get("matcher_params")
+        checked.update(matcher=matcher,
+                       matcher_params=None if params is None else _object(params, f"{source}: `rig.matcher_params`"))
+        extra["rig"] = checked
+    if "provenance" in data:
+        extra["provenance"] = _object(data["provenance"], f"{source}: `provenance`")
+    return extra
+
+
 def _is_number(value):
     return isinstance(value, (int, float)) and not isinstance(value, bool)
 

@@ -27,6 +27,7 @@ from prismap.characterise._histogram import (
 )
 from prismap.characterise._model import HELD_OUT, ErrorModel, load_error_model, write_error_model
 from prismap.characterise._model_table import format_table
+from prismap.characterise._rig import describe_rig
 from prismap.characterise._sample import DEFAULT_MAX_SAMPLES, PixelSample, characterised_pixels
 from prismap.characterise._select import (
     choose_classes,
@@ -159,7 +160,7 @@ def characterise_matcher(frames, matcher, *, max_components=4, bin_width=DEFAULT
                          seed=0, conditioned=True, max_classes=DEFAULT_MAX_CLASSES,
                          edge_threshold_px=DEFAULT_EDGE_THRESHOLD_PX, texture_window_px=DEFAULT_TEXTURE_WINDOW_PX,
                          max_samples=DEFAULT_MAX_SAMPLES, search_frames=DEFAULT_SEARCH_FRAMES, progress=True,
-                         map_chunks=None, chunk_frames=1):
+                         map_chunks=None, chunk_frames=1, source="ground-truth"):
     """Run ``matcher`` on ``frames``, histogram its errors and fit mixtures with G = 1..``max_components``.
 
     Each frame's errors ``e = d_true - d_computed`` are binned at once into the whole-image histogram.
@@ -218,6 +219,9 @@ def characterise_matcher(frames, matcher, *, max_components=4, bin_width=DEFAULT
         ``function`` pickles when ``frames`` and ``matcher`` do. None = here.
     chunk_frames : int, >= 1
         Frames per chunk. Results do not depend on it: histograms and samples merge exactly.
+    source : str
+        What ``disparity_gt`` is (``"ground-truth"``, ``"lidar"``, ``"self"``), recorded in the model with the
+        rig of the first frame (its camera, image size and the matcher's parameters).
 
     Returns
     -------
@@ -238,9 +242,12 @@ def characterise_matcher(frames, matcher, *, max_components=4, bin_width=DEFAULT
     fit_options = {"max_components": max_components, "criterion": criterion, "tolerance": tolerance,
                    "restarts": restarts, "seed": seed}
     every = list(range(len(frames)))
+    first = frames[0]
+    recorded = {"source": source,
+                "rig": describe_rig(first.camera, np.shape(first.left)[:2], matcher.name, matcher.params())}
     if not conditioned:
         histogram = passes.run(histogram_chunk, every, "histogram")
-        return _fit(histogram, (histogram,), {}, matcher, dataset, fit_options, passes)
+        return _fit(histogram, (histogram,), dict(recorded), matcher, dataset, fit_options, passes)
     search = sorted({round(x) for x in np.linspace(0, len(frames) - 1, min(int(search_frames), len(frames)))})
     histogram, sample = passes.run(sample_chunk, search, "sample for the class search")
     _check_fittable(histogram)
@@ -250,7 +257,7 @@ def characterise_matcher(frames, matcher, *, max_components=4, bin_width=DEFAULT
                                          max_components=max_components, seed=seed)
     record = {"held_out": held_out, "n_search_frames": len(search), "n_samples": sample.n_samples,
               "n_search_pixels": sample.n_seen, **record}
-    conditioning = {"class_selection": record}
+    conditioning = {"class_selection": record, **recorded}
     if not classes.features:  # the plain model predicts held-out errors best
         if len(search) < len(frames):
             histogram = passes.run(histogram_chunk, every, "histogram")

@@ -25,7 +25,10 @@ def register(subparsers):
             "prismap.io's write_ground_truth (e.g. a LiDAR reference map) or a sequence directory holding "
             "occupancy.npz. Every voxel of the ground truth's observed region is scored; voxels the map never "
             "observed score as its prior p0. Prints the scores and writes them as JSON: to --out/scores.json "
-            "with a reliability diagram --out/reliability.png, or beside the map as MAP.scores.json."
+            "with reliability diagrams (--out/reliability.png, reliability_logit.png: logit-spaced bins reaching the "
+            "extremes) and the per-frame evidence histogram (--out/evidence.png), or beside the map as "
+            "MAP.scores.json. The scores include the \"confident and wrong\" rates: truly free voxels at P >= 0.99 "
+            "and truly occupied voxels at P <= 0.01."
         ),
     )
     parser.add_argument("--map", required=True, type=Path, metavar="MAP.npz", help="map file")
@@ -37,7 +40,7 @@ def register(subparsers):
 def run(args):
     """Score the map and write the results; return the exit status."""
     from prismap._files import write_text_atomic
-    from prismap.evaluate import align_to_ground_truth, score_map
+    from prismap.evaluate import score_grid
     from prismap.io import load_map, read_ground_truth
 
     grid = load_map(args.map)
@@ -50,22 +53,23 @@ def run(args):
         raise PrismapInputError(f"--map {args.map}: a 2-D map; evaluate scores 3-D maps against 3-D ground truth")
     if truth.observed_keys.shape[0] == 0:
         raise PrismapInputError(f"--gt {args.gt}: the ground truth observes no voxel: nothing to score")
-    keys = grid.known_voxels()[0]
-    probability, occupied = align_to_ground_truth(
-        keys, grid.probability_at_keys(keys), truth.occupied_keys, truth.observed_keys, p0=grid.p0
-    )
-    scores = score_map(probability, occupied)
+    scores = score_grid(grid, truth)
     print(format_scores(scores, title=f"{args.map} against {args.gt}"))
     result = {"map": str(args.map), "ground_truth": str(args.gt), "voxel_size_m": grid.voxel_size_m, "p0": grid.p0,
               "policy": "+".join(grid.policies), "n_frames": grid.n_frames, "scores": scores.to_dict()}
     if args.out is None:
         json_path = args.map.with_name(args.map.name.removesuffix(".npz") + ".scores.json")
     else:
-        from prismap.plots import plot_reliability
+        from prismap.plots import plot_evidence_histograms, plot_reliability, plot_reliability_logit
 
         json_path = args.out / "scores.json"
         plot_reliability({args.map.stem: scores}, path=args.out / "reliability.png", title=f"Reliability of {args.map.name}")
-        print(f"wrote {args.out / 'reliability.png'}")
+        plot_reliability_logit({args.map.stem: scores}, path=args.out / "reliability_logit.png",
+                               title=f"Reliability of {args.map.name} at the extremes")
+        plot_evidence_histograms({args.map.stem: scores}, path=args.out / "evidence.png",
+                                 title=f"Evidence per frame of {args.map.name}")
+        for name in ("reliability.png", "reliability_logit.png", "evidence.png"):
+            print(f"wrote {args.out / name}")
     write_text_atomic(json_path, json.dumps(result, indent=1) + "\n")
     print(f"wrote {json_path}")
     return 0

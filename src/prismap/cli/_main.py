@@ -53,15 +53,16 @@ def main(argv=None):
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
+    name = " ".join(filter(None, (args.command, getattr(args, "action", None))))  # e.g. "models compare"
     signal.signal(signal.SIGTERM, _terminate)  # unwind on SIGTERM, so temporaries and locks are removed
     try:
         with _output_lock(args), _removed_if_refused(args):
             return int(args.func(args) or 0)
     except PrismapInputError as exc:
-        print(f"prismap {args.command}: error: {_one_line(exc)}", file=sys.stderr)
+        print(f"prismap {name}: error: {_one_line(exc)}", file=sys.stderr)
         return 2
     except cv2.error as exc:
-        print(f"prismap {args.command}: error: OpenCV {exc.func or 'call'} refused the input: "
+        print(f"prismap {name}: error: OpenCV {exc.func or 'call'} refused the input: "
               f"{(exc.err or str(exc)).strip().splitlines()[0]}", file=sys.stderr)
         return 2
     except OSError as exc:
@@ -69,7 +70,7 @@ def main(argv=None):
         print(f"prismap {args.command}: error: {where}{exc.strerror or exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print(f"prismap {args.command}: interrupted", file=sys.stderr)
+        print(f"prismap {name}: interrupted", file=sys.stderr)
         return 130
 
 

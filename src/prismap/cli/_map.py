@@ -2,12 +2,16 @@
 
 import ast
 import contextlib
+import json
 import logging
 import math
 import os
+import shlex
+import sys
 from pathlib import Path
 
-from prismap._validate import check_positive, check_probability
+from prismap._files import write_text_atomic
+from prismap._validate import check_positive, check_probability, parse_frame_range
 from prismap.cli._args import add_out
 from prismap.cli._bag import add_bag_arguments, open_bag_argument
 from prismap.errors import PrismapInputError
@@ -50,6 +54,9 @@ def register(subparsers):
                              "2016; the same as --model-param prior=map); ray mode, not on Dask")
     parser.add_argument("--plain", action="store_true",
                         help="use the error model's whole-image mixture for every pixel, not its classes")
+    parser.add_argument("--strict-rig", action="store_true",
+                        help="refuse an error model made on another rig (focal length, baseline, image size, matcher "
+                             "or its parameters differ; default: print a warning naming both)")
     parser.add_argument("--voxel", required=True, type=float, metavar="M", help="voxel size in metres")
     parser.add_argument("--p0", type=float, default=0.05, help="prior occupancy of a voxel (default 0.05)")
     parser.add_argument("--mode", choices=("ray", "projective"), default="ray", help="integration mode (default ray)")
@@ -73,6 +80,8 @@ def run(args):
     """Map the sequence and write the map; return the exit status."""
     from prismap.io import read_sequence, save_map
     from prismap.pipeline import MappingConfig, map_sequence, remove_checkpoint
+    from prismap.pipeline._config import needs_error_model
+    from prismap.sensor_models import model_names
 
     if args.checkpoint_every < 0:
         raise PrismapInputError(f"--checkpoint-every must be >= 0; got {args.checkpoint_every}")
@@ -85,6 +94,9 @@ def run(args):
         if args.model != "prism":
             raise PrismapInputError(f"--map-prior is an option of --model prism; got --model {args.model}")
         model_params["prior"] = "map"
+    if args.error_model is None and args.model in model_names() and needs_error_model(args.model, model_params):
+        raise PrismapInputError(f"sensor model {args.model!r} needs an error model (--error-model MODEL.json)"
+                                + (" or --model-param sigma_px=..." if args.model != "prism" else ""))
     config = MappingConfig(
         model=args.model, voxel_size_m=check_positive(args.voxel, "--voxel"), p0=check_probability(args.p0, "--p0"),
         error_model=_error_model(args.error_model), conditioned=False if args.plain else None,
@@ -95,6 +107,7 @@ def run(args):
         frames=parse_frames(args.frames),
     )
     model_text = _error_text(config, sequence.camera)  # a bad model option fails here, not on a frame or a worker
+    _check_rig(config, sequence, args)
     checkpoint = None
     if args.checkpoint_every:
         checkpoint = args.out.with_name(args.out.name.removesuffix(".npz") + ".checkpoint.npz")
@@ -104,9 +117,79 @@ def run(args):
     save_map(grid, args.out)
     if checkpoint is not None:
         remove_checkpoint(checkpoint)
+    command = map_command(config, inputs=_input_arguments(args), error_model=args.error_model, out=args.out)
+    record = write_map_record(args.out, command, config)
     print(f"{grid.n_frames} frames, {grid.n_known} known voxels, {len(grid.occupied_voxels()[0])} occupied "
           f"({config.model}, {model_text}, voxel {config.voxel_size_m} m); wrote {args.out}")
+    print(f"reproduce with: {shlex.join(command)}  (settings in {record})")
     return 0
+
+
+def map_command(config, *, inputs, error_model, out):
+    """The ``prismap map`` command that makes the map of ``config``, every setting explicit.
+
+    Parameters
+    ----------
+    config : MappingConfig
+    inputs : list of str
+        The input options, e.g. ``["--sequence", "DIR"]`` or the ``--bag`` options.
+    error_model : str or Path or None
+        The error model's file (``--error-model``).
+    out : str or Path
+        The map file (``--out``).
+
+    Returns
+    -------
+    list of str
+        ``argv``, starting ``["prismap", "map"]``; :func:`shlex.join` makes it a shell line.
+    """
+    argv = ["prismap", "map", *inputs, "--matcher", config.matcher]
+    argv += [f"--matcher-param={k}={v!r}" for k, v in config.matcher_params]
+    argv += ["--model", config.model]
+    argv += [f"--model-param={k}={v!r}" for k, v in config.model_params]
+    if error_model is not None:
+        argv += ["--error-model", str(error_model)]
+        if not config.conditioned and getattr(config.error_model, "n_classes", 1) > 1:  # a model with classes, plain
+            argv.append("--plain")
+    argv += ["--voxel", repr(config.voxel_size_m), "--p0", repr(config.p0), "--mode", config.mode]
+    if config.policy is not None:
+        argv += ["--policy", config.policy]
+    if math.isfinite(config.max_range_m):
+        argv += ["--max-range", repr(config.max_range_m)]
+    argv += ["--subsample", str(config.subsample)]
+    if config.disparity_source not in ("matcher", "sequence"):
+        argv += ["--disparity-dir", config.disparity_source]
+    start, stop = config.frames
+    argv += ["--frames", f"{start}:{'' if stop is None else stop}", "--out", str(out)]
+    return argv
+
+
+def write_map_record(map_path, command, config):
+    """Write ``MAP.run.json`` beside ``map_path``: the command that reproduces the map and its settings.
+
+    The settings are :meth:`MappingConfig.to_dict` without the error model's numbers (the command names
+    its file) and the prismap version. Returns the record's path.
+    """
+    from prismap import __version__
+
+    settings = {k: v for k, v in config.to_dict().items() if k != "error_model"}
+    record = {"command": shlex.join(command), "argv": command, "prismap_version": __version__, "settings": settings}
+    path = Path(map_path).with_suffix(".run.json")
+    write_text_atomic(path, json.dumps(record, indent=1, default=repr) + "\n")
+    return path
+
+
+def _input_arguments(args):
+    """The input options of ``args`` as given: ``--sequence DIR`` or every ``--bag`` option that is set."""
+    if args.bag is None:
+        return ["--sequence", str(args.sequence)]
+    inputs = []
+    for option in ("bag", "left", "right", "left_info", "right_info", "rectified", "pair_tolerance", "pose_topic",
+                   "tf_frames", "pose_gap"):
+        value = getattr(args, option, None)
+        if value is not None:
+            inputs += [f"--{option.replace('_', '-')}", str(value)]
+    return inputs
 
 
 def _open_input(args, read_sequence):
@@ -148,13 +231,9 @@ def parse_params(items, option):
 
 def parse_frames(text):
     """``"A:B"`` (either side may be empty) as ``(start, stop)``; raises for an empty or bad range."""
-    first, sep, last = text.partition(":")
-    try:
-        start = int(first) if first.strip() else 0
-        stop = int(last) if last.strip() else None
-    except ValueError:
-        raise PrismapInputError(f"--frames {text!r}: expected A:B with integers A < B (either may be omitted)") from None
-    if not sep or start < 0 or (stop is not None and stop <= start):
+    start, stop = parse_frame_range(text, "--frames")
+    start = 0 if start is None else start
+    if start < 0 or (stop is not None and stop <= start):
         raise PrismapInputError(f"--frames {text!r}: the range is empty or malformed; expected A:B with 0 <= A < B")
     return (start, stop)
 
@@ -175,6 +254,24 @@ def _error_text(config, camera):
     if isinstance(model, ConditionedModel):
         return f"conditioned on {model.n_classes} error classes"
     return "plain"
+
+
+def _check_rig(config, sequence, args):
+    """Warn (or refuse with ``--strict-rig``) when the error model was made on another rig than this run's."""
+    from prismap.characterise import ErrorModel, check_rig, describe_rig
+    from prismap.pipeline._config import DISPARITY_FROM_MATCHER
+    from prismap.stereo import make_matcher
+
+    if not isinstance(config.error_model, ErrorModel):
+        return
+    matcher, params = None, None
+    if config.disparity_source == DISPARITY_FROM_MATCHER:
+        matcher = config.matcher
+        params = make_matcher(config.matcher, **config.matcher_options).params()
+    rig = describe_rig(sequence.camera, None, matcher, params)
+    message = check_rig(config.error_model, rig, strict=args.strict_rig, where=f"--error-model {args.error_model}")
+    if message:
+        print(f"prismap map: warning: {message}", file=sys.stderr)
 
 
 def _disparity_dir(path):

@@ -1,23 +1,33 @@
 """Scores of an occupancy map against ground-truth occupancy (SENSOR_MODELS.md section 6)."""
 
 from prismap.evaluate._align import align_to_ground_truth
+from prismap.evaluate._grid import score_grid
 from prismap.evaluate._scores import (
+    CONFIDENT,
+    EVIDENCE_EDGES,
     LOG_LOSS_EPS,
+    LOGIT_BIN_EDGES,
     SAFETY_FREE_SHARE,
     SCORE_COLUMNS,
     MapScores,
+    evidence_histograms,
     roc_auc,
     safety_score,
     score_map,
 )
 
 __all__ = [
+    "CONFIDENT",
+    "EVIDENCE_EDGES",
     "LOG_LOSS_EPS",
+    "LOGIT_BIN_EDGES",
     "SAFETY_FREE_SHARE",
     "SCORE_COLUMNS",
     "MapScores",
     "align_to_ground_truth",
+    "evidence_histograms",
     "roc_auc",
     "safety_score",
+    "score_grid",
     "score_map",
 ]

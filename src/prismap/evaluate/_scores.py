@@ -1,7 +1,7 @@
 """Proper scores of a probabilistic map against true occupancy (SENSOR_MODELS.md section 6)."""
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from fractions import Fraction
 
 import numpy as np
@@ -15,6 +15,19 @@ LOG_LOSS_EPS = 1e-6
 
 SAFETY_FREE_SHARE = 0.9
 """Share of the truly free voxels the safety score's threshold calls free (see :func:`safety_score`)."""
+
+CONFIDENT = 0.99
+"""A map is "confident and wrong" about a truly free voxel at ``P >= CONFIDENT`` and about a truly occupied one
+at ``P <= 1 - CONFIDENT``: the extremes a planner trusts most (SENSOR_MODELS.md section 7)."""
+
+LOGIT_BIN_EDGES = np.concatenate([[0.0], 1.0 / (1.0 + np.exp(-np.arange(-9.0, 9.5, 1.5))), [1.0]])
+"""Edges of the logit-spaced reliability bins: 0, then ``sigmoid(-9 .. 9)`` in log-odds steps of 1.5, then 1, so
+that bins reach the extremes (``P`` below 1.2e-4 and above 1 - 1.2e-4) where equal-width bins hide everything."""
+
+EVIDENCE_EDGES = np.concatenate([-np.logspace(np.log10(2048.0), -1.0, 16)[:-1], [-0.1, 0.1],
+                                 np.logspace(-1.0, np.log10(2048.0), 16)[1:]])
+"""Edges (log-odds, nats) of the per-frame evidence histograms: symmetric, logarithmic from 0.1 to 2048 (the map's
+fixed-point bound) on each side, one bin ``[-0.1, 0.1)`` around no evidence; values beyond fall in the end bins."""
 
 
 SCORE_COLUMNS = (
@@ -60,6 +73,12 @@ class MapScores:
         occupied or without free voxels.
     safety_threshold : float
         That threshold ``t``, a probability; NaN without free voxels.
+    free_confident_occupied : float
+        "Confident and wrong" about free space: fraction of truly free voxels with ``P >= 0.99``
+        (:data:`CONFIDENT`); NaN without any.
+    occupied_confident_free : float
+        "Confident and wrong" about obstacles: fraction of truly occupied voxels with ``P <= 0.01``; NaN without
+        any.
     bin_edges : (B + 1,) float64
         Edges of the equal-width reliability bins on ``[0, 1]``.
     bin_counts : (B,) int64
@@ -70,6 +89,18 @@ class MapScores:
         Edges of the ``P`` histograms on ``[0, 1]``.
     hist_free, hist_occupied : (H,) int64
         Counts of ``P`` among truly free and truly occupied voxels (thesis fig. 6.7).
+    logit_bin_edges : (L + 1,) float64
+        :data:`LOGIT_BIN_EDGES`: reliability bins equal in log-odds, reaching ``P`` = 0 and 1.
+    logit_bin_counts : (L,) int64
+    logit_bin_mean_probability, logit_bin_occupied_fraction : (L,) float64
+        As ``bin_*`` on the logit-spaced bins (NaN in empty bins).
+    evidence_edges : (E + 1,) float64, nats
+        :data:`EVIDENCE_EDGES`.
+    evidence_one_view : (E,) int64
+        Histogram of the log-odds increment of the voxels one frame observed (``l - logit(p0)``: exactly that
+        frame's evidence); zeros when :func:`score_map` got no ``evidence``.
+    evidence_per_view : (E,) int64
+        Histogram of every observed voxel's mean increment per frame, ``(l - logit(p0)) / n``.
     """
 
     n_voxels: int
@@ -90,6 +121,15 @@ class MapScores:
     hist_edges: np.ndarray
     hist_free: np.ndarray
     hist_occupied: np.ndarray
+    free_confident_occupied: float = float("nan")
+    occupied_confident_free: float = float("nan")
+    logit_bin_edges: np.ndarray = field(default_factory=lambda: LOGIT_BIN_EDGES.copy())
+    logit_bin_counts: np.ndarray = field(default_factory=lambda: np.zeros(len(LOGIT_BIN_EDGES) - 1, np.int64))
+    logit_bin_mean_probability: np.ndarray = field(default_factory=lambda: np.full(len(LOGIT_BIN_EDGES) - 1, np.nan))
+    logit_bin_occupied_fraction: np.ndarray = field(default_factory=lambda: np.full(len(LOGIT_BIN_EDGES) - 1, np.nan))
+    evidence_edges: np.ndarray = field(default_factory=lambda: EVIDENCE_EDGES.copy())
+    evidence_one_view: np.ndarray = field(default_factory=lambda: np.zeros(len(EVIDENCE_EDGES) - 1, np.int64))
+    evidence_per_view: np.ndarray = field(default_factory=lambda: np.zeros(len(EVIDENCE_EDGES) - 1, np.int64))
 
     def to_dict(self):
         """Plain Python types for JSON: arrays become lists and NaN becomes ``None``."""
@@ -108,7 +148,7 @@ def _plain(value):
     return value
 
 
-def score_map(probability, occupied, *, n_bins=10, n_hist_bins=20):
+def score_map(probability, occupied, *, n_bins=10, n_hist_bins=20, evidence=None):
     """Score predicted occupancy probabilities of a set of voxels against the truth.
 
     Parameters
@@ -122,6 +162,10 @@ def score_map(probability, occupied, *, n_bins=10, n_hist_bins=20):
         Equal-width reliability bins for the calibration error and diagram.
     n_hist_bins : int, keyword-only
         Equal-width bins of the ``P`` histograms of free and occupied voxels.
+    evidence : (increments, counts) or None, keyword-only
+        The map's observed voxels: ``(M,)`` float log-odds gathered from the frames (``l - logit(p0)``, nats)
+        and ``(M,)`` int frames that observed each (>= 1), for the per-frame evidence histograms
+        (:func:`evidence_histograms`); None leaves them zero.
 
     Returns
     -------
@@ -150,11 +194,13 @@ def score_map(probability, occupied, *, n_bins=10, n_hist_bins=20):
     log_loss = -np.mean(np.where(y, np.log(clipped), np.log1p(-clipped)))
 
     bin_edges = np.linspace(0.0, 1.0, n_bins + 1)
-    bin_index = np.minimum((p * n_bins).astype(np.int64), n_bins - 1)
-    bin_counts = np.bincount(bin_index, minlength=n_bins)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        bin_mean = np.bincount(bin_index, weights=p, minlength=n_bins) / bin_counts
-        bin_fraction = np.bincount(bin_index, weights=y, minlength=n_bins) / bin_counts
+    bin_counts, bin_mean, bin_fraction = _reliability(p, y, np.minimum((p * n_bins).astype(np.int64), n_bins - 1),
+                                                      n_bins)
+    n_logit = len(LOGIT_BIN_EDGES) - 1
+    logit_index = np.clip(np.searchsorted(LOGIT_BIN_EDGES, p, side="right") - 1, 0, n_logit - 1)
+    logit_counts, logit_mean, logit_fraction = _reliability(p, y, logit_index, n_logit)
+    one_view, per_view = (np.zeros(len(EVIDENCE_EDGES) - 1, np.int64),) * 2 if evidence is None else \
+        evidence_histograms(*evidence)
     filled = bin_counts > 0
     ece = float(np.sum(bin_counts[filled] * np.abs(bin_mean[filled] - bin_fraction[filled])) / p.size)
 
@@ -172,6 +218,8 @@ def score_map(probability, occupied, *, n_bins=10, n_hist_bins=20):
         free_called_occupied=float(np.mean(p[~y] > 0.5)) if n_free else float("nan"),
         safety_occupied_called_free=safety,
         safety_threshold=threshold,
+        free_confident_occupied=float(np.mean(p[~y] >= CONFIDENT)) if n_free else float("nan"),
+        occupied_confident_free=float(np.mean(p[y] <= 1.0 - CONFIDENT)) if n_occupied else float("nan"),
         bin_edges=bin_edges,
         bin_counts=bin_counts.astype(np.int64),
         bin_mean_probability=bin_mean,
@@ -179,7 +227,52 @@ def score_map(probability, occupied, *, n_bins=10, n_hist_bins=20):
         hist_edges=hist_edges,
         hist_free=np.histogram(p[~y], bins=hist_edges)[0].astype(np.int64),
         hist_occupied=np.histogram(p[y], bins=hist_edges)[0].astype(np.int64),
+        logit_bin_edges=LOGIT_BIN_EDGES.copy(),
+        logit_bin_counts=logit_counts,
+        logit_bin_mean_probability=logit_mean,
+        logit_bin_occupied_fraction=logit_fraction,
+        evidence_edges=EVIDENCE_EDGES.copy(),
+        evidence_one_view=one_view,
+        evidence_per_view=per_view,
     )
+
+
+def _reliability(p, y, index, n_bins):
+    """Counts, mean ``P`` and occupied fraction of the bins ``index`` puts each voxel in (NaN where empty)."""
+    counts = np.bincount(index, minlength=n_bins)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = np.bincount(index, weights=p, minlength=n_bins) / counts
+        fraction = np.bincount(index, weights=y, minlength=n_bins) / counts
+    return counts.astype(np.int64), mean, fraction
+
+
+def evidence_histograms(increments, counts):
+    """Histograms on :data:`EVIDENCE_EDGES` of the evidence frames gave the map's voxels.
+
+    Parameters
+    ----------
+    increments : (M,) float, nats
+        Each observed voxel's log-odds minus the prior's, ``l - logit(p0)``: the sum of its frames' increments.
+    counts : (M,) int, >= 1
+        Frames that observed each voxel.
+
+    Returns
+    -------
+    one_view : (E,) int64
+        Of the voxels one frame observed: that frame's increment exactly.
+    per_view : (E,) int64
+        Of every voxel: its mean increment per frame, ``increments / counts``.
+    """
+    total = as_float_array(increments, "increments", ndim=1, allow_nan=False)
+    views = np.asarray(counts)
+    if views.shape != total.shape or (views.size and (not np.issubdtype(views.dtype, np.integer) or views.min() < 1)):
+        raise PrismapInputError(f"`counts` must be {total.shape} integers >= 1 (frames per observed voxel); got shape "
+                                f"{views.shape}, dtype {views.dtype}")
+    edges = EVIDENCE_EDGES
+    inner = np.clip(total, edges[0], edges[-1])
+    one_view = np.histogram(inner[views == 1], bins=edges)[0].astype(np.int64)
+    per_view = np.histogram(np.clip(total / np.maximum(views, 1), edges[0], edges[-1]), bins=edges)[0].astype(np.int64)
+    return one_view, per_view
 
 
 def safety_score(probability, occupied, *, free_share=SAFETY_FREE_SHARE):

@@ -16,10 +16,13 @@ from prismap.experiment._results import (
     write_results,
 )
 from prismap.experiment._scene3d import run_rendered_world, run_scene3d, run_street3d
+from prismap.experiment._sources3d import SOURCES, run_error_sources
 from prismap.experiment._targets import Target, measure_targets
 from prismap.experiment._worlds3d import MATCHERS, WORLDS, split_frames
 
 __all__ = [
+    "SOURCES",
+    "run_error_sources",
     "CONDITIONED_SUFFIX",
     "MAP_PRIOR_SUFFIX",
     "MATCHERS",
@@ -27,7 +30,6 @@ __all__ = [
     "MODELS_3D",
     "MODELS_3D_MAP_PRIOR",
     "SGBM_LIKE_MIXTURE",
-    "SOLID_DEPTH_QUANTILE",
     "WORLDS",
     "CellResult",
     "ExperimentResult",

@@ -78,7 +78,9 @@ def run_cells(out_dir, matcher, models, build_map, truth, settings):
     matcher : str
     models : sequence of str
     build_map : callable
-        ``build_map(model_name) -> OccupancyMap``, the map of all frames with that model.
+        ``build_map(model_name) -> OccupancyMap``, the map of all frames with that model. When it has a
+        ``record(model_name, map_path)`` attribute, that is called after each new map is written (to write
+        the command that reproduces it beside it).
     truth : GroundTruthOccupancy
     settings : dict
 
@@ -99,6 +101,8 @@ def run_cells(out_dir, matcher, models, build_map, truth, settings):
             grid = build_map(model)
             elapsed = time.perf_counter() - start
             save_map(grid, map_path)
+            if hasattr(build_map, "record"):
+                build_map.record(model, map_path)
             result = CellResult(matcher, model, score_grid(grid, truth), elapsed, grid.n_frames, settings)
             write_cell(result, json_path)
         else:
@@ -109,7 +113,8 @@ def run_cells(out_dir, matcher, models, build_map, truth, settings):
 
 
 def draw_figures(out_dir, matcher, results, maps, truth, *, layer, where):
-    """Reliability diagram, P histograms and map slices of one matcher's maps; returns ``[(path, caption)]``."""
+    """Reliability diagrams, P and evidence histograms and map slices of one matcher's maps; returns
+    ``[(path, caption)]``."""
     from prismap.plots import plot_map_slices, plot_probability_histograms, plot_reliability
 
     out = Path(out_dir)
@@ -124,4 +129,22 @@ def draw_figures(out_dir, matcher, results, maps, truth, *, layer, where):
         (reliability, f"Reliability diagram of every model's map ({matcher}); the diagonal is perfect calibration."),
         (histograms, f"P(occupied) of truly free and truly occupied voxels per model ({matcher})."),
         (slices, f"Map slices ({where}) of every model beside the ground truth ({matcher})."),
+        *draw_extreme_figures(out, matcher, scores),
     ]
+
+
+def draw_extreme_figures(out_dir, matcher, scores):
+    """The figures of the scale's extremes for one matcher's maps (``scores``: model -> MapScores): the
+    logit-spaced reliability diagram and the per-frame evidence histograms; returns ``[(path, caption)]``."""
+    from prismap.plots import plot_evidence_histograms, plot_reliability_logit
+
+    out = Path(out_dir)
+    logit_path, evidence_path = out / f"reliability_logit_{matcher}.png", out / f"evidence_{matcher}.png"
+    plot_reliability_logit(scores, path=logit_path, title=f"Reliability at the extremes, {matcher}")
+    figures = [(logit_path, f"Reliability on log-odds axes, bins reaching P = 1e-4 and 1 - 1e-4, with each model's "
+                            f"\"confident and wrong\" rates ({matcher}).")]
+    if any(s.evidence_per_view.any() for s in scores.values()):
+        plot_evidence_histograms(scores, path=evidence_path, title=f"Evidence per frame, {matcher}")
+        figures.append((evidence_path, f"Log-odds increments per frame of the voxels each model's map observed "
+                                       f"({matcher}): one frame's for voxels seen once, the mean for all."))
+    return figures

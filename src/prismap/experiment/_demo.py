@@ -10,7 +10,7 @@ from prismap._files import write_text_atomic
 from prismap._progress import progress
 from prismap.errors import PrismapInputError
 from prismap.experiment._office2d import run_office2d
-from prismap.experiment._report import format_index_html, format_index_markdown
+from prismap.experiment._report import Report, format_index_html, format_index_markdown
 from prismap.experiment._scene3d import run_scene3d, run_street3d
 
 
@@ -54,6 +54,18 @@ MATCHERS = ("bm", "sgbm", "variational")
 """Matchers characterised on the Motorcycle pair."""
 
 
+STEP_SECONDS = {
+    "full": {"characterise bm": 40.0, "characterise sgbm": 40.0, "characterise variational": 45.0,
+             "models compare": 15.0, "office2d": 30.0, "scene3d": 160.0, "street3d": 150.0},
+    "quick": {"characterise bm": 85.0, "characterise sgbm": 85.0, "characterise variational": 105.0,
+              "models compare": 27.0, "office2d": 29.0, "scene3d": 72.0, "street3d": 229.0},
+}
+"""Each step's wall time (seconds, 2 cores): the progress lines' percentage and time left follow these shares,
+not the count of steps. ``quick``: a ``--quick`` run's report (Run time line) on the shared machine; ``full``:
+the street's 145-152 s of the 472-486 s fresh-clone runs of issue #27, the other steps in the proportions of
+this round's loaded runs."""
+
+
 @dataclass(frozen=True)
 class Section:
     """One section of the report: a title, headline lines and ``(path, caption)`` items."""
@@ -85,13 +97,16 @@ def run_demo(out_dir, *, quick=False, seed=0):
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise PrismapInputError(f"--out {out}: exists and is not a directory")
-    steps = [(f"characterise {m}", lambda m=m: _characterise_motorcycle(out / "characterise" / m, m)) for m in MATCHERS]
+    steps = [(f"characterise {m}", lambda m=m: _characterise_motorcycle(out / "characterise" / m, m, quick=quick))
+             for m in MATCHERS]
     steps.append(("models compare", lambda: _compare_models(out / "models", out / "characterise" / "sgbm")))
-    steps += [(e.world, lambda e=e: _experiment(out, e, quick=quick, seed=seed)) for e in EXPERIMENTS]
+    experiments = {}
+    steps += [(e.world, lambda e=e: _experiment(out, e, experiments, quick=quick, seed=seed)) for e in EXPERIMENTS]
+    shares = STEP_SECONDS["quick" if quick else "full"]
 
     timings, sections = {}, []
     characterised = []
-    for name, step in progress(steps, desc="demo", unit="step"):
+    for name, step in progress(steps, desc="demo", unit="step", weights=[shares[name] for name, _ in steps]):
         start = time.perf_counter()
         section = step()
         timings[name] = time.perf_counter() - start
@@ -105,11 +120,45 @@ def run_demo(out_dir, *, quick=False, seed=0):
     sections = [Section(f"{i}. {s.title}", s.headline, s.items) for i, s in enumerate(sections, start=1)]
     write_text_atomic(out / "index.md", format_index_markdown(sections, timings, out, quick=quick))
     index = out / "index.html"
-    write_text_atomic(index, format_index_html(sections, timings, out, quick=quick))
+    report = Report(tuple(sections), timings, out, quick=quick, experiments=experiments,
+                    render_3d=_render_3d(out, experiments), shell_dir=str(out_dir))
+    write_text_atomic(index, format_index_html(report))
     return index
 
 
-def _characterise_motorcycle(folder, matcher_name):
+RENDER_3D = ("scene3d", ("sgbm", "bm", "variational"), ("prism_conditioned", "prism"))
+"""The map the report draws in 3-D: the room's conditioned PRISM map of the first matcher the run has."""
+
+
+def _render_3d(out, experiments):
+    """Draw :data:`RENDER_3D`'s map beside its ground truth into ``out/map3d.png``; ``(path, caption)`` or None."""
+    from prismap.experiment._results import cell_path, model_label
+    from prismap.io import load_map, read_ground_truth
+    from prismap.plots import plot_map_3d
+
+    world, matchers, models = RENDER_3D
+    result = experiments.get(world)
+    if result is None:
+        return None
+    names = {c.model for c in result.cells}
+    found = [(c.matcher, c.model) for m in matchers for model in models for c in result.cells
+             if c.matcher == m and c.model == model]
+    if not found:
+        return None
+    matcher, model = found[0]
+    map_path = cell_path(out / world, matcher, model).with_suffix(".npz")
+    path = out / "map3d.png"
+    plot_map_3d(load_map(map_path), read_ground_truth(out / world / "sequence" / "occupancy.npz"), path=path)
+    return path, (f"The {world} map of {matcher} with {model_label(model, names)} (right; voxels with P > 0.5) "
+                  "beside the ground truth's occupied voxels (left), coloured by height, the top layer left out.")
+
+
+QUICK_MAX_CLASSES = 4
+"""``--quick`` characterises each matcher conditioned on at most this many error classes: the class search's
+candidates grow with the bound, and at the default bound it is most of a quick run's time."""
+
+
+def _characterise_motorcycle(folder, matcher_name, *, quick):
     """The matcher's error model on the Motorcycle pair (reused when its files exist)."""
     from prismap.characterise import characterise_matcher, load_error_model, write_characterisation
     from prismap.characterise._run import written_characterisation
@@ -121,7 +170,9 @@ def _characterise_motorcycle(folder, matcher_name):
         frame = load_middlebury_motorcycle()
         truth = frame.disparity_gt
         matcher = matcher_for(matcher_name, float(np.max(truth[np.isfinite(truth)])))
-        write_characterisation(characterise_matcher([frame], matcher, dataset="middlebury-motorcycle"), folder)
+        options = {"max_classes": QUICK_MAX_CLASSES} if quick else {}
+        write_characterisation(characterise_matcher([frame], matcher, dataset="middlebury-motorcycle", **options),
+                               folder)
     model = load_error_model(model_path)
     mixture = model.mixture
     largest = mixture.weights.argmax()
@@ -148,9 +199,11 @@ def _compare_models(folder, characterisation):
                    ("The sensor models along one ray with the SGBM error model; PRISM is the exact yardstick.",), items)
 
 
-def _experiment(out, experiment, *, quick, seed):
+def _experiment(out, experiment, experiments, *, quick, seed):
+    """Run ``experiment`` into ``out/WORLD``, keep its result in ``experiments[WORLD]``; its report section."""
     sizes = experiment.quick if quick else experiment.full
     result = experiment.run(out / experiment.world, seed=seed, **sizes)
+    experiments[experiment.world] = result
     return Section(experiment.title, tuple(headline(result)), tuple(result.artifacts))
 
 

@@ -8,7 +8,7 @@ import numpy as np
 
 from prismap._files import write_text_atomic
 from prismap.errors import PrismapInputError
-from prismap.evaluate import SCORE_COLUMNS, MapScores, align_to_ground_truth, score_map
+from prismap.evaluate import SCORE_COLUMNS, MapScores
 from prismap.sensor_models import prior_from_ground_truth
 
 MODELS = ("ideal", "hitmiss", "convolution", "andert", "prism")
@@ -25,7 +25,7 @@ MAP_PRIOR_SUFFIX = "_map_prior"
 the map's current probability (ray mode only)."""
 MODELS_3D_MAP_PRIOR = (*MODELS_3D, "prism" + CONDITIONED_SUFFIX + MAP_PRIOR_SUFFIX)
 """:data:`MODELS_3D` and conditioned PRISM with the map as prior: a ray-mode run's opt-in (``models=``), not the
-default, since that row costs about 3 times conditioned PRISM's time and did not win (README, the 3-D room)."""
+default: it costs several times conditioned PRISM's time (README, the 3-D room)."""
 
 
 def split_variant(name):
@@ -54,8 +54,9 @@ def model_label(name, names=()):
     return f"{model} ({', '.join(variant)})" if variant else model
 
 RESULTS_FORMAT = "prismap-experiment-results"
-RESULTS_VERSION = 2
-"""Version 2 added the safety score (``safety_occupied_called_free``, ``safety_threshold``) to the scores."""
+RESULTS_VERSION = 3
+"""Version 2 added the safety score (``safety_occupied_called_free``, ``safety_threshold``) to the scores; version 3
+the "confident and wrong" rates, the logit-spaced reliability bins and the per-frame evidence histograms."""
 
 
 @dataclass(frozen=True)
@@ -104,26 +105,23 @@ class CellResult:
             raise PrismapInputError(f"{source}: malformed experiment cell ({type(exc).__name__}: {exc})") from None
 
 
+_INTEGER_ARRAYS = ("bin_counts", "hist_free", "hist_occupied", "logit_bin_counts", "evidence_one_view",
+                   "evidence_per_view")
+"""The :class:`MapScores` arrays of counts (integers in JSON)."""
+
+
 def scores_from_dict(data):
     """A :class:`MapScores` from :meth:`MapScores.to_dict` output (null back to NaN, lists to arrays)."""
     values = {}
     for name, value in data.items():
         if isinstance(value, list):
             value = np.array([np.nan if v is None else v for v in value])
-            if name in ("bin_counts", "hist_free", "hist_occupied"):
+            if name in _INTEGER_ARRAYS:
                 value = value.astype(np.int64)
         elif value is None:
             value = float("nan")
         values[name] = value
     return MapScores(**values)
-
-
-def score_grid(grid, truth):
-    """Score ``grid`` (OccupancyMap) on every voxel ``truth`` (GroundTruthOccupancy) observed; unknown = ``grid.p0``."""
-    keys = grid.known_voxels()[0]
-    probability, occupied = align_to_ground_truth(keys, grid.probability_at_keys(keys), truth.occupied_keys,
-                                                  truth.observed_keys, p0=grid.p0)
-    return score_map(probability, occupied)
 
 
 def prior_of(truth):

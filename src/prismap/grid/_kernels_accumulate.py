@@ -136,9 +136,9 @@ def add_increment(acc, row, x):
     """Add float32 increment ``x`` to accumulator row ``row``: ``(sum, count, max, min)``."""
     acc[row, 0] += x
     acc[row, 1] += 1.0
-    if x > acc[row, 2]:  # noqa: PLR1730 (a comparison, not max(): a NaN increment leaves the row alone)
+    if x > acc[row, 2]:  # a comparison, not max(): a NaN increment leaves the row alone
         acc[row, 2] = x
-    if x < acc[row, 3]:  # noqa: PLR1730
+    if x < acc[row, 3]:
         acc[row, 3] = x
 
 

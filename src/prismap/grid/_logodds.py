@@ -4,7 +4,7 @@ A voxel stores ``q = round(l / LOG_ODDS_STEP)`` as int64 (as Bonxai stores its l
 Each frame adds one rounded integer per voxel, and a merge adds two maps' integers; integer addition is
 associative, so integrating frames 1..n in one map and merging maps of any split of them (sequential,
 or Dask with any number of workers and any chunking) give bit-identical maps. Float log-odds could not:
-their sum depends on the order of the additions (2.4e-6 apart in float32 on a 2-worker run).
+their sum depends on the order of the additions.
 
 The step is ``2**-20`` (below float32's resolution at ``|l| >= 8``). A saturating sum is not associative
 (``clamp(clamp(a + b) + c) != clamp(a + clamp(b + c))``), and PRISM drives near-camera voxels past any

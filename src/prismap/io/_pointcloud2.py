@@ -16,7 +16,7 @@ import numpy as np
 from prismap._files import atomic_path, make_parents, remove_if_empty
 from prismap._validate import check_probability
 from prismap.errors import PrismapInputError
-from prismap.grid import OccupancyMap
+from prismap.grid import OccupancyMap, key_to_center
 from prismap.io._rosbag import require_rosbags
 
 POINT_FIELDS = ("x", "y", "z", "probability")
@@ -95,13 +95,12 @@ def write_pointcloud2(grid, path, *, storage=None, frame_id="map", topic="/prism
 
 def _points(grid, min_probability):
     """(N,) structured float32 array of the voxel centres (metres, world frame) and their probability."""
-    keys, _, _ = grid.known_voxels()
-    probability = grid.probability_at_keys(keys)
+    keys, probability, _, _ = grid.known_probabilities()
     if min_probability is not None:
         keep = probability >= check_probability(min_probability, "min_probability", open_interval=False)
         keys, probability = keys[keep], probability[keep]
     points = np.empty(len(keys), dtype=[(name, "<f4") for name in POINT_FIELDS])
-    centers = (keys + 0.5) * grid.voxel_size_m
+    centers = key_to_center(keys, grid.voxel_size_m)
     points["x"], points["y"], points["z"] = centers.T
     points["probability"] = probability
     return points
@@ -116,3 +115,43 @@ def _message(typestore, points, frame_id, stamp_ns):
         header=types["std_msgs/msg/Header"](stamp=stamp, frame_id=frame_id), height=1, width=len(points),
         fields=fields, is_bigendian=False, point_step=points.itemsize, row_step=points.nbytes,
         data=points.view(np.uint8).ravel(), is_dense=True)
+
+
+_FIELD_TYPES = {1: "i1", 2: "u1", 3: "i2", 4: "u2", 5: "i4", 6: "u4", 7: "f4", 8: "f8"}
+"""sensor_msgs/PointField datatypes as numpy type codes."""
+
+
+def pointcloud2_xyz(msg, where):
+    """The finite ``x, y, z`` points of a ``sensor_msgs/PointCloud2`` message: (N, 3) float64, metres, its frame.
+
+    Reads any layout: the fields' offsets and datatypes, ``point_step``, ``row_step`` and the byte order;
+    points with a NaN or infinite coordinate (an organised cloud's no-returns) are dropped.
+
+    Raises
+    ------
+    PrismapInputError
+        ``x``, ``y`` or ``z`` is missing or not a number type, or the data is shorter than its size says;
+        the message names ``where`` (topic and stamp).
+    """
+    fields = {field.name: field for field in msg.fields}
+    missing = [name for name in "xyz" if name not in fields]
+    if missing:
+        raise PrismapInputError(f"{where}: PointCloud2 has no field(s) {missing}; it has {sorted(fields)}")
+    order = ">" if msg.is_bigendian else "<"
+    n_rows, n_cols, step, row_step = int(msg.height), int(msg.width), int(msg.point_step), int(msg.row_step)
+    data = np.asarray(msg.data, dtype=np.uint8)
+    needed = (n_rows - 1) * row_step + n_cols * step if n_rows and n_cols else 0
+    if data.size < needed:
+        raise PrismapInputError(f"{where}: PointCloud2 data holds {data.size} bytes; {n_rows}x{n_cols} points of "
+                                f"{step} bytes in rows of {row_step} need more")
+    columns = []
+    for name in "xyz":
+        field = fields[name]
+        if field.datatype not in _FIELD_TYPES or field.offset + np.dtype(_FIELD_TYPES[field.datatype]).itemsize > step:
+            raise PrismapInputError(f"{where}: PointCloud2 field {name!r} has datatype {field.datatype} at offset "
+                                    f"{field.offset}; expected a number type inside the {step}-byte point")
+        dtype = np.dtype(order + _FIELD_TYPES[field.datatype])
+        rows = [np.ndarray((n_cols,), dtype, data, r * row_step + field.offset, (step,)) for r in range(n_rows)]
+        columns.append(np.concatenate(rows).astype(np.float64) if rows else np.empty(0))
+    points = np.stack(columns, axis=1)
+    return points[np.isfinite(points).all(axis=1)]

@@ -18,13 +18,17 @@ like a KITTI-layout :class:`~prismap.io.Sequence`: same attributes, same :class:
   an image left without a partner is an error (a bag is not silently thinned).
 - Ground truth (optional, for ``characterise``): a ``stereo_msgs/DisparityImage`` topic (pixels, values
   below ``min_disparity`` invalid) or a depth ``sensor_msgs/Image`` (``32FC1`` metres or ``16UC1``
-  millimetres, 0 invalid), stamped like the left images.
+  millimetres, 0 invalid), stamped like the left images; or a LiDAR's ``sensor_msgs/PointCloud2`` scans
+  (thesis fig. 3.16): each left image takes the scan nearest in time (within ``scan_tolerance_s``), moved
+  into the left camera by the LiDAR-to-camera transform (given, or from ``/tf_static`` between the scan's
+  and the left CameraInfo's frame ids) and, with a pose source, by the camera's motion between the scan's
+  stamp and the image's; then projected with occlusion handling (:func:`prismap.io.points_to_disparity`).
 """
 
 import contextlib
 import sqlite3
 import struct
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import cv2
@@ -64,6 +68,17 @@ POSE_STAMPED = "geometry_msgs/msg/PoseStamped"
 TF = "tf2_msgs/msg/TFMessage"
 
 
+POINTCLOUD2 = "sensor_msgs/msg/PointCloud2"
+
+
+SCAN_TOLERANCE_S = 0.05
+"""Default largest |stamp difference| of a left image and the LiDAR scan that is its ground truth, seconds."""
+
+
+LIDAR_OCCLUSION_WINDOW_PX = 2
+"""Half-width of the window in which a nearer LiDAR point hides a farther one (see ``points_to_disparity``)."""
+
+
 _DEPTH_ENCODINGS = {"32FC1": (np.float32, 1.0), "16UC1": (np.uint16, 1e-3)}
 
 
@@ -72,7 +87,8 @@ _DAMAGE = (struct.error, EOFError, KeyError, IndexError, ValueError, OSError, sq
 
 
 def read_bag(path, *, left, right, left_info=None, right_info=None, pose_topic=None, tf_frames=None,
-             truth_topic=None, rectified=None, pair_tolerance_s=PAIR_TOLERANCE_S, max_pose_gap_s=MAX_POSE_GAP_S):
+             truth_topic=None, rectified=None, pair_tolerance_s=PAIR_TOLERANCE_S, max_pose_gap_s=MAX_POSE_GAP_S,
+             lidar_topic=None, T_cam_lidar=None, scan_tolerance_s=SCAN_TOLERANCE_S):
     """Open a stereo recording in a ROS bag as a sequence (see the module docstring).
 
     Parameters
@@ -90,6 +106,12 @@ def read_bag(path, *, left, right, left_info=None, right_info=None, pose_topic=N
         Without either, frames have no pose (enough for ``characterise``).
     truth_topic : str or None
         Ground-truth ``stereo_msgs/DisparityImage`` or depth image topic, giving ``disparity_gt``.
+    lidar_topic : str or None
+        ``sensor_msgs/PointCloud2`` scans giving ``disparity_gt`` instead (module docstring).
+    T_cam_lidar : (4, 4) float or None
+        LiDAR -> left camera transform; None = from ``/tf_static``.
+    scan_tolerance_s : float, seconds
+        Largest |stamp difference| of an image and its scan.
     rectified : bool or None
         Whether the images are already rectified. None: yes when both image topics contain ``image_rect``
         or the calibration needs no remapping (``D = 0``, ``R = I``, ``K = P[:, :3]``), else no.
@@ -105,11 +127,13 @@ def read_bag(path, *, left, right, left_info=None, right_info=None, pose_topic=N
     PrismapInputError
         The bag is missing or unreadable (e.g. truncated); a topic is missing or of the wrong type; an image
         encoding is unsupported; a camera_info has a zero focal length or is not a rectified stereo pair; an
-        image has no partner or no pose within the tolerances. The message names the topic (and stamp).
+        image has no partner or no pose within the tolerances; no LiDAR-to-camera transform; a scan too far
+        in time from its image, or with no point in the image. The message names the topic (and stamp).
     """
     return BagSequence(path, left=left, right=right, left_info=left_info, right_info=right_info,
                        pose_topic=pose_topic, tf_frames=tf_frames, truth_topic=truth_topic, rectified=rectified,
-                       pair_tolerance_s=pair_tolerance_s, max_pose_gap_s=max_pose_gap_s)
+                       pair_tolerance_s=pair_tolerance_s, max_pose_gap_s=max_pose_gap_s, lidar_topic=lidar_topic,
+                       T_cam_lidar=T_cam_lidar, scan_tolerance_s=scan_tolerance_s)
 
 
 class BagSequence:
@@ -134,11 +158,14 @@ class BagSequence:
     ground_truth = None
 
     def __init__(self, path, *, left, right, left_info=None, right_info=None, pose_topic=None, tf_frames=None,
-                 truth_topic=None, rectified=None, pair_tolerance_s=PAIR_TOLERANCE_S, max_pose_gap_s=MAX_POSE_GAP_S):
+                 truth_topic=None, rectified=None, pair_tolerance_s=PAIR_TOLERANCE_S, max_pose_gap_s=MAX_POSE_GAP_S,
+                 lidar_topic=None, T_cam_lidar=None, scan_tolerance_s=SCAN_TOLERANCE_S):
         self.path = Path(path)
         self._access = None
         if pose_topic is not None and tf_frames is not None:
             raise PrismapInputError("give a pose topic or tf frames (WORLD:CAMERA), not both")
+        if truth_topic is not None and lidar_topic is not None:
+            raise PrismapInputError("give a ground-truth topic or a LiDAR topic, not both")
         left_info = left_info or _info_topic(left)
         right_info = right_info or _info_topic(right)
         with _open(self.path) as reader:
@@ -151,11 +178,14 @@ class BagSequence:
                 wanted[truth_topic] = (DISPARITY, IMAGE)
             if tf_frames is not None:
                 wanted["/tf"] = (TF,)
+            if lidar_topic is not None:
+                wanted[lidar_topic] = (POINTCLOUD2,)
             for topic, types in wanted.items():
                 _check_topic(connections, topic, types, self.path)
-            topics = list(wanted) + (["/tf_static"] if "/tf_static" in connections and tf_frames else [])
+            static = "/tf_static" in connections and (tf_frames or (lidar_topic and T_cam_lidar is None))
+            topics = list(wanted) + (["/tf_static"] if static else [])
             messages = _scan(reader, [c for t in topics for c in connections[t]], self.path)
-        self._topics = {"left": left, "right": right, "truth": truth_topic}
+        self._topics = {"left": left, "right": right, "truth": truth_topic or lidar_topic}
         self._types = {topic: connections[topic][0].msgtype for topic in topics}
         self._left, self._right = messages[left], messages[right]
         if not self._left:
@@ -181,6 +211,20 @@ class BagSequence:
         elif tf_frames is not None:
             self.poses = _tf_poses(messages["/tf"], messages.get("/tf_static", []), tf_frames, self.stamps_ns,
                                    max_pose_gap_s)
+        self._lidar = None
+        if lidar_topic is not None:
+            camera_frame = messages[left_info][0][2].header.frame_id
+            self._lidar = _lidar_setup(messages, lidar_topic, T_cam_lidar, camera_frame, self._left, left,
+                                       scan_tolerance_s)
+            self._truth = self._lidar.scans
+            if self.poses is not None:  # the camera's motion between each scan and its image
+                scan_stamps = np.array([stamp for stamp, _, _ in self._truth], dtype=np.int64)
+                if pose_topic is not None:
+                    at_scan = _interpolate(series, scan_stamps, max_pose_gap_s, pose_topic)
+                else:
+                    at_scan = _tf_poses(messages["/tf"], messages.get("/tf_static", []), tf_frames, scan_stamps,
+                                        max_pose_gap_s)
+                self._lidar = replace(self._lidar, image_from_scan=np.linalg.inv(self.poses) @ at_scan)
 
     def _check_encodings(self, messages, left, right, truth_topic):
         checks = [(left, _ENCODINGS), (right, _ENCODINGS)]
@@ -226,7 +270,9 @@ class BagSequence:
         if right.shape != left.shape:
             raise PrismapInputError(f"{self.path}: frame {index}: right image shape {right.shape} != left {left.shape}")
         disparity = None
-        if self._truth is not None:
+        if self._lidar is not None:
+            disparity = self._lidar.disparity(found["truth"], index, self.camera, self.path)
+        elif self._truth is not None:
             disparity = self._disparity(found["truth"])
         pose = None if self.poses is None else self.poses[index].copy()
         return StereoFrame(left, right, self.camera, disparity, pose,
@@ -239,7 +285,7 @@ class BagSequence:
     def disparity_gt(self, index):
         """Ground-truth disparity of frame ``index`` from the truth topic: (H, W) float32, pixels, NaN = unknown."""
         if self._truth is None:
-            raise PrismapInputError(f"{self.path}: no ground-truth topic was given (--truth-topic)")
+            raise PrismapInputError(f"{self.path}: no ground-truth topic was given (--truth-topic or --lidar-topic)")
         return self[index].disparity_gt
 
     def _reader(self):
@@ -282,6 +328,66 @@ class BagSequence:
         dtype, scale = _DEPTH_ENCODINGS[msg.encoding]
         depth = _pixels(msg, topic, {msg.encoding: (dtype, 1)}).astype(np.float64) * scale
         return self.camera.disparity_from_depth(np.where(depth > 0, depth, np.nan)).astype(np.float32)
+
+
+@dataclass(frozen=True)
+class _Lidar:
+    """How a bag's LiDAR scans become each frame's ground-truth disparity.
+
+    Attributes
+    ----------
+    topic : str
+    scans : list of (stamp ns, bag time ns, frame id)
+        The scan of each frame.
+    T_cam_lidar : (4, 4) float64
+    image_from_scan : (N, 4, 4) float64 or None
+        Per frame, the camera at the scan's stamp -> the camera at the image's (None: no pose source, no
+        motion compensation).
+    """
+
+    topic: str
+    scans: list
+    T_cam_lidar: np.ndarray
+    image_from_scan: np.ndarray | None = None
+
+    def disparity(self, msg, index, camera, path):
+        """Frame ``index``'s ground-truth disparity from its scan ``msg`` (occlusions handled)."""
+        from prismap.io._pointcloud2 import pointcloud2_xyz
+        from prismap.io._velodyne import points_to_disparity
+
+        where = f"{path}: topic {self.topic} at stamp {_seconds(self.scans[index][0])} s"
+        points = pointcloud2_xyz(msg, where)
+        T = self.T_cam_lidar if self.image_from_scan is None else self.image_from_scan[index] @ self.T_cam_lidar
+        disparity = points_to_disparity(points @ T[:3, :3].T + T[:3, 3], camera,
+                                        occlusion_window_px=LIDAR_OCCLUSION_WINDOW_PX)
+        if not np.isfinite(disparity).any():
+            raise PrismapInputError(f"{where}: none of the scan's {len(points)} points lies in front of the camera "
+                                    "inside its image (wrong extrinsics, or a scan of another direction?)")
+        return disparity
+
+
+def _lidar_setup(messages, topic, T_cam_lidar, camera_frame, left_items, left, tolerance_s):
+    """The :class:`_Lidar` of a bag: each left image's scan (of ``messages[topic]``, nearest in time to each of
+    ``left_items``) and the LiDAR-to-camera transform (``T_cam_lidar``, else ``/tf_static``)."""
+    scans = messages[topic]
+    if not scans:
+        raise PrismapInputError(f"topic {topic} has no scans")
+    index, _ = _pair(left_items, scans, left, topic, tolerance_s, both=False)
+    frame_ids = {meta for _, _, meta in scans}
+    if len(frame_ids) != 1:
+        raise PrismapInputError(f"topic {topic}: scans come in several frames {sorted(frame_ids)}; expected one")
+    if T_cam_lidar is None:
+        lidar_frame = frame_ids.pop()
+        if "/tf_static" not in messages:
+            raise PrismapInputError(f"no transform from the LiDAR frame {lidar_frame!r} to the camera frame "
+                                    f"{camera_frame!r}: the bag has no /tf_static; give --lidar-extrinsics FILE")
+        try:
+            first = np.array([left_items[0][0]], dtype=np.int64)
+            T_cam_lidar = _tf_poses([], messages["/tf_static"], (camera_frame, lidar_frame), first, 0.0)[0]
+        except PrismapInputError as exc:
+            raise PrismapInputError(f"no transform from the LiDAR frame {lidar_frame!r} to the camera frame "
+                                    f"{camera_frame!r} in /tf_static ({exc}); give --lidar-extrinsics FILE") from None
+    return _Lidar(topic, [scans[i] for i in index], np.asarray(T_cam_lidar, dtype=np.float64))
 
 
 def _info_topic(image_topic):
@@ -394,7 +500,9 @@ def _scan(reader, connections, path):
     for connection, bag_time, raw in reader.messages(connections):
         msg = _deserialize(reader, raw, connection, path)
         stamp = _stamp_ns(msg.header) if hasattr(msg, "header") else bag_time
-        if connection.msgtype in (IMAGE, DISPARITY):
+        if connection.msgtype == POINTCLOUD2:
+            msg = msg.header.frame_id.strip("/")  # points are read again on access
+        elif connection.msgtype in (IMAGE, DISPARITY):
             image = msg.image if connection.msgtype == DISPARITY else msg
             msg = _ImageMeta(image.encoding, (image.height, image.width))
         elif connection.msgtype == COMPRESSED:

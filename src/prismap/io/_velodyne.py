@@ -3,6 +3,7 @@
 import numpy as np
 
 from prismap._validate import as_float_array
+from prismap.camera import DISPARITY_MARGIN_PX, project_points, visible_points
 from prismap.errors import PrismapInputError
 from prismap.io._text import read_bytes
 
@@ -62,13 +63,16 @@ def velodyne_to_camera(points_velo, T_cam_velo):
     return points[:, :3] @ T[:3, :3].T + T[:3, 3]
 
 
-def points_to_disparity(points_cam, camera):
+def points_to_disparity(points_cam, camera, *, occlusion_window_px=0, disparity_margin_px=DISPARITY_MARGIN_PX):
     """Sparse ground-truth disparity of the left image from 3-D points, e.g. a Velodyne scan (thesis fig. 3.16).
 
     Every point in front of the camera is projected with the pinhole model to the pixel whose centre is
     nearest (centres at integer ``(u, v)``, as in :meth:`StereoCamera.pixel_rays`); where several points
     fall into one pixel the nearest one (smallest depth) is kept, since it hides the others. Its disparity is
-    ``f b / z - doffs``.
+    ``f b / z - doffs``. With ``occlusion_window_px > 0`` a point is also dropped when a point within that
+    many pixels has a disparity larger by more than ``disparity_margin_px``: a scan taken from beside the camera
+    holds points the camera cannot see, and in a sparse scan nothing else covers their pixels
+    (:func:`prismap.camera.visible_points`).
 
     Parameters
     ----------
@@ -76,19 +80,20 @@ def points_to_disparity(points_cam, camera):
         E.g. ``KittiOdometry.velodyne(i)``.
     camera : StereoCamera
         With ``width`` and ``height``.
+    occlusion_window_px : int >= 0, pixels
+        Half-width of the occlusion window; 0 = the per-pixel z-buffer alone.
+    disparity_margin_px : float > 0, pixels
 
     Returns
     -------
-    (H, W) float32, pixels, NaN where no point projects.
+    (H, W) float32, pixels, NaN where no visible point projects.
     """
-    points = as_float_array(points_cam, "points_cam", shape=(None, 3), allow_nan=False)
     if camera.width is None or camera.height is None:
         raise PrismapInputError("`camera` needs its image size (width, height) to project points into its image")
-    points = points[points[:, 2] > 0]
-    z = points[:, 2]
-    u, v = camera.project(points)
-    col, row = np.floor(u + 0.5), np.floor(v + 0.5)
-    inside = (col >= 0) & (col < camera.width) & (row >= 0) & (row < camera.height)
-    depth = np.full(camera.height * camera.width, np.inf)
-    np.minimum.at(depth, (row[inside] * camera.width + col[inside]).astype(np.int64), z[inside])
-    return camera.disparity_from_depth(depth.reshape(camera.height, camera.width)).astype(np.float32)
+    shape = (camera.height, camera.width)
+    depth, row, col = project_points(points_cam, camera, shape)[:3]
+    keep = visible_points(camera.disparity_from_depth(depth), row, col, shape, occlusion_window_px=occlusion_window_px,
+                          disparity_margin_px=disparity_margin_px)
+    nearest = np.full(shape, np.inf)
+    np.minimum.at(nearest, (row[keep], col[keep]), depth[keep])
+    return camera.disparity_from_depth(nearest).astype(np.float32)

@@ -1,4 +1,5 @@
-"""Figures of map scores: reliability diagrams and the P histograms of free and occupied voxels."""
+"""Figures of map scores: reliability diagrams (equal-width and logit-spaced), the P histograms of free and occupied
+voxels, and the histograms of the evidence frames gave the voxels."""
 
 import numpy as np
 
@@ -41,6 +42,87 @@ def plot_reliability(scores_by_model, *, path=None, title="Reliability"):
     ax.legend(loc="upper left", fontsize="small")
     ax_count.set(xlabel="predicted P(occupied)", ylabel="voxels", yscale="log")
     return _finish(fig, path)
+
+
+def plot_reliability_logit(scores_by_model, *, path=None, title="Reliability at the extremes"):
+    """Reliability diagram on log-odds axes, from the logit-spaced bins (:data:`prismap.evaluate.LOGIT_BIN_EDGES`).
+
+    Equal-width bins put every ``P`` below 0.1 in one bin; these reach ``P`` of 1e-4 and 1 - 1e-4, where a
+    map that is "confident and wrong" shows as points far from the diagonal.
+
+    Parameters
+    ----------
+    scores_by_model : dict of str -> prismap.evaluate.MapScores
+    path : str or Path or None, keyword-only
+        Where to save the figure, written atomically.
+    title : str, keyword-only
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        ``logit`` of the mean predicted ``P`` per bin (x) against ``logit`` of the occupied fraction (y; bins
+        with no occupied or no free voxel are drawn at the axis's end, +-10), the diagonal perfect calibration;
+        a lower panel shows the voxels per bin. Each label carries the "confident and wrong" rates.
+    """
+    scores_by_model = _check_scores(scores_by_model)
+    fig, (ax, ax_count) = _figure(2, sharex=True, height_ratios=(3, 1))
+    limit = 10.0
+    ax.plot([-limit, limit], [-limit, limit], color="0.6", linestyle="--", linewidth=1, label="perfectly calibrated")
+    for name, scores in scores_by_model.items():
+        filled = scores.logit_bin_counts > 0
+        x = _logit(scores.logit_bin_mean_probability[filled], limit)
+        y = _logit(scores.logit_bin_occupied_fraction[filled], limit)
+        (line,) = ax.plot(x, y, marker="o", label=f"{name} (free at P>=0.99 {scores.free_confident_occupied:.2%}, "
+                                                    f"occupied at P<=0.01 {scores.occupied_confident_free:.2%})")
+        ax_count.plot(x, scores.logit_bin_counts[filled], marker=".", color=line.get_color())
+    ax.set(xlim=(-limit, limit), ylim=(-limit - 0.5, limit + 0.5), ylabel="logit of the occupied fraction",
+           title=title)
+    ax.legend(loc="upper left", fontsize="x-small")
+    ax_count.set(xlabel="logit of the predicted P(occupied)", ylabel="voxels", yscale="log")
+    return _finish(fig, path)
+
+
+def plot_evidence_histograms(scores_by_model, *, path=None, title="Evidence per frame"):
+    """Histograms of the log-odds increments frames gave the voxels, one panel per model.
+
+    Parameters
+    ----------
+    scores_by_model : dict of str -> prismap.evaluate.MapScores
+        Scores made with ``evidence`` (:func:`prismap.evaluate.score_map`); models without it are skipped.
+    path : str or Path or None, keyword-only
+        Where to save the figure, written atomically.
+    title : str, keyword-only
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        Voxels per bin of the symmetric-log edges (:data:`prismap.evaluate.EVIDENCE_EDGES`) on a log scale:
+        the increments of voxels one frame observed, and every voxel's mean increment per frame. Mass far
+        out (beyond +-20 nats, a likelihood ratio of 5e8) is evidence no stereo frame can justify.
+    """
+    scores_by_model = {name: s for name, s in _check_scores(scores_by_model).items() if s.evidence_per_view.any()}
+    if not scores_by_model:
+        raise PrismapInputError("no model's scores carry evidence histograms (score_map(..., evidence=...))")
+    fig, axes = _figure(len(scores_by_model), sharex=True)
+    for ax, (name, scores) in zip(np.atleast_1d(axes), scores_by_model.items()):
+        edges = scores.evidence_edges
+        position = np.arange(len(edges) - 1)
+        ax.bar(position - 0.2, scores.evidence_one_view, width=0.4, color="tab:purple", label="voxels seen once")
+        ax.bar(position + 0.2, scores.evidence_per_view, width=0.4, color="tab:gray", label="mean per frame, all")
+        ax.set(title=name, ylabel="voxels", yscale="log")
+        ax.legend(fontsize="small")
+    last = np.atleast_1d(axes)[-1]
+    ticks = np.arange(0, len(edges), 3)
+    last.set_xticks(ticks - 0.5, [f"{edges[t]:.3g}" for t in ticks], rotation=45, fontsize="small")
+    last.set_xlabel("log-odds increment (nats)")
+    fig.suptitle(title)
+    return _finish(fig, path)
+
+
+def _logit(p, limit):
+    """``logit(p)`` clipped to ``+-limit`` (0 and 1 land on the ends)."""
+    with np.errstate(divide="ignore"):
+        return np.clip(np.log(p) - np.log1p(-p), -limit, limit)
 
 
 def plot_probability_histograms(scores_by_model, *, path=None, density=True):

@@ -1,4 +1,4 @@
-"""Figures of maps: a horizontal slice of every model's map beside the ground truth."""
+"""Figures of maps beside the ground truth: a horizontal slice of every model's map, one map in 3-D."""
 
 import numpy as np
 
@@ -93,9 +93,87 @@ def plot_map_slices(maps_by_model, truth, *, layer, path=None, title="", scores_
     for ax in axes.flat[len(panels):]:
         ax.set_axis_off()
     fig.colorbar(image, ax=axes, shrink=0.8, label="P(occupied); light blue = unknown")
+    return _finish(fig, title, path, dpi=110)
+
+
+MAX_POINTS_3D = 60_000
+"""Most voxels one 3-D panel draws; more are thinned to every k-th (seeded choice, the same for every panel)."""
+
+
+def plot_map_3d(grid, truth, *, path=None, title="", threshold=0.5, max_height_m=None, elev=32.0, azim=-58.0):
+    """The map's occupied voxels beside the ground truth's, in 3-D from one viewpoint.
+
+    Parameters
+    ----------
+    grid : OccupancyMap
+        A map on ``truth``'s grid (same voxel size).
+    truth : GroundTruthOccupancy
+    path : str or Path or None, keyword-only
+        Where to save the figure (format from the suffix), written atomically.
+    title : str, keyword-only
+    threshold : float, keyword-only
+        A map voxel is drawn when P(occupied) > ``threshold``.
+    max_height_m : float or None, keyword-only
+        Voxels whose centre lies above this height (z, metres) are left out of both panels, so a ceiling
+        does not hide the room; None = below the truth's highest occupied layer.
+    elev, azim : float, keyword-only
+        The viewpoint (degrees, :meth:`mpl_toolkits.mplot3d.axes3d.Axes3D.view_init`).
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        Two panels, the truth's occupied voxels that a perfect sensor observed and the map's voxels above
+        ``threshold`` within the truth's observed box, coloured by height, with the voxel counts.
+    """
+    from matplotlib.figure import Figure
+
+    if abs(grid.voxel_size_m - truth.voxel_size_m) > 1e-9 * truth.voxel_size_m:
+        raise PrismapInputError(f"the map has voxel size {grid.voxel_size_m} m; the ground truth's is "
+                                f"{truth.voxel_size_m} m")
+    if not 0.0 <= threshold < 1.0:
+        raise PrismapInputError(f"`threshold` must lie in [0, 1); got {threshold!r}")
+    voxel = truth.voxel_size_m
+    truth_keys = truth.observed_occupied_keys
+    if truth_keys.shape[0] == 0:
+        raise PrismapInputError("the ground truth has no observed occupied voxel: nothing to draw")
+    top = truth_keys[:, 2].max() - 1 if max_height_m is None else np.floor(max_height_m / voxel)
+    lo, hi = truth.observed_keys.min(axis=0), truth.observed_keys.max(axis=0)
+    keys = _above(grid, threshold)
+    inside = np.all((keys >= lo) & (keys <= hi), axis=1)
+    panels = [(f"ground truth: {int(np.sum(truth_keys[:, 2] <= top)):,} occupied voxels", truth_keys),
+              (f"map: {int(np.sum(inside & (keys[:, 2] <= top))):,} voxels with P > {threshold:g}", keys[inside])]
+    fig = Figure(figsize=(11.0, 5.0), layout="constrained")
+    rng = np.random.default_rng(0)
+    for i, (label, shown) in enumerate(panels):
+        shown = shown[shown[:, 2] <= top]
+        if shown.shape[0] > MAX_POINTS_3D:
+            shown = shown[np.sort(rng.choice(shown.shape[0], MAX_POINTS_3D, replace=False))]
+        centres = (shown + 0.5) * voxel
+        ax = fig.add_subplot(1, 2, i + 1, projection="3d")
+        ax.scatter(centres[:, 0], centres[:, 1], centres[:, 2], c=centres[:, 2], cmap="viridis", marker="s",
+                   s=float(np.clip(3e4 / max(len(centres), 1), 1.5, 10.0)), linewidths=0, depthshade=True,
+                   vmin=(lo[2] + 0.5) * voxel, vmax=(top + 0.5) * voxel)
+        ax.set(xlim=(lo[0] * voxel, (hi[0] + 1) * voxel), ylim=(lo[1] * voxel, (hi[1] + 1) * voxel),
+               zlim=(lo[2] * voxel, (top + 1) * voxel), xlabel="x (m)", ylabel="y (m)", zlabel="z (m)")
+        ax.set_box_aspect((hi[0] - lo[0] + 1, hi[1] - lo[1] + 1, top - lo[2] + 1))
+        ax.view_init(elev=elev, azim=azim)
+        ax.set_title(label, fontsize="small")
+    return _finish(fig, title, path, dpi=90)
+
+
+def _finish(fig, title, path, *, dpi):
+    """Title ``fig`` and save it to ``path`` (if any) atomically; return it."""
     if title:
         fig.suptitle(title)
     if path is not None:
         with atomic_path(path) as tmp:
-            fig.savefig(tmp, dpi=110)
+            fig.savefig(tmp, dpi=dpi)
     return fig
+
+
+def _above(grid, threshold):
+    """Keys of the known voxels with P(occupied) > ``threshold``."""
+    from scipy.special import logit
+
+    keys, log, _ = grid.known_voxels()
+    return keys[log > logit(threshold)]

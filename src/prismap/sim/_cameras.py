@@ -1,7 +1,7 @@
 """The stereo rigs of the simulated worlds at any image scale (the rigs themselves live in :mod:`prismap.camera`)."""
 
 from prismap._validate import check_positive
-from prismap.camera import KITTI_LIKE_CAMERA, TSUKUBA_CAMERA, StereoCamera
+from prismap.camera import AVENUE_CAMERA, KITTI_LIKE_CAMERA, TSUKUBA_CAMERA, StereoCamera
 
 
 def scaled_camera(camera, scale):
@@ -29,3 +29,8 @@ def kitti_camera(*, scale=1.0):
     ``scale=0.5`` gives KITTI's half size, 621x188 (f = 360 px).
     """
     return scaled_camera(KITTI_LIKE_CAMERA, scale)
+
+
+def avenue_camera(*, scale=1.0):
+    """The avenue's rig (:data:`prismap.camera.AVENUE_CAMERA`: 620x188, f = 358 px, b = 0.54 m), scaled."""
+    return scaled_camera(AVENUE_CAMERA, scale)

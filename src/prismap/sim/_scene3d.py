@@ -8,12 +8,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from prismap._validate import as_float_array
+from prismap._validate import as_float_array, check_integer
 from prismap.errors import PrismapInputError
 from prismap.io._frame import StereoFrame
 from prismap.sim._kernels import cast_view, shade_view
 from prismap.sim._poses import pose_from_heading
-from prismap.sim._textures import PHOTOGRAPHS, texture_bank
+from prismap.sim._textures import FIRST_OTHER, PHOTOGRAPHS, texture_bank
 from prismap.sim._truth import SOLID_DEPTH_QUANTILE, ground_truth, pass_through_ratio, solid_depth
 
 # brightness by face normal axis (x, y, z) and side (the face at the box's lo, at its hi): a fixed light
@@ -198,7 +198,7 @@ def indoor_scene(*, seed=0):
         for _ in range(2):
             size = rng.uniform([0.3, 0.3, 0.3], [0.9, 0.9, 1.4])
             corner = rng.uniform([x0, y0], [x1 - size[0], y1 - size[1]])
-            texture = int(rng.integers(len(texture_bank())))
+            texture = int(rng.integers(FIRST_OTHER))
             texel, tint = rng.uniform(0.005, 0.015), rng.uniform(0.6, 1.0, 3)
             boxes.append(((*corner, 0.0), (*(corner + size[:2]), size[2]), texture, texel, tint))
     lo, hi, texture, texel, tint = (np.array(column) for column in zip(*boxes))
@@ -224,9 +224,8 @@ def indoor_trajectory(n_frames=40, *, seed=0):
     -------
     T_world_cam : (n_frames, 4, 4) float64
     """
-    if isinstance(n_frames, bool) or int(n_frames) != n_frames or not 1 <= n_frames <= MAX_INDOOR_FRAMES:
-        raise PrismapInputError(f"`n_frames` must be an integer in [1, {MAX_INDOOR_FRAMES}] (one frame per degree "
-                                f"of the loop at most); got {n_frames!r}")
+    n_frames = check_integer(n_frames, "n_frames", expected=f"an integer in [1, {MAX_INDOOR_FRAMES}] (one frame per "
+                             "degree of the loop at most)", condition=lambda n: 1 <= n <= MAX_INDOOR_FRAMES)
     rng = np.random.default_rng(seed)
     amplitude, phase = rng.uniform(-0.05, 0.05, 2), rng.uniform(0, 2 * np.pi, 3)
     angle = np.linspace(0.0, 2 * np.pi, int(n_frames), endpoint=False)

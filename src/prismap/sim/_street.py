@@ -13,7 +13,7 @@ from prismap._validate import check_integer, check_real
 from prismap.errors import PrismapInputError
 from prismap.sim._poses import pose_from_heading
 from prismap.sim._scene3d import Scene3D
-from prismap.sim._textures import PHOTOGRAPHS, texture_bank
+from prismap.sim._textures import FIRST_OTHER, PHOTOGRAPHS
 
 STREET_LENGTH_M = 84.0
 """The street runs from x = 0 to this; a building closes it across its far end, 80 m from the first pose."""
@@ -45,7 +45,7 @@ def street_scene(*, seed=0):
     (6-18 m), set-back (0-1.5 m) and a depth of 2 m on each side, a building across the far end at x = 84 m, parked cars (a body and
     a cabin box, 3.8-4.6 m long) along both kerbs, street-light poles every 14 m on both pavements, and
     seeded blocks (bins, bollards, boxes of 0.4-1.2 m) on the pavements. Textures come from
-    :func:`texture_bank` (scikit-image's photographs and procedural noise). From the lane of
+    :func:`~prismap.sim.texture_bank` (scikit-image's photographs and procedural noise). From the lane of
     :func:`street_trajectory` surfaces lie 2 to more than 80 m away; above the buildings is sky.
 
     Parameters
@@ -71,7 +71,7 @@ def street_scene(*, seed=0):
     rng = np.random.default_rng(seed)
     tex = {name: i for i, name in enumerate(PHOTOGRAPHS)}
     noise = len(PHOTOGRAPHS)
-    n_textures = len(texture_bank())
+    n_textures = FIRST_OTHER
     length, road, facade = STREET_LENGTH_M, ROAD_HALF_WIDTH_M, FACADE_Y_M
     depth = BUILDING_DEPTH_M
     back = facade + 1.5 + depth  # the back of the most set-back building
@@ -144,8 +144,7 @@ def street_trajectory(n_frames=12, *, step_m=1.0, seed=0, start_m=DRIVE_START_M)
     -------
     T_world_cam : (n_frames, 4, 4) float64
     """
-    if isinstance(n_frames, bool) or int(n_frames) != n_frames or n_frames < 1:
-        raise PrismapInputError(f"`n_frames` must be a positive integer; got {n_frames!r}")
+    n_frames = check_integer(n_frames, "n_frames", expected="a positive integer", condition=lambda n: n >= 1)
     step = float(step_m)
     if not 0.0 < step <= 5.0:
         raise PrismapInputError(f"`step_m` must lie in (0, 5] metres; got {step_m!r}")

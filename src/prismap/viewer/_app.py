@@ -10,10 +10,14 @@ import numpy as np
 
 from prismap.errors import PrismapInputError
 from prismap.viewer._voxels import (
+    AGREEMENT,
+    AGREEMENT_COLORS,
     COLORMAP,
     UNKNOWN_COLOR,
+    agreement_codes,
     probability_colors,
     select,
+    select_codes,
     unobserved_cells,
     voxel_pyramid,
 )
@@ -22,6 +26,13 @@ POINT_BUDGET = 2_000_000
 """Most voxels sent to the browser per layer; above it the layer is drawn 2^k times coarser."""
 
 TRAJECTORY_COLOR = (230, 40, 40)
+
+COLOUR_MODES = ("P(occupied)", "agreement with the truth")
+"""What the map's voxels are coloured by; the agreement needs the ground truth (``--gt``)."""
+
+AGREEMENT_SHOWN = (2, 3, 4)
+""":data:`AGREEMENT` codes shown when the agreement colouring starts: correct occupied and both errors (the
+correct free voxels would hide them)."""
 
 
 def load_trajectory(path):
@@ -54,6 +65,15 @@ def _height_greys(z_m):
     return np.repeat(level.astype(np.uint8)[:, None], 3, axis=1)
 
 
+def agreement_legend():
+    """HTML legend of :data:`AGREEMENT`: a swatch of each colour and its name (shown by the checkboxes below it)."""
+    rows = "".join(
+        f'<div><span style="display:inline-block;width:0.9em;height:0.9em;margin-right:0.4em;vertical-align:middle;'
+        f'background:rgb({r},{g},{b})"></span>{name}</div>' for (r, g, b), name in zip(AGREEMENT_COLORS, AGREEMENT))
+    return ('<div style="font-size:0.85em;padding:0.3em 0.5em"><b>Agreement with the truth</b> (colour by: '
+            f"agreement; the map's thresholds decide free and occupied){rows}</div>")
+
+
 def _framing_box(level, occupied_threshold):
     """``(lo_w, hi_w)`` metres: the 1st-99th percentile box of the occupied voxels (of all, if none are),
     so that a few far stray voxels do not shrink the view of the map."""
@@ -70,14 +90,18 @@ class MapViewer:
     ----------
     grid : OccupancyMap
     truth : GroundTruthOccupancy, optional
-        Its occupied voxels are drawn beside the map (shifted along +x past the map's box), in greys by
-        height (all are occupied), toggleable.
+        Its occupied voxels that a perfect sensor observed are drawn beside the map (shifted along +x past
+        the map's box), in greys by height (all are occupied), toggleable, with the map's height range
+        (which starts below the truth's top layer, so a ceiling does not hide the room). The map's voxels
+        can then be coloured by their agreement with it (:data:`AGREEMENT`, with a legend).
     poses_w : (N, 4, 4) float64, optional
         ``T_world_cam`` of the camera trajectory, metres; the map file does not record poses.
     host, port : str, int
         Where the server listens (port 0: a free one, see :attr:`port`).
     budget : int
         :data:`POINT_BUDGET`.
+    agreement : bool
+        Start with the map coloured by agreement with ``truth`` (needs it) instead of P(occupied).
 
     Notes
     -----
@@ -87,34 +111,47 @@ class MapViewer:
     that fits the budget is sent.
     """
 
-    def __init__(self, grid, *, truth=None, poses_w=None, host="127.0.0.1", port=8080, budget=POINT_BUDGET):
+    def __init__(self, grid, *, truth=None, poses_w=None, host="127.0.0.1", port=8080, budget=POINT_BUDGET,
+                 agreement=False):
         try:
             import viser
         except ImportError:
-            raise PrismapInputError("prismap view needs the optional `viser` module: pip install 'prismap[view]'") from None
+            raise PrismapInputError("prismap view needs the optional `viser` module: pip install -e '.[view]'") from None
 
         start = time.perf_counter()
-        keys, _, _ = grid.known_voxels()
+        keys, probability, _, _ = grid.known_probabilities()
         if len(keys) == 0:
             raise PrismapInputError("the map has no known voxels: nothing to view")
         self.grid = grid
         self.budget = int(budget)
-        self.levels = voxel_pyramid(keys, grid.probability_at_keys(keys), grid.voxel_size_m)
+        self.levels = voxel_pyramid(keys, probability, grid.voxel_size_m)
         self._unobserved = None
         self._handles, self._keys, self._shown = {}, {}, {}
         base = self.levels[0]
         z_lo, z_hi = base.keys[:, 2].min() * base.size_m, (base.keys[:, 2].max() + 1) * base.size_m
         lo_w, hi_w = _framing_box(base, grid.occupied_threshold)
-        self.truth_levels = None
+        self.truth_levels = self.agreement = None
         self.truth_offset_w = np.zeros(3)
+        z_top = None
         if truth is not None and len(truth.occupied_keys):
-            occupied = truth.occupied_keys
+            if abs(truth.voxel_size_m - grid.voxel_size_m) > 1e-9 * grid.voxel_size_m:
+                raise PrismapInputError(f"the ground truth's voxels are {truth.voxel_size_m} m, the map's "
+                                        f"{grid.voxel_size_m} m: they must match")
+            occupied = truth.observed_occupied_keys
+            occupied = occupied if len(occupied) else truth.occupied_keys
             self.truth_levels = voxel_pyramid(occupied, np.ones(len(occupied)), truth.voxel_size_m)
+            codes = agreement_codes(keys, base.probability, truth, free_threshold=grid.free_threshold,
+                                    occupied_threshold=grid.occupied_threshold)
+            self.agreement = voxel_pyramid(keys, codes, grid.voxel_size_m)
+            if occupied[:, 2].max() > occupied[:, 2].min():
+                z_top = float(occupied[:, 2].max() * truth.voxel_size_m)  # the top layer's floor
             truth_lo, truth_hi = _framing_box(self.truth_levels[0], 0.5)
             # beside the map along +x: past both boxes, with a 1 m gap
             self.truth_offset_w[0] = max(hi_w[0], truth_hi[0]) - min(lo_w[0], truth_lo[0]) + 1.0
             lo_w, hi_w = np.minimum(lo_w, truth_lo), np.maximum(hi_w, truth_hi)
 
+        if agreement and self.agreement is None:
+            raise PrismapInputError("colouring by agreement needs the ground truth (--gt TRUTH.npz)")
         self.server = _start_server(viser, host, port)
         self.port = self.server.get_port()
         scene, gui = self.server.scene, self.server.gui
@@ -126,13 +163,21 @@ class MapViewer:
 
         gui.add_markdown(f"**{len(keys):,} voxels** of {base.size_m:g} m. Colour: P(occupied), {COLORMAP} "
                          "(violet 0, teal 0.5, yellow 1); grey: unobserved inside the map's box.")
+        with_truth = self.agreement is not None
+        self.colour_by = gui.add_dropdown("colour by", COLOUR_MODES if with_truth else COLOUR_MODES[:1],
+                                          initial_value=COLOUR_MODES[int(bool(agreement))], visible=with_truth)
         self.threshold = gui.add_slider("P(occupied) >=", 0.0, 1.0, 0.01, 0.0)
         self.show = {name: gui.add_checkbox(name, name == "occupied") for name in ("occupied", "unknown", "free")}
+        gui.add_html(agreement_legend(), visible=with_truth)
+        self.show_agreement = [gui.add_checkbox(name, code in AGREEMENT_SHOWN, visible=with_truth)
+                               for code, name in enumerate(AGREEMENT)]
         z_lo, z_hi = float(z_lo), float(z_hi)
-        self.z_range = gui.add_multi_slider("height z (m)", z_lo, z_hi, base.size_m, (z_lo, z_hi))
-        self.show_truth = gui.add_checkbox("ground truth (beside)", True, visible=self.truth_levels is not None)
+        start_hi = z_top if z_top is not None and z_lo < z_top < z_hi else z_hi
+        self.z_range = gui.add_multi_slider("height z (m)", z_lo, z_hi, base.size_m, (z_lo, start_hi))
+        self.show_truth = gui.add_checkbox("ground truth (beside)", True, visible=with_truth)
         self.status = gui.add_markdown("")
-        for control in (self.threshold, self.z_range, self.show_truth, *self.show.values()):
+        for control in (self.colour_by, self.threshold, self.z_range, self.show_truth, *self.show.values(),
+                        *self.show_agreement):
             control.on_update(lambda _: self.refresh())
 
         if poses_w is not None:
@@ -154,8 +199,13 @@ class MapViewer:
         """
         classes = tuple(name for name, box in self.show.items() if box.value)
         z_range = tuple(self.z_range.value)
-        level = self._layer("/map/voxels", (self.threshold.value, classes, z_range), lambda: self._map_layer(
-            classes, z_range))
+        if self.colour_by.value == COLOUR_MODES[1]:
+            shown = tuple(code for code, box in enumerate(self.show_agreement) if box.value)
+            level = self._layer("/map/voxels", ("agreement", shown, z_range),
+                                lambda: self._agreement_layer(shown, z_range))
+        else:
+            level = self._layer("/map/voxels", (self.threshold.value, classes, z_range),
+                                lambda: self._map_layer(classes, z_range))
         self._layer("/map/unobserved", (self.show["unknown"].value, z_range), lambda: self._unobserved_layer(z_range))
         self._layer("/truth/voxels", (self.show_truth.value, z_range), lambda: self._truth_layer(z_range))
         stats = {"level": level.level, "voxel_m": level.size_m,
@@ -169,6 +219,11 @@ class MapViewer:
                              free_threshold=self.grid.free_threshold,
                              occupied_threshold=self.grid.occupied_threshold, budget=self.budget)
         return level, (level.centers_w[mask], probability_colors(level.probability[mask]), level.size_m)
+
+    def _agreement_layer(self, shown, z_range):
+        level, mask = select_codes(self.agreement, shown=shown, z_range_m=z_range, budget=self.budget)
+        colors = AGREEMENT_COLORS[level.probability[mask].astype(np.intp)]
+        return level, (level.centers_w[mask], colors, level.size_m)
 
     def _unobserved_layer(self, z_range):
         if not self.show["unknown"].value:

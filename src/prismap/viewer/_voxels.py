@@ -7,6 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from prismap.errors import PrismapInputError
+from prismap.grid import key_to_center
 
 COLORMAP = "viridis"
 """Matplotlib colormap of P(occupied): 0 = dark violet (free), 0.5 = teal, 1 = yellow (occupied)."""
@@ -55,7 +56,7 @@ class VoxelLevel:
     @property
     def centers_w(self):
         """(N, 3) float32 voxel centres, metres, world frame."""
-        return ((self.keys + 0.5) * self.size_m).astype(np.float32)
+        return key_to_center(self.keys, self.size_m).astype(np.float32)
 
 
 def coarsen(level):
@@ -166,7 +167,7 @@ def select(levels, *, threshold=0.0, classes=("occupied",), z_range_m=(-np.inf, 
         raise PrismapInputError(f"`classes` must be among {CLASSES}; got {unknown}")
     wanted = np.array([c in classes for c in CLASSES])
     for level in levels:
-        z = (level.keys[:, 2] + 0.5) * level.size_m
+        z = key_to_center(level.keys[:, 2], level.size_m)
         mask = (level.probability >= threshold) & (z >= z_range_m[0]) & (z <= z_range_m[1])
         mask &= wanted[voxel_classes(level.probability, free_threshold, occupied_threshold)]
         if np.count_nonzero(mask) <= budget:
@@ -201,3 +202,58 @@ def unobserved_cells(base, *, budget=2_000_000):
     seen[tuple((keys - lo).T)] = True
     empty = np.argwhere(~seen) + lo
     return VoxelLevel(base.level + k, base.size_m * 2**k, empty, np.full(len(empty), np.nan, dtype=np.float32))
+
+
+AGREEMENT = ("undecided or not in the truth", "correct free", "correct occupied", "free called occupied",
+             "occupied called free (danger)")
+"""A map voxel's agreement with the ground truth, by code (the index): the higher the code, the more a coarse
+voxel of the pyramid shows it (a danger voxel is never hidden by coarsening)."""
+
+AGREEMENT_COLORS = np.array([(150, 150, 150), (85, 172, 238), (120, 177, 89), (244, 144, 12), (221, 46, 68)],
+                            dtype=np.uint8)
+"""RGB of each :data:`AGREEMENT` code: grey, blue, green, orange, red."""
+
+
+def agreement_codes(keys, probability, truth, *, free_threshold=0.5, occupied_threshold=0.5):
+    """(N,) int8 :data:`AGREEMENT` code of each map voxel against ``truth``.
+
+    Parameters
+    ----------
+    keys : (N, 3) int, voxel keys of the map
+    probability : (N,) float, P(occupied) of each
+    truth : GroundTruthOccupancy
+        On the map's grid (same voxel size); only its observed voxels are judged.
+    free_threshold, occupied_threshold : float
+        The map's thresholds (:func:`voxel_classes`): a voxel between them is undecided.
+    """
+    from prismap.grid import pack_keys
+
+    packed = pack_keys(np.asarray(keys, dtype=np.int64))
+    observed = np.isin(packed, pack_keys(truth.observed_keys))
+    occupied = np.isin(packed, pack_keys(truth.occupied_keys))
+    state = voxel_classes(probability, free_threshold, occupied_threshold)
+    code = np.zeros(len(packed), dtype=np.int8)
+    code[observed & ~occupied & (state == 0)] = 1
+    code[observed & occupied & (state == 2)] = 2
+    code[observed & ~occupied & (state == 2)] = 3
+    code[observed & occupied & (state == 0)] = 4
+    return code
+
+
+def select_codes(levels, *, shown, z_range_m=(-np.inf, np.inf), budget=2_000_000):
+    """The voxels of a code pyramid (``probability`` holding :data:`AGREEMENT` codes) whose code is in
+    ``shown`` (codes) and whose centre height is within ``z_range_m``, at the finest level within ``budget``.
+
+    Returns
+    -------
+    level : VoxelLevel
+    mask : (N,) bool over ``level``'s voxels
+    """
+    wanted = np.zeros(len(AGREEMENT), dtype=bool)
+    wanted[list(shown)] = True
+    for level in levels:
+        z = (level.keys[:, 2] + 0.5) * level.size_m
+        mask = wanted[level.probability.astype(np.intp)] & (z >= z_range_m[0]) & (z <= z_range_m[1])
+        if np.count_nonzero(mask) <= budget:
+            break
+    return level, mask

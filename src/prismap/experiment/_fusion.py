@@ -1,0 +1,101 @@
+"""The fusion comparison of the 3-D experiments: each error-model map read under independent fusion, the
+persistent-failure model fitted on the characterisation frames, and clamping at that model's one-view bound.
+
+Every reading is a function of the stored sums (log-odds, count), so one map serves all three and the comparison
+costs no mapping (docs/SENSOR_MODELS.md, "Fusion when a matcher's failures repeat").
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.special import expit, logit
+
+from prismap.evaluate import align_to_ground_truth, score_map
+
+FUSIONS = ("independent", "persistent failure", "clamped at one view")
+"""The readings compared, in table order."""
+
+FUSION_COLUMNS = (("Brier", "brier", "{:.4f}"), ("log-loss", "log_loss", "{:.4f}"), ("ECE", "ece", "{:.4f}"),
+                  ("ROC AUC", "roc_auc", "{:.4f}"), ("at 90 % free", "safety_occupied_called_free", "{:.4f}"),
+                  ("free at P >= 0.99", "free_confident_occupied", "{:.3%}"),
+                  ("occupied at P <= 0.01", "occupied_confident_free", "{:.3%}"))
+"""(label, MapScores field, format) of the section's columns."""
+
+
+@dataclass(frozen=True)
+class FusionRow:
+    """One map read one way: ``scores`` (MapScores) of ``matcher``'s ``model`` map under ``fusion``."""
+
+    matcher: str
+    model: str
+    fusion: str
+    scores: object
+
+    def to_dict(self):
+        """Plain-JSON form (the scores' numbers, not their bins)."""
+        return {"matcher": self.matcher, "model": self.model, "fusion": self.fusion,
+                **{name: _plain(getattr(self.scores, name)) for _, name, _ in FUSION_COLUMNS}}
+
+
+def fused_probabilities(log_odds, counts, p0, failure):
+    """``P(occupied)`` of voxels with stored ``log_odds`` and ``counts`` under every reading of :data:`FUSIONS`.
+
+    Parameters
+    ----------
+    log_odds : (N,) float
+    counts : (N,) int
+    p0 : float
+    failure : prismap.grid.PersistentFailure
+
+    Returns
+    -------
+    dict of str -> (N,) float64
+    """
+    independent = expit(np.asarray(log_odds, dtype=np.float64))
+    low, high = failure.bounds(p0)
+    return {"independent": independent, "persistent failure": failure.probability(log_odds, counts, p0),
+            "clamped at one view": np.clip(independent, low, high)}
+
+
+def compare_fusions(maps, truth, failures):
+    """Score each map under every reading.
+
+    Parameters
+    ----------
+    maps : dict of (matcher, model) -> OccupancyMap
+    truth : GroundTruthOccupancy
+    failures : dict of matcher -> prismap.grid.PersistentFailure
+
+    Returns
+    -------
+    list of FusionRow
+    """
+    rows = []
+    for (matcher, model), grid in maps.items():
+        keys, log, counts = grid.known_voxels()
+        evidence = (log - logit(grid.p0), counts)
+        for fusion, probability in fused_probabilities(log, counts, grid.p0, failures[matcher]).items():
+            p, occupied = align_to_ground_truth(keys, probability, truth.occupied_keys, truth.observed_keys, p0=grid.p0)
+            rows.append(FusionRow(matcher, model, fusion, score_map(p, occupied, evidence=evidence)))
+    return rows
+
+
+def format_fusion_section(rows, failures):
+    """Markdown section: the fitted failure models and every map under every reading."""
+    lines = ["## Fusion of repeated failures", "",
+             "Each error-model map read three ways from the same stored sums: the independent sum; the persistent "
+             "failure state (rate r and persistence q fitted on the characterisation frames, errors beyond "
+             "3 px; docs/SENSOR_MODELS.md); the independent sum clamped to that model's one-view bound "
+             "[r p0, 1 - r (1 - p0)]. " + "; ".join(f"{name}: r = {f.rate:.4f}, q = {f.persistence:.3f}"
+                                                     for name, f in failures.items()) + ".", "",
+             "| matcher | model | fusion | " + " | ".join(label for label, _, _ in FUSION_COLUMNS) + " |",
+             "|---|---|---|" + "---|" * len(FUSION_COLUMNS)]
+    for row in rows:
+        values = [fmt.format(getattr(row.scores, name)) for _, name, fmt in FUSION_COLUMNS]
+        lines.append(f"| {row.matcher} | {row.model} | {row.fusion} | " + " | ".join(values) + " |")
+    return "\n".join(lines + [""])
+
+
+def _plain(value):
+    value = float(value)
+    return None if np.isnan(value) else value

@@ -1,0 +1,124 @@
+"""How a voxel's stored evidence is read as a probability when a matcher's failures repeat across views.
+
+The map stores per voxel the log-odds sum ``l = logit(p0) + S`` (``S`` the sum of the frames' increments)
+and the number ``n`` of frames that observed it; both add, so chunked (Dask), merged and checkpointed maps are
+identical. Independent fusion reads ``P = sigmoid(l)``. :class:`PersistentFailure` reads the same two sums
+under a per-voxel hidden "the matcher fails here" state that persists from view to view (a stationary
+two-state Markov chain of rate ``r`` and persistence ``q``; docs/SENSOR_MODELS.md, "Fusion when failures
+repeat"): a view in the failure state carries no evidence, and the probability is the average over the
+number ``k`` of failed views of ``sigmoid(logit(p0) + (1 - k / n) S)``. The update stays one integer
+addition per voxel and frame; the read costs ``O(min(n, MAX_VIEWS))`` per voxel.
+"""
+
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+from scipy.special import expit
+
+from prismap._validate import check_probability
+from prismap.errors import PrismapInputError
+from prismap.grid._logodds import logit
+
+MAX_VIEWS = 64
+"""Counts above this read with the failure share distribution of ``MAX_VIEWS`` views (it has converged)."""
+
+_CHUNK = 65536
+"""Voxels read at once (bounds the ``(chunk, n + 1)`` temporary)."""
+
+
+@dataclass(frozen=True)
+class PersistentFailure:
+    """A persistent per-voxel failure state: views in it carry no evidence about the voxel.
+
+    Attributes
+    ----------
+    rate : float in [0, 1)
+        ``r``: stationary probability that a view of a voxel is in the failure state (the matcher's gross
+        error rate at the voxel's pixels).
+    persistence : float in [rate, 1]
+        ``q = P(fails in view t | failed in view t - 1)``. ``q = r`` is failures striking independently;
+        ``q -> 1`` is a failure that, once there, stays for every view.
+    """
+
+    rate: float
+    persistence: float
+
+    def __post_init__(self):
+        rate = check_probability(self.rate, "rate", open_interval=False)
+        persistence = check_probability(self.persistence, "persistence", open_interval=False)
+        if rate == 1.0:
+            raise PrismapInputError("`rate` must lie in [0, 1): a matcher that always fails carries no evidence")
+        if persistence < rate:
+            raise PrismapInputError(f"`persistence` {persistence!r} must be >= `rate` {rate!r} (a failure cannot "
+                                    "make the next view's failure less likely than its base rate)")
+        object.__setattr__(self, "rate", rate)
+        object.__setattr__(self, "persistence", persistence)
+
+    def failure_counts(self, n_views):
+        """``P(K = k)``, ``k = 0 .. n_views``: how many of ``n_views`` consecutive views are in the failure state.
+
+        Returns
+        -------
+        (n_views + 1,) float64, summing to 1.
+        """
+        return _failure_counts(self.rate, self.persistence, int(n_views))
+
+    def probability(self, log_odds, count, p0):
+        """``P(occupied)`` of voxels with stored log-odds ``log_odds`` (``logit(p0)`` plus the frames' evidence)
+        observed by ``count`` frames.
+
+        Parameters
+        ----------
+        log_odds : (N,) float
+        count : (N,) int, >= 0 (0 = unknown: the prior's log-odds read as ``p0``)
+        p0 : float in (0, 1)
+
+        Returns
+        -------
+        (N,) float64 in [0, 1]
+        """
+        log = np.asarray(log_odds, dtype=np.float64)
+        count = np.asarray(count)
+        if log.shape != count.shape or log.ndim != 1:
+            raise PrismapInputError(f"`log_odds` and `count` must be 1-D of one shape; got {log.shape} and {count.shape}")
+        prior = float(logit(check_probability(p0, "p0")))
+        evidence = log - prior
+        out = expit(log)
+        views = np.minimum(count.astype(np.int64), MAX_VIEWS)
+        for n in np.unique(views[views > 0]):
+            share = 1.0 - np.arange(n + 1) / n
+            weight = self.failure_counts(n)
+            where = np.flatnonzero(views == n)
+            for start in range(0, where.size, _CHUNK):
+                part = where[start : start + _CHUNK]
+                out[part] = expit(prior + evidence[part, None] * share[None, :]) @ weight
+        return out
+
+    def bounds(self, p0, n_views=1):
+        """The probabilities ``(P_min, P_max)`` no evidence of ``n_views`` views can pass: all views failed
+        (probability ``r q^(n - 1)``) leave the voxel at ``p0``."""
+        stuck = float(self.failure_counts(n_views)[-1])
+        p0 = check_probability(p0, "p0")
+        return stuck * p0, 1.0 - stuck * (1.0 - p0)
+
+    def to_dict(self):
+        """JSON form."""
+        return {"rate": self.rate, "persistence": self.persistence}
+
+
+@lru_cache(maxsize=256)
+def _failure_counts(rate, persistence, n_views):
+    if n_views < 1:
+        raise PrismapInputError(f"`n_views` must be a positive integer; got {n_views!r}")
+    start = rate * (1.0 - persistence) / (1.0 - rate)  # P(fail | good before): keeps the chain stationary
+    good, failed = np.zeros(n_views + 1), np.zeros(n_views + 1)  # by failures so far, last view good / failed
+    good[0], failed[1] = 1.0 - rate, rate
+    for _ in range(n_views - 1):
+        next_good = good * (1.0 - start) + failed * (1.0 - persistence)
+        next_failed = np.zeros_like(failed)
+        next_failed[1:] = good[:-1] * start + failed[:-1] * persistence
+        good, failed = next_good, next_failed
+    counts = good + failed
+    counts.setflags(write=False)
+    return counts

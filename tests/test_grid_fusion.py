@@ -1,0 +1,86 @@
+"""The persistent-failure reading of a voxel's stored sums against brute force over every failure pattern."""
+
+import itertools
+
+import numpy as np
+import pytest
+from scipy.special import expit, logit
+from scipy.stats import binom
+
+from prismap.errors import PrismapInputError
+from prismap.grid._fusion import MAX_VIEWS, PersistentFailure
+
+
+def _pattern_probability(pattern, rate, persistence):
+    """P(failure pattern) of the stationary two-state chain, by its definition."""
+    into_failure = rate * (1 - persistence) / (1 - rate)
+    p = rate if pattern[0] else 1 - rate
+    for before, now in zip(pattern, pattern[1:]):
+        step = persistence if before else into_failure
+        p *= step if now else 1 - step
+    return p
+
+
+@pytest.mark.parametrize("rate, persistence", [(0.05, 0.6), (0.2, 0.9), (0.1, 1.0)])
+def test_failure_counts_match_enumeration(rate, persistence):
+    model = PersistentFailure(rate, persistence)
+    for n in (1, 2, 5):
+        expected = np.zeros(n + 1)
+        for pattern in itertools.product((0, 1), repeat=n):
+            expected[sum(pattern)] += _pattern_probability(pattern, rate, persistence)
+        np.testing.assert_allclose(model.failure_counts(n), expected, atol=1e-15)
+
+
+def test_independent_failures_are_binomial():
+    np.testing.assert_allclose(PersistentFailure(0.3, 0.3).failure_counts(6), binom.pmf(np.arange(7), 6, 0.3))
+
+
+def test_probability_equals_the_average_over_failure_patterns():
+    """Views of equal evidence: every pattern with k failed views leaves (n - k) / n of the sum."""
+    rate, persistence, p0 = 0.1, 0.7, 0.04
+    model = PersistentFailure(rate, persistence)
+    rng = np.random.default_rng(5)
+    count = rng.integers(1, 6, 40)
+    evidence = rng.normal(0, 30, 40)
+    got = model.probability(logit(p0) + evidence, count, p0)
+    for value, n, s in zip(got, count, evidence):
+        expected = sum(_pattern_probability(f, rate, persistence) * expit(logit(p0) + s * (n - sum(f)) / n)
+                       for f in itertools.product((0, 1), repeat=int(n)))
+        assert value == pytest.approx(expected, rel=1e-12)
+
+
+def test_no_failures_is_todays_sum_and_unknown_voxels_keep_the_prior():
+    log = np.array([-40.0, -1.0, 3.0, 900.0])
+    np.testing.assert_array_equal(PersistentFailure(0.0, 0.0).probability(log, np.array([1, 2, 3, 9]), 0.2),
+                                  expit(log))
+    assert PersistentFailure(0.1, 0.5).probability(np.array([logit(0.2)]), np.array([0]), 0.2)[0] == pytest.approx(0.2)
+
+
+def test_a_frame_of_gross_failures_stays_within_the_bound():
+    model, p0 = PersistentFailure(0.04, 0.6), 0.039
+    lo, hi = model.bounds(p0)
+    assert lo == pytest.approx(0.04 * p0) and hi == pytest.approx(1 - 0.04 * (1 - p0))
+    extreme = model.probability(np.array([-2048.0, 2048.0]), np.array([1, 1]), p0)  # the fixed point's ends
+    assert lo <= extreme[0] <= lo * (1 + 1e-9) and hi * (1 - 1e-9) <= extreme[1] <= hi
+    lo_5, hi_5 = model.bounds(p0, 5)
+    assert lo_5 == pytest.approx(0.04 * 0.6**4 * p0) and lo_5 < lo and hi_5 > hi  # repeated views earn more
+    many = model.probability(np.array([-2048.0]), np.array([5000]), p0)  # counts above MAX_VIEWS read as MAX_VIEWS
+    assert many[0] == pytest.approx(model.bounds(p0, MAX_VIEWS)[0], rel=1e-9)
+
+
+def test_monotone_in_the_evidence():
+    log = np.linspace(-200, 200, 401)
+    p = PersistentFailure(0.05, 0.8).probability(log, np.full(log.size, 4), 0.3)
+    assert np.all(np.diff(p) >= 0)
+    assert np.all(np.diff(p[(log > -20) & (log < 20)]) > 0)  # beyond, float64 saturates every share but the last
+
+
+def test_bad_parameters_are_named():
+    with pytest.raises(PrismapInputError, match="persistence"):
+        PersistentFailure(0.2, 0.1)
+    with pytest.raises(PrismapInputError, match="rate"):
+        PersistentFailure(1.0, 1.0)
+    with pytest.raises(PrismapInputError, match="rate"):
+        PersistentFailure(-0.1, 0.5)
+    with pytest.raises(PrismapInputError, match="one shape"):
+        PersistentFailure(0.1, 0.5).probability(np.zeros(3), np.ones(2, int), 0.2)
