@@ -250,3 +250,30 @@ def test_a_plain_characterisation_needs_no_classes_figure(tmp_path, error_model)
     for name in ("table.md", "errors.png", "errors_wide.png"):
         (tmp_path / name).write_bytes(b"x")
     assert "figure_classes" not in written_characterisation(tmp_path)
+
+
+def test_ctrl_c_inside_a_compiled_kernel_is_an_interruption_not_a_traceback(monkeypatch, capsys):
+    """Item 13: Ctrl-C in the numba ray caster surfaced as a SystemError (2 of 18 tries)."""
+    from test_hostile import _parser_with
+
+    from prismap.cli import _main
+
+    def kernel(args):
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt:
+            raise SystemError("<built-in function cast> returned a result with an exception set")  # noqa: B904
+
+    def bug(args):
+        raise SystemError("a real bug")
+
+    def register(subparsers):
+        subparsers.add_parser("kernel").set_defaults(func=kernel)
+        subparsers.add_parser("bug").set_defaults(func=bug)
+
+    monkeypatch.setattr(_main, "COMMANDS", ())
+    monkeypatch.setattr(_main, "build_parser", _parser_with(register, _main.build_parser))
+    assert _main.main(["kernel"]) == 130
+    assert capsys.readouterr().err.strip().splitlines() == ["prismap kernel: interrupted"]
+    with pytest.raises(SystemError, match="a real bug"):
+        _main.main(["bug"])
