@@ -35,18 +35,18 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
-import dufomap  # noqa: E402
-import octomap  # noqa: E402
+import dufomap
+import octomap
 
-from prismap import sim  # noqa: E402
-from prismap.camera import StereoCamera  # noqa: E402
-from prismap.characterise import characterise_matcher, load_error_model, write_error_model  # noqa: E402
-from prismap.gmm import GaussianMixture  # noqa: E402
-from prismap.grid import OccupancyMap  # noqa: E402
-from prismap.pipeline import MappingConfig  # noqa: E402
-from prismap.sensor_models import ConditionedModel, make_sensor_model  # noqa: E402
-from prismap.stereo import make_matcher  # noqa: E402
-from support import planes_frame, world_points  # noqa: E402
+from prismap import sim
+from prismap.camera import StereoCamera, integrate_disparity
+from prismap.characterise import characterise_matcher, load_error_model, write_error_model
+from prismap.gmm import GaussianMixture
+from prismap.grid import OccupancyMap
+from prismap.pipeline import MappingConfig
+from prismap.sensor_models import ConditionedModel, make_sensor_model
+from prismap.stereo import make_matcher
+from support import planes_frame, world_points
 
 VOXEL = 0.1
 STREET_MIXTURE = GaussianMixture(np.array([0.80, 0.15, 0.05]), np.array([0.0, -0.1, -2.0]),
@@ -247,8 +247,8 @@ def street_method(name, mode, voxel, scale, n_frames, world=None):
         grid = OccupancyMap(voxel, p0=getattr(model, "plain", model).p0)
         if not isinstance(model, ConditionedModel):
             classes = [None] * len(poses)
-        clock(lambda disparity, pose, ray_class: grid.integrate_disparity(
-            disparity, camera, pose, model, mode=mode, max_range_m=max_range, ray_class=ray_class),
+        clock(lambda disparity, pose, ray_class: integrate_disparity(
+            grid, disparity, camera, pose, model, mode=mode, max_range_m=max_range, ray_class=ray_class),
             zip(disparities, poses, classes))
         out["map_bytes"] = grid.nbytes()
         caches = [m._cache for m in getattr(model, "class_models", ()) + (getattr(model, "plain", model),)
@@ -399,12 +399,12 @@ def main():
     depth = camera.focal_baseline / disparity
     warm = OccupancyMap(VOXEL, p0=0.5)
     for mode in ("ray", "projective"):
-        warm.integrate_disparity(disparity[:40, :40], camera, pose, model, mode=mode, max_range_m=12.0)
+        integrate_disparity(warm, disparity[:40, :40], camera, pose, model, mode=mode, max_range_m=12.0)
 
     def frame(mode):
         def go(ism):
             grid = OccupancyMap(VOXEL, p0=ism.p0 if hasattr(ism, "p0") else 0.5)
-            grid.integrate_disparity(disparity, camera, pose, ism, mode=mode, max_range_m=12.0)
+            integrate_disparity(grid, disparity, camera, pose, ism, mode=mode, max_range_m=12.0)
             return grid
         return go
 

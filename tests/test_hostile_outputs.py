@@ -233,3 +233,29 @@ def test_a_refused_experiment_writes_no_settings(tmp_path):
     assert status == 2 and len(stderr.strip().splitlines()) == 1, stderr
     assert "`voxel_size_m` = 1e-09" in stderr
     assert list(tmp_path.iterdir()) == []
+
+
+# ------------------------------------------------------------------ item 7: a characterisation killed mid-figure
+def test_a_characterisation_killed_while_drawing_its_classes_figure_is_redone(tmp_path):
+    from prismap.characterise._run import written_characterisation
+    from support import conditioned_error_model
+
+    write_error_model(conditioned_error_model(feature="texture", edges=(20.0, 30.0)), tmp_path / "error_model.json")
+    for name in ("table.md", "errors.png", "errors_wide.png"):
+        (tmp_path / name).write_bytes(b"x")
+    stale = tmp_path / ".errors_classes.png.999999999.abcd.tmp.png"  # its process is gone (above any pid_max)
+    stale.write_bytes(b"half a figure")
+    assert written_characterisation(tmp_path) is None  # errors_classes.png is missing: characterise again
+    assert not stale.exists()
+    (tmp_path / "errors_classes.png").write_bytes(b"x")
+    assert sorted(p.name for p in written_characterisation(tmp_path).values()) == [
+        "error_model.json", "errors.png", "errors_classes.png", "errors_wide.png", "table.md"]
+
+
+def test_a_plain_characterisation_needs_no_classes_figure(tmp_path, error_model):
+    from prismap.characterise._run import written_characterisation
+
+    shutil.copy(error_model, tmp_path / "error_model.json")
+    for name in ("table.md", "errors.png", "errors_wide.png"):
+        (tmp_path / name).write_bytes(b"x")
+    assert "figure_classes" not in written_characterisation(tmp_path)

@@ -219,8 +219,7 @@ def choose_classes(values, errors, fold, *, bin_edges, max_classes, max_componen
         candidate's features, edges, number of classes, score (None when a class of it had fewer than
         ``min_class_errors`` training errors) and G per class.
     """
-    if isinstance(max_classes, bool) or int(max_classes) != max_classes or max_classes < 1:
-        raise PrismapInputError(f"`max_classes` must be an integer >= 1; got {max_classes!r}")
+    check_integer(max_classes, "max_classes", expected="an integer >= 1", condition=lambda n: n >= 1)
     width = bin_edges[1] - bin_edges[0]
     index = np.floor((errors - bin_edges[0]) / width).astype(np.int64)
     binned = (index >= 0) & (index < bin_edges.size - 1)

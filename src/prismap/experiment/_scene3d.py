@@ -163,7 +163,8 @@ def run_rendered_world(world, out_dir, *, n_frames=None, voxel_size_m=None, seed
             matcher_params = class_model_params(model_params, settings, scene, drive_char_frames, error_model,
                                                  match_frames(out / matcher_name / "characterisation_disparity",
                                                         drive_char_frames, matcher))
-        build_map = mapper(sequence, disparity_dir, matcher_name, error_model, p0, matcher_params, settings)
+        build_map = mapper(sequence, disparity_dir, matcher_name, error_model, p0, matcher_params, settings,
+                           error_model_path=out / matcher_name / "characterisation" / "error_model.json")
         cells, maps = run_cells(out, matcher_name, models, build_map, truth,
                                 dict(cell_settings, derived_model_params=matcher_params))
         results += cells

@@ -70,13 +70,12 @@ def _scene3d_world():
 
 STREET_BETWEEN_FRAMES = 32
 """Extra characterisation frames of the full street, from positions between the drive's: with the drive's own
-4 the per-class mixtures see the rare gross errors of every class (on 4 frames alone a class fitted no outlier
-component and gave some errors of the mapped frames log-densities near -5800)."""
+4 the per-class mixtures see the rare gross errors of every class."""
 
 
 STREET_NEAR_M = 1.5
 """PRISM's ``near_m`` on the street: no surface is nearer than 1.8 m to the drive. PRISM's tables grow like
-``1 / near_m``; at its default 0.1 m they outgrow the cache on this sequence and PRISM maps several times slower."""
+``1 / near_m``, so the default 0.1 m would build tables far larger than the street needs."""
 
 
 def _street3d_world():
@@ -114,16 +113,14 @@ def scene3d_settings(*, world="scene3d", n_frames=None, voxel_size_m=None, seed=
             raise PrismapInputError(f"`between_frames`: world {world!r} has no drive between its frames; got "
                                     f"{between_frames!r} (0 or None)")
     if n_frames is not None:
-        if isinstance(n_frames, bool) or int(n_frames) != n_frames or n_frames < 2:
-            raise PrismapInputError(f"`n_frames` must be an integer >= 2 (characterisation + mapping); got {n_frames!r}")
-        sizes["n_frames"] = int(n_frames)
+        sizes["n_frames"] = check_integer(n_frames, "n_frames", expected="an integer >= 2 (characterisation + mapping)",
+                                          condition=lambda n: n >= 2)
     if voxel_size_m is not None:
         sizes["voxel_size_m"] = check_positive(voxel_size_m, "voxel_size_m")
     if max_range_m is not None:
         sizes["max_range_m"] = check_positive(max_range_m, "max_range_m")
-    every = characterise_every
-    if isinstance(every, bool) or int(every) != every or every < 2:
-        raise PrismapInputError(f"`characterise_every` must be an integer >= 2; got {every!r}")
+    every = check_integer(characterise_every, "characterise_every", expected="an integer >= 2",
+                          condition=lambda n: n >= 2)
     unknown = [m for m in matchers if m not in MATCHERS]
     if unknown or not matchers:
         raise PrismapInputError(f"`matchers` must be a non-empty subset of {list(MATCHERS)}; got {list(matchers)}")

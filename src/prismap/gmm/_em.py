@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import minimize_scalar
 
-from prismap._validate import as_float_array, check_positive
+from prismap._validate import as_float_array, check_integer, check_positive
 from prismap.errors import PrismapInputError
 from prismap.gmm._kernels import em_weighted, kmeans_plus_plus
 from prismap.gmm._mixture import GaussianMixture
@@ -248,9 +248,7 @@ def select_components(fits, *, criterion="bic", tolerance=0.01):
 
 
 def _check_count(value, name):
-    if isinstance(value, bool) or int(value) != value or value < 1:
-        raise PrismapInputError(f"`{name}` must be an integer >= 1; got {value!r}")
-    return int(value)
+    return check_integer(value, name, expected="an integer >= 1", condition=lambda n: n >= 1)
 
 
 def _fit(points, counts, *, n_components, bin_width, restarts, seed, tol, max_iter, min_sigma):

@@ -2,6 +2,7 @@
 
 from prismap.sensor_models._base import (
     InverseSensorModel,
+    error_model_use,
     make_sensor_model,
     model_defaults,
     model_names,
@@ -10,8 +11,6 @@ from prismap.sensor_models._base import (
 from prismap.sensor_models._classic import AndertModel, ConvolutionModel, HitMissModel, IdealModel
 from prismap.sensor_models._conditioned import (
     CLASS_PASS_THROUGH,
-    USES_MIXTURE,
-    USES_SIGMA,
     ConditionedModel,
     conditioned_sensor_model,
     model_for_mixture,
@@ -22,8 +21,6 @@ from prismap.sensor_models._prism_prior import estimate_prior_from_likelihood, p
 
 __all__ = [
     "CLASS_PASS_THROUGH",
-    "USES_MIXTURE",
-    "USES_SIGMA",
     "AndertModel",
     "ConditionedModel",
     "ConvolutionModel",
@@ -32,6 +29,7 @@ __all__ = [
     "InverseSensorModel",
     "PrismModel",
     "conditioned_sensor_model",
+    "error_model_use",
     "estimate_prior_from_likelihood",
     "log_mean_likelihood",
     "make_sensor_model",

@@ -69,6 +69,7 @@ class IdealModel(_ProfileModel):
 
     name = "ideal"
     default_policy = "mean"
+    MEASUREMENTS = ("disparity", "range")
 
     def cell_posteriors(self, disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m):
         _, norm, rays, start, end, z_hat = self._prepare(
@@ -78,7 +79,7 @@ class IdealModel(_ProfileModel):
 
     def influence_depth(self, disparity_px, ray_norm):
         """End of the occupied band: ``z^ + alpha / (2 |r|)`` (metres)."""
-        z_hat = self._depth_hat(np.asarray(disparity_px, dtype=np.float64))
+        z_hat = self._depth_hat(np.asarray(disparity_px, dtype=np.float64), np.asarray(ray_norm, dtype=np.float64))
         return z_hat + 0.5 * self.alpha_m / np.asarray(ray_norm, dtype=np.float64)
 
     def with_extra_noise(self, sigma_px):
@@ -103,6 +104,7 @@ class HitMissModel(RayModel):
 
     name = "hitmiss"
     default_policy = "occupied-wins"
+    MEASUREMENTS = ("disparity", "range")
     p_hit: float = 0.7
     p_miss: float = 0.4
 
@@ -116,7 +118,7 @@ class HitMissModel(RayModel):
 
     def influence_depth(self, disparity_px, ray_norm):
         """The measured depth itself (the grid includes the cell that contains it)."""
-        return self._depth_hat(np.asarray(disparity_px, dtype=np.float64))
+        return self._depth_hat(np.asarray(disparity_px, dtype=np.float64), np.asarray(ray_norm, dtype=np.float64))
 
     def with_extra_noise(self, sigma_px):
         """Hit/miss has no noise to widen: returns itself."""
@@ -144,6 +146,7 @@ class ConvolutionModel(_ProfileModel):
     """
 
     name = "convolution"
+    error_model_use = "sigma"
     default_policy = "mean"
     sigma_px: float = 0.5
 
@@ -162,7 +165,7 @@ class ConvolutionModel(_ProfileModel):
 
     def influence_depth(self, disparity_px, ray_norm):
         """Depth where ``|P - p0|`` falls below ``INFLUENCE_EPSILON * p0 (1 - p0) / 2`` (log-odds change ~epsilon)."""
-        z_hat = self._depth_hat(np.asarray(disparity_px, dtype=np.float64))
+        z_hat = self._depth_hat(np.asarray(disparity_px, dtype=np.float64), np.asarray(ray_norm, dtype=np.float64))
         norm = np.asarray(ray_norm, dtype=np.float64)
         spread = max(abs(self.p_occ - self.p0), abs(self.p_free - self.p0))
         k = -ndtri(INFLUENCE_EPSILON * self.p0 * (1 - self.p0) / (2 * spread))
@@ -197,6 +200,7 @@ class AndertModel(RayModel):
     """
 
     name = "andert"
+    error_model_use = "sigma"
     default_policy = "max"
     sigma_px: float = 0.5
     eta: float = 0.1
@@ -220,7 +224,7 @@ class AndertModel(RayModel):
 
     def influence_depth(self, disparity_px, ray_norm):
         """Depth behind ``z^`` where ``|logit P|`` falls below ``INFLUENCE_EPSILON``."""
-        z_hat = self._depth_hat(np.asarray(disparity_px, dtype=np.float64))
+        z_hat = self._depth_hat(np.asarray(disparity_px, dtype=np.float64), np.asarray(ray_norm, dtype=np.float64))
         sigma_z = self._sigma_depth(z_hat, self.sigma_px)
         excess = np.minimum(0.5 + self.eta / (np.sqrt(2 * np.pi) * sigma_z * np.asarray(ray_norm)), self.p_max) - 0.5
         k = np.sqrt(2.0 * np.log(np.maximum(4.0 * excess / INFLUENCE_EPSILON, 1.0)))

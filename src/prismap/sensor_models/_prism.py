@@ -47,9 +47,11 @@ the increment (30-50) is off by up to about 7 % (``P`` is 1 in float64 either wa
 _QUAD_STEP = 0.25  # x-width of one Gauss-Legendre panel (x: one unit per prior e-fold or narrowest sigma)
 _TABLE_STEP = 0.5  # table node spacing in x, also the width of its march's panels
 _COARSE_RATIO = 64  # node spacing 32 in x where log(C/Z) < _COARSE_BELOW (near-quadratic in x) and past influence
+_COARSE_WIDE_SIGMAS = 0.125  # coarse-front node spacing may reach this many widest sigmas (see coarse_ratio)
 _COARSE_BELOW = -40.0
 _BROAD_SHARE = -20.0  # log share of g below which a table's broad front drops the narrower error components
-_WIDE_SIGMAS = 0.25  # broad-front node spacing, at most this many sigmas of the widest component
+_WIDE_SIGMAS = 0.25  # broad-front node spacing, at most this many sigmas of the narrowest wide component
+_WIDE_KEEP = 0.5  # wide error components: sigma at least this share of the widest (kept in a broad segment)
 _WIDE_EFOLDS = 0.5  # broad-front node spacing, at most this many e-folds of the prior
 MAX_TABLE_NODES = 1 << 20
 """Most nodes one table may need (32 MiB of float32 rows; see ``PrismModel._check_table_size``)."""
@@ -78,8 +80,7 @@ OVERHANG_FRACTION = 0.25
 """PRISM's default share of the voxel overhang bound counted as occupied. Half the bound is its mean over
 plane positions; but a plane through voxel centres then puts the voxel just in front of it exactly on the
 boundary, where every frame adds an even chance of occupancy and the fused map grows a false layer in front
-of walls. A quarter keeps most of the grazing floor and no such layer (see the commit message and
-docs/SENSOR_MODELS.md for the measurements)."""
+of walls. A quarter keeps most of the grazing floor and no such layer (docs/SENSOR_MODELS.md, "Voxel overhang")."""
 
 
 @register_model
@@ -159,6 +160,7 @@ class PrismModel(RayModel):
     """
 
     name = "prism"
+    error_model_use = "mixture"
     default_policy = "mean"
     error_model: GaussianMixture | None = None
     near_m: float = 0.1
@@ -379,11 +381,12 @@ class PrismModel(RayModel):
         log_eps_bound = float(np.log(np.expm1(self.influence_epsilon)))
         ku = self._ku()
         e_front, e_back, wide_ratio = broad_errors(self.error_model)
+        coarse = coarse_ratio(self.error_model)
 
         def build(share):
             return _kernels_table.prism_tables(
                 shift[share], lam[share], log_far[share], self.near_m, self.far_depth_m, self.focal_baseline, ku,
-                _TABLE_STEP, log_eps_bound, _LAMBDA_SLACK, _COARSE_RATIO, _COARSE_BELOW, e_front, e_back, wide_ratio,
+                _TABLE_STEP, log_eps_bound, _LAMBDA_SLACK, coarse, _COARSE_BELOW, e_front, e_back, wide_ratio,
                 _WIDE_EFOLDS, log_wn, means, sigmas,
             )
 
@@ -432,14 +435,30 @@ def _share(value, name, *, one):
     return number
 
 
-def broad_errors(mixture):
-    """Where a PRISM table may drop all but the widest error component, and its node spacing there.
+def coarse_ratio(mixture):
+    """Fine nodes per node of a PRISM table's coarse front (where ``C/Z < e^_COARSE_BELOW``).
 
-    For errors ``e >= e_front`` (pixels; true disparity above ``d^ + e_front``, in front of the
-    measurement) and ``e <= e_back`` (behind it) every other component's density is below
-    ``e^_BROAD_SHARE`` of the widest one's, so ``C``, ``D`` and their moments there are smooth on the widest
-    sigma's scale: nodes every ``wide_ratio`` fine nodes (at most ``_WIDE_SIGMAS`` widest sigmas apart).
-    ``wide_ratio`` 1 (a one-component or even mixture): no broad segments.
+    There the measurement is far behind, only the widest error component produces it and ``log(q g)`` is nearly
+    quadratic in ``x``: :data:`_COARSE_RATIO`, or, when the mixture's sigmas span more than that allows, nodes
+    :data:`_COARSE_WIDE_SIGMAS` widest sigmas of disparity apart (a characterised class with a component of
+    0.01 px beside outliers of 33 px would otherwise put thousands of nodes between ``near_m`` and the
+    measurement's first evidence). Mixtures whose widest sigma is below 256 narrowest ones keep
+    :data:`_COARSE_RATIO`.
+    """
+    sd = mixture.sigmas
+    return max(_COARSE_RATIO, int(_COARSE_WIDE_SIGMAS * sd.max() / (sd.min() * _TABLE_STEP)))
+
+
+def broad_errors(mixture):
+    """Where a PRISM table may drop its narrow error components, and its node spacing there.
+
+    The wide components are those whose sigma is at least :data:`_WIDE_KEEP` of the widest one's (a
+    characterised mixture often holds two: a class's own outlier component and the whole image's); the others
+    are narrow. For errors ``e >= e_front`` (pixels; true disparity above ``d^ + e_front``, in front of the
+    measurement) and ``e <= e_back`` (behind it) every narrow component's density is below ``e^_BROAD_SHARE`` of
+    the widest one's, so ``C``, ``D`` and their moments there are smooth on the narrowest wide sigma's scale:
+    nodes every ``wide_ratio`` fine nodes (at most ``_WIDE_SIGMAS`` of that sigma apart). ``wide_ratio`` 1 (a
+    one-component mixture, or one whose components are all wide): no broad segments.
 
     Parameters
     ----------
@@ -452,13 +471,12 @@ def broad_errors(mixture):
     wide_ratio : int >= 1
     """
     w, mu, sd = mixture.weights, mixture.means, mixture.sigmas
-    if sd.size < 2:
-        return np.inf, -np.inf, 1
     b = int(np.argmax(sd))
+    wide = sd >= _WIDE_KEEP * sd[b]
+    if wide.all():
+        return np.inf, -np.inf, 1
     e_front, e_back = -np.inf, np.inf
-    for j in np.flatnonzero(np.arange(sd.size) != b):
-        if sd[j] >= sd[b]:
-            return np.inf, -np.inf, 1
+    for j in np.flatnonzero(~wide):
         # log(w_j N_j(e)) - log(w_b N_b(e)) - _BROAD_SHARE = a e^2 + b e + c, a < 0: it is < 0 outside its roots
         a = 0.5 / sd[b] ** 2 - 0.5 / sd[j] ** 2
         lin = mu[j] / sd[j] ** 2 - mu[b] / sd[b] ** 2
@@ -468,5 +486,5 @@ def broad_errors(mixture):
         if disc > 0:
             e_front = max(e_front, (-lin - np.sqrt(disc)) / (2.0 * a))
             e_back = min(e_back, (-lin + np.sqrt(disc)) / (2.0 * a))
-    wide_ratio = int(_WIDE_SIGMAS * sd[b] / (sd.min() * _TABLE_STEP))
+    wide_ratio = int(_WIDE_SIGMAS * sd[wide].min() / (sd.min() * _TABLE_STEP))
     return float(e_front), float(e_back), max(min(wide_ratio, _COARSE_RATIO), 1)

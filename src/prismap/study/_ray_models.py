@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import rel_entr
 
+from prismap._depth import depth_from_disparity
 from prismap._validate import check_positive, check_probability
 from prismap.camera import KITTI_CAMERA, MOTORCYCLE_CAMERA, TSUKUBA_CAMERA
 from prismap.errors import PrismapInputError
@@ -88,8 +89,8 @@ class RaySetup:
         return float(disparity)
 
     def distance_of(self, disparity_px):
-        """Measured distance (metres) of a disparity on a ray of norm 1."""
-        return self.focal_baseline / (disparity_px + self.doffs_px)
+        """Measured distance (metres) of a disparity on a ray of norm 1 (+inf where ``d + doffs <= 0``)."""
+        return float(depth_from_disparity(disparity_px, self.focal_baseline, self.doffs_px, invalid=np.inf))
 
 
 def single_noise_sigma(mixture):
