@@ -234,6 +234,33 @@ def test_table_with_two_wide_components_agrees_with_direct_within_stated_bound(v
     assert np.all(rows[1] - rows[0] > 10)  # a broad front on every table
 
 
+NEEDLE = GaussianMixture([0.684, 0.288, 0.027, 0.0007, 0.0003], [-0.02, 0.08, -0.17, -0.7, 33.74],
+                         [0.14, 0.28, 0.01, 0.01, 33.54])
+"""A characterised class's mixture (SGBM on the half-resolution street) with components of 0.01 px beside 33.5 px
+outliers: its coarse front is spaced on the outliers' sigma."""
+
+
+def test_coarse_front_spacing_follows_the_widest_sigma_only_for_a_wide_span():
+    for mixture in (STREET, SGBM_LIKE, MIXTURE, GaussianMixture([0.64, 0.27, 0.05, 0.04], [0.05, -0.04, 0.2, 33.7],
+                                                                [0.168, 0.35, 3.27, 33.54])):
+        assert _prism.coarse_ratio(mixture) == _prism._COARSE_RATIO
+    spacing_px = _prism.coarse_ratio(NEEDLE) * _prism._TABLE_STEP * 0.01  # disparity between coarse nodes
+    assert 33.54 * _prism._COARSE_WIDE_SIGMAS - 0.01 < spacing_px <= 33.54 * _prism._COARSE_WIDE_SIGMAS
+
+
+def test_table_with_a_needle_component_agrees_with_direct_within_stated_bound():
+    rng = np.random.default_rng(6)
+    fb = KITTI_FB / 2
+    depths = np.exp(rng.uniform(np.log(3.0), np.log(80.0), 12))
+    model = make_sensor_model("prism", focal_baseline=fb, error_model=NEEDLE, voxel_size_m=0.2, p0=0.05)
+    disparity = np.round(fb / depths * 16) / 16
+    _assert_table_within_tolerance(model, disparity, rng.uniform(1.0, 1.1, depths.size), _random_cells(rng, depths),
+                                   large_min=0)
+    meta = model._cache.meta
+    column = _kernels_table.META_COLUMNS.index
+    assert np.all(meta[:, column("row_1")] > 10)  # a coarse front, and the cells in it agree
+
+
 FRAME_MIXTURE = GaussianMixture([0.9, 0.1], [0.0, 0.0], [0.3, 3.0])
 
 

@@ -61,8 +61,10 @@ from prismap.characterise._model_json import (
     _object,
     _provenance_from_dict,
     _require,
+    error_bound_px,
 )
 from prismap.errors import PrismapInputError
+from prismap.io._text import read_text
 from prismap.stereo._base import to_grey
 
 FORMAT = "prismap-error-model"
@@ -294,12 +296,13 @@ class ErrorModel:
             raise PrismapInputError(f"{source}: field `dataset` must be a string; got {type(data['dataset']).__name__}")
         bin_width = _number(data["bin_width_px"], f"{source}: `bin_width_px`", low=0.0, high=8.0, open_low=True)
         selected = _integer(data["selected_components"], f"{source}: `selected_components`", 1, MAX_COMPONENTS)
-        fits = _fits_from_list(data["models"], f"{source}: models")
+        bound_px = error_bound_px(params)
+        fits = _fits_from_list(data["models"], f"{source}: models", bound_px)
         selection = _object(data.get("selection", {}), f"{source}: `selection`")
         statistics = _object(data.get("statistics", {}), f"{source}: `statistics`")
         extra = _provenance_from_dict(data, source)
         if version >= 2:
-            extra.update(_classes_from_dict(data, source))
+            extra.update(_classes_from_dict(data, source, bound_px))
         mixtures = [fit.mixture for fit in fits] + [fit.mixture for model in extra.get("class_models", ())
                                                     for fit in model.fits]
         if version < 3 and any(mixture.search_range_px is not None for mixture in mixtures):
@@ -338,7 +341,7 @@ def load_error_model(path):
     if not path.is_file():
         raise PrismapInputError(f"error model {path}: no such file")
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
+        data = json.loads(read_text(path, "error model"))
     except RecursionError:
         raise PrismapInputError(f"error model {path}: JSON nested too deeply to be an error model") from None
     except (UnicodeDecodeError, ValueError) as exc:  # JSONDecodeError, and integers too long to convert

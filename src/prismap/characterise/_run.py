@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from prismap._files import write_text_atomic
+from prismap._files import remove_stale_temporaries, write_text_atomic
 from prismap._progress import progress as progress_bar
 from prismap.characterise._features import (
     DEFAULT_EDGE_THRESHOLD_PX,
@@ -25,7 +25,7 @@ from prismap.characterise._histogram import (
     DEFAULT_LIMIT_PX,
     ErrorHistogram,
 )
-from prismap.characterise._model import HELD_OUT, ErrorModel, write_error_model
+from prismap.characterise._model import HELD_OUT, ErrorModel, load_error_model, write_error_model
 from prismap.characterise._model_table import format_table
 from prismap.characterise._rig import describe_rig
 from prismap.characterise._sample import DEFAULT_MAX_SAMPLES, PixelSample, characterised_pixels
@@ -357,6 +357,41 @@ class _Passes:
             bar.update(1)
 
 
+CHARACTERISATION_FILES = {"model": "error_model.json", "table": "table.md", "figure": "errors.png",
+                          "figure_wide": "errors_wide.png"}
+"""What :func:`write_characterisation` writes, by role, in this order; a conditioned model adds
+``figure_classes``: ``errors_classes.png``, last."""
+
+
+def characterisation_paths(out_dir, *, conditioned):
+    """The files of a characterisation in ``out_dir`` by role (:data:`CHARACTERISATION_FILES`)."""
+    out = Path(out_dir)
+    paths = {role: out / name for role, name in CHARACTERISATION_FILES.items()}
+    if conditioned:
+        paths["figure_classes"] = out / "errors_classes.png"
+    return paths
+
+
+def written_characterisation(out_dir):
+    """The paths of a complete characterisation in ``out_dir``, or None when it must be written (again).
+
+    Complete means every file of :func:`characterisation_paths` is there, the classes figure included when
+    the model is conditioned (a run killed while drawing it left the rest). Temporaries of saves killed
+    mid-write are removed either way.
+    """
+    paths = characterisation_paths(out_dir, conditioned=True)
+    for path in paths.values():
+        remove_stale_temporaries(path)
+    if not paths["model"].is_file():
+        return None
+    try:
+        conditioned = load_error_model(paths["model"]).conditioned
+    except PrismapInputError:
+        return None
+    paths = characterisation_paths(out_dir, conditioned=conditioned)
+    return paths if all(path.is_file() for path in paths.values()) else None
+
+
 def write_characterisation(result, out_dir):
     """Write ``error_model.json``, ``table.md``, ``errors.png``, ``errors_wide.png`` into ``out_dir``.
 
@@ -372,14 +407,7 @@ def write_characterisation(result, out_dir):
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise PrismapInputError(f"output directory {out} exists and is not a directory")
-    paths = {
-        "model": out / "error_model.json",
-        "table": out / "table.md",
-        "figure": out / "errors.png",
-        "figure_wide": out / "errors_wide.png",
-    }
-    if result.model.conditioned:
-        paths["figure_classes"] = out / "errors_classes.png"
+    paths = characterisation_paths(out, conditioned=result.model.conditioned)
     write_error_model(result.model, paths["model"])
     write_text_atomic(paths["table"], format_table(result.model))
     plot_error_fits(result.histogram, result.model, path=paths["figure"])

@@ -7,7 +7,8 @@ from pathlib import Path
 
 from prismap._files import write_text_atomic
 from prismap.errors import PrismapInputError
-from prismap.experiment._results import CellResult, cell_path, read_cell, score_grid, write_cell
+from prismap.evaluate import score_grid
+from prismap.experiment._results import CellResult, cell_path, read_cell, write_cell
 
 
 @dataclass(frozen=True)

@@ -24,10 +24,10 @@ def characterise_frames(out_dir, frames, matcher, dataset, *, source="ground-tru
     """The matcher's error mixture (characterised once, then read back) and its table and figures; ``source``
     says what the frames' ``disparity_gt`` is (see :func:`prismap.characterise.characterise_matcher`)."""
     from prismap.characterise import characterise_matcher, load_error_model, write_characterisation
+    from prismap.characterise._run import written_characterisation
 
-    paths = {"model": out_dir / "error_model.json", "table": out_dir / "table.md",
-             "figure": out_dir / "errors.png", "figure_wide": out_dir / "errors_wide.png"}
-    if not all(p.is_file() for p in paths.values()):
+    paths = written_characterisation(out_dir)
+    if paths is None:
         # the class search samples every frame: classes chosen on a subset of the street's frames predicted the
         # mapping frames' errors worse (README, conditioned error models)
         characterisation = characterise_matcher(frames, matcher, dataset=dataset, search_frames=len(frames),

@@ -4,7 +4,7 @@ Design notes (one owner per concept):
 
 - ``_keys``: the voxel key (``floor(p / voxel)``), the block split, the packing and the limit derived from
   them (:data:`KEY_LIMIT`); keys beyond it are refused with the limit in metres, never wrapped.
-- ``_logodds``: log-odds are stored in fixed point (int32 units of 2**-20), as Bonxai does, rather than
+- ``_logodds``: log-odds are stored in fixed point (int64 units of 2**-20), as Bonxai does, rather than
   summed in a fixed order: a fixed order would tie every merge to the sequence's frame order and still
   round differently from one sequential sum, whereas integer sums are exact in any order, so a map
   merged from chunks (Dask, any workers, any chunking) equals the sequential map bit for bit.

@@ -8,7 +8,7 @@ from prismap.errors import PrismapInputError
 from prismap.grid import _accumulator, _kernels_accumulate, _kernels_hash
 from prismap.grid._integrators import MEASUREMENT_KINDS, RayBatch, make_integrator
 from prismap.grid._keys import BLOCK_BITS, KEY_LIMIT, check_keys, key_range_text, key_to_center, point_to_key
-from prismap.grid._logodds import LOG_ODDS_STEP, Q_MAX, Q_MIN, from_fixed, logit, to_fixed
+from prismap.grid._logodds import LOG_ODDS_STEP, Q_DTYPE, Q_MAX, Q_MIN, from_fixed, logit, to_fixed
 from prismap.grid._policies import policy_code, policy_name
 from prismap.grid._storage import BlockTable
 from prismap.grid._traverse import crossed_voxels
@@ -29,7 +29,7 @@ class OccupancyMap:
 
     Voxels live in hashed blocks (4^3 in 3-D; 8x8x1 in 2-D) created when first observed, with keys inside
     :data:`~prismap.grid.KEY_LIMIT` on every axis. A voxel stores its full log-odds ``l`` (``logit(p0)``
-    before any update) in int32 units of ``2**-20`` (order-free sums, see ``prismap.grid._logodds``) and
+    before any update) in int64 units of ``2**-20`` (order-free sums, see ``prismap.grid._logodds``) and
     how many frames observed it (uint16, saturating at 65535). A voxel no frame observed is *unknown*,
     whatever its probability.
 
@@ -74,7 +74,7 @@ class OccupancyMap:
         self.policies = ()
         self.n_frames = 0
         voxels = 1 << sum(BLOCK_BITS[self.ndim])
-        self._store = BlockTable(BLOCK_BITS[self.ndim], {"log": ((voxels,), np.int32), "count": ((voxels,), np.uint16)})
+        self._store = BlockTable(BLOCK_BITS[self.ndim], {"log": ((voxels,), Q_DTYPE), "count": ((voxels,), np.uint16)})
         self._accumulator = _accumulator.new_accumulator(self._store.bits)
 
     # ----------------------------------------------------------------------------------- integration
@@ -210,7 +210,7 @@ class OccupancyMap:
         store, acc = self._store, self._accumulator
         q = _kernels_accumulate.map_log_of_rows(store.table, store.block_keys, store.payload["log"], acc.block_keys,
                                                 np.ascontiguousarray(rows, dtype=np.int64), sum(store.bits),
-                                                np.int32(self.prior_q))
+                                                np.int64(self.prior_q))
         return from_fixed(q)
 
     def merge(self, other):
@@ -260,7 +260,7 @@ class OccupancyMap:
         store = self._store
         store.reserve(_kernels_hash.count_new_blocks(store.table, store.block_keys, keys, store.bits))
         _kernels_accumulate.set_voxels(store.table, store.block_keys, store.n_blocks, store.payload["log"],
-                                       store.payload["count"], keys, to_fixed(log).astype(np.int32),
+                                       store.payload["count"], keys, to_fixed(log),
                                        count.astype(np.uint16), store.bits, self.prior_q)
 
     def copy(self):
@@ -296,7 +296,7 @@ class OccupancyMap:
         keys = self._keys(keys)
         store = self._store
         q, count = _kernels_accumulate.lookup(store.table, store.block_keys, store.payload["log"],
-                                              store.payload["count"], keys, store.bits, np.int32(self.prior_q))
+                                              store.payload["count"], keys, store.bits, np.int64(self.prior_q))
         return from_fixed(q), count
 
     def probability_at_keys(self, keys):
@@ -460,7 +460,7 @@ class OccupancyMap:
         return state
 
     def _clamp_q(self):
-        """Clamping bounds in fixed-point units (int64), the int32 range when clamping is off."""
+        """Clamping bounds in fixed-point units (int64), the stored range ``[Q_MIN, Q_MAX]`` when clamping is off."""
         if self.clamp is None:
             return Q_MIN, Q_MAX
         return int(to_fixed(logit(self.clamp[0]))), int(to_fixed(logit(self.clamp[1])))

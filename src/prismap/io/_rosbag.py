@@ -452,7 +452,10 @@ def _damage():
 
 
 def _unreadable(path, exc):
-    return PrismapInputError(f"{path}: not a readable ROS bag (truncated or damaged?): {type(exc).__name__}: {exc}")
+    """One line naming the bag and the reader's complaint (a YAML parser's spans several lines: joined)."""
+    detail = " ".join(line.strip() for line in str(exc).splitlines() if line.strip() and line.strip() != "^")
+    return PrismapInputError(f"{path}: not a readable ROS bag (truncated or damaged?): {type(exc).__name__}: "
+                             f"{detail[:300]}")
 
 
 def _connections(reader, path):

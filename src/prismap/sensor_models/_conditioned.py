@@ -21,6 +21,7 @@ from prismap.sensor_models._base import (
     make_sensor_model,
 )
 from prismap.sensor_models._failure import failure_floor
+from prismap.sensor_models._prism import AUTO_TABLE_FLOOR_MB
 
 CLASS_PASS_THROUGH = "class_pass_through"
 """PRISM parameter of a conditioned run: one ``pass_through`` per class (the plain sub-model keeps ``pass_through``)."""
@@ -54,6 +55,7 @@ class ConditionedModel(InverseSensorModel):
             if any(getattr(model, name, None) != getattr(self.plain, name, None) for name in shared):
                 raise PrismapInputError(f"ConditionedModel: class model {k} differs from the plain model in {shared}")
         object.__setattr__(self, "class_models", models)
+        share_table_floor((self.plain, *models))
 
     @property
     def name(self):
@@ -173,6 +175,21 @@ class ConditionedModel(InverseSensorModel):
         """A copy whose every sub-model (the plain one included) is widened by ``N(0, sigma_px^2)``."""
         return ConditionedModel(self.plain.with_extra_noise(sigma_px),
                                 tuple(model.with_extra_noise(sigma_px) for model in self.class_models))
+
+
+def share_table_floor(models):
+    """Split the table-cache floor of the PRISM models among ``models`` (in place): one budget for all classes.
+
+    A PRISM model with an automatic budget keeps the larger of :data:`~prismap.sensor_models._prism.AUTO_TABLE_FLOOR_MB`
+    and two calls' tables (``_prism_cache.TableCache.limit_bytes``). Each class's calls are a share of the frame,
+    so with a whole floor each, a conditioned model of ``n`` classes would keep up to ``n + 1`` floors of tables
+    it no longer uses; with the floor split, the classes together keep about two frames' tables, like the
+    plain model. Models without tables (not PRISM, or with a fixed ``table_memory_mb``) are left as they are.
+    """
+    caches = [cache for cache in (getattr(model, "_cache", None) for model in models)
+              if cache is not None and cache.budget_bytes is None]
+    for cache in caches:
+        cache.floor_bytes = min(cache.floor_bytes, int(AUTO_TABLE_FLOOR_MB * 2**20) // len(caches))
 
 
 def model_for_mixture(name, mixture, *, focal_baseline, doffs_px, voxel_size_m, p0, **params):

@@ -48,6 +48,7 @@ the increment (30-50) is off by up to about 7 % (``P`` is 1 in float64 either wa
 _QUAD_STEP = 0.25  # x-width of one Gauss-Legendre panel (x: one unit per prior e-fold or narrowest sigma)
 _TABLE_STEP = 0.5  # table node spacing in x, also the width of its march's panels
 _COARSE_RATIO = 64  # node spacing 32 in x where log(C/Z) < _COARSE_BELOW (near-quadratic in x) and past influence
+_COARSE_WIDE_SIGMAS = 0.125  # coarse-front node spacing may reach this many widest sigmas (see coarse_ratio)
 _COARSE_BELOW = -40.0
 _BROAD_SHARE = -20.0  # log share of g below which a table's broad front drops the narrower error components
 _WIDE_SIGMAS = 0.25  # broad-front node spacing, at most this many sigmas of the narrowest wide component
@@ -409,11 +410,12 @@ class PrismModel(RayModel):
         log_eps_bound = float(np.log(np.expm1(self.influence_epsilon)))
         ku = self._ku()
         e_front, e_back, wide_ratio = broad_errors(self.error_model)
+        coarse = coarse_ratio(self.error_model)
 
         def build(share):
             return _kernels_table.prism_tables(
                 shift[share], lam[share], log_far[share], self.near_m, self.far_depth_m, self.focal_baseline, ku,
-                _TABLE_STEP, log_eps_bound, _LAMBDA_SLACK, _COARSE_RATIO, _COARSE_BELOW, e_front, e_back, wide_ratio,
+                _TABLE_STEP, log_eps_bound, _LAMBDA_SLACK, coarse, _COARSE_BELOW, e_front, e_back, wide_ratio,
                 _WIDE_EFOLDS, log_wn, means, sigmas,
             )
 
@@ -460,6 +462,20 @@ def _share(value, name, *, one):
     if number > 1 or (number == 1 and not one):
         raise PrismapInputError(f"prism: `{name}` must lie in [0, 1{']' if one else ')'}; got {value!r}")
     return number
+
+
+def coarse_ratio(mixture):
+    """Fine nodes per node of a PRISM table's coarse front (where ``C/Z < e^_COARSE_BELOW``).
+
+    There the measurement is far behind, only the widest error component produces it and ``log(q g)`` is nearly
+    quadratic in ``x``: :data:`_COARSE_RATIO`, or, when the mixture's sigmas span more than that allows, nodes
+    :data:`_COARSE_WIDE_SIGMAS` widest sigmas of disparity apart (a characterised class with a component of
+    0.01 px beside outliers of 33 px would otherwise put thousands of nodes between ``near_m`` and the
+    measurement's first evidence). Mixtures whose widest sigma is below 256 narrowest ones keep
+    :data:`_COARSE_RATIO`.
+    """
+    sd = mixture.sigmas
+    return max(_COARSE_RATIO, int(_COARSE_WIDE_SIGMAS * sd.max() / (sd.min() * _TABLE_STEP)))
 
 
 def broad_errors(mixture):
