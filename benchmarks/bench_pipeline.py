@@ -61,7 +61,7 @@ from prismap.pipeline import MappingConfig, map_sequence
 from prismap.stereo import make_matcher
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_grid import TimedModel  # noqa: E402
+from bench_grid import TimedModel
 
 CHARACTERISE_FRAMES = 4
 VOXEL_M = 0.1

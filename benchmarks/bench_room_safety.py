@@ -20,9 +20,10 @@ from pathlib import Path
 import numpy as np
 from bench_room_errors import load_run
 
+from prismap.camera import frame_overhang_m
 from prismap.evaluate import align_to_ground_truth, safety_score
 from prismap.experiment._worlds3d import WORLDS
-from prismap.grid import crossed_voxels, frame_overhang_m, pack_keys
+from prismap.grid import crossed_voxels, pack_keys
 from prismap.io import load_map, write_disparity_png
 from prismap.pipeline import MappingConfig, map_sequence
 from prismap.sensor_models import CLASS_PASS_THROUGH

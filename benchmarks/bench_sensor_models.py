@@ -27,6 +27,7 @@ import time
 
 import numpy as np
 
+from prismap.camera import integrate_disparity
 from prismap.gmm import GaussianMixture
 from prismap.grid import OccupancyMap
 from prismap.sensor_models import make_sensor_model
@@ -148,7 +149,7 @@ def street_calls(scale, mode, n_calls=4):
                 calls.append((tuple(np.array(a) for a in args), {k: np.array(v) for k, v in kwargs.items()}))
             return self.model.cell_posteriors(*args, **kwargs)
 
-    OccupancyMap(0.2, p0=model.p0).integrate_disparity(disparities[0], camera, poses[0], Recorder(model), mode=mode,
+    integrate_disparity(OccupancyMap(0.2, p0=model.p0), disparities[0], camera, poses[0], Recorder(model), mode=mode,
                                                        max_range_m=bench_grid.STREET_RANGE_M[1])
     return model, calls
 

@@ -70,7 +70,8 @@ def dask_map(label, out, result, model, mode):
     """The run's ``model`` map again through :func:`prismap.pipeline.map_sequence` on 2 Dask worker processes."""
     import distributed
 
-    from prismap.experiment._results import score_grid, split_variant
+    from prismap.evaluate import score_grid
+    from prismap.experiment._results import split_variant
     from prismap.io import read_sequence
     from prismap.pipeline import MappingConfig, map_sequence
 

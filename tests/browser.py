@@ -58,7 +58,7 @@ class Browser:
         self._process = subprocess.Popen(
             [binary, *CHROMIUM_FLAGS, "--remote-debugging-pipe", f"--user-data-dir={self._profile}",
              f"--window-size={self.width},{self.height}", "about:blank"],
-            preexec_fn=fds, pass_fds=(3, 4), stdin=subprocess.DEVNULL,  # noqa: PLW1509 (fds only dup2s)
+            preexec_fn=fds, pass_fds=(3, 4), stdin=subprocess.DEVNULL,  # fds only dup2s: safe before exec
             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         os.close(to_child_r)
         os.close(from_child_w)

@@ -46,3 +46,15 @@ def test_bad_camera_parameters():
         StereoCamera(600, 320, 240, 0.0)
     with pytest.raises(PrismapInputError, match="`disparity_px` must be 2-D"):
         CAM.triangulate(np.zeros((4, 4, 3)))
+
+
+def test_depth_and_disparity_have_one_owner_for_cameras_and_sensor_models():
+    from prismap._depth import depth_from_disparity, disparity_from_depth
+    from prismap.sensor_models import make_sensor_model
+
+    d = np.array([94.0, 3.0, -2.0, 0.0, np.nan])
+    np.testing.assert_array_equal(depth_from_disparity(d, 96.0, 2.0), [1.0, 19.2, np.nan, 48.0, np.nan])
+    np.testing.assert_array_equal(depth_from_disparity(d, 96.0, 2.0, invalid=np.inf), [1.0, 19.2, np.inf, 48.0, np.inf])
+    np.testing.assert_array_equal(disparity_from_depth([1.0, 48.0, 0.0], 96.0, 2.0), [94.0, 0.0, np.nan])
+    model = make_sensor_model("hitmiss", focal_baseline=96.0, doffs_px=2.0, voxel_size_m=0.1, p0=0.5)
+    np.testing.assert_array_equal(model.influence_depth(d[:3], np.ones(3)), [1.0, 19.2, np.inf])

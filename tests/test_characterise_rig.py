@@ -46,7 +46,7 @@ def test_rig_differences_name_every_field_that_differs():
     assert rig_differences(mine, describe_rig(STREET, None, None, None)) == []
 
 
-def test_check_rig_warns_or_refuses_and_a_model_without_a_rig_is_reported():
+def test_check_rig_warns_or_refuses_and_a_model_without_a_rig_is_refused_when_strict():
     here = describe_rig(STREET, None, "sgbm", None)
     model = _model(describe_rig(dataclasses.replace(STREET, baseline_m=0.12), (188, 621), "sgbm", None), "motorcycle")
     message = check_rig(model, here, strict=False, where="error model m.json")
@@ -55,7 +55,9 @@ def test_check_rig_warns_or_refuses_and_a_model_without_a_rig_is_reported():
     with pytest.raises(PrismapInputError, match=r"baseline 0.12 m vs 0.54 m \(--strict-rig\)"):
         check_rig(model, here, strict=True)
     assert check_rig(_model(here), here, strict=True) is None
-    assert "records no rig" in check_rig(_model(None), here, strict=False)
+    assert check_rig(_model(None), here, strict=False) is None  # an older file: silent unless strict
+    with pytest.raises(PrismapInputError, match="records no rig"):
+        check_rig(_model(None), here, strict=True)
 
 
 def test_the_rig_survives_the_file(tmp_path):

@@ -8,7 +8,7 @@ import pytest
 
 from prismap.camera import StereoCamera
 from prismap.characterise import lag_agreement, load_error_model, self_characterise, write_characterisation
-from prismap.characterise._self import carried_disparity, median_variance, reference_frames
+from prismap.characterise._self import carried_disparity, choose_min_lag, median_variance, reference_frames
 from prismap.errors import PrismapInputError
 from prismap.io import StereoFrame
 from prismap.stereo import StereoMatcher
@@ -130,6 +130,12 @@ def test_the_written_model_says_how_it_was_made(tmp_path):
     assert model.rig["focal_px"] == CAMERA.focal_px and model.rig["width"] == CAMERA.width
 
 
+def test_too_little_shared_surface_is_refused():
+    rows = [{"lag": 1, "n_pixels": 10, "core_sigma_px": 0.3, "gross_rate": 0.1}]
+    with pytest.raises(PrismapInputError, match="share too little surface"):
+        choose_min_lag(rows)
+
+
 def test_reference_frames_and_median_variance():
     assert reference_frames(5, 12, 3, 4) == [2, 8, 1, 9]
     assert reference_frames(0, 12, 2, 3) == [2, 3, 4]
@@ -146,3 +152,30 @@ def test_bad_input_is_refused():
         self_characterise(frames[:1], ScriptedMatcher(_independent), progress=False)
     with pytest.raises(PrismapInputError, match="min_lag"):
         self_characterise(frames, ScriptedMatcher(_independent), min_lag=9, progress=False)
+
+
+def test_cli_self_characterises_a_sequence_and_refuses_one_without_poses(tmp_path, capsys):
+    from prismap import sim
+    from prismap.cli import main
+    from prismap.io import write_sequence
+
+    # a textured wall 2 m ahead, the camera stepping 5 cm sideways (1.8 px) per frame
+    wall = sim.Scene3D.from_boxes([[-5.0, -5.0, 2.0]], [[5.0, 5.0, 2.5]], texel_m=0.005)
+    frames = list(wall.frames(CAMERA, np.stack([_pose(k / 5) for k in range(6)]), seed=0))
+    sequence = write_sequence(frames, tmp_path / "seq") and tmp_path / "seq"
+    out = tmp_path / "model"
+    argv = ["characterise", "--self", "--sequence", str(sequence), "--matcher", "sgbm", "--plain", "--max-disparity",
+            "15", "--max-components", "2", "--out", str(out)]
+    assert main(argv) == 0
+    printed = capsys.readouterr().out
+    assert "self-characterised from 6 frames" in printed and "reference noise" in printed
+    model = load_error_model(out / "error_model.json")
+    assert model.source == "self" and model.provenance["n_frames"] == 6
+    assert model.rig["matcher_params"]["num_disparities"] == 16 and model.rig["width"] == CAMERA.width
+    (sequence / "poses.txt").unlink()
+    assert main(argv[:-1] + [str(tmp_path / "other")]) == 2
+    assert "no poses.txt" in capsys.readouterr().err
+    assert not (tmp_path / "other" / "error_model.json").exists()
+    assert main(["characterise", "--self", "--dataset", "middlebury-motorcycle", "--sequence", str(sequence),
+                 "--matcher", "bm", "--out", str(tmp_path / "third")]) == 2
+    assert "--self uses no ground truth" in capsys.readouterr().err

@@ -3,6 +3,7 @@ the report's Markdown-to-HTML tables, and ``prismap experiment`` through the com
 
 import contextlib
 import io
+import json
 import re
 
 import pytest
@@ -89,3 +90,21 @@ def test_experiment_command_rejects_bad_options(tmp_path, capsys):
     assert "`n_frames` must be a positive integer" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         main(["experiment", "--world", "mars", "--out", str(tmp_path)])
+
+
+def test_each_3d_map_of_the_demo_names_the_command_that_makes_it_again(quick_demo, tmp_path):
+    import shlex
+
+    from prismap.io import load_map
+    from support import assert_same_map
+
+    out, _ = quick_demo
+    records = sorted((out / "scene3d" / "cells").glob("*.run.json"))
+    assert len(records) == len(list((out / "scene3d" / "cells").glob("*.npz"))) >= 2
+    assert "sgbm__hitmiss.run.json" in (out / "index.html").read_text()
+    record = json.loads((out / "scene3d" / "cells" / "sgbm__hitmiss.run.json").read_text())
+    argv = shlex.split(record["command"])
+    assert argv[:2] == ["prismap", "map"] and argv[-2:] == ["--out", str((out / "scene3d/cells/sgbm__hitmiss.npz").resolve())]
+    again = tmp_path / "again.npz"
+    assert main(argv[1:-1] + [str(again)]) == 0
+    assert_same_map(load_map(again), load_map(out / "scene3d" / "cells" / "sgbm__hitmiss.npz"))

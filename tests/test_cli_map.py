@@ -92,12 +92,13 @@ def test_evaluate_with_out_writes_json_and_reliability_figure(sequence_dir, tmp_
 @pytest.mark.parametrize(("argv", "message"), [
     (["--sequence", "/nonexistent/seq"], "--sequence /nonexistent/seq: sequence directory not found"),
     (["--model", "prism"], "sensor model 'prism' needs an error model (--error-model MODEL.json)"),
+    (["--model", "andert"], "sensor model 'andert' needs an error model (--error-model MODEL.json) or --model-param"),
     (["--model", "prism", "--error-model", "/nonexistent/m.json"], "error model /nonexistent/m.json: no such file"),
     (["--voxel", "0"], "`--voxel` must be a finite number > 0; got 0.0"),
     (["--p0", "1.5"], "`--p0` must lie in (0, 1); got 1.5"),
     (["--frames", "4:4"], "--frames '4:4': the range is empty or malformed"),
     (["--frames", "7:"], "frames 7: select no frame of a sequence of 6 frames"),
-    (["--frames", "a:b"], "--frames 'a:b': expected A:B"),
+    (["--frames", "a:b"], "--frames must look like A:B with integers A and B"),
     (["--model-param", "p_hit"], "--model-param 'p_hit': expected KEY=VALUE"),
     (["--model", "hitmiss", "--model-param", "eta=3"], "sensor model 'hitmiss': bad parameter(s) ['eta']"),
     (["--disparity-dir", "/nonexistent/disp"], "--disparity-dir /nonexistent/disp: directory not found"),
@@ -332,5 +333,5 @@ def test_map_writes_the_command_that_reproduces_it(sequence_dir, conditioned_mod
     assert "--plain" in argv and "--model-param=pass_through=0.05" in argv and "--matcher-param=num_disparities=16" in argv
     assert record["settings"]["p0"] == 0.08 and record["settings"]["conditioned"] is False
     again = tmp_path / "again.npz"
-    assert main(argv[2:-1] + [str(again)]) == 0  # the recorded command, writing elsewhere
+    assert main(argv[1:-1] + [str(again)]) == 0  # the recorded command, writing elsewhere
     assert_same_map(load_map(again), load_map(out))

@@ -284,7 +284,7 @@ def test_frustum_box_holds_the_origin_and_every_stop_point_with_a_voxel_margin()
 
 
 def test_rotate_rays_equals_the_matrix_product():
-    from prismap.grid._kernels_project import rotate_rays
+    from prismap.camera._frame_batch import rotate_rays
 
     rng = np.random.default_rng(13)
     rays, rotation = rng.normal(size=(50, 3)), np.linalg.qr(rng.normal(size=(3, 3)))[0]

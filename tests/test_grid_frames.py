@@ -4,8 +4,9 @@ queries, 2-D maps, pose uncertainty and hostile input."""
 import numpy as np
 import pytest
 
+from prismap.camera import integrate_disparity, pose_noise_px
 from prismap.errors import PrismapInputError
-from prismap.grid import FREE, OCCUPIED, OCTOMAP_CLAMP, UNKNOWN, OccupancyMap, pose_noise_px
+from prismap.grid import FREE, OCCUPIED, OCTOMAP_CLAMP, UNKNOWN, OccupancyMap
 from support import FB, HitMissModel, assert_same_map, planes_frame
 
 
@@ -21,7 +22,7 @@ def test_projective_and_ray_modes_agree_on_a_frame():
     maps = {}
     for mode in ("ray", "projective"):
         maps[mode] = OccupancyMap(0.1, p0=0.5)
-        maps[mode].integrate_disparity(disparity, camera, pose, model, mode=mode, max_range_m=12.0)
+        integrate_disparity(maps[mode], disparity, camera, pose, model, mode=mode, max_range_m=12.0)
     keys = np.unique(np.concatenate([m.known_voxels()[0] for m in maps.values()]), axis=0)
     ray, proj = (maps[m].state_at_keys(keys) for m in ("ray", "projective"))
     # Stated tolerance: the modes differ only where a voxel is crossed by several rays but its centre
@@ -49,7 +50,7 @@ def test_projective_hit_miss_added_while_projecting_gives_the_map_of_the_cell_pa
         model = cls(focal_baseline=camera.focal_baseline, voxel_size_m=0.1, p0=0.3)
         grid = OccupancyMap(0.1, p0=0.3)
         for subsample, cov in ((1, None), (2, np.eye(3) * 0.05**2)):
-            grid.integrate_disparity(disparity, camera, pose, model, mode="projective", policy=policy, max_range_m=6.0,
+            integrate_disparity(grid, disparity, camera, pose, model, mode="projective", policy=policy, max_range_m=6.0,
                                      subsample=subsample, pose_covariance=cov)
         maps.append(grid)
     assert maps[0].n_known > 20_000
@@ -67,11 +68,11 @@ def test_merge_of_any_split_equals_sequential_integration():
         poses.append(p)
     whole = OccupancyMap(0.1, p0=0.5)
     for p in poses:
-        whole.integrate_disparity(disparity, camera, p, model, max_range_m=12.0)
+        integrate_disparity(whole, disparity, camera, p, model, max_range_m=12.0)
     for split in ([0, 1], [2], [0, 3]):
         a, b = OccupancyMap(0.1, p0=0.5), OccupancyMap(0.1, p0=0.5)
         for i, p in enumerate(poses):
-            (a if i in split else b).integrate_disparity(disparity, camera, p, model, max_range_m=12.0)
+            integrate_disparity(a if i in split else b, disparity, camera, p, model, max_range_m=12.0)
         merged = b.merge(a)
         keys, log, count = whole.known_voxels()
         got_log, got_count = merged.lookup_keys(keys)
@@ -143,7 +144,7 @@ def test_pose_noise_formula_and_grouping():
 
     camera, pose, disp = small_frame()
     grid = OccupancyMap(0.1, p0=0.5)
-    grid.integrate_disparity(disp, camera, pose, Spy(camera.focal_baseline), pose_covariance=np.eye(3) * 0.05**2,
+    integrate_disparity(grid, disp, camera, pose, Spy(camera.focal_baseline), pose_covariance=np.eye(3) * 0.05**2,
                              max_range_m=12.0)
     assert len(seen) >= 2 and all(s > 0 for s in seen)
 
@@ -162,7 +163,7 @@ def test_projective_noise_groups_give_each_cell_its_own_rays_measurement():
     maps = []
     for cov in (None, np.eye(3) * 0.05**2):
         grid = OccupancyMap(0.1, p0=0.5)
-        grid.integrate_disparity(disp, camera, pose, Spy(camera.focal_baseline), mode="projective",
+        integrate_disparity(grid, disp, camera, pose, Spy(camera.focal_baseline), mode="projective",
                                  pose_covariance=cov, max_range_m=12.0)
         maps.append(grid)
     assert len(seen) >= 3
@@ -175,23 +176,23 @@ def test_nan_disparities_are_skipped_and_bad_poses_are_errors():
     holes = disparity.copy()
     holes[:, :80] = np.nan
     grid = OccupancyMap(0.1, p0=0.5)
-    grid.integrate_disparity(holes, camera, pose, model, max_range_m=12.0)
+    integrate_disparity(grid, holes, camera, pose, model, max_range_m=12.0)
     assert 0 < grid.n_known
     for bad in (np.nan, np.inf):
         broken = pose.copy()
         broken[0, 3] = bad
         with pytest.raises(PrismapInputError, match="T_world_cam"):
-            grid.integrate_disparity(disparity, camera, broken, model)
+            integrate_disparity(grid, disparity, camera, broken, model)
     with pytest.raises(PrismapInputError, match="T_world_cam"):
-        grid.integrate_disparity(disparity, camera, np.eye(3), model)
+        integrate_disparity(grid, disparity, camera, np.eye(3), model)
     with pytest.raises(PrismapInputError, match="origin_w"):
         grid.integrate_rays([np.nan, 0, 0], [[0, 0, 1.0]], [1.0], model)
     with pytest.raises(PrismapInputError, match="rays_w"):
         grid.integrate_rays([0, 0, 0], [[0, 0, 0.5]], [1.0], model)
     with pytest.raises(PrismapInputError, match="subsample"):
-        grid.integrate_disparity(disparity, camera, pose, model, subsample=0)
+        integrate_disparity(grid, disparity, camera, pose, model, subsample=0)
     with pytest.raises(PrismapInputError, match="mode"):
-        grid.integrate_disparity(disparity, camera, pose, model, mode="cone")
+        integrate_disparity(grid, disparity, camera, pose, model, mode="cone")
 
 
 def test_rays_without_a_bound_are_an_error_not_a_hang():
@@ -210,8 +211,8 @@ def test_subsampling_uses_every_nth_pixel():
     camera, pose, disparity = small_frame()
     model = HitMissModel(camera.focal_baseline)
     full, sub = OccupancyMap(0.1, p0=0.5), OccupancyMap(0.1, p0=0.5)
-    full.integrate_disparity(disparity[::4, ::4], type(camera)(camera.focal_px / 4, camera.cx_px / 4, camera.cy_px / 4, 0.4), pose, HitMissModel(camera.focal_baseline), max_range_m=12.0)
-    sub.integrate_disparity(disparity, camera, pose, model, subsample=4, max_range_m=12.0)
+    integrate_disparity(full, disparity[::4, ::4], type(camera)(camera.focal_px / 4, camera.cx_px / 4, camera.cy_px / 4, 0.4), pose, HitMissModel(camera.focal_baseline), max_range_m=12.0)
+    integrate_disparity(sub, disparity, camera, pose, model, subsample=4, max_range_m=12.0)
     assert 0 < sub.n_known
     assert sub.n_known == pytest.approx(full.n_known, rel=0.05)
 
@@ -236,7 +237,7 @@ def test_projective_prism_maps_do_not_depend_on_the_walks_parts(monkeypatch, ove
                                   error_model=mixture, near_m=0.5, overhang_fraction=overhang_fraction)
         grid = OccupancyMap(0.1, p0=0.1)
         for cov in (None, np.eye(3) * 0.03**2):
-            grid.integrate_disparity(disparity, camera, pose, model, mode="projective", max_range_m=6.0,
+            integrate_disparity(grid, disparity, camera, pose, model, mode="projective", max_range_m=6.0,
                                      subsample=2, pose_covariance=cov)
         maps.append(grid)
     assert maps[0].n_known > 5_000
@@ -258,7 +259,7 @@ def test_a_frame_projecting_onto_more_cells_than_the_memory_bound_is_refused(mon
         monkeypatch.setattr(_accumulator, "frame_budget_bytes", lambda: 32 * cells)
         with pytest.raises(PrismapInputError, match=rf"the frame projects onto at least \d+ voxels, more than {cells} "
                                                     r"\(docs/errors.md\)"):
-            grid.integrate_disparity(disparity, camera, pose, model, mode="projective", max_range_m=12.0)
+            integrate_disparity(grid, disparity, camera, pose, model, mode="projective", max_range_m=12.0)
         assert grid.n_known == 0
 
 
@@ -279,7 +280,7 @@ def test_ray_mode_models_in_threads_give_the_map_of_one_thread(monkeypatch):
     for threads in (1, 2, 3):
         monkeypatch.setattr(_integrators, "MODEL_THREADS", threads)
         grid = OccupancyMap(0.1, p0=0.1)
-        grid.integrate_disparity(disparity, camera, pose, model, mode="ray", max_range_m=6.0, subsample=3)
+        integrate_disparity(grid, disparity, camera, pose, model, mode="ray", max_range_m=6.0, subsample=3)
         maps.append(grid)
     assert maps[0].n_known > 5_000
     for other in maps[1:]:

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from prismap.camera import integrate_disparity
 from prismap.errors import PrismapInputError
 from prismap.grid import INTEGRATOR_NAMES, OccupancyMap, RayBatch, make_integrator
 from prismap.grid._integrators import ProjectiveIntegrator, RayIntegrator
@@ -83,7 +84,7 @@ def test_ray_batch_subset_keeps_every_per_ray_array_aligned():
                      np.arange(n, dtype=np.int32) % 3)
     keep = np.arange(n) % 2 == 0
     sub = batch.subset(keep)
-    np.testing.assert_array_equal(sub.disparity_px, [0, 2, 4, 6, 8])
+    np.testing.assert_array_equal(sub.measurement, [0, 2, 4, 6, 8])
     np.testing.assert_array_equal(sub.ray_class, [0, 2, 1, 0, 2])
     np.testing.assert_array_equal(sub.extra_noise_px, np.arange(0, n, 2) * 0.1)
     np.testing.assert_array_equal(sub.rays_w, batch.rays_w[keep])
@@ -118,13 +119,13 @@ def test_ray_class_image_reaches_the_model_in_projective_mode(pose_covariance):
     rng = np.random.default_rng(2)
     classes = rng.integers(-1, 2, disparity.shape)
     grid = OccupancyMap(0.1, p0=0.5)
-    grid.integrate_disparity(disparity, camera, pose, ClassModel(focal_baseline=camera.focal_baseline),
+    integrate_disparity(grid, disparity, camera, pose, ClassModel(focal_baseline=camera.focal_baseline),
                              mode="projective", ray_class=classes,
                              max_range_m=12.0, pose_covariance=pose_covariance)
     parts = []
     for cls in (-1, 0, 1):
         part = OccupancyMap(0.1, p0=0.5)
-        part.integrate_disparity(np.where(classes == cls, disparity, np.nan), camera, pose,
+        integrate_disparity(part, np.where(classes == cls, disparity, np.nan), camera, pose,
                                  FixedClassModel(cls, camera.focal_baseline),
                                  mode="projective", max_range_m=12.0)
         parts.append(part)
@@ -141,8 +142,8 @@ def test_hit_miss_models_ignore_ray_class(mode):
     model = make_sensor_model("hitmiss", focal_baseline=camera.focal_baseline, p0=0.5, voxel_size_m=0.1)
     classes = np.random.default_rng(3).integers(-1, 2, depth.shape)
     with_class, without = OccupancyMap(0.1, p0=0.5), OccupancyMap(0.1, p0=0.5)
-    with_class.integrate_disparity(camera.focal_baseline / depth, camera, pose, model, mode=mode, ray_class=classes)
-    without.integrate_disparity(camera.focal_baseline / depth, camera, pose, model, mode=mode)
+    integrate_disparity(with_class, camera.focal_baseline / depth, camera, pose, model, mode=mode, ray_class=classes)
+    integrate_disparity(without, camera.focal_baseline / depth, camera, pose, model, mode=mode)
     assert with_class.n_known > 100
     assert _log_by_key(with_class) == _log_by_key(without)
 
@@ -177,7 +178,7 @@ _CAPPED = textwrap.dedent("""
     sys.path.insert(0, sys.argv[1])
     from prismap.errors import PrismapInputError
     from prismap.grid import OccupancyMap
-    from prismap.camera import StereoCamera
+    from prismap.camera import StereoCamera, integrate_disparity
     from prismap.sensor_models import make_sensor_model
     from support import planes_frame
 
@@ -192,16 +193,16 @@ _CAPPED = textwrap.dedent("""
 
     def tiny_pixel():  # one pixel of 1e-5 px: ~4e3 km away
         d = np.full(depth.shape, np.nan); d[100, 100] = 1e-5
-        OccupancyMap(0.1, p0=0.5).integrate_disparity(d, camera, pose, model(0.1), max_range_m=3e5)
+        integrate_disparity(OccupancyMap(0.1, p0=0.5), d, camera, pose, model(0.1), max_range_m=3e5)
 
     def tiny_frame():  # a frame of tiny disparities
-        OccupancyMap(0.1, p0=0.5).integrate_disparity(np.full(depth.shape, 1e-3), camera, pose, model(0.1),
+        integrate_disparity(OccupancyMap(0.1, p0=0.5), np.full(depth.shape, 1e-3), camera, pose, model(0.1),
                                                       max_range_m=3e5)
 
     def millimetre(mode, width=640, height=480):  # 1 mm voxels over a normal frame
         def run():
             cam, pose_, depth_ = planes_frame(width=width, height=height)
-            OccupancyMap(1e-3, p0=0.5).integrate_disparity(cam.focal_baseline / depth_, cam, pose_, model(1e-3),
+            integrate_disparity(OccupancyMap(1e-3, p0=0.5), cam.focal_baseline / depth_, cam, pose_, model(1e-3),
                                                           mode=mode, max_range_m=12.0)
         return run
 

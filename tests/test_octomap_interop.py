@@ -4,6 +4,7 @@
 import numpy as np
 import pytest
 
+from prismap.camera import integrate_disparity
 from prismap.grid import FREE, OCCUPIED, OccupancyMap
 from prismap.io._octomap import write_octomap
 from support import HitMissModel, planes_frame, world_points
@@ -27,7 +28,7 @@ def octree_states(tree, centers):
 def frame_maps():
     camera, pose, depth = planes_frame()
     grid = OccupancyMap(0.1, p0=0.5)
-    grid.integrate_disparity(camera.focal_baseline / depth, camera, pose, HitMissModel(camera.focal_baseline),
+    integrate_disparity(grid, camera.focal_baseline / depth, camera, pose, HitMissModel(camera.focal_baseline),
                              max_range_m=12.0)
     tree = octomap.OcTree(0.1)
     tree.insertPointCloud(world_points(camera, pose, depth), pose[:3, 3].copy(), maxrange=12.0)

@@ -3,12 +3,18 @@
 import numpy as np
 import pytest
 
-from prismap.camera import StereoCamera, plane_normals
+from prismap.camera import (
+    OVERHANG_CAP_VOXELS,
+    StereoCamera,
+    frame_overhang_m,
+    integrate_disparity,
+    plane_normals,
+    voxel_overhang_m,
+)
+from prismap.camera._frame_batch import rotate_rays
 from prismap.errors import PrismapInputError
 from prismap.gmm import GaussianMixture
 from prismap.grid import OccupancyMap
-from prismap.grid._kernels_project import rotate_rays
-from prismap.grid._overhang import OVERHANG_CAP_VOXELS, frame_overhang_m, voxel_overhang_m
 from prismap.sensor_models import make_sensor_model
 from prismap.sensor_models._prism import TABLE_TOLERANCE
 from support import assert_same_map
@@ -196,7 +202,7 @@ def test_a_grazing_floor_stays_in_the_map_without_a_false_layer_above():
         grid = OccupancyMap(0.1, p0=0.05)
         model = make_sensor_model("prism", focal_baseline=camera.focal_baseline, error_model=GaussianMixture.gaussian(0.2),
                                   voxel_size_m=0.1, p0=0.05, overhang_fraction=fraction)
-        grid.integrate_disparity(disparity, camera, pose, model, max_range_m=8.0)
+        integrate_disparity(grid, disparity, camera, pose, model, max_range_m=8.0)
         keys = grid.known_voxels()[0]
         p = grid.probability_at_keys(keys)
         ahead = (keys[:, 0] >= 16) & (keys[:, 0] < 40)  # 1.6-4 m ahead: grazing (cos 0.29-0.6)
@@ -216,7 +222,7 @@ def test_integrate_disparity_gives_the_overhang_it_fits_to_the_model_as_integrat
     model = make_sensor_model("prism", focal_baseline=camera.focal_baseline, error_model=GaussianMixture.gaussian(0.2),
                               voxel_size_m=0.1, p0=0.05, overhang_fraction=0.25)
     fitted, given = OccupancyMap(0.1, p0=0.05), OccupancyMap(0.1, p0=0.05)
-    fitted.integrate_disparity(disparity, camera, pose, model, max_range_m=8.0)
+    integrate_disparity(fitted, disparity, camera, pose, model, max_range_m=8.0)
     rays_cam = camera.pixel_rays(disparity.shape).reshape(-1, 3)
     overhang = frame_overhang_m(disparity, camera, pose[:3, :3], 0.1, 1, rays_cam)
     rays_w = rotate_rays(rays_cam, np.ascontiguousarray(pose[:3, :3]))  # as integrate_disparity rotates them

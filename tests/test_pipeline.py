@@ -8,6 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
+from prismap.camera import integrate_disparity
 from prismap.errors import PrismapInputError
 from prismap.gmm import GaussianMixture
 from prismap.grid import OccupancyMap
@@ -40,7 +41,7 @@ def hand_map(sequence_dir, cfg, indices, disparity_of):
     grid = OccupancyMap(cfg.voxel_size_m, p0=cfg.p0)
     for index in indices:
         frame = sequence[index]
-        grid.integrate_disparity(disparity_of(frame), sequence.camera, frame.T_world_cam, model, mode=cfg.mode,
+        integrate_disparity(grid, disparity_of(frame), sequence.camera, frame.T_world_cam, model, mode=cfg.mode,
                                  policy=cfg.policy, max_range_m=cfg.max_range_m, subsample=cfg.subsample)
     return grid
 
@@ -65,7 +66,7 @@ def test_build_sensor_model_gives_each_model_its_noise():
 
 @pytest.mark.parametrize(("name", "params", "message"), [
     ("prism", {}, "'prism' needs an error model"),
-    ("andert", {}, "needs an error model (--error-model MODEL.json) or an explicit sigma_px"),
+    ("andert", {}, "needs an error model (`error_model`) or an explicit sigma_px"),
     ("hitmiss", {"sigma_px": 1.0}, "sensor model 'hitmiss': bad parameter(s) ['sigma_px']"),
     ("octree", {}, "unknown sensor model 'octree'"),
 ])
@@ -92,6 +93,8 @@ def test_config_is_hashable_picklable_and_fingerprinted_by_content():
     ({"mode": "octree"}, "`mode` must be one of"),
     ({"policy": "vote"}, "`policy` must be one of"),
     ({"subsample": 0}, "`subsample` must be an integer >= 1"),
+    ({"subsample": "a"}, "`subsample` must be an integer >= 1; got 'a'"),
+    ({"subsample": 1.5}, "`subsample` must be an integer >= 1; got 1.5"),
     ({"frames": (3, 3)}, "`frames` 3:3 is empty"),
     ({"frames": (-1, None)}, "`frames` must hold integers >= 0"),
     ({"matcher": "census"}, "unknown matcher 'census'"),

@@ -4,6 +4,7 @@ by hand class by class, plain stays one flag away, fingerprints see the classes,
 import numpy as np
 import pytest
 
+from prismap.camera import integrate_disparity
 from prismap.characterise import compute_features
 from prismap.errors import PrismapInputError
 from prismap.grid import OccupancyMap
@@ -32,7 +33,7 @@ def hand_map(sequence_dir, cfg, disparity_of):
         disparity = disparity_of(frame)
         features = compute_features(to_grey(frame.left), to_grey(frame.right), disparity)
         classes = MODEL.classes.assign(features.values, np.isfinite(disparity))
-        grid.integrate_disparity(disparity, sequence.camera, frame.T_world_cam, model, mode=cfg.mode,
+        integrate_disparity(grid, disparity, sequence.camera, frame.T_world_cam, model, mode=cfg.mode,
                                  max_range_m=cfg.max_range_m, ray_class=classes)
     return grid
 

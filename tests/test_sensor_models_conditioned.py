@@ -12,6 +12,7 @@ from prismap.sensor_models import (
     conditioned_sensor_model,
     make_sensor_model,
 )
+from prismap.sensor_models._prism import AUTO_TABLE_FLOOR_MB
 
 CAMERA = StereoCamera(500.0, 320.0, 240.0, 0.2)
 WHOLE = GaussianMixture([0.8, 0.2], [0.0, -0.5], [0.3, 3.0])
@@ -89,6 +90,22 @@ def test_prism_sub_models_hold_each_class_mixture_and_widen_it():
     wide = model.with_extra_noise(0.2)
     for sub, mixture in zip(wide.class_models, CLASS_MIXTURES):
         np.testing.assert_allclose(sub.error_model.sigmas, np.hypot(mixture.sigmas, 0.2))
+
+
+def test_conditioned_prism_splits_one_table_floor_among_its_sub_models():
+    """Four PRISM models (plain and three classes) keep one automatic floor between them; a fixed budget stays."""
+    floor = int(AUTO_TABLE_FLOOR_MB * 2**20)
+    model = conditioned_sensor_model("prism", CAMERA, error_model=_error_model(), **SETTINGS)
+    caches = [sub._cache for sub in (model.plain, *model.class_models)]
+    assert [cache.floor_bytes for cache in caches] == [floor // 4] * 4
+    assert sum(cache.limit_bytes for cache in caches) <= floor
+    wide = model.with_extra_noise(0.2)
+    assert [sub._cache.floor_bytes for sub in (wide.plain, *wide.class_models)] == [floor // 4] * 4
+    fixed = conditioned_sensor_model("prism", CAMERA, error_model=_error_model(), table_memory_mb=8.0, **SETTINGS)
+    assert all(sub._cache.limit_bytes == 8 * 2**20 for sub in (fixed.plain, *fixed.class_models))
+    disparity, norm, ray_class, *cells = _rays()
+    model.cell_posteriors(disparity, norm, *cells, ray_class=ray_class)  # the classes' tables, then the budget grows
+    assert all(cache.limit_bytes >= 2 * cache.largest_call_bytes for cache in caches)
 
 
 @pytest.mark.parametrize("name", ["ideal", "hitmiss"])

@@ -5,6 +5,7 @@ import itertools
 import numpy as np
 import pytest
 
+from prismap.camera import integrate_disparity
 from prismap.errors import PrismapInputError
 from prismap.gmm import GaussianMixture
 from prismap.sensor_models import (
@@ -194,6 +195,72 @@ def test_broad_segments_are_where_the_narrower_components_are_negligible():
     assert _prism.broad_errors(GaussianMixture([0.5, 0.5], [0.0, 1.0], [1.0, 1.0]))[2] == 1
 
 
+TWO_WIDE = GaussianMixture([0.70, 0.15, 0.02, 0.08, 0.05], [0.0, -0.4, -20.0, 38.0, 33.7],
+                           [0.3, 3.5, 0.15, 33.0, 33.5])
+"""A characterised class's mixture (SGBM on the street, half resolution): its own 33 px outlier component beside
+the whole image's 33.5 px one, and a narrow component 20 px behind the measurement."""
+
+
+def test_broad_segments_keep_every_wide_component():
+    """Components at least half the widest sigma are all kept in the broad segments, spaced on the narrowest of
+    them; the narrow ones are negligible beyond the segments' bounds, as with one wide component."""
+    e_front, e_back, ratio = _prism.broad_errors(TWO_WIDE)
+    assert ratio == min(int(_prism._WIDE_SIGMAS * 33.0 / (0.15 * _prism._TABLE_STEP)), _prism._COARSE_RATIO)
+    assert e_back < -20.0 < 0.0 < e_front
+    m = TWO_WIDE
+
+    def log_share(e):  # of the largest narrow component against the widest
+        log_dens = np.log(m.weights / m.sigmas) - 0.5 * ((e[:, None] - m.means) / m.sigmas) ** 2
+        return log_dens[:, :3].max(axis=1) - log_dens[:, 4]
+
+    beyond = np.geomspace(1e-6, 100.0, 200)
+    assert np.all(log_share(np.concatenate([e_front + beyond, e_back - beyond])) <= _prism._BROAD_SHARE + 1e-9)
+    assert np.all(log_share(np.array([e_front - 0.05, e_back + 0.05])) > _prism._BROAD_SHARE)
+    assert _prism.broad_errors(GaussianMixture([0.5, 0.5], [0.0, 1.0], [1.0, 0.6]))[2] == 1  # both wide
+
+
+@pytest.mark.parametrize("voxel", [0.2, 0.1])
+def test_table_with_two_wide_components_agrees_with_direct_within_stated_bound(voxel):
+    """The half-resolution street rig with :data:`TWO_WIDE`: broad segments on the 33 px components."""
+    rng = np.random.default_rng(5)
+    fb = KITTI_FB / 2
+    depths = np.exp(rng.uniform(np.log(3.0), np.log(80.0), 25))
+    model = make_sensor_model("prism", focal_baseline=fb, error_model=TWO_WIDE, voxel_size_m=voxel, p0=0.05)
+    disparity = np.round(fb / depths * 16) / 16
+    _assert_table_within_tolerance(model, disparity, rng.uniform(1.0, 1.1, depths.size), _random_cells(rng, depths),
+                                   large_min=0)
+    meta = model._cache.meta
+    rows = [meta[:, _kernels_table.META_COLUMNS.index(f"row_{k}")] for k in range(_kernels_table.N_SEGMENTS)]
+    assert np.all(rows[1] - rows[0] > 10)  # a broad front on every table
+
+
+NEEDLE = GaussianMixture([0.684, 0.288, 0.027, 0.0007, 0.0003], [-0.02, 0.08, -0.17, -0.7, 33.74],
+                         [0.14, 0.28, 0.01, 0.01, 33.54])
+"""A characterised class's mixture (SGBM on the half-resolution street) with components of 0.01 px beside 33.5 px
+outliers: its coarse front is spaced on the outliers' sigma."""
+
+
+def test_coarse_front_spacing_follows_the_widest_sigma_only_for_a_wide_span():
+    for mixture in (STREET, SGBM_LIKE, MIXTURE, GaussianMixture([0.64, 0.27, 0.05, 0.04], [0.05, -0.04, 0.2, 33.7],
+                                                                [0.168, 0.35, 3.27, 33.54])):
+        assert _prism.coarse_ratio(mixture) == _prism._COARSE_RATIO
+    spacing_px = _prism.coarse_ratio(NEEDLE) * _prism._TABLE_STEP * 0.01  # disparity between coarse nodes
+    assert 33.54 * _prism._COARSE_WIDE_SIGMAS - 0.01 < spacing_px <= 33.54 * _prism._COARSE_WIDE_SIGMAS
+
+
+def test_table_with_a_needle_component_agrees_with_direct_within_stated_bound():
+    rng = np.random.default_rng(6)
+    fb = KITTI_FB / 2
+    depths = np.exp(rng.uniform(np.log(3.0), np.log(80.0), 12))
+    model = make_sensor_model("prism", focal_baseline=fb, error_model=NEEDLE, voxel_size_m=0.2, p0=0.05)
+    disparity = np.round(fb / depths * 16) / 16
+    _assert_table_within_tolerance(model, disparity, rng.uniform(1.0, 1.1, depths.size), _random_cells(rng, depths),
+                                   large_min=0)
+    meta = model._cache.meta
+    column = _kernels_table.META_COLUMNS.index
+    assert np.all(meta[:, column("row_1")] > 10)  # a coarse front, and the cells in it agree
+
+
 FRAME_MIXTURE = GaussianMixture([0.9, 0.1], [0.0, 0.0], [0.3, 3.0])
 
 
@@ -256,7 +323,7 @@ def test_table_maps_agree_with_direct_maps_within_the_stated_bound(mode):
                                       error_model=FRAME_MIXTURE, near_m=0.5, method=method,
                                       overhang_fraction=overhang)
             grid = OccupancyMap(0.1, p0=0.1)
-            grid.integrate_disparity(disparity, camera, pose, model, mode=mode, max_range_m=6.0, subsample=6,
+            integrate_disparity(grid, disparity, camera, pose, model, mode=mode, max_range_m=6.0, subsample=6,
                                      policy=policy)
             keys, log, _ = grid.known_voxels()
             order = np.lexsort(keys.T)

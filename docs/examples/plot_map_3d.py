@@ -6,7 +6,6 @@ A few rendered frames of the 3-D room, matched by semiglobal matching, character
 PRISM, and drawn beside the ground truth: in 3-D, and as the horizontal layer at 1 m.
 """
 
-import math
 import tempfile
 from pathlib import Path
 
@@ -27,8 +26,9 @@ with tempfile.TemporaryDirectory() as folder:
     images = [plt.imread(rendered)]
     images += [plt.imread(p) for p, _ in result.artifacts if Path(p).name.startswith("map_slices")]
 
-for image in images:
-    fig, ax = plt.subplots(figsize=(10, 10 * image.shape[0] / image.shape[1]), layout="constrained")
+fig, axes = plt.subplots(len(images), 1, figsize=(10, 12), layout="constrained",
+                         height_ratios=[image.shape[0] / image.shape[1] for image in images])
+for ax, image in zip(axes, images):
     ax.imshow(image)
     ax.set_axis_off()
-print(f"p0 = {result.p0:.4f}, {math.fsum(1 for _ in result.cells)} maps scored")
+print(f"p0 = {result.p0:.4f}; {len(result.cells)} maps scored")

@@ -18,10 +18,14 @@ Subpackages (imported on first use, so ``import prismap`` stays cheap):
 """
 
 import importlib
+from importlib.metadata import PackageNotFoundError, version
 
 from prismap.errors import PrismapInputError
 
-__version__ = "0.1.0"
+try:
+    __version__ = version("prismap")  # the one version source: pyproject.toml, through the installed metadata
+except PackageNotFoundError:  # a source tree on sys.path that was never installed
+    __version__ = "0+unknown"
 
 _SUBPACKAGES = (
     "camera", "stereo", "gmm", "characterise", "sensor_models", "grid", "io", "sim",

@@ -25,15 +25,32 @@ def _meminfo_bytes(field, path="/proc/meminfo"):
     return None
 
 
+def physical_memory_bytes():
+    """Bytes of physical memory of the machine (None where the system does not say)."""
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def address_space_room_bytes():
+    """Bytes the address-space limit (``RLIMIT_AS``) leaves beyond the process's current size; None without a
+    limit."""
+    soft, _ = resource.getrlimit(resource.RLIMIT_AS)
+    if soft == resource.RLIM_INFINITY:
+        return None
+    used = _meminfo_bytes("VmSize", "/proc/self/status") or 0
+    return max(soft - used, 0)
+
+
 def memory_budget():
     """Bytes a single allocation may take: half of what the process can still allocate."""
     available = _meminfo_bytes("MemAvailable")
     if available is None:
         available = os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
-    soft, _ = resource.getrlimit(resource.RLIMIT_AS)
-    if soft != resource.RLIM_INFINITY:
-        used = _meminfo_bytes("VmSize", "/proc/self/status") or 0
-        available = min(available, max(soft - used, 0))
+    room = address_space_room_bytes()
+    if room is not None:
+        available = min(available, room)
     return int(available * BUDGET_FRACTION)
 
 

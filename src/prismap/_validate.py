@@ -76,6 +76,32 @@ def check_real(value, name, *, minimum=-np.inf):
     return number
 
 
+def parse_frame_range(text, name):
+    """``"A:B"`` (Python-style: either side may be empty or negative) as ``(start, stop)``, None for an empty side.
+
+    The one reader of frame ranges; each caller then checks the range against what it selects from. ``name``
+    is the range's name in the message (``"--frames"``, ``"`frames`"``).
+    """
+    first, sep, last = str(text).partition(":")
+    try:
+        if not sep or ":" in last:
+            raise ValueError
+        return (int(first) if first.strip() else None, int(last) if last.strip() else None)
+    except ValueError:
+        raise PrismapInputError(f"{name} must look like A:B with integers A and B (either may be omitted); "
+                                f"got {text!r}") from None
+
+
+def check_classes(value, name, shape):
+    """``value`` as a contiguous int32 array of ``shape``, every class >= -1 (-1 = no class), or raise."""
+    array = np.asarray(value)
+    if array.shape != tuple(shape) or not np.issubdtype(array.dtype, np.integer):
+        raise PrismapInputError(f"`{name}` must be an integer array of shape {tuple(shape)}; got {array.dtype} {array.shape}")
+    if array.size and (array.min() < -1 or array.max() > np.iinfo(np.int32).max):
+        raise PrismapInputError(f"`{name}` must hold classes >= 0 or -1 (no class); got values in [{array.min()}, {array.max()}]")
+    return np.ascontiguousarray(array, dtype=np.int32)
+
+
 #: Largest ``max |R^T R - I|`` a pose's rotation may show (text files round to ~1e-6; KITTI to ~1e-9).
 ROTATION_TOLERANCE = 1e-3
 

@@ -4,6 +4,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from prismap._depth import depth_from_disparity, disparity_from_depth
 from prismap._validate import as_float_array, check_positive
 from prismap.errors import PrismapInputError
 
@@ -171,17 +172,11 @@ class StereoCamera:
 
     def depth_from_disparity(self, disparity_px):
         """Depth ``z = f b / (d + doffs)`` (metres); NaN where ``d + doffs <= 0`` or ``d`` is not finite."""
-        d = np.asarray(disparity_px, dtype=np.float64) + self.doffs_px
-        with np.errstate(divide="ignore", invalid="ignore"):
-            depth = self.focal_baseline / d
-        return np.where(np.isfinite(d) & (d > 0), depth, np.nan)
+        return depth_from_disparity(disparity_px, self.focal_baseline, self.doffs_px)
 
     def disparity_from_depth(self, depth_m):
         """Disparity ``d = f b / z - doffs`` (pixels); NaN where ``z <= 0`` or not finite."""
-        z = np.asarray(depth_m, dtype=np.float64)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            disparity = self.focal_baseline / z - self.doffs_px
-        return np.where(np.isfinite(z) & (z > 0), disparity, np.nan)
+        return disparity_from_depth(depth_m, self.focal_baseline, self.doffs_px)
 
     def project(self, points_cam):
         """Pixel coordinates ``(u, v) = (f x / z + cx, f y / z + cy)`` of points in the left camera frame.

@@ -1,8 +1,8 @@
 """The error-model file: fitted mixtures of one matcher's errors, per class of pixels, and how they were made.
 
-Format (JSON, ``format_version`` 2)::
+Format (JSON, ``format_version`` 3)::
 
-    {"format": "prismap-error-model", "format_version": 2,
+    {"format": "prismap-error-model", "format_version": 3,
      "matcher": {"name": "sgbm", "params": {...}}, "dataset": "middlebury-motorcycle",
      "bin_width_px": 0.03125,
      "statistics": {"n_frames", "n_errors", "n_gt_valid", "n_outside_bins", "coverage", "bad_1px",
@@ -10,6 +10,7 @@ Format (JSON, ``format_version`` 2)::
      "selection": {"criterion": "bic", "tolerance_nats_per_error": 0.01},  # or {"criterion": "held-out", "held_out": ...}
      "selected_components": 2,
      "models": [{"n_components": 1, "weights": [...], "means": [...], "sigmas": [...],
+                 "failure_weight": 0.004, "search_range_px": [0.0, 96.0],
                  "log_likelihood": ..., "aic": ..., "bic": ..., "n_samples": ..., "n_iter": ...,
                  "converged": true}, ...],
      "features": {"names": ["edge_distance_px"], "units": {"edge_distance_px": "px"},
@@ -35,9 +36,14 @@ features has one class equal to the plain model. A version-1 file loads as that 
 ``fusion`` block says how the matcher's failures repeat across views (:mod:`prismap.characterise._fusion`);
 without it maps fuse frames independently.
 
-Means and sigmas are pixels; AIC and BIC use ``k = 3G - 1`` (see :class:`prismap.gmm.MixtureFit`). ``source``,
-``rig`` and ``provenance`` are optional (a file without them was measured against ground truth on an unrecorded
-rig).
+Version 3 gives every mixture the matcher-failure component (:class:`prismap.gmm.GaussianMixture`):
+``failure_weight`` ``w_f`` and the matcher's ``search_range_px`` over which failures are uniform; its classes
+need no ``outlier`` then (docs/SENSOR_MODELS.md section 8). Files of versions 1 and 2 have no failure
+component and map exactly as they did; a failure component in them is refused.
+
+Means and sigmas are pixels; AIC and BIC use ``k = 3G - 1``, ``3G`` with a failure component (see
+:class:`prismap.gmm.MixtureFit`). ``source``, ``rig`` and ``provenance`` are optional (a file without them was
+measured against ground truth on an unrecorded rig).
 """
 
 import json
@@ -59,17 +65,19 @@ from prismap.characterise._model_json import (
     _object,
     _provenance_from_dict,
     _require,
+    error_bound_px,
 )
 from prismap.errors import PrismapInputError
+from prismap.io._text import read_text
 from prismap.stereo._base import to_grey
 
 FORMAT = "prismap-error-model"
 
 
-FORMAT_VERSION = 2
+FORMAT_VERSION = 3
 
 
-READABLE_VERSIONS = (1, 2)
+READABLE_VERSIONS = (1, 2, 3)
 
 
 _SHARE_TOLERANCE = 1e-6
@@ -282,7 +290,7 @@ class ErrorModel:
 
     @classmethod
     def from_dict(cls, data, *, source="error model"):
-        """Inverse of :meth:`to_dict` (also reads format version 1); ``source`` starts every error message."""
+        """Inverse of :meth:`to_dict` (also reads format versions 1 and 2); ``source`` starts every error message."""
         if not isinstance(data, dict):
             raise PrismapInputError(f"{source}: expected a JSON object; got {type(data).__name__}")
         if data.get("format") != FORMAT:
@@ -303,12 +311,18 @@ class ErrorModel:
             raise PrismapInputError(f"{source}: field `dataset` must be a string; got {type(data['dataset']).__name__}")
         bin_width = _number(data["bin_width_px"], f"{source}: `bin_width_px`", low=0.0, high=8.0, open_low=True)
         selected = _integer(data["selected_components"], f"{source}: `selected_components`", 1, MAX_COMPONENTS)
-        fits = _fits_from_list(data["models"], f"{source}: models")
+        bound_px = error_bound_px(params)
+        fits = _fits_from_list(data["models"], f"{source}: models", bound_px)
         selection = _object(data.get("selection", {}), f"{source}: `selection`")
         statistics = _object(data.get("statistics", {}), f"{source}: `statistics`")
         extra = _provenance_from_dict(data, source)
         if version >= 2:
-            extra.update(_classes_from_dict(data, source))
+            extra.update(_classes_from_dict(data, source, bound_px))
+        mixtures = [fit.mixture for fit in fits] + [fit.mixture for model in extra.get("class_models", ())
+                                                    for fit in model.fits]
+        if version < 3 and any(mixture.search_range_px is not None for mixture in mixtures):
+            raise PrismapInputError(f"{source}: a failure component (`failure_weight`, `search_range_px`) needs "
+                                    f"format_version 3; this file says {version}")
         if data.get("fusion") is not None:
             fusion_from_block(data["fusion"], source=source)
             extra["fusion"] = dict(data["fusion"])
@@ -345,7 +359,7 @@ def load_error_model(path):
     if not path.is_file():
         raise PrismapInputError(f"error model {path}: no such file")
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
+        data = json.loads(read_text(path, "error model"))
     except RecursionError:
         raise PrismapInputError(f"error model {path}: JSON nested too deeply to be an error model") from None
     except (UnicodeDecodeError, ValueError) as exc:  # JSONDecodeError, and integers too long to convert

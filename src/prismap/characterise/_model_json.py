@@ -19,13 +19,41 @@ MAX_CLASSES = 64
 
 _FIT_FIELDS = ("log_likelihood", "aic", "bic", "n_samples", "n_iter", "converged")
 
+MAX_ERROR_PX = 16384.0
+"""Bound on every mixture mean and sigma (pixels) when the file's matcher parameters do not give its range:
+the widest image ``MAX_IMAGE_PIXELS`` admits, as no disparity error can exceed the image width."""
+
+
+def error_bound_px(params):
+    """Largest ``|mean|`` and ``sigma`` (pixels) a mixture of this matcher may have: its disparity search range.
+
+    A matched disparity lies in ``[min_disparity, min_disparity + num_disparities)`` (OpenCV; ``max_disparity``
+    for the variational matcher) and characterisation searches up to the largest true disparity, so an error
+    (measured - true) lies within that range's span; :data:`MAX_ERROR_PX` when ``params`` do not say.
+    """
+    reach = params.get("num_disparities", params.get("max_disparity"))
+    low = params.get("min_disparity", 0)
+    if not (_is_number(reach) and _is_number(low) and 0 < reach < MAX_ERROR_PX and abs(low) < MAX_ERROR_PX):
+        return MAX_ERROR_PX
+    return float(reach) + abs(float(low))
+
+
+def check_mixture_range(means, sigmas, bound_px, where):
+    """Refuse a mean beyond ``+-bound_px`` or a sigma above it, naming the first and the bound's origin."""
+    for name, values in (("means", np.abs(means)), ("sigmas", np.asarray(sigmas))):
+        if values.size and values.max() > bound_px:
+            raise PrismapInputError(
+                f"{where}: `{name}` reach {values.max():.6g} px; the matcher's disparity range allows at most "
+                f"{bound_px:g} px (num_disparities + |min_disparity|, or MAX_ERROR_PX)"
+            )
+
 
 def _fits_to_list(fits):
     return [{"n_components": fit.n_components, **fit.mixture.to_dict(), **{k: getattr(fit, k) for k in _FIT_FIELDS}}
             for fit in fits]
 
 
-def _fits_from_list(entries, where):
+def _fits_from_list(entries, where, bound_px=MAX_ERROR_PX):
     if not isinstance(entries, list) or not entries:
         raise PrismapInputError(f"{where}: must be a non-empty list")
     if len(entries) > MAX_COMPONENTS:
@@ -44,6 +72,7 @@ def _fits_from_list(entries, where):
                     f"{at}: `n_components` is {n_components} but `{name}` has {len(values)} value(s)"
                 )
         mixture = GaussianMixture.from_dict(entry, source=at)
+        check_mixture_range(mixture.means, mixture.sigmas, bound_px, at)
         if not isinstance(entry["converged"], bool):
             raise PrismapInputError(f"{at}: `converged` must be true or false; got {entry['converged']!r}")
         fits.append(MixtureFit(
@@ -61,7 +90,7 @@ def _fits_from_list(entries, where):
     return fits
 
 
-def _classes_from_dict(data, source):
+def _classes_from_dict(data, source, bound_px=MAX_ERROR_PX):
     """The class fields of a version-2 file as keyword arguments of :class:`ErrorModel`."""
     _require(data, ("features", "classes"), source)
     features = _object(data["features"], f"{source}: `features`")
@@ -102,7 +131,7 @@ def _classes_from_dict(data, source):
             high.append(np.inf if pair[1] is None else _number(pair[1], f"{at}: upper bound of {name!r}"))
         lower.append(low)
         upper.append(high)
-        fits = _fits_from_list(entry["models"], f"{at}: models")
+        fits = _fits_from_list(entry["models"], f"{at}: models", bound_px)
         selected = _integer(entry["selected_components"], f"{at}: `selected_components`", 1, MAX_COMPONENTS)
         share = _number(entry["share"], f"{at}: `share`", low=0.0, high=1.0)
         statistics = _object(entry.get("statistics", {}), f"{at}: `statistics`")
@@ -113,6 +142,7 @@ def _classes_from_dict(data, source):
             outlier = {"weight": _number(outlier["weight"], f"{at}: `outlier.weight`", low=0.0, high=0.999999),
                        "mean": _number(outlier["mean"], f"{at}: `outlier.mean`"),
                        "sigma": _number(outlier["sigma"], f"{at}: `outlier.sigma`", low=0.0, open_low=True)}
+            check_mixture_range(np.array([outlier["mean"]]), np.array([outlier["sigma"]]), bound_px, f"{at}: `outlier`")
         try:
             models.append(ClassModel(fits, selected, share, statistics, outlier))
         except PrismapInputError as exc:

@@ -69,8 +69,8 @@ def check_rig(model, current, *, strict, where="error model"):
     Parameters
     ----------
     model : ErrorModel
-        Its ``rig`` (None for a model made before rigs were recorded: that is reported too, since
-        nothing says it fits) and ``dataset`` name the model's side.
+        Its ``rig`` and ``dataset`` name the model's side. A model made before rigs were recorded (``rig``
+        None) passes unless ``strict``: then nothing says it fits, and it is refused.
     current : dict
         :func:`describe_rig` of the run.
     strict : bool
@@ -84,6 +84,8 @@ def check_rig(model, current, *, strict, where="error model"):
         The one-line warning naming both rigs and what differs, or None when the rigs agree.
     """
     if model.rig is None:
+        if not strict:
+            return None
         message = (f"{where} ({model.dataset}) records no rig, so it cannot be checked against this run's "
                    f"({_summary(current)}); characterise this rig to be sure")
     else:

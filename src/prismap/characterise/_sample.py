@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from prismap._validate import check_integer
 from prismap.errors import PrismapInputError
 
 DEFAULT_MAX_SAMPLES = 4_000_000
@@ -75,8 +76,7 @@ class PixelSample:
         name : str
             Names the frame in error messages.
         """
-        if isinstance(capacity, bool) or int(capacity) != capacity or capacity < 1:
-            raise PrismapInputError(f"`max_samples` must be an integer >= 1; got {capacity!r}")
+        check_integer(capacity, "max_samples", expected="an integer >= 1", condition=lambda n: n >= 1)
         computed = features.values["disparity_px"]
         truth = np.asarray(disparity_gt, dtype=np.float64)
         if truth.shape != computed.shape:

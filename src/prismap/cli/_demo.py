@@ -10,7 +10,7 @@ def register(subparsers):
     parser = subparsers.add_parser(
         "demo",
         help="the whole story on bundled data: error models, model comparison, 2-D office, 3-D room and street "
-             "(about 8 min on 2 cores; --quick about 1 min)",
+             "(about 8 min on 2 idle cores; --quick: every step at tiny sizes)",
         description=(
             "Characterise the bundled Middlebury Motorcycle pair with bm, sgbm and variational, compare the "
             "sensor models on the SGBM error model (prismap models compare), run the experiments (2-D office, "

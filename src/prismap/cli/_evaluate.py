@@ -39,10 +39,8 @@ def register(subparsers):
 
 def run(args):
     """Score the map and write the results; return the exit status."""
-    from scipy.special import logit
-
     from prismap._files import write_text_atomic
-    from prismap.evaluate import align_to_ground_truth, score_map
+    from prismap.evaluate import score_grid
     from prismap.io import load_map, read_ground_truth
 
     grid = load_map(args.map)
@@ -55,11 +53,7 @@ def run(args):
         raise PrismapInputError(f"--map {args.map}: a 2-D map; evaluate scores 3-D maps against 3-D ground truth")
     if truth.observed_keys.shape[0] == 0:
         raise PrismapInputError(f"--gt {args.gt}: the ground truth observes no voxel: nothing to score")
-    keys, log, counts = grid.known_voxels()
-    probability, occupied = align_to_ground_truth(
-        keys, grid.probability_at_keys(keys), truth.occupied_keys, truth.observed_keys, p0=grid.p0
-    )
-    scores = score_map(probability, occupied, evidence=(log - logit(grid.p0), counts))
+    scores = score_grid(grid, truth)
     print(format_scores(scores, title=f"{args.map} against {args.gt}"))
     result = {"map": str(args.map), "ground_truth": str(args.gt), "voxel_size_m": grid.voxel_size_m, "p0": grid.p0,
               "policy": "+".join(grid.policies), "n_frames": grid.n_frames, "scores": scores.to_dict()}

@@ -59,7 +59,7 @@ def main(argv=None):
         with _output_lock(args), _removed_if_refused(args):
             return int(args.func(args) or 0)
     except PrismapInputError as exc:
-        print(f"prismap {name}: error: {exc}", file=sys.stderr)
+        print(f"prismap {name}: error: {_one_line(exc)}", file=sys.stderr)
         return 2
     except cv2.error as exc:
         print(f"prismap {name}: error: OpenCV {exc.func or 'call'} refused the input: "
@@ -72,6 +72,17 @@ def main(argv=None):
     except KeyboardInterrupt:
         print(f"prismap {name}: interrupted", file=sys.stderr)
         return 130
+    except SystemError as exc:
+        # Ctrl-C inside a compiled kernel surfaces as "returned a result with an exception set"
+        if not isinstance(exc.__cause__ or exc.__context__, KeyboardInterrupt):
+            raise
+        print(f"prismap {name}: interrupted", file=sys.stderr)
+        return 130
+
+
+def _one_line(exc):
+    """The message of ``exc`` on one line (a library's multi-line complaint joined), as the command promises."""
+    return " ".join(line.strip() for line in str(exc).splitlines() if line.strip())
 
 
 def _terminate(signum, frame):

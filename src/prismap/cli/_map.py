@@ -11,7 +11,7 @@ import sys
 from pathlib import Path
 
 from prismap._files import write_text_atomic
-from prismap._validate import check_positive, check_probability
+from prismap._validate import check_positive, check_probability, parse_frame_range
 from prismap.cli._args import add_out
 from prismap.cli._bag import add_bag_arguments, open_bag_argument
 from prismap.errors import PrismapInputError
@@ -84,6 +84,8 @@ def run(args):
     """Map the sequence and write the map; return the exit status."""
     from prismap.io import read_sequence, save_map
     from prismap.pipeline import MappingConfig, map_sequence, remove_checkpoint
+    from prismap.pipeline._config import needs_error_model
+    from prismap.sensor_models import model_names
 
     if args.checkpoint_every < 0:
         raise PrismapInputError(f"--checkpoint-every must be >= 0; got {args.checkpoint_every}")
@@ -96,6 +98,9 @@ def run(args):
         if args.model != "prism":
             raise PrismapInputError(f"--map-prior is an option of --model prism; got --model {args.model}")
         model_params["prior"] = "map"
+    if args.error_model is None and args.model in model_names() and needs_error_model(args.model, model_params):
+        raise PrismapInputError(f"sensor model {args.model!r} needs an error model (--error-model MODEL.json)"
+                                + (" or --model-param sigma_px=..." if args.model != "prism" else ""))
     config = MappingConfig(
         model=args.model, voxel_size_m=check_positive(args.voxel, "--voxel"), p0=check_probability(args.p0, "--p0"),
         error_model=_error_model(args.error_model), conditioned=False if args.plain else None,
@@ -230,13 +235,9 @@ def parse_params(items, option):
 
 def parse_frames(text):
     """``"A:B"`` (either side may be empty) as ``(start, stop)``; raises for an empty or bad range."""
-    first, sep, last = text.partition(":")
-    try:
-        start = int(first) if first.strip() else 0
-        stop = int(last) if last.strip() else None
-    except ValueError:
-        raise PrismapInputError(f"--frames {text!r}: expected A:B with integers A < B (either may be omitted)") from None
-    if not sep or start < 0 or (stop is not None and stop <= start):
+    start, stop = parse_frame_range(text, "--frames")
+    start = 0 if start is None else start
+    if start < 0 or (stop is not None and stop <= start):
         raise PrismapInputError(f"--frames {text!r}: the range is empty or malformed; expected A:B with 0 <= A < B")
     return (start, stop)
 

@@ -1,6 +1,7 @@
 """Scores of an occupancy map against ground-truth occupancy (SENSOR_MODELS.md section 6)."""
 
 from prismap.evaluate._align import align_to_ground_truth
+from prismap.evaluate._grid import score_grid
 from prismap.evaluate._scores import (
     CONFIDENT,
     EVIDENCE_EDGES,
@@ -27,5 +28,6 @@ __all__ = [
     "evidence_histograms",
     "roc_auc",
     "safety_score",
+    "score_grid",
     "score_map",
 ]

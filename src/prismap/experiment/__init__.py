@@ -1,5 +1,6 @@
 """End-to-end experiments: every sensor model mapped and scored against exact ground truth, and the demo."""
 
+from prismap.evaluate import score_grid  # the scores of every cell, re-exported for the experiments' users
 from prismap.experiment._cells import ExperimentResult
 from prismap.experiment._office2d import SGBM_LIKE_MIXTURE, run_office2d
 from prismap.experiment._results import (
@@ -12,7 +13,6 @@ from prismap.experiment._results import (
     format_results_table,
     prior_of,
     read_results,
-    score_grid,
     write_results,
 )
 from prismap.experiment._scene3d import run_rendered_world, run_scene3d, run_street3d
@@ -30,7 +30,6 @@ __all__ = [
     "MODELS_3D",
     "MODELS_3D_MAP_PRIOR",
     "SGBM_LIKE_MIXTURE",
-    "SOLID_DEPTH_QUANTILE",
     "WORLDS",
     "CellResult",
     "ExperimentResult",

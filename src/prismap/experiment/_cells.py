@@ -7,7 +7,8 @@ from pathlib import Path
 
 from prismap._files import write_text_atomic
 from prismap.errors import PrismapInputError
-from prismap.experiment._results import CellResult, cell_path, read_cell, score_grid, write_cell
+from prismap.evaluate import score_grid
+from prismap.experiment._results import CellResult, cell_path, read_cell, write_cell
 
 
 @dataclass(frozen=True)
@@ -78,7 +79,9 @@ def run_cells(out_dir, matcher, models, build_map, truth, settings):
     matcher : str
     models : sequence of str
     build_map : callable
-        ``build_map(model_name) -> OccupancyMap``, the map of all frames with that model.
+        ``build_map(model_name) -> OccupancyMap``, the map of all frames with that model. When it has a
+        ``record(model_name, map_path)`` attribute, that is called after each new map is written (to write
+        the command that reproduces it beside it).
     truth : GroundTruthOccupancy
     settings : dict
 
@@ -99,6 +102,8 @@ def run_cells(out_dir, matcher, models, build_map, truth, settings):
             grid = build_map(model)
             elapsed = time.perf_counter() - start
             save_map(grid, map_path)
+            if hasattr(build_map, "record"):
+                build_map.record(model, map_path)
             result = CellResult(matcher, model, score_grid(grid, truth), elapsed, grid.n_frames, settings)
             write_cell(result, json_path)
         else:

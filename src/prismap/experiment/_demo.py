@@ -161,11 +161,12 @@ candidates grow with the bound, and at the default bound it is most of a quick r
 def _characterise_motorcycle(folder, matcher_name, *, quick):
     """The matcher's error model on the Motorcycle pair (reused when its files exist)."""
     from prismap.characterise import characterise_matcher, load_error_model, write_characterisation
+    from prismap.characterise._run import written_characterisation
     from prismap.experiment._steps3d import matcher_for
     from prismap.io import load_middlebury_motorcycle
 
     model_path = folder / "error_model.json"
-    if not all((folder / name).is_file() for name in ("error_model.json", "table.md", "errors.png", "errors_wide.png")):
+    if written_characterisation(folder) is None:
         frame = load_middlebury_motorcycle()
         truth = frame.disparity_gt
         matcher = matcher_for(matcher_name, float(np.max(truth[np.isfinite(truth)])))

@@ -3,7 +3,7 @@
 import numpy as np
 
 from prismap._progress import progress
-from prismap._validate import check_positive
+from prismap._validate import check_integer, check_positive
 from prismap.errors import PrismapInputError
 from prismap.experiment._cells import ExperimentResult, claim_out_dir, draw_figures, run_cells
 from prismap.experiment._results import MODELS, prior_of, write_results
@@ -30,8 +30,8 @@ def office2d_settings(*, n_frames=None, voxel_size_m=None, seed=0, quick=False, 
     sizes = dict(OFFICE_SIZES[bool(quick)])
     if voxel_size_m is not None:
         sizes["voxel_size_m"] = check_positive(voxel_size_m, "voxel_size_m")
-    if n_frames is not None and (isinstance(n_frames, bool) or int(n_frames) != n_frames or n_frames < 1):
-        raise PrismapInputError(f"`n_frames` must be a positive integer or None; got {n_frames!r}")
+    if n_frames is not None:
+        check_integer(n_frames, "n_frames", expected="a positive integer or None", condition=lambda n: n >= 1)
     if not isinstance(error_model, GaussianMixture):
         raise PrismapInputError(f"`error_model` must be a GaussianMixture; got {type(error_model).__name__}")
     return {"world": "office2d", "quick": bool(quick), "seed": int(seed), "n_frames": n_frames,
@@ -74,6 +74,7 @@ def run_office2d(out_dir, *, n_frames=None, voxel_size_m=None, seed=0, quick=Fal
     ExperimentResult
     """
     from prismap import sim
+    from prismap.camera import integrate_disparity
     from prismap.grid import OccupancyMap
     from prismap.pipeline import build_sensor_model
 
@@ -103,7 +104,7 @@ def run_office2d(out_dir, *, n_frames=None, voxel_size_m=None, seed=0, quick=Fal
         model = build_sensor_model(model_name, scanner.camera, voxel_size_m=voxel, p0=p0, error_model=error_model)
         grid = OccupancyMap(voxel, p0=p0)
         for frame in progress(frames, total=len(frames), desc=f"office2d {model_name}", unit="frame"):
-            grid.integrate_disparity(frame.disparity, frame.camera, frame.T_world_cam, model, max_range_m=reach_m)
+            integrate_disparity(grid, frame.disparity, frame.camera, frame.T_world_cam, model, max_range_m=reach_m)
         return grid
 
     results, maps = run_cells(out, ERROR_SOURCE, models, build_map, truth, settings)

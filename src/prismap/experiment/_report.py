@@ -172,10 +172,12 @@ def _maps_at_a_glance(report):
 
 
 def _map_files(report):
-    """Every map file of the runs, with the ``prismap view`` command that opens it beside its ground truth."""
+    """Every map file of the runs, with the ``prismap view`` command that opens it beside its ground truth and,
+    where the run wrote it, the ``prismap map`` command that makes it again (``MAP.run.json``)."""
     rows = []
     for world, result in report.experiments.items():
         truth = report.out_dir / world / "sequence" / "occupancy.npz"
+        names = {c.model for c in result.cells}
         for cell in result.cells:
             path = cell_path(report.out_dir / world, cell.matcher, cell.model).with_suffix(".npz")
             if not path.is_file():
@@ -183,15 +185,21 @@ def _map_files(report):
             command = f"prismap view {report.shell_dir}/{_relative(path, report.out_dir)}"
             if truth.is_file():
                 command += f" --gt {report.shell_dir}/{_relative(truth, report.out_dir)}"
-            link = html.escape(_relative(path, report.out_dir), quote=True)
-            rows.append(f'<tr><td>{html.escape(world)}</td><td>{html.escape(cell.matcher)}</td>'
-                        f'<td>{html.escape(model_label(cell.model, {c.model for c in result.cells}))}</td>'
-                        f'<td><a href="{link}">{link}</a></td><td><code>{html.escape(command)}</code></td></tr>')
+            record = path.with_suffix(".run.json")
+            again = "" if not record.is_file() else _link(record, report.out_dir, "prismap map command")
+            rows.append(f"<tr><td>{html.escape(world)}</td><td>{html.escape(cell.matcher)}</td>"
+                        f"<td>{html.escape(model_label(cell.model, names))}</td><td>{_link(path, report.out_dir)}</td>"
+                        f"<td><code>{html.escape(command)}</code></td><td>{again}</td></tr>")
     if not rows:
         return []
-    return ["<details><summary>Every map file, and the command that opens it in the 3-D viewer</summary>"
-            "<table><thead><tr><th>world</th><th>matcher</th><th>model</th><th>map</th><th>open with</th></tr>"
-            f"</thead><tbody>{''.join(rows)}</tbody></table></details>"]
+    return ["<details><summary>Every map file, the command that opens it in the 3-D viewer and the one that makes "
+            "it again</summary><table><thead><tr><th>world</th><th>matcher</th><th>model</th><th>map</th>"
+            f"<th>open with</th><th>reproduce</th></tr></thead><tbody>{''.join(rows)}</tbody></table></details>"]
+
+
+def _link(path, out_dir, text=None):
+    link = html.escape(_relative(path, out_dir), quote=True)
+    return f'<a href="{link}">{html.escape(text) if text else link}</a>'
 
 
 def _details(report):

@@ -5,11 +5,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from scipy.special import logit
 
 from prismap._files import write_text_atomic
 from prismap.errors import PrismapInputError
-from prismap.evaluate import SCORE_COLUMNS, MapScores, align_to_ground_truth, score_map
+from prismap.evaluate import SCORE_COLUMNS, MapScores
 from prismap.sensor_models import prior_from_ground_truth
 
 MODELS = ("ideal", "hitmiss", "convolution", "andert", "prism")
@@ -26,7 +25,7 @@ MAP_PRIOR_SUFFIX = "_map_prior"
 the map's current probability (ray mode only)."""
 MODELS_3D_MAP_PRIOR = (*MODELS_3D, "prism" + CONDITIONED_SUFFIX + MAP_PRIOR_SUFFIX)
 """:data:`MODELS_3D` and conditioned PRISM with the map as prior: a ray-mode run's opt-in (``models=``), not the
-default, since that row costs about 3 times conditioned PRISM's time and did not win (README, the 3-D room)."""
+default: it costs several times conditioned PRISM's time (README, the 3-D room)."""
 
 
 def split_variant(name):
@@ -125,15 +124,6 @@ def scores_from_dict(data):
             value = float("nan")
         values[name] = value
     return MapScores(**values)
-
-
-def score_grid(grid, truth):
-    """Score ``grid`` (OccupancyMap) on every voxel ``truth`` (GroundTruthOccupancy) observed; unknown = ``grid.p0``.
-    The per-frame evidence histograms cover every voxel the map observed."""
-    keys, log, counts = grid.known_voxels()
-    probability, occupied = align_to_ground_truth(keys, grid.probability_at_keys(keys), truth.occupied_keys,
-                                                  truth.observed_keys, p0=grid.p0)
-    return score_map(probability, occupied, evidence=(log - logit(grid.p0), counts))
 
 
 def prior_of(truth):

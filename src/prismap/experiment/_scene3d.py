@@ -5,7 +5,6 @@ import math
 
 import numpy as np
 
-from prismap._progress import progress
 from prismap.characterise import fusion_from_block
 from prismap.errors import PrismapInputError
 from prismap.experiment._cells import ExperimentResult, claim_out_dir, draw_figures, run_cells
@@ -30,7 +29,7 @@ from prismap.experiment._steps3d import (
     matcher_for,
 )
 from prismap.experiment._targets import format_targets, measure_targets
-from prismap.experiment._worlds3d import MATCHERS, WORLDS, scene3d_settings, split_frames
+from prismap.experiment._worlds3d import MATCHERS, WORLDS, render_world, scene3d_settings, split_frames
 
 
 def run_scene3d(out_dir, *, n_frames=None, voxel_size_m=None, seed=0, quick=False, matchers=MATCHERS,
@@ -126,7 +125,6 @@ def run_rendered_world(world, out_dir, *, n_frames=None, voxel_size_m=None, seed
     -------
     ExperimentResult
     """
-    from prismap import sim
     from prismap.io import read_sequence, write_sequence
 
     settings = scene3d_settings(world=world, n_frames=n_frames, voxel_size_m=voxel_size_m, seed=seed, quick=quick,
@@ -138,21 +136,10 @@ def run_rendered_world(world, out_dir, *, n_frames=None, voxel_size_m=None, seed
     char_index, map_index = split_frames(n_drive, settings["characterise_every"])
     if len(map_index) == 0:
         raise PrismapInputError(f"{n_drive} frames leave none to map after characterisation")
-    poses = spec.trajectory(n_drive, seed)
-    if n_between:
-        poses = np.concatenate([poses, spec.between_trajectory(n_drive, n_between, seed)])
     out = claim_out_dir(out_dir, settings)
     voxel = settings["voxel_size_m"]
-    camera = spec.camera(settings["image_scale"])
-    base = spec.scene(seed)
+    scene, camera, drive_char_frames, char_frames, map_frames = render_world(settings)
     shift = settings["grid_offset_m"]
-    scene = sim.Scene3D(base.box_lo + shift, base.box_hi + shift, base.box_texture, base.box_texel_m, base.box_tint,
-                        name=base.name)
-    poses[:, :3, 3] += shift
-    frames = list(progress(scene.frames(camera, poses, seed=seed), total=len(poses), desc="render", unit="frame"))
-    drive_char_frames = [frames[i] for i in char_index]
-    char_frames = drive_char_frames + frames[n_drive:]
-    map_frames = [frames[i] for i in map_index]
     sequence_dir = out / "sequence"
     if not (sequence_dir / "occupancy.npz").is_file():  # written last: its presence means the sequence is whole
         truth = scene.ground_truth(map_frames, voxel, max_depth_m=settings["max_range_m"])
@@ -160,7 +147,7 @@ def run_rendered_world(world, out_dir, *, n_frames=None, voxel_size_m=None, seed
     sequence = read_sequence(sequence_dir)
     truth = sequence.ground_truth
     p0 = prior_of(truth)
-    largest = max(float(np.nanmax(f.disparity_gt)) for f in frames)
+    largest = max(float(np.nanmax(f.disparity_gt)) for f in char_frames + map_frames)
     model_params = derived_model_params(settings, scene, drive_char_frames)
     cell_settings = dict(settings, derived_model_params=model_params)
 
@@ -181,7 +168,8 @@ def run_rendered_world(world, out_dir, *, n_frames=None, voxel_size_m=None, seed
             matcher_params = class_model_params(model_params, settings, scene, drive_char_frames, error_model,
                                                  match_frames(out / matcher_name / "characterisation_disparity",
                                                         drive_char_frames, matcher))
-        build_map = mapper(sequence, disparity_dir, matcher_name, error_model, p0, matcher_params, settings)
+        build_map = mapper(sequence, disparity_dir, matcher_name, error_model, p0, matcher_params, settings,
+                           error_model_path=out / matcher_name / "characterisation" / "error_model.json")
         cells, maps = run_cells(out, matcher_name, models, build_map, truth,
                                 dict(cell_settings, derived_model_params=matcher_params))
         results += cells

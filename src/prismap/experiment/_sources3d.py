@@ -38,27 +38,6 @@ LIDAR_WITHIN_NATS = 0.05
 """The LiDAR model's held-out log-likelihood must lie within this many nats per error of the ground-truth one."""
 
 
-def _rendered(world, settings):
-    """The run's scene, its drive's characterisation frames, all its characterisation frames and its mapping frames,
-    rendered again exactly as :func:`run_rendered_world` did (same seed)."""
-    from prismap import sim
-    from prismap.experiment._worlds3d import WORLDS, split_frames
-
-    spec, seed = WORLDS[world](), settings["seed"]
-    n_drive, n_between = settings["n_frames"], settings["between_frames"]
-    poses = spec.trajectory(n_drive, seed)
-    if n_between:
-        poses = np.concatenate([poses, spec.between_trajectory(n_drive, n_between, seed)])
-    base, shift = spec.scene(seed), settings["grid_offset_m"]
-    scene = sim.Scene3D(base.box_lo + shift, base.box_hi + shift, base.box_texture, base.box_texel_m, base.box_tint,
-                        name=base.name)
-    poses[:, :3, 3] += shift
-    frames = list(scene.frames(spec.camera(settings["image_scale"]), poses, seed=seed))
-    char_index, map_index = split_frames(n_drive, settings["characterise_every"])
-    drive_char = [frames[i] for i in char_index]
-    return scene, drive_char, drive_char + frames[n_drive:], [frames[i] for i in map_index]
-
-
 def _motorcycle_model(folder, matcher_name):
     """The matcher characterised on Middlebury's Motorcycle pair (reused when its files exist)."""
     from prismap.experiment._steps3d import characterise_frames, matcher_for
@@ -153,6 +132,7 @@ def run_error_sources(world, out_dir, *, quick=False, n_frames=None, seed=0, mat
         matcher_for,
         read_disparities,
     )
+    from prismap.experiment._worlds3d import render_world
     from prismap.io import read_sequence
     from prismap.sim import lidar_disparity
 
@@ -160,7 +140,7 @@ def run_error_sources(world, out_dir, *, quick=False, n_frames=None, seed=0, mat
     base = run_rendered_world(world, out / "ground-truth", n_frames=n_frames, seed=seed, quick=quick,
                               matchers=matchers, models=models, between_frames=between_frames)
     settings = base.settings
-    scene, drive_char_frames, char_frames, map_frames = _rendered(world, settings)
+    scene, _, drive_char_frames, char_frames, map_frames = render_world(settings)
     sequence = read_sequence(out / "ground-truth" / "sequence")
     truth = sequence.ground_truth
     p0 = prior_of(truth)

@@ -24,10 +24,10 @@ def characterise_frames(out_dir, frames, matcher, dataset, *, source="ground-tru
     """The matcher's error mixture (characterised once, then read back) and its table and figures; ``source``
     says what the frames' ``disparity_gt`` is (see :func:`prismap.characterise.characterise_matcher`)."""
     from prismap.characterise import characterise_matcher, load_error_model, write_characterisation
+    from prismap.characterise._run import written_characterisation
 
-    paths = {"model": out_dir / "error_model.json", "table": out_dir / "table.md",
-             "figure": out_dir / "errors.png", "figure_wide": out_dir / "errors_wide.png"}
-    if not all(p.is_file() for p in paths.values()):
+    paths = written_characterisation(out_dir)
+    if paths is None:
         # the class search samples every frame: classes chosen on a subset of the street's frames predicted the
         # mapping frames' errors worse (README, conditioned error models)
         characterisation = characterise_matcher(frames, matcher, dataset=dataset, search_frames=len(frames),
@@ -96,10 +96,12 @@ def class_model_params(model_params, settings, scene, char_frames, error_model, 
     return dict(model_params, prism=dict(prism, **{CLASS_PASS_THROUGH: [float(m) for m in ratios]}))
 
 
-def mapper(sequence, disparity_dir, matcher_name, error_model, p0, model_params, settings):
+def mapper(sequence, disparity_dir, matcher_name, error_model, p0, model_params, settings, *, error_model_path=None):
     """``build_map(cell_model)``: the pipeline's map of the mapping frames from the matcher's disparities.
 
-    ``model_params``: model name -> its parameters (the settings' with what the run derived).
+    ``model_params``: model name -> its parameters (the settings' with what the run derived). With
+    ``error_model_path`` (the file ``error_model`` was read from), ``build_map.record(cell_model, map_path)``
+    writes ``MAP.run.json`` beside a cell's map: the ``prismap map`` command that makes it again.
 
     ``cell_model`` is a model name, plain, or with :data:`~prismap.experiment.CONDITIONED_SUFFIX`: conditioned
     on the error model's classes (plain when the characterisation chose none; PRISM then takes
@@ -109,7 +111,7 @@ def mapper(sequence, disparity_dir, matcher_name, error_model, p0, model_params,
     from prismap.pipeline import MappingConfig, map_sequence
     from prismap.sensor_models import CLASS_PASS_THROUGH
 
-    def build_map(cell_model):
+    def config_of(cell_model):
         model_name, conditioned = split_variant(cell_model)
         params = {**model_params.get(model_name, {}), **variant_params(cell_model)}
         if params.get("prior") == "map":  # PRISM's solid depth is a p0-prior model only
@@ -121,6 +123,19 @@ def mapper(sequence, disparity_dir, matcher_name, error_model, p0, model_params,
                                conditioned=None if conditioned else False, matcher=matcher_name,
                                disparity_source=str(Path(disparity_dir).resolve()),
                                max_range_m=settings["max_range_m"], subsample=settings["subsample"], mode=settings["mode"])
-        return map_sequence(sequence, config)
+        return config
 
+    def build_map(cell_model):
+        return map_sequence(sequence, config_of(cell_model))
+
+    def record(cell_model, map_path):
+        from prismap.cli._map import map_command, write_map_record
+
+        config = config_of(cell_model)
+        command = map_command(config, inputs=["--sequence", str(Path(sequence.path).resolve())],
+                              error_model=Path(error_model_path).resolve(), out=Path(map_path).resolve())
+        write_map_record(map_path, command, config)
+
+    if error_model_path is not None:
+        build_map.record = record
     return build_map

@@ -70,13 +70,12 @@ def _scene3d_world():
 
 STREET_BETWEEN_FRAMES = 32
 """Extra characterisation frames of the full street, from positions between the drive's: with the drive's own
-4 the per-class mixtures see the rare gross errors of every class (on 4 frames alone a class fitted no outlier
-component and gave some errors of the mapped frames log-densities near -5800)."""
+4 the per-class mixtures see the rare gross errors of every class."""
 
 
 STREET_NEAR_M = 1.5
 """PRISM's ``near_m`` on the street: no surface is nearer than 1.8 m to the drive. PRISM's tables grow like
-``1 / near_m``; at its default 0.1 m they outgrow the cache on this sequence and PRISM maps several times slower."""
+``1 / near_m``, so the default 0.1 m would build tables far larger than the street needs."""
 
 
 def _street3d_world():
@@ -130,16 +129,14 @@ def scene3d_settings(*, world="scene3d", n_frames=None, voxel_size_m=None, seed=
             raise PrismapInputError(f"`between_frames`: world {world!r} has no drive between its frames; got "
                                     f"{between_frames!r} (0 or None)")
     if n_frames is not None:
-        if isinstance(n_frames, bool) or int(n_frames) != n_frames or n_frames < 2:
-            raise PrismapInputError(f"`n_frames` must be an integer >= 2 (characterisation + mapping); got {n_frames!r}")
-        sizes["n_frames"] = int(n_frames)
+        sizes["n_frames"] = check_integer(n_frames, "n_frames", expected="an integer >= 2 (characterisation + mapping)",
+                                          condition=lambda n: n >= 2)
     if voxel_size_m is not None:
         sizes["voxel_size_m"] = check_positive(voxel_size_m, "voxel_size_m")
     if max_range_m is not None:
         sizes["max_range_m"] = check_positive(max_range_m, "max_range_m")
-    every = characterise_every
-    if isinstance(every, bool) or int(every) != every or every < 2:
-        raise PrismapInputError(f"`characterise_every` must be an integer >= 2; got {every!r}")
+    every = check_integer(characterise_every, "characterise_every", expected="an integer >= 2",
+                          condition=lambda n: n >= 2)
     unknown = [m for m in matchers if m not in MATCHERS]
     if unknown or not matchers:
         raise PrismapInputError(f"`matchers` must be a non-empty subset of {list(MATCHERS)}; got {list(matchers)}")
@@ -155,3 +152,37 @@ def split_frames(n_frames, every):
     """Indices ``(characterisation, mapping)``: every ``every``-th frame (from 0) characterises, the rest map."""
     indices = np.arange(n_frames)
     return indices[indices % every == 0], indices[indices % every != 0]
+
+
+def render_world(settings):
+    """Render the frames of a run with ``settings`` (:func:`scene3d_settings`): the same images for the same settings.
+
+    The world's scene and the drive (then the positions between, ``between_frames``) are translated by
+    ``grid_offset_m`` on every axis, and rendered with one noise stream seeded by ``seed``.
+
+    Returns
+    -------
+    scene : Scene3D
+        The translated scene.
+    camera : StereoCamera
+    drive_char_frames, char_frames, map_frames : list of StereoFrame
+        The drive's characterisation frames (every ``characterise_every``-th), those and the frames between
+        (every characterisation frame), and the drive's other frames (the mapping frames).
+    """
+    from prismap import sim
+    from prismap._progress import progress
+
+    spec, seed = WORLDS[settings["world"]](), settings["seed"]
+    n_drive, n_between = settings["n_frames"], settings["between_frames"]
+    char_index, map_index = split_frames(n_drive, settings["characterise_every"])
+    poses = spec.trajectory(n_drive, seed)
+    if n_between:
+        poses = np.concatenate([poses, spec.between_trajectory(n_drive, n_between, seed)])
+    camera = spec.camera(settings["image_scale"])
+    base, shift = spec.scene(seed), settings["grid_offset_m"]
+    scene = sim.Scene3D(base.box_lo + shift, base.box_hi + shift, base.box_texture, base.box_texel_m, base.box_tint,
+                        name=base.name)
+    poses[:, :3, 3] += shift
+    frames = list(progress(scene.frames(camera, poses, seed=seed), total=len(poses), desc="render", unit="frame"))
+    drive_char_frames = [frames[i] for i in char_index]
+    return scene, camera, drive_char_frames, drive_char_frames + frames[n_drive:], [frames[i] for i in map_index]

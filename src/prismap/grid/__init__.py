@@ -4,16 +4,15 @@ Design notes (one owner per concept):
 
 - ``_keys``: the voxel key (``floor(p / voxel)``), the block split, the packing and the limit derived from
   them (:data:`KEY_LIMIT`); keys beyond it are refused with the limit in metres, never wrapped.
-- ``_logodds``: log-odds are stored in fixed point (int32 units of 2**-20), as Bonxai does, rather than
+- ``_logodds``: log-odds are stored in fixed point (int64 units of 2**-20), as Bonxai does, rather than
   summed in a fixed order: a fixed order would tie every merge to the sequence's frame order and still
   round differently from one sequential sum, whereas integer sums are exact in any order, so a map
   merged from chunks (Dask, any workers, any chunking) equals the sequential map bit for bit.
 - ``_policies``: the per-frame policies (names, codes, combining rule).
-- ``_integrators``: :class:`RayBatch` in, ``make_integrator("ray" | "projective")`` out; the per-frame
-  bounds on work and memory (docs/errors.md).
-- ``_overhang``: how far before its hit a voxel a ray crosses can still hold the (locally planar) surface,
-  per ray, from the disparity image's plane normals (:func:`prismap.camera.plane_normals`); passed to the
-  models that ``takes_voxel_overhang`` (PRISM).
+- ``_integrators``: :class:`RayBatch` (measurements along rays: disparities or ranges, with their per-ray
+  noise, class and voxel overhang) in, ``make_integrator("ray" | "projective")`` out; the per-frame bounds on
+  work and memory (docs/errors.md). The map knows nothing of cameras: ``prismap.camera`` turns a disparity
+  image and a pose into a batch.
 - ``_fusion``: :class:`PersistentFailure`, how a voxel's stored sums (log-odds, count) read as a probability when
   a matcher's failures persist across views; the stored sums stay plain additions.
 - ``_traverse``: :func:`crossed_voxels`, the checked traversal for callers outside the integrators (the
@@ -23,7 +22,16 @@ Design notes (one owner per concept):
 """
 
 from prismap.grid._fusion import PersistentFailure
-from prismap.grid._integrators import INTEGRATOR_NAMES, ImageProjection, Integrator, RayBatch, make_integrator
+from prismap.grid._integrators import (
+    INTEGRATOR_NAMES,
+    MEASUREMENT_KINDS,
+    PROJECTOR_NAMES,
+    ImageProjection,
+    Integrator,
+    RayBatch,
+    make_integrator,
+    make_projector,
+)
 from prismap.grid._keys import (
     KEY_LIMIT,
     PACK_OFFSET,
@@ -35,8 +43,7 @@ from prismap.grid._keys import (
     point_to_key,
     unpack_keys,
 )
-from prismap.grid._map import FREE, OCCUPIED, OCTOMAP_CLAMP, UNKNOWN, OccupancyMap, pose_noise_px
-from prismap.grid._overhang import frame_overhang_m
+from prismap.grid._map import FREE, OCCUPIED, OCTOMAP_CLAMP, UNKNOWN, OccupancyMap
 from prismap.grid._policies import POLICIES
 from prismap.grid._traverse import crossed_voxels
 
@@ -44,10 +51,12 @@ __all__ = [
     "FREE",
     "INTEGRATOR_NAMES",
     "KEY_LIMIT",
+    "MEASUREMENT_KINDS",
     "OCCUPIED",
     "OCTOMAP_CLAMP",
     "PACK_OFFSET",
     "POLICIES",
+    "PROJECTOR_NAMES",
     "UNKNOWN",
     "ImageProjection",
     "Integrator",
@@ -55,14 +64,13 @@ __all__ = [
     "PersistentFailure",
     "RayBatch",
     "crossed_voxels",
-    "frame_overhang_m",
     "key_limit_m",
     "key_range_text",
     "key_to_center",
     "make_integrator",
+    "make_projector",
     "pack_key_sets",
     "pack_keys",
     "point_to_key",
-    "pose_noise_px",
     "unpack_keys",
 ]

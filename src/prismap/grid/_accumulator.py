@@ -5,11 +5,9 @@ face neighbours. Its size is bounded (:data:`MAX_FRAME_BYTES`): a frame that wou
 refused with an error naming what to change, instead of exhausting memory.
 """
 
-import os
-import resource
-
 import numpy as np
 
+from prismap._memory import address_space_room_bytes, physical_memory_bytes
 from prismap.errors import PrismapInputError
 from prismap.grid import _kernels_accumulate, _kernels_traverse
 from prismap.grid._storage import BlockTable
@@ -21,25 +19,16 @@ leaves free when those are smaller (:func:`frame_budget_bytes`)."""
 
 
 def frame_budget_bytes():
-    """The frame accumulator's memory bound (bytes) on this machine and under this process's limits."""
+    """The frame accumulator's memory bound (bytes) on this machine and under this process's limits
+    (:mod:`prismap._memory` measures both)."""
     budget = MAX_FRAME_BYTES
-    try:
-        budget = min(budget, os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") // 4)
-    except (ValueError, OSError, AttributeError):
-        pass
-    soft = resource.getrlimit(resource.RLIMIT_AS)[0]
-    if soft != resource.RLIM_INFINITY:
-        budget = min(budget, max(soft - _address_space_used(), 0) // 3)  # growing copies: old + new arrays
+    physical = physical_memory_bytes()
+    if physical is not None:
+        budget = min(budget, physical // 4)
+    room = address_space_room_bytes()
+    if room is not None:
+        budget = min(budget, room // 3)  # growing copies: old + new arrays
     return budget
-
-
-def _address_space_used():
-    """Bytes of address space this process maps now (Linux ``/proc/self/statm``; 0 where unknown)."""
-    try:
-        with open("/proc/self/statm") as handle:
-            return int(handle.read().split()[0]) * os.sysconf("SC_PAGE_SIZE")
-    except (OSError, ValueError, IndexError):
-        return 0
 
 
 def new_accumulator(bits):

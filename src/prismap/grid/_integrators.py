@@ -8,8 +8,9 @@ Two variants behind one base class, built by :func:`make_integrator`:
   centre into the image and takes the ray of that pixel; one visit per voxel, needs the frame's image
   geometry (:class:`ImageProjection`).
 
-The grid never knows which sensor model it runs: it hands the model flat arrays (per ray the measured
-disparity and ``|r|``, per cell the ray index and the cell's depth interval on that ray) and gets back
+The grid never knows which sensor model it runs: it hands the model flat arrays (per ray the measurement,
+a disparity or a range as the batch's ``kind`` says, and ``|r|``, per cell the ray index and the cell's depth
+interval on that ray) and gets back
 per-cell log-odds increments (SENSOR_MODELS.md section 3). A model that states hit/miss increments
 (``hit_miss_increments``) is applied while casting, without cell arrays. A per-ray class
 (``RayBatch.ray_class``) reaches the model as the keyword ``ray_class`` only when the batch has one, a
@@ -52,8 +53,8 @@ PROJECTIVE_THREADS = 2
 """Threads walking the parts of a projective frame and running their cells through the model."""
 
 BLOCK_FILL = 0.5
-"""Share of the voxels of the accumulator blocks a projective frame touches that it keeps, to reserve the
-blocks before the walk: a street frame's 1.48 M voxels lie in 46 k blocks of 64."""
+"""Share of the voxels of the accumulator blocks a projective frame touches that it is assumed to keep, to reserve
+the blocks before the walk (a frustum's voxels fill about half of the blocks its surface cuts)."""
 
 MAX_RAY_CELLS = 1 << 20
 """Voxels one ray may cross (1 M: 105 km at 0.1 m voxels, 1 km at 1 mm)."""
@@ -67,7 +68,8 @@ MIN_NOISE_PX = 0.01
 
 @dataclass(frozen=True)
 class ImageProjection:
-    """Where the frame's image sees the world, for projective integration.
+    """The pinhole projector: where the frame's image sees the world, for projective integration (made by
+    :func:`make_projector`).
 
     Attributes
     ----------
@@ -85,35 +87,47 @@ class ImageProjection:
     ray_index: np.ndarray
 
 
+MEASUREMENT_KINDS = ("disparity", "range")
+"""What a :class:`RayBatch` measures along each ray: a stereo disparity (pixels) or a range (metres)."""
+
+
 @dataclass(frozen=True)
 class RayBatch:
-    """One frame's rays, all from one origin.
+    """One frame's measurements along rays, all from one origin: what the map integrates.
+
+    The map knows nothing of the sensor that made them: a camera's disparity image becomes a batch on the
+    camera side (:func:`prismap.camera.disparity_batch`), a LiDAR scan a batch of ranges.
 
     Attributes
     ----------
-    origin_w : (3,) float64, metres, world frame, the optical centre
-    rays_w : (R, 3) float64, world frame, camera rays ``(x/z, y/z, 1)`` rotated into the world (the point at
-        camera depth ``z`` is ``origin_w + z * rays_w``)
-    disparity_px : (R,) float64, pixels, finite
+    origin_w : (3,) float64, metres, world frame, the sensor's origin
+    rays_w : (R, 3) float64, world frame: the point at ray parameter ``t`` is ``origin_w + t * rays_w``
+        (a camera's rays ``(x/z, y/z, 1)`` rotated into the world, so ``t`` is camera depth; unit vectors
+        for ranges, so ``t`` is the range)
+    measurement : (R,) float64, finite: disparity (pixels) or range (metres), as ``kind`` says
     ray_norm : (R,) float64, ``|rays_w|`` >= 1
     extra_noise_px : (R,) float64, pixels, or None; extra disparity noise per ray (pose uncertainty)
     ray_class : (R,) int32 or None; the error-model class of each ray, -1 = no class
     image : ImageProjection or None; needed by the projective integrator
     voxel_overhang_m : (R,) float64, metres along the ray, or None; how far before its surface a voxel the ray
-        crosses can still hold part of that surface (``grid._overhang``)
+        crosses can still hold part of that surface (:func:`prismap.camera.voxel_overhang_m`)
+    kind : {"disparity", "range"}
+        What ``measurement`` holds (:data:`MEASUREMENT_KINDS`); a sensor model takes the kinds it lists in
+        its ``measurements``.
     """
 
     origin_w: np.ndarray
     rays_w: np.ndarray
-    disparity_px: np.ndarray
+    measurement: np.ndarray
     ray_norm: np.ndarray
     extra_noise_px: np.ndarray | None = None
     ray_class: np.ndarray | None = None
     image: ImageProjection | None = None
     voxel_overhang_m: np.ndarray | None = None
+    kind: str = "disparity"
 
     def __len__(self):
-        return self.disparity_px.size
+        return self.measurement.size
 
     def subset(self, keep):
         """The batch of the rays where ``keep`` ((R,) bool) holds; the image's ray index follows."""
@@ -124,9 +138,9 @@ class RayBatch:
             flat = image.ray_index.reshape(-1)
             ray_index = np.where(flat >= 0, new[np.maximum(flat, 0)], -1).astype(np.int32).reshape(image.ray_index.shape)
             image = replace(image, ray_index=ray_index)
-        return RayBatch(self.origin_w, np.ascontiguousarray(self.rays_w[keep]), self.disparity_px[keep],
+        return RayBatch(self.origin_w, np.ascontiguousarray(self.rays_w[keep]), self.measurement[keep],
                         self.ray_norm[keep], _take(self.extra_noise_px, keep), _take(self.ray_class, keep), image,
-                        _take(self.voxel_overhang_m, keep))
+                        _take(self.voxel_overhang_m, keep), self.kind)
 
     def class_kwargs(self, idx, model):
         """``{"ray_class": classes of rays idx}`` for a call of ``model``, or ``{}`` when the batch has no
@@ -215,11 +229,12 @@ class Integrator(ABC):
 
     def stop_depths(self, model, batch, idx):
         """Depth at which each ray of ``idx`` stops and whether that stop excludes its voxel (cut by max range)."""
-        disparity, ray_norm = _rows(batch.disparity_px, idx), _rows(batch.ray_norm, idx)
-        influence = np.asarray(model.influence_depth(disparity, ray_norm, **batch.class_kwargs(idx, model)), dtype=np.float64)
-        if influence.shape != disparity.shape:
+        measurement, ray_norm = _rows(batch.measurement, idx), _rows(batch.ray_norm, idx)
+        influence = np.asarray(model.influence_depth(measurement, ray_norm, **batch.class_kwargs(idx, model)),
+                               dtype=np.float64)
+        if influence.shape != measurement.shape:
             raise PrismapInputError(
-                f"sensor model {model.name!r}: influence_depth returned shape {influence.shape}; expected {disparity.shape}"
+                f"sensor model {model.name!r}: influence_depth returned shape {influence.shape}; expected {measurement.shape}"
             )
         range_depth = self.max_range_m / ray_norm
         exclusive = range_depth < influence
@@ -238,7 +253,7 @@ class Integrator(ABC):
         kwargs = batch.cell_kwargs(idx, model)
         if map_log_odds is not None:
             kwargs["map_log_odds"] = map_log_odds
-        _, increment = model.cell_posteriors(_rows(batch.disparity_px, idx), _rows(batch.ray_norm, idx), ray_of_cell,
+        _, increment = model.cell_posteriors(_rows(batch.measurement, idx), _rows(batch.ray_norm, idx), ray_of_cell,
                                              t_in, t_out, **kwargs)
         increment = np.asarray(increment, dtype=np.float64)
         if increment.shape != t_in.shape:
@@ -378,7 +393,8 @@ class ProjectiveIntegrator(Integrator):
     def _integrate(self, accumulator, batch, groups):
         image = batch.image
         if image is None:
-            raise PrismapInputError("projective mode needs a camera image: use `integrate_disparity(..., mode='projective')`")
+            raise PrismapInputError("projective mode needs the batch's image geometry (`RayBatch.image`: "
+                                    "prismap.camera.disparity_batch(..., projective=True))")
         n = len(batch)
         origin, rays, voxel = batch.origin_w, batch.rays_w, self.voxel_size_m
         t_stop = np.empty(n)
@@ -493,3 +509,22 @@ def make_integrator(name, **config):
     except (KeyError, TypeError):
         raise PrismapInputError(f"`mode` must be one of {list(_INTEGRATORS)}; got {name!r}") from None
     return cls(**config)
+
+
+_PROJECTORS = {"pinhole": ImageProjection}
+PROJECTOR_NAMES = tuple(_PROJECTORS)
+"""Names accepted by :func:`make_projector`."""
+
+
+def make_projector(name, **params):
+    """The projector called ``name`` (``"pinhole"``: :class:`ImageProjection`), built from ``params``.
+
+    The projective integrator maps voxel centres to the frame's pixels through it; as with the integrators
+    (:func:`make_integrator`) and the sensor models (:func:`prismap.sensor_models.make_sensor_model`), the three
+    are separate objects, so another sensor geometry is a new projector, not a new integrator.
+    """
+    try:
+        cls = _PROJECTORS[name]
+    except (KeyError, TypeError):
+        raise PrismapInputError(f"`projector` must be one of {list(_PROJECTORS)}; got {name!r}") from None
+    return cls(**params)

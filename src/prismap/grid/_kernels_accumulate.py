@@ -3,7 +3,7 @@
 The frame accumulator holds, per touched voxel, ``(sum, count, max, min)`` of its increments (float32) and
 per block the slots of its six face neighbours, so that a ray stepping into the next block reads one int32
 instead of hashing (~8.5 M block changes on a 640x480 frame at 0.1 m). The map holds fixed-point log-odds
-(int32 units of ``_logodds.LOG_ODDS_STEP``) and uint16 counts; a frame adds one rounded integer per voxel
+(int64 units of ``_logodds.LOG_ODDS_STEP``) and uint16 counts; a frame adds one rounded integer per voxel
 (``_policies.combine``), a merge adds integers, so both are exact and independent of order.
 Called only by the grid's wrappers. Every kernel releases the GIL.
 """
@@ -13,7 +13,7 @@ import numpy as np
 
 from prismap.grid._kernels_hash import EMPTY, find_block, insert_block
 from prismap.grid._keys import PACKED_STEPS, split_key
-from prismap.grid._logodds import LOG_ODDS_STEP, Q_MAX, Q_MIN
+from prismap.grid._logodds import LOG_ODDS_STEP, Q_MAX, Q_MIN, STEP_MAX
 from prismap.grid._policies import combine
 
 _STEP_X, _STEP_Y, _STEP_Z = PACKED_STEPS
@@ -136,9 +136,9 @@ def add_increment(acc, row, x):
     """Add float32 increment ``x`` to accumulator row ``row``: ``(sum, count, max, min)``."""
     acc[row, 0] += x
     acc[row, 1] += 1.0
-    if x > acc[row, 2]:  # noqa: PLR1730 (a comparison, not max(): a NaN increment leaves the row alone)
+    if x > acc[row, 2]:  # a comparison, not max(): a NaN increment leaves the row alone
         acc[row, 2] = x
-    if x < acc[row, 3]:  # noqa: PLR1730
+    if x < acc[row, 3]:
         acc[row, 3] = x
 
 
@@ -154,14 +154,14 @@ def _map_block(table, block_keys, n_blocks, log, count, key, prior_q):
 
 @numba.njit(cache=True, nogil=True, inline="always")
 def _bounded(q, lo, hi):
-    """``q`` (int64 units) clamped to ``[lo, hi]`` and saturated to the int32 range."""
+    """``q`` (int64 units) clamped to ``[lo, hi]`` and saturated to ``[Q_MIN, Q_MAX]``."""
     return min(max(q, max(lo, Q_MIN)), min(hi, Q_MAX))
 
 
 @numba.njit(cache=True, nogil=True)
 def apply_frame(table, block_keys, n_blocks, log, count, frame_keys, n_frame, acc, policy, clamp_lo, clamp_hi, prior_q):
-    """One update per voxel the frame touched: ``q += round(policy(increments) / LOG_ODDS_STEP)``, clamped
-    to ``[clamp_lo, clamp_hi]`` (int64 units), ``count += 1``.
+    """One update per voxel the frame touched: ``q += round(policy(increments) / LOG_ODDS_STEP)`` (the step
+    bounded to ``+-STEP_MAX``), clamped to ``[clamp_lo, clamp_hi]`` (int64 units), ``count += 1``.
 
     The map must have room for ``n_frame`` new blocks. Counts saturate at 65535.
     """
@@ -172,7 +172,7 @@ def apply_frame(table, block_keys, n_blocks, log, count, frame_keys, n_frame, ac
             if n == 0.0:
                 continue
             inc = combine(acc[s, v, 0], n, acc[s, v, 2], acc[s, v, 3], policy)
-            step = np.int64(np.rint(np.float64(inc) * _INV_STEP))
+            step = np.int64(np.rint(min(max(np.float64(inc) * _INV_STEP, -STEP_MAX), STEP_MAX)))
             log[slot, v] = _bounded(np.int64(log[slot, v]) + step, clamp_lo, clamp_hi)
             if count[slot, v] < 65535:
                 count[slot, v] += 1
@@ -207,9 +207,9 @@ def set_voxels(table, block_keys, n_blocks, log, count, keys, values, counts, bi
 
 @numba.njit(cache=True, nogil=True)
 def lookup(table, block_keys, log, count, keys, bits, prior_q):
-    """Fixed-point log-odds (int32) and observation count at each key; ``(prior_q, 0)`` for voxels never stored."""
+    """Fixed-point log-odds (int64) and observation count at each key; ``(prior_q, 0)`` for voxels never stored."""
     n = keys.shape[0]
-    out_log = np.empty(n, dtype=np.int32)
+    out_log = np.empty(n, dtype=np.int64)
     out_count = np.empty(n, dtype=np.uint16)
     for i in range(n):
         block, local = split_key(np.int64(keys[i, 0]), np.int64(keys[i, 1]), np.int64(keys[i, 2]), bits)
@@ -225,13 +225,13 @@ def lookup(table, block_keys, log, count, keys, bits, prior_q):
 
 @numba.njit(cache=True, nogil=True)
 def map_log_of_rows(table, block_keys, log, acc_block_keys, rows, voxel_bits, prior_q):
-    """The map's fixed-point log-odds (int32) of the voxels of frame accumulator rows ``rows``.
+    """The map's fixed-point log-odds (int64) of the voxels of frame accumulator rows ``rows``.
 
     A row is ``slot * V + voxel`` in the accumulator (``V = 2**voxel_bits``), the voxel's index in its block the
     same in the map; ``prior_q`` where the map has no such block. Consecutive rows of one block (a ray's cells)
     share one hash look-up.
     """
-    out = np.empty(rows.size, dtype=np.int32)
+    out = np.empty(rows.size, dtype=np.int64)
     mask = (1 << voxel_bits) - 1
     last_block = -1
     slot = -1

@@ -318,17 +318,6 @@ def _slab(rx, ry, rz, lx, ly, lz, size):
 
 
 @numba.njit(cache=True, nogil=True)
-def rotate_rays(rays, rotation):
-    """``rays @ rotation.T`` for (R, 3) rays: numpy's BLAS product of this shape costs ~10x more."""
-    out = np.empty_like(rays)
-    for i in range(rays.shape[0]):
-        x, y, z = rays[i, 0], rays[i, 1], rays[i, 2]
-        for a in range(3):
-            out[i, a] = rotation[a, 0] * x + rotation[a, 1] * y + rotation[a, 2] * z
-    return out
-
-
-@numba.njit(cache=True, nogil=True)
 def frustum_box(origin, rays, t_stop, voxel_size):
     """Key box of the origin and every ray's stop point, one voxel of margin: ``(key_min (3,), shape (3,))``
     int64 and the number of rays that cast anything (``t_stop > 0``)."""

@@ -214,9 +214,9 @@ def cast_hit_miss(table, block_keys, n_blocks, acc, links, origin, rays, t_stop,
                 x = miss if t_out <= z else (hit if t_in <= z else zero)
                 acc[last_slot, local, 0] += x
                 acc[last_slot, local, 1] += 1.0
-                if x > acc[last_slot, local, 2]:  # noqa: PLR1730 (as in _kernels_accumulate.scatter)
+                if x > acc[last_slot, local, 2]:  # a comparison, as in _kernels_accumulate.scatter
                     acc[last_slot, local, 2] = x
-                if x < acc[last_slot, local, 3]:  # noqa: PLR1730
+                if x < acc[last_slot, local, 3]:
                     acc[last_slot, local, 3] = x
             kx, ky, kz, tx, ty, tz = _step(kx, ky, kz, tx, ty, tz, sx, sy, sz, dx, dy, dz)
             t_in = t_out

@@ -1,19 +1,15 @@
 """The occupancy map: an unbounded sparse grid of hashed voxel blocks holding log-odds and counts."""
 
-from concurrent.futures import Future, ThreadPoolExecutor
-from dataclasses import replace
-
 import numpy as np
 from scipy.special import expit
 
-from prismap._validate import as_float_array, check_positive, check_probability
+from prismap._validate import as_float_array, check_classes, check_positive, check_probability
 from prismap.errors import PrismapInputError
-from prismap.grid import _accumulator, _kernels_accumulate, _kernels_hash, _kernels_project
+from prismap.grid import _accumulator, _kernels_accumulate, _kernels_hash
 from prismap.grid._fusion import PersistentFailure
-from prismap.grid._integrators import ImageProjection, RayBatch, make_integrator
-from prismap.grid._keys import BLOCK_BITS, KEY_LIMIT, check_keys, key_range_text, point_to_key
-from prismap.grid._logodds import LOG_ODDS_STEP, Q_MAX, Q_MIN, from_fixed, logit, to_fixed
-from prismap.grid._overhang import frame_overhang_m
+from prismap.grid._integrators import MEASUREMENT_KINDS, RayBatch, make_integrator
+from prismap.grid._keys import BLOCK_BITS, KEY_LIMIT, check_keys, key_range_text, key_to_center, point_to_key
+from prismap.grid._logodds import LOG_ODDS_STEP, Q_DTYPE, Q_MAX, Q_MIN, from_fixed, logit, to_fixed
 from prismap.grid._policies import policy_code, policy_name
 from prismap.grid._storage import BlockTable
 from prismap.grid._traverse import crossed_voxels
@@ -34,7 +30,7 @@ class OccupancyMap:
 
     Voxels live in hashed blocks (4^3 in 3-D; 8x8x1 in 2-D) created when first observed, with keys inside
     :data:`~prismap.grid.KEY_LIMIT` on every axis. A voxel stores its full log-odds ``l`` (``logit(p0)``
-    before any update) in int32 units of ``2**-20`` (order-free sums, see ``prismap.grid._logodds``) and
+    before any update) in int64 units of ``2**-20`` (order-free sums, see ``prismap.grid._logodds``) and
     how many frames observed it (uint16, saturating at 65535). A voxel no frame observed is *unknown*,
     whatever its probability.
 
@@ -88,26 +84,26 @@ class OccupancyMap:
         self.policies = ()
         self.n_frames = 0
         voxels = 1 << sum(BLOCK_BITS[self.ndim])
-        self._store = BlockTable(BLOCK_BITS[self.ndim], {"log": ((voxels,), np.int32), "count": ((voxels,), np.uint16)})
+        self._store = BlockTable(BLOCK_BITS[self.ndim], {"log": ((voxels,), Q_DTYPE), "count": ((voxels,), np.uint16)})
         self._accumulator = _accumulator.new_accumulator(self._store.bits)
 
     # ----------------------------------------------------------------------------------- integration
-    def integrate_rays(self, origin_w, rays_w, disparity_px, model, *, mode="ray", policy=None,
-                       max_range_m=np.inf, extra_noise_px=None, ray_class=None, voxel_overhang_m=None):
-        """Integrate one frame given as rays from one origin (ray mode).
+    def integrate(self, batch, model, *, mode="ray", policy=None, max_range_m=np.inf):
+        """Integrate one frame's measurements.
 
         Parameters
         ----------
-        origin_w : (3,) or (2,) float, metres, world frame
-            Optical centre of the camera.
-        rays_w : (R, 3) or (R, 2) float, world frame
-            Camera ray of each measurement rotated into the world, scaled so that the point at camera
-            depth ``z`` is ``origin_w + z * rays_w``; its norm is the ray's ``|r| >= 1``.
-        disparity_px : (R,) float, pixels, NaN = invalid (skipped)
+        batch : RayBatch
+            The frame's measurements along rays from one origin: disparities or ranges (``batch.kind``), with
+            optional per-ray extra noise, error class and voxel overhang (a camera's disparity image becomes
+            one with :func:`prismap.camera.disparity_batch`). Rays with a non-finite measurement are skipped.
         model : InverseSensorModel
-            Built for this map: its ``p0`` and ``voxel_size_m`` (when it has them) must equal the map's.
-        mode : {"ray"}
-            ``projective`` needs the camera image: :meth:`integrate_disparity`.
+            Built for this map: its ``p0`` and ``voxel_size_m`` (when it has them) must equal the map's, and
+            it must take the batch's kind of measurement (its ``measurements``).
+        mode : {"ray", "projective"}
+            ``ray`` casts every ray through the grid; ``projective`` visits the voxels of the frustum (up to
+            where the measurements stop influencing), projects each centre into the batch's image
+            (``batch.image``) and updates it once from the ray of the pixel it lands on.
         policy : str or None
             Per-frame policy (``mean``, ``max-abs``, ``occupied-wins``, ``max``, ``sum``, see
             :data:`~prismap.grid.POLICIES`); None = the model's ``default_policy``.
@@ -115,125 +111,82 @@ class OccupancyMap:
             Distance along a ray beyond which nothing is updated. A ray whose measurement lies
             beyond it only clears free space up to it, excluding the voxel that contains the
             max-range point (as OctoMap does).
+
+        Notes
+        -----
+        The integrators (:func:`~prismap.grid.make_integrator`) say how rays become voxel updates.
+        Several rays of the frame that cross one voxel give it ONE update, combined by ``policy``. A batch's
+        extra noise (pose uncertainty) groups its rays by ``sigma`` (geometric bins), and each group uses
+        ``model.with_extra_noise(sigma)``.
+        """
+        if not isinstance(batch, RayBatch):
+            raise PrismapInputError(f"`batch` must be a RayBatch; got {type(batch).__name__}")
+        self._integrate(self._checked(batch), model, mode, policy, max_range_m)
+
+    def integrate_rays(self, origin_w, rays_w, measurement, model, *, kind="disparity", mode="ray", policy=None,
+                       max_range_m=np.inf, extra_noise_px=None, ray_class=None, voxel_overhang_m=None):
+        """Integrate one frame given as arrays: :meth:`integrate` of their :class:`RayBatch` (ray mode).
+
+        Parameters
+        ----------
+        origin_w : (3,) or (2,) float, metres, world frame
+            The sensor's origin.
+        rays_w : (R, 3) or (R, 2) float, world frame
+            The point at ray parameter ``t`` is ``origin_w + t * rays_w``; the norm is the ray's ``|r| >= 1``
+            (a camera's rays ``(x/z, y/z, 1)`` rotated into the world; unit vectors for ranges).
+        measurement : (R,) float, NaN = invalid (skipped)
+            Disparity (pixels) or range (metres), as ``kind`` says.
+        model : InverseSensorModel
+        kind : {"disparity", "range"}
+        mode : {"ray"}
+            ``projective`` needs the image geometry a batch carries: :meth:`integrate`.
+        policy, max_range_m : see :meth:`integrate`
         extra_noise_px : (R,) float, pixels, or None
-            Extra disparity noise per ray (robot pose uncertainty, see :meth:`integrate_disparity`).
+            Extra disparity noise per ray (pose uncertainty, :func:`prismap.camera.pose_noise_px`).
         ray_class : (R,) int or None
             Error-model class of each ray (-1 = no class), passed to the model's ``cell_posteriors`` and
             ``influence_depth`` as the keyword ``ray_class`` (only when given). Hit/miss models ignore it.
         voxel_overhang_m : (R,) float, metres along the ray, >= 0, or None
             How far before its surface a voxel each ray crosses can still hold part of that surface
-            (``grid._overhang``), passed to models that ``takes_voxel_overhang`` (PRISM).
-
-        Notes
-        -----
-        The integrators (:func:`~prismap.grid.make_integrator`) say how rays become voxel updates.
-        Several rays of the frame that cross one voxel give it ONE update, combined by ``policy``.
+            (:func:`prismap.camera.voxel_overhang_m`), passed to models that ``takes_voxel_overhang`` (PRISM).
         """
-        batch = self._batch(origin_w, rays_w, disparity_px, extra_noise_px, ray_class, None, voxel_overhang_m)
-        self._integrate(batch, model, mode, policy, max_range_m)
+        self.integrate(RayBatch(origin_w, rays_w, measurement, None, extra_noise_px, ray_class, None, voxel_overhang_m,
+                                kind), model, mode=mode, policy=policy, max_range_m=max_range_m)
 
-    def integrate_disparity(self, disparity_px, camera, T_world_cam, model, *, mode="ray", policy=None,
-                            max_range_m=np.inf, subsample=1, pose_covariance=None, ray_class=None):
-        """Integrate one disparity image seen from pose ``T_world_cam``.
-
-        Parameters
-        ----------
-        disparity_px : (H, W) float, pixels, NaN = invalid
-            Pixels with a non-finite disparity or ``d + doffs <= 0`` are skipped.
-        camera : StereoCamera
-        T_world_cam : (4, 4) float, metres, camera -> world; must be finite
-        model : InverseSensorModel
-        mode : {"ray", "projective"}
-            ``ray`` casts every pixel's ray through the grid; ``projective`` visits the voxels of the
-            camera frustum (up to where the measurements stop influencing), projects each centre into
-            the image and updates it once from the pixel it lands on.
-        policy, max_range_m : see :meth:`integrate_rays`
-        subsample : int >= 1
-            Use every ``subsample``-th pixel in both directions.
-        pose_covariance : (3, 3) or (6, 6) float or None
-            Covariance of the camera position (m^2, world axes) or of (position, rotation vector)
-            (m^2, rad^2, world axes). Widens each ray's disparity noise, see Notes.
-        ray_class : (H, W) int or None
-            Error-model class of each pixel (-1 = no class), see :meth:`integrate_rays`.
-
-        A model that ``takes_voxel_overhang`` (PRISM) gets each ray's voxel overhang, from surface normals
-        fitted to this disparity image (``grid._overhang.frame_overhang_m``).
-
-        Notes
-        -----
-        Pose uncertainty (thesis sec. 4.4.3) is folded into the sensor noise to first order. A small
-        pose error ``(dt, dtheta)`` (world axes) moves the measured point ``p = z r`` (camera frame) by
-        ``-(R^T dt) - (R^T dtheta) x p``; its depth changes by ``dz = -J (R^T dt, R^T dtheta)`` with
-        ``J = (0, 0, 1, p_y, -p_x, 0)``, so ``sigma_z^2 = J Sigma_cam J^T`` where
-        ``Sigma_cam = diag(R, R)^T Sigma diag(R, R)``. Since ``d + doffs = f b / z``, the equivalent
-        disparity noise is ``sigma_d = f b sigma_z / z^2`` (pixels) at the measured depth ``z``. Rays
-        are grouped by ``sigma_d`` and each group uses ``model.with_extra_noise(sigma_d)``. Lateral
-        displacement of the point is not represented (the model is one-dimensional along the ray).
-        """
-        if self.ndim != 3:
-            raise PrismapInputError("`integrate_disparity` needs a 3-D map; a 2-D map takes rays in the plane: `integrate_rays`")
-        disparity = as_float_array(disparity_px, "disparity_px", ndim=2)
-        pose = as_float_array(T_world_cam, "T_world_cam", shape=(4, 4), allow_nan=False)
-        if int(subsample) != subsample or subsample < 1:
-            raise PrismapInputError(f"`subsample` must be an integer >= 1; got {subsample!r}")
-        step = int(subsample)
-        classes = None
-        if ray_class is not None:
-            classes = _class_array(ray_class, "ray_class", disparity.shape)[::step, ::step].reshape(-1)
-        disparity = disparity[::step, ::step]
-        rays_cam = camera.pixel_rays(np.shape(disparity_px))[::step, ::step].reshape(-1, 3)
-        d = disparity.reshape(-1).copy()
-        d[~(d + camera.doffs_px > 0)] = np.nan
-        rotation, origin = pose[:3, :3], pose[:3, 3]
-        with ThreadPoolExecutor(max_workers=1) as side:
-            overhang = None  # the plane fits run beside the batch's set-up (both in kernels that release the GIL)
-            if model.takes_voxel_overhang:
-                overhang = side.submit(frame_overhang_m, disparity_px, camera, rotation, self.voxel_size_m, step,
-                                       rays_cam)
-            noise = None
-            if pose_covariance is not None:
-                noise = pose_noise_px(d, rays_cam, rotation, pose_covariance, camera.focal_baseline, camera.doffs_px)
-            image = None
-            if mode == "projective":
-                ray_index = np.arange(d.size, dtype=np.int32).reshape(disparity.shape)
-                image = ImageProjection(np.ascontiguousarray(rotation.T), camera.focal_px, camera.cx_px, camera.cy_px,
-                                        step, ray_index)
-            rays_w = _kernels_project.rotate_rays(np.ascontiguousarray(rays_cam), np.ascontiguousarray(rotation))
-            batch = self._batch(origin, rays_w, d, noise, classes, image, overhang)
-        self._integrate(batch, model, mode, policy, max_range_m)
-
-    def _batch(self, origin_w, rays_w, disparity_px, extra_noise_px, ray_class, image, voxel_overhang_m):
-        """The checked :class:`RayBatch` of a frame, its invalid rays dropped; ``voxel_overhang_m`` may be a
-        Future of the array, waited for last."""
-        origin = self._points(origin_w, "origin_w", single=True)
-        rays = self._points(rays_w, "rays_w", as_direction=True)
+    def _checked(self, batch):
+        """``batch`` with its arrays checked against the map, its ray norms computed and its invalid rays dropped."""
+        if batch.kind not in MEASUREMENT_KINDS:
+            raise PrismapInputError(f"`kind` must be one of {list(MEASUREMENT_KINDS)}; got {batch.kind!r}")
+        origin = self._points(batch.origin_w, "origin_w", single=True)
+        rays = self._points(batch.rays_w, "rays_w", as_direction=True)
         n = rays.shape[0]
-        disparity = as_float_array(disparity_px, "disparity_px", shape=(n,))
+        measurement = as_float_array(batch.measurement, "measurement", shape=(n,))
         ray_norm = np.sqrt(np.einsum("ri,ri->r", rays, rays))
-        valid = np.isfinite(disparity) & np.isfinite(ray_norm)  # a non-finite ray has a non-finite norm
+        valid = np.isfinite(measurement) & np.isfinite(ray_norm)  # a non-finite ray has a non-finite norm
         if np.any(ray_norm[valid] < 1.0 - 1e-9):
-            raise PrismapInputError("`rays_w` must have norm >= 1 (camera rays (x/z, y/z, 1) rotated into the world)")
+            raise PrismapInputError("`rays_w` must have norm >= 1 (camera rays (x/z, y/z, 1) rotated into the world, "
+                                    "or unit vectors)")
         noise = None
-        if extra_noise_px is not None:
-            noise = as_float_array(extra_noise_px, "extra_noise_px", shape=(n,))
+        if batch.extra_noise_px is not None:
+            noise = as_float_array(batch.extra_noise_px, "extra_noise_px", shape=(n,))
             if not np.all(noise[valid] >= 0) or not np.all(np.isfinite(noise[valid])):
                 raise PrismapInputError("`extra_noise_px` must be finite and >= 0 at every valid ray")
-        classes = None if ray_class is None else _class_array(ray_class, "ray_class", (n,))
-        batch = RayBatch(origin, rays, disparity, ray_norm, noise, classes, image)
-        if not valid.all():  # a dense frame skips these copies
-            batch = batch.subset(valid)
-        if voxel_overhang_m is not None:
-            if isinstance(voxel_overhang_m, Future):  # computed beside this set-up
-                voxel_overhang_m = voxel_overhang_m.result()
-            overhang = as_float_array(voxel_overhang_m, "voxel_overhang_m", shape=(n,))
+        classes = None if batch.ray_class is None else check_classes(batch.ray_class, "ray_class", (n,))
+        overhang = None
+        if batch.voxel_overhang_m is not None:
+            overhang = as_float_array(batch.voxel_overhang_m, "voxel_overhang_m", shape=(n,))
             if not np.all(overhang[valid] >= 0) or not np.all(np.isfinite(overhang[valid])):
                 raise PrismapInputError("`voxel_overhang_m` must be finite and >= 0 at every valid ray")
-            batch = replace(batch, voxel_overhang_m=overhang if valid.all() else overhang[valid])
-        return batch
+        checked = RayBatch(origin, rays, measurement, ray_norm, noise, classes, batch.image, overhang, batch.kind)
+        return checked if valid.all() else checked.subset(valid)  # a dense frame skips these copies
 
     def _integrate(self, batch, model, mode, policy, max_range_m):
         """One frame: the model checked against the map, the integrator of ``mode``, one update per voxel."""
         self._check_model(model)
+        measurement = getattr(model, "measurement", "disparity")
+        if measurement != batch.kind:
+            raise PrismapInputError(f"sensor model {getattr(model, 'name', type(model).__name__)!r} takes {measurement} "
+                                    f"measurements; the batch holds {batch.kind} measurements")
         code = policy_code(policy, model)
         max_range = check_positive(max_range_m, "max_range_m") if np.isfinite(max_range_m) else np.inf
         origin_key = np.abs(np.floor(batch.origin_w / self.voxel_size_m)).max()
@@ -267,7 +220,7 @@ class OccupancyMap:
         store, acc = self._store, self._accumulator
         q = _kernels_accumulate.map_log_of_rows(store.table, store.block_keys, store.payload["log"], acc.block_keys,
                                                 np.ascontiguousarray(rows, dtype=np.int64), sum(store.bits),
-                                                np.int32(self.prior_q))
+                                                np.int64(self.prior_q))
         return from_fixed(q)
 
     def merge(self, other):
@@ -318,7 +271,7 @@ class OccupancyMap:
         store = self._store
         store.reserve(_kernels_hash.count_new_blocks(store.table, store.block_keys, keys, store.bits))
         _kernels_accumulate.set_voxels(store.table, store.block_keys, store.n_blocks, store.payload["log"],
-                                       store.payload["count"], keys, to_fixed(log).astype(np.int32),
+                                       store.payload["count"], keys, to_fixed(log),
                                        count.astype(np.uint16), store.bits, self.prior_q)
 
     def copy(self):
@@ -355,7 +308,7 @@ class OccupancyMap:
         keys = self._keys(keys)
         store = self._store
         q, count = _kernels_accumulate.lookup(store.table, store.block_keys, store.payload["log"],
-                                              store.payload["count"], keys, store.bits, np.int32(self.prior_q))
+                                              store.payload["count"], keys, store.bits, np.int64(self.prior_q))
         return from_fixed(q), count
 
     def probability_at_keys(self, keys):
@@ -396,6 +349,20 @@ class OccupancyMap:
         keys = store.voxel_keys()[known].astype(np.int32)
         return keys, from_fixed(store.payload["log"][:n][known]), count[known]
 
+    def known_probabilities(self):
+        """Every observed voxel with its occupancy probability (read under the map's ``fusion``; one pass over the
+        storage, no second look-up).
+
+        Returns
+        -------
+        keys : (N, 3) int32, voxel keys
+        probability : (N,) float64
+        log_odds : (N,) float64, multiples of ``2**-20``
+        counts : (N,) uint16, >= 1
+        """
+        keys, log, counts = self.known_voxels()
+        return keys, self._read(log, counts), log, counts
+
     def occupied_voxels(self):
         """Voxels in the occupied state.
 
@@ -408,7 +375,7 @@ class OccupancyMap:
         keys, log, count = self.known_voxels()
         mine = self._states(log, count) == OCCUPIED
         keys = keys[mine]
-        return keys, (keys + 0.5) * self.voxel_size_m, self._read(log[mine], count[mine])
+        return keys, key_to_center(keys, self.voxel_size_m), self._read(log[mine], count[mine])
 
     def bounding_box(self, *, occupied_only=False):
         """Axis-aligned box of the known (or occupied) voxels: ``(min_w, max_w)`` (3,) metres, or None if empty."""
@@ -447,7 +414,7 @@ class OccupancyMap:
             z_min, z_max = as_float_array(z_range_m, "z_range_m", shape=(2,), allow_nan=False)
             if not z_max > z_min:
                 raise PrismapInputError(f"`z_range_m` must be (z_min, z_max) with z_max > z_min; got {tuple(z_range_m)}")
-            z_lo = int(np.floor(z_min / self.voxel_size_m))
+            z_lo = int(point_to_key(z_min, self.voxel_size_m))
             z_hi = int(np.ceil(z_max / self.voxel_size_m)) - 1
         keys, log, count = self.known_voxels()
         inside = (keys[:, 2] >= z_lo) & (keys[:, 2] <= z_hi)
@@ -512,7 +479,7 @@ class OccupancyMap:
         return state
 
     def _clamp_q(self):
-        """Clamping bounds in fixed-point units (int64), the int32 range when clamping is off."""
+        """Clamping bounds in fixed-point units (int64), the stored range ``[Q_MIN, Q_MAX]`` when clamping is off."""
         if self.clamp is None:
             return Q_MIN, Q_MAX
         return int(to_fixed(logit(self.clamp[0]))), int(to_fixed(logit(self.clamp[1])))
@@ -545,48 +512,3 @@ class OccupancyMap:
     def __repr__(self):
         return (f"OccupancyMap(voxel_size_m={self.voxel_size_m}, p0={self.p0}, ndim={self.ndim}, "
                 f"clamp={self.clamp}, fusion={self.fusion}, known={self.n_known}, frames={self.n_frames})")
-
-
-def _class_array(value, name, shape):
-    """``value`` as a contiguous int32 array of ``shape``, every class >= -1 (-1 = no class), or raise."""
-    array = np.asarray(value)
-    if array.shape != tuple(shape) or not np.issubdtype(array.dtype, np.integer):
-        raise PrismapInputError(f"`{name}` must be an integer array of shape {tuple(shape)}; got {array.dtype} {array.shape}")
-    if array.size and (array.min() < -1 or array.max() > np.iinfo(np.int32).max):
-        raise PrismapInputError(f"`{name}` must hold classes >= 0 or -1 (no class); got values in [{array.min()}, {array.max()}]")
-    return np.ascontiguousarray(array, dtype=np.int32)
-
-
-def pose_noise_px(disparity, rays_cam, R_world_cam, pose_covariance, focal_baseline, doffs_px):
-    """Disparity noise (pixels) equivalent to a pose covariance, per ray (first order).
-
-    Parameters
-    ----------
-    disparity : (R,) float, pixels (NaN = invalid: NaN out)
-    rays_cam : (R, 3) float, camera rays ``(x/z, y/z, 1)``
-    R_world_cam : (3, 3) float, rotation camera -> world
-    pose_covariance : (3, 3) or (6, 6) float, m^2 (and rad^2), world axes
-    focal_baseline : float, pixel-metres
-    doffs_px : float, pixels
-
-    Returns
-    -------
-    sigma_px : (R,) float64, ``f b sqrt(J Sigma_cam J^T) / z^2`` with ``J = (0, 0, 1, p_y, -p_x, 0)``,
-        ``p = z r`` (see :meth:`OccupancyMap.integrate_disparity`).
-    """
-    cov = as_float_array(pose_covariance, "pose_covariance", ndim=2, allow_nan=False)
-    if cov.shape not in ((3, 3), (6, 6)) or not np.allclose(cov, cov.T) or np.linalg.eigvalsh(cov).min() < -1e-12:
-        raise PrismapInputError(f"`pose_covariance` must be a symmetric positive semi-definite (3, 3) or (6, 6); got shape {cov.shape}")
-    full = np.zeros((6, 6))
-    full[: cov.shape[0], : cov.shape[0]] = cov
-    rot = np.zeros((6, 6))
-    rot[:3, :3] = rot[3:, 3:] = R_world_cam
-    cov_cam = rot.T @ full @ rot
-    depth = focal_baseline / (np.asarray(disparity, dtype=np.float64) + doffs_px)
-    points = rays_cam * depth[:, None]
-    jac = np.zeros((depth.size, 6))
-    jac[:, 2] = 1.0
-    jac[:, 3] = points[:, 1]
-    jac[:, 4] = -points[:, 0]
-    sigma_z = np.sqrt(np.einsum("ri,ij,rj->r", jac, cov_cam, jac))
-    return focal_baseline * sigma_z / depth**2

@@ -12,7 +12,8 @@ class BlockTable:
     Parameters
     ----------
     bits : tuple of 3 int
-        log2 of the block size on x, y, z: ``(3, 3, 3)`` for 8^3 blocks, ``(4, 4, 0)`` for 16x16x1.
+        log2 of the block size on x, y, z: the map's ``BLOCK_BITS``, ``(2, 2, 2)`` for 4^3 blocks, ``(3, 3, 0)`` for
+        8x8x1.
     payload : dict of str -> (tuple, dtype)
         Per-block arrays: name -> (trailing shape after the block axis, dtype).
     """

@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from prismap._progress import progress as progress_bar
-from prismap._validate import check_integer
+from prismap._validate import check_integer, parse_frame_range
 from prismap.errors import PrismapInputError
 from prismap.io._frame import LazyFrames
 from prismap.io._kitti import KITTI_DISPARITIES, KittiOdometry, KittiRaw, KittiStereo
@@ -190,13 +190,7 @@ def _select(frames, every, count, dataset):
         start, stop = 0, count
     else:
         if isinstance(frames, str):
-            parts = frames.split(":")
-            try:
-                if len(parts) != 2:
-                    raise ValueError
-                start, stop = (int(p) if p.strip() else None for p in parts)
-            except ValueError:
-                raise PrismapInputError(f"`frames` must look like A:B (A or B may be empty); got {frames!r}") from None
+            start, stop = parse_frame_range(frames, "`frames`")
         else:
             if not isinstance(frames, (tuple, list)) or len(frames) != 2:
                 raise PrismapInputError(f"`frames` must be 'A:B', (start, stop) or None; got {frames!r}")

@@ -45,7 +45,6 @@ def read_png(path, what, flags=cv2.IMREAD_UNCHANGED):
     path = Path(path)
     data = read_bytes(path, what, max_bytes=_png_byte_bound(path, what), bound="its header's pixels")
     height, width, bytes_per_pixel = _png_header(data, path, what)
-    check_image_pixels(path, what, width, height)
     check_memory(width * height * bytes_per_pixel, f"{path}: decoding the {width}x{height} {what}")
     image = cv2.imdecode(np.frombuffer(data, np.uint8), flags)
     if image is None:
@@ -88,25 +87,131 @@ def _png_byte_bound(path, what):
     return png_max_bytes(width, height, bit_depth, colour_type)
 
 
+_PNG_BIT_DEPTHS = {0: (1, 2, 4, 8, 16), 2: (8, 16), 3: (1, 2, 4, 8), 4: (8, 16), 6: (8, 16)}
+"""Bit depths the PNG specification allows per colour type (libpng refuses the rest, printing a line)."""
+_PNG_SAMPLES = {0: 1, 2: 3, 3: 1, 4: 2, 6: 4}
+_ADAM7 = ((0, 0, 8, 8), (4, 0, 8, 8), (0, 4, 4, 8), (2, 0, 4, 4), (0, 2, 2, 4), (1, 0, 2, 2), (0, 1, 1, 2))
+"""Interlaced PNG passes: (x start, y start, x step, y step)."""
+
+
 def _png_header(data, path, what):
-    """``(height, width, decoded bytes per pixel)`` of the PNG ``data``, after checking every chunk's CRC."""
+    """``(height, width, decoded bytes per pixel)`` of the PNG ``data``, after checking it whole.
+
+    Every chunk's length and CRC, one IHDR first with values the specification allows, the pixel bound
+    (:func:`check_image_pixels`), and the IDAT stream: it must inflate (streamed, never held) to exactly the
+    filtered rows the header declares. libpng prints a line of its own on each of these faults, so they are
+    refused here first.
+    """
     if data[:len(PNG_SIGNATURE)] != PNG_SIGNATURE:
         raise PrismapInputError(f"{path}: {what} is not a PNG file (wrong signature)")
-    offset, header, ended = len(PNG_SIGNATURE), None, False
+    corrupt = f"{path}: {what} cannot be decoded (truncated or corrupt PNG"
+    offset, headers, idat, ended = len(PNG_SIGNATURE), [], [], False
     while offset + 12 <= len(data) and not ended:
         length, kind = struct.unpack(">I4s", data[offset:offset + 8])
         end = offset + 12 + length
         if end > len(data) or zlib.crc32(data[offset + 4:end - 4]) != struct.unpack(">I", data[end - 4:end])[0]:
             break
-        if header is None and kind == b"IHDR" and length == 13:
-            header = struct.unpack(">IIBB", data[offset + 8:offset + 18])
+        if kind == b"IHDR":
+            headers.append((offset, data[offset + 8:end - 4]))
+        elif kind == b"IDAT":
+            idat.append((offset + 8, end - 4))
         ended = kind == b"IEND"
         offset = end
-    if header is None or not ended:
-        raise PrismapInputError(f"{path}: {what} cannot be decoded (truncated or corrupt PNG)")
-    width, height, bit_depth, colour_type = header
-    channels = {0: 1, 2: 3, 3: 3, 4: 2, 6: 4}.get(colour_type, 4)
+    if not headers or not ended:
+        raise PrismapInputError(corrupt + ")")
+    if len(headers) > 1 or headers[0][0] != len(PNG_SIGNATURE) or len(headers[0][1]) != 13:
+        raise PrismapInputError(corrupt + ": IHDR must be the first chunk, once, of 13 bytes)")
+    width, height, bit_depth, colour_type, compression, filtering, interlace = struct.unpack(">IIBBBBB",
+                                                                                            headers[0][1])
+    if (bit_depth not in _PNG_BIT_DEPTHS.get(colour_type, ()) or compression or filtering or interlace > 1
+            or not width or not height):
+        raise PrismapInputError(corrupt + f": IHDR declares {width}x{height}, bit depth {bit_depth}, colour type "
+                                f"{colour_type}, methods {compression}/{filtering}/{interlace})")
+    check_image_pixels(path, what, width, height)
+    _check_idat(data, idat, _png_raw_bytes(width, height, bit_depth * _PNG_SAMPLES[colour_type], interlace), corrupt)
+    channels = {0: 1, 2: 3, 3: 3, 4: 2, 6: 4}[colour_type]
     return height, width, channels * (2 if bit_depth == 16 else 1)
+
+
+def _png_raw_bytes(width, height, bits_per_pixel, interlace):
+    """Bytes of the filtered rows (a filter byte and the packed pixels per row) of a PNG, over its passes."""
+    passes = _ADAM7 if interlace else ((0, 0, 1, 1),)
+    total = 0
+    for x0, y0, dx, dy in passes:
+        columns, rows = (width - x0 + dx - 1) // dx, (height - y0 + dy - 1) // dy
+        if columns > 0 and rows > 0:
+            total += rows * (1 + (columns * bits_per_pixel + 7) // 8)
+    return total
+
+
+def _check_idat(data, pieces, expected, corrupt):
+    """The IDAT ``pieces`` ((start, end) in ``data``) must inflate to exactly ``expected`` bytes, in blocks."""
+    inflate, produced = zlib.decompressobj(), 0
+    try:
+        for start, end in pieces:
+            chunk = data[start:end]
+            while chunk and produced <= expected:
+                produced += len(inflate.decompress(chunk, 1 << 20))
+                chunk = inflate.unconsumed_tail
+        while not inflate.eof and produced <= expected:
+            block = inflate.decompress(b"", 1 << 20)
+            if not block:
+                break
+            produced += len(block)
+    except zlib.error:
+        raise PrismapInputError(corrupt + ": bad compressed data)") from None
+    if produced != expected or not inflate.eof:
+        raise PrismapInputError(corrupt + f": the pixel data holds {produced} bytes, the header needs {expected})")
+
+
+_JPEG_FRAME_MARKERS = frozenset(range(0xC0, 0xD0)) - {0xC4, 0xC8, 0xCC}
+"""JPEG start-of-frame markers (SOF0-SOF15 but DHT, JPG and DAC), whose segment holds the image size."""
+
+
+def _jpeg_header(data, where):
+    """``(height, width, components)`` from a JPEG's start-of-frame segment, or a message naming ``where``."""
+    offset = 2
+    while offset + 4 <= len(data):
+        if data[offset] != 0xFF:
+            break
+        marker = data[offset + 1]
+        if marker == 0xFF:
+            offset += 1
+            continue
+        if marker in (0xD8, 0x01) or 0xD0 <= marker <= 0xD7:
+            offset += 2
+            continue
+        length = struct.unpack(">H", data[offset + 2:offset + 4])[0]
+        if marker in _JPEG_FRAME_MARKERS and offset + 10 <= len(data) and length >= 8:
+            height, width, components = struct.unpack(">HHB", data[offset + 5:offset + 10])
+            return height, width, components
+        if marker == 0xDA or length < 2:
+            break
+        offset += 2 + length
+    raise PrismapInputError(f"{where} cannot be decoded (a JPEG without a readable frame header)")
+
+
+def check_encoded_image(data, where):
+    """Check a PNG or JPEG held in memory (a bag's CompressedImage) before it is decoded.
+
+    Its declared size must be within :data:`MAX_IMAGE_PIXELS` and the memory budget, as for image files;
+    a PNG's chunks are checked too (libpng then never prints its own message). Other formats are refused.
+
+    Returns
+    -------
+    (height, width) : pixels
+    """
+    data = bytes(data)
+    if data[:len(PNG_SIGNATURE)] == PNG_SIGNATURE:
+        height, width, bytes_per_pixel = _png_header(data, where, "compressed image")
+    elif data[:3] == b"\xff\xd8\xff":
+        height, width, components = _jpeg_header(data, where)
+        bytes_per_pixel = max(components, 1)
+    else:
+        raise PrismapInputError(f"{where}: compressed image is neither PNG nor JPEG (starts {data[:8]!r})")
+    check_image_pixels(where, "compressed image", width, height)
+    check_memory(width * height * bytes_per_pixel, f"{where}: decoding the {width}x{height} compressed image")
+    return height, width
 
 
 def read_image(path, what, *, colour):

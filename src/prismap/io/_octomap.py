@@ -6,7 +6,7 @@ import numpy as np
 
 from prismap._files import atomic_path
 from prismap.errors import PrismapInputError
-from prismap.grid import OccupancyMap
+from prismap.grid import OccupancyMap, key_to_center
 
 OCTOMAP_KEY_RANGE = 1 << 15
 """OctoMap's 16-bit keys: voxel keys must lie in [-2**15, 2**15)."""
@@ -40,7 +40,7 @@ def to_octree(grid):
     tree.setClampingThresMin(1.0 / (1.0 + np.exp(20.0)))
     tree.setClampingThresMax(1.0 / (1.0 + np.exp(-20.0)))
     tree.setOccupancyThres(grid.occupied_threshold)
-    centers = (keys + 0.5) * grid.voxel_size_m
+    centers = key_to_center(keys, grid.voxel_size_m)
     for center, value in zip(centers, log.astype(np.float64)):
         tree.updateNode(center, float(value), True)
     tree.updateInnerOccupancy()

@@ -16,7 +16,7 @@ import numpy as np
 from prismap._files import atomic_path, make_parents, remove_if_empty
 from prismap._validate import check_probability
 from prismap.errors import PrismapInputError
-from prismap.grid import OccupancyMap
+from prismap.grid import OccupancyMap, key_to_center
 from prismap.io._rosbag import require_rosbags
 
 POINT_FIELDS = ("x", "y", "z", "probability")
@@ -95,13 +95,12 @@ def write_pointcloud2(grid, path, *, storage=None, frame_id="map", topic="/prism
 
 def _points(grid, min_probability):
     """(N,) structured float32 array of the voxel centres (metres, world frame) and their probability."""
-    keys, _, _ = grid.known_voxels()
-    probability = grid.probability_at_keys(keys)
+    keys, probability, _, _ = grid.known_probabilities()
     if min_probability is not None:
         keep = probability >= check_probability(min_probability, "min_probability", open_interval=False)
         keys, probability = keys[keep], probability[keep]
     points = np.empty(len(keys), dtype=[(name, "<f4") for name in POINT_FIELDS])
-    centers = (keys + 0.5) * grid.voxel_size_m
+    centers = key_to_center(keys, grid.voxel_size_m)
     points["x"], points["y"], points["z"] = centers.T
     points["probability"] = probability
     return points

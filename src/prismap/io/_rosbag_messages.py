@@ -7,6 +7,7 @@ import numpy as np
 
 from prismap.camera import StereoCamera
 from prismap.errors import PrismapInputError
+from prismap.io._images import check_encoded_image, check_image_pixels
 
 _ENCODINGS = {"mono8": 1, "rgb8": 3, "bgr8": 3}
 
@@ -33,9 +34,14 @@ def _rig(left_infos, right_infos, left_topic, right_topic, shape, rectified):
                 f"topic {topic}: camera_info has a zero or negative focal length (K fx, fy = {K[0, 0]}, {K[1, 1]}; "
                 f"P fx, fy = {P[0, 0]}, {P[1, 1]}): the camera is not calibrated"
             )
-        if (msg.height, msg.width) != shape and msg.height and msg.width:
+        if (msg.height, msg.width) != shape:
             raise PrismapInputError(f"topic {topic}: camera_info is for {msg.width}x{msg.height} images; "
                                     f"the images are {shape[1]}x{shape[0]}")
+        for name, values in (("K", K), ("D", D), ("R", R), ("P", P)):
+            if not np.all(np.isfinite(values)):
+                raise PrismapInputError(f"topic {topic}: camera_info field {name} holds non-finite values "
+                                        f"({values.ravel()[~np.isfinite(values.ravel())][:3]}): the camera is not "
+                                        "calibrated")
         infos.append((topic, msg.distortion_model, K, D, R, P))
     try:
         camera = StereoCamera.from_kitti_projections(infos[0][5], infos[1][5], width=shape[1], height=shape[0])
@@ -66,6 +72,7 @@ def _pixels(msg, topic, encodings):
         raise PrismapInputError(f"topic {topic}: image encoding {msg.encoding!r} is not supported; "
                                 f"expected one of {sorted(encodings)}")
     dtype, channels = encodings[msg.encoding]
+    check_image_pixels(f"topic {topic}", "image", msg.width, msg.height)
     dtype = np.dtype(dtype).newbyteorder(">" if msg.is_bigendian else "<")
     row_bytes = msg.width * channels * dtype.itemsize
     data = np.asarray(msg.data, dtype=np.uint8)
@@ -82,6 +89,7 @@ def _decode(msg, topic):
     if hasattr(msg, "encoding"):
         image = _pixels(msg, topic, {name: (np.uint8, c) for name, c in _ENCODINGS.items()})
         return np.ascontiguousarray(image[..., ::-1]) if msg.encoding == "bgr8" else image
+    check_encoded_image(np.asarray(msg.data, dtype=np.uint8), f"topic {topic}")
     image = cv2.imdecode(np.asarray(msg.data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
     if image is None or image.dtype != np.uint8 or image.ndim not in (2, 3):
         raise PrismapInputError(f"topic {topic}: compressed image (format {msg.format!r}) does not decode to 8 bits")

@@ -8,12 +8,18 @@ from pathlib import Path
 
 import numpy as np
 
-from prismap._validate import check_positive, check_probability
+from prismap._validate import check_integer, check_positive, check_probability
 from prismap.characterise import FUSION_MODELS, ErrorModel
 from prismap.errors import PrismapInputError
 from prismap.gmm import GaussianMixture
 from prismap.grid import POLICIES
-from prismap.sensor_models import USES_SIGMA, conditioned_sensor_model, model_defaults, model_for_mixture, model_names
+from prismap.sensor_models import (
+    conditioned_sensor_model,
+    error_model_use,
+    model_defaults,
+    model_for_mixture,
+    model_names,
+)
 from prismap.stereo import matcher_names
 
 MODES = ("ray", "projective")
@@ -23,6 +29,7 @@ DISPARITY_FROM_SEQUENCE = "sequence"
 RESERVED_MODEL_PARAMS = {
     "voxel_size_m": "the map's voxel size (--voxel)", "p0": "the map's prior (--p0)",
     "error_model": "--error-model", "focal_baseline": "the camera", "doffs_px": "the camera",
+    "measurement": "the camera (disparities)",
 }
 """Sensor model arguments the run sets itself, with where they come from; a model parameter may not set them."""
 
@@ -55,6 +62,13 @@ def _check_error_model(error_model):
     )
 
 
+def needs_error_model(name, params):
+    """Whether the sensor model ``name`` with its ``params`` needs a matcher's error model: PRISM always,
+    convolution and Andert unless ``params`` give ``sigma_px`` (each model's ``error_model_use``)."""
+    use = error_model_use(name)
+    return use == "mixture" or (use == "sigma" and "sigma_px" not in params)
+
+
 def build_sensor_model(name, camera, *, voxel_size_m, p0, error_model=None, **params):
     """The inverse sensor model ``name`` for ``camera`` on a map of ``voxel_size_m`` and prior ``p0``.
 
@@ -85,13 +99,9 @@ def build_sensor_model(name, camera, *, voxel_size_m, p0, error_model=None, **pa
     mixture = _as_mixture(error_model)
     params = dict(params)
     _check_model_params(params, "model parameter")
-    if mixture is None:
-        if name == "prism":
-            raise PrismapInputError("sensor model 'prism' needs an error model (--error-model MODEL.json)")
-        if name in USES_SIGMA and "sigma_px" not in params:
-            raise PrismapInputError(
-                f"sensor model {name!r} needs an error model (--error-model MODEL.json) or an explicit sigma_px"
-            )
+    if mixture is None and needs_error_model(name, params):
+        raise PrismapInputError(f"sensor model {name!r} needs an error model (`error_model`)"
+                                + (" or an explicit sigma_px" if error_model_use(name) == "sigma" else ""))
     return model_for_mixture(name, mixture, focal_baseline=camera.focal_baseline, doffs_px=camera.doffs_px,
                              voxel_size_m=voxel_size_m, p0=p0, **params)
 
@@ -199,9 +209,8 @@ class MappingConfig:
             raise PrismapInputError(f"`policy` must be one of {list(POLICIES)} or None; got {self.policy!r}")
         max_range = float(self.max_range_m)
         set_("max_range_m", max_range if max_range == math.inf else check_positive(max_range, "max_range_m"))
-        if isinstance(self.subsample, bool) or int(self.subsample) != self.subsample or self.subsample < 1:
-            raise PrismapInputError(f"`subsample` must be an integer >= 1; got {self.subsample!r}")
-        set_("subsample", int(self.subsample))
+        set_("subsample", check_integer(self.subsample, "subsample", expected="an integer >= 1",
+                                        condition=lambda n: n >= 1))
         set_("frames", _check_frames(self.frames))
         if self.fusion not in FUSION_MODELS:
             raise PrismapInputError(f"`fusion` must be one of {list(FUSION_MODELS)}; got {self.fusion!r}")
@@ -247,7 +256,7 @@ class MappingConfig:
         The variant (``plain``: the whole-image mixture; ``conditioned``: each pixel's class mixture) is
         named when the model uses the run's error model (``prism``, ``convolution``, ``andert``).
         """
-        uses_error_model = self.error_model is not None and (self.model == "prism" or self.model in USES_SIGMA)
+        uses_error_model = self.error_model is not None and error_model_use(self.model) is not None
         variant = (" conditioned" if self.conditioned else " plain") if uses_error_model else ""
         if self.disparity_source == DISPARITY_FROM_MATCHER:
             source = self.matcher

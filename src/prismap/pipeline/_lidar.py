@@ -14,18 +14,14 @@ from prismap.sensor_models import make_sensor_model
 LIDAR_P0 = 0.5
 """Prior of the reference map: OctoMap's uninformed 0.5, so one hit in a scan makes a voxel occupied."""
 
-_FOCAL_BASELINE = 1.0
-"""Virtual camera's ``f b`` (pixel-metres): a point at range ``r`` gets the disparity ``1 / r``."""
-
 
 def lidar_reference_map(scans, voxel_size_m, *, max_range_m=np.inf, p_hit=0.7, p_miss=0.4, progress=True):
     """Integrate LiDAR scans into a map with the noise-free hit/miss model (OctoMap's ``insertPointCloud``).
 
     Each point is a ray from the sensor origin; the voxel holding the point gets ``logit(p_hit)``, the
     voxels the ray crosses before it ``logit(p_miss)``, and within a scan a voxel that is some ray's
-    end stays occupied (``occupied-wins``). The rays go through :meth:`OccupancyMap.integrate_rays`
-    with unit direction vectors and the disparity ``1 / r`` of a virtual camera with ``f b = 1``, so
-    the measured depth is the point's range exactly.
+    end stays occupied (``occupied-wins``). Each scan is one batch of ranges along unit rays
+    (:meth:`OccupancyMap.integrate_rays` with ``kind="range"``) for a hit/miss model of ranges.
 
     Parameters
     ----------
@@ -51,8 +47,8 @@ def lidar_reference_map(scans, voxel_size_m, *, max_range_m=np.inf, p_hit=0.7, p
     """
     voxel = check_positive(voxel_size_m, "voxel_size_m")
     grid = OccupancyMap(voxel, p0=LIDAR_P0)
-    model = make_sensor_model("hitmiss", focal_baseline=_FOCAL_BASELINE, voxel_size_m=voxel, p0=LIDAR_P0,
-                              p_hit=p_hit, p_miss=p_miss)
+    model = make_sensor_model("hitmiss", measurement="range", voxel_size_m=voxel, p0=LIDAR_P0, p_hit=p_hit,
+                              p_miss=p_miss)
     total = len(scans) if hasattr(scans, "__len__") else None
     for index, scan in enumerate(progress_bar(scans, total=total, desc="lidar", unit="scan",
                                               enabled=None if progress else False)):
@@ -67,8 +63,8 @@ def lidar_reference_map(scans, voxel_size_m, *, max_range_m=np.inf, p_hit=0.7, p
         offsets_w = points[:, :3] @ pose[:3, :3].T
         ranges = np.sqrt((offsets_w**2).sum(axis=1))
         keep = ranges > 0
-        grid.integrate_rays(pose[:3, 3], offsets_w[keep] / ranges[keep, None], _FOCAL_BASELINE / ranges[keep],
-                            model, policy="occupied-wins", max_range_m=max_range_m)
+        grid.integrate_rays(pose[:3, 3], offsets_w[keep] / ranges[keep, None], ranges[keep], model, kind="range",
+                            policy="occupied-wins", max_range_m=max_range_m)
     if grid.n_frames == 0:
         raise PrismapInputError("`scans` is empty: a reference map needs at least one scan")
     return grid

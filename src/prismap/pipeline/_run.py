@@ -8,6 +8,8 @@ import numpy as np
 
 from prismap._files import exclusive_lock
 from prismap._progress import progress as progress_bar
+from prismap._validate import check_integer
+from prismap.camera import integrate_disparity
 from prismap.errors import PrismapInputError
 from prismap.grid import KEY_LIMIT, OccupancyMap, key_limit_m, key_range_text
 from prismap.io import BagSequence, Sequence, read_kitti_disparity, read_sequence
@@ -139,7 +141,7 @@ def integrate_frames(grid, sequence, config, indices, *, on_frame=None):
     source = DisparitySource(sequence, config)
     with Prefetch(source, indices) as frames:
         for _, (disparity, pose, ray_class) in frames:
-            grid.integrate_disparity(disparity, sequence.camera, pose, model, mode=config.mode, policy=config.policy,
+            integrate_disparity(grid, disparity, sequence.camera, pose, model, mode=config.mode, policy=config.policy,
                                      max_range_m=config.max_range_m, subsample=config.subsample, ray_class=ray_class)
             if on_frame is not None:
                 on_frame(grid)
@@ -171,7 +173,9 @@ def map_chunk(sequence_path, config, start, stop):
     """Map frames ``start <= i < stop`` into a fresh map (what a Dask worker runs).
 
     The worker opens the sequence itself, so no image crosses the network; it returns the chunk's map
-    as arrays: ``(keys (N, 3) int32, log_odds (N,) float32, counts (N,) uint16, n_frames, policies)``.
+    as arrays: ``(keys (N, 3) int32, log_odds (N,) float64, counts (N,) uint16, n_frames, policies)``; the
+    log-odds are the map's fixed-point sums as exact multiples of ``2**-20``, so the chunk map rebuilt from them
+    (:meth:`OccupancyMap.set_voxels`) holds the same integers.
     """
     grid = integrate_frames(new_map(config), read_sequence(sequence_path), config, range(start, stop))
     return (*grid.known_voxels(), grid.n_frames, grid.policies)
@@ -220,16 +224,16 @@ def map_sequence(sequence, config, *, progress=True, checkpoint=None, checkpoint
     On Dask, each task maps a contiguous chunk of frames into its own map (the worker reads the frames
     from ``sequence``'s path, which every worker must see) and returns it as arrays; chunk maps are
     merged in frame order, at most two per worker in flight, so memory stays bounded by the chunks.
-    Without clamping, a merged map equals the sequential one up to float32 rounding of the log-odds
-    sums (:meth:`OccupancyMap.merge`). A sequential run resumed from a checkpoint equals an
+    Without clamping, a merged map equals the sequential one bit for bit: the map sums fixed-point log-odds,
+    which add in any order (:meth:`OccupancyMap.merge`, ``prismap.grid._logodds``). A sequential run resumed from a checkpoint equals an
     uninterrupted one exactly. A model that ``takes_map_prior`` (PRISM with ``prior="map"``) weighs each
     frame against the map before it, so chunks mapped apart and merged are not that map: it is refused on
     Dask (checkpoints work: they hold the whole map).
     """
     if not isinstance(config, MappingConfig):
         raise PrismapInputError(f"`config` must be a MappingConfig; got {type(config).__name__}")
-    if isinstance(checkpoint_every, bool) or int(checkpoint_every) != checkpoint_every or checkpoint_every < 0:
-        raise PrismapInputError(f"`checkpoint_every` must be an integer >= 0; got {checkpoint_every!r}")
+    checkpoint_every = check_integer(checkpoint_every, "checkpoint_every", expected="an integer >= 0",
+                                     condition=lambda n: n >= 0)
     sequence = open_sequence(sequence)
     indices = config.frame_indices(len(sequence))
     check_key_reach(sequence, config, indices)
@@ -286,8 +290,8 @@ def _map_on_dask(grid, sequence, config, todo, client, chunk_frames, checkpoint_
         chunk_frames = max(1, math.ceil(len(todo) / (2 * n_workers)))
         if checkpoint_every:
             chunk_frames = min(chunk_frames, checkpoint_every)
-    elif isinstance(chunk_frames, bool) or int(chunk_frames) != chunk_frames or chunk_frames < 1:
-        raise PrismapInputError(f"`chunk_frames` must be an integer >= 1; got {chunk_frames!r}")
+    else:
+        chunk_frames = check_integer(chunk_frames, "chunk_frames", expected="an integer >= 1", condition=lambda n: n >= 1)
     chunks = [(todo[i], todo[min(i + int(chunk_frames), len(todo)) - 1] + 1) for i in range(0, len(todo), int(chunk_frames))]
     path = os.path.abspath(sequence.path)  # symbolic links kept: a KITTI tree is recognised by its path
     pending = []

@@ -2,6 +2,7 @@
 
 from prismap.sensor_models._base import (
     InverseSensorModel,
+    error_model_use,
     make_sensor_model,
     model_defaults,
     model_names,
@@ -10,11 +11,15 @@ from prismap.sensor_models._base import (
 from prismap.sensor_models._classic import AndertModel, ConvolutionModel, HitMissModel, IdealModel
 from prismap.sensor_models._conditioned import (
     CLASS_PASS_THROUGH,
-    USES_MIXTURE,
-    USES_SIGMA,
     ConditionedModel,
     conditioned_sensor_model,
     model_for_mixture,
+)
+from prismap.sensor_models._failure import (
+    blend_increments,
+    evidence_bound,
+    failure_floor,
+    log_failure_posterior,
 )
 from prismap.sensor_models._prism import PrismModel
 from prismap.sensor_models._prism_discrete import log_mean_likelihood, prism_discrete_posteriors
@@ -22,8 +27,6 @@ from prismap.sensor_models._prism_prior import estimate_prior_from_likelihood, p
 
 __all__ = [
     "CLASS_PASS_THROUGH",
-    "USES_MIXTURE",
-    "USES_SIGMA",
     "AndertModel",
     "ConditionedModel",
     "ConvolutionModel",
@@ -31,8 +34,13 @@ __all__ = [
     "IdealModel",
     "InverseSensorModel",
     "PrismModel",
+    "blend_increments",
     "conditioned_sensor_model",
+    "error_model_use",
     "estimate_prior_from_likelihood",
+    "evidence_bound",
+    "failure_floor",
+    "log_failure_posterior",
     "log_mean_likelihood",
     "make_sensor_model",
     "model_defaults",

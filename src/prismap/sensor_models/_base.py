@@ -30,7 +30,7 @@ class InverseSensorModel(ABC):
     :meth:`influence_depth`; the grid passes it only when the frame has classes, and never to a hit/miss
     model. A model with ``takes_voxel_overhang`` accepts the keyword ``voxel_overhang_m`` ((R,) float64,
     metres along each ray: how far before its surface a voxel can still hold part of it, see
-    ``prismap.grid._overhang``) in :meth:`cell_posteriors`. A model with ``takes_map_prior`` accepts the keyword
+    ``prismap.camera.voxel_overhang_m``) in :meth:`cell_posteriors`. A model with ``takes_map_prior`` accepts the keyword
     ``map_log_odds`` ((C,) float64: each cell's voxel's log-odds in the map before this frame) there; only
     integrators that cast whole rays (ray mode) give it. The grid may call :meth:`cell_posteriors` from
     two threads at once (on different rays), so a model that caches must guard its cache.
@@ -39,6 +39,12 @@ class InverseSensorModel(ABC):
     name = "base"
     default_policy = "mean"
     """Name of the per-frame policy the map uses with this model by default (the grid owns the policies)."""
+    error_model_use = None
+    """What the model takes from a matcher's error model: ``"mixture"`` (the whole Gaussian mixture, as
+    ``error_model``), ``"sigma"`` (its dominant sigma, as ``sigma_px``) or None (nothing)."""
+    measurement = "disparity"
+    """What the first argument of :meth:`cell_posteriors` and :meth:`influence_depth` holds: ``"disparity"``
+    (pixels) or ``"range"`` (metres along the ray); the map refuses a batch of another kind."""
     takes_voxel_overhang = False
     """Whether :meth:`cell_posteriors` uses the keyword ``voxel_overhang_m`` (the grid computes it only then)."""
     takes_map_prior = False
@@ -121,6 +127,14 @@ def model_defaults(name):
         raise PrismapInputError(f"unknown sensor model {name!r}; expected one of {list(_REGISTRY)}") from None
     return {f.name: f.default for f in dataclasses.fields(cls)
             if f.init and not f.name.startswith("_") and isinstance(f.default, (bool, int, float, str, type(None)))}
+
+
+def error_model_use(name):
+    """What the model called ``name`` takes from an error model (its class's ``error_model_use``)."""
+    try:
+        return _REGISTRY[name].error_model_use
+    except KeyError:
+        raise PrismapInputError(f"unknown sensor model {name!r}; expected one of {list(_REGISTRY)}") from None
 
 
 def make_sensor_model(name, **params):

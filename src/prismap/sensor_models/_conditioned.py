@@ -17,12 +17,11 @@ from prismap.gmm import GaussianMixture
 from prismap.sensor_models._base import (
     InverseSensorModel,
     check_cell_arrays,
+    error_model_use,
     make_sensor_model,
 )
-
-USES_MIXTURE = "prism"
-USES_SIGMA = ("convolution", "andert")
-"""Models built from a class's mixture (PRISM) or from its dominant sigma; others ignore the error model."""
+from prismap.sensor_models._failure import failure_floor
+from prismap.sensor_models._prism import AUTO_TABLE_FLOOR_MB
 
 CLASS_PASS_THROUGH = "class_pass_through"
 """PRISM parameter of a conditioned run: one ``pass_through`` per class (the plain sub-model keeps ``pass_through``)."""
@@ -56,6 +55,7 @@ class ConditionedModel(InverseSensorModel):
             if any(getattr(model, name, None) != getattr(self.plain, name, None) for name in shared):
                 raise PrismapInputError(f"ConditionedModel: class model {k} differs from the plain model in {shared}")
         object.__setattr__(self, "class_models", models)
+        share_table_floor((self.plain, *models))
 
     @property
     def name(self):
@@ -177,17 +177,36 @@ class ConditionedModel(InverseSensorModel):
                                 tuple(model.with_extra_noise(sigma_px) for model in self.class_models))
 
 
+def share_table_floor(models):
+    """Split the table-cache floor of the PRISM models among ``models`` (in place): one budget for all classes.
+
+    A PRISM model with an automatic budget keeps the larger of :data:`~prismap.sensor_models._prism.AUTO_TABLE_FLOOR_MB`
+    and two calls' tables (``_prism_cache.TableCache.limit_bytes``). Each class's calls are a share of the frame,
+    so with a whole floor each, a conditioned model of ``n`` classes would keep up to ``n + 1`` floors of tables
+    it no longer uses; with the floor split, the classes together keep about two frames' tables, like the
+    plain model. Models without tables (not PRISM, or with a fixed ``table_memory_mb``) are left as they are.
+    """
+    caches = [cache for cache in (getattr(model, "_cache", None) for model in models)
+              if cache is not None and cache.budget_bytes is None]
+    for cache in caches:
+        cache.floor_bytes = min(cache.floor_bytes, int(AUTO_TABLE_FLOOR_MB * 2**20) // len(caches))
+
+
 def model_for_mixture(name, mixture, *, focal_baseline, doffs_px, voxel_size_m, p0, **params):
-    """The sensor model ``name`` for one error mixture: PRISM with it, convolution/Andert with its dominant sigma.
+    """The sensor model ``name`` for one error mixture: PRISM with it, convolution/Andert with its dominant sigma
+    and, when it has a matcher-failure component, its :func:`~prismap.sensor_models.failure_floor`.
 
     ``params`` (the model's own parameters) win over what the mixture would set (``error_model``,
-    ``sigma_px``); other models ignore the mixture, and ``mixture=None`` sets nothing.
+    ``sigma_px``, ``failure_floor``); other models ignore the mixture, and ``mixture=None`` sets nothing.
     """
     params = dict(params)
-    if mixture is not None and name == USES_MIXTURE:
+    use = error_model_use(name)
+    if mixture is not None and use == "mixture":
         params.setdefault("error_model", mixture)
-    elif mixture is not None and name in USES_SIGMA:
+    elif mixture is not None and use == "sigma":
         params.setdefault("sigma_px", mixture.dominant_sigma())
+        if mixture.failure_weight > 0:
+            params.setdefault("failure_floor", failure_floor(mixture))
     try:
         return make_sensor_model(name, focal_baseline=focal_baseline, doffs_px=doffs_px, voxel_size_m=voxel_size_m,
                                  p0=p0, **params)
@@ -238,7 +257,7 @@ def conditioned_sensor_model(name, camera, *, voxel_size_m, p0, error_model, **p
              "p0": p0, **params}
     plain = model_for_mixture(name, whole, **build)
     if per_class is not None:
-        if name != USES_MIXTURE or not class_mixtures:
+        if error_model_use(name) != "mixture" or not class_mixtures:
             raise PrismapInputError(f"`{CLASS_PASS_THROUGH}` needs PRISM with a conditioned error model; got model "
                                     f"{name!r} with {len(class_mixtures)} classes")
         per_class = np.asarray(per_class, dtype=np.float64).reshape(-1)
@@ -247,6 +266,6 @@ def conditioned_sensor_model(name, camera, *, voxel_size_m, p0, error_model, **p
                                     f"got {per_class.size}")
         return ConditionedModel(plain, tuple(model_for_mixture(name, mixture, **{**build, "pass_through": float(m)})
                                              for mixture, m in zip(class_mixtures, per_class)))
-    if not class_mixtures or (name != USES_MIXTURE and name not in USES_SIGMA):
+    if not class_mixtures or error_model_use(name) is None:
         return plain
     return ConditionedModel(plain, tuple(model_for_mixture(name, mixture, **build) for mixture in class_mixtures))

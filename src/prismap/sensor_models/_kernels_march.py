@@ -155,7 +155,7 @@ _MARCH_BLOCK = 16
 mixture; the march's stop wastes at most this many less one."""
 _MARCH_GL = 6
 """Gauss-Legendre points of a march's panel: on half a narrowest sigma (or, in a broad segment, a quarter of the
-widest sigma, at most half a prior e-fold) the rule's relative error is below about 1e-10 where the integrand
+narrowest wide sigma, at most half a prior e-fold) the rule's relative error is below about 1e-10 where the integrand
 matters, and below 5e-8 ten sigmas out (the direct method's 8 points on half as wide panels are the reference)."""
 _MARCH_GL_X, _MARCH_GL_W = np.polynomial.legendre.leggauss(_MARCH_GL)
 _MARCH_GL_LOG_W = np.log(_MARCH_GL_W)

@@ -79,9 +79,9 @@ def prism_table(shift, lam, z0, z_max, fb, ku, h, log_far, log_eps_bound, lam_sl
     both only where an interval spans at most ``wide_efolds`` prior e-folds; ``h``; then, from a node past
     the influence depth (beyond which only the cells that straddle it look up), four equal intervals to
     the end of the march. The march's panels are the node intervals (:data:`_MARCH_GL`-point Gauss-Legendre
-    is exact far below the tolerance on half a narrowest sigma, and on a broad segment, where only the widest
-    error component is not negligible, on a quarter of its sigma), and past the influence node, where only the
-    four back intervals remain, :data:`_FAR_RATIO` times wider (:func:`_march`).
+    is exact far below the tolerance on half a narrowest sigma, and on a broad segment, where only the wide
+    error components are not negligible (``_prism.broad_errors``), on a quarter of the narrowest of them), and
+    past the influence node, where only the four back intervals remain, :data:`_FAR_RATIO` times wider (:func:`_march`).
 
     Before ``x_split`` ``q g`` rises steeply (``|phi''| / phi'^2 < _STEEP``, ``phi = log(q g)``) and
     ``C/Z < e^coarse_below``: there ``C`` is its endpoint (Laplace) asymptotic ``q g / (q g)'`` (relative

@@ -23,6 +23,7 @@ from prismap.errors import PrismapInputError
 from prismap.gmm import GaussianMixture
 from prismap.sensor_models import _kernels_direct, _kernels_lookup, _kernels_map_prior, _kernels_table
 from prismap.sensor_models._base import register_model
+from prismap.sensor_models._failure import blend_increments, log_failure_posterior
 from prismap.sensor_models._params import RayModel
 from prismap.sensor_models._prism_cache import _LENGTH, _OFFSET, TableCache
 from prismap.sensor_models._prism_discrete import log_mean_likelihood
@@ -47,9 +48,11 @@ the increment (30-50) is off by up to about 7 % (``P`` is 1 in float64 either wa
 _QUAD_STEP = 0.25  # x-width of one Gauss-Legendre panel (x: one unit per prior e-fold or narrowest sigma)
 _TABLE_STEP = 0.5  # table node spacing in x, also the width of its march's panels
 _COARSE_RATIO = 64  # node spacing 32 in x where log(C/Z) < _COARSE_BELOW (near-quadratic in x) and past influence
+_COARSE_WIDE_SIGMAS = 0.125  # coarse-front node spacing may reach this many widest sigmas (see coarse_ratio)
 _COARSE_BELOW = -40.0
 _BROAD_SHARE = -20.0  # log share of g below which a table's broad front drops the narrower error components
-_WIDE_SIGMAS = 0.25  # broad-front node spacing, at most this many sigmas of the widest component
+_WIDE_SIGMAS = 0.25  # broad-front node spacing, at most this many sigmas of the narrowest wide component
+_WIDE_KEEP = 0.5  # wide error components: sigma at least this share of the widest (kept in a broad segment)
 _WIDE_EFOLDS = 0.5  # broad-front node spacing, at most this many e-folds of the prior
 MAX_TABLE_NODES = 1 << 20
 """Most nodes one table may need (32 MiB of float32 rows; see ``PrismModel._check_table_size``)."""
@@ -62,6 +65,7 @@ _BUILD_THREADS = min(2, os.cpu_count() or 1)  # threads building one call's miss
 _TAIL_STEP = 1.0  # prior="map": x-width of the panels of a ray's tail beyond its last cell
 _TAIL_REST = -20.0  # prior="map": the tail's march stops where the rest is below e^-20 of the evidence before
 _CHUNK_CELLS = 4096  # cells per look-up/exp/combine/log round: its 8 scratch arrays (228 KiB) stay in L2
+_LOG_Z, _LOG_Z_1, _LOG_Z_2 = (_kernels_table.META_COLUMNS.index(name) for name in ("log_z", "log_z_1", "log_z_2"))
 
 PRIORS = ("p0", "map")
 """Values of PRISM's ``prior``: every cell at ``p0``, or each cell at the map's current probability."""
@@ -78,8 +82,7 @@ OVERHANG_FRACTION = 0.25
 """PRISM's default share of the voxel overhang bound counted as occupied. Half the bound is its mean over
 plane positions; but a plane through voxel centres then puts the voxel just in front of it exactly on the
 boundary, where every frame adds an even chance of occupancy and the fused map grows a false layer in front
-of walls. A quarter keeps most of the grazing floor and no such layer (see the commit message and
-docs/SENSOR_MODELS.md for the measurements)."""
+of walls. A quarter keeps most of the grazing floor and no such layer (docs/SENSOR_MODELS.md, "Voxel overhang")."""
 
 
 @register_model
@@ -159,6 +162,7 @@ class PrismModel(RayModel):
     """
 
     name = "prism"
+    error_model_use = "mixture"
     default_policy = "mean"
     error_model: GaussianMixture | None = None
     near_m: float = 0.1
@@ -277,22 +281,49 @@ class PrismModel(RayModel):
         lam = self.rate_per_m * norm
         if self.solid_depth_m > 0:  # the stretch [a - solid / |r|, c'] (cells already before near_m stay as they are)
             start = np.minimum(start, np.maximum(start - self.solid_depth_m / norm[rays], self.near_m))
+        cell_rate = lam[rays]
         if self.prior == "map":
-            return self._map_prior_cells(lam, disparity, norm, rays, start, end, stretch, map_log_odds)
-        if map_log_odds is not None:
+            result = self._map_prior_cells(lam, disparity, norm, rays, start, end, stretch, map_log_odds)
+            if self.error_model.failure_weight > 0:
+                cell_rate = np.logaddexp(0.0, map_log_odds) / self.voxel_size_m * norm[rays] \
+                    if map_log_odds is not None else cell_rate
+            method = "table"
+        elif map_log_odds is not None:
             raise PrismapInputError("prism: `map_log_odds` is used only with prior='map'; this model has prior='p0'")
-        if method == "direct":
-            end = end + stretch[rays]
+        elif method == "direct":
             order = np.argsort(rays, kind="stable")
             ray_start = np.searchsorted(rays[order], np.arange(disparity.size + 1))
-            return _kernels_direct.prism_direct_cells(
-                disparity + self.doffs_px, lam, order, ray_start, start, end, self.near_m, self.far_depth_m,
-                self.focal_baseline, self._ku(), _QUAD_STEP, self._log_far(disparity), *self._mixture_arrays(),
-                self.pass_through,
+            result = _kernels_direct.prism_direct_cells(
+                disparity + self.doffs_px, lam, order, ray_start, start, end + stretch[rays], self.near_m,
+                self.far_depth_m, self.focal_baseline, self._ku(), _QUAD_STEP, self._log_far(disparity),
+                *self._mixture_arrays(), self.pass_through,
             )
-        if method != "table":
+        elif method == "table":
+            result = self._table_cells(lam, disparity, norm, rays, start, end, stretch)
+        else:
             raise PrismapInputError(f"prism: `method` must be 'table' or 'direct'; got {method!r}")
-        return self._table_cells(lam, disparity, norm, rays, start, end, stretch)
+        if self.error_model.failure_weight == 0:
+            return result
+        return self._with_failures(result, method, lam, disparity, norm, rays, start, end + stretch[rays], cell_rate)
+
+    def _with_failures(self, result, method, lam, disparity, norm, rays, start, end, cell_rate):
+        """The cells' ``(posterior, increment)`` of ``result`` (the Gaussians' PRISM) blended with their priors by
+        each ray's failure posterior (:func:`prismap.sensor_models.blend_increments`; docs/SENSOR_MODELS.md,
+        "Matcher failures"). The ray's ``Z`` is the table's (``method="table"``, also for ``prior="map"``, where
+        it is the marginal under ``p0``) or marched (``"direct"``); ``cell_rate`` (per metre of depth) gives each
+        cell's prior over ``[start, end]`` clipped to ``[near_m, far_depth_m]``."""
+        if method == "table":
+            table, delta, meta, _ = self._tables_for(disparity, norm)
+            log_z = meta[table, _LOG_Z] + delta * (meta[table, _LOG_Z_1] + 0.5 * delta * meta[table, _LOG_Z_2])
+        else:
+            log_z = _kernels_direct.prism_log_evidence(disparity + self.doffs_px, lam, self.near_m, self.far_depth_m,
+                                                       self.focal_baseline, self._ku(), _QUAD_STEP,
+                                                       self._log_far(disparity), *self._mixture_arrays())
+        log_fail, log_ok = log_failure_posterior(self.error_model, log_z)
+        length = np.clip(end, self.near_m, self.far_depth_m) - np.clip(start, self.near_m, self.far_depth_m)
+        with np.errstate(divide="ignore"):
+            prior_log_odds = np.log(np.expm1(cell_rate * np.maximum(length, 0.0)))
+        return blend_increments(result[1], prior_log_odds, log_fail[rays], log_ok[rays])
 
     def influence_depth(self, disparity_px, ray_norm):
         """Depth beyond which every cell's ``|logit(P) - logit(p_c)| < influence_epsilon`` (metres), per ray.
@@ -379,11 +410,12 @@ class PrismModel(RayModel):
         log_eps_bound = float(np.log(np.expm1(self.influence_epsilon)))
         ku = self._ku()
         e_front, e_back, wide_ratio = broad_errors(self.error_model)
+        coarse = coarse_ratio(self.error_model)
 
         def build(share):
             return _kernels_table.prism_tables(
                 shift[share], lam[share], log_far[share], self.near_m, self.far_depth_m, self.focal_baseline, ku,
-                _TABLE_STEP, log_eps_bound, _LAMBDA_SLACK, _COARSE_RATIO, _COARSE_BELOW, e_front, e_back, wide_ratio,
+                _TABLE_STEP, log_eps_bound, _LAMBDA_SLACK, coarse, _COARSE_BELOW, e_front, e_back, wide_ratio,
                 _WIDE_EFOLDS, log_wn, means, sigmas,
             )
 
@@ -432,14 +464,30 @@ def _share(value, name, *, one):
     return number
 
 
-def broad_errors(mixture):
-    """Where a PRISM table may drop all but the widest error component, and its node spacing there.
+def coarse_ratio(mixture):
+    """Fine nodes per node of a PRISM table's coarse front (where ``C/Z < e^_COARSE_BELOW``).
 
-    For errors ``e >= e_front`` (pixels; true disparity above ``d^ + e_front``, in front of the
-    measurement) and ``e <= e_back`` (behind it) every other component's density is below
-    ``e^_BROAD_SHARE`` of the widest one's, so ``C``, ``D`` and their moments there are smooth on the widest
-    sigma's scale: nodes every ``wide_ratio`` fine nodes (at most ``_WIDE_SIGMAS`` widest sigmas apart).
-    ``wide_ratio`` 1 (a one-component or even mixture): no broad segments.
+    There the measurement is far behind, only the widest error component produces it and ``log(q g)`` is nearly
+    quadratic in ``x``: :data:`_COARSE_RATIO`, or, when the mixture's sigmas span more than that allows, nodes
+    :data:`_COARSE_WIDE_SIGMAS` widest sigmas of disparity apart (a characterised class with a component of
+    0.01 px beside outliers of 33 px would otherwise put thousands of nodes between ``near_m`` and the
+    measurement's first evidence). Mixtures whose widest sigma is below 256 narrowest ones keep
+    :data:`_COARSE_RATIO`.
+    """
+    sd = mixture.sigmas
+    return max(_COARSE_RATIO, int(_COARSE_WIDE_SIGMAS * sd.max() / (sd.min() * _TABLE_STEP)))
+
+
+def broad_errors(mixture):
+    """Where a PRISM table may drop its narrow error components, and its node spacing there.
+
+    The wide components are those whose sigma is at least :data:`_WIDE_KEEP` of the widest one's (a
+    characterised mixture often holds two: a class's own outlier component and the whole image's); the others
+    are narrow. For errors ``e >= e_front`` (pixels; true disparity above ``d^ + e_front``, in front of the
+    measurement) and ``e <= e_back`` (behind it) every narrow component's density is below ``e^_BROAD_SHARE`` of
+    the widest one's, so ``C``, ``D`` and their moments there are smooth on the narrowest wide sigma's scale:
+    nodes every ``wide_ratio`` fine nodes (at most ``_WIDE_SIGMAS`` of that sigma apart). ``wide_ratio`` 1 (a
+    one-component mixture, or one whose components are all wide): no broad segments.
 
     Parameters
     ----------
@@ -452,13 +500,12 @@ def broad_errors(mixture):
     wide_ratio : int >= 1
     """
     w, mu, sd = mixture.weights, mixture.means, mixture.sigmas
-    if sd.size < 2:
-        return np.inf, -np.inf, 1
     b = int(np.argmax(sd))
+    wide = sd >= _WIDE_KEEP * sd[b]
+    if wide.all():
+        return np.inf, -np.inf, 1
     e_front, e_back = -np.inf, np.inf
-    for j in np.flatnonzero(np.arange(sd.size) != b):
-        if sd[j] >= sd[b]:
-            return np.inf, -np.inf, 1
+    for j in np.flatnonzero(~wide):
         # log(w_j N_j(e)) - log(w_b N_b(e)) - _BROAD_SHARE = a e^2 + b e + c, a < 0: it is < 0 outside its roots
         a = 0.5 / sd[b] ** 2 - 0.5 / sd[j] ** 2
         lin = mu[j] / sd[j] ** 2 - mu[b] / sd[b] ** 2
@@ -468,5 +515,5 @@ def broad_errors(mixture):
         if disc > 0:
             e_front = max(e_front, (-lin - np.sqrt(disc)) / (2.0 * a))
             e_back = min(e_back, (-lin + np.sqrt(disc)) / (2.0 * a))
-    wide_ratio = int(_WIDE_SIGMAS * sd[b] / (sd.min() * _TABLE_STEP))
+    wide_ratio = int(_WIDE_SIGMAS * sd[wide].min() / (sd.min() * _TABLE_STEP))
     return float(e_front), float(e_back), max(min(wide_ratio, _COARSE_RATIO), 1)

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from prismap._validate import as_float_array
+from prismap._validate import as_float_array, check_integer
 from prismap.errors import PrismapInputError
 from prismap.io._frame import StereoFrame
 from prismap.sim._kernels import cast_view, shade_view
@@ -224,9 +224,8 @@ def indoor_trajectory(n_frames=40, *, seed=0):
     -------
     T_world_cam : (n_frames, 4, 4) float64
     """
-    if isinstance(n_frames, bool) or int(n_frames) != n_frames or not 1 <= n_frames <= MAX_INDOOR_FRAMES:
-        raise PrismapInputError(f"`n_frames` must be an integer in [1, {MAX_INDOOR_FRAMES}] (one frame per degree "
-                                f"of the loop at most); got {n_frames!r}")
+    n_frames = check_integer(n_frames, "n_frames", expected=f"an integer in [1, {MAX_INDOOR_FRAMES}] (one frame per "
+                             "degree of the loop at most)", condition=lambda n: 1 <= n <= MAX_INDOOR_FRAMES)
     rng = np.random.default_rng(seed)
     amplitude, phase = rng.uniform(-0.05, 0.05, 2), rng.uniform(0, 2 * np.pi, 3)
     angle = np.linspace(0.0, 2 * np.pi, int(n_frames), endpoint=False)

@@ -144,8 +144,7 @@ def street_trajectory(n_frames=12, *, step_m=1.0, seed=0, start_m=DRIVE_START_M)
     -------
     T_world_cam : (n_frames, 4, 4) float64
     """
-    if isinstance(n_frames, bool) or int(n_frames) != n_frames or n_frames < 1:
-        raise PrismapInputError(f"`n_frames` must be a positive integer; got {n_frames!r}")
+    n_frames = check_integer(n_frames, "n_frames", expected="a positive integer", condition=lambda n: n >= 1)
     step = float(step_m)
     if not 0.0 < step <= 5.0:
         raise PrismapInputError(f"`step_m` must lie in (0, 5] metres; got {step_m!r}")

@@ -3,8 +3,9 @@
 import numpy as np
 
 from prismap._validate import as_float_array, check_integer, check_positive
+from prismap.camera import frame_overhang_m
 from prismap.errors import PrismapInputError
-from prismap.grid import crossed_voxels, frame_overhang_m
+from prismap.grid import crossed_voxels, point_to_key
 from prismap.io._sequence import GroundTruthOccupancy
 from prismap.sim._kernels import mark_visible, occupied_before_per_ray
 
@@ -15,10 +16,7 @@ def solid_key_ranges(box_lo, box_hi, voxel_size_m):
     A voxel is the half-open cube ``[k s, (k + 1) s)``; a box ``[lo, hi]`` is closed, so a face lying exactly
     on a voxel boundary marks the voxel beyond it too: that is where ``floor`` puts a ray hit on that face.
     """
-    return (
-        np.floor(np.asarray(box_lo, dtype=np.float64) / voxel_size_m).astype(np.int64),
-        np.floor(np.asarray(box_hi, dtype=np.float64) / voxel_size_m).astype(np.int64),
-    )
+    return point_to_key(box_lo, voxel_size_m), point_to_key(box_hi, voxel_size_m)
 
 
 def ground_truth(box_lo, box_hi, frames, voxel_size_m, *, planar=False, max_depth_m=np.inf):
@@ -60,7 +58,7 @@ def ground_truth(box_lo, box_hi, frames, voxel_size_m, *, planar=False, max_dept
         )
         hit = np.isfinite(depth) & (depth <= max_depth)
         points_w = (camera.pixel_rays(depth.shape)[hit] * depth[hit, None]) @ pose[:3, :3].T + pose[:3, 3]
-        keys = np.floor(points_w / voxel).astype(np.int64) - bounds_lo
+        keys = point_to_key(points_w, voxel) - bounds_lo
         if planar:
             keys[:, 2] = 0
         inside = np.all((keys >= 0) & (keys < np.array(shape)), axis=1)

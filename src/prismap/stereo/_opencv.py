@@ -5,9 +5,14 @@ from abc import abstractmethod
 import cv2
 import numpy as np
 
+from prismap._memory import check_memory
 from prismap._validate import check_integer, check_real
 from prismap.errors import PrismapInputError
 from prismap.stereo._base import StereoMatcher, check_stereo_pair, left_right_disagreement, to_grey
+
+MATCH_BYTES_PER_PIXEL = 24
+"""Memory one OpenCV match takes per pixel of the pair (bytes): OpenCV's buffers, its int16 disparity and the
+float32 copies (20 measured for SGBM on a 3000x1500 colour pair); twice that with the left-right check."""
 
 
 class _OpenCVMatcher(StereoMatcher):
@@ -60,6 +65,10 @@ class _OpenCVMatcher(StereoMatcher):
                 f"{self.name}: min_disparity + num_disparities = {reach} px must be below the image width "
                 f"{left.shape[1]} px (no pixel could be matched)"
             )
+        height, width = left.shape[:2]
+        check_memory(height * width * MATCH_BYTES_PER_PIXEL * (2 if self.left_right_check else 1),
+                     f"{self.name}: matching a {width}x{height} pair",
+                     fix="use smaller images (MAX_IMAGE_PIXELS bounds decoding; matching needs the memory budget too)")
         matcher = self._create(channels=1 if left.ndim == 2 else left.shape[2])
         disparity = self._to_float(matcher.compute(left, right))
         if not self.left_right_check:

@@ -119,12 +119,12 @@ class MapViewer:
             raise PrismapInputError("prismap view needs the optional `viser` module: pip install -e '.[view]'") from None
 
         start = time.perf_counter()
-        keys, _, _ = grid.known_voxels()
+        keys, probability, _, _ = grid.known_probabilities()
         if len(keys) == 0:
             raise PrismapInputError("the map has no known voxels: nothing to view")
         self.grid = grid
         self.budget = int(budget)
-        self.levels = voxel_pyramid(keys, grid.probability_at_keys(keys), grid.voxel_size_m)
+        self.levels = voxel_pyramid(keys, probability, grid.voxel_size_m)
         self._unobserved = None
         self._handles, self._keys, self._shown = {}, {}, {}
         base = self.levels[0]

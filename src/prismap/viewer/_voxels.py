@@ -7,6 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from prismap.errors import PrismapInputError
+from prismap.grid import key_to_center
 
 COLORMAP = "viridis"
 """Matplotlib colormap of P(occupied): 0 = dark violet (free), 0.5 = teal, 1 = yellow (occupied)."""
@@ -55,7 +56,7 @@ class VoxelLevel:
     @property
     def centers_w(self):
         """(N, 3) float32 voxel centres, metres, world frame."""
-        return ((self.keys + 0.5) * self.size_m).astype(np.float32)
+        return key_to_center(self.keys, self.size_m).astype(np.float32)
 
 
 def coarsen(level):
@@ -166,7 +167,7 @@ def select(levels, *, threshold=0.0, classes=("occupied",), z_range_m=(-np.inf, 
         raise PrismapInputError(f"`classes` must be among {CLASSES}; got {unknown}")
     wanted = np.array([c in classes for c in CLASSES])
     for level in levels:
-        z = (level.keys[:, 2] + 0.5) * level.size_m
+        z = key_to_center(level.keys[:, 2], level.size_m)
         mask = (level.probability >= threshold) & (z >= z_range_m[0]) & (z <= z_range_m[1])
         mask &= wanted[voxel_classes(level.probability, free_threshold, occupied_threshold)]
         if np.count_nonzero(mask) <= budget:
