@@ -65,6 +65,29 @@ def _prismap(argv, cwd, *, file_size_limit=None, timeout=300):
     return done.returncode, done.stderr
 
 
+def refused_line(argv, cwd, work):
+    """Run ``argv`` (:func:`_prismap`) and assert what a refused command promises: exit 2, one line starting
+    ``prismap <command>``, nothing written into ``work`` and no lock or temporary left in ``cwd``; the line."""
+    before = _tree(work)
+    status, stderr = _prismap(argv, cwd)
+    lines = stderr.strip().splitlines()
+    assert status == 2, stderr
+    assert len(lines) == 1 and lines[0].startswith(f"prismap {argv[0]}"), stderr
+    assert _tree(work) == before
+    assert not [p for p in Path(cwd).iterdir() if p.name.startswith(".")]  # no lock or temporary beside WORK
+    return lines[0]
+
+
+def expand(argv, seq, **placeholders):
+    """``argv`` with each placeholder (in the given order) replaced, and ``--sequence seq`` for ``map`` without
+    ``--bag``."""
+    for name, value in placeholders.items():
+        argv = [a.replace(name, str(value)) for a in argv]
+    if argv[0] == "map" and "--bag" not in argv:
+        argv[1:1] = ["--sequence", str(seq)]
+    return argv
+
+
 def _tree(path):
     return sorted(str(p.relative_to(path)) for p in Path(path).rglob("*"))
 
@@ -200,18 +223,8 @@ def test_hostile_command_exits_2_with_one_line_and_writes_nothing(name, sequence
     work.mkdir()
     if prepare is not None:
         prepare(seq, work)
-    before = _tree(work)
-    argv = [a.replace("SEQ", str(seq)).replace("WORK", str(work)).replace("EM", str(narrow_error_model))
-            for a in argv]
-    if argv[0] == "map":
-        argv[1:1] = ["--sequence", str(seq)]
-    status, stderr = _prismap(argv, tmp_path)
-    lines = stderr.strip().splitlines()
-    assert status == 2, stderr
-    assert len(lines) == 1 and lines[0].startswith(f"prismap {argv[0]}"), stderr
-    assert expected in lines[0]
-    assert _tree(work) == before
-    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no lock or temporary beside WORK
+    argv = expand(argv, seq, SEQ=seq, WORK=work, EM=narrow_error_model)
+    assert expected in refused_line(argv, tmp_path, work)
 
 
 def _map_argv(sequence, out):

@@ -4,7 +4,7 @@ address-space limit of ``test_hostile``: exit 2, one line naming the topic or op
 import cv2
 import numpy as np
 import pytest
-from test_hostile import _png_bomb, _prismap, _tree
+from test_hostile import _png_bomb, expand, refused_line
 from test_io_rosbag import LEFT, RIGHT, BagWriter, frames, projections, stamp, write_bag  # noqa: F401 (a fixture)
 
 from support import CAMERA
@@ -37,15 +37,7 @@ def _hostile_bag(path, frames, *, image=None, info_size=(96, 72), D=()):  # noqa
 def _run(argv, tmp_path, bag):
     work = tmp_path / "work"
     work.mkdir(exist_ok=True)
-    before = _tree(work)
-    argv = [a.replace("WORK", str(work)).replace("BAG", str(bag)) for a in argv]
-    status, stderr = _prismap(argv, tmp_path)
-    lines = stderr.strip().splitlines()
-    assert status == 2, stderr
-    assert len(lines) == 1 and lines[0].startswith(f"prismap {argv[0]}"), stderr
-    assert _tree(work) == before
-    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no lock left
-    return lines[0]
+    return refused_line(expand(argv, None, WORK=work, BAG=bag), tmp_path, work)
 
 
 @pytest.mark.parametrize("value", ["inf", "1e300", "nan"])

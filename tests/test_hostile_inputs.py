@@ -12,7 +12,7 @@ import zlib
 import cv2
 import numpy as np
 import pytest
-from test_hostile import PNG_SIGNATURE, _calib, _chunk, _prismap, _tree
+from test_hostile import PNG_SIGNATURE, _calib, _chunk, expand, refused_line
 
 from prismap.characterise import ErrorModel, write_error_model
 from prismap.gmm import GaussianMixture, MixtureFit
@@ -143,14 +143,4 @@ def test_hostile_input_exits_2_with_one_line_and_writes_nothing(name, sequence, 
     shutil.copytree(sequence, seq)
     work.mkdir()
     prepare(seq)
-    before = _tree(work)
-    argv = [a.replace("SEQ", str(seq)).replace("WORK", str(work)) for a in argv]
-    if argv[0] == "map":
-        argv[1:1] = ["--sequence", str(seq)]
-    status, stderr = _prismap(argv, tmp_path)
-    lines = stderr.strip().splitlines()
-    assert status == 2, stderr
-    assert len(lines) == 1 and lines[0].startswith(f"prismap {argv[0]}"), stderr
-    assert expected in lines[0]
-    assert _tree(work) == before
-    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
+    assert expected in refused_line(expand(argv, seq, SEQ=seq, WORK=work), tmp_path, work)

@@ -1,8 +1,8 @@
 """The error-model file: fitted mixtures of one matcher's errors, per class of pixels, and how they were made.
 
-Format (JSON, ``format_version`` 2)::
+Format (JSON, ``format_version`` 3)::
 
-    {"format": "prismap-error-model", "format_version": 2,
+    {"format": "prismap-error-model", "format_version": 3,
      "matcher": {"name": "sgbm", "params": {...}}, "dataset": "middlebury-motorcycle",
      "bin_width_px": 0.03125,
      "statistics": {"n_frames", "n_errors", "n_gt_valid", "n_outside_bins", "coverage", "bad_1px",
@@ -10,6 +10,7 @@ Format (JSON, ``format_version`` 2)::
      "selection": {"criterion": "bic", "tolerance_nats_per_error": 0.01},  # or {"criterion": "held-out", "held_out": ...}
      "selected_components": 2,
      "models": [{"n_components": 1, "weights": [...], "means": [...], "sigmas": [...],
+                 "failure_weight": 0.004, "search_range_px": [0.0, 96.0],
                  "log_likelihood": ..., "aic": ..., "bic": ..., "n_samples": ..., "n_iter": ...,
                  "converged": true}, ...],
      "features": {"names": ["edge_distance_px"], "units": {"edge_distance_px": "px"},
@@ -32,9 +33,14 @@ outlier component (the whole-image mixture's widest) mixed into its selected mix
 so no class is certain never to fail grossly (:func:`prismap.gmm.fit_outlier_weight`). A model without
 features has one class equal to the plain model. A version-1 file loads as that one class.
 
-Means and sigmas are pixels; AIC and BIC use ``k = 3G - 1`` (see :class:`prismap.gmm.MixtureFit`). ``source``,
-``rig`` and ``provenance`` are optional (a file without them was measured against ground truth on an unrecorded
-rig).
+Version 3 gives every mixture the matcher-failure component (:class:`prismap.gmm.GaussianMixture`):
+``failure_weight`` ``w_f`` and the matcher's ``search_range_px`` over which failures are uniform; its classes
+need no ``outlier`` then (docs/SENSOR_MODELS.md section 8). Files of versions 1 and 2 have no failure
+component and map exactly as they did; a failure component in them is refused.
+
+Means and sigmas are pixels; AIC and BIC use ``k = 3G - 1``, ``3G`` with a failure component (see
+:class:`prismap.gmm.MixtureFit`). ``source``, ``rig`` and ``provenance`` are optional (a file without them was
+measured against ground truth on an unrecorded rig).
 """
 
 import json
@@ -64,10 +70,10 @@ from prismap.stereo._base import to_grey
 FORMAT = "prismap-error-model"
 
 
-FORMAT_VERSION = 2
+FORMAT_VERSION = 3
 
 
-READABLE_VERSIONS = (1, 2)
+READABLE_VERSIONS = (1, 2, 3)
 
 
 _SHARE_TOLERANCE = 1e-6
@@ -269,7 +275,7 @@ class ErrorModel:
 
     @classmethod
     def from_dict(cls, data, *, source="error model"):
-        """Inverse of :meth:`to_dict` (also reads format version 1); ``source`` starts every error message."""
+        """Inverse of :meth:`to_dict` (also reads format versions 1 and 2); ``source`` starts every error message."""
         if not isinstance(data, dict):
             raise PrismapInputError(f"{source}: expected a JSON object; got {type(data).__name__}")
         if data.get("format") != FORMAT:
@@ -297,6 +303,11 @@ class ErrorModel:
         extra = _provenance_from_dict(data, source)
         if version >= 2:
             extra.update(_classes_from_dict(data, source, bound_px))
+        mixtures = [fit.mixture for fit in fits] + [fit.mixture for model in extra.get("class_models", ())
+                                                    for fit in model.fits]
+        if version < 3 and any(mixture.search_range_px is not None for mixture in mixtures):
+            raise PrismapInputError(f"{source}: a failure component (`failure_weight`, `search_range_px`) needs "
+                                    f"format_version 3; this file says {version}")
         try:
             return cls(matcher["name"], dict(params), data["dataset"], bin_width, fits, selected, selection,
                        statistics, **extra)

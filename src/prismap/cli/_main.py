@@ -72,6 +72,12 @@ def main(argv=None):
     except KeyboardInterrupt:
         print(f"prismap {name}: interrupted", file=sys.stderr)
         return 130
+    except SystemError as exc:
+        # Ctrl-C inside a compiled kernel surfaces as "returned a result with an exception set"
+        if not isinstance(exc.__cause__ or exc.__context__, KeyboardInterrupt):
+            raise
+        print(f"prismap {name}: interrupted", file=sys.stderr)
+        return 130
 
 
 def _one_line(exc):

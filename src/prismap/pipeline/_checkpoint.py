@@ -131,15 +131,17 @@ def _check_fits(grid, map_path, config, n_frames):
 def save_checkpoint(path, fingerprint, grid):
     """Write ``grid`` as the checkpoint map (atomic) and record its digest and ``n_frames`` in the JSON.
 
-    While the new map waits beside the old one the JSON vouches for both, so a kill anywhere leaves a
-    resumable checkpoint.
+    While the new map waits beside the old one the JSON vouches for both (its ``frames_done`` still the
+    old map's), so a kill anywhere leaves a resumable checkpoint.
     """
     map_path, meta_path = _paths(path)
-    old = [_digest(map_path)] if map_path.is_file() else []
+    old, old_frames = [], 0
+    if map_path.is_file():
+        old, old_frames = [_digest(map_path)], _read_meta(meta_path, map_path).get("frames_done", 0)
     with atomic_path(map_path) as staged:
         save_map(grid, staged)
         new = _digest(staged)
-        _write_meta(meta_path, fingerprint, grid.n_frames, [new, *old])
+        _write_meta(meta_path, fingerprint, old_frames, [new, *old])  # frames_done: the map still in place
     _write_meta(meta_path, fingerprint, grid.n_frames, [new])
 
 
