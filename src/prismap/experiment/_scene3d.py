@@ -136,6 +136,7 @@ def run_rendered_world(world, out_dir, *, n_frames=None, voxel_size_m=None, seed
     char_index, map_index = split_frames(n_drive, settings["characterise_every"])
     if len(map_index) == 0:
         raise PrismapInputError(f"{n_drive} frames leave none to map after characterisation")
+    spec.trajectory(n_drive, seed)  # a drive the world cannot hold is refused before --out is claimed
     out = claim_out_dir(out_dir, settings)
     voxel = settings["voxel_size_m"]
     scene, camera, drive_char_frames, char_frames, map_frames = render_world(settings)
