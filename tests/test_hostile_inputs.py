@@ -53,11 +53,14 @@ def _sparse(path):
     os.truncate(path, SPARSE_BYTES)
 
 
-def _absurd_means(seq, mean):
-    """An error model whose selected mixture has means +-``mean`` px (num_disparities 64: errors within 64 px)."""
+def _absurd_means(seq, mean, width=None):
+    """An error model whose selected mixture has means +-``mean`` px (num_disparities 64), made on a rig of image
+    ``width`` (None: not recorded, so errors within MAX_ERROR_PX; else within max(64, width) px)."""
     mixture = GaussianMixture([0.5, 0.5], [mean, -mean], [0.5, 3.0])
+    rig = None if width is None else {"focal_px": 100.0, "baseline_m": 0.1, "width": width, "height": 96,
+                                      "matcher": "sgbm", "matcher_params": None}
     write_error_model(ErrorModel("sgbm", {"num_disparities": 64}, "hostile", 1 / 32,
-                                 [MixtureFit(mixture, -1e3, 0.0, 0.0, 1e3, 10, True)], 2), seq / "em.json")
+                                 [MixtureFit(mixture, -1e3, 0.0, 0.0, 1e3, 10, True)], 2, rig=rig), seq / "em.json")
 
 
 def _png_of(seq, build):
@@ -110,9 +113,10 @@ CASES = {
                               "mb/calib.txt: `doffs_px` must be > -40 px"),
     # item 2: absurd error-model means
     "error model means +-1e15 px": (lambda s: _absurd_means(s, 1e15), PRISM_MAP,
-                                    "`means` reach 1e+15 px; the matcher's disparity range allows at most 64 px"),
+                                    "`means` reach 1e+15 px; an error of this rig and matcher lies within +-16384 px"),
     "error model means +-1e10 px": (lambda s: _absurd_means(s, 1e10), PRISM_MAP, "`means` reach 1e+10 px"),
-    "error model means +-65 px": (lambda s: _absurd_means(s, 65.0), PRISM_MAP, "`means` reach 65 px"),
+    "error model means beyond the rig's image width": (lambda s: _absurd_means(s, 129.0, width=128), PRISM_MAP,
+                                                       "`means` reach 129 px; an error of this rig and matcher lies within +-128 px"),
     # item 16: PNGs of valid checksums but bad content (libpng printed a line of its own)
     **{f"PNG with {fault}": (lambda s, fault=fault: _png_of(s, PNG_FAULTS[fault]), [*MAP, "--out", "WORK/o.npz"],
                              "000001.png: left image cannot be decoded (truncated or corrupt PNG")
@@ -144,3 +148,16 @@ def test_hostile_input_exits_2_with_one_line_and_writes_nothing(name, sequence, 
     work.mkdir()
     prepare(seq)
     assert expected in refused_line(expand(argv, seq, SEQ=seq, WORK=work), tmp_path, work)
+
+
+def test_error_beyond_the_search_range_loads_when_the_rig_allows_it(tmp_path):
+    """A near object's true disparity exceeds the search range, so a class may hold errors of 108 px on a
+    620 px wide rig with num_disparities 64: characterise writes such models, and map must load them."""
+    from prismap.characterise import load_error_model
+    from prismap.errors import PrismapInputError
+
+    _absurd_means(tmp_path, 108.0, width=620)
+    assert load_error_model(tmp_path / "em.json").mixture.means.tolist() == [108.0, -108.0]
+    _absurd_means(tmp_path, 621.0, width=620)
+    with pytest.raises(PrismapInputError, match=r"`means` reach 621 px; .* within \+-620 px"):
+        load_error_model(tmp_path / "em.json")

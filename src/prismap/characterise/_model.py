@@ -311,11 +311,11 @@ class ErrorModel:
             raise PrismapInputError(f"{source}: field `dataset` must be a string; got {type(data['dataset']).__name__}")
         bin_width = _number(data["bin_width_px"], f"{source}: `bin_width_px`", low=0.0, high=8.0, open_low=True)
         selected = _integer(data["selected_components"], f"{source}: `selected_components`", 1, MAX_COMPONENTS)
-        bound_px = error_bound_px(params)
+        extra = _provenance_from_dict(data, source)
+        bound_px = error_bound_px(params, (extra.get("rig") or {}).get("width"))
         fits = _fits_from_list(data["models"], f"{source}: models", bound_px)
         selection = _object(data.get("selection", {}), f"{source}: `selection`")
         statistics = _object(data.get("statistics", {}), f"{source}: `statistics`")
-        extra = _provenance_from_dict(data, source)
         if version >= 2:
             extra.update(_classes_from_dict(data, source, bound_px))
         mixtures = [fit.mixture for fit in fits] + [fit.mixture for model in extra.get("class_models", ())

@@ -24,18 +24,21 @@ MAX_ERROR_PX = 16384.0
 the widest image ``MAX_IMAGE_PIXELS`` admits, as no disparity error can exceed the image width."""
 
 
-def error_bound_px(params):
-    """Largest ``|mean|`` and ``sigma`` (pixels) a mixture of this matcher may have: its disparity search range.
+def error_bound_px(params, image_width=None):
+    """Largest ``|mean|`` and ``sigma`` (pixels) a mixture of this matcher and rig may have.
 
-    A matched disparity lies in ``[min_disparity, min_disparity + num_disparities)`` (OpenCV; ``max_disparity``
-    for the variational matcher) and characterisation searches up to the largest true disparity, so an error
-    (measured - true) lies within that range's span; :data:`MAX_ERROR_PX` when ``params`` do not say.
+    An error is ``d_true - d_computed``. A matched disparity lies in ``[min_disparity, min_disparity +
+    num_disparities)`` (OpenCV; ``max_disparity`` for the variational matcher), and a true disparity of a point
+    both cameras see is below the image width, which may well exceed the search range (a near object). So with the
+    rig's ``image_width`` recorded the bound is the larger of the search span and ``image_width + |min_disparity|``;
+    without it, :data:`MAX_ERROR_PX` (the widest image there can be).
     """
     reach = params.get("num_disparities", params.get("max_disparity"))
     low = params.get("min_disparity", 0)
-    if not (_is_number(reach) and _is_number(low) and 0 < reach < MAX_ERROR_PX and abs(low) < MAX_ERROR_PX):
+    if image_width is None or not (_is_number(reach) and _is_number(low) and 0 < reach < MAX_ERROR_PX
+                                   and abs(low) < MAX_ERROR_PX):
         return MAX_ERROR_PX
-    return float(reach) + abs(float(low))
+    return max(float(reach) + abs(float(low)), float(image_width) + abs(float(low)))
 
 
 def check_mixture_range(means, sigmas, bound_px, where):
@@ -43,8 +46,8 @@ def check_mixture_range(means, sigmas, bound_px, where):
     for name, values in (("means", np.abs(means)), ("sigmas", np.asarray(sigmas))):
         if values.size and values.max() > bound_px:
             raise PrismapInputError(
-                f"{where}: `{name}` reach {values.max():.6g} px; the matcher's disparity range allows at most "
-                f"{bound_px:g} px (num_disparities + |min_disparity|, or MAX_ERROR_PX)"
+                f"{where}: `{name}` reach {values.max():.6g} px; an error of this rig and matcher lies within "
+                f"+-{bound_px:g} px (true disparities below the image width, matched ones within the search range)"
             )
 
 
