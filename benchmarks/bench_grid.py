@@ -23,6 +23,7 @@ Run: .venv/bin/python benchmarks/bench_grid.py [--repeat 3] [--street [--scale 1
 
 import argparse
 import json
+import pickle
 import resource
 import statistics
 import subprocess
@@ -40,7 +41,7 @@ import octomap
 
 from prismap import sim
 from prismap.camera import StereoCamera, integrate_disparity
-from prismap.characterise import characterise_matcher, load_error_model, write_error_model
+from prismap.characterise import characterise_matcher, write_error_model
 from prismap.gmm import GaussianMixture
 from prismap.grid import OccupancyMap
 from prismap.pipeline import MappingConfig
@@ -151,10 +152,12 @@ def sgbm_world(scale, n_frames, directory):
     The street's stereo pairs (``scene.frames(seed=0)``), SGBM's disparities (``make_matcher("sgbm")``, its
     defaults), the error model characterised on the first :data:`CHARACTERISE_FRAMES` frames (conditioned, the
     class count ``characterise_matcher`` picks) and each pixel's class (``ErrorModel.classify_frame``, as
-    ``pipeline.DisparitySource`` computes it). Skipped when both files exist (``--world-dir`` reuses them).
+    ``pipeline.DisparitySource`` computes it). Skipped when both files exist (``--world-dir`` reuses them). The error
+    model is also written pickled (``error_model.pkl``), which the method processes load: its JSON form holds what
+    ``load_error_model`` checks against the matcher's range, and a characterisation may fit components beyond it.
     """
     directory = Path(directory)
-    world, model_path = directory / "world.npz", directory / "error_model.json"
+    world, model_path = directory / "world.npz", directory / "error_model.pkl"
     if world.is_file() and model_path.is_file():
         return world
     directory.mkdir(parents=True, exist_ok=True)
@@ -171,7 +174,8 @@ def sgbm_world(scale, n_frames, directory):
         disparity, lr_disagreement = matcher.compute_with_confidence(frame.left, frame.right)
         disparities.append(disparity.astype(np.float32))
         classes.append(error_model.classify_frame(frame.left, frame.right, disparity, lr_disagreement).astype(np.int16))
-    write_error_model(error_model, model_path)
+    write_error_model(error_model, directory / "error_model.json")
+    model_path.write_bytes(pickle.dumps(error_model))
     np.savez(world, poses=poses, disparities=np.stack(disparities), classes=np.stack(classes))
     return world
 
@@ -183,7 +187,7 @@ def load_world(scale, n_frames, world):
         camera, poses, disparities = street_frames(scale, n_frames)
         return camera, poses, disparities, [None] * len(poses), STREET_MIXTURE
     data = np.load(world)
-    error_model = load_error_model(Path(world).with_name("error_model.json"))
+    error_model = pickle.loads(Path(world).with_name("error_model.pkl").read_bytes())
     return (sim.kitti_camera(scale=scale), data["poses"], list(data["disparities"].astype(np.float64)),
             list(data["classes"].astype(np.int32)), error_model)
 
@@ -274,7 +278,7 @@ def street(args):
             world, errors = None, mixture_text()
             if args.conditioned:
                 world = sgbm_world(scale, args.frames, Path(args.world_dir or tmp) / f"street_{scale:g}_{args.frames}")
-                error_model = load_error_model(world.with_name("error_model.json"))
+                error_model = pickle.loads(world.with_name("error_model.pkl").read_bytes())
                 errors = f"SGBM (its defaults) characterised on {CHARACTERISE_FRAMES} frames, {error_model.n_classes} classes"
             for voxel in args.voxels:
                 print(f"\nscene (c): street, {camera.width}x{camera.height} px (f {camera.focal_px:g} px, b "

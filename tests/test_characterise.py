@@ -151,7 +151,7 @@ def test_error_model_round_trips_through_json(tmp_path):
     for name in ("log_likelihood", "aic", "bic", "n_samples", "n_iter", "converged"):
         assert [getattr(f, name) for f in loaded.fits] == [getattr(f, name) for f in model.fits]
     assert loaded.matcher_params == {"block_size": 5}
-    assert json.loads(path.read_text())["format_version"] == 2
+    assert json.loads(path.read_text())["format_version"] == 3
 
 
 @pytest.mark.parametrize(

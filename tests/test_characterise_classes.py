@@ -248,7 +248,7 @@ def test_version_2_round_trips_and_version_1_loads_as_one_class(tmp_path):
     path = tmp_path / "v2.json"
     write_error_model(model, path)
     data = json.loads(path.read_text())
-    assert data["format_version"] == 2 and data["features"]["names"] == ["edge_distance_px"]
+    assert data["format_version"] == 3 and data["features"]["names"] == ["edge_distance_px"]
     assert data["classes"][0]["bounds"] == {"edge_distance_px": [None, 2.5]}
     loaded = load_error_model(path)
     assert loaded.n_classes == 2 and loaded.conditioned

@@ -142,7 +142,8 @@ def test_em_kernel_matches_a_numpy_reference():
     counts = rng.integers(1, 10, 300).astype(np.float64)
     start = (np.array([0.5, 0.3, 0.2]), np.array([-1.0, 0.0, 2.0]), np.array([1.0, 2.0, 0.5]))
     for steps in (1, 5):
-        w, mu, var, ll, n_iter, converged = em_weighted(points, counts, *start, 1e-6, 1e-300, steps)
+        w, mu, var, w_f, ll, n_iter, converged = em_weighted(points, counts, *start, 1e-6, 1e-300, steps)
+        assert w_f == 0.0
         ref = _em_reference(points, counts, *start, 1e-6, steps)
         assert n_iter == steps and not converged
         np.testing.assert_allclose(w, ref[0], rtol=1e-10)

@@ -1,8 +1,8 @@
 """The error-model file: fitted mixtures of one matcher's errors, per class of pixels, and how they were made.
 
-Format (JSON, ``format_version`` 2)::
+Format (JSON, ``format_version`` 3)::
 
-    {"format": "prismap-error-model", "format_version": 2,
+    {"format": "prismap-error-model", "format_version": 3,
      "matcher": {"name": "sgbm", "params": {...}}, "dataset": "middlebury-motorcycle",
      "bin_width_px": 0.03125,
      "statistics": {"n_frames", "n_errors", "n_gt_valid", "n_outside_bins", "coverage", "bad_1px",
@@ -10,6 +10,7 @@ Format (JSON, ``format_version`` 2)::
      "selection": {"criterion": "bic", "tolerance_nats_per_error": 0.01},  # or {"criterion": "held-out", "held_out": ...}
      "selected_components": 2,
      "models": [{"n_components": 1, "weights": [...], "means": [...], "sigmas": [...],
+                 "failure_weight": 0.004, "search_range_px": [0.0, 96.0],
                  "log_likelihood": ..., "aic": ..., "bic": ..., "n_samples": ..., "n_iter": ...,
                  "converged": true}, ...],
      "features": {"names": ["edge_distance_px"], "units": {"edge_distance_px": "px"},
@@ -22,7 +23,8 @@ Format (JSON, ``format_version`` 2)::
      "source": "ground-truth",  # or "lidar", "self": what the errors were measured against
      "rig": {"focal_px": 721.5, "baseline_m": 0.54, "width": 1242, "height": 375, "matcher": "sgbm",
              "matcher_params": {...}},  # or null: the rig it was made on (see characterise/_rig.py)
-     "provenance": {...}}  # how a self-characterised model was made (min_lag, references, ...)
+     "provenance": {...},  # how a self-characterised model was made (min_lag, references, ...)
+     "fusion": {"model": "persistent-failure", "rate": ..., "persistence": ..., ...}}  # optional
 
 The top-level ``models`` / ``selected_components`` are the whole-image (plain) mixture: what version 1 held,
 what a plain sensor model uses, and the model of pixels outside every class (class -1). ``classes`` tile
@@ -30,11 +32,18 @@ the space of the named features (see :class:`~prismap.characterise.ErrorClasses`
 bound); each has its own fits over G, selected G, and share of the characterised pixels, and optionally an
 outlier component (the whole-image mixture's widest) mixed into its selected mixture with the given weight,
 so no class is certain never to fail grossly (:func:`prismap.gmm.fit_outlier_weight`). A model without
-features has one class equal to the plain model. A version-1 file loads as that one class.
+features has one class equal to the plain model. A version-1 file loads as that one class. The optional
+``fusion`` block says how the matcher's failures repeat across views (:mod:`prismap.characterise._fusion`);
+without it maps fuse frames independently.
 
-Means and sigmas are pixels; AIC and BIC use ``k = 3G - 1`` (see :class:`prismap.gmm.MixtureFit`). ``source``,
-``rig`` and ``provenance`` are optional (a file without them was measured against ground truth on an unrecorded
-rig).
+Version 3 gives every mixture the matcher-failure component (:class:`prismap.gmm.GaussianMixture`):
+``failure_weight`` ``w_f`` and the matcher's ``search_range_px`` over which failures are uniform; its classes
+need no ``outlier`` then (docs/SENSOR_MODELS.md section 8). Files of versions 1 and 2 have no failure
+component and map exactly as they did; a failure component in them is refused.
+
+Means and sigmas are pixels; AIC and BIC use ``k = 3G - 1``, ``3G`` with a failure component (see
+:class:`prismap.gmm.MixtureFit`). ``source``, ``rig`` and ``provenance`` are optional (a file without them was
+measured against ground truth on an unrecorded rig).
 """
 
 import json
@@ -45,6 +54,7 @@ from prismap._files import write_text_atomic
 from prismap.characterise._class_model import ClassModel, _describe, _find_fit
 from prismap.characterise._classes import ErrorClasses
 from prismap.characterise._features import FEATURE_UNITS, LR_FEATURE, compute_features
+from prismap.characterise._fusion import fusion_from_block
 from prismap.characterise._model_json import (
     MAX_COMPONENTS,
     _classes_from_dict,
@@ -64,10 +74,10 @@ from prismap.stereo._base import to_grey
 FORMAT = "prismap-error-model"
 
 
-FORMAT_VERSION = 2
+FORMAT_VERSION = 3
 
 
-READABLE_VERSIONS = (1, 2)
+READABLE_VERSIONS = (1, 2, 3)
 
 
 _SHARE_TOLERANCE = 1e-6
@@ -115,6 +125,9 @@ class ErrorModel:
         The rig it was made on (:func:`prismap.characterise.describe_rig`); None = not recorded.
     provenance : dict
         How it was made beyond the fields above (a self-characterisation's record).
+    fusion : dict or None
+        The fusion block (:func:`prismap.characterise.fit_fusion`): how the matcher's failures repeat across
+        views; None = not measured (independent fusion).
     """
 
     matcher: str
@@ -132,10 +145,12 @@ class ErrorModel:
     source: str = "ground-truth"
     rig: dict | None = None
     provenance: dict = field(default_factory=dict)
+    fusion: dict | None = None
 
     def __post_init__(self):
         if self.source not in SOURCES:
             raise PrismapInputError(f"error model `source` must be one of {list(SOURCES)}; got {self.source!r}")
+        fusion_from_block(self.fusion)
         object.__setattr__(self, "fits", tuple(sorted(self.fits, key=lambda fit: fit.n_components)))
         self.fit(self.selected_components)
         classes = ErrorClasses.single() if self.classes is None else self.classes
@@ -265,11 +280,17 @@ class ErrorModel:
             "source": self.source,
             "rig": self.rig,
             "provenance": self.provenance,
+            **({} if self.fusion is None else {"fusion": self.fusion}),
         }
+
+    @property
+    def persistent_failure(self):
+        """The :class:`prismap.grid.PersistentFailure` of the fusion block, or None (independent fusion)."""
+        return fusion_from_block(self.fusion)
 
     @classmethod
     def from_dict(cls, data, *, source="error model"):
-        """Inverse of :meth:`to_dict` (also reads format version 1); ``source`` starts every error message."""
+        """Inverse of :meth:`to_dict` (also reads format versions 1 and 2); ``source`` starts every error message."""
         if not isinstance(data, dict):
             raise PrismapInputError(f"{source}: expected a JSON object; got {type(data).__name__}")
         if data.get("format") != FORMAT:
@@ -297,6 +318,14 @@ class ErrorModel:
         extra = _provenance_from_dict(data, source)
         if version >= 2:
             extra.update(_classes_from_dict(data, source, bound_px))
+        mixtures = [fit.mixture for fit in fits] + [fit.mixture for model in extra.get("class_models", ())
+                                                    for fit in model.fits]
+        if version < 3 and any(mixture.search_range_px is not None for mixture in mixtures):
+            raise PrismapInputError(f"{source}: a failure component (`failure_weight`, `search_range_px`) needs "
+                                    f"format_version 3; this file says {version}")
+        if data.get("fusion") is not None:
+            fusion_from_block(data["fusion"], source=source)
+            extra["fusion"] = dict(data["fusion"])
         try:
             return cls(matcher["name"], dict(params), data["dataset"], bin_width, fits, selected, selection,
                        statistics, **extra)

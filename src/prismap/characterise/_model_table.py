@@ -29,9 +29,16 @@ def format_table(model):
         "",
         (f"Selected G = {model.selected_components} (marked *): " + _selection_rule(model.selection) + " "
          "AIC = 2k - 2 ln L and BIC = k ln N - 2 ln L with k = 3G - 1 (the thesis printed 2G as the AIC "
-         f"penalty). Rows with G > 3 list only components with weight > {TABLE_MIN_WEIGHT}, as in the thesis."),
+         f"penalty), 3G with a failure component. Rows with G > 3 list only components with weight > "
+         f"{TABLE_MIN_WEIGHT}, as in the thesis."),
         "",
     ]
+    failures = model.mixture.search_range_px is not None
+    if failures:
+        lo, hi = model.mixture.search_range_px
+        lines += [(f"Matcher failures: a component uniform over the search range {lo:g}..{hi:g} px (W = {hi - lo:g} "
+                   "px) in every mixture; w_f is its weight, the weights w of the Gaussians are among themselves "
+                   "(docs/SENSOR_MODELS.md section 8)."), ""]
     shown = []
     for fit in model.fits:
         components = _components(fit.mixture)
@@ -39,12 +46,14 @@ def format_table(model):
             components = [c for c in components if c[2] > TABLE_MIN_WEIGHT]
         shown.append((fit, components))
     width = max(len(components) for _, components in shown)
-    header = ["G", "AIC", "BIC"] + [f"{s}{j + 1}" for j in range(width) for s in ("µ", "σ", "w")]
+    header = ["G", "AIC", "BIC"] + (["w_f"] if failures else []) + [f"{s}{j + 1}" for j in range(width)
+                                                                      for s in ("µ", "σ", "w")]
     lines += ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     notes = []
     for fit, components in shown:
         mark = "*" if fit.n_components == model.selected_components else ""
         cells = [f"{fit.n_components}{mark}", f"{fit.aic:.6g}", f"{fit.bic:.6g}"]
+        cells += [f"{fit.mixture.failure_weight:.1e}"] if failures else []
         for mu, sigma, weight in components:
             cells += [f"{mu:.2f}", f"{sigma:.2f}", f"{weight:.2f}"]
         cells += [""] * (len(header) - len(cells))
@@ -83,13 +92,16 @@ def _class_lines(model):
               + (" G \"+ 1\": the whole-image mixture's widest component mixed in with weight w."
                  if any(m.outlier is not None for m in model.class_models) else ""), ""]
     width = max(m.mixture.n_components for m in model.class_models)
-    header = ["class", "bounds", "share", "bad-2px", "G"] + [f"{s}{j + 1}" for j in range(width) for s in ("µ", "σ", "w")]
+    failures = model.mixture.search_range_px is not None
+    header = (["class", "bounds", "share", "bad-2px", "G"] + (["w_f"] if failures else [])
+              + [f"{s}{j + 1}" for j in range(width) for s in ("µ", "σ", "w")])
     lines += ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     for k, class_model in enumerate(model.class_models):
         cells = [str(k), _describe(model.classes, k), _percent(class_model.share),
                  _percent(class_model.statistics.get("bad_2px")),
                  str(class_model.selected_components)
                  + ("" if class_model.outlier is None else f" + 1 (w {class_model.outlier['weight']:.1e})")]
+        cells += [f"{class_model.mixture.failure_weight:.1e}"] if failures else []
         for mu, sigma, weight in _components(class_model.mixture):
             cells += [f"{mu:.2f}", f"{sigma:.2f}", f"{weight:.2f}"]
         cells += [""] * (len(header) - len(cells))

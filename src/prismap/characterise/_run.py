@@ -160,7 +160,7 @@ def characterise_matcher(frames, matcher, *, max_components=4, bin_width=DEFAULT
                          seed=0, conditioned=True, max_classes=DEFAULT_MAX_CLASSES,
                          edge_threshold_px=DEFAULT_EDGE_THRESHOLD_PX, texture_window_px=DEFAULT_TEXTURE_WINDOW_PX,
                          max_samples=DEFAULT_MAX_SAMPLES, search_frames=DEFAULT_SEARCH_FRAMES, progress=True,
-                         map_chunks=None, chunk_frames=1, source="ground-truth"):
+                         map_chunks=None, chunk_frames=1, source="ground-truth", failures=True):
     """Run ``matcher`` on ``frames``, histogram its errors and fit mixtures with G = 1..``max_components``.
 
     Each frame's errors ``e = d_true - d_computed`` are binned at once into the whole-image histogram.
@@ -222,6 +222,11 @@ def characterise_matcher(frames, matcher, *, max_components=4, bin_width=DEFAULT
     source : str
         What ``disparity_gt`` is (``"ground-truth"``, ``"lidar"``, ``"self"``), recorded in the model with the
         rig of the first frame (its camera, image size and the matcher's parameters).
+    failures : bool
+        Give every mixture (whole-image and per class) the matcher-failure component uniform over the
+        matcher's search range (:meth:`~prismap.stereo.StereoMatcher.search_range_px`), its weight fitted by
+        MAP-EM with the Gaussians (:func:`prismap.gmm.fit_mixture`). False: Gaussians only, the classes
+        with the whole image's widest component as their outlier floor (the format-2 model).
 
     Returns
     -------
@@ -239,8 +244,9 @@ def characterise_matcher(frames, matcher, *, max_components=4, bin_width=DEFAULT
                         if conditioned else None)
     settings = FrameSettings(float(bin_width), float(limit_px), feature_settings, max_samples, int(seed))
     passes = _Passes(frames, matcher, settings, map_chunks or map, int(chunk_frames), progress)
+    search_range = matcher.search_range_px() if failures and hasattr(matcher, "search_range_px") else None
     fit_options = {"max_components": max_components, "criterion": criterion, "tolerance": tolerance,
-                   "restarts": restarts, "seed": seed}
+                   "restarts": restarts, "seed": seed, "search_range_px": search_range}
     every = list(range(len(frames)))
     first = frames[0]
     recorded = {"source": source,
@@ -248,22 +254,23 @@ def characterise_matcher(frames, matcher, *, max_components=4, bin_width=DEFAULT
     if not conditioned:
         histogram = passes.run(histogram_chunk, every, "histogram")
         return _fit(histogram, (histogram,), dict(recorded), matcher, dataset, fit_options, passes)
-    search = sorted({round(x) for x in np.linspace(0, len(frames) - 1, min(int(search_frames), len(frames)))})
-    histogram, sample = passes.run(sample_chunk, search, "sample for the class search")
+    searched = sorted({round(x) for x in np.linspace(0, len(frames) - 1, min(int(search_frames), len(frames)))})
+    histogram, sample = passes.run(sample_chunk, searched, "sample for the class search")
     _check_fittable(histogram)
     values, errors, fold, held_out = sample.arrays()
     with passes.step(f"choose error classes on {sample.n_samples} of {sample.n_seen} pixels"):
         classes, record = choose_classes(values, errors, fold, bin_edges=histogram.edges, max_classes=max_classes,
-                                         max_components=max_components, seed=seed)
-    record = {"held_out": held_out, "n_search_frames": len(search), "n_samples": sample.n_samples,
+                                         max_components=max_components, seed=seed,
+                                         search_range_px=search_range)
+    record = {"held_out": held_out, "n_search_frames": len(searched), "n_samples": sample.n_samples,
               "n_search_pixels": sample.n_seen, **record}
     conditioning = {"class_selection": record, **recorded}
     if not classes.features:  # the plain model predicts held-out errors best
-        if len(search) < len(frames):
+        if len(searched) < len(frames):
             histogram = passes.run(histogram_chunk, every, "histogram")
         return _fit(histogram, (histogram,), conditioning, matcher, dataset, fit_options, passes)
     conditioning.update(classes=classes, feature_settings=feature_settings)
-    if len(search) == len(frames) and sample.exhaustive:  # the sample is every error: no second pass
+    if len(searched) == len(frames) and sample.exhaustive:  # the sample is every error: no second pass
         parts = class_histograms(classes, values, errors, bin_width=settings.bin_width, limit_px=settings.limit_px,
                                  n_frames=histogram.n_frames)
     else:
@@ -288,7 +295,8 @@ def _fit(histogram, parts, conditioning, matcher, dataset, fit_options, passes):
     n_fits = 1 + (classes.n_classes if classes is not None else 0)
     with passes.step(f"fit {n_fits} mixture(s) by EM, G = 1..{fit_options['max_components']}"):
         fits = fit_mixtures(histogram.edges, histogram.counts, max_components=fit_options["max_components"],
-                            restarts=fit_options["restarts"], seed=fit_options["seed"])
+                            restarts=fit_options["restarts"], seed=fit_options["seed"],
+                            search_range_px=fit_options["search_range_px"])
         if record is None:
             selected = select_components(fits, criterion=criterion, tolerance=tolerance)
             selection = {"criterion": criterion, "tolerance_nats_per_error": float(tolerance)}

@@ -135,7 +135,7 @@ def class_histograms(classes, values, errors, *, bin_width, limit_px, n_frames=1
 
 
 def fit_class_histograms(classes, histograms, *, max_components, criterion, tolerance, restarts=4, seed=0,
-                         components=None, outlier=None):
+                         components=None, outlier=None, search_range_px=None):
     """One mixture per class: EM on each class's histogram, G given or by the criterion.
 
     Parameters
@@ -153,6 +153,9 @@ def fit_class_histograms(classes, histograms, *, max_components, criterion, tole
         One Gaussian (pixels) mixed into every class's mixture with the weight its errors give it
         (:func:`prismap.gmm.fit_outlier_weight`, one pseudo-error): the whole-image mixture's widest
         component (:func:`outlier_component`). None = none.
+    search_range_px : (lo, hi), pixels, or None
+        The matcher's search range: every class's mixture then has its own matcher-failure component,
+        fitted with its Gaussians (:func:`prismap.gmm.fit_mixture`), in place of ``outlier``.
 
     Returns
     -------
@@ -165,11 +168,12 @@ def fit_class_histograms(classes, histograms, *, max_components, criterion, tole
         if part.counts.sum() == 0:
             raise PrismapInputError(f"error class {k} ({classes.bounds(k)}) has no error to fit")
         fits, selected = fit_class(part.counts.astype(np.float64), part.edges, max_components=max_components,
-                                   criterion=criterion, tolerance=tolerance, restarts=restarts, seed=seed)
+                                   criterion=criterion, tolerance=tolerance, restarts=restarts, seed=seed,
+                                   search_range_px=search_range_px)
         if components is not None:
             selected = min(int(components[k]), len(fits))
         floor = None
-        if outlier is not None:
+        if outlier is not None and search_range_px is None:
             weight = fit_outlier_weight(fits[selected - 1].mixture, outlier, part.edges, part.counts)
             floor = {"weight": weight, "mean": float(outlier.means[0]), "sigma": float(outlier.sigmas[0])}
         models.append(ClassModel(tuple(fits), selected, part.n_errors / n_classified, part.statistics(), floor))
@@ -177,16 +181,16 @@ def fit_class_histograms(classes, histograms, *, max_components, criterion, tole
 
 
 def fit_classes(classes, values, errors, *, bin_width, limit_px, n_frames=1, max_components, criterion, tolerance,
-                restarts=4, seed=0, components=None, outlier=None):
+                restarts=4, seed=0, components=None, outlier=None, search_range_px=None):
     """:func:`class_histograms` of the samples, then :func:`fit_class_histograms`: ``(class_models, histograms)``."""
     histograms = class_histograms(classes, values, errors, bin_width=bin_width, limit_px=limit_px, n_frames=n_frames)
     return fit_class_histograms(classes, histograms, max_components=max_components, criterion=criterion,
                                 tolerance=tolerance, restarts=restarts, seed=seed, components=components,
-                                outlier=outlier), histograms
+                                outlier=outlier, search_range_px=search_range_px), histograms
 
 
 def choose_classes(values, errors, fold, *, bin_edges, max_classes, max_components, seed=0,
-                   min_class_errors=MIN_CLASS_ERRORS):
+                   min_class_errors=MIN_CLASS_ERRORS, search_range_px=None):
     """The candidate classes with the highest held-out log-likelihood, each class's G, and the record of the search.
 
     Each class's G (1 .. ``max_components``) is chosen by the same held-out log-likelihood as the classes,
@@ -209,6 +213,9 @@ def choose_classes(values, errors, fold, *, bin_edges, max_classes, max_componen
     max_classes : int, >= 1
     max_components : int, >= 1
         Largest G tried per class.
+    search_range_px : (lo, hi), pixels, or None
+        The matcher's search range: every mixture scored then carries its own fitted matcher-failure
+        component (as the final fits do) instead of the whole image's outlier component.
 
     Returns
     -------
@@ -229,7 +236,8 @@ def choose_classes(values, errors, fold, *, bin_edges, max_classes, max_componen
     bin_edges = bin_edges[::factor]
     fold = np.asarray(fold)
     options = {"max_components": check_integer(max_components, "max_components", expected="an integer >= 1",
-                                                      condition=lambda n: n >= 1), "seed": seed, **SEARCH_FIT}
+                                                      condition=lambda n: n >= 1), "seed": seed, **SEARCH_FIT,
+               "search_range_px": search_range_px}
     search = _Search(values, binned, (fold[binned] != 0) * (bin_edges.size - 1) + index[binned] // factor, bin_edges,
                      int(max_classes), int(min_class_errors), options)
     too_few = f"too few errors to compare error classes: each fold needs at least {min_class_errors} errors"
@@ -237,8 +245,8 @@ def choose_classes(values, errors, fold, *, bin_edges, max_classes, max_componen
     _, plain_components = search.score(plain, None)
     if plain_components is None:
         raise PrismapInputError(too_few)
-    outliers = {}
-    for test_fold in (0, 1):
+    outliers = None if search_range_px is not None else {}
+    for test_fold in (0, 1) if outliers is not None else ():
         fits = fit_mixtures(bin_edges, plain[0, 1 - test_fold], max_components=plain_components[0], seed=seed,
                             **SEARCH_FIT)
         outliers[test_fold] = outlier_component(fits[-1].mixture)
@@ -322,7 +330,8 @@ class _Search:
                 occupied = np.flatnonzero(test)
                 fits = fit_mixtures(self.bin_edges, train,
                                     max_components=int(min(max_components, np.count_nonzero(train))),
-                                    seed=self.options["seed"], **SEARCH_FIT)
+                                    seed=self.options["seed"], search_range_px=self.options["search_range_px"],
+                                    **SEARCH_FIT)
                 mixtures = [fit.mixture for fit in fits]
                 if outliers is not None:
                     mixtures = [_with_outlier(m, outliers[test_fold], self.bin_edges, train) for m in mixtures]

@@ -21,9 +21,28 @@ from scipy.optimize import minimize_scalar
 from prismap._validate import as_float_array, check_integer, check_positive
 from prismap.errors import PrismapInputError
 from prismap.gmm._kernels import em_weighted, kmeans_plus_plus
-from prismap.gmm._mixture import GaussianMixture
+from prismap.gmm._mixture import GaussianMixture, check_search_range
 
 CRITERIA = ("bic", "aic")
+DEFAULT_FAILURE_PRIOR = 1.0
+"""Pseudo-failures of the failure weight's prior (``Beta(1 + a, 1)`` with ``a = 1``, MAP: see :func:`fit_mixture`)."""
+
+
+def n_parameters(n_components, with_failure):
+    """Free parameters of a G-component mixture: ``3G - 1``, plus 1 for a failure component's weight."""
+    return 3 * n_components - 1 + int(bool(with_failure))
+
+
+def failure_prior_bound(n_errors, failure_prior=DEFAULT_FAILURE_PRIOR):
+    """The least failure weight the prior allows after ``n_errors`` errors none of which is gross.
+
+    MAP-EM gives ``w_f = (R_f + a) / (N + a)`` with ``a = failure_prior`` pseudo-failures (a ``Beta(1 + a, 1)``
+    prior on ``w_f``): at least ``a / (N + a)``, about ``1 / N`` for ``a = 1``. That is Laplace's rule of
+    succession (the predictive failure rate after no failure in ``N`` trials is ``1 / (N + 2)``), within the
+    rule of three's 95 % bound ``3 / N``: ``N`` clean errors cannot claim a failure rate far below ``1 / N``.
+    """
+    a = check_positive(failure_prior, "failure_prior")
+    return a / (float(n_errors) + a)
 
 
 @dataclass(frozen=True)
@@ -38,8 +57,9 @@ class MixtureFit:
         bin centres weighted by their counts. This is a log *density*, comparable with a fit to the raw
         errors; the log-probability of the bin counts themselves is ``ln L + n_samples * ln(bin_width)``.
     aic : float
-        ``2k - 2 ln L`` with ``k = 3G - 1`` free parameters. (The thesis, eq. 3.11, printed ``2G`` as the
-        penalty; this is the standard count: G means, G sigmas, G - 1 free weights.)
+        ``2k - 2 ln L`` with ``k = 3G - 1`` free parameters, ``3G`` with a failure component (its weight).
+        (The thesis, eq. 3.11, printed ``2G`` as the penalty; this is the standard count: G means, G sigmas,
+        G - 1 free weights.)
     bic : float
         ``k ln N - 2 ln L`` with ``N = n_samples``.
     n_samples : float
@@ -65,8 +85,8 @@ class MixtureFit:
 
     @property
     def n_parameters(self):
-        """Free parameters ``k = 3G - 1``."""
-        return 3 * self.n_components - 1
+        """Free parameters ``k = 3G - 1``, plus 1 for a failure component's weight."""
+        return n_parameters(self.n_components, self.mixture.search_range_px is not None)
 
     @property
     def mean_log_likelihood(self):
@@ -75,7 +95,7 @@ class MixtureFit:
 
 
 def fit_mixture(values, *, weights=None, n_components, bin_width=None, restarts=4, seed=0, tol=1e-9,
-                max_iter=3000, min_sigma=None):
+                max_iter=3000, min_sigma=None, search_range_px=None, failure_prior=DEFAULT_FAILURE_PRIOR):
     """Fit a G-component Gaussian mixture to 1-D samples by EM.
 
     Parameters
@@ -104,6 +124,14 @@ def fit_mixture(values, *, weights=None, n_components, bin_width=None, restarts=
     min_sigma : float, pixels, optional
         Lower bound of every sigma. Default ``1e-3 *`` the standard deviation of the samples; with a
         histogram it is never below ``bin_width / sqrt(12)``, the spread of a value within its bin.
+    search_range_px : (lo, hi), pixels, optional
+        The matcher's disparity search range. If given, the mixture gains the matcher-failure component of
+        density ``1 / W`` (``W = hi - lo``) per error, its weight ``w_f`` fitted with the Gaussians by MAP-EM
+        (:func:`failure_prior_bound` states the prior).
+    failure_prior : float, > 0
+        Pseudo-failures of that prior: ``w_f = (R_f + failure_prior) / (N + failure_prior)`` with ``R_f`` the
+        failure responsibilities of ``N`` errors, so ``n`` errors without a gross one still give
+        ``w_f >= failure_prior / (n + failure_prior)``.
 
     Returns
     -------
@@ -123,13 +151,14 @@ def fit_mixture(values, *, weights=None, n_components, bin_width=None, restarts=
         binned = np.bincount(index - low, weights=counts)
         centres = (np.arange(binned.size) + low + 0.5) * width
         return _fit(centres, binned, n_components=n_components, bin_width=width, restarts=restarts, seed=seed,
-                    tol=tol, max_iter=max_iter, min_sigma=min_sigma)
+                    tol=tol, max_iter=max_iter, min_sigma=min_sigma, search_range_px=search_range_px,
+                    failure_prior=failure_prior)
     return _fit(points, counts, n_components=n_components, bin_width=None, restarts=restarts, seed=seed, tol=tol,
-                max_iter=max_iter, min_sigma=min_sigma)
+                max_iter=max_iter, min_sigma=min_sigma, search_range_px=search_range_px, failure_prior=failure_prior)
 
 
 def fit_histogram(bin_edges, counts, *, n_components, restarts=4, seed=0, tol=1e-9, max_iter=3000,
-                  min_sigma=None):
+                  min_sigma=None, search_range_px=None, failure_prior=DEFAULT_FAILURE_PRIOR):
     """Fit a G-component Gaussian mixture to a histogram by EM on its counted bin centres.
 
     Parameters
@@ -137,7 +166,7 @@ def fit_histogram(bin_edges, counts, *, n_components, restarts=4, seed=0, tol=1e
     bin_edges : (B + 1,) float, pixels, increasing with equal spacing
     counts : (B,) float, >= 0
         Errors per bin.
-    n_components, restarts, seed, tol, max_iter, min_sigma
+    n_components, restarts, seed, tol, max_iter, min_sigma, search_range_px, failure_prior
         As in :func:`fit_mixture`; ``min_sigma`` is at least ``bin_width / sqrt(12)``.
 
     Returns
@@ -156,7 +185,8 @@ def fit_histogram(bin_edges, counts, *, n_components, restarts=4, seed=0, tol=1e
         raise PrismapInputError("`counts` must be >= 0; got a negative count")
     centres = 0.5 * (edges[:-1] + edges[1:])
     return _fit(centres, values, n_components=n_components, bin_width=float(widths[0]), restarts=restarts, seed=seed,
-                tol=tol, max_iter=max_iter, min_sigma=min_sigma)
+                tol=tol, max_iter=max_iter, min_sigma=min_sigma, search_range_px=search_range_px,
+                failure_prior=failure_prior)
 
 
 def fit_outlier_weight(mixture, outlier, bin_edges, counts, *, prior_count=1.0):
@@ -251,8 +281,14 @@ def _check_count(value, name):
     return check_integer(value, name, expected="an integer >= 1", condition=lambda n: n >= 1)
 
 
-def _fit(points, counts, *, n_components, bin_width, restarts, seed, tol, max_iter, min_sigma):
+def _fit(points, counts, *, n_components, bin_width, restarts, seed, tol, max_iter, min_sigma, search_range_px=None,
+         failure_prior=DEFAULT_FAILURE_PRIOR):
     n_components = _check_count(n_components, "n_components")
+    floor_density, prior = 0.0, 0.0
+    if search_range_px is not None:
+        search_range_px = check_search_range(search_range_px, "`search_range_px`")
+        floor_density = 1.0 / (search_range_px[1] - search_range_px[0])
+        prior = check_positive(failure_prior, "failure_prior")
     restarts = _check_count(restarts, "restarts")
     max_iter = _check_count(max_iter, "max_iter")
     tol = check_positive(tol, "tol")
@@ -276,16 +312,20 @@ def _fit(points, counts, *, n_components, bin_width, restarts, seed, tol, max_it
     if bin_width is not None:
         min_sigma = max(min_sigma or 0.0, bin_width / np.sqrt(12.0))
     var_floor = min_sigma**2
-    best = None
+    floor_start = _failure_start(points, counts, total, prior) if floor_density else 0.0
+    best, best_score = None, -np.inf
     for start in _starts(points, counts, n_components, restarts, seed, mean, std):
         w0, mu0, var0 = (np.ascontiguousarray(a, dtype=np.float64) for a in start)
-        result = em_weighted(points, counts, w0, mu0, np.maximum(var0, var_floor), var_floor, tol, max_iter)
-        if best is None or result[3] > best[3]:
-            best = result
-    weights, means, variances, log_lik, n_iter, converged = best
+        result = em_weighted(points, counts, w0, mu0, np.maximum(var0, var_floor), var_floor, tol, max_iter,
+                             floor_density, floor_start, prior)
+        score = result[4] + (prior * np.log(result[3]) if floor_density else 0.0)  # the log-posterior EM climbs
+        if best is None or score > best_score:
+            best, best_score = result, score
+    weights, means, variances, failure_weight, log_lik, n_iter, converged = best
     order = np.argsort(-weights, kind="stable")
-    mixture = GaussianMixture(weights[order], means[order], np.sqrt(variances[order]))
-    k = 3 * n_components - 1
+    mixture = GaussianMixture(weights[order], means[order], np.sqrt(variances[order]), failure_weight,
+                              search_range_px)
+    k = n_parameters(n_components, floor_density > 0)
     return MixtureFit(
         mixture=mixture,
         log_likelihood=float(log_lik),
@@ -295,6 +335,15 @@ def _fit(points, counts, *, n_components, bin_width, restarts, seed, tol, max_it
         n_iter=int(n_iter),
         converged=bool(converged),
     )
+
+
+def _failure_start(points, counts, total, prior):
+    """Starting failure weight: the share of errors beyond 8 robust sigmas (+ 1 px) of the median, or the prior's."""
+    median = _weighted_quantiles(points, counts, [0.5])[0]
+    deviations = np.abs(points - median)
+    mad_sigma = 1.4826 * _weighted_quantiles(deviations, counts, [0.5])[0]
+    far = counts[deviations > 8.0 * mad_sigma + 1.0].sum()
+    return float(np.clip((far + prior) / (total + prior), 1e-6, 0.5))
 
 
 def _weighted_quantiles(points, counts, probabilities):

@@ -13,8 +13,15 @@ _LOG_SQRT_2PI = 0.5 * math.log(2.0 * math.pi)
 
 
 @numba.njit(cache=True)
-def em_weighted(points, counts, weights, means, variances, var_floor, tol, max_iter):
+def em_weighted(points, counts, weights, means, variances, var_floor, tol, max_iter, floor_density=0.0,
+                floor_weight=0.0, prior_count=0.0):
     """Run EM on weighted 1-D points from the given start; return the fit and its log-likelihood.
+
+    With ``floor_density > 0`` the mixture has one more component of constant density (a matcher's failures,
+    uniform over its search range): ``p(x) = (1 - w_f) sum_j w_j N(x; mu_j, var_j) + w_f floor_density``.
+    Its weight is the MAP estimate under a Dirichlet prior that adds ``prior_count`` pseudo-points to it
+    (``w_f = (R_f + prior_count) / (N + prior_count)``, ``R_f`` its responsibilities); the stopping rule
+    watches the log-posterior ``lnL + prior_count ln w_f``, which MAP-EM never lowers.
 
     Parameters
     ----------
@@ -40,12 +47,15 @@ def em_weighted(points, counts, weights, means, variances, var_floor, tol, max_i
     """
     n_points = points.size
     n_comp = weights.size
-    w = weights.copy()
+    use_floor = floor_density > 0.0
+    w_f = floor_weight if use_floor else 0.0
+    w = weights * (1.0 - w_f)  # every weight of the (G + 1)-component mixture, summing to 1
     mu = means.copy()
     var = variances.copy()
     total = 0.0
     for i in range(n_points):
         total += counts[i]
+    log_floor = math.log(floor_density) if use_floor else 0.0
     log_terms = np.empty(n_comp)
     coef = np.empty(n_comp)
     resp_sum = np.empty(n_comp)
@@ -65,9 +75,11 @@ def em_weighted(points, counts, weights, means, variances, var_floor, tol, max_i
             first[j] = 0.0
             second[j] = 0.0
         log_lik = 0.0
+        floor_sum = 0.0
+        floor_term = math.log(w_f) + log_floor if use_floor and w_f > 0.0 else -np.inf
         for i in range(n_points):
             x = points[i]
-            peak = -np.inf
+            peak = floor_term
             for j in range(n_comp):
                 if w[j] > 0.0:
                     dev = x - mu[j]
@@ -76,35 +88,47 @@ def em_weighted(points, counts, weights, means, variances, var_floor, tol, max_i
                     log_terms[j] = -np.inf
                 if log_terms[j] > peak:
                     peak = log_terms[j]
-            acc = 0.0
+            floor_share = math.exp(floor_term - peak)
+            acc = floor_share
             for j in range(n_comp):
                 log_terms[j] = math.exp(log_terms[j] - peak)
                 acc += log_terms[j]
             log_lik += counts[i] * (peak + math.log(acc))
             scale = counts[i] / acc
+            floor_sum += floor_share * scale
             for j in range(n_comp):
                 r = log_terms[j] * scale
                 dev = x - mu[j]
                 resp_sum[j] += r
                 first[j] += r * dev
                 second[j] += r * dev * dev
-        if abs(log_lik - previous) <= tol * abs(log_lik):
+        objective = log_lik + (prior_count * math.log(w_f) if use_floor and prior_count > 0.0 else 0.0)
+        if abs(objective - previous) <= tol * abs(objective):
             converged = True
             break
         if n_iter >= max_iter:
             break
-        previous = log_lik
+        previous = objective
         # M-step. A component that lost all its points keeps weight 0 and drops out.
+        norm = total + (prior_count if use_floor else 0.0)
+        if use_floor:
+            w_f = (floor_sum + prior_count) / norm
         for j in range(n_comp):
             if resp_sum[j] <= 0.0:
                 w[j] = 0.0
                 continue
             shift = first[j] / resp_sum[j]
-            w[j] = resp_sum[j] / total
+            w[j] = resp_sum[j] / norm
             mu[j] += shift
             var[j] = max(second[j] / resp_sum[j] - shift * shift, var_floor)
         n_iter += 1
-    return w, mu, var, log_lik, n_iter, converged
+    if use_floor:
+        gaussian = 0.0
+        for j in range(n_comp):
+            gaussian += w[j]
+        for j in range(n_comp):
+            w[j] = w[j] / gaussian if gaussian > 0.0 else 1.0 / n_comp
+    return w, mu, var, w_f, log_lik, n_iter, converged
 
 
 @numba.njit(cache=True)

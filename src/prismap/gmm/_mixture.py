@@ -1,5 +1,7 @@
-"""The 1-D Gaussian mixture used as a stereo matcher's disparity-error model (thesis eq. 3.9-3.10)."""
+"""The 1-D Gaussian mixture used as a stereo matcher's disparity-error model (thesis eq. 3.9-3.10), with an
+optional matcher-failure component uniform over the matcher's disparity search range (SENSOR_MODELS.md 8)."""
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -12,19 +14,30 @@ _LOG_SQRT_2PI = 0.5 * np.log(2.0 * np.pi)
 
 @dataclass(frozen=True)
 class GaussianMixture:
-    """``p(e) = sum_j w_j N(e; mu_j, sigma_j^2)`` over a disparity error ``e`` in pixels.
+    """``p(e) = (1 - w_f) sum_j w_j N(e; mu_j, sigma_j^2) + w_f / W`` over a disparity error ``e`` in pixels.
+
+    The last term is the matcher's gross failures: a matcher that fails returns a disparity roughly uniform
+    over its search range ``[lo, hi)`` of width ``W = hi - lo`` pixels, so the error ``e = d_true - d^`` of a
+    returned disparity ``d^`` has failure density ``1 / W`` whatever ``d_true`` is (every returned ``d^`` lies
+    in the range). Without it (``failure_weight = 0``, the default) this is a plain Gaussian mixture.
 
     Parameters
     ----------
     weights : (G,) float64
-        Component weights, non-negative, summing to 1 (renormalised if off by rounding).
+        Weights of the Gaussians among themselves, non-negative, summing to 1 (renormalised if off by rounding).
     means : (G,) float64, pixels
     sigmas : (G,) float64, pixels, > 0
+    failure_weight : float in [0, 1)
+        ``w_f``: the share of errors that are matcher failures.
+    search_range_px : (lo, hi) floats, pixels, or None
+        The matcher's disparity search interval; needed when ``failure_weight > 0``.
     """
 
     weights: np.ndarray
     means: np.ndarray
     sigmas: np.ndarray
+    failure_weight: float = 0.0
+    search_range_px: tuple | None = None
 
     def __post_init__(self):
         arrays = []
@@ -51,6 +64,44 @@ class GaussianMixture:
         object.__setattr__(self, "weights", weights)
         object.__setattr__(self, "means", means)
         object.__setattr__(self, "sigmas", sigmas)
+        failure = self.failure_weight
+        if isinstance(failure, bool) or not isinstance(failure, (int, float, np.floating, np.integer)) \
+                or not 0.0 <= float(failure) < 1.0:
+            raise PrismapInputError(f"GaussianMixture `failure_weight` must be a number in [0, 1); got {failure!r}")
+        object.__setattr__(self, "failure_weight", float(failure))
+        if self.search_range_px is not None:
+            bounds = check_search_range(self.search_range_px, "GaussianMixture `search_range_px`")
+            object.__setattr__(self, "search_range_px", bounds)
+        elif self.failure_weight > 0:
+            raise PrismapInputError("GaussianMixture with `failure_weight` > 0 needs `search_range_px` (lo, hi)")
+
+    @property
+    def failure_width(self):
+        """``W``: width of the search range (pixels); infinity without one."""
+        if self.search_range_px is None:
+            return math.inf
+        return self.search_range_px[1] - self.search_range_px[0]
+
+    @property
+    def failure_density(self):
+        """``w_f / W``: the failure component's density (1/pixel), the floor of :meth:`pdf`."""
+        return self.failure_weight / self.failure_width
+
+    def peak_density(self):
+        """An upper bound (1/pixel) of the Gaussian part's density: ``sum_j w_j / (sqrt(2 pi) sigma_j)``.
+
+        It bounds the likelihood any measurement can have under the Gaussians, and with it the evidence
+        one measurement can carry (:func:`prismap.sensor_models.evidence_bound`).
+        """
+        return float(np.sum(self.weights / self.sigmas) / np.sqrt(2.0 * np.pi))
+
+    def gaussian_part(self):
+        """The Gaussians alone (no failure component), same weights, means and sigmas."""
+        return GaussianMixture(self.weights, self.means, self.sigmas)
+
+    def with_failure(self, failure_weight, search_range_px):
+        """The Gaussians of this mixture with the failure component ``w_f`` over ``search_range_px`` (pixels)."""
+        return GaussianMixture(self.weights, self.means, self.sigmas, failure_weight, search_range_px)
 
     @property
     def n_components(self):
@@ -62,34 +113,58 @@ class GaussianMixture:
         return e, (e[..., None] - self.means) / self.sigmas
 
     def logpdf(self, errors):
-        """Log density at ``errors`` (pixels), any shape; computed stably with log-sum-exp."""
+        """Log density at ``errors`` (pixels), any shape; computed stably with log-sum-exp.
+
+        With a failure component the density is that of an error whose disparity the matcher returned (inside
+        its search range): the Gaussians' density scaled by ``1 - w_f`` plus the floor ``w_f / W``.
+        """
         _, z = self._standardised(errors)
         terms = np.log(self.weights) - np.log(self.sigmas) - _LOG_SQRT_2PI - 0.5 * z * z
         peak = terms.max(axis=-1)
-        return peak + np.log(np.exp(terms - peak[..., None]).sum(axis=-1))
+        gaussian = peak + np.log(np.exp(terms - peak[..., None]).sum(axis=-1))
+        if self.failure_weight == 0.0:
+            return gaussian
+        return np.logaddexp(np.log1p(-self.failure_weight) + gaussian, np.log(self.failure_density))
 
     def pdf(self, errors):
-        """Density at ``errors`` (1/pixel), same shape as ``errors``."""
+        """Density at ``errors`` (1/pixel), same shape as ``errors`` (see :meth:`logpdf`)."""
         _, z = self._standardised(errors)
-        return (self.weights / self.sigmas * np.exp(-0.5 * z * z)).sum(axis=-1) / np.sqrt(2.0 * np.pi)
+        gaussian = (self.weights / self.sigmas * np.exp(-0.5 * z * z)).sum(axis=-1) / np.sqrt(2.0 * np.pi)
+        if self.failure_weight == 0.0:
+            return gaussian
+        return (1.0 - self.failure_weight) * gaussian + self.failure_density
 
     def cdf(self, errors):
-        """``P(e <= errors)``, same shape as ``errors``."""
+        """``P(e <= errors)`` of the Gaussians, same shape as ``errors`` (the failure part needs ``d_true``)."""
         _, z = self._standardised(errors)
         return (self.weights * ndtr(z)).sum(axis=-1)
 
     def logcdf(self, errors):
-        """``log P(e <= errors)``, accurate far in the left tail."""
+        """``log P(e <= errors)`` of the Gaussians, accurate far in the left tail."""
         _, z = self._standardised(errors)
         terms = np.log(self.weights) + log_ndtr(z)
         peak = terms.max(axis=-1)
         return peak + np.log(np.exp(terms - peak[..., None]).sum(axis=-1))
 
-    def sample(self, n, rng):
-        """Draw ``n`` errors (pixels) with the generator ``rng`` (``np.random.Generator`` or a seed)."""
+    def sample(self, n, rng, *, truth_px=None):
+        """Draw ``n`` errors (pixels) with the generator ``rng`` (``np.random.Generator`` or a seed).
+
+        With a failure component, a failed pixel's error is ``truth_px - U(lo, hi)``: the matcher returned a
+        disparity uniform over its search range. ``truth_px`` (scalar or ``(n,)``, pixels, the true
+        disparities) is then required.
+        """
         rng = np.random.default_rng(rng)
-        component = rng.choice(self.n_components, size=int(n), p=self.weights)
-        return self.means[component] + self.sigmas[component] * rng.standard_normal(int(n))
+        n = int(n)
+        component = rng.choice(self.n_components, size=n, p=self.weights)
+        errors = self.means[component] + self.sigmas[component] * rng.standard_normal(n)
+        if self.failure_weight == 0.0:
+            return errors
+        if truth_px is None:
+            raise PrismapInputError("sampling a mixture with a failure component needs `truth_px` (true disparities)")
+        truth = np.broadcast_to(np.asarray(truth_px, dtype=np.float64), (n,))
+        failed = rng.random(n) < self.failure_weight
+        lo, hi = self.search_range_px
+        return np.where(failed, truth - rng.uniform(lo, hi, n), errors)
 
     def mean(self):
         """Mixture mean (pixels)."""
@@ -111,7 +186,8 @@ class GaussianMixture:
     def widened(self, extra_sigma):
         """The mixture convolved with ``N(0, extra_sigma^2)`` (pixels): every sigma grows in quadrature."""
         extra = float(extra_sigma)
-        return GaussianMixture(self.weights, self.means, np.sqrt(self.sigmas**2 + extra**2))
+        return GaussianMixture(self.weights, self.means, np.sqrt(self.sigmas**2 + extra**2), self.failure_weight,
+                               self.search_range_px)
 
     def with_component(self, weight, mean, sigma):
         """``(1 - weight) * self + weight * N(mean, sigma^2)`` (pixels): one more component, the others scaled."""
@@ -119,11 +195,15 @@ class GaussianMixture:
         if not 0.0 <= weight < 1.0:
             raise PrismapInputError(f"`weight` of the added component must lie in [0, 1); got {weight!r}")
         return GaussianMixture(np.append((1.0 - weight) * self.weights, weight), np.append(self.means, mean),
-                               np.append(self.sigmas, sigma))
+                               np.append(self.sigmas, sigma), self.failure_weight, self.search_range_px)
 
     def to_dict(self):
-        """Plain-JSON form: ``{"weights": [...], "means": [...], "sigmas": [...]}``."""
-        return {"weights": self.weights.tolist(), "means": self.means.tolist(), "sigmas": self.sigmas.tolist()}
+        """Plain-JSON form: ``{"weights": [...], "means": [...], "sigmas": [...]}``, plus ``failure_weight`` and
+        ``search_range_px`` when there is a search range."""
+        data = {"weights": self.weights.tolist(), "means": self.means.tolist(), "sigmas": self.sigmas.tolist()}
+        if self.search_range_px is not None:
+            data.update(failure_weight=self.failure_weight, search_range_px=list(self.search_range_px))
+        return data
 
     @classmethod
     def from_dict(cls, data, *, source="mixture"):
@@ -134,7 +214,8 @@ class GaussianMixture:
         if missing:
             raise PrismapInputError(f"{source}: Gaussian mixture is missing field(s) {missing}")
         try:
-            return cls(data["weights"], data["means"], data["sigmas"])
+            return cls(data["weights"], data["means"], data["sigmas"], data.get("failure_weight", 0.0),
+                       data.get("search_range_px"))
         except PrismapInputError as exc:
             raise PrismapInputError(f"{source}: {exc}") from None
         except (TypeError, ValueError) as exc:
@@ -144,3 +225,14 @@ class GaussianMixture:
     def gaussian(cls, sigma, mean=0.0):
         """A single Gaussian ``N(mean, sigma^2)`` (pixels)."""
         return cls([1.0], [mean], [sigma])
+
+
+def check_search_range(value, name):
+    """``(lo, hi)`` floats (pixels) with ``lo < hi``, both finite, else an error naming ``name``."""
+    try:
+        lo, hi = (float(v) for v in value)
+    except (TypeError, ValueError):
+        raise PrismapInputError(f"{name} must be two numbers (lo, hi) in pixels; got {value!r}") from None
+    if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
+        raise PrismapInputError(f"{name} must be finite with lo < hi (pixels); got {value!r}")
+    return (lo, hi)

@@ -56,7 +56,7 @@ class PersistentFailure:
         object.__setattr__(self, "persistence", persistence)
 
     def failure_counts(self, n_views):
-        """``P(K = k)``, ``k = 0 .. n_views``: how many of ``n_views`` consecutive views are in the failure state.
+        """``P(K = k)`` for ``k`` from 0 to ``n_views``: how many of ``n_views`` consecutive views are in the failure state.
 
         Returns
         -------

@@ -40,7 +40,7 @@ from prismap.io._rosbag_messages import _ENCODINGS, _decode, _pixels, _rig
 from prismap.io._rosbag_poses import _interpolate, _pose_series, _seconds, _stamp_ns, _tf_poses
 
 PAIR_TOLERANCE_S = 0.005
-"""Default largest |stamp difference| of a left and a right image of one frame, seconds."""
+"""Default largest absolute stamp difference of a left and a right image of one frame, seconds."""
 
 
 MAX_POSE_GAP_S = 0.25
@@ -72,7 +72,7 @@ POINTCLOUD2 = "sensor_msgs/msg/PointCloud2"
 
 
 SCAN_TOLERANCE_S = 0.05
-"""Default largest |stamp difference| of a left image and the LiDAR scan that is its ground truth, seconds."""
+"""Default largest absolute stamp difference of a left image and the LiDAR scan that is its ground truth, seconds."""
 
 
 LIDAR_OCCLUSION_WINDOW_PX = 2
@@ -111,7 +111,7 @@ def read_bag(path, *, left, right, left_info=None, right_info=None, pose_topic=N
     T_cam_lidar : (4, 4) float or None
         LiDAR -> left camera transform; None = from ``/tf_static``.
     scan_tolerance_s : float, seconds
-        Largest |stamp difference| of an image and its scan.
+        Largest absolute stamp difference of an image and its scan.
     rectified : bool or None
         Whether the images are already rectified. None: yes when both image topics contain ``image_rect``
         or the calibration needs no remapping (``D = 0``, ``R = I``, ``K = P[:, :3]``), else no.

@@ -45,7 +45,7 @@ def plot_error_fits(histogram, model, *, path=None, half_width_px=None):
         fit = model.fit(g)
         ax.stairs(values, edges, fill=True, alpha=0.45, color="0.45", label="error hist")
         ax.plot(x, fit.mixture.pdf(x), color="C3", lw=1.6, label="GMM")
-        title = f"G = {g}" + (" (selected)" if g == model.selected_components else "")
+        title = f"G = {g}" + (" (selected)" if g == model.selected_components else "") + _failure_label(fit.mixture)
         ax.set_title(f"{title}: ln L / N = {fit.mean_log_likelihood:.3f}", fontsize=10)
         ax.set_xlim(low, high)
         ax.set_ylim(bottom=0)
@@ -87,7 +87,10 @@ def plot_error_tails(histogram, model, *, path=None):
     ax.stairs(np.nan_to_num(shown, nan=0.0), edges, fill=True, alpha=0.45, color="0.45", label="error hist")
     x = np.linspace(low, high, 4001)
     selected = model.selected_components
-    ax.plot(x, model.mixture.pdf(x), color="C3", lw=1.4, label=f"GMM, G = {selected} (selected)")
+    ax.plot(x, model.mixture.pdf(x), color="C3", lw=1.4,
+            label=f"GMM, G = {selected} (selected)" + _failure_label(model.mixture))
+    if model.mixture.failure_weight > 0:
+        ax.axhline(model.mixture.failure_density, color="C2", lw=0.9, ls=":", label="failure floor w_f / W")
     if selected != 1 and any(fit.n_components == 1 for fit in model.fits):
         ax.plot(x, model.fit(1).mixture.pdf(x), color="C0", lw=1.0, ls="--", label="GMM, G = 1")
     floor = 1.0 / (total * histogram.bin_width * factor)
@@ -141,7 +144,8 @@ def plot_class_fits(class_histograms, model, *, path=None, half_width_px=8.0):
         density_edges, density, total = _display_density(histogram)
         edges, values = _rebin(density_edges, density, factor, -half, half)
         ax.stairs(values, edges, fill=True, alpha=0.45, color="0.45", label="error hist")
-        ax.plot(x, class_model.mixture.pdf(x), color="C3", lw=1.4, label=f"class GMM, G = {class_model.selected_components}")
+        ax.plot(x, class_model.mixture.pdf(x), color="C3", lw=1.4,
+                label=f"class GMM, G = {class_model.selected_components}" + _failure_label(class_model.mixture))
         ax.plot(x, model.mixture.pdf(x), color="C0", lw=1.0, ls="--", label="plain GMM")
         ax.set_yscale("log")
         positive = values[values > 0]
@@ -179,3 +183,10 @@ def _finish(fig, path):
         with atomic_path(path) as tmp:
             fig.savefig(tmp, dpi=110)
     return fig
+
+
+def _failure_label(mixture):
+    """``", w_f 1.2e-03 over W 96 px"`` for a mixture with a matcher-failure component, else ``""``."""
+    if mixture.search_range_px is None:
+        return ""
+    return f", w_f {mixture.failure_weight:.1e} over W {mixture.failure_width:g} px"

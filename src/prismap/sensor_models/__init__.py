@@ -15,6 +15,12 @@ from prismap.sensor_models._conditioned import (
     conditioned_sensor_model,
     model_for_mixture,
 )
+from prismap.sensor_models._failure import (
+    blend_increments,
+    evidence_bound,
+    failure_floor,
+    log_failure_posterior,
+)
 from prismap.sensor_models._prism import PrismModel
 from prismap.sensor_models._prism_discrete import log_mean_likelihood, prism_discrete_posteriors
 from prismap.sensor_models._prism_prior import estimate_prior_from_likelihood, prior_from_ground_truth
@@ -28,9 +34,13 @@ __all__ = [
     "IdealModel",
     "InverseSensorModel",
     "PrismModel",
+    "blend_increments",
     "conditioned_sensor_model",
     "error_model_use",
     "estimate_prior_from_likelihood",
+    "evidence_bound",
+    "failure_floor",
+    "log_failure_posterior",
     "log_mean_likelihood",
     "make_sensor_model",
     "model_defaults",

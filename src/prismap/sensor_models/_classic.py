@@ -16,6 +16,7 @@ from prismap._validate import check_positive, check_probability
 from prismap.errors import PrismapInputError
 from prismap.sensor_models import _kernels_classic
 from prismap.sensor_models._base import register_model
+from prismap.sensor_models._failure import blend_increments
 from prismap.sensor_models._params import RayModel
 
 INFLUENCE_EPSILON = 1e-3
@@ -25,6 +26,25 @@ INFLUENCE_EPSILON = 1e-3
 def _odds_shifted(p0, p_even):
     """The posterior that the increment ``logit(p_even)`` gives a cell of prior ``p0``."""
     return float(1.0 / (1.0 + np.exp(-(logit(p0) + logit(p_even)))))
+
+
+def _check_failure_floor(model):
+    """Store ``model.failure_floor`` as a float in [0, 1)."""
+    value = float(model.failure_floor)
+    if not 0.0 <= value < 1.0:
+        raise PrismapInputError(f"{model.name}: `failure_floor` must lie in [0, 1); got {model.failure_floor!r}")
+    object.__setattr__(model, "failure_floor", value)
+
+
+def _with_failures(model, posterior, increment, no_information):
+    """``(1 - eps) P + eps p_n`` of each cell, ``eps = model.failure_floor`` and ``p_n = no_information`` (the
+    model's "nothing learnt" value): a failed measurement carries no information (docs/SENSOR_MODELS.md,
+    "Matcher failures"). Increments stay on the model's scale (against ``p_n``); posteriors are for ``p0``."""
+    if model.failure_floor == 0.0:
+        return posterior, increment
+    eps = model.failure_floor
+    _, increment = blend_increments(increment, logit(no_information), np.log(eps), np.log1p(-eps))
+    return 1.0 / (1.0 + np.exp(-(logit(model.p0) + increment))), increment
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -143,25 +163,32 @@ class ConvolutionModel(_ProfileModel):
     ----------
     sigma_px : float, pixels, default 0.5
         Disparity noise.
+    failure_floor : float in [0, 1), default 0
+        ``eps``: the share of a cell's posterior that falls back to ``p0`` because the measurement may be a
+        matcher failure, ``P = (1 - eps) P_conv + eps p0`` (:func:`prismap.sensor_models.failure_floor` of
+        the error mixture sets it).
     """
 
     name = "convolution"
     error_model_use = "sigma"
     default_policy = "mean"
     sigma_px: float = 0.5
+    failure_floor: float = 0.0
 
     def __post_init__(self):
         super().__post_init__()
         object.__setattr__(self, "sigma_px", check_positive(self.sigma_px, "sigma_px"))
+        _check_failure_floor(self)
 
     def cell_posteriors(self, disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m):
         _, norm, rays, start, end, z_hat = self._prepare(
             disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m
         )
-        return _kernels_classic.convolution_cells(
+        posterior, increment = _kernels_classic.convolution_cells(
             z_hat, self._sigma_depth(z_hat, self.sigma_px), norm, rays, start, end,
             0.5 * self.alpha_m, self.p_free, self.p_occ, self.p0,
         )
+        return _with_failures(self, posterior, increment, self.p0)
 
     def influence_depth(self, disparity_px, ray_norm):
         """Depth where ``|P - p0|`` falls below ``INFLUENCE_EPSILON * p0 (1 - p0) / 2`` (log-odds change ~epsilon)."""
@@ -197,6 +224,9 @@ class AndertModel(RayModel):
         Free-space probability.
     p_max : float in (0.5, 1), default 0.97
         Cap of the peak.
+    failure_floor : float in [0, 1), default 0
+        ``eps``: Andert's ``P`` becomes ``(1 - eps) P + eps / 2`` (1/2 is "no information" here), as for
+        :class:`ConvolutionModel`.
     """
 
     name = "andert"
@@ -206,21 +236,24 @@ class AndertModel(RayModel):
     eta: float = 0.1
     p_min: float = 0.35
     p_max: float = 0.97
+    failure_floor: float = 0.0
 
     def __post_init__(self):
         super().__post_init__()
         object.__setattr__(self, "sigma_px", check_positive(self.sigma_px, "sigma_px"))
         object.__setattr__(self, "eta", check_positive(self.eta, "eta"))
         _set_probabilities_around_half(self, "p_min", "p_max")
+        _check_failure_floor(self)
 
     def cell_posteriors(self, disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m):
         _, norm, rays, start, end, z_hat = self._prepare(
             disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m
         )
-        return _kernels_classic.andert_cells(
+        posterior, increment = _kernels_classic.andert_cells(
             z_hat, self._sigma_depth(z_hat, self.sigma_px), norm, rays, start, end,
             self.eta, self.p_min, self.p_max, self.p0,
         )
+        return _with_failures(self, posterior, increment, 0.5)
 
     def influence_depth(self, disparity_px, ray_norm):
         """Depth behind ``z^`` where ``|logit P|`` falls below ``INFLUENCE_EPSILON``."""

@@ -20,6 +20,7 @@ from prismap.sensor_models._base import (
     error_model_use,
     make_sensor_model,
 )
+from prismap.sensor_models._failure import failure_floor
 from prismap.sensor_models._prism import AUTO_TABLE_FLOOR_MB
 
 CLASS_PASS_THROUGH = "class_pass_through"
@@ -192,10 +193,11 @@ def share_table_floor(models):
 
 
 def model_for_mixture(name, mixture, *, focal_baseline, doffs_px, voxel_size_m, p0, **params):
-    """The sensor model ``name`` for one error mixture: PRISM with it, convolution/Andert with its dominant sigma.
+    """The sensor model ``name`` for one error mixture: PRISM with it, convolution/Andert with its dominant sigma
+    and, when it has a matcher-failure component, its :func:`~prismap.sensor_models.failure_floor`.
 
     ``params`` (the model's own parameters) win over what the mixture would set (``error_model``,
-    ``sigma_px``); other models ignore the mixture, and ``mixture=None`` sets nothing.
+    ``sigma_px``, ``failure_floor``); other models ignore the mixture, and ``mixture=None`` sets nothing.
     """
     params = dict(params)
     use = error_model_use(name)
@@ -203,6 +205,8 @@ def model_for_mixture(name, mixture, *, focal_baseline, doffs_px, voxel_size_m, 
         params.setdefault("error_model", mixture)
     elif mixture is not None and use == "sigma":
         params.setdefault("sigma_px", mixture.dominant_sigma())
+        if mixture.failure_weight > 0:
+            params.setdefault("failure_floor", failure_floor(mixture))
     try:
         return make_sensor_model(name, focal_baseline=focal_baseline, doffs_px=doffs_px, voxel_size_m=voxel_size_m,
                                  p0=p0, **params)

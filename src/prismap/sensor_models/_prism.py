@@ -23,6 +23,7 @@ from prismap.errors import PrismapInputError
 from prismap.gmm import GaussianMixture
 from prismap.sensor_models import _kernels_direct, _kernels_lookup, _kernels_map_prior, _kernels_table
 from prismap.sensor_models._base import register_model
+from prismap.sensor_models._failure import blend_increments, log_failure_posterior
 from prismap.sensor_models._params import RayModel
 from prismap.sensor_models._prism_cache import _LENGTH, _OFFSET, TableCache
 from prismap.sensor_models._prism_discrete import log_mean_likelihood
@@ -64,6 +65,7 @@ _BUILD_THREADS = min(2, os.cpu_count() or 1)  # threads building one call's miss
 _TAIL_STEP = 1.0  # prior="map": x-width of the panels of a ray's tail beyond its last cell
 _TAIL_REST = -20.0  # prior="map": the tail's march stops where the rest is below e^-20 of the evidence before
 _CHUNK_CELLS = 4096  # cells per look-up/exp/combine/log round: its 8 scratch arrays (228 KiB) stay in L2
+_LOG_Z, _LOG_Z_1, _LOG_Z_2 = (_kernels_table.META_COLUMNS.index(name) for name in ("log_z", "log_z_1", "log_z_2"))
 
 PRIORS = ("p0", "map")
 """Values of PRISM's ``prior``: every cell at ``p0``, or each cell at the map's current probability."""
@@ -279,22 +281,49 @@ class PrismModel(RayModel):
         lam = self.rate_per_m * norm
         if self.solid_depth_m > 0:  # the stretch [a - solid / |r|, c'] (cells already before near_m stay as they are)
             start = np.minimum(start, np.maximum(start - self.solid_depth_m / norm[rays], self.near_m))
+        cell_rate = lam[rays]
         if self.prior == "map":
-            return self._map_prior_cells(lam, disparity, norm, rays, start, end, stretch, map_log_odds)
-        if map_log_odds is not None:
+            result = self._map_prior_cells(lam, disparity, norm, rays, start, end, stretch, map_log_odds)
+            if self.error_model.failure_weight > 0:
+                cell_rate = np.logaddexp(0.0, map_log_odds) / self.voxel_size_m * norm[rays] \
+                    if map_log_odds is not None else cell_rate
+            method = "table"
+        elif map_log_odds is not None:
             raise PrismapInputError("prism: `map_log_odds` is used only with prior='map'; this model has prior='p0'")
-        if method == "direct":
-            end = end + stretch[rays]
+        elif method == "direct":
             order = np.argsort(rays, kind="stable")
             ray_start = np.searchsorted(rays[order], np.arange(disparity.size + 1))
-            return _kernels_direct.prism_direct_cells(
-                disparity + self.doffs_px, lam, order, ray_start, start, end, self.near_m, self.far_depth_m,
-                self.focal_baseline, self._ku(), _QUAD_STEP, self._log_far(disparity), *self._mixture_arrays(),
-                self.pass_through,
+            result = _kernels_direct.prism_direct_cells(
+                disparity + self.doffs_px, lam, order, ray_start, start, end + stretch[rays], self.near_m,
+                self.far_depth_m, self.focal_baseline, self._ku(), _QUAD_STEP, self._log_far(disparity),
+                *self._mixture_arrays(), self.pass_through,
             )
-        if method != "table":
+        elif method == "table":
+            result = self._table_cells(lam, disparity, norm, rays, start, end, stretch)
+        else:
             raise PrismapInputError(f"prism: `method` must be 'table' or 'direct'; got {method!r}")
-        return self._table_cells(lam, disparity, norm, rays, start, end, stretch)
+        if self.error_model.failure_weight == 0:
+            return result
+        return self._with_failures(result, method, lam, disparity, norm, rays, start, end + stretch[rays], cell_rate)
+
+    def _with_failures(self, result, method, lam, disparity, norm, rays, start, end, cell_rate):
+        """The cells' ``(posterior, increment)`` of ``result`` (the Gaussians' PRISM) blended with their priors by
+        each ray's failure posterior (:func:`prismap.sensor_models.blend_increments`; docs/SENSOR_MODELS.md,
+        "Matcher failures"). The ray's ``Z`` is the table's (``method="table"``, also for ``prior="map"``, where
+        it is the marginal under ``p0``) or marched (``"direct"``); ``cell_rate`` (per metre of depth) gives each
+        cell's prior over ``[start, end]`` clipped to ``[near_m, far_depth_m]``."""
+        if method == "table":
+            table, delta, meta, _ = self._tables_for(disparity, norm)
+            log_z = meta[table, _LOG_Z] + delta * (meta[table, _LOG_Z_1] + 0.5 * delta * meta[table, _LOG_Z_2])
+        else:
+            log_z = _kernels_direct.prism_log_evidence(disparity + self.doffs_px, lam, self.near_m, self.far_depth_m,
+                                                       self.focal_baseline, self._ku(), _QUAD_STEP,
+                                                       self._log_far(disparity), *self._mixture_arrays())
+        log_fail, log_ok = log_failure_posterior(self.error_model, log_z)
+        length = np.clip(end, self.near_m, self.far_depth_m) - np.clip(start, self.near_m, self.far_depth_m)
+        with np.errstate(divide="ignore"):
+            prior_log_odds = np.log(np.expm1(cell_rate * np.maximum(length, 0.0)))
+        return blend_increments(result[1], prior_log_odds, log_fail[rays], log_ok[rays])
 
     def influence_depth(self, disparity_px, ray_norm):
         """Depth beyond which every cell's ``|logit(P) - logit(p_c)| < influence_epsilon`` (metres), per ray.

@@ -24,6 +24,14 @@ def _log_diff_ndtr(hi, lo):
         return log_a + np.log(-np.expm1(np.minimum(log_ndtr(b) - log_a, 0.0)))
 
 
+def with_floor(log_likelihood, mixture):
+    """``log((1 - w_f) L + w_f / W)`` of the Gaussians' ``log L``: the likelihood with the failure floor
+    (docs/SENSOR_MODELS.md section 8); ``log L`` itself without a failure component."""
+    if mixture.failure_weight == 0.0:
+        return log_likelihood
+    return np.logaddexp(np.log1p(-mixture.failure_weight) + log_likelihood, np.log(mixture.failure_density))
+
+
 def log_mean_likelihood(u_lo, u_hi, disparity_px, mixture, doffs_px=0.0):
     """Log of ``g`` averaged over true disparities uniform in ``[u_lo, u_hi]`` (pixels); arrays broadcast.
 
@@ -44,7 +52,8 @@ def prism_discrete_posteriors(disparity_px, cell_edges_depth_m, mixture, *, foca
     Cell ``k`` (1-based) is the first occupied one with ``pi_k = p0 (1 - p0)^(k-1)`` and then produces
     ``d^`` with ``L_k``, ``g`` averaged uniformly in disparity over the cell; no occupied cell gives
     ``pi_far = (1 - p0)^n`` and ``L_far``, ``g`` averaged over true disparities in ``(0, f b / z_n]``.
-    ``P(m_i | d^) = (p0 sum_{k<i} pi_k L_k + pi_i L_i) / (sum_k pi_k L_k + pi_far L_far)``.
+    ``P(m_i | d^) = (p0 sum_{k<i} pi_k L_k + pi_i L_i) / (sum_k pi_k L_k + pi_far L_far)``. A mixture with a
+    failure component adds its floor to every likelihood: ``L -> (1 - w_f) L + w_f / W``.
 
     Parameters
     ----------
@@ -71,9 +80,9 @@ def prism_discrete_posteriors(disparity_px, cell_edges_depth_m, mixture, *, foca
     d = float(disparity_px)
     u = fb / edges
     n = edges.size - 1
-    log_l = log_mean_likelihood(u[1:], u[:-1], d, mixture, doffs_px)
+    log_l = with_floor(log_mean_likelihood(u[1:], u[:-1], d, mixture, doffs_px), mixture)
     log_pi = np.log(p0) + np.arange(n) * np.log1p(-p0)
-    log_far = n * np.log1p(-p0) + log_mean_likelihood(0.0, u[-1], d, mixture, doffs_px)
+    log_far = n * np.log1p(-p0) + with_floor(log_mean_likelihood(0.0, u[-1], d, mixture, doffs_px), mixture)
     terms = log_pi + log_l
     before = np.concatenate(([-np.inf], np.logaddexp.accumulate(terms)[:-1]))
     log_num = np.logaddexp(np.log(p0) + before, terms)

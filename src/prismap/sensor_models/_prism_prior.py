@@ -8,6 +8,7 @@ from prismap._validate import as_float_array, check_probability
 from prismap.errors import PrismapInputError
 from prismap.sensor_models import _kernels_direct
 from prismap.sensor_models._prism import _QUAD_STEP, PrismModel
+from prismap.sensor_models._prism_discrete import with_floor
 
 
 def prior_from_ground_truth(occupied):
@@ -73,8 +74,9 @@ def estimate_prior_from_likelihood(disparity_px, ray_norm, *, error_model, focal
 
     def negative_log_likelihood(log_p0):
         lam = -np.log1p(-np.exp(log_p0)) / model.voxel_size_m * norm
-        return -_kernels_direct.prism_log_evidence(shift, lam, model.near_m, model.far_depth_m, model.focal_baseline,
-                                           model._ku(), _QUAD_STEP, log_far, log_wn, means, sigmas).sum()
+        log_z = _kernels_direct.prism_log_evidence(shift, lam, model.near_m, model.far_depth_m, model.focal_baseline,
+                                                   model._ku(), _QUAD_STEP, log_far, log_wn, means, sigmas)
+        return -with_floor(log_z, error_model).sum()
 
     result = minimize_scalar(negative_log_likelihood, bounds=(np.log(lo), np.log(hi)), method="bounded",
                              options={"xatol": 1e-3})

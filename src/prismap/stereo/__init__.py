@@ -6,6 +6,8 @@ from prismap.stereo._base import (
     left_right_disagreement,
     make_matcher,
     matcher_names,
+    search_range,
 )
 
-__all__ = ["StereoMatcher", "left_right_check", "left_right_disagreement", "make_matcher", "matcher_names"]
+__all__ = ["StereoMatcher", "left_right_check", "left_right_disagreement", "make_matcher", "matcher_names",
+           "search_range"]

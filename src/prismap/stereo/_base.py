@@ -40,6 +40,25 @@ class StereoMatcher(ABC):
     def params(self):
         """The matcher's parameters as a JSON-serialisable dict."""
 
+    def search_range_px(self):
+        """``(lo, hi)``, pixels: the disparity search interval (:func:`search_range` of :meth:`params`)."""
+        return search_range(self.params())
+
+
+def search_range(params):
+    """The disparity search interval ``(lo, hi)`` (pixels) a matcher's parameters set, or None if they set none.
+
+    OpenCV's matchers search ``[min_disparity, min_disparity + num_disparities)``; the variational matcher
+    ``[min_disparity, max_disparity]``. A matcher that fails returns a disparity roughly uniform over it,
+    which the error model's failure component describes (:class:`prismap.gmm.GaussianMixture`).
+    """
+    low = params.get("min_disparity", 0)
+    if "num_disparities" in params:
+        return (float(low), float(low) + float(params["num_disparities"]))
+    if "max_disparity" in params:
+        return (float(low), float(params["max_disparity"]))
+    return None
+
 
 _MATCHERS = {
     "bm": "prismap.stereo._opencv:BlockMatcher",

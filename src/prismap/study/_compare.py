@@ -11,7 +11,7 @@ from prismap._progress import progress
 from prismap._validate import check_positive, check_probability
 from prismap.camera import StereoCamera
 from prismap.errors import PrismapInputError
-from prismap.sensor_models import PrismModel
+from prismap.sensor_models import PrismModel, failure_floor
 from prismap.study._ray_models import CAMERAS, RaySetup, compare_models, influence_distances, prism_sweeps
 
 COMPARE_FILES = {
@@ -134,7 +134,7 @@ def run_models_compare(error_model, out_dir, *, camera="middlebury-motorcycle", 
     header = (f"Error model {source} ({error_model.matcher} on {error_model.dataset}, G = "
               f"{error_model.selected_components}); camera {label}: f*b = {setup.focal_baseline:.3f} px*m, "
               f"doffs = {rig['doffs_px']:g} px; cells of {voxel:g} m, p0 = {p0:g}; single-noise sigma "
-              f"{comparison.noise_sigma_px:.3f} px (largest-weight component).")
+              f"{comparison.noise_sigma_px:.3f} px (largest-weight component)" + _failure_note(mixture) + ".")
     influence_rows = ["| measured (m) | bound behind (m) | observed behind (m) |", "|---:|---:|---:|"]
     influence_rows += [f"| {m:.2f} | {b:.2f} | {o:.2f} |" for m, b, o in zip(*influence)]
     tables = "\n".join([
@@ -147,6 +147,17 @@ def run_models_compare(error_model, out_dir, *, camera="middlebury-motorcycle", 
     ])
     write_text_atomic(paths["tables"], tables)
     record = {"error_model": source, "camera": label, "comparison": comparison.to_dict(),
+              "failure": {"weight": mixture.failure_weight, "search_range_px": mixture.search_range_px,
+                          "floor": failure_floor(mixture)},
               "influence": {k: v.tolist() for k, v in zip(("measured_m", "bound_m", "observed_m"), influence)}}
     write_text_atomic(paths["json"], json.dumps(record, indent=2) + "\n")
     return ModelsCompareRun(paths, header, comparison)
+
+
+def _failure_note(mixture):
+    """The matcher-failure component in words: its weight, search range and the evidence bound at ``p0``."""
+    if mixture.search_range_px is None:
+        return "; no matcher-failure component (a format-1/2 model: Gaussian tails only)"
+    lo, hi = mixture.search_range_px
+    return (f"; matcher failures w_f = {mixture.failure_weight:.2e} uniform over {lo:g}..{hi:g} px "
+            f"(W = {hi - lo:g} px), least failure posterior eps = {failure_floor(mixture):.2e}")

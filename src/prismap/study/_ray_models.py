@@ -7,7 +7,8 @@ the profile is drawn at the distance of that rounded disparity, as a matcher wou
 
 Models with a single Gaussian noise (``convolution``, ``andert``: any model with a ``sigma_px``) take the
 sigma of the error mixture's dominant (largest-weight) component: the core of the matcher's errors, as
-the mapping pipeline configures them. PRISM takes the whole mixture.
+the mapping pipeline configures them, and the failure floor of the mixture's matcher-failure component
+(:func:`prismap.sensor_models.failure_floor`) when it has one. PRISM takes the whole mixture.
 """
 
 import dataclasses
@@ -21,7 +22,7 @@ from prismap._validate import check_positive, check_probability
 from prismap.camera import KITTI_CAMERA, MOTORCYCLE_CAMERA, TSUKUBA_CAMERA
 from prismap.errors import PrismapInputError
 from prismap.gmm import GaussianMixture
-from prismap.sensor_models import make_sensor_model, model_names
+from prismap.sensor_models import failure_floor, make_sensor_model, model_names
 
 
 def _rig(camera):
@@ -128,6 +129,8 @@ def study_models(mixture, *, setup, names=None, prism_method="direct"):
             model = make_sensor_model(name, **common)
             if hasattr(model, "sigma_px"):
                 model = dataclasses.replace(model, sigma_px=single_noise_sigma(mixture))
+            if hasattr(model, "failure_floor"):  # the same share of failures PRISM's mixture has
+                model = dataclasses.replace(model, failure_floor=failure_floor(mixture))
         models[name] = model
     return models
 
@@ -359,4 +362,5 @@ def prism_sweeps(mixture, *, setup, distances_m=(2.0, 5.0, 10.0, 20.0), referenc
 
 
 def _scaled(mixture, factor):
-    return GaussianMixture(mixture.weights, mixture.means, mixture.sigmas * check_positive(factor, "noise scale"))
+    return GaussianMixture(mixture.weights, mixture.means, mixture.sigmas * check_positive(factor, "noise scale"),
+                           mixture.failure_weight, mixture.search_range_px)

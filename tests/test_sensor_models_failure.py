@@ -1,0 +1,187 @@
+"""Matcher failures in the sensor models: PRISM's forward density with the uniform floor (discrete, direct,
+table), the failure blend of Andert and convolution, and the evidence bound one measurement respects."""
+
+import itertools
+
+import numpy as np
+import pytest
+from scipy.special import expit, logit
+
+from prismap.errors import PrismapInputError
+from prismap.gmm import GaussianMixture
+from prismap.sensor_models import (
+    AndertModel,
+    ConvolutionModel,
+    PrismModel,
+    blend_increments,
+    evidence_bound,
+    failure_floor,
+    log_failure_posterior,
+    model_for_mixture,
+    prism_discrete_posteriors,
+)
+from prismap.sensor_models._prism import TABLE_TOLERANCE
+
+FB = 61.5
+SEARCH = (0.0, 64.0)
+GAUSSIANS = GaussianMixture([0.85, 0.15], [0.05, -0.3], [0.4, 2.5])
+FAILING = GAUSSIANS.with_failure(0.01, SEARCH)
+
+
+def _brute_force(d_hat, edges, mixture, p0):
+    """All 2^n maps of independent cells; the first occupied cell produces d^ with the floored likelihood."""
+    u = FB / edges
+    gauss = (mixture.cdf(u[:-1] - d_hat) - mixture.cdf(u[1:] - d_hat)) / (u[:-1] - u[1:])
+    gauss_far = (mixture.cdf(u[-1] - d_hat) - mixture.cdf(-d_hat)) / u[-1]
+    lik = (1 - mixture.failure_weight) * gauss + mixture.failure_density
+    lik_far = (1 - mixture.failure_weight) * gauss_far + mixture.failure_density
+    joint, total = np.zeros(edges.size - 1), 0.0
+    for bits in itertools.product((0, 1), repeat=edges.size - 1):
+        bits = np.array(bits)
+        occupied = np.flatnonzero(bits)
+        weight = np.prod(np.where(bits == 1, p0, 1 - p0)) * (lik[occupied[0]] if occupied.size else lik_far)
+        total += weight
+        joint += weight * bits
+    return joint / total
+
+
+@pytest.mark.parametrize("depth", [2.0, 3.1, 30.0])  # 30 m: d^ = 2 px, far from every cell: mostly failure
+def test_discrete_reference_with_failures_equals_brute_force(depth):
+    edges = 1.0 + 0.4 * np.arange(11)
+    got = prism_discrete_posteriors(FB / depth, edges, FAILING, focal_baseline=FB, p0=0.1)
+    np.testing.assert_allclose(got, _brute_force(FB / depth, edges, FAILING, 0.1), rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("method", ["direct", "table"])
+def test_continuous_prism_with_failures_converges_to_the_discrete_reference(method):
+    d_hat, rate, errors = FB / 3.0, 0.5, []
+    for length in (0.1, 0.025, 0.0125):
+        edges = np.arange(1.0, 8.0 + 1e-9, length)
+        p0 = -np.expm1(-rate * length)
+        model = PrismModel(error_model=FAILING, focal_baseline=FB, voxel_size_m=length, p0=p0, near_m=edges[0],
+                           far_depth_m=edges[-1], method=method)
+        n = edges.size - 1
+        posterior, _ = model.cell_posteriors([d_hat], [1.0], np.zeros(n, np.int64), edges[:-1], edges[1:])
+        errors.append(np.abs(posterior - prism_discrete_posteriors(d_hat, edges, FAILING, focal_baseline=FB,
+                                                                   p0=p0)).max())
+    assert errors[-1] < (2e-4 if method == "direct" else TABLE_TOLERANCE["posterior"]), errors
+    assert errors[1] < 0.1 * errors[0]
+
+
+def test_prism_posterior_is_the_blend_of_the_gaussian_posterior_and_the_prior():
+    # P = rho P_G + (1 - rho) p_c, rho = (1 - w_f) Z_G / ((1 - w_f) Z_G + w_f / W): from the two discrete references
+    edges = np.linspace(1.0, 9.0, 41)
+    p0, d_hat = 0.05, FB / 4.0
+    plain = prism_discrete_posteriors(d_hat, edges, GAUSSIANS, focal_baseline=FB, p0=p0)
+    failing = prism_discrete_posteriors(d_hat, edges, FAILING, focal_baseline=FB, p0=p0)
+    rho = (failing - p0) / (plain - p0)
+    assert np.ptp(rho[np.abs(plain - p0) > 1e-3]) < 1e-9  # one rho for the whole ray
+    assert 0.5 < rho[0] < 1.0
+
+
+def test_blend_increments_matches_the_probability_form():
+    rng = np.random.default_rng(0)
+    inc, prior = rng.normal(0, 8, 200), rng.normal(-3, 2, 200)
+    rho = rng.uniform(0.5, 1.0, 200)
+    posterior, blended = blend_increments(inc, prior, np.log1p(-rho), np.log(rho))
+    expected = rho * expit(prior + inc) + (1 - rho) * expit(prior)
+    np.testing.assert_allclose(posterior, expected, rtol=1e-10)
+    np.testing.assert_allclose(blended, logit(expected) - prior, rtol=1e-9, atol=1e-9)
+    # exact where the failure-free increment is far beyond float64's probabilities
+    _, far = blend_increments(np.array([-800.0, 800.0]), np.array([-3.0, -3.0]), np.log([1e-4, 1e-4]),
+                              np.log1p([-1e-4, -1e-4]))
+    np.testing.assert_allclose(far, [-np.log1p((1 - 1e-4) / (1e-4 * (1 - expit(-3.0)))),
+                                     np.log1p((1 - 1e-4) / (1e-4 * expit(-3.0)))], rtol=1e-9)
+
+
+def test_failure_posterior_never_drops_below_the_floor():
+    eps = failure_floor(FAILING)
+    expected = (0.01 / 64) / (0.99 * FAILING.peak_density() + 0.01 / 64)
+    assert eps == pytest.approx(expected, rel=1e-12)
+    log_fail, log_ok = log_failure_posterior(FAILING, np.array([-50.0, 0.0, 10.0]))  # the last beyond g_max
+    assert log_fail[0] == pytest.approx(0.0, abs=1e-12)  # a measurement no Gaussian explains is a failure
+    assert log_fail[2] == pytest.approx(np.log(eps))
+    np.testing.assert_allclose(np.exp(log_fail) + np.exp(log_ok), 1.0)
+    assert failure_floor(GAUSSIANS) == 0.0
+    assert evidence_bound(GAUSSIANS, 0.1) == (-np.inf, np.inf)
+    with pytest.raises(PrismapInputError, match="cell_prior"):
+        evidence_bound(FAILING, 1.0)
+
+
+@pytest.mark.parametrize("method", ["direct", "table"])
+def test_no_measurement_moves_a_prism_cell_beyond_the_bound(method):
+    rng = np.random.default_rng(4)
+    model = PrismModel(error_model=FAILING, focal_baseline=FB, voxel_size_m=0.1, p0=0.05, near_m=0.5,
+                       far_depth_m=60.0, method=method)
+    plain = PrismModel(error_model=GAUSSIANS, focal_baseline=FB, voxel_size_m=0.1, p0=0.05, near_m=0.5,
+                       far_depth_m=60.0, method=method)
+    disparity = np.round(rng.uniform(1.0, 63.0, 40) * 16) / 16  # gross failures anywhere in the search range
+    norm = rng.uniform(1.0, 1.3, disparity.size)
+    edges = np.arange(0.5, 20.0, 0.1)
+    rays = np.repeat(np.arange(disparity.size), edges.size - 1)
+    start, end = np.tile(edges[:-1], disparity.size), np.tile(edges[1:], disparity.size)
+    _, inc = model.cell_posteriors(disparity, norm, rays, start, end)
+    _, inc_plain = plain.cell_posteriors(disparity, norm, rays, start, end)
+    p_c = -np.expm1(-model.rate_per_m * norm[rays] * (end - start))
+    low, high = evidence_bound(FAILING, p_c)
+    assert np.all(inc >= low - 1e-9) and np.all(inc <= high + 1e-9)
+    assert inc_plain.min() < 2 * low.min()  # without the floor these rays claim far more
+    assert inc.min() < 0.5 * low.min()  # and the bound is not vacuous: failures reach a good part of it
+
+
+def test_andert_and_convolution_blend_with_their_no_information_value():
+    eps = failure_floor(FAILING)
+    rays, start, end = np.zeros(60, np.int64), np.linspace(0.5, 6.0, 60), np.linspace(0.6, 6.1, 60)
+    for cls, neutral in ((ConvolutionModel, 0.05), (AndertModel, 0.5)):
+        base = cls(focal_baseline=FB, p0=0.05, sigma_px=0.4)
+        model = cls(focal_baseline=FB, p0=0.05, sigma_px=0.4, failure_floor=eps)
+        p_base, inc_base = base.cell_posteriors([FB / 3.0], [1.0], rays, start, end)
+        p_fail, inc_fail = model.cell_posteriors([FB / 3.0], [1.0], rays, start, end)
+        model_p = expit(logit(neutral) + inc_base)  # the model's own P against its neutral value
+        np.testing.assert_allclose(expit(logit(neutral) + inc_fail), (1 - eps) * model_p + eps * neutral, rtol=1e-10)
+        np.testing.assert_allclose(p_fail, expit(logit(0.05) + inc_fail), rtol=1e-12)
+        assert np.all(np.abs(inc_fail) <= np.abs(inc_base) + 1e-12)
+        with pytest.raises(PrismapInputError, match="failure_floor"):
+            cls(focal_baseline=FB, p0=0.05, failure_floor=1.0)
+    built = model_for_mixture("andert", FAILING, focal_baseline=FB, doffs_px=0.0, voxel_size_m=0.1, p0=0.05)
+    assert built.failure_floor == pytest.approx(eps) and built.sigma_px == pytest.approx(0.4)
+    plain = model_for_mixture("convolution", GAUSSIANS, focal_baseline=FB, doffs_px=0.0, voxel_size_m=0.1, p0=0.05)
+    assert plain.failure_floor == 0.0
+
+
+@pytest.mark.parametrize("gross", [True, False])
+def test_one_frame_moves_no_voxel_beyond_the_bound_through_the_map_update(gross):
+    """A frame of gross failures (disparities uniform over the search range) and a frame of the true scene with
+    seeded mixture errors, integrated projectively with PRISM: every voxel's log-odds change stays within
+    ``evidence_bound`` of the mixture, at the voxel stretch priors projective integration can give."""
+    from prismap.camera import integrate_disparity
+    from prismap.grid import OccupancyMap
+    from support import planes_frame
+
+    camera, pose, depth = planes_frame(width=64, height=48)
+    rng = np.random.default_rng(11 if gross else 12)
+    truth = camera.focal_baseline / depth
+    search = (0.0, 48.0)
+    mixture = GaussianMixture([0.9, 0.1], [0.0, -0.2], [0.3, 1.5], 0.01, search)
+    if gross:
+        disparity = rng.uniform(*search, truth.shape)
+    else:
+        disparity = truth - mixture.sample(truth.size, rng, truth_px=truth.ravel()).reshape(truth.shape)
+    disparity = np.clip(np.round(disparity * 16) / 16, 0.25, None)
+    p0, voxel = 0.05, 0.2
+    changes = []
+    for error_model in (mixture, mixture.gaussian_part()):
+        model = PrismModel(error_model=error_model, focal_baseline=camera.focal_baseline, voxel_size_m=voxel, p0=p0,
+                           near_m=1.0, far_depth_m=40.0, overhang_fraction=0.0)
+        grid = OccupancyMap(voxel, p0=p0)
+        integrate_disparity(grid, disparity, camera, pose, model, mode="projective", max_range_m=30.0)
+        changes.append(grid.known_voxels()[1] - logit(p0))
+    change, plain = changes
+    norm_max = float(np.linalg.norm(camera.pixel_rays(), axis=-1).max())
+    low = evidence_bound(mixture, 1 - (1 - p0) ** (np.sqrt(3.0) * norm_max))[0]  # the longest stretch
+    high = evidence_bound(mixture, p0)[1]  # a voxel's depth along a ray is at least the voxel's
+    quantum = 2.0 ** -19
+    assert change.size > 300
+    assert change.min() >= low - quantum and change.max() <= high + quantum
+    assert change.min() < 0.5 * low  # not vacuous: a frame reaches a good part of it
+    assert plain.min() < 2 * low  # the Gaussians alone let the same frame claim far more
