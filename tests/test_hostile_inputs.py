@@ -110,9 +110,10 @@ CASES = {
                               "mb/calib.txt: `doffs_px` must be > -40 px"),
     # item 2: absurd error-model means
     "error model means +-1e15 px": (lambda s: _absurd_means(s, 1e15), PRISM_MAP,
-                                    "`means` reach 1e+15 px; the matcher's disparity range allows at most 64 px"),
+                                    "`means` reach 1e+15 px; the matcher's disparity range and the widest image allow "
+                                    "at most 16448 px"),
     "error model means +-1e10 px": (lambda s: _absurd_means(s, 1e10), PRISM_MAP, "`means` reach 1e+10 px"),
-    "error model means +-65 px": (lambda s: _absurd_means(s, 65.0), PRISM_MAP, "`means` reach 65 px"),
+    "error model means +-16449 px": (lambda s: _absurd_means(s, 16449.0), PRISM_MAP, "`means` reach 16449 px"),
     # item 16: PNGs of valid checksums but bad content (libpng printed a line of its own)
     **{f"PNG with {fault}": (lambda s, fault=fault: _png_of(s, PNG_FAULTS[fault]), [*MAP, "--out", "WORK/o.npz"],
                              "000001.png: left image cannot be decoded (truncated or corrupt PNG")

@@ -25,17 +25,18 @@ the widest image ``MAX_IMAGE_PIXELS`` admits, as no disparity error can exceed t
 
 
 def error_bound_px(params):
-    """Largest ``|mean|`` and ``sigma`` (pixels) a mixture of this matcher may have: its disparity search range.
+    """Largest ``|mean|`` and ``sigma`` (pixels) a mixture of this matcher may have.
 
     A matched disparity lies in ``[min_disparity, min_disparity + num_disparities)`` (OpenCV; ``max_disparity``
-    for the variational matcher) and characterisation searches up to the largest true disparity, so an error
-    (measured - true) lies within that range's span; :data:`MAX_ERROR_PX` when ``params`` do not say.
+    for the variational matcher) and a true one in ``[0, width)``, so an error (measured - true) lies within
+    the search range's reach plus the image width, at most :data:`MAX_ERROR_PX` (true disparities beyond the
+    search range are real: SGBM's street classes fit a mean of 108 px with a 64 px range).
     """
     reach = params.get("num_disparities", params.get("max_disparity"))
     low = params.get("min_disparity", 0)
     if not (_is_number(reach) and _is_number(low) and 0 < reach < MAX_ERROR_PX and abs(low) < MAX_ERROR_PX):
-        return MAX_ERROR_PX
-    return float(reach) + abs(float(low))
+        return 2 * MAX_ERROR_PX
+    return MAX_ERROR_PX + float(reach) + abs(float(low))
 
 
 def check_mixture_range(means, sigmas, bound_px, where):
@@ -43,8 +44,8 @@ def check_mixture_range(means, sigmas, bound_px, where):
     for name, values in (("means", np.abs(means)), ("sigmas", np.asarray(sigmas))):
         if values.size and values.max() > bound_px:
             raise PrismapInputError(
-                f"{where}: `{name}` reach {values.max():.6g} px; the matcher's disparity range allows at most "
-                f"{bound_px:g} px (num_disparities + |min_disparity|, or MAX_ERROR_PX)"
+                f"{where}: `{name}` reach {values.max():.6g} px; the matcher's disparity range and the widest image "
+                f"allow at most {bound_px:g} px (MAX_ERROR_PX + num_disparities + |min_disparity|)"
             )
 
 
