@@ -115,6 +115,7 @@ CASES = {
     "error model means +-1e15 px": (lambda s: _absurd_means(s, 1e15), PRISM_MAP,
                                     "`means` reach 1e+15 px; an error of this rig and matcher lies within +-16384 px"),
     "error model means +-1e10 px": (lambda s: _absurd_means(s, 1e10), PRISM_MAP, "`means` reach 1e+10 px"),
+    "error model means +-16385 px": (lambda s: _absurd_means(s, 16385.0), PRISM_MAP, "`means` reach 16385 px"),
     "error model means beyond the rig's image width": (lambda s: _absurd_means(s, 129.0, width=128), PRISM_MAP,
                                                        "`means` reach 129 px; an error of this rig and matcher lies within +-128 px"),
     # item 16: PNGs of valid checksums but bad content (libpng printed a line of its own)
