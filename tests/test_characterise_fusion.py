@@ -59,3 +59,24 @@ def test_characterisation_frames_are_ordered_along_the_path():
     angle = np.linspace(0, 2 * np.pi, 8, endpoint=False)
     loop = np.stack([3.8 * np.cos(angle), 2.0 * np.sin(angle), np.zeros(8)], axis=1)
     assert path_order(loop) in ([0, 1, 2, 3, 4, 5, 6, 7], [0, 7, 6, 5, 4, 3, 2, 1])
+
+
+def test_the_error_model_stores_its_fusion_block(tmp_path):
+    import json
+
+    from prismap.characterise import ErrorModel, load_error_model, write_error_model
+    from prismap.gmm import GaussianMixture, MixtureFit
+
+    fit = MixtureFit(GaussianMixture([0.8, 0.2], [0.0, -0.5], [0.3, 3.0]), -1.0, 1.0, 1.0, 100.0, 3, True)
+    plain = ErrorModel("bm", {}, "test", 1 / 32, (fit,), 2)
+    assert plain.persistent_failure is None and "fusion" not in plain.to_dict()
+    block = {"model": "persistent-failure", "rate": 0.02, "persistence": 0.4, "gross_px": 3.0, "n_pairs": 500}
+    fused = ErrorModel("bm", {}, "test", 1 / 32, (fit,), 2, fusion=block)
+    write_error_model(fused, tmp_path / "m.json")
+    loaded = load_error_model(tmp_path / "m.json")
+    assert loaded.fusion == block and loaded.persistent_failure == PersistentFailure(0.02, 0.4)
+    data = json.loads((tmp_path / "m.json").read_text())
+    data["fusion"]["persistence"] = 0.01
+    (tmp_path / "bad.json").write_text(json.dumps(data))
+    with pytest.raises(PrismapInputError, match="bad.json.*field 'fusion': `persistence`"):
+        load_error_model(tmp_path / "bad.json")

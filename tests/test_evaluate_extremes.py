@@ -96,3 +96,20 @@ def test_evidence_figure(scores, tmp_path):
     np.testing.assert_array_equal(heights[n:], scores["sure"].evidence_per_view)
     with pytest.raises(PrismapInputError, match="evidence histograms"):
         plot_evidence_histograms({"prior": scores["prior"]})
+
+
+def test_the_report_lists_every_maps_confident_and_wrong_rates():
+    from types import SimpleNamespace
+
+    from prismap.experiment import CellResult
+    from prismap.experiment._report import REPORT_PARTS, _confident_and_wrong
+
+    y = np.array([False, False, False, True])
+    cells = (CellResult("bm", "prism_conditioned", score_map(np.array([0.995, 0.2, 0.1, 0.005]), y), 1.0, 3),
+             CellResult("bm", "andert", score_map(np.array([0.5, 0.2, 0.1, 0.7]), y), 1.0, 3))
+    report = SimpleNamespace(experiments={"street3d": SimpleNamespace(cells=cells)})
+    html = "".join(_confident_and_wrong(report))
+    assert _confident_and_wrong in REPORT_PARTS
+    assert "<td><strong>prism (conditioned)</strong></td><td>33.333%</td><td>100.000%</td>" in html
+    assert "<td>andert</td><td>0.000%</td><td>0.000%</td>" in html
+    assert _confident_and_wrong(SimpleNamespace(experiments={})) == []

@@ -164,13 +164,22 @@ def test_a_cell_of_an_older_results_version_is_recomputed(tmp_path):
     assert read_cell(path, {"seed": 0}) is None
 
 
+def test_a_version_2_results_file_reads_without_the_extremes():
+    """The docs' results pages render results files of the previous version (no confident-and-wrong rates)."""
+    from pathlib import Path
+
+    cells = read_results(Path(__file__).resolve().parents[1] / "docs" / "results" / "scene3d_sgbm_10frames.json")
+    assert cells and all(np.isnan(c.scores.free_confident_occupied) for c in cells)
+    assert all(c.scores.logit_bin_counts.sum() == 0 for c in cells) and cells[0].scores.brier > 0
+
+
 def test_unreadable_results_name_the_file(tmp_path):
     path = tmp_path / "results.json"
     path.write_text("{not json")
     with pytest.raises(PrismapInputError, match="results.json: unreadable results file"):
         read_results(path)
     path.write_text(json.dumps({"format": "prismap-experiment-results", "cells": [{"format": "x", "version": 1}]}))
-    with pytest.raises(PrismapInputError, match="cell 0: not a version-2 experiment cell"):
+    with pytest.raises(PrismapInputError, match=r"cell 0: not a version \[2, 3\] experiment cell"):
         read_results(path)
 
 

@@ -91,20 +91,22 @@ def test_the_cli_runs_the_street_world(monkeypatch, tmp_path, capsys):
 
     calls = []
 
-    def fake(out, **kwargs):
-        calls.append(kwargs)
+    def fake(world, out, **kwargs):
+        calls.append((world, kwargs))
         (out / "results.md").parent.mkdir(parents=True, exist_ok=True)
         (out / "results.md").write_text("| table |\n")
         return type("R", (), {"artifacts": ()})()
 
-    monkeypatch.setattr(prismap.experiment, "run_street3d", fake)
+    monkeypatch.setattr(prismap.experiment, "run_rendered_world", fake)
     assert main(["experiment", "--world", "street3d", "--quick", "--out", str(tmp_path)]) == 0
-    assert calls == [{"n_frames": None, "voxel_size_m": None, "seed": 0, "quick": True}]
+    assert main(["experiment", "--world", "avenue3d", "--out", str(tmp_path), "--seed", "3"]) == 0
+    assert calls == [("street3d", {"n_frames": None, "voxel_size_m": None, "seed": 0, "quick": True}),
+                     ("avenue3d", {"n_frames": None, "voxel_size_m": None, "seed": 3, "quick": False})]
     assert "| table |" in capsys.readouterr().out
 
 
 def test_bad_street_options_are_named(tmp_path):
-    assert set(WORLDS) == {"scene3d", "street3d"}
+    assert set(WORLDS) == {"scene3d", "street3d", "avenue3d"}
     with pytest.raises(PrismapInputError, match="60 frames of 1.0 m end at x = 63 m"):
         run_street3d(tmp_path, n_frames=60)
     with pytest.raises(PrismapInputError, match="`between_frames` must be an integer >= 0; got -1"):
@@ -133,3 +135,29 @@ def test_the_results_say_how_the_errors_repeat_across_mapping_frames(street):
     results = (out / "results.md").read_text()
     assert "## Errors repeated across frames" in results
     assert f"| sgbm | {expected.n_pairs} | {expected.correlation:.3f} |" in results
+
+
+def test_the_results_compare_fusions_fitted_on_the_characterisation_frames(street):
+    import json
+
+    from prismap.characterise import fit_fusion
+    from prismap.io import read_kitti_disparity, read_sequence
+
+    out, _ = street
+    document = json.loads((out / "results.json").read_text())
+    block = document["fusion"]["blocks"]["sgbm"]
+    assert block["model"] == "persistent-failure" and block["n_pairs"] >= 100
+    assert 0.0 <= block["rate"] <= block["persistence"] <= 1.0
+    rows = document["fusion"]["rows"]
+    assert {(r["model"], r["fusion"]) for r in rows} == {(m, f) for m in ("prism", "prism_conditioned")
+                                                       for f in ("independent", "persistent failure",
+                                                                 "clamped at one view")}
+    cells = {c["model"]: c["scores"] for c in document["cells"]}
+    for row in rows:  # the independent reading is the cell's own score
+        if row["fusion"] == "independent":
+            assert row["log_loss"] == pytest.approx(cells[row["model"]]["log_loss"], rel=1e-12)
+    sequence = read_sequence(out / "sequence")
+    assert "## Fusion of repeated failures" in (out / "results.md").read_text()
+    # refitting on the mapping frames gives another block: the run fits on the characterisation frames only
+    mapped = [read_kitti_disparity(out / "sgbm" / "disparity" / f"{i:06d}.png") for i in range(len(sequence))]
+    assert fit_fusion(list(sequence), mapped, sequence.camera) != block

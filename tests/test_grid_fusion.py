@@ -84,3 +84,30 @@ def test_bad_parameters_are_named():
         PersistentFailure(-0.1, 0.5)
     with pytest.raises(PrismapInputError, match="one shape"):
         PersistentFailure(0.1, 0.5).probability(np.zeros(3), np.ones(2, int), 0.2)
+
+
+def test_the_map_reads_its_sums_with_its_fusion_and_keeps_it_in_files_and_merges(tmp_path):
+    from prismap.grid import OccupancyMap
+    from prismap.io import load_map, save_map
+
+    failure = PersistentFailure(0.05, 0.5)
+    keys = np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0]], dtype=np.int64)
+    log = logit(0.1) + np.array([-50.0, 0.5, 30.0])
+    counts = np.array([1, 2, 3])
+    plain, fused = OccupancyMap(0.2, p0=0.1), OccupancyMap(0.2, p0=0.1, fusion=failure)
+    for grid in (plain, fused):
+        grid.set_voxels(keys, log, counts)
+    np.testing.assert_allclose(plain.probability_at_keys(keys), expit(log))
+    expected = failure.probability(log, counts, 0.1)
+    np.testing.assert_allclose(fused.probability_at_keys(keys), expected)
+    assert fused.probability_at_keys(np.array([[5, 5, 5]]))[0] == pytest.approx(0.1)  # unknown: the prior
+    np.testing.assert_allclose(fused.occupied_voxels()[2], expected[expected >= 0.5])
+    save_map(fused, tmp_path / "m.npz")
+    back = load_map(tmp_path / "m.npz")
+    assert back.fusion == failure and load_map(save_map(plain, tmp_path / "p.npz") or tmp_path / "p.npz").fusion is None
+    np.testing.assert_array_equal(back.probability_at_keys(keys), fused.probability_at_keys(keys))
+    assert fused.copy().fusion == failure
+    with pytest.raises(PrismapInputError, match="different grids or readings: fusion"):
+        fused.merge(plain)
+    with pytest.raises(PrismapInputError, match="`fusion` must be a PersistentFailure"):
+        OccupancyMap(0.2, p0=0.1, fusion=(0.05, 0.5))

@@ -121,3 +121,23 @@ def test_map_cli_on_a_running_scheduler_writes_the_sequential_map(sequence_dir, 
     assert_identical_maps(load_map(out), map_sequence(sequence_dir, cfg, progress=False))
     assert main([*argv, "--scheduler", "bogus://nowhere:1"]) == 2
     assert "--scheduler bogus://nowhere:1: cannot connect" in capsys.readouterr().err
+
+
+def test_dask_map_keeps_the_persistent_failure_reading(sequence_dir, client):
+    """Chunk maps carry the config's fusion, so they merge, and the Dask map reads as the sequential one."""
+    from dataclasses import replace
+
+    from prismap.characterise import ErrorModel
+    from prismap.gmm import MixtureFit
+    from support import MIXTURE
+
+    block = {"model": "persistent-failure", "rate": 0.05, "persistence": 0.6}
+    error_model = ErrorModel("sgbm", {}, "test", 1 / 32, (MixtureFit(MIXTURE, -1.0, 1.0, 1.0, 100.0, 3, True),), 2,
+                             fusion=block)
+    cfg = replace(config(error_model=error_model), fusion="persistent-failure")
+    sequential = map_sequence(sequence_dir, cfg, progress=False)
+    chunked = map_sequence(sequence_dir, cfg, progress=False, client=client, chunk_frames=3)
+    assert_identical_maps(chunked, sequential)
+    assert chunked.fusion == sequential.fusion == error_model.persistent_failure
+    keys = sequential.known_voxels()[0]
+    np.testing.assert_array_equal(chunked.probability_at_keys(keys), sequential.probability_at_keys(keys))

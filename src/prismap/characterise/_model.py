@@ -23,7 +23,8 @@ Format (JSON, ``format_version`` 3)::
      "source": "ground-truth",  # or "lidar", "self": what the errors were measured against
      "rig": {"focal_px": 721.5, "baseline_m": 0.54, "width": 1242, "height": 375, "matcher": "sgbm",
              "matcher_params": {...}},  # or null: the rig it was made on (see characterise/_rig.py)
-     "provenance": {...}}  # how a self-characterised model was made (min_lag, references, ...)
+     "provenance": {...},  # how a self-characterised model was made (min_lag, references, ...)
+     "fusion": {"model": "persistent-failure", "rate": ..., "persistence": ..., ...}}  # optional
 
 The top-level ``models`` / ``selected_components`` are the whole-image (plain) mixture: what version 1 held,
 what a plain sensor model uses, and the model of pixels outside every class (class -1). ``classes`` tile
@@ -31,7 +32,9 @@ the space of the named features (see :class:`~prismap.characterise.ErrorClasses`
 bound); each has its own fits over G, selected G, and share of the characterised pixels, and optionally an
 outlier component (the whole-image mixture's widest) mixed into its selected mixture with the given weight,
 so no class is certain never to fail grossly (:func:`prismap.gmm.fit_outlier_weight`). A model without
-features has one class equal to the plain model. A version-1 file loads as that one class.
+features has one class equal to the plain model. A version-1 file loads as that one class. The optional
+``fusion`` block says how the matcher's failures repeat across views (:mod:`prismap.characterise._fusion`);
+without it maps fuse frames independently.
 
 Version 3 gives every mixture the matcher-failure component (:class:`prismap.gmm.GaussianMixture`):
 ``failure_weight`` ``w_f`` and the matcher's ``search_range_px`` over which failures are uniform; its classes
@@ -51,6 +54,7 @@ from prismap._files import write_text_atomic
 from prismap.characterise._class_model import ClassModel, _describe, _find_fit
 from prismap.characterise._classes import ErrorClasses
 from prismap.characterise._features import FEATURE_UNITS, LR_FEATURE, compute_features
+from prismap.characterise._fusion import fusion_from_block
 from prismap.characterise._model_json import (
     MAX_COMPONENTS,
     _classes_from_dict,
@@ -121,6 +125,9 @@ class ErrorModel:
         The rig it was made on (:func:`prismap.characterise.describe_rig`); None = not recorded.
     provenance : dict
         How it was made beyond the fields above (a self-characterisation's record).
+    fusion : dict or None
+        The fusion block (:func:`prismap.characterise.fit_fusion`): how the matcher's failures repeat across
+        views; None = not measured (independent fusion).
     """
 
     matcher: str
@@ -138,10 +145,12 @@ class ErrorModel:
     source: str = "ground-truth"
     rig: dict | None = None
     provenance: dict = field(default_factory=dict)
+    fusion: dict | None = None
 
     def __post_init__(self):
         if self.source not in SOURCES:
             raise PrismapInputError(f"error model `source` must be one of {list(SOURCES)}; got {self.source!r}")
+        fusion_from_block(self.fusion)
         object.__setattr__(self, "fits", tuple(sorted(self.fits, key=lambda fit: fit.n_components)))
         self.fit(self.selected_components)
         classes = ErrorClasses.single() if self.classes is None else self.classes
@@ -271,7 +280,13 @@ class ErrorModel:
             "source": self.source,
             "rig": self.rig,
             "provenance": self.provenance,
+            **({} if self.fusion is None else {"fusion": self.fusion}),
         }
+
+    @property
+    def persistent_failure(self):
+        """The :class:`prismap.grid.PersistentFailure` of the fusion block, or None (independent fusion)."""
+        return fusion_from_block(self.fusion)
 
     @classmethod
     def from_dict(cls, data, *, source="error model"):
@@ -308,6 +323,9 @@ class ErrorModel:
         if version < 3 and any(mixture.search_range_px is not None for mixture in mixtures):
             raise PrismapInputError(f"{source}: a failure component (`failure_weight`, `search_range_px`) needs "
                                     f"format_version 3; this file says {version}")
+        if data.get("fusion") is not None:
+            fusion_from_block(data["fusion"], source=source)
+            extra["fusion"] = dict(data["fusion"])
         try:
             return cls(matcher["name"], dict(params), data["dataset"], bin_width, fits, selected, selection,
                        statistics, **extra)

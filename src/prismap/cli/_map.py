@@ -54,6 +54,10 @@ def register(subparsers):
                              "2016; the same as --model-param prior=map); ray mode, not on Dask")
     parser.add_argument("--plain", action="store_true",
                         help="use the error model's whole-image mixture for every pixel, not its classes")
+    parser.add_argument("--fusion", choices=("independent", "persistent-failure"), default="independent",
+                        help="how the map reads its sums: independent frames (default), or under the matcher's "
+                             "failure state that persists across views, from the error model's fusion block "
+                             "(docs/SENSOR_MODELS.md section 9)")
     parser.add_argument("--strict-rig", action="store_true",
                         help="refuse an error model made on another rig (focal length, baseline, image size, matcher "
                              "or its parameters differ; default: print a warning naming both)")
@@ -104,7 +108,7 @@ def run(args):
         matcher=args.matcher, matcher_params=parse_params(args.matcher_param, "--matcher-param"),
         disparity_source="matcher" if args.disparity_dir is None else _disparity_dir(args.disparity_dir),
         mode=args.mode, policy=args.policy, max_range_m=args.max_range, subsample=args.subsample,
-        frames=parse_frames(args.frames),
+        frames=parse_frames(args.frames), fusion=args.fusion,
     )
     model_text = _error_text(config, sequence.camera)  # a bad model option fails here, not on a frame or a worker
     _check_rig(config, sequence, args)

@@ -5,7 +5,8 @@ Every reading is a function of the stored sums (log-odds, count), so one map ser
 costs no mapping (docs/SENSOR_MODELS.md, "Fusion when a matcher's failures repeat").
 """
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from pathlib import Path
 
 import numpy as np
 from scipy.special import expit, logit
@@ -35,6 +36,49 @@ class FusionRow:
         """Plain-JSON form (the scores' numbers, not their bins)."""
         return {"matcher": self.matcher, "model": self.model, "fusion": self.fusion,
                 **{name: _plain(getattr(self.scores, name)) for _, name, _ in FUSION_COLUMNS}}
+
+
+FUSED_MODELS = ("andert", "prism")
+"""Models whose maps the comparison reads (those that use the error model), plain and conditioned."""
+
+
+def compare_run_fusions(out_dir, char_frames, matcher, camera, maps, truth):
+    """One matcher's part of a 3-D run's fusion comparison.
+
+    Parameters
+    ----------
+    out_dir : Path
+        The matcher's disparities of ``char_frames`` go to ``out_dir/fusion_disparity/`` (reused on resume).
+    char_frames : sequence of StereoFrame
+        The run's characterisation frames, with truth and poses.
+    matcher : prismap.stereo.StereoMatcher
+    camera : StereoCamera
+    maps : dict of str -> OccupancyMap
+        The matcher's map of each cell model (:func:`~prismap.experiment._cells.run_cells`).
+    truth : GroundTruthOccupancy
+
+    Returns
+    -------
+    block : dict or None
+        The fitted fusion block (:func:`prismap.characterise.fit_fusion`), also stored in the matcher's error
+        model file (``out_dir/characterisation/error_model.json``); None when the frames cannot fit one (too few
+        surface points seen from consecutive positions), and then no rows.
+    rows : list of FusionRow
+    """
+    from prismap.characterise import fit_fusion, fusion_from_block, load_error_model, write_error_model
+    from prismap.errors import PrismapInputError
+    from prismap.experiment._steps3d import match_frames, read_disparities
+
+    disparity_dir = match_frames(Path(out_dir) / "fusion_disparity", char_frames, matcher)
+    try:
+        block = fit_fusion(char_frames, list(read_disparities(disparity_dir, len(char_frames))), camera)
+    except PrismapInputError:
+        return None, []
+    model_path = Path(out_dir) / "characterisation" / "error_model.json"
+    write_error_model(replace(load_error_model(model_path), fusion=block), model_path)
+    failure = fusion_from_block(block)
+    fused = {(matcher.name, model): grid for model, grid in maps.items() if model.startswith(FUSED_MODELS)}
+    return block, compare_fusions(fused, truth, {matcher.name: failure})
 
 
 def fused_probabilities(log_odds, counts, p0, failure):
@@ -81,13 +125,16 @@ def compare_fusions(maps, truth, failures):
 
 
 def format_fusion_section(rows, failures):
-    """Markdown section: the fitted failure models and every map under every reading."""
+    """Markdown section: the fitted failure models (matcher -> PersistentFailure, None = not fitted) and every map
+    under every reading."""
     lines = ["## Fusion of repeated failures", "",
              "Each error-model map read three ways from the same stored sums: the independent sum; the persistent "
              "failure state (rate r and persistence q fitted on the characterisation frames, errors beyond "
              "3 px; docs/SENSOR_MODELS.md); the independent sum clamped to that model's one-view bound "
-             "[r p0, 1 - r (1 - p0)]. " + "; ".join(f"{name}: r = {f.rate:.4f}, q = {f.persistence:.3f}"
-                                                     for name, f in failures.items()) + ".", "",
+             "[r p0, 1 - r (1 - p0)]. " + "; ".join(
+                 f"{name}: r = {f.rate:.4f}, q = {f.persistence:.3f}" if f is not None else
+                 f"{name}: not fitted (too few surface points seen from consecutive characterisation positions)"
+                 for name, f in failures.items()) + ".", "",
              "| matcher | model | fusion | " + " | ".join(label for label, _, _ in FUSION_COLUMNS) + " |",
              "|---|---|---|" + "---|" * len(FUSION_COLUMNS)]
     for row in rows:

@@ -226,7 +226,29 @@ def _details(report):
     return parts
 
 
-REPORT_PARTS = (_summary, _prism_vs_octomap, _maps_at_a_glance, _details)
+def _confident_and_wrong(report):
+    """Per world and matcher, each model's "confident and wrong" rates (the extremes a planner trusts most)."""
+    rows = []
+    for world, result in report.experiments.items():
+        names = {c.model for c in result.cells}
+        for cell in result.cells:
+            scores = cell.scores
+            rows.append([html.escape(world), html.escape(cell.matcher), _model_html(cell.model, names),
+                         f"{scores.free_confident_occupied:.3%}", f"{scores.occupied_confident_free:.3%}"])
+    if not rows:
+        return []
+    header = "".join(f"<th>{h}</th>" for h in ("world", "matcher", "model", "free at P &ge; 0.99",
+                                                 "occupied at P &le; 0.01"))
+    body = "".join("<tr>" + "".join(f"<td>{c}</td>" for c in row) + "</tr>" for row in rows)
+    return ['<section id="extremes"><h2>Confident and wrong</h2>',
+            "<p>Truly free voxels a map puts at P &ge; 0.99 and truly occupied voxels at P &le; 0.01: where a "
+            "planner trusts the map most, lower is better. The reliability diagrams on log-odds axes and the "
+            "per-frame evidence histograms (Details) show where they come from.</p>",
+            f"<details><summary>Every map</summary><table><thead><tr>{header}</tr></thead><tbody>{body}</tbody>"
+            "</table></details></section>"]
+
+
+REPORT_PARTS = (_summary, _prism_vs_octomap, _confident_and_wrong, _maps_at_a_glance, _details)
 """The report's parts in order, each ``part(report) -> list of HTML strings``: a new section is one function
 added here."""
 

@@ -57,6 +57,8 @@ RESULTS_FORMAT = "prismap-experiment-results"
 RESULTS_VERSION = 3
 """Version 2 added the safety score (``safety_occupied_called_free``, ``safety_threshold``) to the scores; version 3
 the "confident and wrong" rates, the logit-spaced reliability bins and the per-frame evidence histograms."""
+READABLE_RESULTS_VERSIONS = (2, 3)
+"""Results files these can read: a version-2 cell reads with NaN rates and empty bins (a run recomputes it)."""
 
 
 @dataclass(frozen=True)
@@ -96,8 +98,8 @@ class CellResult:
     def from_dict(cls, data, *, source="cell"):
         """Inverse of :meth:`to_dict`; ``source`` names the data in error messages."""
         try:
-            if data["format"] != RESULTS_FORMAT + "-cell" or data["version"] != RESULTS_VERSION:
-                raise PrismapInputError(f"{source}: not a version-{RESULTS_VERSION} experiment cell "
+            if data["format"] != RESULTS_FORMAT + "-cell" or data["version"] not in READABLE_RESULTS_VERSIONS:
+                raise PrismapInputError(f"{source}: not a version {list(READABLE_RESULTS_VERSIONS)} experiment cell "
                                         f"(format {data['format']!r}, version {data['version']!r})")
             return cls(str(data["matcher"]), str(data["model"]), scores_from_dict(data["scores"]),
                        float(data["time_s"]), int(data["n_frames"]), dict(data["settings"]))

@@ -1,12 +1,14 @@
-"""The 3-D experiments: rendered stereo pairs of a box world (the indoor room, the street), each matcher
+"""The 3-D experiments: rendered stereo pairs of a box world (the indoor room, the street, the avenue), each matcher
 characterised on frames it then does not map, every sensor model scored against the exact ground truth."""
 
 import math
 
 import numpy as np
 
+from prismap.characterise import fusion_from_block
 from prismap.errors import PrismapInputError
 from prismap.experiment._cells import ExperimentResult, claim_out_dir, draw_figures, run_cells
+from prismap.experiment._fusion import compare_run_fusions, format_fusion_section
 from prismap.experiment._report3d import (
     format_error_correlation,
     mapped_error_correlation,
@@ -78,14 +80,16 @@ def run_rendered_world(world, out_dir, *, n_frames=None, voxel_size_m=None, seed
     with every model of ``models``, using that matcher's error model. Maps are scored on the voxels a
     perfect sensor observed from the mapping frames within ``max_range_m``; ``p0`` is their occupancy ratio.
     The targets include the log-likelihood of the mapping frames' errors under each error model
-    (:func:`mapped_log_likelihood`), the test of a characterisation on errors it never saw; a last section
+    (:func:`mapped_log_likelihood`), the test of a characterisation on errors it never saw; a section
     measures how each matcher's errors repeat in consecutive mapping frames (:func:`mapped_error_correlation`),
-    which the maps' fusion assumes they do not.
+    which the maps' fusion assumes they do not, and a last one reads each error-model map under independent
+    fusion, the persistent-failure state fitted on the characterisation frames and clamping at its one-view
+    bound (:func:`~prismap.experiment._fusion.compare_run_fusions`).
 
     Parameters
     ----------
     world : str
-        ``"scene3d"`` or ``"street3d"``.
+        A key of :data:`WORLDS`: ``"scene3d"``, ``"street3d"`` or ``"avenue3d"``.
     out_dir : str or Path
         A rerun with the same settings reuses every finished step (sequence, characterisations,
         disparities, cells).
@@ -132,6 +136,7 @@ def run_rendered_world(world, out_dir, *, n_frames=None, voxel_size_m=None, seed
     char_index, map_index = split_frames(n_drive, settings["characterise_every"])
     if len(map_index) == 0:
         raise PrismapInputError(f"{n_drive} frames leave none to map after characterisation")
+    spec.trajectory(n_drive, seed)  # a drive the world cannot hold is refused before --out is claimed
     out = claim_out_dir(out_dir, settings)
     voxel = settings["voxel_size_m"]
     scene, camera, drive_char_frames, char_frames, map_frames = render_world(settings)
@@ -148,6 +153,7 @@ def run_rendered_world(world, out_dir, *, n_frames=None, voxel_size_m=None, seed
     cell_settings = dict(settings, derived_model_params=model_params)
 
     results, artifacts, error_models, mapped_likelihoods, correlations = [], [], {}, {}, {}
+    fusion_blocks, fusion_rows = {}, []
     layer = math.floor((spec.slice_height_m + shift) / voxel)
     for matcher_name in settings["matchers"]:
         matcher = matcher_for(matcher_name, largest)
@@ -168,16 +174,22 @@ def run_rendered_world(world, out_dir, *, n_frames=None, voxel_size_m=None, seed
         cells, maps = run_cells(out, matcher_name, models, build_map, truth,
                                 dict(cell_settings, derived_model_params=matcher_params))
         results += cells
+        fusion_blocks[matcher_name], rows = compare_run_fusions(out / matcher_name, char_frames, matcher, camera, maps,
+                                                                truth)
+        fusion_rows += rows
         artifacts += char_artifacts
         artifacts += draw_figures(out, matcher_name, cells, maps, truth, layer=layer,
                                   where=f"z = {spec.slice_height_m} m")
     notes = run_notes(spec, scene, camera, settings, char_index, map_index, p0, model_params, models,
                       error_models, mapped_likelihoods)
     targets = measure_targets(world, results, error_models, mapped_likelihoods)
+    failures = {name: fusion_from_block(block) for name, block in fusion_blocks.items()}
     paths = write_results(results, out, title=spec.title, notes=notes, settings=settings,
-                          sections=(format_targets(targets), format_error_correlation(correlations)),
+                          sections=(format_targets(targets), format_error_correlation(correlations),
+                                    format_fusion_section(fusion_rows, failures)),
                           extra={"targets": [t.to_dict() for t in targets],
-                                 "error_correlation": {name: c.to_dict() for name, c in correlations.items()}})
+                                 "error_correlation": {name: c.to_dict() for name, c in correlations.items()},
+                                 "fusion": {"blocks": fusion_blocks, "rows": [r.to_dict() for r in fusion_rows]}})
     artifacts = [(paths["table"], f"Scores of every matcher x sensor model: {spec.title} (Markdown)."),
                  (paths["json"], "The same scores with reliability bins and histograms (JSON).")] + artifacts
     return ExperimentResult(world, tuple(results), p0, settings, tuple(artifacts))

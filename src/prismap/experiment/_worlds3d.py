@@ -93,7 +93,23 @@ def _street3d_world():
         lambda n, n_between, seed: sim.street_trajectory_between(n, n_between, seed=seed))
 
 
-WORLDS = {"scene3d": _scene3d_world, "street3d": _street3d_world}
+def _avenue3d_world():
+    """The second street world: the street's drive through another layout, textures and rig; its only
+    characterisation frames are the drive's own 4 (full size), so a model tuned on the street has to hold on few."""
+    from prismap import sim
+
+    return RenderedWorld(
+        "avenue3d", "3-D avenue (second street world), characterised matchers",
+        {False: {"n_frames": 16, "between_frames": 0, "image_scale": 1.0, "voxel_size_m": 0.2, "subsample": 2,
+                 "max_range_m": 40.0, "mode": "projective", "model_params": {"prism": {"near_m": STREET_NEAR_M}}},
+         True: {"n_frames": 8, "between_frames": 2, "image_scale": 0.5, "voxel_size_m": 0.4, "subsample": 1,
+                "max_range_m": 30.0, "mode": "projective", "model_params": {"prism": {"near_m": STREET_NEAR_M}}}},
+        lambda seed: sim.avenue_scene(seed=seed), lambda n, seed: sim.street_trajectory(n, seed=seed),
+        lambda scale: sim.avenue_camera(scale=scale), 1.0, "Avenue scene, 620x188 rig",
+        lambda n, n_between, seed: sim.street_trajectory_between(n, n_between, seed=seed))
+
+
+WORLDS = {"scene3d": _scene3d_world, "street3d": _street3d_world, "avenue3d": _avenue3d_world}
 """Name -> :class:`RenderedWorld` factory of every 3-D experiment."""
 
 

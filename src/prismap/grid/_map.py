@@ -6,6 +6,7 @@ from scipy.special import expit
 from prismap._validate import as_float_array, check_classes, check_positive, check_probability
 from prismap.errors import PrismapInputError
 from prismap.grid import _accumulator, _kernels_accumulate, _kernels_hash
+from prismap.grid._fusion import PersistentFailure
 from prismap.grid._integrators import MEASUREMENT_KINDS, RayBatch, make_integrator
 from prismap.grid._keys import BLOCK_BITS, KEY_LIMIT, check_keys, key_range_text, key_to_center, point_to_key
 from prismap.grid._logodds import LOG_ODDS_STEP, Q_DTYPE, Q_MAX, Q_MIN, from_fixed, logit, to_fixed
@@ -49,9 +50,15 @@ class OccupancyMap:
     occupied_threshold, free_threshold : float in (0, 1)
         A known voxel is occupied if ``P >= occupied_threshold``, free if ``P < free_threshold``,
         unknown in between. Both default to 0.5 (OctoMap's rule).
+    fusion : PersistentFailure or None
+        How a voxel's stored log-odds and count read as a probability (every query of ``P``): None is the
+        independent sum, ``sigmoid(l)``; a :class:`~prismap.grid.PersistentFailure` reads them under a matcher
+        failure state that persists across views (docs/SENSOR_MODELS.md section 9). The stored sums, merges
+        and map files do not depend on it.
     """
 
-    def __init__(self, voxel_size_m, *, p0, ndim=3, clamp=None, occupied_threshold=0.5, free_threshold=0.5):
+    def __init__(self, voxel_size_m, *, p0, ndim=3, clamp=None, occupied_threshold=0.5, free_threshold=0.5,
+                 fusion=None):
         self.voxel_size_m = check_positive(voxel_size_m, "voxel_size_m")
         self.p0 = check_probability(p0, "p0")
         if ndim not in BLOCK_BITS:
@@ -63,6 +70,9 @@ class OccupancyMap:
                 raise PrismapInputError(f"`clamp` must satisfy p_min < p0 < p_max; got {clamp!r} with p0={self.p0}")
             clamp = (lo, hi)
         self.clamp = clamp
+        if fusion is not None and not isinstance(fusion, PersistentFailure):
+            raise PrismapInputError(f"`fusion` must be a PersistentFailure or None; got {type(fusion).__name__}")
+        self.fusion = fusion
         self.occupied_threshold = check_probability(occupied_threshold, "occupied_threshold")
         self.free_threshold = check_probability(free_threshold, "free_threshold")
         if self.free_threshold > self.occupied_threshold:
@@ -223,10 +233,11 @@ class OccupancyMap:
         """
         if not isinstance(other, OccupancyMap):
             raise PrismapInputError(f"can only merge an OccupancyMap; got {type(other).__name__}")
-        for attr in ("voxel_size_m", "p0", "ndim"):
+        for attr in ("voxel_size_m", "p0", "ndim", "fusion"):
             if getattr(self, attr) != getattr(other, attr):
                 raise PrismapInputError(
-                    f"cannot merge maps of different grids: {attr} {getattr(self, attr)!r} != {getattr(other, attr)!r}"
+                    f"cannot merge maps of different grids or readings: {attr} {getattr(self, attr)!r} != "
+                    f"{getattr(other, attr)!r}"
                 )
         store, theirs = self._store, other._store
         store.reserve(store.count_absent(theirs.block_keys, len(theirs)))
@@ -266,7 +277,8 @@ class OccupancyMap:
     def copy(self):
         """An independent copy of the map."""
         twin = OccupancyMap(self.voxel_size_m, p0=self.p0, ndim=self.ndim, clamp=self.clamp,
-                            occupied_threshold=self.occupied_threshold, free_threshold=self.free_threshold)
+                            occupied_threshold=self.occupied_threshold, free_threshold=self.free_threshold,
+                            fusion=self.fusion)
         twin.merge(self)
         twin.policies, twin.n_frames = self.policies, self.n_frames
         return twin
@@ -301,7 +313,7 @@ class OccupancyMap:
 
     def probability_at_keys(self, keys):
         """(N,) float64 occupancy probability at each key (``p0`` where unknown)."""
-        return _probability(self.lookup_keys(keys)[0])
+        return self._read(*self.lookup_keys(keys))
 
     def state_at_keys(self, keys):
         """(N,) int8 state at each key: :data:`FREE`, :data:`OCCUPIED` or :data:`UNKNOWN`."""
@@ -338,7 +350,8 @@ class OccupancyMap:
         return keys, from_fixed(store.payload["log"][:n][known]), count[known]
 
     def known_probabilities(self):
-        """Every observed voxel with its occupancy probability (one pass over the storage, no second look-up).
+        """Every observed voxel with its occupancy probability (read under the map's ``fusion``; one pass over the
+        storage, no second look-up).
 
         Returns
         -------
@@ -348,7 +361,7 @@ class OccupancyMap:
         counts : (N,) uint16, >= 1
         """
         keys, log, counts = self.known_voxels()
-        return keys, _probability(log), log, counts
+        return keys, self._read(log, counts), log, counts
 
     def occupied_voxels(self):
         """Voxels in the occupied state.
@@ -362,7 +375,7 @@ class OccupancyMap:
         keys, log, count = self.known_voxels()
         mine = self._states(log, count) == OCCUPIED
         keys = keys[mine]
-        return keys, key_to_center(keys, self.voxel_size_m), _probability(log[mine])
+        return keys, key_to_center(keys, self.voxel_size_m), self._read(log[mine], count[mine])
 
     def bounding_box(self, *, occupied_only=False):
         """Axis-aligned box of the known (or occupied) voxels: ``(min_w, max_w)`` (3,) metres, or None if empty."""
@@ -403,9 +416,9 @@ class OccupancyMap:
                 raise PrismapInputError(f"`z_range_m` must be (z_min, z_max) with z_max > z_min; got {tuple(z_range_m)}")
             z_lo = int(point_to_key(z_min, self.voxel_size_m))
             z_hi = int(np.ceil(z_max / self.voxel_size_m)) - 1
-        keys, log, _ = self.known_voxels()
+        keys, log, count = self.known_voxels()
         inside = (keys[:, 2] >= z_lo) & (keys[:, 2] <= z_hi)
-        keys, prob = keys[inside], _probability(log[inside])
+        keys, prob = keys[inside], self._read(log[inside], count[inside])
         if keys.shape[0] == 0:
             return np.full((0, 0), np.nan), np.zeros(4)
         x0, y0 = keys[:, 0].min(), keys[:, 1].min()
@@ -451,8 +464,14 @@ class OccupancyMap:
         return hit, out_keys, distance
 
     # ------------------------------------------------------------------------------------- internals
+    def _read(self, log, count):
+        """``P(occupied)`` of stored log-odds and counts under the map's ``fusion``."""
+        if self.fusion is None:
+            return _probability(log)
+        return self.fusion.probability(log, count, self.p0)
+
     def _states(self, log, count):
-        prob = _probability(log)
+        prob = self._read(log, count)
         state = np.full(prob.shape, UNKNOWN, dtype=np.int8)
         known = count > 0
         state[known & (prob >= self.occupied_threshold)] = OCCUPIED
@@ -492,4 +511,4 @@ class OccupancyMap:
 
     def __repr__(self):
         return (f"OccupancyMap(voxel_size_m={self.voxel_size_m}, p0={self.p0}, ndim={self.ndim}, "
-                f"clamp={self.clamp}, known={self.n_known}, frames={self.n_frames})")
+                f"clamp={self.clamp}, fusion={self.fusion}, known={self.n_known}, frames={self.n_frames})")

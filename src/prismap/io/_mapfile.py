@@ -4,8 +4,10 @@ Fields: ``format`` ("prismap-map"), ``format_version`` (2), ``voxel_size_m``, ``
 ``policy`` (the per-frame policies used, "+"-joined), ``clamp`` ((2,) probabilities, NaN = off),
 ``occupied_threshold``, ``free_threshold``, ``n_frames``, ``keys`` ((N, 3) int32 voxel keys,
 ``floor(x / voxel_size)``), ``log_odds`` ((N,) float64, multiples of ``2**-20``: the map's fixed-point
-log-odds, exact) and ``counts`` ((N,) uint16, frames that observed each voxel). Only observed voxels are
-stored. Version 1 files (float32 log-odds) are still read; their values are rounded to the fixed point.
+log-odds, exact) and ``counts`` ((N,) uint16, frames that observed each voxel), ``fusion`` ((2,) the
+persistent-failure reading's rate and persistence, NaN = independent; docs/SENSOR_MODELS.md section 9). Only
+observed voxels are stored. Version 1 files (float32 log-odds) are still read; their values are rounded to the
+fixed point. Version 1 and 2 files have no ``fusion`` and read as independent.
 """
 
 from pathlib import Path
@@ -14,14 +16,16 @@ import numpy as np
 
 from prismap._files import atomic_path
 from prismap.errors import PrismapInputError
-from prismap.grid import OccupancyMap
+from prismap.grid import OccupancyMap, PersistentFailure
 from prismap.grid._keys import check_voxel_size
 from prismap.io._npz import INTEGER, REAL, TEXT, array_field, read_npz
 
 FORMAT = "prismap-map"
-FORMAT_VERSION = 2
-READABLE_VERSIONS = (1, 2)
-"""Version 1 held float32 log-odds; version 2 the map's fixed-point log-odds as exact float64."""
+FORMAT_VERSION = 3
+READABLE_VERSIONS = (1, 2, 3)
+"""Version 1 held float32 log-odds; version 2 the map's fixed-point log-odds as exact float64; version 3 adds
+``fusion``."""
+_FUSION_SPEC = {"fusion": array_field((2,), "float")}
 _SPEC = {
     "format": TEXT, "format_version": INTEGER, "voxel_size_m": REAL, "p0": REAL, "ndim": INTEGER, "policy": TEXT,
     "clamp": array_field((2,), "float"), "occupied_threshold": REAL, "free_threshold": REAL, "n_frames": INTEGER,
@@ -46,13 +50,14 @@ def save_map(grid, path):
         raise PrismapInputError(f"`grid` must be an OccupancyMap; got {type(grid).__name__}")
     keys, log, counts = grid.known_voxels()
     clamp = np.array(grid.clamp if grid.clamp is not None else (np.nan, np.nan))
+    fusion = np.array((np.nan, np.nan) if grid.fusion is None else (grid.fusion.rate, grid.fusion.persistence))
     with atomic_path(path) as tmp, open(tmp, "wb") as handle:
         np.savez_compressed(
             handle, format=np.array(FORMAT), format_version=np.array(FORMAT_VERSION),
             voxel_size_m=np.array(grid.voxel_size_m), p0=np.array(grid.p0), ndim=np.array(grid.ndim),
             policy=np.array("+".join(grid.policies)), clamp=clamp,
             occupied_threshold=np.array(grid.occupied_threshold), free_threshold=np.array(grid.free_threshold),
-            n_frames=np.array(grid.n_frames), keys=keys, log_odds=log, counts=counts,
+            n_frames=np.array(grid.n_frames), keys=keys, log_odds=log, counts=counts, fusion=fusion,
         )
 
 
@@ -91,11 +96,13 @@ def load_map(path):
     if len(np.unique(keys, axis=0)) != len(keys):
         raise PrismapInputError(f"{path}: `keys` holds {len(keys) - len(np.unique(keys, axis=0))} duplicate voxel keys")
     clamp = fields["clamp"]
+    fusion = read_npz(path, "map file", _FUSION_SPEC)["fusion"] if fields["format_version"] >= 3 else (np.nan,) * 2
     try:
         grid = OccupancyMap(
             fields["voxel_size_m"], p0=fields["p0"], ndim=fields["ndim"],
             clamp=None if np.isnan(clamp).any() else tuple(float(c) for c in clamp),
             occupied_threshold=fields["occupied_threshold"], free_threshold=fields["free_threshold"],
+            fusion=None if np.isnan(fusion).any() else PersistentFailure(float(fusion[0]), float(fusion[1])),
         )
         grid.set_voxels(keys, fields["log_odds"], fields["counts"])
     except PrismapInputError as exc:

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from prismap._validate import check_integer, check_positive, check_probability
-from prismap.characterise import ErrorModel
+from prismap.characterise import FUSION_MODELS, ErrorModel
 from prismap.errors import PrismapInputError
 from prismap.gmm import GaussianMixture
 from prismap.grid import POLICIES
@@ -158,6 +158,10 @@ class MappingConfig:
     frames : (int, int or None)
         ``(start, stop)``: the frames ``start <= i < stop`` of the sequence (stop None or beyond the
         sequence = to its end).
+    fusion : {"independent", "persistent-failure"}
+        How the map reads its stored sums: the independent sum of the frames' evidence, or under the matcher's
+        persistent failure state, whose rate and persistence the error model's ``fusion`` block holds
+        (:func:`prismap.characterise.fit_fusion`; docs/SENSOR_MODELS.md section 9). The stored map is the same.
 
     Notes
     -----
@@ -180,6 +184,7 @@ class MappingConfig:
     max_range_m: float = math.inf
     subsample: int = 1
     frames: tuple = (0, None)
+    fusion: str = "independent"
 
     def __post_init__(self):
         def set_(name, value):
@@ -207,6 +212,16 @@ class MappingConfig:
         set_("subsample", check_integer(self.subsample, "subsample", expected="an integer >= 1",
                                         condition=lambda n: n >= 1))
         set_("frames", _check_frames(self.frames))
+        if self.fusion not in FUSION_MODELS:
+            raise PrismapInputError(f"`fusion` must be one of {list(FUSION_MODELS)}; got {self.fusion!r}")
+        if self.fusion != "independent" and getattr(self.error_model, "fusion", None) is None:
+            raise PrismapInputError(f"`fusion` {self.fusion!r} needs an error model with a fusion block (characterised "
+                                    "on frames with poses; see prismap.characterise.fit_fusion)")
+
+    @property
+    def persistent_failure(self):
+        """The map's :class:`~prismap.grid.PersistentFailure` reading, or None (independent fusion)."""
+        return None if self.fusion == "independent" else self.error_model.persistent_failure
 
     @property
     def model_options(self):
@@ -281,6 +296,7 @@ class MappingConfig:
             "disparity_source": self.disparity_source, "mode": self.mode, "policy": self.policy,
             "max_range_m": None if math.isinf(self.max_range_m) else self.max_range_m,
             "subsample": self.subsample, "frames": list(self.frames),
+            **({} if self.fusion == "independent" else {"fusion": self.error_model.fusion}),
         }
 
     def fingerprint(self):
