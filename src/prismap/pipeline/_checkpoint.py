@@ -146,9 +146,11 @@ def save_checkpoint(path, fingerprint, grid):
 
 
 def remove_checkpoint(path):
-    """Delete a checkpoint's files (once the final result is safely written)."""
-    for file in _paths(path):
-        file.unlink(missing_ok=True)
+    """Delete a checkpoint's files (once the final result is safely written): the JSON that vouches for the map
+    first, so that no moment shows a checkpoint whose map is already gone."""
+    map_path, meta_path = _paths(path)
+    meta_path.unlink(missing_ok=True)
+    map_path.unlink(missing_ok=True)
 
 
 def _digest(path):
