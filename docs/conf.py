@@ -7,6 +7,7 @@ experiment runs' ``results.json`` files in ``docs/results/``).
 """
 
 import os
+import shutil
 import sys
 from pathlib import Path
 
@@ -63,4 +64,5 @@ html_title = "prismap"
 html_static_path = []
 html_theme_options = {"navigation_with_keys": False, "show_toc_level": 2}
 
+shutil.rmtree(HERE / "_generated" / "api", ignore_errors=True)  # stubs of objects that moved would stay behind
 _generate.write_all(HERE / "_generated")
