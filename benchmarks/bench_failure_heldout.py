@@ -61,19 +61,27 @@ def main():
     disparity, lr = matcher.compute_with_confidence(frame.left, frame.right)
     rows = np.arange(disparity.shape[0])[:, None] < disparity.shape[0] // 2
     top = np.broadcast_to(rows, disparity.shape)
-    print(f"scene: {frame.name}, {disparity.shape[1]}x{disparity.shape[0]}, {args.matcher} with search range "
-          f"{matcher.search_range_px()} px; fit on one half of the rows, score the other")
-    print("| fit on | failures | classes | w_f (whole image) | held-out nats/error (classes) | (whole image) | errors |")
+    print(
+        f"scene: {frame.name}, {disparity.shape[1]}x{disparity.shape[0]}, {args.matcher} with search range "
+        f"{matcher.search_range_px()} px; fit on one half of the rows, score the other"
+    )
+    print(
+        "| fit on | failures | classes | w_f (whole image) | held-out nats/error (classes) | (whole image) | errors |"
+    )
     print("|---|---|---|---|---|---|---|")
     for name, train in (("top", top), ("bottom", ~top)):
         for failures in (False, True):
             start = time.perf_counter()
-            result = characterise_matcher([frame], _Masked(matcher, disparity, lr, train), dataset="motorcycle",
-                                          progress=False, failures=failures)
+            result = characterise_matcher(
+                [frame], _Masked(matcher, disparity, lr, train), dataset="motorcycle", progress=False, failures=failures
+            )
             model = result.model
             conditioned, plain, n = _score(model, frame, disparity, lr, ~train)
-            print(f"| {name} | {failures} | {model.n_classes} | {model.mixture.failure_weight:.2e} | "
-                  f"{conditioned:.4f} | {plain:.4f} | {n} |  ({time.perf_counter() - start:.0f} s)", flush=True)
+            print(
+                f"| {name} | {failures} | {model.n_classes} | {model.mixture.failure_weight:.2e} | "
+                f"{conditioned:.4f} | {plain:.4f} | {n} |  ({time.perf_counter() - start:.0f} s)",
+                flush=True,
+            )
 
 
 if __name__ == "__main__":

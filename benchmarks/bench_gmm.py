@@ -27,8 +27,10 @@ def main():
     args = parser.parse_args()
 
     errors = TRUTH.sample(args.samples, np.random.default_rng(0))
-    print(f"scene: {args.samples} errors from weights {TRUTH.weights.tolist()}, means {TRUTH.means.tolist()} px, "
-          f"sigmas {TRUTH.sigmas.tolist()} px (seed 0)")
+    print(
+        f"scene: {args.samples} errors from weights {TRUTH.weights.tolist()}, means {TRUTH.means.tolist()} px, "
+        f"sigmas {TRUTH.sigmas.tolist()} px (seed 0)"
+    )
 
     fit_mixture(errors[:10_000], n_components=3, bin_width=1 / 32)  # compile the numba kernels first
     start = time.perf_counter()
@@ -44,12 +46,16 @@ def main():
     theirs_ll = theirs.logpdf(errors).mean()
     for label, mixture, seconds, ll in (("prismap", ours, ours_s, ours_ll), ("sklearn", theirs, sk_s, theirs_ll)):
         order = np.argsort(-mixture.weights)
-        print(f"{label:8s} {seconds:8.3f} s  mean ln p = {ll:.6f}  w = {np.round(mixture.weights[order], 3).tolist()}"
-              f"  mu = {np.round(mixture.means[order], 3).tolist()}  sigma = {np.round(mixture.sigmas[order], 3).tolist()}")
+        print(
+            f"{label:8s} {seconds:8.3f} s  mean ln p = {ll:.6f}  w = {np.round(mixture.weights[order], 3).tolist()}"
+            f"  mu = {np.round(mixture.means[order], 3).tolist()}  sigma = {np.round(mixture.sigmas[order], 3).tolist()}"
+        )
     print(f"sklearn converged: {sk.converged_} after {sk.n_iter_} iterations")
     print(f"speed ratio sklearn / prismap: {sk_s / ours_s:.1f}x")
-    print(f"log-likelihood difference (prismap - sklearn): {ours_ll - theirs_ll:+.6f} nats/sample "
-          f"({100 * (ours_ll - theirs_ll) / abs(theirs_ll):+.4f} % of sklearn's)")
+    print(
+        f"log-likelihood difference (prismap - sklearn): {ours_ll - theirs_ll:+.6f} nats/sample "
+        f"({100 * (ours_ll - theirs_ll) / abs(theirs_ll):+.4f} % of sklearn's)"
+    )
 
 
 if __name__ == "__main__":

@@ -50,8 +50,7 @@ from prismap.stereo import make_matcher
 from support import planes_frame, world_points
 
 VOXEL = 0.1
-STREET_MIXTURE = GaussianMixture(np.array([0.80, 0.15, 0.05]), np.array([0.0, -0.1, -2.0]),
-                                 np.array([0.3, 1.0, 10.0]))
+STREET_MIXTURE = GaussianMixture(np.array([0.80, 0.15, 0.05]), np.array([0.0, -0.1, -2.0]), np.array([0.3, 1.0, 10.0]))
 """Disparity error of scenes (a) and (c): a 0.3 px core, a 1 px shoulder and 5 % outliers of sigma 10 px."""
 STREET_RANGE_M = (2.0, 80.0)
 STREET_NEAR_M = 1.5  # PRISM's near_m on the street (no surface nearer than 1.8 m to the drive)
@@ -72,8 +71,9 @@ CHARACTERISE_FRAMES = 4
 
 
 def hitmiss(camera):
-    return make_sensor_model("hitmiss", focal_baseline=camera.focal_baseline, doffs_px=camera.doffs_px,
-                             voxel_size_m=VOXEL, p0=0.5)
+    return make_sensor_model(
+        "hitmiss", focal_baseline=camera.focal_baseline, doffs_px=camera.doffs_px, voxel_size_m=VOXEL, p0=0.5
+    )
 
 
 def timed(fn, repeat):
@@ -167,8 +167,11 @@ def sgbm_world(scale, n_frames, directory):
     matcher = make_matcher("sgbm")
     start = time.perf_counter()
     error_model = characterise_matcher(frames[:CHARACTERISE_FRAMES], matcher, progress=False).model
-    print(f"  characterised SGBM on {min(CHARACTERISE_FRAMES, n_frames)} frames in {time.perf_counter() - start:.0f} s: "
-          f"{error_model.n_classes} classes", flush=True)
+    print(
+        f"  characterised SGBM on {min(CHARACTERISE_FRAMES, n_frames)} frames in {time.perf_counter() - start:.0f} s: "
+        f"{error_model.n_classes} classes",
+        flush=True,
+    )
     disparities, classes = [], []
     for frame in frames:
         disparity, lr_disagreement = matcher.compute_with_confidence(frame.left, frame.right)
@@ -188,8 +191,13 @@ def load_world(scale, n_frames, world):
         return camera, poses, disparities, [None] * len(poses), STREET_MIXTURE
     data = np.load(world)
     error_model = pickle.loads(Path(world).with_name("error_model.pkl").read_bytes())
-    return (sim.kitti_camera(scale=scale), data["poses"], list(data["disparities"].astype(np.float64)),
-            list(data["classes"].astype(np.int32)), error_model)
+    return (
+        sim.kitti_camera(scale=scale),
+        data["poses"],
+        list(data["disparities"].astype(np.float64)),
+        list(data["classes"].astype(np.int32)),
+        error_model,
+    )
 
 
 def street_model(name, camera, voxel, error_model):
@@ -198,8 +206,9 @@ def street_model(name, camera, voxel, error_model):
     defaults), plain (the whole-image mixture) or conditioned."""
     if not isinstance(error_model, GaussianMixture):
         model = "prism" if name == "conditioned" else name
-        config = MappingConfig(model=model, voxel_size_m=voxel, error_model=error_model,
-                               conditioned=name == "conditioned")
+        config = MappingConfig(
+            model=model, voxel_size_m=voxel, error_model=error_model, conditioned=name == "conditioned"
+        )
         return config.sensor_model(camera)
     common = {"focal_baseline": camera.focal_baseline, "doffs_px": camera.doffs_px, "voxel_size_m": voxel}
     if name == "hitmiss":
@@ -234,16 +243,20 @@ def street_method(name, mode, voxel, scale, n_frames, world=None):
         clouds = [(cloud(camera, pose, disparity), pose) for disparity, pose in zip(disparities, poses)]
     if name == "octomap":
         tree = octomap.OcTree(voxel)
-        clock(lambda points, pose: tree.insertPointCloud(points, np.ascontiguousarray(pose[:3, 3]), maxrange=max_range),
-              clouds)
+        clock(
+            lambda points, pose: tree.insertPointCloud(points, np.ascontiguousarray(pose[:3, 3]), maxrange=max_range),
+            clouds,
+        )
         out["map_bytes"] = tree.memoryUsage()
     elif name == "ufomap":
         # UFOMap through DUFOMap's binding: free space to and a hit at each world point within the max range
         # (it has no max range; OctoMap also casts free space along the farther points' rays), no hit or unknown
         # inflation (d_s 0, d_p 0): the plain occupancy insert.
         ufo = dufomap.dufomap(voxel, 0.0, 0, num_threads=int(mode))
-        clouds = [(points[np.linalg.norm(points - pose[:3, 3], axis=1) <= max_range].astype(np.float32), pose)
-                  for points, pose in clouds]
+        clouds = [
+            (points[np.linalg.norm(points - pose[:3, 3], axis=1) <= max_range].astype(np.float32), pose)
+            for points, pose in clouds
+        ]
         clock(lambda points, pose: ufo.run(points, pose, cloud_transform=False), clouds)
         out["map_bytes"] = 0
     else:
@@ -251,26 +264,38 @@ def street_method(name, mode, voxel, scale, n_frames, world=None):
         grid = OccupancyMap(voxel, p0=getattr(model, "plain", model).p0)
         if not isinstance(model, ConditionedModel):
             classes = [None] * len(poses)
-        clock(lambda disparity, pose, ray_class: integrate_disparity(
-            grid, disparity, camera, pose, model, mode=mode, max_range_m=max_range, ray_class=ray_class),
-            zip(disparities, poses, classes))
+        clock(
+            lambda disparity, pose, ray_class: integrate_disparity(
+                grid, disparity, camera, pose, model, mode=mode, max_range_m=max_range, ray_class=ray_class
+            ),
+            zip(disparities, poses, classes),
+        )
         out["map_bytes"] = grid.nbytes()
-        caches = [m._cache for m in getattr(model, "class_models", ()) + (getattr(model, "plain", model),)
-                  if hasattr(m, "_cache")]
+        caches = [
+            m._cache
+            for m in getattr(model, "class_models", ()) + (getattr(model, "plain", model),)
+            if hasattr(m, "_cache")
+        ]
         if caches:
-            out.update(tables=sum(len(c) for c in caches), table_bytes=sum(c.nbytes for c in caches),
-                       table_hits=sum(c.hits for c in caches), table_builds=sum(c.builds for c in caches))
-    out.update(wall=wall, cpu=cpu,
-               rss_rise=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024 - rss_before)
+            out.update(
+                tables=sum(len(c) for c in caches),
+                table_bytes=sum(c.nbytes for c in caches),
+                table_hits=sum(c.hits for c in caches),
+                table_builds=sum(c.builds for c in caches),
+            )
+    out.update(wall=wall, cpu=cpu, rss_rise=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024 - rss_before)
     return out
 
 
 def street(args):
     """Scene (c): every method in its own process, interleaved, --repeat times, on each rig (--scales) and voxel
     size; a table of medians per set-up, then the worst ratio of each method over the set-ups."""
-    methods = {label: STREET_METHODS[label] for label in STREET_METHODS
-               if (args.conditioned or "conditioned" not in label)
-               and (args.methods is None or any(word.lower() in label.lower() for word in args.methods))}
+    methods = {
+        label: STREET_METHODS[label]
+        for label in STREET_METHODS
+        if (args.conditioned or "conditioned" not in label)
+        and (args.methods is None or any(word.lower() in label.lower() for word in args.methods))
+    }
     worst = {}
     with tempfile.TemporaryDirectory() as tmp:
         for scale in args.scales:
@@ -281,20 +306,39 @@ def street(args):
                 error_model = pickle.loads(world.with_name("error_model.pkl").read_bytes())
                 errors = f"SGBM (its defaults) characterised on {CHARACTERISE_FRAMES} frames, {error_model.n_classes} classes"
             for voxel in args.voxels:
-                print(f"\nscene (c): street, {camera.width}x{camera.height} px (f {camera.focal_px:g} px, b "
-                      f"{camera.baseline_m:g} m), {args.frames} frames, depths {STREET_RANGE_M[0]:g}-{STREET_RANGE_M[1]:g} m, "
-                      f"{voxel} m voxels, rays cut at {STREET_RANGE_M[1]:g} m, errors {errors}; load {_load()}", flush=True)
+                print(
+                    f"\nscene (c): street, {camera.width}x{camera.height} px (f {camera.focal_px:g} px, b "
+                    f"{camera.baseline_m:g} m), {args.frames} frames, depths {STREET_RANGE_M[0]:g}-{STREET_RANGE_M[1]:g} m, "
+                    f"{voxel} m voxels, rays cut at {STREET_RANGE_M[1]:g} m, errors {errors}; load {_load()}",
+                    flush=True,
+                )
                 runs = {label: [] for label in methods}
                 for _ in range(args.repeat):
                     for label, (name, mode) in methods.items():
-                        command = [sys.executable, __file__, "--street-method", name, str(mode), str(voxel), str(scale),
-                                   str(args.frames), str(world or "")]
-                        runs[label].append(json.loads(subprocess.run(command, check=True, capture_output=True,
-                                                                     text=True).stdout.splitlines()[-1]))
+                        command = [
+                            sys.executable,
+                            __file__,
+                            "--street-method",
+                            name,
+                            str(mode),
+                            str(voxel),
+                            str(scale),
+                            str(args.frames),
+                            str(world or ""),
+                        ]
+                        runs[label].append(
+                            json.loads(
+                                subprocess.run(command, check=True, capture_output=True, text=True).stdout.splitlines()[
+                                    -1
+                                ]
+                            )
+                        )
                 _street_table(runs, worst)
                 print(f"load {_load()}")
-    print(f"\nworst over rigs {args.scales} and voxels {args.voxels} (steady state): x Octo lowest; x UFO lowest; "
-          "conditioned / plain PRISM of the same mode: time and peak RSS rise highest")
+    print(
+        f"\nworst over rigs {args.scales} and voxels {args.voxels} (steady state): x Octo lowest; x UFO lowest; "
+        "conditioned / plain PRISM of the same mode: time and peak RSS rise highest"
+    )
     for label, figures in worst.items():
         print(f"{label:<30} " + "  ".join(f"{key} {value:.2f}" for key, value in figures.items()))
 
@@ -303,17 +347,24 @@ def _street_table(runs, worst):
     """Print one set-up's table and fold its ratios into ``worst`` (label: {figure: worst value so far})."""
     summary = {label: _street_summary(results) for label, results in runs.items()}
     octo = summary.get("OctoMap insertPointCloud") or next(iter(summary.values()))
-    ufo = min((row for label, row in summary.items() if label.startswith("UFOMap")), key=lambda row: row["steady"],
-              default=None)
-    print(f"{'method':<30} {'cold s':>7} {'CPU':>6} {'steady s':>8} {'CPU':>6} {'x Octo':>6} {'x CPU':>6} {'x UFO':>6} "
-          f"{'cold/st':>7} {'RSS MB':>7} {'map MB':>7}  tables")
+    ufo = min(
+        (row for label, row in summary.items() if label.startswith("UFOMap")),
+        key=lambda row: row["steady"],
+        default=None,
+    )
+    print(
+        f"{'method':<30} {'cold s':>7} {'CPU':>6} {'steady s':>8} {'CPU':>6} {'x Octo':>6} {'x CPU':>6} {'x UFO':>6} "
+        f"{'cold/st':>7} {'RSS MB':>7} {'map MB':>7}  tables"
+    )
     for label, row in summary.items():
         last = runs[label][-1]
         tables = ""
         if "tables" in last:
             hit_rate = last["table_hits"] / max(last["table_hits"] + last["table_builds"], 1)
-            tables = (f"{last['tables']} tables, {last['table_bytes'] / 2**20:.1f} MB, {last['table_builds']} built, "
-                      f"hit rate {hit_rate:.3f}")
+            tables = (
+                f"{last['tables']} tables, {last['table_bytes'] / 2**20:.1f} MB, {last['table_builds']} built, "
+                f"hit rate {hit_rate:.3f}"
+            )
         figures = {"x Octo": octo["steady"] / row["steady"]}
         if ufo is not None:
             figures["x UFO"] = ufo["steady"] / row["steady"]
@@ -324,18 +375,25 @@ def _street_table(runs, worst):
         for key, value in figures.items():
             kept = worst.setdefault(label, {}).get(key, value)
             worst[label][key] = max(kept, value) if "plain" in key else min(kept, value)
-        print(f"{label:<30} {row['cold']:7.2f} {row['cold_cpu']:6.2f} {row['steady']:8.3f} {row['steady_cpu']:6.3f} "
-              f"{figures['x Octo']:6.2f} {octo['steady_cpu'] / row['steady_cpu']:6.2f} {figures.get('x UFO', np.nan):6.2f} "
-              f"{row['cold'] / row['steady']:7.2f} {row['rss'] / 2**20:7.0f} {row['map'] / 2**20:7.1f}  {tables}", flush=True)
+        print(
+            f"{label:<30} {row['cold']:7.2f} {row['cold_cpu']:6.2f} {row['steady']:8.3f} {row['steady_cpu']:6.3f} "
+            f"{figures['x Octo']:6.2f} {octo['steady_cpu'] / row['steady_cpu']:6.2f} {figures.get('x UFO', np.nan):6.2f} "
+            f"{row['cold'] / row['steady']:7.2f} {row['rss'] / 2**20:7.0f} {row['map'] / 2**20:7.1f}  {tables}",
+            flush=True,
+        )
 
 
 def _street_summary(results):
     """Medians over repeats of the first frame, of each run's median steady frame, and of the memory figures."""
     median = statistics.median
-    return {"cold": median(r["wall"][0] for r in results), "cold_cpu": median(r["cpu"][0] for r in results),
-            "steady": median(median(r["wall"][1:]) for r in results),
-            "steady_cpu": median(median(r["cpu"][1:]) for r in results),
-            "rss": median(r["rss_rise"] for r in results), "map": median(r["map_bytes"] for r in results)}
+    return {
+        "cold": median(r["wall"][0] for r in results),
+        "cold_cpu": median(r["cpu"][0] for r in results),
+        "steady": median(median(r["wall"][1:]) for r in results),
+        "steady_cpu": median(median(r["cpu"][1:]) for r in results),
+        "rss": median(r["rss_rise"] for r in results),
+        "map": median(r["map_bytes"] for r in results),
+    }
 
 
 def octomap_known_voxels(tree):
@@ -357,15 +415,19 @@ def frustum_scene():
 def run(name, octo_points, origin, prismap_runs, repeat, max_range):
     t_octo, cpu_octo, tree = timed(lambda: _octo(octo_points, origin, max_range), repeat)
     octo_known = octomap_known_voxels(tree)
-    print(f"\n[{name}] OctoMap insertPointCloud: {t_octo * 1e3:.0f} ms (CPU {cpu_octo * 1e3:.0f} ms), {octo_known} known "
-          f"voxels, {tree.memoryUsage() / octo_known:.2f} bytes/known voxel (memoryUsage() / known voxels, pruned tree)")
+    print(
+        f"\n[{name}] OctoMap insertPointCloud: {t_octo * 1e3:.0f} ms (CPU {cpu_octo * 1e3:.0f} ms), {octo_known} known "
+        f"voxels, {tree.memoryUsage() / octo_known:.2f} bytes/known voxel (memoryUsage() / known voxels, pruned tree)"
+    )
     for label, model, fn in prismap_runs:
         timer = TimedModel(model)
         t, cpu, grid = timed(lambda fn=fn, timer=timer: fn(timer), repeat)
-        print(f"[{name}] prismap {label}: {t * 1e3:.0f} ms (CPU {cpu * 1e3:.0f} ms), {grid.n_known} known voxels, "
-              f"{grid.nbytes() / grid.n_known:.2f} bytes/known voxel (allocated); speed ratio vs OctoMap "
-              f"{t_octo / t:.2f}x wall, {cpu_octo / cpu:.2f}x CPU; model calls {timer.seconds / repeat * 1e3:.0f} ms per run "
-              "(mean, incl. first-run set-up)")
+        print(
+            f"[{name}] prismap {label}: {t * 1e3:.0f} ms (CPU {cpu * 1e3:.0f} ms), {grid.n_known} known voxels, "
+            f"{grid.nbytes() / grid.n_known:.2f} bytes/known voxel (allocated); speed ratio vs OctoMap "
+            f"{t_octo / t:.2f}x wall, {cpu_octo / cpu:.2f}x CPU; model calls {timer.seconds / repeat * 1e3:.0f} ms per run "
+            "(mean, incl. first-run set-up)"
+        )
 
 
 def _octo(points, origin, max_range):
@@ -378,15 +440,27 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--street", action="store_true", help="scene (c) only")
-    parser.add_argument("--scales", type=float, nargs="+", default=[1.0, 0.5],
-                        help="scene (c): kitti_camera scales, the rigs (1: 1242x375, f 720 px; 0.5: 621x188, f 360 px)")
-    parser.add_argument("--conditioned", action="store_true",
-                        help="scene (c) from images: SGBM's disparities, its conditioned error model, PRISM conditioned")
+    parser.add_argument(
+        "--scales",
+        type=float,
+        nargs="+",
+        default=[1.0, 0.5],
+        help="scene (c): kitti_camera scales, the rigs (1: 1242x375, f 720 px; 0.5: 621x188, f 360 px)",
+    )
+    parser.add_argument(
+        "--conditioned",
+        action="store_true",
+        help="scene (c) from images: SGBM's disparities, its conditioned error model, PRISM conditioned",
+    )
     parser.add_argument("--world-dir", help="scene (c) --conditioned: keep (and reuse) the matched world here")
     parser.add_argument("--frames", type=int, default=10, help="scene (c): frames along the street")
     parser.add_argument("--voxels", type=float, nargs="+", default=[0.2, 0.1], help="scene (c): voxel sizes (m)")
-    parser.add_argument("--methods", nargs="+", help="scene (c): only the methods whose label contains one of these "
-                        "words (e.g. OctoMap PRISM); ratios are to OctoMap, or to the first method without it")
+    parser.add_argument(
+        "--methods",
+        nargs="+",
+        help="scene (c): only the methods whose label contains one of these "
+        "words (e.g. OctoMap PRISM); ratios are to OctoMap, or to the first method without it",
+    )
     parser.add_argument("--street-method", nargs=6, help=argparse.SUPPRESS)  # one process of scene (c)
     args = parser.parse_args()
     if args.street_method:
@@ -410,14 +484,26 @@ def main():
             grid = OccupancyMap(VOXEL, p0=ism.p0 if hasattr(ism, "p0") else 0.5)
             integrate_disparity(grid, disparity, camera, pose, ism, mode=mode, max_range_m=12.0)
             return grid
+
         return go
 
-    prism = make_sensor_model("prism", focal_baseline=camera.focal_baseline, doffs_px=0.0, voxel_size_m=VOXEL,
-                              p0=0.05, error_model=STREET_MIXTURE)
-    runs = [("ray, hit/miss", model, frame("ray")), ("projective, hit/miss", model, frame("projective")),
-            ("projective, PRISM (p0 0.05)", prism, frame("projective"))]
-    print("scene (a): 640x480 planes at 1-10 m (floor, walls, slanted box), camera yawed 20 deg, 0.1 m voxels, max range "
-          f"12 m, errors {mixture_text()}; load {_load()}")
+    prism = make_sensor_model(
+        "prism",
+        focal_baseline=camera.focal_baseline,
+        doffs_px=0.0,
+        voxel_size_m=VOXEL,
+        p0=0.05,
+        error_model=STREET_MIXTURE,
+    )
+    runs = [
+        ("ray, hit/miss", model, frame("ray")),
+        ("projective, hit/miss", model, frame("projective")),
+        ("projective, PRISM (p0 0.05)", prism, frame("projective")),
+    ]
+    print(
+        "scene (a): 640x480 planes at 1-10 m (floor, walls, slanted box), camera yawed 20 deg, 0.1 m voxels, max range "
+        f"12 m, errors {mixture_text()}; load {_load()}"
+    )
     valid = np.isfinite(depth).ravel()
     run("a", world_points(camera, pose, depth)[valid], pose[:3, 3].copy(), runs, args.repeat, 12.0)
 
@@ -432,7 +518,9 @@ def main():
         grid.integrate_rays(origin, rays, fake.focal_baseline / depth_b, ism, max_range_m=25.0)
         return grid
 
-    print("\nscene (b): 100k uniform random points at 2-20 m in a 90x60 deg frustum (seed 0), 0.1 m voxels, max range 25 m")
+    print(
+        "\nscene (b): 100k uniform random points at 2-20 m in a 90x60 deg frustum (seed 0), 0.1 m voxels, max range 25 m"
+    )
     run("b", points, origin, [("ray, hit/miss", model_b, cloud)], args.repeat, 25.0)
 
 

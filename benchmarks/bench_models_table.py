@@ -50,19 +50,27 @@ class PerformanceTable:
 
     def to_dict(self):
         """JSON-ready form."""
-        return {"scene": self.scene, "table_build_s": self.table_build_s, "n_disparities": self.n_disparities,
-                "rows": list(self.rows)}
+        return {
+            "scene": self.scene,
+            "table_build_s": self.table_build_s,
+            "n_disparities": self.n_disparities,
+            "rows": list(self.rows),
+        }
 
     def to_markdown(self):
         """Markdown table with the scene and the one-off table cost underneath."""
         lines = ["| model | ns per cell | ns per ray | rays | cells | seconds |", "|---|---:|---:|---:|---:|---:|"]
         for row in self.rows:
-            lines.append(f"| {row['model']} | {row['ns_per_cell']:.1f} | {row['ns_per_ray']:.0f} | {row['n_rays']} | "
-                         f"{row['n_cells']} | {row['seconds']:.3f} |")
+            lines.append(
+                f"| {row['model']} | {row['ns_per_cell']:.1f} | {row['ns_per_ray']:.0f} | {row['n_rays']} | "
+                f"{row['n_cells']} | {row['seconds']:.3f} |"
+            )
         lines.append("")
-        lines.append(f"Scene: {self.scene}. Before timing, the influence depths of the batch took "
-                     f"{self.table_build_s:.2f} s, mostly building PRISM's tables for {self.n_disparities} distinct "
-                     "disparities (once per error model and camera).")
+        lines.append(
+            f"Scene: {self.scene}. Before timing, the influence depths of the batch took "
+            f"{self.table_build_s:.2f} s, mostly building PRISM's tables for {self.n_disparities} distinct "
+            "disparities (once per error model and camera)."
+        )
         return "\n".join(lines) + "\n"
 
 
@@ -88,8 +96,21 @@ def _cells(setup, disparity, norm, end_depth):
     return rays, start, start + step[rays]
 
 
-def time_models(mixture, *, setup, focal_px, width=640, height=480, stride=1, depth_range_m=(1.0, 20.0),
-                n_bands=8, direct_rays=16, chunk_rays=8192, seed=0, names=None):
+def time_models(
+    mixture,
+    *,
+    setup,
+    focal_px,
+    width=640,
+    height=480,
+    stride=1,
+    depth_range_m=(1.0, 20.0),
+    n_bands=8,
+    direct_rays=16,
+    chunk_rays=8192,
+    seed=0,
+    names=None,
+):
     """Nanoseconds per cell and per ray of every model, PRISM direct and tabulated, on one batch.
 
     The batch: rays of every ``stride``-th pixel of a ``width x height`` frame (focal ``focal_px``, principal
@@ -106,8 +127,9 @@ def time_models(mixture, *, setup, focal_px, width=640, height=480, stride=1, de
     check_positive(focal_px, "focal_px")
     if min(stride, direct_rays, chunk_rays, n_bands) < 1:
         raise PrismapInputError("`stride`, `direct_rays`, `chunk_rays` and `n_bands` must be >= 1")
-    disparity, norm, band_depth = _band_scene(setup, focal_px, width=width, height=height, stride=stride,
-                                              depth_range_m=depth_range_m, n_bands=n_bands)
+    disparity, norm, band_depth = _band_scene(
+        setup, focal_px, width=width, height=height, stride=stride, depth_range_m=depth_range_m, n_bands=n_bands
+    )
     models = study_models(mixture, setup=setup, names=names, prism_method="table")
     t0 = time.perf_counter()
     end_depth = np.max([model.influence_depth(disparity, norm) for model in models.values()], axis=0)
@@ -127,7 +149,11 @@ def time_models(mixture, *, setup, focal_px, width=640, height=480, stride=1, de
         chunk = slice(first, first + chunk_rays)
         batch = (disparity[chunk], norm[chunk], *_cells(setup, disparity[chunk], norm[chunk], end_depth[chunk]))
         sub = np.nonzero(direct[chunk])[0]
-        direct_batch = (batch[0][sub], batch[1][sub], *_cells(setup, batch[0][sub], batch[1][sub], end_depth[chunk][sub]))
+        direct_batch = (
+            batch[0][sub],
+            batch[1][sub],
+            *_cells(setup, batch[0][sub], batch[1][sub], end_depth[chunk][sub]),
+        )
         for name, model in timed.items():
             use = direct_batch if name == "prism (direct)" else batch
             if use[0].size == 0:
@@ -140,13 +166,23 @@ def time_models(mixture, *, setup, focal_px, width=640, height=480, stride=1, de
             seconds[name] += time.perf_counter() - t
             cells[name] += use[2].size
             rays_done[name] += use[0].size
-    rows = tuple({"model": name, "seconds": seconds[name], "ns_per_cell": 1e9 * seconds[name] / cells[name],
-                  "ns_per_ray": 1e9 * seconds[name] / rays_done[name], "n_rays": rays_done[name],
-                  "n_cells": cells[name]} for name in timed)
-    scene = (f"{disparity.size} rays (every {stride}. pixel of a {width}x{height} frame, f = {focal_px:g} px, "
-             f"f*b = {setup.focal_baseline:.2f} px*m, doffs = {setup.doffs_px:g} px) on {n_bands} planes at "
-             f"{', '.join(f'{z:.2f}' for z in band_depth)} m; cells of {setup.voxel_size_m:g} m along each ray from "
-             f"{setup.near_m:g} m to the largest influence depth; p0 = {setup.p0:g}")
+    rows = tuple(
+        {
+            "model": name,
+            "seconds": seconds[name],
+            "ns_per_cell": 1e9 * seconds[name] / cells[name],
+            "ns_per_ray": 1e9 * seconds[name] / rays_done[name],
+            "n_rays": rays_done[name],
+            "n_cells": cells[name],
+        }
+        for name in timed
+    )
+    scene = (
+        f"{disparity.size} rays (every {stride}. pixel of a {width}x{height} frame, f = {focal_px:g} px, "
+        f"f*b = {setup.focal_baseline:.2f} px*m, doffs = {setup.doffs_px:g} px) on {n_bands} planes at "
+        f"{', '.join(f'{z:.2f}' for z in band_depth)} m; cells of {setup.voxel_size_m:g} m along each ray from "
+        f"{setup.near_m:g} m to the largest influence depth; p0 = {setup.p0:g}"
+    )
     return PerformanceTable(rows, scene, table_build_s, int(np.unique(disparity).size))
 
 
@@ -158,12 +194,16 @@ def main():
     rig = CAMERAS[args.camera]
     setup = RaySetup(focal_baseline=rig["focal_px"] * rig["baseline_m"], doffs_px=rig["doffs_px"])
     table = time_models(MIXTURE, setup=setup, focal_px=rig["focal_px"], stride=args.stride)
-    print(f"camera {args.camera}; error mixture w={MIXTURE.weights.tolist()} mu={MIXTURE.means.tolist()} "
-          f"sigma={MIXTURE.sigmas.tolist()} px")
+    print(
+        f"camera {args.camera}; error mixture w={MIXTURE.weights.tolist()} mu={MIXTURE.means.tolist()} "
+        f"sigma={MIXTURE.sigmas.tolist()} px"
+    )
     print(table.to_markdown())
     peer = next(row for row in table.rows if row["model"] == "hitmiss")
     for row in table.rows:
-        print(f"{row['model']:>15}: {row['ns_per_cell']:10.1f} ns/cell  {row['ns_per_cell'] / peer['ns_per_cell']:9.1f}x hitmiss")
+        print(
+            f"{row['model']:>15}: {row['ns_per_cell']:10.1f} ns/cell  {row['ns_per_cell'] / peer['ns_per_cell']:9.1f}x hitmiss"
+        )
 
 
 if __name__ == "__main__":

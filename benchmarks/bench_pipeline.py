@@ -188,17 +188,23 @@ def stages(sequence, config, n_frames, repeat):
         inline.append(timed_run(sequence, config, look_ahead=False))
     wall = statistics.median(run[0] for run in runs)
     share = {name: statistics.median(run[2][name] for run in runs) / wall for name in runs[0][2]}
-    print(f"{config.mode:<10} cold {n_frames / cold:5.2f} fps, warm {n_frames / wall:5.2f} fps "
-          f"({wall / n_frames * 1e3:.0f} ms/frame, CPU {_median_ms(runs, 1, n_frames):.0f} ms/frame): "
-          + ", ".join(f"{k} {v:.1%}" for k, v in share.items()))
+    print(
+        f"{config.mode:<10} cold {n_frames / cold:5.2f} fps, warm {n_frames / wall:5.2f} fps "
+        f"({wall / n_frames * 1e3:.0f} ms/frame, CPU {_median_ms(runs, 1, n_frames):.0f} ms/frame): "
+        + ", ".join(f"{k} {v:.1%}" for k, v in share.items())
+    )
     wall_inline = statistics.median(run[0] for run in inline)
-    print(f"{'':<10} frame by frame (no look-ahead) warm {n_frames / wall_inline:5.2f} fps ({wall_inline / n_frames * 1e3:.0f} "
-          f"ms/frame, CPU {_median_ms(inline, 1, n_frames):.0f} ms/frame): the look-ahead x{wall_inline / wall:.2f}")
+    print(
+        f"{'':<10} frame by frame (no look-ahead) warm {n_frames / wall_inline:5.2f} fps ({wall_inline / n_frames * 1e3:.0f} "
+        f"ms/frame, CPU {_median_ms(inline, 1, n_frames):.0f} ms/frame): the look-ahead x{wall_inline / wall:.2f}"
+    )
     threads = {name: statistics.median(run[3][name] for run in runs) / n_frames for name in runs[0][3]}
     bound = min(1.0 / threads["disparity"], 1.0 / threads["integration"], 2.0 / sum(threads.values()))
-    print(f"{'':<10} CPU per frame with the look-ahead: disparity thread {threads['disparity'] * 1e3:.0f} ms, integration "
-          f"thread {threads['integration'] * 1e3:.0f} ms, its workers {threads['workers'] * 1e3:.0f} ms: on 2 idle cores "
-          f"at most {bound:.2f} fps (the busiest thread, or the total over 2 cores)")
+    print(
+        f"{'':<10} CPU per frame with the look-ahead: disparity thread {threads['disparity'] * 1e3:.0f} ms, integration "
+        f"thread {threads['integration'] * 1e3:.0f} ms, its workers {threads['workers'] * 1e3:.0f} ms: on 2 idle cores "
+        f"at most {bound:.2f} fps (the busiest thread, or the total over 2 cores)"
+    )
     return _median_ms(runs, 1, n_frames)
 
 
@@ -235,11 +241,14 @@ def main():
     if args.cv_threads is not None:
         cv2.setNumThreads(args.cv_threads)
     if args.dask and args.model == "prism":
-        parser.error("--dask runs the CLI, which takes PRISM's error model from a characterised file: use another --model")
+        parser.error(
+            "--dask runs the CLI, which takes PRISM's error model from a characterised file: use another --model"
+        )
 
     scale = args.width / 640
-    camera = StereoCamera(615.0 * scale, 320.0 * scale - 0.5, 240.0 * scale - 0.5, 0.10,
-                          width=args.width, height=int(480 * scale))
+    camera = StereoCamera(
+        615.0 * scale, 320.0 * scale - 0.5, 240.0 * scale - 0.5, 0.10, width=args.width, height=int(480 * scale)
+    )
     model_params = {"sigma_px": 0.5} if args.model in ("convolution", "andert") else {}
     with tempfile.TemporaryDirectory() as tmp:
         sequence = Path(tmp) / "seq"
@@ -248,39 +257,80 @@ def main():
         write_sequence(frames, sequence)
         error_model, variants = None, [(None, "")]
         if args.model == "prism":
-            error_model = characterise_matcher(frames[:CHARACTERISE_FRAMES], make_matcher("sgbm", **MATCHER_PARAMS),
-                                               progress=False).model
+            error_model = characterise_matcher(
+                frames[:CHARACTERISE_FRAMES], make_matcher("sgbm", **MATCHER_PARAMS), progress=False
+            ).model
             variants = [(True, "conditioned"), (False, "plain")] if error_model.conditioned else [(False, "plain")]
         del frames
-        print(f"scene: indoor_scene(seed=0), {args.frames} frames of {camera.width}x{camera.height} px "
-              f"(f {camera.focal_px:.1f} px, b 0.10 m); sgbm 64 disparities, {args.model} {model_params}"
-              + (f" with SGBM's error model from {CHARACTERISE_FRAMES} frames ({error_model.n_classes} classes)"
-                 if error_model is not None else "")
-              + f", voxel {VOXEL_M} m, max range {MAX_RANGE_M} m; OpenCV threads {cv2.getNumThreads()}; load {_load()}")
+        print(
+            f"scene: indoor_scene(seed=0), {args.frames} frames of {camera.width}x{camera.height} px "
+            f"(f {camera.focal_px:.1f} px, b 0.10 m); sgbm 64 disparities, {args.model} {model_params}"
+            + (
+                f" with SGBM's error model from {CHARACTERISE_FRAMES} frames ({error_model.n_classes} classes)"
+                if error_model is not None
+                else ""
+            )
+            + f", voxel {VOXEL_M} m, max range {MAX_RANGE_M} m; OpenCV threads {cv2.getNumThreads()}; load {_load()}"
+        )
         if not args.dask:
             for mode in args.modes:
                 cpu = {}
                 for conditioned, label in variants:
-                    config = MappingConfig(model=args.model, model_params=model_params, error_model=error_model,
-                                           conditioned=conditioned, voxel_size_m=VOXEL_M, max_range_m=MAX_RANGE_M,
-                                           matcher="sgbm", matcher_params=MATCHER_PARAMS, mode=mode)
+                    config = MappingConfig(
+                        model=args.model,
+                        model_params=model_params,
+                        error_model=error_model,
+                        conditioned=conditioned,
+                        voxel_size_m=VOXEL_M,
+                        max_range_m=MAX_RANGE_M,
+                        matcher="sgbm",
+                        matcher_params=MATCHER_PARAMS,
+                        mode=mode,
+                    )
                     if label:
                         print(label)
                     cpu_ms = cpu[label] = stages(sequence, config, args.frames, args.repeat)
                 if len(cpu) == 2:
                     print(f"{mode}: conditioned / plain warm CPU per frame {cpu['conditioned'] / cpu['plain']:.2f}")
-            print(f"floor: SGBM compute alone {sgbm_floor(sequence, args.frames, args.repeat):.2f} fps (one thread); "
-                  f"the last mode's warm CPU per frame on 2 cores {2e3 / cpu_ms:.2f} fps; load {_load()}")
+            print(
+                f"floor: SGBM compute alone {sgbm_floor(sequence, args.frames, args.repeat):.2f} fps (one thread); "
+                f"the last mode's warm CPU per frame on 2 cores {2e3 / cpu_ms:.2f} fps; load {_load()}"
+            )
             return
-        config = MappingConfig(model=args.model, model_params=model_params, error_model=error_model,
-                               voxel_size_m=VOXEL_M, max_range_m=MAX_RANGE_M, matcher="sgbm",
-                               matcher_params=MATCHER_PARAMS)
-        command = ["map", "--sequence", str(sequence), "--matcher", "sgbm", "--matcher-param", "num_disparities=64",
-                   "--model", args.model, *[f"--model-param={k}={v}" for k, v in model_params.items()],
-                   "--voxel", str(VOXEL_M), "--max-range", str(MAX_RANGE_M), "--out", str(Path(tmp) / "map.npz")]
+        config = MappingConfig(
+            model=args.model,
+            model_params=model_params,
+            error_model=error_model,
+            voxel_size_m=VOXEL_M,
+            max_range_m=MAX_RANGE_M,
+            matcher="sgbm",
+            matcher_params=MATCHER_PARAMS,
+        )
+        command = [
+            "map",
+            "--sequence",
+            str(sequence),
+            "--matcher",
+            "sgbm",
+            "--matcher-param",
+            "num_disparities=64",
+            "--model",
+            args.model,
+            *[f"--model-param={k}={v}" for k, v in model_params.items()],
+            "--voxel",
+            str(VOXEL_M),
+            "--max-range",
+            str(MAX_RANGE_M),
+            "--out",
+            str(Path(tmp) / "map.npz"),
+        ]
         map_sequence(sequence, config, progress=False)  # numba caches loaded before any timing
         rows = []
-        for label, extra in (("sequential", []), ("dask 1 worker", ["--workers", "1"]), ("dask 2 workers", ["--workers", "2"])):
+        for label, extra in (
+            ("sequential", []),
+            ("dask 1 worker", ["--workers", "1"]),
+            ("dask 2 workers", ["--workers", "2"]),
+        ):
             start = time.perf_counter()
             assert prismap_main(command + extra) == 0
             cli_s = time.perf_counter() - start
@@ -302,8 +352,10 @@ def _warm_seconds(sequence, config, n_workers):
         start = time.perf_counter()
         map_sequence(sequence, config, progress=False)
         return time.perf_counter() - start
-    with LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True, dashboard_address=None) as cluster, \
-            Client(cluster) as client:
+    with (
+        LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True, dashboard_address=None) as cluster,
+        Client(cluster) as client,
+    ):
         map_sequence(sequence, config, progress=False, client=client)
         start = time.perf_counter()
         map_sequence(sequence, config, progress=False, client=client)

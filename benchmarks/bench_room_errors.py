@@ -68,9 +68,11 @@ def synthetic_errors(variant, mixture, frame, camera, rng):
         keys = (cell[:, 0] << 42) | (cell[:, 1] << 21) | cell[:, 2]
         return _mixture_quantile(mixture, _uniforms(keys, 1))
     if variant == "patches":
+
         def field(sigma_px):
             z = ndimage.gaussian_filter(rng.standard_normal(truth.shape), sigma_px, mode="reflect")
             return z / z.std()
+
         z = np.sqrt(0.6) * field(3.0) + np.sqrt(0.4) * field(20.0)
         return _mixture_quantile(mixture, stats.norm.cdf(z[known]))
     raise SystemExit(f"unknown variant {variant!r}: independent, shared or patches")
@@ -88,14 +90,19 @@ def near_free(truth):
 def scores(grid, truth, near):
     """The map's scores and the ROC AUC of occupied voxels against near-free and far-free ones."""
     keys = grid.known_voxels()[0]
-    p, occupied = align_to_ground_truth(keys, grid.probability_at_keys(keys), truth.occupied_keys,
-                                        truth.observed_keys, p0=grid.p0)
+    p, occupied = align_to_ground_truth(
+        keys, grid.probability_at_keys(keys), truth.occupied_keys, truth.observed_keys, p0=grid.p0
+    )
     result = score_map(p, occupied)
-    parts = [score_map(np.r_[p[occupied], p[other]], np.r_[np.ones(occupied.sum(), bool), np.zeros(other.sum(), bool)])
-             for other in (~occupied & near, ~occupied & ~near)]
-    return (f"Brier {result.brier:.4f}  log-loss {result.log_loss:.4f}  ROC AUC {result.roc_auc:.4f}  "
-            f"safety {100 * result.safety_occupied_called_free:.2f} %  AUC near free {parts[0].roc_auc:.4f}  "
-            f"far free {parts[1].roc_auc:.4f}")
+    parts = [
+        score_map(np.r_[p[occupied], p[other]], np.r_[np.ones(occupied.sum(), bool), np.zeros(other.sum(), bool)])
+        for other in (~occupied & near, ~occupied & ~near)
+    ]
+    return (
+        f"Brier {result.brier:.4f}  log-loss {result.log_loss:.4f}  ROC AUC {result.roc_auc:.4f}  "
+        f"safety {100 * result.safety_occupied_called_free:.2f} %  AUC near free {parts[0].roc_auc:.4f}  "
+        f"far free {parts[1].roc_auc:.4f}"
+    )
 
 
 def load_run(run_dir, matcher):
@@ -127,11 +134,19 @@ def main(run_dir, matcher="sgbm", variants="independent,shared,patches", models=
                 write_disparity_png(Path(disparity_dir) / f"{index:06d}.png", disparity, f"{variant} disparity")
             for model in models.split(","):
                 plain_params = {k: v for k, v in model_params.get(model, {}).items() if k != CLASS_PASS_THROUGH}
-                config = MappingConfig(model=model, model_params=plain_params,
-                                       voxel_size_m=settings["voxel_size_m"], p0=p0, error_model=error_model,
-                                       conditioned=False, matcher=matcher, disparity_source=disparity_dir,
-                                       max_range_m=settings["max_range_m"], subsample=settings["subsample"],
-                                       mode=settings["mode"])
+                config = MappingConfig(
+                    model=model,
+                    model_params=plain_params,
+                    voxel_size_m=settings["voxel_size_m"],
+                    p0=p0,
+                    error_model=error_model,
+                    conditioned=False,
+                    matcher=matcher,
+                    disparity_source=disparity_dir,
+                    max_range_m=settings["max_range_m"],
+                    subsample=settings["subsample"],
+                    mode=settings["mode"],
+                )
                 print(f"{variant:12s} {model:12s}", scores(map_sequence(sequence, config), truth, near), flush=True)
 
 

@@ -37,18 +37,27 @@ def main(run_dir, matcher="sgbm", models="prism_conditioned,convolution", counts
         model_params = dict(params.get(model, {}), **({"prior": prior} if prior else {}))
         if not conditioned:  # one pass-through per error class is for conditioned PRISM
             model_params.pop(CLASS_PASS_THROUGH, None)
-        config = MappingConfig(model=model, model_params=model_params, voxel_size_m=settings["voxel_size_m"], p0=p0,
-                               error_model=error_model, conditioned=None if conditioned else False, matcher=matcher,
-                               disparity_source=str((run / matcher / "disparity").resolve()),
-                               max_range_m=settings["max_range_m"], subsample=settings["subsample"],
-                               mode=settings["mode"])
+        config = MappingConfig(
+            model=model,
+            model_params=model_params,
+            voxel_size_m=settings["voxel_size_m"],
+            p0=p0,
+            error_model=error_model,
+            conditioned=None if conditioned else False,
+            matcher=matcher,
+            disparity_source=str((run / matcher / "disparity").resolve()),
+            max_range_m=settings["max_range_m"],
+            subsample=settings["subsample"],
+            mode=settings["mode"],
+        )
         grid, done, start = new_map(config), 0, time.perf_counter()
         for stop in stops:
             integrate_frames(grid, sequence, config, range(done, stop))
             done = stop
             keys = grid.known_voxels()[0]
-            p, occupied = align_to_ground_truth(keys, grid.probability_at_keys(keys), truth.occupied_keys,
-                                                truth.observed_keys, p0=p0)
+            p, occupied = align_to_ground_truth(
+                keys, grid.probability_at_keys(keys), truth.occupied_keys, truth.observed_keys, p0=p0
+            )
             count = grid.lookup_keys(truth.observed_keys)[1]
             results[(cell, stop)] = (p, occupied, count > 0, time.perf_counter() - start)
     for stop in stops:
@@ -56,13 +65,20 @@ def main(run_dir, matcher="sgbm", models="prism_conditioned,convolution", counts
         for cell in models.split(","):
             p, occupied, _, elapsed = results[(cell, stop)]
             whole = score_map(p, occupied)
-            parts = [score_map(np.r_[p[occupied & seen], p[other & seen]],
-                               np.r_[np.ones((occupied & seen).sum(), bool), np.zeros((other & seen).sum(), bool)])
-                     for other in (~occupied, ~occupied & near, ~occupied & ~near)]
-            print(f"{matcher} {cell:26s} frames {stop:3d}  Brier {whole.brier:.4f}  log-loss {whole.log_loss:.4f}  "
-                  f"AUC {whole.roc_auc:.4f}  safety {100 * whole.safety_occupied_called_free:.2f} %  | seen voxels "
-                  f"{int(seen.sum())}: AUC {parts[0].roc_auc:.4f}  near free {parts[1].roc_auc:.4f}  far free "
-                  f"{parts[2].roc_auc:.4f}  ({elapsed:.1f} s)", flush=True)
+            parts = [
+                score_map(
+                    np.r_[p[occupied & seen], p[other & seen]],
+                    np.r_[np.ones((occupied & seen).sum(), bool), np.zeros((other & seen).sum(), bool)],
+                )
+                for other in (~occupied, ~occupied & near, ~occupied & ~near)
+            ]
+            print(
+                f"{matcher} {cell:26s} frames {stop:3d}  Brier {whole.brier:.4f}  log-loss {whole.log_loss:.4f}  "
+                f"AUC {whole.roc_auc:.4f}  safety {100 * whole.safety_occupied_called_free:.2f} %  | seen voxels "
+                f"{int(seen.sum())}: AUC {parts[0].roc_auc:.4f}  near free {parts[1].roc_auc:.4f}  far free "
+                f"{parts[2].roc_auc:.4f}  ({elapsed:.1f} s)",
+                flush=True,
+            )
 
 
 if __name__ == "__main__":

@@ -32,8 +32,9 @@ from prismap.sensor_models import CLASS_PASS_THROUGH
 def called_free(grid, truth, p0):
     """(M,) bool over ``truth.observed_keys``: occupied and ``P <= t`` at the map's 90 %-free threshold ``t``."""
     keys = grid.known_voxels()[0]
-    p, occupied = align_to_ground_truth(keys, grid.probability_at_keys(keys), truth.occupied_keys,
-                                        truth.observed_keys, p0=p0)
+    p, occupied = align_to_ground_truth(
+        keys, grid.probability_at_keys(keys), truth.occupied_keys, truth.observed_keys, p0=p0
+    )
     return occupied & (p <= safety_score(p, occupied)[1]), occupied
 
 
@@ -81,10 +82,19 @@ def exact_map(sequence, settings, matcher, error_model, params, p0):
             exact = np.asarray(sequence[index].disparity_gt, float)
             write_disparity_png(Path(directory) / f"{index:06d}.png", np.round(exact * 16) / 16, "exact disparity")
         prism = {k: v for k, v in params.get("prism", {}).items() if k != CLASS_PASS_THROUGH}
-        config = MappingConfig(model="prism", model_params=prism, voxel_size_m=settings["voxel_size_m"], p0=p0,
-                               error_model=error_model, conditioned=False, matcher=matcher, disparity_source=directory,
-                               max_range_m=settings["max_range_m"], subsample=settings["subsample"],
-                               mode=settings["mode"])
+        config = MappingConfig(
+            model="prism",
+            model_params=prism,
+            voxel_size_m=settings["voxel_size_m"],
+            p0=p0,
+            error_model=error_model,
+            conditioned=False,
+            matcher=matcher,
+            disparity_source=directory,
+            max_range_m=settings["max_range_m"],
+            subsample=settings["subsample"],
+            mode=settings["mode"],
+        )
         return map_sequence(sequence, config)
 
 
@@ -98,22 +108,32 @@ def main(run_dir, matcher="bm", exact=""):
     shift = settings["grid_offset_m"]
     keys = truth.observed_keys
     free_keys = pack_keys(keys[~occupied])
-    exposed = sum(np.isin(pack_keys(keys + step), free_keys).astype(int)
-                  for step in np.vstack((np.eye(3, dtype=np.int64), -np.eye(3, dtype=np.int64))))
+    exposed = sum(
+        np.isin(pack_keys(keys + step), free_keys).astype(int)
+        for step in np.vstack((np.eye(3, dtype=np.int64), -np.eye(3, dtype=np.int64)))
+    )
     cameras = np.array([sequence[i].T_world_cam[:3, 3] for i in range(len(sequence))])
     distance = np.linalg.norm((keys + 0.5)[:, None] * voxel - cameras[None], axis=2).min(axis=1)
     passes, stops = noise_free_crossings(sequence, truth, voxel, settings)
     share = np.zeros(keys.shape[0])
     share[occupied] = solid_share(keys[occupied], base.box_lo + shift, base.box_hi + shift, voxel)
-    groups = {"both": plain & conditioned, "plain only": plain & ~conditioned,
-              "conditioned only": conditioned & ~plain, "all occupied": occupied}
-    exact_free = called_free(exact_map(sequence, settings, matcher, error_model, params, p0), truth, p0)[0] if exact else None
+    groups = {
+        "both": plain & conditioned,
+        "plain only": plain & ~conditioned,
+        "conditioned only": conditioned & ~plain,
+        "all occupied": occupied,
+    }
+    exact_free = (
+        called_free(exact_map(sequence, settings, matcher, error_model, params, p0), truth, p0)[0] if exact else None
+    )
     for name, group in groups.items():
         faces = np.bincount(exposed[group], minlength=4)
-        line = (f"{matcher} {name:16s} {int(group.sum()):6d} voxels | solid share median {np.median(share[group]):.3f}, "
-                f"< 0.2: {np.mean(share[group] < 0.2):.2f} | faces to free 1/2/3: {faces[1]}/{faces[2]}/{faces[3]} | "
-                f"frames median {np.median(counts[group]):.0f} | camera distance median {np.median(distance[group]):.2f} m | "
-                f"noise-free rays pass {passes[group].sum() / max(1.0, (passes[group] + stops[group]).sum()):.3f}")
+        line = (
+            f"{matcher} {name:16s} {int(group.sum()):6d} voxels | solid share median {np.median(share[group]):.3f}, "
+            f"< 0.2: {np.mean(share[group] < 0.2):.2f} | faces to free 1/2/3: {faces[1]}/{faces[2]}/{faces[3]} | "
+            f"frames median {np.median(counts[group]):.0f} | camera distance median {np.median(distance[group]):.2f} m | "
+            f"noise-free rays pass {passes[group].sum() / max(1.0, (passes[group] + stops[group]).sum()):.3f}"
+        )
         if exact_free is not None:
             line += f" | exact-disparity map calls {int((exact_free & group).sum())} free"
         print(line, flush=True)

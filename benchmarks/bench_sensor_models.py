@@ -91,10 +91,31 @@ def table_stages(prism, batch, repeat=5):
 
     def lookup():
         for lo, hi in blocks:
-            _kernels_lookup.prism_table_lookup(lam, table, delta, rays, start, end, stretch, lo, hi, prism.near_m,
-                                        prism.far_depth_m, prism.focal_baseline, prism._ku(), _prism._QUAD_STEP,
-                                        meta, nodes, log_wn, means, sigmas, l_a[lo:hi], l_c[lo:hi], side[lo:hi],
-                                        lam_len[lo:hi])
+            _kernels_lookup.prism_table_lookup(
+                lam,
+                table,
+                delta,
+                rays,
+                start,
+                end,
+                stretch,
+                lo,
+                hi,
+                prism.near_m,
+                prism.far_depth_m,
+                prism.focal_baseline,
+                prism._ku(),
+                _prism._QUAD_STEP,
+                meta,
+                nodes,
+                log_wn,
+                means,
+                sigmas,
+                l_a[lo:hi],
+                l_c[lo:hi],
+                side[lo:hi],
+                lam_len[lo:hi],
+            )
 
     def exps():
         for lo, hi in blocks:
@@ -103,8 +124,21 @@ def table_stages(prism, batch, repeat=5):
 
     def combination():
         for lo, hi in blocks:
-            _kernels_lookup.prism_table_combine(lo, hi, l_a[lo:hi], l_c[lo:hi], e_a[lo:hi], e_c[lo:hi], side[lo:hi],
-                                         lam_len[lo:hi], post, ratio[lo:hi], fix_index, fix_value, prism.pass_through)
+            _kernels_lookup.prism_table_combine(
+                lo,
+                hi,
+                l_a[lo:hi],
+                l_c[lo:hi],
+                e_a[lo:hi],
+                e_c[lo:hi],
+                side[lo:hi],
+                lam_len[lo:hi],
+                post,
+                ratio[lo:hi],
+                fix_index,
+                fix_value,
+                prism.pass_through,
+            )
 
     def logs():
         for lo, hi in blocks:
@@ -149,8 +183,15 @@ def street_calls(scale, mode, n_calls=4):
                 calls.append((tuple(np.array(a) for a in args), {k: np.array(v) for k, v in kwargs.items()}))
             return self.model.cell_posteriors(*args, **kwargs)
 
-    integrate_disparity(OccupancyMap(0.2, p0=model.p0), disparities[0], camera, poses[0], Recorder(model), mode=mode,
-                                                       max_range_m=bench_grid.STREET_RANGE_M[1])
+    integrate_disparity(
+        OccupancyMap(0.2, p0=model.p0),
+        disparities[0],
+        camera,
+        poses[0],
+        Recorder(model),
+        mode=mode,
+        max_range_m=bench_grid.STREET_RANGE_M[1],
+    )
     return model, calls
 
 
@@ -159,12 +200,20 @@ def street(scale):
     on the street's own model calls, in ray mode and in projective mode."""
     for mode in ("ray", "projective"):
         prism, calls = street_calls(scale, mode)
-        ideal = make_sensor_model("ideal", focal_baseline=prism.focal_baseline, doffs_px=prism.doffs_px,
-                                  voxel_size_m=prism.voxel_size_m, p0=prism.p0)
+        ideal = make_sensor_model(
+            "ideal",
+            focal_baseline=prism.focal_baseline,
+            doffs_px=prism.doffs_px,
+            voxel_size_m=prism.voxel_size_m,
+            p0=prism.p0,
+        )
         n_cells = sum(args[2].size for args, _ in calls)
         results = {}
-        for name, model, overhang in (("ideal", ideal, False), ("PRISM", prism, True),
-                                      ("PRISM without overhang", prism, False)):
+        for name, model, overhang in (
+            ("ideal", ideal, False),
+            ("PRISM", prism, True),
+            ("PRISM without overhang", prism, False),
+        ):
             jobs = [(args, kwargs if overhang else {}) for args, kwargs in calls]
             for args, kwargs in jobs:
                 model.cell_posteriors(*args, **kwargs)
@@ -175,10 +224,12 @@ def street(scale):
                     model.cell_posteriors(*args, **kwargs)
                 best = min(best, time.process_time() - t0)
             results[name] = best / n_cells * 1e9
-        print(f"street scene (c) at scale {scale:g}, 0.2 m voxels, {mode}: {len(calls)} model call(s) of "
-              f"{calls[0][0][0].size} rays, {n_cells} cells; CPU ns per cell: ideal {results['ideal']:.1f}, PRISM "
-              f"{results['PRISM']:.1f} (ratio {results['PRISM'] / results['ideal']:.2f}), PRISM without the voxel "
-              f"overhang {results['PRISM without overhang']:.1f}")
+        print(
+            f"street scene (c) at scale {scale:g}, 0.2 m voxels, {mode}: {len(calls)} model call(s) of "
+            f"{calls[0][0][0].size} rays, {n_cells} cells; CPU ns per cell: ideal {results['ideal']:.1f}, PRISM "
+            f"{results['PRISM']:.1f} (ratio {results['PRISM'] / results['ideal']:.2f}), PRISM without the voxel "
+            f"overhang {results['PRISM without overhang']:.1f}"
+        )
 
 
 def main():
@@ -186,8 +237,11 @@ def main():
     parser.add_argument("--full", action="store_true", help="all 640x480 rays instead of 320x240")
     parser.add_argument("--direct-rays", type=int, default=300, help="rays for the slow direct PRISM")
     parser.add_argument("--frames", type=int, default=40, help="frames of the synthetic sequence (0: skip)")
-    parser.add_argument("--street", action="store_true",
-                        help="only the street's ray-mode calls (bench_grid scene (c), KITTI rig, street mixture)")
+    parser.add_argument(
+        "--street",
+        action="store_true",
+        help="only the street's ray-mode calls (bench_grid scene (c), KITTI rig, street mixture)",
+    )
     parser.add_argument("--scale", type=float, default=1.0, help="--street: kitti_camera scale")
     args = parser.parse_args()
     if args.street:
@@ -195,9 +249,11 @@ def main():
         return
     batch = scene(1 if args.full else 2)
     n_cells = batch[2].size
-    print(f"scene: {batch[0].size} rays ({'640x480' if args.full else '320x240'} of a 640x480 frame), "
-          f"depth {FB / batch[0].max():.2f}-{FB / batch[0].min():.2f} m, {n_cells} cells of 0.1 m, "
-          f"{np.unique(batch[0]).size} distinct disparities, |r| up to {batch[1].max():.3f}")
+    print(
+        f"scene: {batch[0].size} rays ({'640x480' if args.full else '320x240'} of a 640x480 frame), "
+        f"depth {FB / batch[0].max():.2f}-{FB / batch[0].min():.2f} m, {n_cells} cells of 0.1 m, "
+        f"{np.unique(batch[0]).size} distinct disparities, |r| up to {batch[1].max():.3f}"
+    )
     common = {"focal_baseline": FB, "voxel_size_m": 0.1, "p0": 0.05}
     small = scene(16)
     results = {}
@@ -220,24 +276,33 @@ def main():
     print(f"{'model':40s} {'ns/cell':>10s} {'x ideal':>9s}")
     for name, ns in results.items():
         print(f"{name:40s} {ns:10.1f} {ns / results['ideal']:9.2f}")
-    print(f"PRISM tables cached: {len(prism._cache)} ({prism._cache.nbytes / 2**20:.1f} MB); "
-          f"ratio tabulated PRISM (warm) / ideal = "
-          f"{results['prism table (warm)'] / results['ideal']:.2f} (goal <= 1.5)")
+    print(
+        f"PRISM tables cached: {len(prism._cache)} ({prism._cache.nbytes / 2**20:.1f} MB); "
+        f"ratio tabulated PRISM (warm) / ideal = "
+        f"{results['prism table (warm)'] / results['ideal']:.2f} (goal <= 1.5)"
+    )
     chunk = scene(8)  # 80x60 rays: about the grid's RAYS_PER_CHUNK (4096) per model call
     ideal = make_sensor_model("ideal", **common)
     ns_ideal = time_call(ideal, chunk, repeat=5) / chunk[2].size * 1e9
     ns_prism = time_call(prism, chunk, repeat=5) / chunk[2].size * 1e9
-    print(f"one grid-sized call ({chunk[0].size} rays, {chunk[2].size} cells, arrays in cache): ideal "
-          f"{ns_ideal:.1f} ns/cell, prism table (warm) {ns_prism:.1f} ns/cell, ratio {ns_prism / ns_ideal:.2f}")
+    print(
+        f"one grid-sized call ({chunk[0].size} rays, {chunk[2].size} cells, arrays in cache): ideal "
+        f"{ns_ideal:.1f} ns/cell, prism table (warm) {ns_prism:.1f} ns/cell, ratio {ns_prism / ns_ideal:.2f}"
+    )
     stage_ns = table_stages(prism, chunk)
-    print("  its stages (ns/cell, best of 5): " + ", ".join(f"{name} {ns:.1f}" for name, ns in stage_ns.items())
-          + f"; the look-up stage alone (no exp, combination or log) is {stage_ns['look-ups'] / ns_ideal:.1f}x the "
-          "ideal model: the floor of a tabulated PRISM that interpolates two table rows per cell")
+    print(
+        "  its stages (ns/cell, best of 5): "
+        + ", ".join(f"{name} {ns:.1f}" for name, ns in stage_ns.items())
+        + f"; the look-up stage alone (no exp, combination or log) is {stage_ns['look-ups'] / ns_ideal:.1f}x the "
+        "ideal model: the floor of a tabulated PRISM that interpolates two table rows per cell"
+    )
     if args.frames:
         cold, warm, base, model = sequence(args.frames, 4)
-        print(f"sequence of {args.frames} frames (160x120 rays each): PRISM fresh {cold:.2f} s, again (warm) "
-              f"{warm:.2f} s, ideal {base:.2f} s; table building {(cold - warm) / cold:.0%} of the fresh run, "
-              f"{len(model._cache)} tables ({model._cache.nbytes / 2**20:.1f} MB)")
+        print(
+            f"sequence of {args.frames} frames (160x120 rays each): PRISM fresh {cold:.2f} s, again (warm) "
+            f"{warm:.2f} s, ideal {base:.2f} s; table building {(cold - warm) / cold:.0%} of the fresh run, "
+            f"{len(model._cache)} tables ({model._cache.nbytes / 2**20:.1f} MB)"
+        )
 
 
 if __name__ == "__main__":

@@ -35,9 +35,7 @@ def main(n_frames=10):
     for name, params in (("bm", {"num_disparities": 64, "block_size": 9}), ("sgbm", {"num_disparities": 64})):
         matcher = make_matcher(name, **params)
         match_ms, _ = _timed(lambda i, matcher=matcher: matcher.compute(frames[i].left, frames[i].right), len(frames))
-        errors = np.concatenate(
-            [(f.disparity_gt - matcher.compute(f.left, f.right)).ravel() for f in frames[:3]]
-        )
+        errors = np.concatenate([(f.disparity_gt - matcher.compute(f.left, f.right)).ravel() for f in frames[:3]])
         valid = np.isfinite(errors)
         e = errors[valid]
         print(

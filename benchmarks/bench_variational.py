@@ -28,8 +28,11 @@ def _timed(function):
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=5)
-    parser.add_argument("--compile", action="store_true",
-                        help="compile the numba kernels in the cold call (fresh, temporary numba cache)")
+    parser.add_argument(
+        "--compile",
+        action="store_true",
+        help="compile the numba kernels in the cold call (fresh, temporary numba cache)",
+    )
     args = parser.parse_args()
     if args.compile:
         os.environ["NUMBA_CACHE_DIR"] = tempfile.mkdtemp(prefix="bench_variational_numba_")
@@ -42,13 +45,24 @@ def main():
 
     left, right, truth = skimage.data.stereo_motorcycle()
     known = np.isfinite(truth)
-    print(f"scene: Middlebury Motorcycle {left.shape[1]}x{left.shape[0]} RGB (skimage.data.stereo_motorcycle), "
-          f"ground truth {truth[known].min():.1f}-{truth[known].max():.1f} px on {known.mean():.1%} of pixels, "
-          f"range 0-64 px; OpenCV {cv2.__version__}, {os.cpu_count()} CPUs")
+    print(
+        f"scene: Middlebury Motorcycle {left.shape[1]}x{left.shape[0]} RGB (skimage.data.stereo_motorcycle), "
+        f"ground truth {truth[known].min():.1f}-{truth[known].max():.1f} px on {known.mean():.1%} of pixels, "
+        f"range 0-64 px; OpenCV {cv2.__version__}, {os.cpu_count()} CPUs"
+    )
 
-    sgbm = cv2.StereoSGBM_create(minDisparity=0, numDisparities=64, blockSize=5, P1=8 * 3 * 25, P2=32 * 3 * 25,
-                                 disp12MaxDiff=-1, preFilterCap=63, uniquenessRatio=10, speckleWindowSize=100,
-                                 speckleRange=2)
+    sgbm = cv2.StereoSGBM_create(
+        minDisparity=0,
+        numDisparities=64,
+        blockSize=5,
+        P1=8 * 3 * 25,
+        P2=32 * 3 * 25,
+        disp12MaxDiff=-1,
+        preFilterCap=63,
+        uniquenessRatio=10,
+        speckleWindowSize=100,
+        speckleRange=2,
+    )
     variational = make_matcher("variational", max_disparity=64.0)
 
     def run_sgbm():
@@ -64,8 +78,16 @@ def main():
         warm_s = min(_timed(function)[1] for _ in range(args.repeats))
         returned = known & np.isfinite(disparity)
         errors = truth[returned] - disparity[returned]
-        rows.append((name, cold_s, warm_s, returned.sum() / known.sum(), np.mean(np.abs(errors) > 1.0),
-                     np.mean(np.abs(errors) > 2.0)))
+        rows.append(
+            (
+                name,
+                cold_s,
+                warm_s,
+                returned.sum() / known.sum(),
+                np.mean(np.abs(errors) > 1.0),
+                np.mean(np.abs(errors) > 2.0),
+            )
+        )
 
     print(f"{'matcher':12s} {'cold s':>8s} {'warm s':>8s} {'density':>8s} {'bad-1px':>8s} {'bad-2px':>8s}")
     for name, cold_s, warm_s, density, bad1, bad2 in rows:

@@ -28,8 +28,14 @@ def synthetic_map(n_voxels, seed=0):
     rng = np.random.default_rng(seed)
     side = round((n_voxels / 6) ** 0.5)
     a, b = (g.ravel() for g in np.meshgrid(np.arange(side), np.arange(side), indexing="ij"))
-    faces = [np.c_[a, b, np.zeros_like(a)], np.c_[a, b, np.full_like(a, side)], np.c_[a, np.zeros_like(a), b],
-             np.c_[a, np.full_like(a, side), b], np.c_[np.zeros_like(a), a, b], np.c_[np.full_like(a, side), a, b]]
+    faces = [
+        np.c_[a, b, np.zeros_like(a)],
+        np.c_[a, b, np.full_like(a, side)],
+        np.c_[a, np.zeros_like(a), b],
+        np.c_[a, np.full_like(a, side), b],
+        np.c_[np.zeros_like(a), a, b],
+        np.c_[np.full_like(a, side), a, b],
+    ]
     keys = np.unique(np.vstack(faces), axis=0)
     occupied = rng.random(len(keys)) < 0.05
     probability = np.where(occupied, rng.uniform(0.6, 0.99, len(keys)), rng.uniform(0.01, 0.4, len(keys)))
@@ -44,8 +50,10 @@ def main():
     parser.add_argument("--repeat", type=int, default=3)
     args = parser.parse_args()
     print(f"point budget {POINT_BUDGET:,}; voxels {VOXEL_M} m")
-    print("| known voxels | build (s) | points sent (occupied) | free on (s) | unknown on (s) | points sent (all) "
-          "| map level (all) |")
+    print(
+        "| known voxels | build (s) | points sent (occupied) | free on (s) | unknown on (s) | points sent (all) "
+        "| map level (all) |"
+    )
     print("|---:|---:|---:|---:|---:|---:|---:|")
     for n in args.voxels:
         grid = synthetic_map(n)
@@ -63,8 +71,10 @@ def main():
             every = viewer.refresh()
             viewer.stop()
         free_s, unknown_s = np.min(refreshes, axis=0)
-        print(f"| {grid.n_known:,} | {min(builds):.2f} | {first['points']:,} | {free_s:.2f} | {unknown_s:.2f} | "
-              f"{every['points']:,} | {every['level']} |")
+        print(
+            f"| {grid.n_known:,} | {min(builds):.2f} | {first['points']:,} | {free_s:.2f} | {unknown_s:.2f} | "
+            f"{every['points']:,} | {every['level']} |"
+        )
 
 
 if __name__ == "__main__":

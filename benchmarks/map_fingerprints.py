@@ -26,8 +26,19 @@ from pathlib import Path
 
 import numpy as np
 
-SCORE_FIELDS = ("n_voxels", "n_occupied", "n_free", "brier", "log_loss", "ece", "roc_auc", "occupied_called_free",
-                "free_called_occupied", "safety_occupied_called_free", "safety_threshold")
+SCORE_FIELDS = (
+    "n_voxels",
+    "n_occupied",
+    "n_free",
+    "brier",
+    "log_loss",
+    "ece",
+    "roc_auc",
+    "occupied_called_free",
+    "free_called_occupied",
+    "safety_occupied_called_free",
+    "safety_threshold",
+)
 STREET_MODELS = ("hitmiss", "prism", "prism_conditioned")
 
 
@@ -85,16 +96,26 @@ def dask_map(label, out, result, model, mode):
 
     error_model = load_error_model(Path(out) / "sgbm" / "characterisation" / "error_model.json")
     sequence = read_sequence(Path(out) / "sequence")
-    config = MappingConfig(model=name, model_params=params, voxel_size_m=settings["voxel_size_m"], p0=result.p0,
-                           error_model=error_model, conditioned=None if conditioned else False, matcher="sgbm",
-                           disparity_source=str((Path(out) / "sgbm" / "disparity").resolve()),
-                           max_range_m=settings["max_range_m"], subsample=settings["subsample"], mode=mode)
-    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster, \
-            distributed.Client(cluster) as client:
+    config = MappingConfig(
+        model=name,
+        model_params=params,
+        voxel_size_m=settings["voxel_size_m"],
+        p0=result.p0,
+        error_model=error_model,
+        conditioned=None if conditioned else False,
+        matcher="sgbm",
+        disparity_source=str((Path(out) / "sgbm" / "disparity").resolve()),
+        max_range_m=settings["max_range_m"],
+        subsample=settings["subsample"],
+        mode=mode,
+    )
+    with (
+        distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster,
+        distributed.Client(cluster) as client,
+    ):
         grid = map_sequence(sequence, config, progress=False, client=client, chunk_frames=2)
     digest, n = map_digest(grid)
-    print(f"{label} dask2/{model} voxels={n} sha256={digest} "
-          f"{score_text(score_grid(grid, sequence.ground_truth))}")
+    print(f"{label} dask2/{model} voxels={n} sha256={digest} {score_text(score_grid(grid, sequence.ground_truth))}")
 
 
 def main():
@@ -112,8 +133,9 @@ def main():
         report_run("room", room, result)
         dask_map("room", room, result, "prism_conditioned", "ray")
         street = root / "street"
-        result = run_street3d(street, quick=True, n_frames=6, between_frames=2, matchers=("sgbm",),
-                              models=STREET_MODELS)
+        result = run_street3d(
+            street, quick=True, n_frames=6, between_frames=2, matchers=("sgbm",), models=STREET_MODELS
+        )
         report_run("street", street, result)
         dask_map("street", street, result, "prism", "projective")
         office = root / "office"

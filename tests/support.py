@@ -92,8 +92,15 @@ def synthetic_sequence(path, n_frames=6, *, camera=CAMERA, seed=0, truth=True):
 
 
 def config(**changes):
-    options = dict(model="convolution", voxel_size_m=VOXEL, p0=0.05, error_model=MIXTURE, disparity_source="sequence",
-                   matcher_params={"num_disparities": 16}, max_range_m=8.0)
+    options = dict(
+        model="convolution",
+        voxel_size_m=VOXEL,
+        p0=0.05,
+        error_model=MIXTURE,
+        disparity_source="sequence",
+        matcher_params={"num_disparities": 16},
+        max_range_m=8.0,
+    )
     options.update(changes)
     return MappingConfig(**options)
 
@@ -144,7 +151,9 @@ def write_kitti_stereo(root, pairs, *, year=2015, focal_px=20.0, baseline_m=0.54
 
     from prismap.io import write_disparity_png
 
-    left_dir, right_dir, disp = ("image_0", "image_1", "disp_{}") if year == 2012 else ("image_2", "image_3", "disp_{}_0")
+    left_dir, right_dir, disp = (
+        ("image_0", "image_1", "disp_{}") if year == 2012 else ("image_2", "image_3", "disp_{}_0")
+    )
     for index, (left, right, truth) in enumerate(pairs):
         height, width = truth.shape
         for folder, image in ((left_dir, left), (right_dir, right)):
@@ -160,8 +169,12 @@ def write_kitti_stereo(root, pairs, *, year=2015, focal_px=20.0, baseline_m=0.54
             folder, text = "calib", kitti_line("P0", P_left) + kitti_line("P1", P_right)
         else:
             folder = "calib_cam_to_cam"
-            text = ("calib_time: 09-Jan-2012 13:57:47\n" + kitti_line("R_rect_00", np.eye(3))
-                    + kitti_line("P_rect_02", P_left) + kitti_line("P_rect_03", P_right))
+            text = (
+                "calib_time: 09-Jan-2012 13:57:47\n"
+                + kitti_line("R_rect_00", np.eye(3))
+                + kitti_line("P_rect_02", P_left)
+                + kitti_line("P_rect_03", P_right)
+            )
         (root / folder).mkdir(parents=True, exist_ok=True)
         (root / folder / f"{index:06d}.txt").write_text(text)
     return root
@@ -175,11 +188,24 @@ def conditioned_error_model(matcher="sgbm", feature="edge_distance_px", edges=(2
     def fit(mixture):
         return MixtureFit(mixture, -1.0, 1.0, 1.0, 100.0, mixture.n_components, True)
 
-    mixtures = (GaussianMixture([0.6, 0.4], [0.0, -1.0], [0.8, 4.0]), GaussianMixture([0.9, 0.1], [0.05, -0.3], [0.3, 2.0]),
-                GaussianMixture([1.0], [0.0], [0.1]))
+    mixtures = (
+        GaussianMixture([0.6, 0.4], [0.0, -1.0], [0.8, 4.0]),
+        GaussianMixture([0.9, 0.1], [0.05, -0.3], [0.3, 2.0]),
+        GaussianMixture([1.0], [0.0], [0.1]),
+    )
     bounds = (-np.inf, *edges, np.inf)
     classes = ErrorClasses((feature,), [[lo] for lo in bounds[:-1]], [[hi] for hi in bounds[1:]])
-    class_models = tuple(ClassModel((fit(m),), m.n_components, share, {"n_errors": 100})
-                         for m, share in zip(mixtures, (0.2, 0.5, 0.3)))
-    return ErrorModel(matcher, {}, "test", 1 / 32, (fit(MIXTURE),), 2, classes=classes, class_models=class_models,
-                      feature_settings={"edge_threshold_px": 1.0, "texture_window_px": 7})
+    class_models = tuple(
+        ClassModel((fit(m),), m.n_components, share, {"n_errors": 100}) for m, share in zip(mixtures, (0.2, 0.5, 0.3))
+    )
+    return ErrorModel(
+        matcher,
+        {},
+        "test",
+        1 / 32,
+        (fit(MIXTURE),),
+        2,
+        classes=classes,
+        class_models=class_models,
+        feature_settings={"edge_threshold_px": 1.0, "texture_window_px": 7},
+    )

@@ -35,8 +35,10 @@ def _lidar_scan(origin):
     """A sparse scan from ``origin``: 16 beams of 400 points, fanned like a spinning LiDAR's front sector."""
     elevation = np.deg2rad(np.linspace(-20.0, 20.0, 16))[:, None]
     azimuth = np.deg2rad(np.linspace(-45.0, 45.0, 400))[None, :]
-    directions = np.stack([np.cos(elevation) * np.sin(azimuth), np.sin(elevation) + 0 * azimuth,
-                           np.cos(elevation) * np.cos(azimuth)], axis=-1).reshape(-1, 3)
+    directions = np.stack(
+        [np.cos(elevation) * np.sin(azimuth), np.sin(elevation) + 0 * azimuth, np.cos(elevation) * np.cos(azimuth)],
+        axis=-1,
+    ).reshape(-1, 3)
     return _first_hit(np.asarray(origin, float), directions)
 
 
@@ -79,8 +81,7 @@ def test_visible_points_keeps_a_grazing_surface_and_drops_a_jump():
     disparity = 30.0 - 0.5 * rows
     keep = visible_points(disparity, rows, np.zeros_like(rows), (40, 5), occlusion_window_px=2)
     assert keep.all()
-    behind = visible_points(np.array([30.0, 20.0]), np.array([5, 6]), np.array([2, 2]), (10, 5),
-                            occlusion_window_px=1)
+    behind = visible_points(np.array([30.0, 20.0]), np.array([5, 6]), np.array([2, 2]), (10, 5), occlusion_window_px=1)
     assert behind.tolist() == [True, False]
     with pytest.raises(PrismapInputError, match="occlusion_window_px"):
         visible_points(disparity, rows, rows * 0, (40, 5), occlusion_window_px=-1)

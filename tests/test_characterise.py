@@ -136,8 +136,16 @@ def test_histogram_rejects_a_limit_off_the_bin_grid():
 
 
 def _model(fits, selected=2):
-    return ErrorModel("sgbm", {"block_size": np.int64(5)}, "unit", 1 / 32, tuple(fits), selected,
-                      {"criterion": "bic", "tolerance_nats_per_error": 0.01}, {"n_errors": 50, "coverage": 0.5})
+    return ErrorModel(
+        "sgbm",
+        {"block_size": np.int64(5)},
+        "unit",
+        1 / 32,
+        tuple(fits),
+        selected,
+        {"criterion": "bic", "tolerance_nats_per_error": 0.01},
+        {"n_errors": 50, "coverage": 0.5},
+    )
 
 
 def test_error_model_round_trips_through_json(tmp_path):
@@ -184,8 +192,15 @@ def test_loading_a_missing_or_non_json_file_fails_clearly(tmp_path):
 
 
 def test_table_follows_the_thesis_layout_and_hides_light_components_beyond_three():
-    heavy = MixtureFit(GaussianMixture([0.05, 0.6, 0.3, 0.05], [9.0, -0.4, 0.1, 3.0], [20.0, 0.7, 2.0, 1.0]),
-                       -100.0, 230.0, 240.0, 50.0, 9, True)
+    heavy = MixtureFit(
+        GaussianMixture([0.05, 0.6, 0.3, 0.05], [9.0, -0.4, 0.1, 3.0], [20.0, 0.7, 2.0, 1.0]),
+        -100.0,
+        230.0,
+        240.0,
+        50.0,
+        9,
+        True,
+    )
     table = format_table(_model([_fit(1), _fit(2), heavy], selected=4))
     rows = [line for line in table.splitlines() if line.startswith("| ")]
     assert rows[0].split(" | ")[:6] == ["| G", "AIC", "BIC", "µ1", "σ1", "w1"]
@@ -228,7 +243,10 @@ def test_sgbm_on_a_shifted_texture_has_a_narrow_unbiased_dominant_component(tmp_
     assert result.mixture.sigmas[heaviest] < 0.3
     paths = write_characterisation(result, tmp_path / "out")
     assert sorted(p.name for p in (tmp_path / "out").iterdir()) == [
-        "error_model.json", "errors.png", "errors_wide.png", "table.md"
+        "error_model.json",
+        "errors.png",
+        "errors_wide.png",
+        "table.md",
     ]
     assert load_error_model(paths["model"]).matcher_params == json.loads(json.dumps(matcher.params()))
     assert paths["figure"].read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
@@ -240,7 +258,8 @@ def test_characterisation_rejects_frames_it_cannot_use():
     no_gt = StereoFrame(np.zeros((4, 4), np.uint8), np.zeros((4, 4), np.uint8), CAMERA, name="blank")
     with pytest.raises(PrismapInputError, match=r"frame 0 \(blank\): has no ground-truth"):
         characterise_matcher([no_gt], NoisyOracle(seed=0))
-    uncomputed = StereoFrame(np.ones((4, 4), np.uint8), np.zeros((4, 4), np.uint8), CAMERA,
-                             disparity_gt=np.ones((4, 4), np.float32))
+    uncomputed = StereoFrame(
+        np.ones((4, 4), np.uint8), np.zeros((4, 4), np.uint8), CAMERA, disparity_gt=np.ones((4, 4), np.float32)
+    )
     with pytest.raises(PrismapInputError, match="computed disparity has no valid pixel"):
         characterise_matcher([uncomputed], NoisyOracle(seed=0))

@@ -31,8 +31,9 @@ FAR_FROM_EDGE = GaussianMixture([0.9, 0.1], [0.0, 0.3], [0.15, 0.8])
 def _tree():
     """A small tree over two features: f0 < 2 | f0 >= 2 and f1 < 5 | f0 >= 2 and f1 >= 5."""
     inf = np.inf
-    return ErrorClasses(("edge_distance_px", "texture"),
-                        [[-inf, -inf], [2.0, -inf], [2.0, 5.0]], [[2.0, inf], [inf, 5.0], [inf, inf]])
+    return ErrorClasses(
+        ("edge_distance_px", "texture"), [[-inf, -inf], [2.0, -inf], [2.0, 5.0]], [[2.0, inf], [inf, 5.0], [inf, inf]]
+    )
 
 
 def _brute_force(classes, values, valid):
@@ -43,25 +44,37 @@ def _brute_force(classes, values, valid):
         x = [values[name][index] for name in classes.features]
         if any(np.isnan(v) for v in x):
             continue
-        holders = [k for k in range(classes.n_classes)
-                   if all(classes.lower[k, f] <= v and (v < classes.upper[k, f] or classes.upper[k, f] == np.inf)
-                          for f, v in enumerate(x))]
+        holders = [
+            k
+            for k in range(classes.n_classes)
+            if all(
+                classes.lower[k, f] <= v and (v < classes.upper[k, f] or classes.upper[k, f] == np.inf)
+                for f, v in enumerate(x)
+            )
+        ]
         assert len(holders) == 1
         label[index] = holders[0]
     return label
 
 
-@pytest.mark.parametrize("classes", [
-    _tree(),
-    ErrorClasses.from_edges(("edge_distance_px", "texture"), ([1.5, 4.0], [3.0, 8.0])),
-    ErrorClasses.from_edges(("disparity_px",), ([10.0, 20.0, 30.0],)),
-    ErrorClasses.from_edges(("edge_distance_px", "disparity_gradient"), ([3.0], [0.05, 0.2])),
-])
+@pytest.mark.parametrize(
+    "classes",
+    [
+        _tree(),
+        ErrorClasses.from_edges(("edge_distance_px", "texture"), ([1.5, 4.0], [3.0, 8.0])),
+        ErrorClasses.from_edges(("disparity_px",), ([10.0, 20.0, 30.0],)),
+        ErrorClasses.from_edges(("edge_distance_px", "disparity_gradient"), ([3.0], [0.05, 0.2])),
+    ],
+)
 def test_classification_agrees_with_a_brute_force_reference(classes):
     rng = np.random.default_rng(4)
     shape = (17, 23)
-    values = {"edge_distance_px": rng.integers(0, 8, shape).astype(float), "texture": rng.uniform(0, 12, shape),
-              "disparity_px": rng.uniform(0, 40, shape), "disparity_gradient": rng.exponential(0.1, shape)}
+    values = {
+        "edge_distance_px": rng.integers(0, 8, shape).astype(float),
+        "texture": rng.uniform(0, 12, shape),
+        "disparity_px": rng.uniform(0, 40, shape),
+        "disparity_gradient": rng.exponential(0.1, shape),
+    }
     values["edge_distance_px"][0, :4] = [np.inf, 2.0, 1.5, 4.0]  # infinity and values on the bounds
     values["texture"][1, :3] = [5.0, 3.0, np.nan]
     values["disparity_gradient"][2, :2] = [np.inf, 0.2]  # no wholly valid neighbourhood, a value on a bound
@@ -108,9 +121,17 @@ def test_held_out_selection_finds_the_informative_feature_and_em_recovers_each_c
     assert record["conditioned_nats_per_error"] > record["plain_nats_per_error"] + 0.1
     assert record["candidates"][0]["features"] == [] and len(record["candidates"]) > 5
     assert record["components"] == [2] * classes.n_classes  # held-out G finds the true 2 components per class
-    models, histograms = fit_classes(classes, values, errors, bin_width=1 / 32, limit_px=256.0,
-                                     max_components=3, criterion="bic", tolerance=0.002,
-                                     components=record["components"])
+    models, histograms = fit_classes(
+        classes,
+        values,
+        errors,
+        bin_width=1 / 32,
+        limit_px=256.0,
+        max_components=3,
+        criterion="bic",
+        tolerance=0.002,
+        components=record["components"],
+    )
     label = classes.assign(values, np.ones(errors.size, bool))
     assert sum(h.n_errors for h in histograms) == errors.size
     for k, model in enumerate(models):
@@ -136,10 +157,20 @@ def test_every_class_keeps_an_outlier_floor_fitted_to_its_gross_errors():
     core = GaussianMixture.gaussian(0.15)
     errors = np.where(near, core.with_component(0.05, 2.0, 12.0).sample(n, rng), core.sample(n, rng))
     classes = ErrorClasses.from_edges(("edge_distance_px",), ([2.5],))
-    models, _ = fit_classes(classes, values, errors, bin_width=1 / 32, limit_px=256.0, max_components=1,
-                            criterion="bic", tolerance=0.01, outlier=wide)
-    bare, _ = fit_classes(classes, values, errors, bin_width=1 / 32, limit_px=256.0, max_components=1,
-                          criterion="bic", tolerance=0.01)
+    models, _ = fit_classes(
+        classes,
+        values,
+        errors,
+        bin_width=1 / 32,
+        limit_px=256.0,
+        max_components=1,
+        criterion="bic",
+        tolerance=0.01,
+        outlier=wide,
+    )
+    bare, _ = fit_classes(
+        classes, values, errors, bin_width=1 / 32, limit_px=256.0, max_components=1, criterion="bic", tolerance=0.01
+    )
     far = models[1]
     # no gross error far from edges: the floor is the one pseudo-error's weight, about 1 / N
     assert 0.5 / (~near).sum() < far.outlier["weight"] < 3.0 / (~near).sum()
@@ -154,8 +185,9 @@ def test_errors_independent_of_the_features_keep_the_plain_model():
     n = 40000
     values = {"texture": rng.uniform(0, 20, n)}
     errors = FAR_FROM_EDGE.sample(n, rng)
-    classes, record = choose_classes(values, errors, rng.integers(0, 2, n), bin_edges=ErrorHistogram.empty().edges,
-                                     max_classes=3, max_components=2)
+    classes, record = choose_classes(
+        values, errors, rng.integers(0, 2, n), bin_edges=ErrorHistogram.empty().edges, max_classes=3, max_components=2
+    )
     assert classes.features == () and record["conditioned_nats_per_error"] == record["plain_nats_per_error"]
 
 
@@ -176,8 +208,11 @@ class EdgeFailingMatcher(StereoMatcher):
         truth = _step_disparity(left.shape)
         columns = np.arange(left.shape[1]) % 20
         near = np.broadcast_to((columns < 2) | (columns >= 18), left.shape)
-        noise = np.where(near, np.clip(NEAR_EDGE.sample(left.size, self.rng), -0.9, 0.9).reshape(left.shape),
-                         FAR_FROM_EDGE.sample(left.size, self.rng).reshape(left.shape) * 0.5)
+        noise = np.where(
+            near,
+            np.clip(NEAR_EDGE.sample(left.size, self.rng), -0.9, 0.9).reshape(left.shape),
+            FAR_FROM_EDGE.sample(left.size, self.rng).reshape(left.shape) * 0.5,
+        )
         return (truth - noise).astype(np.float32)
 
     def params(self):
@@ -186,15 +221,22 @@ class EdgeFailingMatcher(StereoMatcher):
 
 def _step_disparity(shape):
     """8 px steps every 20 columns on a ramp of 0.1 px per row (so the disparity says little of the error)."""
-    rows, columns = np.mgrid[0:shape[0], 0:shape[1]]
+    rows, columns = np.mgrid[0 : shape[0], 0 : shape[1]]
     return 10.0 + 8.0 * ((columns // 20) % 2) + 0.1 * rows
 
 
 def _frames(n=2, shape=(120, 160)):
     rng = np.random.default_rng(7)
-    return [StereoFrame(rng.integers(0, 256, shape).astype(np.uint8), rng.integers(0, 256, shape).astype(np.uint8),
-                        CAMERA, disparity_gt=_step_disparity(shape).astype(np.float32), name=f"step {i}")
-            for i in range(n)]
+    return [
+        StereoFrame(
+            rng.integers(0, 256, shape).astype(np.uint8),
+            rng.integers(0, 256, shape).astype(np.uint8),
+            CAMERA,
+            disparity_gt=_step_disparity(shape).astype(np.float32),
+            name=f"step {i}",
+        )
+        for i in range(n)
+    ]
 
 
 def test_conditioned_characterisation_of_a_matcher_that_fails_at_edges(tmp_path):
@@ -233,14 +275,33 @@ def test_conditioned_characterisation_of_a_matcher_that_fails_at_edges(tmp_path)
 def _conditioned_model():
     values, errors, _ = _samples(2, n=20000)
     classes = ErrorClasses.from_edges(("edge_distance_px",), ([2.5],))
-    models, _ = fit_classes(classes, values, errors, bin_width=1 / 32, limit_px=256.0, max_components=2,
-                            criterion="bic", tolerance=0.01, outlier=GaussianMixture.gaussian(4.0, -2.0))
+    models, _ = fit_classes(
+        classes,
+        values,
+        errors,
+        bin_width=1 / 32,
+        limit_px=256.0,
+        max_components=2,
+        criterion="bic",
+        tolerance=0.01,
+        outlier=GaussianMixture.gaussian(4.0, -2.0),
+    )
     histogram = ErrorHistogram.from_errors(errors)
     fits = fit_mixtures(histogram.edges, histogram.counts, max_components=2)
-    return ErrorModel("sgbm", {"block_size": 5}, "synthetic", 1 / 32, tuple(fits), 2, {"criterion": "bic"},
-                      histogram.statistics(), classes=classes, class_models=models,
-                      feature_settings={"edge_threshold_px": 1.0, "texture_window_px": 7},
-                      class_selection={"held_out": "test"})
+    return ErrorModel(
+        "sgbm",
+        {"block_size": 5},
+        "synthetic",
+        1 / 32,
+        tuple(fits),
+        2,
+        {"criterion": "bic"},
+        histogram.statistics(),
+        classes=classes,
+        class_models=models,
+        feature_settings={"edge_threshold_px": 1.0, "texture_window_px": 7},
+        class_selection={"held_out": "test"},
+    )
 
 
 def test_version_2_round_trips_and_version_1_loads_as_one_class(tmp_path):
@@ -271,28 +332,43 @@ def _deep(depth):
     return "[" * depth + "]" * depth
 
 
-@pytest.mark.parametrize(("edit", "message"), [
-    (lambda d: d.update(bin_width_px=[0.03]), "`bin_width_px` must be a number; got list"),
-    (lambda d: d.update(selected_components="2"), "`selected_components` must be a whole number; got '2'"),
-    (lambda d: d["models"][0].update(log_likelihood=1e400), "`log_likelihood` must be a finite number"),
-    (lambda d: d.update(bin_width_px=1e300), r"`bin_width_px` must be a finite number in \(0, 8\]"),
-    (lambda d: d["models"][1].update(n_components=3), "`n_components` is 3 but `weights` has 2"),
-    (lambda d: d["models"][1].update(n_components=2.7), "`n_components` must be a whole number; got 2.7"),
-    (lambda d: d["models"][1].update(weights=[[0.5], [0.5]]), "`weights` must be a list of numbers"),
-    (lambda d: d["models"][0].update(converged="yes"), "`converged` must be true or false"),
-    (lambda d: d.update(format_version=1.9), "unsupported format_version 1.9"),
-    (lambda d: d["classes"][1]["bounds"].update(edge_distance_px=[2.0, None]), "classes overlap"),
-    (lambda d: d["classes"][1]["bounds"].update(edge_distance_px=[3.0, None]), "classes leave a gap"),
-    (lambda d: d["classes"][0].update(share=0.0), r"error class 0 \(edge_distance_px in \[-inf, 2.5\)\) has no pixels"),
-    (lambda d: d["classes"][0]["statistics"].update(n_errors=0), "error class 0 .* has no pixels"),
-    (lambda d: d["classes"][1].update(share=0.9), "shares of the error classes must sum to 1"),
-    (lambda d: d["classes"][0].update(selected_components=3), "no 3-component fit"),
-    (lambda d: d["features"].update(names=["edge_distance_px", "colour"]), r"unknown feature\(s\) \['colour'\]"),
-    (lambda d: d["classes"][0]["bounds"].update(edge_distance_px="low"), "must be \\[lower or null, upper or null\\]"),
-    (lambda d: d["classes"][0]["outlier"].update(weight=1.5), r"classes\[0\]: `outlier.weight` must be a finite number"),
-    (lambda d: d["classes"][1]["outlier"].update(sigma=0), r"classes\[1\]: `outlier.sigma` must be a finite number"),
-    (lambda d: d["classes"][1]["outlier"].pop("mean"), r"`outlier`: missing field\(s\) \['mean'\]"),
-])
+@pytest.mark.parametrize(
+    ("edit", "message"),
+    [
+        (lambda d: d.update(bin_width_px=[0.03]), "`bin_width_px` must be a number; got list"),
+        (lambda d: d.update(selected_components="2"), "`selected_components` must be a whole number; got '2'"),
+        (lambda d: d["models"][0].update(log_likelihood=1e400), "`log_likelihood` must be a finite number"),
+        (lambda d: d.update(bin_width_px=1e300), r"`bin_width_px` must be a finite number in \(0, 8\]"),
+        (lambda d: d["models"][1].update(n_components=3), "`n_components` is 3 but `weights` has 2"),
+        (lambda d: d["models"][1].update(n_components=2.7), "`n_components` must be a whole number; got 2.7"),
+        (lambda d: d["models"][1].update(weights=[[0.5], [0.5]]), "`weights` must be a list of numbers"),
+        (lambda d: d["models"][0].update(converged="yes"), "`converged` must be true or false"),
+        (lambda d: d.update(format_version=1.9), "unsupported format_version 1.9"),
+        (lambda d: d["classes"][1]["bounds"].update(edge_distance_px=[2.0, None]), "classes overlap"),
+        (lambda d: d["classes"][1]["bounds"].update(edge_distance_px=[3.0, None]), "classes leave a gap"),
+        (
+            lambda d: d["classes"][0].update(share=0.0),
+            r"error class 0 \(edge_distance_px in \[-inf, 2.5\)\) has no pixels",
+        ),
+        (lambda d: d["classes"][0]["statistics"].update(n_errors=0), "error class 0 .* has no pixels"),
+        (lambda d: d["classes"][1].update(share=0.9), "shares of the error classes must sum to 1"),
+        (lambda d: d["classes"][0].update(selected_components=3), "no 3-component fit"),
+        (lambda d: d["features"].update(names=["edge_distance_px", "colour"]), r"unknown feature\(s\) \['colour'\]"),
+        (
+            lambda d: d["classes"][0]["bounds"].update(edge_distance_px="low"),
+            "must be \\[lower or null, upper or null\\]",
+        ),
+        (
+            lambda d: d["classes"][0]["outlier"].update(weight=1.5),
+            r"classes\[0\]: `outlier.weight` must be a finite number",
+        ),
+        (
+            lambda d: d["classes"][1]["outlier"].update(sigma=0),
+            r"classes\[1\]: `outlier.sigma` must be a finite number",
+        ),
+        (lambda d: d["classes"][1]["outlier"].pop("mean"), r"`outlier`: missing field\(s\) \['mean'\]"),
+    ],
+)
 def test_hostile_version_2_files_get_one_clear_error(tmp_path, edit, message):
     data = _conditioned_model().to_dict()
     edit(data)
@@ -303,10 +379,13 @@ def test_hostile_version_2_files_get_one_clear_error(tmp_path, edit, message):
     assert str(path) in str(info.value) and "\n" not in str(info.value)
 
 
-@pytest.mark.parametrize(("text", "message"), [
-    (_deep(10_000), "nested too deeply"),
-    ('{"format": "prismap-error-model", "format_version": ' + "9" * 5000 + "}", "not valid JSON"),
-])
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        (_deep(10_000), "nested too deeply"),
+        ('{"format": "prismap-error-model", "format_version": ' + "9" * 5000 + "}", "not valid JSON"),
+    ],
+)
 def test_unparseable_error_model_json_is_one_clear_error(tmp_path, text, message):
     path = tmp_path / "model.json"
     path.write_text(text)
@@ -321,8 +400,17 @@ def test_a_run_that_cannot_compute_the_features_is_refused():
         model.check_usable("bm", left_right_check=True)
     inf = np.inf
     lr_classes = ErrorClasses(("lr_disagreement_px",), [[-inf], [0.5]], [[0.5], [inf]])
-    lr_model = ErrorModel(model.matcher, {}, "", model.bin_width, model.fits, 2, classes=lr_classes,
-                          class_models=model.class_models, feature_settings=model.feature_settings)
+    lr_model = ErrorModel(
+        model.matcher,
+        {},
+        "",
+        model.bin_width,
+        model.fits,
+        2,
+        classes=lr_classes,
+        class_models=model.class_models,
+        feature_settings=model.feature_settings,
+    )
     lr_model.check_usable("sgbm", left_right_check=True)
     with pytest.raises(PrismapInputError, match="needs the matcher's left-right check"):
         lr_model.check_usable("sgbm", left_right_check=False)

@@ -16,16 +16,34 @@ from prismap.io import write_pfm
 def motorcycle_sgbm(tmp_path_factory):
     out = tmp_path_factory.mktemp("motorcycle_sgbm")
     # bound 12, not the default 24: the search's cost is its class fits, whatever the pixels (half of it here)
-    status = main(["characterise", "--dataset", "middlebury-motorcycle", "--matcher", "sgbm",
-                   "--max-components", "4", "--max-classes", "12", "--out", str(out)])
+    status = main(
+        [
+            "characterise",
+            "--dataset",
+            "middlebury-motorcycle",
+            "--matcher",
+            "sgbm",
+            "--max-components",
+            "4",
+            "--max-classes",
+            "12",
+            "--out",
+            str(out),
+        ]
+    )
     return status, out
 
 
 def test_cli_writes_the_model_table_and_figures(motorcycle_sgbm):
     status, out = motorcycle_sgbm
     assert status == 0
-    assert sorted(p.name for p in out.iterdir()) == ["error_model.json", "errors.png", "errors_classes.png",
-                                                     "errors_wide.png", "table.md"]
+    assert sorted(p.name for p in out.iterdir()) == [
+        "error_model.json",
+        "errors.png",
+        "errors_classes.png",
+        "errors_wide.png",
+        "table.md",
+    ]
     for name in ("errors.png", "errors_classes.png", "errors_wide.png"):
         assert (out / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     data = json.loads((out / "error_model.json").read_text())
@@ -94,8 +112,10 @@ def _run_failing(capsys, argv):
 
 
 def test_a_missing_dataset_path_is_a_clear_error(capsys, tmp_path):
-    err = _run_failing(capsys, ["characterise", "--dataset", str(tmp_path / "nowhere"), "--matcher", "bm",
-                                "--out", str(tmp_path / "out")])
+    err = _run_failing(
+        capsys,
+        ["characterise", "--dataset", str(tmp_path / "nowhere"), "--matcher", "bm", "--out", str(tmp_path / "out")],
+    )
     assert "no such file or directory" in err and "nowhere" in err
     assert not (tmp_path / "out").exists()
 
@@ -103,40 +123,105 @@ def test_a_missing_dataset_path_is_a_clear_error(capsys, tmp_path):
 def test_a_matcher_output_without_valid_pixels_is_a_clear_error(capsys, tmp_path):
     flat = np.full((64, 96, 3), 128, np.uint8)  # no texture: block matching finds nothing
     folder = _middlebury_folder(tmp_path / "flat", image=flat, disparity=np.full((64, 96), 10, np.float32))
-    err = _run_failing(capsys, ["characterise", "--dataset", str(folder), "--matcher", "bm", "--out",
-                                str(tmp_path / "out")])
+    err = _run_failing(
+        capsys, ["characterise", "--dataset", str(folder), "--matcher", "bm", "--out", str(tmp_path / "out")]
+    )
     assert "computed disparity has no valid pixel" in err and "flat" in err
 
 
 def test_ground_truth_without_valid_pixels_is_a_clear_error(capsys, tmp_path):
     texture = np.random.default_rng(0).integers(0, 256, (64, 96, 3)).astype(np.uint8)
     folder = _middlebury_folder(tmp_path / "nogt", image=texture, disparity=np.full((64, 96), np.inf, np.float32))
-    err = _run_failing(capsys, ["characterise", "--dataset", str(folder), "--matcher", "sgbm", "--out",
-                                str(tmp_path / "out")])
+    err = _run_failing(
+        capsys, ["characterise", "--dataset", str(folder), "--matcher", "sgbm", "--out", str(tmp_path / "out")]
+    )
     assert "no valid ground-truth disparity" in err
 
 
 def test_bad_options_are_clear_errors(capsys, tmp_path):
-    err = _run_failing(capsys, ["characterise", "--dataset", "middlebury-motorcycle", "--matcher", "sgbm",
-                                "--bin-width", "0", "--out", str(tmp_path / "out")])
+    err = _run_failing(
+        capsys,
+        [
+            "characterise",
+            "--dataset",
+            "middlebury-motorcycle",
+            "--matcher",
+            "sgbm",
+            "--bin-width",
+            "0",
+            "--out",
+            str(tmp_path / "out"),
+        ],
+    )
     assert "--bin-width" in err
-    err = _run_failing(capsys, ["characterise", "--dataset", "middlebury-motorcycle", "--matcher", "sgbm",
-                                "--max-components", "0", "--out", str(tmp_path / "out")])
+    err = _run_failing(
+        capsys,
+        [
+            "characterise",
+            "--dataset",
+            "middlebury-motorcycle",
+            "--matcher",
+            "sgbm",
+            "--max-components",
+            "0",
+            "--out",
+            str(tmp_path / "out"),
+        ],
+    )
     assert "--max-components" in err
-    err = _run_failing(capsys, ["characterise", "--dataset", "middlebury-motorcycle", "--matcher", "sgbm",
-                                "--max-classes", "0", "--out", str(tmp_path / "out")])
+    err = _run_failing(
+        capsys,
+        [
+            "characterise",
+            "--dataset",
+            "middlebury-motorcycle",
+            "--matcher",
+            "sgbm",
+            "--max-classes",
+            "0",
+            "--out",
+            str(tmp_path / "out"),
+        ],
+    )
     assert "--max-classes" in err
     for option in ("--search-frames", "--max-samples"):
-        err = _run_failing(capsys, ["characterise", "--dataset", "middlebury-motorcycle", "--matcher", "sgbm",
-                                    option, "0", "--out", str(tmp_path / "out")])
+        err = _run_failing(
+            capsys,
+            [
+                "characterise",
+                "--dataset",
+                "middlebury-motorcycle",
+                "--matcher",
+                "sgbm",
+                option,
+                "0",
+                "--out",
+                str(tmp_path / "out"),
+            ],
+        )
         assert f"`{option}` must be >= 1; got 0" in err
 
 
 def test_plain_option_writes_one_class(tmp_path):
     texture = np.random.default_rng(1).integers(0, 256, (64, 128, 3)).astype(np.uint8)
     folder = _middlebury_folder(tmp_path / "tex", image=texture, disparity=np.full((64, 128), 10, np.float32))
-    assert main(["characterise", "--dataset", str(folder), "--matcher", "sgbm", "--plain", "--max-components", "1",
-                 "--out", str(tmp_path / "out")]) == 0
+    assert (
+        main(
+            [
+                "characterise",
+                "--dataset",
+                str(folder),
+                "--matcher",
+                "sgbm",
+                "--plain",
+                "--max-components",
+                "1",
+                "--out",
+                str(tmp_path / "out"),
+            ]
+        )
+        == 0
+    )
     model = load_error_model(tmp_path / "out" / "error_model.json")
     assert not model.conditioned and model.n_classes == 1 and not model.class_selection
     assert not (tmp_path / "out" / "errors_classes.png").exists()

@@ -20,8 +20,24 @@ def kitti_2015(tmp_path_factory):
 
 def test_characterise_a_kitti_stereo_selection_with_sgbm(kitti_2015, tmp_path, capsys):
     out = tmp_path / "out"
-    status = main(["characterise", "--dataset", str(kitti_2015), "--frames", "0:4", "--every", "2",
-                   "--matcher", "sgbm", "--max-components", "2", "--plain", "--out", str(out)])
+    status = main(
+        [
+            "characterise",
+            "--dataset",
+            str(kitti_2015),
+            "--frames",
+            "0:4",
+            "--every",
+            "2",
+            "--matcher",
+            "sgbm",
+            "--max-components",
+            "2",
+            "--plain",
+            "--out",
+            str(out),
+        ]
+    )
     assert status == 0, capsys.readouterr().err
     assert sorted(p.name for p in out.iterdir()) == ["error_model.json", "errors.png", "errors_wide.png", "table.md"]
     model = json.loads((out / "error_model.json").read_text())
@@ -41,11 +57,14 @@ def _fails(capsys, argv, message, out):
     assert not out.exists()
 
 
-@pytest.mark.parametrize(("extra", "message"), [
-    (["--every", "0"], "`every` must be an integer >= 1; got 0"),
-    (["--frames", "2:2"], "`frames` 2:2 selects no frame of the 4 frames"),
-    (["--frames", "0:40"], "40 lies outside the 4 frames"),
-])
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--every", "0"], "`every` must be an integer >= 1; got 0"),
+        (["--frames", "2:2"], "`frames` 2:2 selects no frame of the 4 frames"),
+        (["--frames", "0:40"], "40 lies outside the 4 frames"),
+    ],
+)
 def test_bad_selections_exit_2_and_write_nothing(kitti_2015, tmp_path, capsys, extra, message):
     _fails(capsys, ["--dataset", str(kitti_2015), *extra], message, tmp_path / "out")
 
@@ -53,15 +72,21 @@ def test_bad_selections_exit_2_and_write_nothing(kitti_2015, tmp_path, capsys, e
 def test_bad_datasets_exit_2_and_write_nothing(tmp_path, capsys):
     rng = np.random.default_rng(0)
     testing = write_kitti_stereo(tmp_path / "testing", [shifted_pair(rng, 16, 24, 2)], year=2015, disparities=())
-    _fails(capsys, ["--dataset", str(testing)], "folder without ground-truth disparities: no disp_noc_0/",
-           tmp_path / "out")
+    _fails(
+        capsys, ["--dataset", str(testing)], "folder without ground-truth disparities: no disp_noc_0/", tmp_path / "out"
+    )
     training = write_kitti_stereo(tmp_path / "training", [shifted_pair(rng, 16, 24, 2)] * 2, year=2015)
     write_disparity_png(training / "disp_noc_0" / "000001_10.png", np.ones((16, 20)), "disparity")
-    _fails(capsys, ["--dataset", str(training)], "disparity size (16, 20) differs from the left image's (16, 24)",
-           tmp_path / "out")
+    _fails(
+        capsys,
+        ["--dataset", str(training)],
+        "disparity size (16, 20) differs from the left image's (16, 24)",
+        tmp_path / "out",
+    )
     (tmp_path / "holiday").mkdir()
-    _fails(capsys, ["--dataset", str(tmp_path / "holiday")], "no dataset layout recognised; looked for",
-           tmp_path / "out")
+    _fails(
+        capsys, ["--dataset", str(tmp_path / "holiday")], "no dataset layout recognised; looked for", tmp_path / "out"
+    )
 
 
 def test_an_unusable_out_is_refused_before_any_work(kitti_2015, tmp_path, capsys):
@@ -80,10 +105,26 @@ def test_the_search_range_stays_below_the_image_width(tmp_path, capsys):
     truth[5, 38] = 37.0
     wide = write_kitti_stereo(tmp_path / "wide", [(left, right, truth)], year=2015)
     out = tmp_path / "out"
-    status = main(["characterise", "--dataset", str(wide), "--matcher", "sgbm", "--max-components", "1", "--plain",
-                   "--out", str(out)])
+    status = main(
+        [
+            "characterise",
+            "--dataset",
+            str(wide),
+            "--matcher",
+            "sgbm",
+            "--max-components",
+            "1",
+            "--plain",
+            "--out",
+            str(out),
+        ]
+    )
     assert status == 0, capsys.readouterr().err
     assert json.loads((out / "error_model.json").read_text())["matcher"]["params"]["num_disparities"] == 32
     narrow = write_kitti_stereo(tmp_path / "narrow", [shifted_pair(rng, 16, 16, 2)], year=2015)
-    _fails(capsys, ["--dataset", str(narrow)], "--dataset: images 16 px wide leave no disparity search range",
-           tmp_path / "out2")
+    _fails(
+        capsys,
+        ["--dataset", str(narrow)],
+        "--dataset: images 16 px wide leave no disparity search range",
+        tmp_path / "out2",
+    )

@@ -57,11 +57,11 @@ def test_texture_is_the_windowed_rms_sobel_gradient():
     gx = np.zeros(grey.shape)
     gy = np.zeros(grey.shape)
     for v, u in np.ndindex(grey.shape):
-        patch = image[v:v + 3, u:u + 3]
+        patch = image[v : v + 3, u : u + 3]
         gx[v, u] = smooth @ patch @ diff / 8.0
         gy[v, u] = diff @ patch @ smooth / 8.0
     energy = np.pad(gx**2 + gy**2, window // 2, mode="reflect")
-    expected = np.array([[np.sqrt(energy[v:v + window, u:u + window].mean()) for u in range(12)] for v in range(9)])
+    expected = np.array([[np.sqrt(energy[v : v + window, u : u + window].mean()) for u in range(12)] for v in range(9)])
     features = compute_features(grey, grey, np.ones(grey.shape), texture_window_px=window)
     np.testing.assert_allclose(features.values["texture"], expected, rtol=1e-10, atol=1e-10)
     # A linear ramp of slope 3 grey levels per pixel has texture 3 away from the border.
@@ -81,14 +81,21 @@ def test_disparity_gradient_is_the_windowed_mean_sobel_magnitude_over_wholly_val
     magnitude = np.zeros(d.shape)
     defined = np.zeros(d.shape, bool)
     for v, u in np.ndindex(d.shape):
-        patch = padded[v:v + 3, u:u + 3]
+        patch = padded[v : v + 3, u : u + 3]
         if np.isfinite(patch).all():
             defined[v, u] = True
             magnitude[v, u] = np.hypot(smooth @ patch @ diff / 8.0, diff @ patch @ smooth / 8.0)
     r = window // 2
     m_pad, w_pad = np.pad(magnitude, r, mode="reflect"), np.pad(defined.astype(float), r, mode="reflect")
-    expected = np.array([[m_pad[v:v + window, u:u + window].sum() / w_pad[v:v + window, u:u + window].sum()
-                          for u in range(12)] for v in range(9)])
+    expected = np.array(
+        [
+            [
+                m_pad[v : v + window, u : u + window].sum() / w_pad[v : v + window, u : u + window].sum()
+                for u in range(12)
+            ]
+            for v in range(9)
+        ]
+    )
     got = compute_features(np.zeros(d.shape), None, d, texture_window_px=window).values["disparity_gradient"]
     np.testing.assert_allclose(got, expected, rtol=1e-10, atol=1e-12)
     # A plane d = 0.3 u - 0.4 v + 20 has gradient 0.5 px/px away from the border, and next to a hole too.
@@ -116,15 +123,18 @@ def test_features_carry_names_units_validity_and_the_optional_lr_disagreement():
     assert checked.settings == {"edge_threshold_px": 1.0, "texture_window_px": 7}
 
 
-@pytest.mark.parametrize("call, message", [
-    (lambda d: compute_features(np.zeros((3, 3)), None, d), "left_grey"),
-    (lambda d: compute_features(np.zeros(d.shape), np.zeros((2, 2)), d), "right_grey"),
-    (lambda d: compute_features(np.zeros(d.shape), None, d, np.zeros((2, 2))), "lr_disagreement"),
-    (lambda d: compute_features(np.zeros(d.shape), None, d, texture_window_px=4), "texture_window_px"),
-    (lambda d: compute_features(np.zeros(d.shape), None, d, edge_threshold_px=0), "edge_threshold_px"),
-    (lambda d: disparity_gradient(d, window_px=2), "texture_window_px"),
-    (lambda d: compute_features(np.zeros(d.shape), None, d[0]), "disparity"),
-])
+@pytest.mark.parametrize(
+    "call, message",
+    [
+        (lambda d: compute_features(np.zeros((3, 3)), None, d), "left_grey"),
+        (lambda d: compute_features(np.zeros(d.shape), np.zeros((2, 2)), d), "right_grey"),
+        (lambda d: compute_features(np.zeros(d.shape), None, d, np.zeros((2, 2))), "lr_disagreement"),
+        (lambda d: compute_features(np.zeros(d.shape), None, d, texture_window_px=4), "texture_window_px"),
+        (lambda d: compute_features(np.zeros(d.shape), None, d, edge_threshold_px=0), "edge_threshold_px"),
+        (lambda d: disparity_gradient(d, window_px=2), "texture_window_px"),
+        (lambda d: compute_features(np.zeros(d.shape), None, d[0]), "disparity"),
+    ],
+)
 def test_bad_input_names_the_argument(call, message):
     with pytest.raises(PrismapInputError, match=message):
         call(_disparity())

@@ -36,11 +36,20 @@ def test_rig_differences_name_every_field_that_differs():
     # within 1 % is the same rig: a calibration's rounding must not warn
     close = describe_rig(dataclasses.replace(STREET, focal_px=362.0), None, "sgbm", sgbm)
     assert rig_differences(mine, close) == []
-    other = describe_rig(StereoCamera(3979.9, 1244.8, 1019.6, 0.193, width=2964, height=1988), None, "sgbm",
-                         make_matcher("sgbm", num_disparities=272).params())
+    other = describe_rig(
+        StereoCamera(3979.9, 1244.8, 1019.6, 0.193, width=2964, height=1988),
+        None,
+        "sgbm",
+        make_matcher("sgbm", num_disparities=272).params(),
+    )
     found = rig_differences(other, mine)
-    assert found == ["focal length 3979.9 px vs 360 px", "baseline 0.193 m vs 0.54 m", "image width 2964 px vs 621 px",
-                     "image height 1988 px vs 188 px", "matcher parameter num_disparities 272 vs 64"]
+    assert found == [
+        "focal length 3979.9 px vs 360 px",
+        "baseline 0.193 m vs 0.54 m",
+        "image width 2964 px vs 621 px",
+        "image height 1988 px vs 188 px",
+        "matcher parameter num_disparities 272 vs 64",
+    ]
     assert rig_differences(mine, describe_rig(STREET, None, "bm", None)) == ["matcher sgbm vs bm"]
     # unknown fields are not compared (disparities made elsewhere: no matcher)
     assert rig_differences(mine, describe_rig(STREET, None, None, None)) == []
@@ -78,9 +87,26 @@ def sequence_dir(tmp_path_factory):
 
 
 def _map(sequence_dir, model_path, out, *extra):
-    return main(["map", "--sequence", str(sequence_dir), "--voxel", str(VOXEL), "--max-range", "8", "--model",
-                 "convolution", "--matcher-param", "num_disparities=16", "--error-model", str(model_path),
-                 "--out", str(out), *extra])
+    return main(
+        [
+            "map",
+            "--sequence",
+            str(sequence_dir),
+            "--voxel",
+            str(VOXEL),
+            "--max-range",
+            "8",
+            "--model",
+            "convolution",
+            "--matcher-param",
+            "num_disparities=16",
+            "--error-model",
+            str(model_path),
+            "--out",
+            str(out),
+            *extra,
+        ]
+    )
 
 
 def test_mapping_with_a_model_of_another_rig_warns_and_strict_rig_exits_2(sequence_dir, tmp_path, capsys):
@@ -88,8 +114,13 @@ def test_mapping_with_a_model_of_another_rig_warns_and_strict_rig_exits_2(sequen
     params = make_matcher("sgbm", num_disparities=16).params()
     same, other = tmp_path / "same.json", tmp_path / "other.json"
     write_error_model(_model(describe_rig(camera, None, "sgbm", params)), same)
-    write_error_model(_model(describe_rig(dataclasses.replace(camera, focal_px=2 * camera.focal_px), None, "sgbm",
-                                          params), "middlebury-motorcycle"), other)
+    write_error_model(
+        _model(
+            describe_rig(dataclasses.replace(camera, focal_px=2 * camera.focal_px), None, "sgbm", params),
+            "middlebury-motorcycle",
+        ),
+        other,
+    )
     assert _map(sequence_dir, same, tmp_path / "a.npz") == 0
     assert "warning" not in capsys.readouterr().err
     assert _map(sequence_dir, other, tmp_path / "b.npz") == 0

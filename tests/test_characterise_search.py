@@ -33,8 +33,9 @@ def _numpy_quantile_edges(values, n_bins):
     finite = np.unique(values[np.isfinite(values)])
     if finite.size < 2:
         return np.empty(0)
-    quantiles = np.unique(np.quantile(values[np.isfinite(values)], np.arange(1, n_bins) / n_bins,
-                                      method="inverted_cdf"))
+    quantiles = np.unique(
+        np.quantile(values[np.isfinite(values)], np.arange(1, n_bins) / n_bins, method="inverted_cdf")
+    )
     position = np.searchsorted(finite, quantiles)
     position = position[position > 0]
     return np.unique(0.5 * (finite[position - 1] + finite[position]))
@@ -44,8 +45,7 @@ def test_quantile_edges_agree_with_numpy_quantile_on_ties_infinities_and_tiny_sa
     rng = np.random.default_rng(5)
     for trial in range(150):
         n = int(rng.integers(1, 200))
-        values = (rng.integers(0, int(rng.integers(1, 30)), n).astype(float) if trial % 2
-                  else rng.normal(size=n))
+        values = rng.integers(0, int(rng.integers(1, 30)), n).astype(float) if trial % 2 else rng.normal(size=n)
         values[rng.random(n) < 0.1 * (trial % 3)] = np.inf
         for n_bins in (2, 3, 7, 12, 24, 37):
             np.testing.assert_array_equal(quantile_edges(values, n_bins), _numpy_quantile_edges(values, n_bins))
@@ -92,13 +92,17 @@ def _brute_force_search(values, errors, fold, bin_edges, max_classes, max_compon
         for k in range(classes.n_classes):
             per_g = np.zeros(max_components)
             for test_fold in (0, 1):
-                train, test = histogram((label == k) & (fold != test_fold)), histogram((label == k) & (fold == test_fold))
+                train, test = (
+                    histogram((label == k) & (fold != test_fold)),
+                    histogram((label == k) & (fold == test_fold)),
+                )
                 if train.sum() < min_class_errors:
                     return None
                 for g, fit in enumerate(fit_mixtures(edges, train, max_components=max_components, **SEARCH_FIT)):
                     weight = fit_outlier_weight(fit.mixture, outliers[test_fold], edges, train)
-                    mixture = fit.mixture.with_component(weight, outliers[test_fold].means[0],
-                                                         outliers[test_fold].sigmas[0])
+                    mixture = fit.mixture.with_component(
+                        weight, outliers[test_fold].means[0], outliers[test_fold].sigmas[0]
+                    )
                     per_g[g] += test @ np.where(test > 0, mixture.logpdf(centres), 0.0)
             total += per_g.max()
         return total / binned.sum()
@@ -157,4 +161,3 @@ def test_candidate_classes_of_a_larger_bound_use_the_ladder_and_never_exceed_the
     shapes = {tuple(np.unique(c.upper[:, f]).size for f in range(2)) for c in pairs}
     assert shapes == {(a, b) for a in bin_counts(24) for b in bin_counts(24) if a * b <= 24}
     assert all(c.features == ("texture", "disparity_gradient") for c in pairs)
-

@@ -58,9 +58,17 @@ class ScriptedMatcher(StereoMatcher):
 
 
 def _frames(n):
-    return [StereoFrame(np.full((CAMERA.height, CAMERA.width), k, np.uint8),
-                        np.full((CAMERA.height, CAMERA.width), k, np.uint8), CAMERA, None, _pose(k), f"f{k}")
-            for k in range(n)]
+    return [
+        StereoFrame(
+            np.full((CAMERA.height, CAMERA.width), k, np.uint8),
+            np.full((CAMERA.height, CAMERA.width), k, np.uint8),
+            CAMERA,
+            None,
+            _pose(k),
+            f"f{k}",
+        )
+        for k in range(n)
+    ]
 
 
 def _independent(k):
@@ -89,8 +97,9 @@ def test_carried_disparity_is_exact_between_true_frames():
 
 
 def test_independent_errors_are_recovered_with_the_reference_noise_removed():
-    result = self_characterise(_frames(10), ScriptedMatcher(_independent), max_components=1, conditioned=False,
-                               progress=False)
+    result = self_characterise(
+        _frames(10), ScriptedMatcher(_independent), max_components=1, conditioned=False, progress=False
+    )
     record = result.record
     assert record["min_lag"] >= 1
     # a carried value is an affine fit over about 9 points of the other frame: smoother than one error
@@ -100,7 +109,8 @@ def test_independent_errors_are_recovered_with_the_reference_noise_removed():
     assert fitted.statistics()["n_errors"] > 20_000
     assert _core_sigma(model) == pytest.approx(SIGMA_PX, rel=0.06)
     assert record["reference_variance_px2"] == pytest.approx(
-        median_variance(round(record["mean_references"])) * record["carried_sigma_px"] ** 2, rel=0.3)
+        median_variance(round(record["mean_references"])) * record["carried_sigma_px"] ** 2, rel=0.3
+    )
 
 
 def test_repeating_errors_push_the_references_away_and_keep_the_model_honest():
@@ -119,8 +129,15 @@ def test_repeating_errors_push_the_references_away_and_keep_the_model_honest():
 
 
 def test_the_written_model_says_how_it_was_made(tmp_path):
-    result = self_characterise(_frames(6), ScriptedMatcher(_independent), min_lag=1, max_components=1,
-                               conditioned=False, progress=False, dataset="scripted drive")
+    result = self_characterise(
+        _frames(6),
+        ScriptedMatcher(_independent),
+        min_lag=1,
+        max_components=1,
+        conditioned=False,
+        progress=False,
+        dataset="scripted drive",
+    )
     write_characterisation(result.characterisation, tmp_path)
     data = json.loads((tmp_path / "error_model.json").read_text())
     assert data["source"] == "self"
@@ -164,8 +181,21 @@ def test_cli_self_characterises_a_sequence_and_refuses_one_without_poses(tmp_pat
     frames = list(wall.frames(CAMERA, np.stack([_pose(k / 5) for k in range(6)]), seed=0))
     sequence = write_sequence(frames, tmp_path / "seq") and tmp_path / "seq"
     out = tmp_path / "model"
-    argv = ["characterise", "--self", "--sequence", str(sequence), "--matcher", "sgbm", "--plain", "--max-disparity",
-            "15", "--max-components", "2", "--out", str(out)]
+    argv = [
+        "characterise",
+        "--self",
+        "--sequence",
+        str(sequence),
+        "--matcher",
+        "sgbm",
+        "--plain",
+        "--max-disparity",
+        "15",
+        "--max-components",
+        "2",
+        "--out",
+        str(out),
+    ]
     assert main(argv) == 0
     printed = capsys.readouterr().out
     assert "self-characterised from 6 frames" in printed and "reference noise" in printed
@@ -176,6 +206,21 @@ def test_cli_self_characterises_a_sequence_and_refuses_one_without_poses(tmp_pat
     assert main(argv[:-1] + [str(tmp_path / "other")]) == 2
     assert "no poses.txt" in capsys.readouterr().err
     assert not (tmp_path / "other" / "error_model.json").exists()
-    assert main(["characterise", "--self", "--dataset", "middlebury-motorcycle", "--sequence", str(sequence),
-                 "--matcher", "bm", "--out", str(tmp_path / "third")]) == 2
+    assert (
+        main(
+            [
+                "characterise",
+                "--self",
+                "--dataset",
+                "middlebury-motorcycle",
+                "--sequence",
+                str(sequence),
+                "--matcher",
+                "bm",
+                "--out",
+                str(tmp_path / "third"),
+            ]
+        )
+        == 2
+    )
     assert "--self uses no ground truth" in capsys.readouterr().err

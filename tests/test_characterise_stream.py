@@ -30,7 +30,7 @@ N_FRAMES = 12
 
 def _step_disparity(shape):
     """8 px steps every 20 columns on a ramp of 0.1 px per row."""
-    rows, columns = np.mgrid[0:shape[0], 0:shape[1]]
+    rows, columns = np.mgrid[0 : shape[0], 0 : shape[1]]
     return 10.0 + 8.0 * ((columns // 20) % 2) + 0.1 * rows
 
 
@@ -46,8 +46,11 @@ class SeededEdgeMatcher(StereoMatcher):
         rng = np.random.default_rng(int(np.asarray(left, dtype=np.int64).sum()))
         columns = np.arange(left.shape[1]) % 20
         near = np.broadcast_to((columns < 2) | (columns >= 18), left.shape)
-        noise = np.where(near, np.clip(NEAR_EDGE.sample(left.size, rng), -0.9, 0.9).reshape(left.shape),
-                         0.5 * FAR_FROM_EDGE.sample(left.size, rng).reshape(left.shape))
+        noise = np.where(
+            near,
+            np.clip(NEAR_EDGE.sample(left.size, rng), -0.9, 0.9).reshape(left.shape),
+            0.5 * FAR_FROM_EDGE.sample(left.size, rng).reshape(left.shape),
+        )
         disparity = (_step_disparity(left.shape) - noise).astype(np.float32)
         disparity[:, :3] = np.nan  # unmatched border columns
         return disparity
@@ -61,8 +64,16 @@ def frames():
     rng = np.random.default_rng(11)
     truth = _step_disparity(SHAPE).astype(np.float32)
     truth[0, :] = np.nan  # unknown ground truth on the first row
-    return [StereoFrame(rng.integers(0, 256, SHAPE).astype(np.uint8), rng.integers(0, 256, SHAPE).astype(np.uint8),
-                        CAMERA, disparity_gt=truth, name=f"step {i}") for i in range(N_FRAMES)]
+    return [
+        StereoFrame(
+            rng.integers(0, 256, SHAPE).astype(np.uint8),
+            rng.integers(0, 256, SHAPE).astype(np.uint8),
+            CAMERA,
+            disparity_gt=truth,
+            name=f"step {i}",
+        )
+        for i in range(N_FRAMES)
+    ]
 
 
 def _features(frame):
@@ -91,8 +102,10 @@ OPTIONS = {"max_components": 3, "max_classes": 3, "progress": False}
 
 def test_samples_of_chunks_merge_into_the_brute_force_lowest_priorities_in_any_grouping(frames):
     capacity, seed = 3000, 5
-    parts = [PixelSample.from_frame(_features(f), f.disparity_gt, p, capacity=capacity, seed=seed)
-             for p, f in enumerate(frames[:5])]
+    parts = [
+        PixelSample.from_frame(_features(f), f.disparity_gt, p, capacity=capacity, seed=seed)
+        for p, f in enumerate(frames[:5])
+    ]
     forward = parts[0] + parts[1] + parts[2] + parts[3] + parts[4]
     grouped = parts[4] + ((parts[2] + parts[0]) + (parts[3] + parts[1]))
     # Brute force: every characterised pixel with its priority, the `capacity` lowest.
@@ -106,8 +119,13 @@ def test_samples_of_chunks_merge_into_the_brute_force_lowest_priorities_in_any_g
     assert forward.n_seen == grouped.n_seen == len(rows) > capacity and forward.n_samples == capacity
     assert not forward.exhaustive
     assert list(zip(forward.frame.tolist(), forward.pixel.tolist())) == expected
-    for a, b in ((forward.frame, grouped.frame), (forward.pixel, grouped.pixel), (forward.errors, grouped.errors),
-                 (forward.priority, grouped.priority), (forward.right_half, grouped.right_half)):
+    for a, b in (
+        (forward.frame, grouped.frame),
+        (forward.pixel, grouped.pixel),
+        (forward.errors, grouped.errors),
+        (forward.priority, grouped.priority),
+        (forward.right_half, grouped.right_half),
+    ):
         np.testing.assert_array_equal(a, b)
     for name in forward.values:
         np.testing.assert_array_equal(forward.values[name], grouped.values[name])
@@ -115,10 +133,13 @@ def test_samples_of_chunks_merge_into_the_brute_force_lowest_priorities_in_any_g
     frame = frames[2]
     features = _features(frame)
     mine = forward.frame == 2
-    np.testing.assert_array_equal(forward.values["texture"][mine],
-                                  features.values["texture"].ravel()[forward.pixel[mine]].astype(np.float32))
-    np.testing.assert_array_equal(forward.errors[mine], (frame.disparity_gt.astype(np.float64)
-                                                         - features.values["disparity_px"]).ravel()[forward.pixel[mine]])
+    np.testing.assert_array_equal(
+        forward.values["texture"][mine], features.values["texture"].ravel()[forward.pixel[mine]].astype(np.float32)
+    )
+    np.testing.assert_array_equal(
+        forward.errors[mine],
+        (frame.disparity_gt.astype(np.float64) - features.values["disparity_px"]).ravel()[forward.pixel[mine]],
+    )
     np.testing.assert_array_equal(forward.right_half, forward.pixel % SHAPE[1] >= SHAPE[1] / 2)
 
 
@@ -130,7 +151,8 @@ def test_bad_samples_are_refused(frames):
         PixelSample.from_frame(features, frames[0].disparity_gt[:, 1:], 0)
     with pytest.raises(PrismapInputError, match="one capacity"):
         PixelSample.from_frame(features, frames[0].disparity_gt, 0, capacity=10) + PixelSample.from_frame(
-            features, frames[0].disparity_gt, 1, capacity=20)
+            features, frames[0].disparity_gt, 1, capacity=20
+        )
     with pytest.raises(PrismapInputError, match="`search_frames` must be an integer >= 1; got 0"):
         characterise_matcher(frames, SeededEdgeMatcher(), search_frames=0)
 
@@ -142,11 +164,22 @@ def test_an_exhaustive_sample_gives_exactly_the_in_memory_model(frames):
     """Every frame searched, every pixel kept: one pass, and the model of all pixels' features in memory."""
     result = characterise_matcher(frames, SeededEdgeMatcher(), **OPTIONS)
     values, errors, fold = _in_memory(frames)
-    classes, record = choose_classes(values, errors, fold, bin_edges=result.histogram.edges, max_classes=3,
-                                     max_components=3, seed=0)
-    models, histograms = fit_classes(classes, values, errors, bin_width=1 / 32, limit_px=256.0, n_frames=N_FRAMES,
-                                     max_components=3, criterion="bic", tolerance=0.01,
-                                     components=record["components"], outlier=outlier_component(result.mixture))
+    classes, record = choose_classes(
+        values, errors, fold, bin_edges=result.histogram.edges, max_classes=3, max_components=3, seed=0
+    )
+    models, histograms = fit_classes(
+        classes,
+        values,
+        errors,
+        bin_width=1 / 32,
+        limit_px=256.0,
+        n_frames=N_FRAMES,
+        max_components=3,
+        criterion="bic",
+        tolerance=0.01,
+        components=record["components"],
+        outlier=outlier_component(result.mixture),
+    )
     model = result.model
     assert model.conditioned and model.classes.features == classes.features == ("edge_distance_px",)
     np.testing.assert_array_equal(model.classes.lower, classes.lower)
@@ -181,7 +214,9 @@ def test_a_bounded_sample_of_some_frames_streams_exact_class_histograms_and_a_cl
 
     def nats_per_error(model):
         label = model.classes.assign(values, np.ones(errors.size, bool))
-        return sum(model.class_mixtures[k].logpdf(errors[label == k]).sum() for k in range(model.n_classes)) / errors.size
+        return (
+            sum(model.class_mixtures[k].logpdf(errors[label == k]).sum() for k in range(model.n_classes)) / errors.size
+        )
 
     plain = exhaustive.mixture.logpdf(errors).mean()
     assert streamed.model.n_classes == exhaustive.n_classes == 3
@@ -244,6 +279,7 @@ def test_progress_counts_frames_per_pass_and_announces_the_steps(frames, monkeyp
     assert re.search(r"characterise seeded-edge: choose error classes on \d+ of \d+ pixels: 1/1 steps", err)
     assert "characterise seeded-edge: class histograms: 4/4 frames (100%)" in err
     assert f"characterise seeded-edge: fit {1 + result.model.n_classes} mixture(s) by EM, G = 1..2: 1/1 steps" in err
-    characterise_matcher(frames[:4], SeededEdgeMatcher(), search_frames=3, max_components=2, max_classes=2,
-                         progress=False)
+    characterise_matcher(
+        frames[:4], SeededEdgeMatcher(), search_frames=3, max_components=2, max_classes=2, progress=False
+    )
     assert capsys.readouterr().err == ""

@@ -30,9 +30,16 @@ def test_quick_demo_links_only_files_that_exist(quick_demo):
     assert len(links) >= 3 * 3 + 6 + 3 * 5  # 3 characterisations x 3 files, models compare, per experiment 5
     for link in links:
         assert (out / link).is_file(), link
-    for needed in ("characterise/sgbm/table.md", "models/profiles.png", "office2d/results.md", "scene3d/results.md",
-                   "scene3d/sgbm/characterisation/table.md", "office2d/map_slices_known-mixture.png",
-                   "street3d/results.md", "street3d/map_slices_sgbm.png"):
+    for needed in (
+        "characterise/sgbm/table.md",
+        "models/profiles.png",
+        "office2d/results.md",
+        "scene3d/results.md",
+        "scene3d/sgbm/characterisation/table.md",
+        "office2d/map_slices_known-mixture.png",
+        "street3d/results.md",
+        "street3d/map_slices_sgbm.png",
+    ):
         assert needed in links
     assert "PRISM Brier" in index and "Run time:" in index and "selected G =" in index
     assert f"wrote {out / 'index.html'}" in printed
@@ -44,7 +51,8 @@ def test_markdown_tables_become_html_tables():
         "<h3>Title</h3>\n<p>Some <strong>bold</strong> <code>x</code>.</p>\n"
         "<table><thead><tr><th>model</th><th class=num>Brier</th></tr></thead><tbody>"
         "<tr><td>prism</td><td class=num><strong>0.0123</strong></td></tr>"
-        "<tr><td>ideal</td><td class=num>n/a</td></tr></tbody></table>")
+        "<tr><td>ideal</td><td class=num>n/a</td></tr></tbody></table>"
+    )
 
 
 def test_html_report_leads_with_the_answer_and_loads_in_chromium(quick_demo, tmp_path):
@@ -59,14 +67,17 @@ def test_html_report_leads_with_the_answer_and_loads_in_chromium(quick_demo, tmp
     assert len(sources) >= 1 + 3 + 3 * 2 + 4 + 3 * 3 and all(s.startswith("data:image/png;base64,") for s in sources)
     assert (out / "map3d.png").is_file() and page.index("map3d.png") < page.index("map_slices")
     # every winner row names a world and matcher of the runs; PRISM against OctoMap for each 3-D world
-    summary = page[page.index('id="summary"'):page.index('id="headline"')]
+    summary = page[page.index('id="summary"') : page.index('id="headline"')]
     assert summary.count("<tr>") == 1 + 3 and ">scene3d<" in summary and ">street3d<" in summary
-    headline = page[page.index('id="headline"'):page.index('id="maps"')]
+    headline = page[page.index('id="headline"') : page.index('id="maps"')]
     assert ">scene3d<" in headline and ">street3d<" in headline and " vs " in headline
     # each map file linked with the command that opens it; the targets left out; tables folded
     maps = re.findall(r'<a href="([^"]+\.npz)">', page)
     assert "scene3d/cells/sgbm__prism_conditioned.npz" in maps and all((out / m).is_file() for m in maps)
-    assert f"prismap view {out}/scene3d/cells/sgbm__prism_conditioned.npz --gt {out}/scene3d/sequence/occupancy.npz" in page
+    assert (
+        f"prismap view {out}/scene3d/cells/sgbm__prism_conditioned.npz --gt {out}/scene3d/sequence/occupancy.npz"
+        in page
+    )
     assert "Targets" not in page and "NOT MET" not in page and page.count("<details>") >= 3 + 3
     folded = re.findall(r"<details><summary>(.*?)</summary>", page)
     assert any("thesis tables 3.1-3.3" in f for f in folded) and "PRISM Brier" in page
@@ -104,7 +115,10 @@ def test_each_3d_map_of_the_demo_names_the_command_that_makes_it_again(quick_dem
     assert "sgbm__hitmiss.run.json" in (out / "index.html").read_text()
     record = json.loads((out / "scene3d" / "cells" / "sgbm__hitmiss.run.json").read_text())
     argv = shlex.split(record["command"])
-    assert argv[:2] == ["prismap", "map"] and argv[-2:] == ["--out", str((out / "scene3d/cells/sgbm__hitmiss.npz").resolve())]
+    assert argv[:2] == ["prismap", "map"] and argv[-2:] == [
+        "--out",
+        str((out / "scene3d/cells/sgbm__hitmiss.npz").resolve()),
+    ]
     again = tmp_path / "again.npz"
     assert main(argv[1:-1] + [str(again)]) == 0
     assert_same_map(load_map(again), load_map(out / "scene3d" / "cells" / "sgbm__hitmiss.npz"))

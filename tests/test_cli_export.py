@@ -36,11 +36,17 @@ def map_file(grid, tmp_path_factory):
 def read_cloud(path):
     """``(frame_id, topic, (N, 4) float32 x y z probability)`` of the one PointCloud2 in a bag, parsed by its fields."""
     with AnyReader([path], default_typestore=get_typestore(Stores.ROS2_HUMBLE)) as reader:
-        (connection, _, raw), = list(reader.messages())
+        ((connection, _, raw),) = list(reader.messages())
         msg = reader.deserialize(raw, connection.msgtype)
     assert connection.msgtype == "sensor_msgs/msg/PointCloud2" and msg.height == 1 and not msg.is_bigendian
-    dtype = np.dtype({"names": [f.name for f in msg.fields], "formats": ["<f4"] * len(msg.fields),
-                      "offsets": [f.offset for f in msg.fields], "itemsize": msg.point_step})
+    dtype = np.dtype(
+        {
+            "names": [f.name for f in msg.fields],
+            "formats": ["<f4"] * len(msg.fields),
+            "offsets": [f.offset for f in msg.fields],
+            "itemsize": msg.point_step,
+        }
+    )
     assert [(f.name, f.datatype, f.count) for f in msg.fields] == [(n, 7, 1) for n in ("x", "y", "z", "probability")]
     points = np.frombuffer(msg.data.tobytes(), dtype=dtype, count=msg.width)
     assert msg.row_step == msg.width * msg.point_step
@@ -58,8 +64,14 @@ def sort_rows(points):
     return points[np.lexsort(points.T[::-1])]
 
 
-@pytest.mark.parametrize("target, options", [("map.mcap", []), ("bag_mcap", ["--format", "rosbag2"]),
-                                             ("bag_db3", ["--format", "rosbag2", "--storage", "sqlite3"])])
+@pytest.mark.parametrize(
+    "target, options",
+    [
+        ("map.mcap", []),
+        ("bag_mcap", ["--format", "rosbag2"]),
+        ("bag_db3", ["--format", "rosbag2", "--storage", "sqlite3"]),
+    ],
+)
 def test_pointcloud2_reads_back_as_the_maps_known_voxels(grid, map_file, tmp_path, target, options, capsys):
     out = tmp_path / target
     assert main(["export", str(map_file), "--to", str(out), *options]) == 0
@@ -97,12 +109,15 @@ def test_ply_and_octomap_exports_hold_the_map(grid, map_file, tmp_path):
     np.testing.assert_array_equal(occupied, log > 0)
 
 
-@pytest.mark.parametrize("target, options, message", [
-    ("map.xyz", [], "cannot tell the format from the suffix '.xyz'"),
-    ("map.ply", ["--format", "mcap"], "--format mcap files end in .mcap"),
-    ("bag.mcap", ["--format", "rosbag2"], "a ROS 2 bag is a directory"),
-    ("cloud.mcap", ["--min-probability", "1.5"], "min_probability"),
-])
+@pytest.mark.parametrize(
+    "target, options, message",
+    [
+        ("map.xyz", [], "cannot tell the format from the suffix '.xyz'"),
+        ("map.ply", ["--format", "mcap"], "--format mcap files end in .mcap"),
+        ("bag.mcap", ["--format", "rosbag2"], "a ROS 2 bag is a directory"),
+        ("cloud.mcap", ["--min-probability", "1.5"], "min_probability"),
+    ],
+)
 def test_bad_export_options_exit_2_and_write_nothing(map_file, tmp_path, target, options, message, capsys):
     assert main(["export", str(map_file), "--to", str(tmp_path / target), *options]) == 2
     assert message in capsys.readouterr().err

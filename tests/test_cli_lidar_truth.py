@@ -90,9 +90,13 @@ def kitti_root(tmp_path_factory):
     root = tmp_path_factory.mktemp("kitti")
     seq = root / "sequences" / "07"
     seq.mkdir(parents=True)
-    (seq / "calib.txt").write_text(_line("P0", _projection(np.zeros(3))) + _line("P1", _projection(T3 - T2))
-                                   + _line("P2", _projection(T2)) + _line("P3", _projection(T3))
-                                   + _line("Tr", T_CAM0_VELO[:3]))
+    (seq / "calib.txt").write_text(
+        _line("P0", _projection(np.zeros(3)))
+        + _line("P1", _projection(T3 - T2))
+        + _line("P2", _projection(T2))
+        + _line("P3", _projection(T3))
+        + _line("Tr", T_CAM0_VELO[:3])
+    )
     names = [f"{i:06d}.png" for i in range(3)]
     _images(seq / "image_2", names)
     _images(seq / "image_3", names)
@@ -109,8 +113,12 @@ def raw_drive(tmp_path_factory, kitti_root):
     date = tmp_path_factory.mktemp("raw") / "2011_09_26"
     drive = date / "2011_09_26_drive_0001_sync"
     date.mkdir()
-    (date / "calib_cam_to_cam.txt").write_text("calib_time: 09-Jan-2012 13:57:47\n" + _line("R_rect_00", np.eye(3))
-                                               + _line("P_rect_02", _projection(T2)) + _line("P_rect_03", _projection(T3)))
+    (date / "calib_cam_to_cam.txt").write_text(
+        "calib_time: 09-Jan-2012 13:57:47\n"
+        + _line("R_rect_00", np.eye(3))
+        + _line("P_rect_02", _projection(T2))
+        + _line("P_rect_03", _projection(T3))
+    )
     (date / "calib_velo_to_cam.txt").write_text(_line("R", T_CAM0_VELO[:3, :3]) + _line("T", T_CAM0_VELO[:3, 3]))
     names = [f"{i:010d}.png" for i in range(3)]
     _images(drive / "image_02" / "data", names)
@@ -178,8 +186,12 @@ def test_raw_drive_with_colour_camera_poses_equals_the_odometry_truth(kitti_root
     np.testing.assert_array_equal(raw.occupied_keys, odometry.occupied_keys)
     np.testing.assert_array_equal(raw.observed_keys, odometry.observed_keys)
     # the same colour-camera poses given to the odometry sequence replace its camera-0 poses/07.txt
-    kitti = _truth(["--kitti", str(kitti_root), "--sequence", "07", "--poses", str(raw_drive.parent / "poses.txt")],
-                   tmp_path, capsys, "kitti_poses.npz")
+    kitti = _truth(
+        ["--kitti", str(kitti_root), "--sequence", "07", "--poses", str(raw_drive.parent / "poses.txt")],
+        tmp_path,
+        capsys,
+        "kitti_poses.npz",
+    )
     np.testing.assert_array_equal(kitti.observed_keys, odometry.observed_keys)
 
 
@@ -227,15 +239,18 @@ def test_errors_are_one_line_with_exit_status_2(kitti_root, raw_drive, tmp_path,
     assert "`--voxel` must be a finite number > 0; got 0.0" in _error([*kitti, "--voxel", "0"], capsys)
     assert "no frame of the 3" in _error([*kitti, "--voxel", "0.1", "--frames", "5:"], capsys)
     assert "range is empty" in _error([*kitti, "--voxel", "0.1", "--frames", "2:1"], capsys)
-    assert "`--max-range` must be a finite number > 0" in _error([*kitti, "--voxel", "0.1", "--max-range", "-1"],
-                                                                 capsys)
+    assert "`--max-range` must be a finite number > 0" in _error(
+        [*kitti, "--voxel", "0.1", "--max-range", "-1"], capsys
+    )
     assert "--every must be >= 1" in _error([*kitti, "--voxel", "0.1", "--every", "0"], capsys)
-    assert "a raw drive has no camera poses; give --poses" in _error(["--raw", str(raw_drive), "--voxel", "0.1", *out],
-                                                                     capsys)
+    assert "a raw drive has no camera poses; give --poses" in _error(
+        ["--raw", str(raw_drive), "--voxel", "0.1", *out], capsys
+    )
     bad_poses = tmp_path / "poses.txt"
     bad_poses.write_text(_pose_lines(POSES_CAM2[:2]))
-    assert "2 poses for 3 frames" in _error(["--raw", str(raw_drive), "--poses", str(bad_poses), "--voxel", "0.1",
-                                              *out], capsys)
+    assert "2 poses for 3 frames" in _error(
+        ["--raw", str(raw_drive), "--poses", str(bad_poses), "--voxel", "0.1", *out], capsys
+    )
     assert "--kitti needs --sequence" in _error(["--kitti", str(kitti_root), "--voxel", "0.1", *out], capsys)
     poses = kitti_root / "poses" / "07.txt"
     poses.rename(poses.with_name("hidden.txt"))

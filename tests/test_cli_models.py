@@ -32,8 +32,20 @@ def error_model_path(tmp_path_factory):
 
 def test_compare_writes_figures_and_tables(prismap, error_model_path, tmp_path, capsys):
     out = tmp_path / "study"
-    status = prismap(["models", "compare", "--error-model", str(error_model_path), "--out", str(out),
-                      "--distances", "10,2", "--camera", "kitti"])
+    status = prismap(
+        [
+            "models",
+            "compare",
+            "--error-model",
+            str(error_model_path),
+            "--out",
+            str(out),
+            "--distances",
+            "10,2",
+            "--camera",
+            "kitti",
+        ]
+    )
     assert status == 0
     for name in ("profiles.png", "prism_sweeps.png", "influence.png", "divergence.png"):
         assert (out / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n", name

@@ -13,18 +13,33 @@ from prismap.sensor_models import conditioned_sensor_model, failure_floor
 from prismap.stereo import make_matcher, search_range
 from support import planes_frame
 
-FIT_FIELDS = {"log_likelihood": -100.0, "aic": 210.0, "bic": 215.0, "n_samples": 1000.0, "n_iter": 12,
-              "converged": True}
+FIT_FIELDS = {
+    "log_likelihood": -100.0,
+    "aic": 210.0,
+    "bic": 215.0,
+    "n_samples": 1000.0,
+    "n_iter": 12,
+    "converged": True,
+}
 WEIGHTS, MEANS, SIGMAS = [0.9, 0.1], [0.02, -0.3], [0.35, 4.0]
 
 
 def _version_2_file(path):
     """A version-2 file as main wrote it before the failure component: a plain model of one class."""
     entry = {"n_components": 2, "weights": WEIGHTS, "means": MEANS, "sigmas": SIGMAS, **FIT_FIELDS}
-    data = {"format": "prismap-error-model", "format_version": 2, "matcher": {"name": "sgbm", "params": {}},
-            "dataset": "test", "bin_width_px": 0.03125, "statistics": {}, "selection": {"criterion": "bic"},
-            "selected_components": 2, "models": [entry], "features": {"names": []},
-            "classes": [{"bounds": {}, "share": 1.0, "selected_components": 2, "models": [entry]}]}
+    data = {
+        "format": "prismap-error-model",
+        "format_version": 2,
+        "matcher": {"name": "sgbm", "params": {}},
+        "dataset": "test",
+        "bin_width_px": 0.03125,
+        "statistics": {},
+        "selection": {"criterion": "bic"},
+        "selected_components": 2,
+        "models": [entry],
+        "features": {"names": []},
+        "classes": [{"bounds": {}, "share": 1.0, "selected_components": 2, "models": [entry]}],
+    }
     path.write_text(json.dumps(data))
     return path
 
@@ -40,8 +55,14 @@ def test_a_version_2_file_has_no_failure_component_and_maps_as_its_gaussians(tmp
     maps = []
     for error_model in (model, GaussianMixture(WEIGHTS, MEANS, SIGMAS)):
         for name in ("prism", "andert"):
-            sensor = conditioned_sensor_model(name, camera, voxel_size_m=0.2, p0=0.05, error_model=error_model,
-                                              **({"near_m": 1.0, "far_depth_m": 40.0} if name == "prism" else {}))
+            sensor = conditioned_sensor_model(
+                name,
+                camera,
+                voxel_size_m=0.2,
+                p0=0.05,
+                error_model=error_model,
+                **({"near_m": 1.0, "far_depth_m": 40.0} if name == "prism" else {}),
+            )
             grid = OccupancyMap(0.2, p0=0.05)
             integrate_disparity(grid, disparity, camera, pose, sensor, mode="projective", max_range_m=20.0)
             maps.append(grid.known_voxels())
@@ -61,19 +82,26 @@ def test_characterisation_gives_every_mixture_a_failure_component():
 
     frame = load_middlebury_motorcycle()
     rows = slice(150, 250)
-    small = type(frame)(frame.left[rows], frame.right[rows], frame.camera, disparity_gt=frame.disparity_gt[rows],
-                        name="motorcycle rows 150-250")
+    small = type(frame)(
+        frame.left[rows],
+        frame.right[rows],
+        frame.camera,
+        disparity_gt=frame.disparity_gt[rows],
+        name="motorcycle rows 150-250",
+    )
     matcher = make_matcher("sgbm", num_disparities=96, left_right_check=True)
-    result = characterise_matcher([small], matcher, dataset="motorcycle", progress=False, max_components=3,
-                                  max_classes=4)
+    result = characterise_matcher(
+        [small], matcher, dataset="motorcycle", progress=False, max_components=3, max_classes=4
+    )
     model = result.model
     for mixture in (model.mixture, *model.class_mixtures):
         assert mixture.search_range_px == (0.0, 96.0)
         n = model.statistics["n_errors"] if mixture is model.mixture else None
         assert mixture.failure_weight > (1.0 / (n + 1) if n else 0.0)
     assert all(class_model.outlier is None for class_model in model.class_models)
-    plain = characterise_matcher([small], matcher, dataset="motorcycle", progress=False, max_components=3,
-                                 max_classes=4, failures=False)
+    plain = characterise_matcher(
+        [small], matcher, dataset="motorcycle", progress=False, max_components=3, max_classes=4, failures=False
+    )
     assert plain.model.mixture.failure_weight == 0.0 and plain.model.mixture.search_range_px is None
     assert model.fit(3).n_parameters == plain.model.fit(3).n_parameters + 1
 
@@ -86,8 +114,14 @@ def test_written_model_round_trips_its_failure_component(tmp_path, failures):
     frame = load_middlebury_motorcycle()
     rows = slice(200, 240)
     small = type(frame)(frame.left[rows], frame.right[rows], frame.camera, disparity_gt=frame.disparity_gt[rows])
-    result = characterise_matcher([small], make_matcher("bm", num_disparities=96), progress=False,
-                                  conditioned=False, max_components=2, failures=failures)
+    result = characterise_matcher(
+        [small],
+        make_matcher("bm", num_disparities=96),
+        progress=False,
+        conditioned=False,
+        max_components=2,
+        failures=failures,
+    )
     write_error_model(result.model, tmp_path / "model.json")
     loaded = load_error_model(tmp_path / "model.json")
     assert loaded.mixture.failure_weight == result.model.mixture.failure_weight

@@ -170,7 +170,13 @@ def test_align_empty_map_scores_prior():
     ],
 )
 def test_align_errors(kwargs, match):
-    args = {"keys": [[0, 0, 0]], "probability": [0.5], "occupied_keys": [[0, 0, 0]], "region_keys": [[0, 0, 0]], "p0": 0.1}
+    args = {
+        "keys": [[0, 0, 0]],
+        "probability": [0.5],
+        "occupied_keys": [[0, 0, 0]],
+        "region_keys": [[0, 0, 0]],
+        "p0": 0.1,
+    }
     args.update(kwargs)
     p0 = args.pop("p0")
     with pytest.raises(PrismapInputError, match=match):

@@ -105,8 +105,10 @@ def test_the_report_lists_every_maps_confident_and_wrong_rates():
     from prismap.experiment._report import REPORT_PARTS, _confident_and_wrong
 
     y = np.array([False, False, False, True])
-    cells = (CellResult("bm", "prism_conditioned", score_map(np.array([0.995, 0.2, 0.1, 0.005]), y), 1.0, 3),
-             CellResult("bm", "andert", score_map(np.array([0.5, 0.2, 0.1, 0.7]), y), 1.0, 3))
+    cells = (
+        CellResult("bm", "prism_conditioned", score_map(np.array([0.995, 0.2, 0.1, 0.005]), y), 1.0, 3),
+        CellResult("bm", "andert", score_map(np.array([0.5, 0.2, 0.1, 0.7]), y), 1.0, 3),
+    )
     report = SimpleNamespace(experiments={"street3d": SimpleNamespace(cells=cells)})
     html = "".join(_confident_and_wrong(report))
     assert _confident_and_wrong in REPORT_PARTS

@@ -82,19 +82,25 @@ def test_a_directory_of_another_run_is_refused(office):
 
 @pytest.mark.parametrize(
     "kwargs, message",
-    [({"n_frames": 0}, "`n_frames` must be a positive integer"), ({"voxel_size_m": -1}, "voxel_size_m"),
-     ({"error_model": [0.3]}, "`error_model` must be a GaussianMixture")],
+    [
+        ({"n_frames": 0}, "`n_frames` must be a positive integer"),
+        ({"voxel_size_m": -1}, "voxel_size_m"),
+        ({"error_model": [0.3]}, "`error_model` must be a GaussianMixture"),
+    ],
 )
 def test_bad_office_options_are_named(tmp_path, kwargs, message):
     with pytest.raises(PrismapInputError, match=message):
         run_office2d(tmp_path, quick=True, **kwargs)
 
 
-@pytest.mark.parametrize("world, message", [
-    ("office2d", r"`n_frames` must be at most \d+ \(the scans of the office tour\); got 100000"),
-    ("scene3d", r"`n_frames` must be an integer in \[1, 360\].*got 100000"),
-    ("street3d", r"100000 frames of 1.0 m end at x = 100003 m: the street allows up to x = 54 m"),
-])
+@pytest.mark.parametrize(
+    "world, message",
+    [
+        ("office2d", r"`n_frames` must be at most \d+ \(the scans of the office tour\); got 100000"),
+        ("scene3d", r"`n_frames` must be an integer in \[1, 360\].*got 100000"),
+        ("street3d", r"100000 frames of 1.0 m end at x = 100003 m: the street allows up to x = 54 m"),
+    ],
+)
 def test_experiment_frames_beyond_the_world_exit_2_before_anything_is_written(tmp_path, capsys, world, message):
     from prismap.cli import main
 
@@ -137,8 +143,17 @@ def test_prior_is_the_smoothed_occupancy_ratio_of_the_observed_voxels():
 def test_results_round_trip_and_table_marks_the_best(tmp_path):
     rng = np.random.default_rng(3)
     truth = rng.random(200) < 0.2
-    cells = [CellResult("sgbm", name, score_map(np.clip(truth * q + rng.random(200) * (1 - q), 0, 1), truth),
-                        float(i), 7, {"seed": 3}) for i, (name, q) in enumerate([("ideal", 0.2), ("prism", 0.8)])]
+    cells = [
+        CellResult(
+            "sgbm",
+            name,
+            score_map(np.clip(truth * q + rng.random(200) * (1 - q), 0, 1), truth),
+            float(i),
+            7,
+            {"seed": 3},
+        )
+        for i, (name, q) in enumerate([("ideal", 0.2), ("prism", 0.8)])
+    ]
     paths = write_results(cells, tmp_path, title="T", notes=("a note",), settings={"seed": 3})
     back = read_results(paths["json"])
     assert [c.to_dict() for c in back] == [c.to_dict() for c in cells]

@@ -43,7 +43,6 @@ def test_a_confident_mistake_costs_less_when_read_with_failures():
     assert rows[0].to_dict()["log_loss"] == pytest.approx(independent.log_loss)
 
 
-
 def test_a_matcher_without_a_fit_is_named_in_the_section():
     text = format_fusion_section([], {"bm": None, "sgbm": FAILURE})
     assert "bm: not fitted (too few surface points" in text and "sgbm: r = 0.0500" in text

@@ -75,9 +75,12 @@ def test_prism_solid_depth_is_measured_on_the_characterisation_frames(scene):
 
 @pytest.mark.parametrize(
     "kwargs, message",
-    [({"n_frames": 1}, "`n_frames` must be an integer >= 2"), ({"matchers": ("sad",)}, "subset of"),
-     ({"characterise_every": 1}, "`characterise_every` must be an integer >= 2"),
-     ({"grid_offset": 1.5}, r"`grid_offset` must lie in \[0, 1\)")],
+    [
+        ({"n_frames": 1}, "`n_frames` must be an integer >= 2"),
+        ({"matchers": ("sad",)}, "subset of"),
+        ({"characterise_every": 1}, "`characterise_every` must be an integer >= 2"),
+        ({"grid_offset": 1.5}, r"`grid_offset` must lie in \[0, 1\)"),
+    ],
 )
 def test_bad_scene_options_are_named(tmp_path, kwargs, message):
     with pytest.raises(PrismapInputError, match=message):
@@ -101,8 +104,9 @@ def test_class_pass_through_is_measured_per_class_only_when_asked(scene):
     shift = conditioned["grid_offset_m"]
     base = sim.indoor_scene(seed=0)
     world = sim.Scene3D.from_boxes(base.box_lo + shift, base.box_hi + shift)
-    params = class_model_params(conditioned["derived_model_params"], conditioned, world, frames, error_model,
-                                 out / "sgbm" / "disparity")
+    params = class_model_params(
+        conditioned["derived_model_params"], conditioned, world, frames, error_model, out / "sgbm" / "disparity"
+    )
     ratios = np.array(params["prism"]["class_pass_through"])
     assert ratios.shape == (error_model.n_classes,) and error_model.n_classes > 1
     assert np.all((ratios > 0) & (ratios < 1)) and ratios.max() > 2 * ratios.min()  # passes crowd near edges

@@ -43,18 +43,40 @@ def test_class_log_likelihoods_match_a_pixel_by_pixel_sum():
 
 
 def _document(self_brier, self_moto_auc, lidar_gap):
-    scores = {"brier": 0.10, "log_loss": 0.30, "ece": 0.02, "roc_auc": 0.90, "occupied_called_free": 0.2,
-              "free_called_occupied": 0.05}
-    worse = dict(scores, brier=0.2, log_loss=0.6, ece=0.05, roc_auc=self_moto_auc, occupied_called_free=0.4,
-                 free_called_occupied=0.1)
-    cells = [{"matcher": "sgbm", "model": "prism", "source": "ground-truth", "scores": scores},
-             {"matcher": "sgbm", "model": "prism", "source": "self", "scores": dict(scores, brier=self_brier)},
-             {"matcher": "sgbm", "model": "prism", "source": "motorcycle", "scores": worse}]
+    scores = {
+        "brier": 0.10,
+        "log_loss": 0.30,
+        "ece": 0.02,
+        "roc_auc": 0.90,
+        "occupied_called_free": 0.2,
+        "free_called_occupied": 0.05,
+    }
+    worse = dict(
+        scores,
+        brier=0.2,
+        log_loss=0.6,
+        ece=0.05,
+        roc_auc=self_moto_auc,
+        occupied_called_free=0.4,
+        free_called_occupied=0.1,
+    )
+    cells = [
+        {"matcher": "sgbm", "model": "prism", "source": "ground-truth", "scores": scores},
+        {"matcher": "sgbm", "model": "prism", "source": "self", "scores": dict(scores, brier=self_brier)},
+        {"matcher": "sgbm", "model": "prism", "source": "motorcycle", "scores": worse},
+    ]
     ll = {"conditioned_nats_per_error": -1.0, "plain_nats_per_error": -1.1, "n_errors": 10}
-    likelihood = {"sgbm": {"ground-truth": ll, "self": ll, "motorcycle": ll,
-                           "lidar": dict(ll, conditioned_nats_per_error=-1.0 - lidar_gap),
-                           "self_by_class": [{"class": "all", "n_errors": 10, "model_nats_per_error": -1.2,
-                                              "reference_nats_per_error": -1.0}]}}
+    likelihood = {
+        "sgbm": {
+            "ground-truth": ll,
+            "self": ll,
+            "motorcycle": ll,
+            "lidar": dict(ll, conditioned_nats_per_error=-1.0 - lidar_gap),
+            "self_by_class": [
+                {"class": "all", "n_errors": 10, "model_nats_per_error": -1.2, "reference_nats_per_error": -1.0}
+            ],
+        }
+    }
     return {"world": "street3d", "p0": 0.1, "cells": cells, "likelihood": likelihood}
 
 

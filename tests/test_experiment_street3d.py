@@ -75,8 +75,10 @@ def test_the_mapping_frames_likelihood_matches_a_per_pixel_reference(street):
                     errors.append(error)
     labels, errors = np.array(labels), np.array(errors)
     count = errors.size
-    conditioned = sum(np.log(density(mixture, errors[labels == k])).sum()
-                      for k, mixture in enumerate(model.class_mixtures)) / count
+    conditioned = (
+        sum(np.log(density(mixture, errors[labels == k])).sum() for k, mixture in enumerate(model.class_mixtures))
+        / count
+    )
     plain = np.log(density(model.mixture, errors)).mean()
     assert measured["n_errors"] == count > 1000
     assert measured["conditioned_nats_per_error"] == pytest.approx(conditioned, rel=1e-9)
@@ -100,8 +102,10 @@ def test_the_cli_runs_the_street_world(monkeypatch, tmp_path, capsys):
     monkeypatch.setattr(prismap.experiment, "run_rendered_world", fake)
     assert main(["experiment", "--world", "street3d", "--quick", "--out", str(tmp_path)]) == 0
     assert main(["experiment", "--world", "avenue3d", "--out", str(tmp_path), "--seed", "3"]) == 0
-    assert calls == [("street3d", {"n_frames": None, "voxel_size_m": None, "seed": 0, "quick": True}),
-                     ("avenue3d", {"n_frames": None, "voxel_size_m": None, "seed": 3, "quick": False})]
+    assert calls == [
+        ("street3d", {"n_frames": None, "voxel_size_m": None, "seed": 0, "quick": True}),
+        ("avenue3d", {"n_frames": None, "voxel_size_m": None, "seed": 3, "quick": False}),
+    ]
     assert "| table |" in capsys.readouterr().out
 
 
@@ -149,9 +153,11 @@ def test_the_results_compare_fusions_fitted_on_the_characterisation_frames(stree
     assert block["model"] == "persistent-failure" and block["n_pairs"] >= 100
     assert 0.0 <= block["rate"] <= block["persistence"] <= 1.0
     rows = document["fusion"]["rows"]
-    assert {(r["model"], r["fusion"]) for r in rows} == {(m, f) for m in ("prism", "prism_conditioned")
-                                                       for f in ("independent", "persistent failure",
-                                                                 "clamped at one view")}
+    assert {(r["model"], r["fusion"]) for r in rows} == {
+        (m, f)
+        for m in ("prism", "prism_conditioned")
+        for f in ("independent", "persistent failure", "clamped at one view")
+    }
     cells = {c["model"]: c["scores"] for c in document["cells"]}
     for row in rows:  # the independent reading is the cell's own score
         if row["fusion"] == "independent":

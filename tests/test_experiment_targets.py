@@ -31,9 +31,13 @@ def test_variant_names_and_labels():
 
 
 def test_each_claim_is_decided_by_its_numbers():
-    results = [cell("sgbm", "andert", 0.030, 0.120, 0.90, 0.40), cell("sgbm", "prism", 0.025, 0.110, 0.91, 0.30),
-               cell("sgbm", "prism_conditioned", 0.024, 0.098, 0.90, 0.30),
-               cell("bm", "prism", 0.03, 0.13, 0.88, 0.42), cell("bm", "prism_conditioned", 0.031, 0.12, 0.89, 0.41)]
+    results = [
+        cell("sgbm", "andert", 0.030, 0.120, 0.90, 0.40),
+        cell("sgbm", "prism", 0.025, 0.110, 0.91, 0.30),
+        cell("sgbm", "prism_conditioned", 0.024, 0.098, 0.90, 0.30),
+        cell("bm", "prism", 0.03, 0.13, 0.88, 0.42),
+        cell("bm", "prism_conditioned", 0.031, 0.12, 0.89, 0.41),
+    ]
     models = {"sgbm": error_model(-0.80, -0.70, 5), "bm": error_model(-0.75, -0.75, 1)}
     targets = {t.claim: t for t in measure_targets("street3d", results, models)}
     met = {claim: t.met for claim, t in targets.items()}
@@ -63,25 +67,37 @@ def test_each_claim_is_decided_by_its_numbers():
 @pytest.mark.parametrize("world", ["scene3d", "street3d"])
 def test_a_run_without_conditioned_prism_decides_only_the_error_models(world):
     targets = measure_targets(world, [cell("sgbm", "prism", 0.02, 0.1, 0.9, 0.3)], {"sgbm": error_model(-1.0, -0.9, 3)})
-    assert [t.claim for t in targets] == [f"{world}, sgbm: held-out log-likelihood of the errors higher conditioned "
-                                          "than plain"]
+    assert [t.claim for t in targets] == [
+        f"{world}, sgbm: held-out log-likelihood of the errors higher conditioned than plain"
+    ]
     assert "No target applies" in format_targets([])
 
 
 def test_the_mapping_frames_likelihood_is_a_target_decided_by_its_numbers():
-    mapped = {"sgbm": {"conditioned_nats_per_error": -0.40, "plain_nats_per_error": -0.52, "n_errors": 900},
-              "bm": {"conditioned_nats_per_error": -0.94, "plain_nats_per_error": -0.54, "n_errors": 700}}
+    mapped = {
+        "sgbm": {"conditioned_nats_per_error": -0.40, "plain_nats_per_error": -0.52, "n_errors": 900},
+        "bm": {"conditioned_nats_per_error": -0.94, "plain_nats_per_error": -0.54, "n_errors": 700},
+    }
     targets = measure_targets("street3d", [], {}, mapped)
     assert [(t.claim, t.measured, t.met) for t in targets] == [
-        ("street3d, sgbm: log-likelihood of the mapping frames' errors higher conditioned than plain",
-         "-0.4000 against -0.5200 nats per error (900 errors)", True),
-        ("street3d, bm: log-likelihood of the mapping frames' errors higher conditioned than plain",
-         "-0.9400 against -0.5400 nats per error (700 errors)", False),
+        (
+            "street3d, sgbm: log-likelihood of the mapping frames' errors higher conditioned than plain",
+            "-0.4000 against -0.5200 nats per error (900 errors)",
+            True,
+        ),
+        (
+            "street3d, bm: log-likelihood of the mapping frames' errors higher conditioned than plain",
+            "-0.9400 against -0.5400 nats per error (700 errors)",
+            False,
+        ),
     ]
 
 
 def test_the_champions_own_fusion_variant_is_not_its_rival():
-    base = [cell("sgbm", "prism", 0.025, 0.110, 0.91, 0.30), cell("sgbm", "prism_conditioned", 0.024, 0.098, 0.90, 0.30)]
+    base = [
+        cell("sgbm", "prism", 0.025, 0.110, 0.91, 0.30),
+        cell("sgbm", "prism_conditioned", 0.024, 0.098, 0.90, 0.30),
+    ]
     sibling = cell("sgbm", "prism_conditioned_map_prior", 0.001, 0.001, 0.99, 0.0)  # better on every score
     models = {"sgbm": error_model(-0.80, -0.70, 5)}
     alone = [(t.claim, t.measured, t.met) for t in measure_targets("scene3d", base, models)]

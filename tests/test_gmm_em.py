@@ -123,7 +123,9 @@ def test_more_components_never_lower_the_log_likelihood_and_selection_prefers_th
 
 def test_selection_rule_on_hand_made_scores():
     def fake(g, bic):
-        return MixtureFit(GaussianMixture(np.full(g, 1 / g), np.zeros(g), np.ones(g)), -bic / 2, bic, bic, 1000.0, 1, True)
+        return MixtureFit(
+            GaussianMixture(np.full(g, 1 / g), np.zeros(g), np.ones(g)), -bic / 2, bic, bic, 1000.0, 1, True
+        )
 
     fits = [fake(1, 5000.0), fake(2, 3030.0), fake(3, 2990.0), fake(4, 2985.0)]
     assert select_components(fits, tolerance=0) == 4

@@ -65,11 +65,13 @@ def test_plain_mixture_is_unchanged_and_json_round_trips():
 
 @pytest.mark.parametrize(
     ("kwargs", "fragment"),
-    [({"failure_weight": 1.0, "search_range_px": SEARCH}, "failure_weight"),
-     ({"failure_weight": -0.1, "search_range_px": SEARCH}, "failure_weight"),
-     ({"failure_weight": 0.1}, "needs `search_range_px`"),
-     ({"failure_weight": 0.1, "search_range_px": (5.0, 5.0)}, "lo < hi"),
-     ({"failure_weight": 0.1, "search_range_px": "wide"}, "two numbers")],
+    [
+        ({"failure_weight": 1.0, "search_range_px": SEARCH}, "failure_weight"),
+        ({"failure_weight": -0.1, "search_range_px": SEARCH}, "failure_weight"),
+        ({"failure_weight": 0.1}, "needs `search_range_px`"),
+        ({"failure_weight": 0.1, "search_range_px": (5.0, 5.0)}, "lo < hi"),
+        ({"failure_weight": 0.1, "search_range_px": "wide"}, "two numbers"),
+    ],
 )
 def test_bad_failure_parameters_are_named(kwargs, fragment):
     with pytest.raises(PrismapInputError, match=fragment):
@@ -113,12 +115,16 @@ def test_map_em_kernel_matches_a_numpy_reference_step():
     w, mu, var, wf, _, n_iter, _ = em_weighted(points, counts, w0, mu0, var0, 1e-6, 1e-300, 1, floor, wf0, prior)
     assert n_iter == 1
     full = np.append(w0 * (1 - wf0), wf0)
-    dens = np.stack([full[0] * stats.norm.pdf(points, mu0[0], 1.0), full[1] * stats.norm.pdf(points, mu0[1], 2.0),
-                     np.full(points.size, wf0 * floor)])
+    dens = np.stack(
+        [
+            full[0] * stats.norm.pdf(points, mu0[0], 1.0),
+            full[1] * stats.norm.pdf(points, mu0[1], 2.0),
+            np.full(points.size, wf0 * floor),
+        ]
+    )
     resp = dens / dens.sum(axis=0) * counts
     total = counts.sum() + prior
     assert wf == pytest.approx((resp[2].sum() + prior) / total, rel=1e-12)
     gauss = resp[:2].sum(axis=1) / total
     np.testing.assert_allclose(w, gauss / gauss.sum(), rtol=1e-12)
     np.testing.assert_allclose(mu, (resp[:2] * points).sum(axis=1) / resp[:2].sum(axis=1), rtol=1e-12)
-

@@ -198,7 +198,9 @@ def test_cast_into_registers_the_cells_of_cast_rays_while_growing_the_accumulato
     flat = acc.payload["acc"][: len(acc)].reshape(-1, 4)  # the rows of the blocks in use (spare capacity is garbage)
     counts = np.bincount(rows, minlength=flat.shape[0])
     np.testing.assert_array_equal(flat[:, 1], counts)
-    np.testing.assert_allclose(flat[:, 0], np.bincount(rows, weights=np.arange(rows.size), minlength=flat.shape[0]), rtol=1e-6)
+    np.testing.assert_allclose(
+        flat[:, 0], np.bincount(rows, weights=np.arange(rows.size), minlength=flat.shape[0]), rtol=1e-6
+    )
 
 
 def test_chunked_pipeline_gives_the_map_of_one_chunk(monkeypatch):
@@ -240,8 +242,9 @@ def test_hit_miss_cast_gives_the_map_of_the_cell_path(policy, ndim):
         model = cls(focal_baseline=FB, voxel_size_m=0.1, p0=0.3)
         assert (model.hit_miss_increments() is None) == (cls is CellPath)
         grid = OccupancyMap(0.1, p0=0.3, ndim=ndim)
-        grid.integrate_rays([0.05, -0.3, 0.02][:ndim], rays, disparity, model, policy=policy, max_range_m=8.0,
-                            extra_noise_px=noise)
+        grid.integrate_rays(
+            [0.05, -0.3, 0.02][:ndim], rays, disparity, model, policy=policy, max_range_m=8.0, extra_noise_px=noise
+        )
         maps.append(grid)
     assert maps[0].n_known > (50_000 if ndim == 3 else 2_000)
     assert_same_map(*maps)
@@ -291,8 +294,25 @@ def test_rotate_rays_equals_the_matrix_product():
     np.testing.assert_allclose(rotate_rays(rays, rotation), rays @ rotation.T, rtol=1e-14, atol=1e-15)
 
 
-def _project(key_min, shape, origin, R_cam_world, focal, cx, cy, ray_index, rays, t_stop, exclusive, voxel_size, *,
-             capacity=64, bits=(2, 2, 2), acc=None, parts=1):
+def _project(
+    key_min,
+    shape,
+    origin,
+    R_cam_world,
+    focal,
+    cx,
+    cy,
+    ray_index,
+    rays,
+    t_stop,
+    exclusive,
+    voxel_size,
+    *,
+    capacity=64,
+    bits=(2, 2, 2),
+    acc=None,
+    parts=1,
+):
     """The projective walk's kept voxels (subsample 1), its lines in ``parts`` parts whose cell arrays start with
     room for ``capacity`` cells, registered in order in an accumulator (by default empty, so grown many times):
     ``(ray, key, t_in, t_out)`` with keys read back through the accumulator's blocks."""
@@ -300,12 +320,28 @@ def _project(key_min, shape, origin, R_cam_world, focal, cx, cy, ray_index, rays
 
     acc = _accumulator.new_accumulator(bits) if acc is None else acc
     stops = _kernels_project.stop_image(ray_index, t_stop)
-    geometry = (key_min, shape, origin, R_cam_world, focal, cx, cy, 1.0, ray_index, rays, exclusive, stops,
-                _kernels_project.tile_stops(stops), voxel_size)
+    geometry = (
+        key_min,
+        shape,
+        origin,
+        R_cam_world,
+        focal,
+        cx,
+        cy,
+        1.0,
+        ray_index,
+        rays,
+        exclusive,
+        stops,
+        _kernels_project.tile_stops(stops),
+        voxel_size,
+    )
     cuts = np.linspace(0, _kernels_project.walk_lines(R_cam_world, shape), parts + 1).astype(np.int64)
     max_cells = _accumulator.frame_budget_bytes() // 32
-    walked = [_kernels_project.project_part(*geometry, start, stop, capacity, max_cells)
-              for start, stop in zip(cuts[:-1], cuts[1:])]
+    walked = [
+        _kernels_project.project_part(*geometry, start, stop, capacity, max_cells)
+        for start, stop in zip(cuts[:-1], cuts[1:])
+    ]
     keys, ray, t_in, t_out = (np.concatenate([part[k][: part[4]] for part in walked]) for k in range(4))
     n_before = acc.payload["acc"][: len(acc), :, 1].sum()
     _accumulator.scatter_keys(acc, keys, np.arange(keys.shape[0], dtype=np.float64))
@@ -336,8 +372,11 @@ def test_projected_cells_do_not_depend_on_the_room_they_start_with():
     # for the whole box, and as with 8^3 blocks (other block changes, other resumes).
     view = _small_view()
     full = _project(*view, capacity=int(np.prod(view[1])))
-    for got in (_project(*view, capacity=7), _project(*view, capacity=7, bits=(3, 3, 3)),
-                _project(*view, capacity=7, parts=5)):
+    for got in (
+        _project(*view, capacity=7),
+        _project(*view, capacity=7, bits=(3, 3, 3)),
+        _project(*view, capacity=7, parts=5),
+    ):
         assert got[0].size == full[0].size > 7
         for a, b in zip(full, got):
             np.testing.assert_array_equal(a, b)
@@ -352,8 +391,9 @@ def test_the_walk_runs_along_the_world_axis_nearest_the_image_rows():
     assert _loop_axes(street[[1, 0, 2]]) == (0, 1, 2)  # rolled a quarter turn: image rows along world z
 
 
-def _project_voxels_reference(key_min, shape, origin, R_cam_world, focal, cx, cy, ray_index, rays, t_stop, exclusive,
-                              voxel_size):
+def _project_voxels_reference(
+    key_min, shape, origin, R_cam_world, focal, cx, cy, ray_index, rays, t_stop, exclusive, voxel_size
+):
     """Every voxel of the box by the rule of ``project_voxels`` (numpy, subsample 1): (ray, key, t_in, t_out)."""
     grid = np.stack(np.meshgrid(*(np.arange(s) for s in shape), indexing="ij"), -1).reshape(-1, 3) + key_min
     p = ((grid + 0.5) * voxel_size - origin) @ R_cam_world.T

@@ -50,8 +50,18 @@ def test_projective_hit_miss_added_while_projecting_gives_the_map_of_the_cell_pa
         model = cls(focal_baseline=camera.focal_baseline, voxel_size_m=0.1, p0=0.3)
         grid = OccupancyMap(0.1, p0=0.3)
         for subsample, cov in ((1, None), (2, np.eye(3) * 0.05**2)):
-            integrate_disparity(grid, disparity, camera, pose, model, mode="projective", policy=policy, max_range_m=6.0,
-                                     subsample=subsample, pose_covariance=cov)
+            integrate_disparity(
+                grid,
+                disparity,
+                camera,
+                pose,
+                model,
+                mode="projective",
+                policy=policy,
+                max_range_m=6.0,
+                subsample=subsample,
+                pose_covariance=cov,
+            )
         maps.append(grid)
     assert maps[0].n_known > 20_000
     assert_same_map(*maps)
@@ -107,7 +117,9 @@ def test_queries_on_a_hand_made_ray():
     np.testing.assert_allclose(extent, [0, 0.6, 0, 0.1])
     image, _ = grid.slice_image(z_range_m=(-1.0, 1.0))
     assert image.shape == (1, 6)
-    hit, hit_keys, distance = grid.first_occupied([0.0, 0.05, 0.05], [[1.0, 0.0, 0.0], [-1.0, 0.0, 0.0]], max_range_m=2.0)
+    hit, hit_keys, distance = grid.first_occupied(
+        [0.0, 0.05, 0.05], [[1.0, 0.0, 0.0], [-1.0, 0.0, 0.0]], max_range_m=2.0
+    )
     assert hit.tolist() == [True, False] and hit_keys[0].tolist() == [5, 0, 0]
     np.testing.assert_allclose(distance, [0.5, np.nan])
 
@@ -129,7 +141,9 @@ def test_pose_noise_formula_and_grouping():
     disparity = np.array([FB / 2.0, FB / 4.0])
     # Position only, along the optical axis: sigma_d = f b sigma_z / z^2.
     cov = np.diag([0.0, 0.0, 0.01**2])
-    np.testing.assert_allclose(pose_noise_px(disparity, rays, np.eye(3), cov, FB, 0.0), FB * 0.01 / np.array([4.0, 16.0]))
+    np.testing.assert_allclose(
+        pose_noise_px(disparity, rays, np.eye(3), cov, FB, 0.0), FB * 0.01 / np.array([4.0, 16.0])
+    )
     # Rotation about the camera y axis moves depth by -p_x dtheta_y: only the off-axis ray feels it.
     cov6 = np.zeros((6, 6))
     cov6[4, 4] = 0.001**2
@@ -144,8 +158,9 @@ def test_pose_noise_formula_and_grouping():
 
     camera, pose, disp = small_frame()
     grid = OccupancyMap(0.1, p0=0.5)
-    integrate_disparity(grid, disp, camera, pose, Spy(camera.focal_baseline), pose_covariance=np.eye(3) * 0.05**2,
-                             max_range_m=12.0)
+    integrate_disparity(
+        grid, disp, camera, pose, Spy(camera.focal_baseline), pose_covariance=np.eye(3) * 0.05**2, max_range_m=12.0
+    )
     assert len(seen) >= 2 and all(s > 0 for s in seen)
 
 
@@ -163,8 +178,16 @@ def test_projective_noise_groups_give_each_cell_its_own_rays_measurement():
     maps = []
     for cov in (None, np.eye(3) * 0.05**2):
         grid = OccupancyMap(0.1, p0=0.5)
-        integrate_disparity(grid, disp, camera, pose, Spy(camera.focal_baseline), mode="projective",
-                                 pose_covariance=cov, max_range_m=12.0)
+        integrate_disparity(
+            grid,
+            disp,
+            camera,
+            pose,
+            Spy(camera.focal_baseline),
+            mode="projective",
+            pose_covariance=cov,
+            max_range_m=12.0,
+        )
         maps.append(grid)
     assert len(seen) >= 3
     assert_same_map(*maps)
@@ -211,7 +234,14 @@ def test_subsampling_uses_every_nth_pixel():
     camera, pose, disparity = small_frame()
     model = HitMissModel(camera.focal_baseline)
     full, sub = OccupancyMap(0.1, p0=0.5), OccupancyMap(0.1, p0=0.5)
-    integrate_disparity(full, disparity[::4, ::4], type(camera)(camera.focal_px / 4, camera.cx_px / 4, camera.cy_px / 4, 0.4), pose, HitMissModel(camera.focal_baseline), max_range_m=12.0)
+    integrate_disparity(
+        full,
+        disparity[::4, ::4],
+        type(camera)(camera.focal_px / 4, camera.cx_px / 4, camera.cy_px / 4, 0.4),
+        pose,
+        HitMissModel(camera.focal_baseline),
+        max_range_m=12.0,
+    )
     integrate_disparity(sub, disparity, camera, pose, model, subsample=4, max_range_m=12.0)
     assert 0 < sub.n_known
     assert sub.n_known == pytest.approx(full.n_known, rel=0.05)
@@ -233,12 +263,28 @@ def test_projective_prism_maps_do_not_depend_on_the_walks_parts(monkeypatch, ove
     for parts, block_fill in ((1, 1e9), (3, 1e9), (1000, 1e9), (3, _integrators.BLOCK_FILL)):
         monkeypatch.setattr(_integrators, "PROJECTIVE_PARTS", parts)
         monkeypatch.setattr(_integrators, "BLOCK_FILL", block_fill)
-        model = make_sensor_model("prism", focal_baseline=camera.focal_baseline, voxel_size_m=0.1, p0=0.1,
-                                  error_model=mixture, near_m=0.5, overhang_fraction=overhang_fraction)
+        model = make_sensor_model(
+            "prism",
+            focal_baseline=camera.focal_baseline,
+            voxel_size_m=0.1,
+            p0=0.1,
+            error_model=mixture,
+            near_m=0.5,
+            overhang_fraction=overhang_fraction,
+        )
         grid = OccupancyMap(0.1, p0=0.1)
         for cov in (None, np.eye(3) * 0.03**2):
-            integrate_disparity(grid, disparity, camera, pose, model, mode="projective", max_range_m=6.0,
-                                     subsample=2, pose_covariance=cov)
+            integrate_disparity(
+                grid,
+                disparity,
+                camera,
+                pose,
+                model,
+                mode="projective",
+                max_range_m=6.0,
+                subsample=2,
+                pose_covariance=cov,
+            )
         maps.append(grid)
     assert maps[0].n_known > 5_000
     for other in maps[1:]:
@@ -257,8 +303,11 @@ def test_a_frame_projecting_onto_more_cells_than_the_memory_bound_is_refused(mon
     for parts in (1, 3):
         monkeypatch.setattr(_integrators, "PROJECTIVE_PARTS", parts)
         monkeypatch.setattr(_accumulator, "frame_budget_bytes", lambda: 32 * cells)
-        with pytest.raises(PrismapInputError, match=rf"the frame projects onto at least \d+ voxels, more than {cells} "
-                                                    r"\(docs/errors.md\)"):
+        with pytest.raises(
+            PrismapInputError,
+            match=rf"the frame projects onto at least \d+ voxels, more than {cells} "
+            r"\(docs/errors.md\)",
+        ):
             integrate_disparity(grid, disparity, camera, pose, model, mode="projective", max_range_m=12.0)
         assert grid.n_known == 0
 
@@ -273,8 +322,9 @@ def test_ray_mode_models_in_threads_give_the_map_of_one_thread(monkeypatch):
 
     camera, pose, disparity = small_frame()
     mixture = GaussianMixture(np.array([0.9, 0.1]), np.array([0.0, 0.0]), np.array([0.3, 3.0]))
-    model = make_sensor_model("prism", focal_baseline=camera.focal_baseline, voxel_size_m=0.1, p0=0.1,
-                              error_model=mixture, near_m=0.5)
+    model = make_sensor_model(
+        "prism", focal_baseline=camera.focal_baseline, voxel_size_m=0.1, p0=0.1, error_model=mixture, near_m=0.5
+    )
     monkeypatch.setattr(_integrators, "RAYS_PER_CHUNK", 301)
     maps = []
     for threads in (1, 2, 3):

@@ -44,15 +44,16 @@ def test_probability_equals_the_average_over_failure_patterns():
     evidence = rng.normal(0, 30, 40)
     got = model.probability(logit(p0) + evidence, count, p0)
     for value, n, s in zip(got, count, evidence):
-        expected = sum(_pattern_probability(f, rate, persistence) * expit(logit(p0) + s * (n - sum(f)) / n)
-                       for f in itertools.product((0, 1), repeat=int(n)))
+        expected = sum(
+            _pattern_probability(f, rate, persistence) * expit(logit(p0) + s * (n - sum(f)) / n)
+            for f in itertools.product((0, 1), repeat=int(n))
+        )
         assert value == pytest.approx(expected, rel=1e-12)
 
 
 def test_no_failures_is_todays_sum_and_unknown_voxels_keep_the_prior():
     log = np.array([-40.0, -1.0, 3.0, 900.0])
-    np.testing.assert_array_equal(PersistentFailure(0.0, 0.0).probability(log, np.array([1, 2, 3, 9]), 0.2),
-                                  expit(log))
+    np.testing.assert_array_equal(PersistentFailure(0.0, 0.0).probability(log, np.array([1, 2, 3, 9]), 0.2), expit(log))
     assert PersistentFailure(0.1, 0.5).probability(np.array([logit(0.2)]), np.array([0]), 0.2)[0] == pytest.approx(0.2)
 
 

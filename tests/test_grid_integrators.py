@@ -80,8 +80,14 @@ def test_factory_builds_both_integrators_and_refuses_unknown_names():
 def test_ray_batch_subset_keeps_every_per_ray_array_aligned():
     rng = np.random.default_rng(0)
     n = 10
-    batch = RayBatch(np.zeros(3), rng.normal(size=(n, 3)), np.arange(n, dtype=float), np.ones(n), np.arange(n) * 0.1,
-                     np.arange(n, dtype=np.int32) % 3)
+    batch = RayBatch(
+        np.zeros(3),
+        rng.normal(size=(n, 3)),
+        np.arange(n, dtype=float),
+        np.ones(n),
+        np.arange(n) * 0.1,
+        np.arange(n, dtype=np.int32) % 3,
+    )
     keep = np.arange(n) % 2 == 0
     sub = batch.subset(keep)
     np.testing.assert_array_equal(sub.measurement, [0, 2, 4, 6, 8])
@@ -119,15 +125,29 @@ def test_ray_class_image_reaches_the_model_in_projective_mode(pose_covariance):
     rng = np.random.default_rng(2)
     classes = rng.integers(-1, 2, disparity.shape)
     grid = OccupancyMap(0.1, p0=0.5)
-    integrate_disparity(grid, disparity, camera, pose, ClassModel(focal_baseline=camera.focal_baseline),
-                             mode="projective", ray_class=classes,
-                             max_range_m=12.0, pose_covariance=pose_covariance)
+    integrate_disparity(
+        grid,
+        disparity,
+        camera,
+        pose,
+        ClassModel(focal_baseline=camera.focal_baseline),
+        mode="projective",
+        ray_class=classes,
+        max_range_m=12.0,
+        pose_covariance=pose_covariance,
+    )
     parts = []
     for cls in (-1, 0, 1):
         part = OccupancyMap(0.1, p0=0.5)
-        integrate_disparity(part, np.where(classes == cls, disparity, np.nan), camera, pose,
-                                 FixedClassModel(cls, camera.focal_baseline),
-                                 mode="projective", max_range_m=12.0)
+        integrate_disparity(
+            part,
+            np.where(classes == cls, disparity, np.nan),
+            camera,
+            pose,
+            FixedClassModel(cls, camera.focal_baseline),
+            mode="projective",
+            max_range_m=12.0,
+        )
         parts.append(part)
     merged = parts[0].merge(parts[1]).merge(parts[2])
     assert grid.n_known > 1000
@@ -156,18 +176,25 @@ def test_bad_ray_class_is_refused():
         grid.integrate_rays([0, 0, 0], [[0, 0, 1.0], [0, 0, 1.0]], [1.0, 1.0], ClassModel(), ray_class=[-2, 0])
 
 
-@pytest.mark.parametrize(("params", "message"), [
-    ({"p0": 0.05, "voxel_size_m": 0.1}, r"built with p0=0.05 but the map has p0=0.5"),
-    ({"p0": 0.5, "voxel_size_m": 0.2}, r"built with voxel_size_m=0.2 but the map has voxel_size_m=0.1"),
-])
+@pytest.mark.parametrize(
+    ("params", "message"),
+    [
+        ({"p0": 0.05, "voxel_size_m": 0.1}, r"built with p0=0.05 but the map has p0=0.5"),
+        ({"p0": 0.5, "voxel_size_m": 0.2}, r"built with voxel_size_m=0.2 but the map has voxel_size_m=0.1"),
+    ],
+)
 def test_the_map_refuses_a_model_built_for_another_prior_or_voxel_size(params, message):
     grid = OccupancyMap(0.1, p0=0.5)
     model = make_sensor_model("hitmiss", focal_baseline=FB, **params)
     with pytest.raises(PrismapInputError, match=message):
         grid.integrate_rays([0.05, 0.05, 0.05], [[0.0, 0.0, 1.0]], [FB / 2], model)
     assert grid.n_frames == 0
-    grid.integrate_rays([0.05, 0.05, 0.05], [[0.0, 0.0, 1.0]], [FB / 2],
-                        make_sensor_model("hitmiss", focal_baseline=FB, p0=0.5, voxel_size_m=0.1))
+    grid.integrate_rays(
+        [0.05, 0.05, 0.05],
+        [[0.0, 0.0, 1.0]],
+        [FB / 2],
+        make_sensor_model("hitmiss", focal_baseline=FB, p0=0.5, voxel_size_m=0.1),
+    )
     assert grid.n_frames == 1
 
 
@@ -226,7 +253,9 @@ _CAPPED = textwrap.dedent("""
 
 def test_frames_beyond_the_bounds_are_refused_up_front_under_a_memory_cap():
     tests = Path(__file__).resolve().parent
-    run = subprocess.run([sys.executable, "-c", _CAPPED, str(tests)], capture_output=True, text=True, timeout=600, check=False)
+    run = subprocess.run(
+        [sys.executable, "-c", _CAPPED, str(tests)], capture_output=True, text=True, timeout=600, check=False
+    )
     assert run.returncode == 0, run.stderr[-2000:]
     lines = dict(line.split(" | ", 1) for line in run.stdout.strip().splitlines())
     assert "a ray would cross" in lines["tiny pixel"] and "1048576" in lines["tiny pixel"]

@@ -66,14 +66,19 @@ def test_numba_split_equals_the_numpy_block_split(ndim):
     shifts = np.array(bits)
     np.testing.assert_array_equal(blocks, pack_keys(keys >> shifts))
     offsets = keys & ((1 << shifts) - 1)
-    np.testing.assert_array_equal(local, offsets[:, 0] | offsets[:, 1] << bits[0] | offsets[:, 2] << (bits[0] + bits[1]))
+    np.testing.assert_array_equal(
+        local, offsets[:, 0] | offsets[:, 1] << bits[0] | offsets[:, 2] << (bits[0] + bits[1])
+    )
 
 
 def test_keys_round_trip_across_block_sign_and_limit_boundaries():
     """A brute-force dict against the map: every key reads back its own value, none aliases another."""
     rng = np.random.default_rng(2)
-    axis = np.unique(np.concatenate([np.arange(-9, 9), np.arange(-L, -L + 6), np.arange(L - 6, L),
-                                     [2**21 - 1, 2**21, -(2**21), -(2**21) - 1]]))
+    axis = np.unique(
+        np.concatenate(
+            [np.arange(-9, 9), np.arange(-L, -L + 6), np.arange(L - 6, L), [2**21 - 1, 2**21, -(2**21), -(2**21) - 1]]
+        )
+    )
     keys = rng.choice(axis, size=(5000, 3))
     keys = np.unique(keys, axis=0)
     values = rng.uniform(-5, 5, keys.shape[0])
@@ -131,8 +136,21 @@ def test_map_cli_refuses_a_sequence_far_from_the_origin(tmp_path, capsys):
     rows[:, 3] += 5e5  # x translation of each 3x4 camera-to-world pose
     np.savetxt(poses, rows)
     out = tmp_path / "map.npz"
-    argv = ["map", "--sequence", str(seq), "--model", "hitmiss", "--voxel", "0.1", "--max-range", "8",
-            "--disparity-dir", str(seq / "disp"), "--out", str(out)]
+    argv = [
+        "map",
+        "--sequence",
+        str(seq),
+        "--model",
+        "hitmiss",
+        "--voxel",
+        "0.1",
+        "--max-range",
+        "8",
+        "--disparity-dir",
+        str(seq / "disp"),
+        "--out",
+        str(out),
+    ]
     assert main(argv) == 2
     err = capsys.readouterr().err.strip()
     assert "key range" in err and "419430 m at 0.1 m voxels" in err and len(err.splitlines()) == 1

@@ -58,10 +58,20 @@ def _prismap(argv, cwd, *, file_size_limit=None, timeout=300):
             signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
             resource.setrlimit(resource.RLIMIT_FSIZE, (file_size_limit, file_size_limit))
 
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(SRC), os.environ.get("PYTHONPATH", "")]),
-           "MPLBACKEND": "Agg"}
-    done = subprocess.run([sys.executable, "-c", "import sys; from prismap.cli import main; sys.exit(main())", *argv], cwd=cwd, env=env, capture_output=True,
-                          text=True, timeout=timeout, preexec_fn=limits)
+    env = {
+        **os.environ,
+        "PYTHONPATH": os.pathsep.join([str(SRC), os.environ.get("PYTHONPATH", "")]),
+        "MPLBACKEND": "Agg",
+    }
+    done = subprocess.run(
+        [sys.executable, "-c", "import sys; from prismap.cli import main; sys.exit(main())", *argv],
+        cwd=cwd,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        preexec_fn=limits,
+    )
     return done.returncode, done.stderr
 
 
@@ -121,8 +131,9 @@ def _calib(seq, focal_px, baseline_m):
     f, cx, cy = focal_px, CAMERA.cx_px, CAMERA.cy_px
     p2 = [f, 0, cx, 0, 0, f, cy, 0, 0, 0, 1, 0]
     p3 = [f, 0, cx, -f * baseline_m, 0, f, cy, 0, 0, 0, 1, 0]
-    (seq / "calib.txt").write_text("".join(f"{name}: {' '.join(repr(float(v)) for v in p)}\n"
-                                           for name, p in (("P2", p2), ("P3", p3))))
+    (seq / "calib.txt").write_text(
+        "".join(f"{name}: {' '.join(repr(float(v)) for v in p)}\n" for name, p in (("P2", p2), ("P3", p3)))
+    )
 
 
 def _flip_byte(path):
@@ -139,15 +150,27 @@ def _bomb_images(seq):
 
 def _huge_map(path, n_voxels=300_000_000):
     """A small .npz whose headers declare ``n_voxels`` voxels (the data is cut short)."""
-    scalars = {"format": np.array("prismap-map"), "format_version": np.array(1), "voxel_size_m": np.array(0.1),
-               "p0": np.array(0.05), "ndim": np.array(3), "policy": np.array("mean"), "clamp": np.full(2, np.nan),
-               "occupied_threshold": np.array(0.5), "free_threshold": np.array(0.5), "n_frames": np.array(1)}
+    scalars = {
+        "format": np.array("prismap-map"),
+        "format_version": np.array(1),
+        "voxel_size_m": np.array(0.1),
+        "p0": np.array(0.05),
+        "ndim": np.array(3),
+        "policy": np.array("mean"),
+        "clamp": np.full(2, np.nan),
+        "occupied_threshold": np.array(0.5),
+        "free_threshold": np.array(0.5),
+        "n_frames": np.array(1),
+    }
     with zipfile.ZipFile(path, "w") as archive:
         for name, value in scalars.items():
             with archive.open(f"{name}.npy", "w") as member:
                 np.lib.format.write_array(member, value)
-        for name, dtype, shape in (("keys", "<i4", (n_voxels, 3)), ("log_odds", "<f4", (n_voxels,)),
-                                   ("counts", "<u2", (n_voxels,))):
+        for name, dtype, shape in (
+            ("keys", "<i4", (n_voxels, 3)),
+            ("log_odds", "<f4", (n_voxels,)),
+            ("counts", "<u2", (n_voxels,)),
+        ):
             with archive.open(f"{name}.npy", "w") as member:
                 np.lib.format.write_array_header_1_0(member, {"descr": dtype, "fortran_order": False, "shape": shape})
                 member.write(bytes(1024))
@@ -157,52 +180,139 @@ MAP = ["map", "--disparity-dir", "SEQ/disp", "--model", "hitmiss", "--voxel", "0
 
 # name -> (prepare(seq, work) or None, argv with SEQ/WORK/EM placeholders, expected text in the message)
 CASES = {
-    "pose scaled x3": (lambda s, w: _rewrite_poses(s, _scaled), [*MAP, "--out", "WORK/o.npz"],
-                       "poses.txt line 2: rotation is not orthonormal"),
-    "pose reflection": (lambda s, w: _rewrite_poses(s, _reflected), [*MAP, "--out", "WORK/o.npz"],
-                        "poses.txt line 2: rotation is not orthonormal with det +1"),
+    "pose scaled x3": (
+        lambda s, w: _rewrite_poses(s, _scaled),
+        [*MAP, "--out", "WORK/o.npz"],
+        "poses.txt line 2: rotation is not orthonormal",
+    ),
+    "pose reflection": (
+        lambda s, w: _rewrite_poses(s, _reflected),
+        [*MAP, "--out", "WORK/o.npz"],
+        "poses.txt line 2: rotation is not orthonormal with det +1",
+    ),
     "focal 1e300": (lambda s, w: _calib(s, 1e300, 0.1), [*MAP, "--out", "WORK/o.npz"], "`focal_px` must lie in"),
-    "baseline 1e-300": (lambda s, w: _calib(s, 72.0, 1e-300), [*MAP, "--out", "WORK/o.npz"],
-                        "`baseline_m` must lie in"),
-    "focal x baseline 1e10": (lambda s, w: _calib(s, 1e6, 1e4), [*MAP, "--out", "WORK/o.npz"],
-                              "`focal_px * baseline_m (the depth of a 1 px disparity)` must lie in"),
-    "PNG of 20000x20000": (lambda s, w: _bomb_images(s), [*MAP, "--out", "WORK/o.npz"],
-                           "declares 20000x20000 pixels"),
-    "corrupt PNG": (lambda s, w: _flip_byte(s / "image_2" / "000001.png"), [*MAP, "--out", "WORK/o.npz"],
-                    "image_2/000001.png: left image cannot be decoded (truncated or corrupt PNG)"),
+    "baseline 1e-300": (
+        lambda s, w: _calib(s, 72.0, 1e-300),
+        [*MAP, "--out", "WORK/o.npz"],
+        "`baseline_m` must lie in",
+    ),
+    "focal x baseline 1e10": (
+        lambda s, w: _calib(s, 1e6, 1e4),
+        [*MAP, "--out", "WORK/o.npz"],
+        "`focal_px * baseline_m (the depth of a 1 px disparity)` must lie in",
+    ),
+    "PNG of 20000x20000": (lambda s, w: _bomb_images(s), [*MAP, "--out", "WORK/o.npz"], "declares 20000x20000 pixels"),
+    "corrupt PNG": (
+        lambda s, w: _flip_byte(s / "image_2" / "000001.png"),
+        [*MAP, "--out", "WORK/o.npz"],
+        "image_2/000001.png: left image cannot be decoded (truncated or corrupt PNG)",
+    ),
     "--out a directory": (None, [*MAP, "--out", "WORK"], "is a directory; expected a file name"),
-    "--out under a file": (lambda s, w: (w / "file").write_text("x"), [*MAP, "--out", "WORK/file/o.npz"],
-                           "is not a directory"),
+    "--out under a file": (
+        lambda s, w: (w / "file").write_text("x"),
+        [*MAP, "--out", "WORK/file/o.npz"],
+        "is not a directory",
+    ),
     "--out unwritable": (None, [*MAP, "--out", "/proc/prismap-hostile/o.npz"], "--out /proc/prismap-hostile/o.npz"),
-    "--model-param p0": (None, [*MAP, "--model-param", "p0=0.2", "--out", "WORK/o.npz"],
-                         "p0: cannot be set as a model parameter"),
-    "--model-param error_model": (None, [*MAP, "--model-param", "error_model=1", "--out", "WORK/o.npz"],
-                                  "error_model: cannot be set as a model parameter"),
-    "--model-param voxel_size_m": (None, [*MAP, "--model-param", "voxel_size_m=1", "--out", "WORK/o.npz"],
-                                   "voxel_size_m: cannot be set as a model parameter"),
-    "--voxel 1e-9": (None, ["map", "--disparity-dir", "SEQ/disp", "--model", "hitmiss", "--voxel", "1e-9",
-                            "--out", "WORK/o.npz"], "voxel size 1e-09 m: the map's key range"),
-    "num_disparities 160000": (None, ["map", "--matcher", "sgbm", "--matcher-param", "num_disparities=160000",
-                                      "--model", "hitmiss", "--voxel", "0.1", "--out", "WORK/o.npz"],
-                               "must be below the image width 96 px"),
-    "prism sigma 1e-4 (map)": (None, ["map", "--disparity-dir", "SEQ/disp", "--model", "prism", "--error-model", "EM",
-                                      "--voxel", "0.1", "--out", "WORK/o.npz"], "MAX_TABLE_NODES"),
-    "prism sigma 1e-4 (models compare)": (None, ["models", "compare", "--error-model", "EM", "--out", "WORK/cmp"],
-                                          "MAX_TABLE_NODES"),
-    "map declaring 300 M voxels": (lambda s, w: _huge_map(s / "huge.npz"),
-                                   ["evaluate", "--map", "SEQ/huge.npz", "--gt", "SEQ", "--out", "WORK/eval"],
-                                   "more than the memory budget"),
-    "experiment --frames 100000": (None, ["experiment", "--world", "office2d", "--quick", "--frames", "100000",
-                                          "--out", "WORK/exp"], "`n_frames` must be at most 99"),
-    "experiment --seed -1": (None, ["experiment", "--world", "office2d", "--seed", "-1", "--out", "WORK/exp"],
-                             "argument --seed: expected an integer >= 0"),
-    "demo --seed -1": (None, ["demo", "--quick", "--seed", "-1", "--out", "WORK/demo"],
-                       "argument --seed: expected an integer >= 0"),
-    "characterise --bin-width 1e-9": (None, ["characterise", "--dataset", "middlebury-motorcycle", "--matcher",
-                                             "bm", "--bin-width", "1e-9", "--out", "WORK/ch"], "MAX_BINS"),
-    "characterise --seed -1": (None, ["characterise", "--dataset", "middlebury-motorcycle", "--matcher", "bm",
-                                      "--seed", "-1",
-                                      "--out", "WORK/ch"], "--seed"),
+    "--model-param p0": (
+        None,
+        [*MAP, "--model-param", "p0=0.2", "--out", "WORK/o.npz"],
+        "p0: cannot be set as a model parameter",
+    ),
+    "--model-param error_model": (
+        None,
+        [*MAP, "--model-param", "error_model=1", "--out", "WORK/o.npz"],
+        "error_model: cannot be set as a model parameter",
+    ),
+    "--model-param voxel_size_m": (
+        None,
+        [*MAP, "--model-param", "voxel_size_m=1", "--out", "WORK/o.npz"],
+        "voxel_size_m: cannot be set as a model parameter",
+    ),
+    "--voxel 1e-9": (
+        None,
+        ["map", "--disparity-dir", "SEQ/disp", "--model", "hitmiss", "--voxel", "1e-9", "--out", "WORK/o.npz"],
+        "voxel size 1e-09 m: the map's key range",
+    ),
+    "num_disparities 160000": (
+        None,
+        [
+            "map",
+            "--matcher",
+            "sgbm",
+            "--matcher-param",
+            "num_disparities=160000",
+            "--model",
+            "hitmiss",
+            "--voxel",
+            "0.1",
+            "--out",
+            "WORK/o.npz",
+        ],
+        "must be below the image width 96 px",
+    ),
+    "prism sigma 1e-4 (map)": (
+        None,
+        [
+            "map",
+            "--disparity-dir",
+            "SEQ/disp",
+            "--model",
+            "prism",
+            "--error-model",
+            "EM",
+            "--voxel",
+            "0.1",
+            "--out",
+            "WORK/o.npz",
+        ],
+        "MAX_TABLE_NODES",
+    ),
+    "prism sigma 1e-4 (models compare)": (
+        None,
+        ["models", "compare", "--error-model", "EM", "--out", "WORK/cmp"],
+        "MAX_TABLE_NODES",
+    ),
+    "map declaring 300 M voxels": (
+        lambda s, w: _huge_map(s / "huge.npz"),
+        ["evaluate", "--map", "SEQ/huge.npz", "--gt", "SEQ", "--out", "WORK/eval"],
+        "more than the memory budget",
+    ),
+    "experiment --frames 100000": (
+        None,
+        ["experiment", "--world", "office2d", "--quick", "--frames", "100000", "--out", "WORK/exp"],
+        "`n_frames` must be at most 99",
+    ),
+    "experiment --seed -1": (
+        None,
+        ["experiment", "--world", "office2d", "--seed", "-1", "--out", "WORK/exp"],
+        "argument --seed: expected an integer >= 0",
+    ),
+    "demo --seed -1": (
+        None,
+        ["demo", "--quick", "--seed", "-1", "--out", "WORK/demo"],
+        "argument --seed: expected an integer >= 0",
+    ),
+    "characterise --bin-width 1e-9": (
+        None,
+        [
+            "characterise",
+            "--dataset",
+            "middlebury-motorcycle",
+            "--matcher",
+            "bm",
+            "--bin-width",
+            "1e-9",
+            "--out",
+            "WORK/ch",
+        ],
+        "MAX_BINS",
+    ),
+    "characterise --seed -1": (
+        None,
+        ["characterise", "--dataset", "middlebury-motorcycle", "--matcher", "bm", "--seed", "-1", "--out", "WORK/ch"],
+        "--seed",
+    ),
 }
 XFAIL = {}
 
@@ -232,8 +342,7 @@ def _map_argv(sequence, out):
 
 
 def test_a_file_size_limit_during_the_save_is_one_line_and_leaves_nothing(sequence, tmp_path):
-    status, stderr = _prismap(_map_argv(sequence, tmp_path / "o.npz"),
-                              tmp_path, file_size_limit=32 * 1024)
+    status, stderr = _prismap(_map_argv(sequence, tmp_path / "o.npz"), tmp_path, file_size_limit=32 * 1024)
     assert status == 2, stderr
     assert stderr.strip().splitlines() == [
         f"prismap map: error: {tmp_path / 'o.npz'}: cannot write (File too large (the file-size limit, ulimit -f))"
@@ -272,7 +381,9 @@ def test_a_checkpoint_in_use_is_refused(sequence, tmp_path):
 def test_every_pose_source_refuses_invalid_rotations(rotation, message):
     pose = np.eye(4)
     pose[:3, :3] = rotation
-    with pytest.raises(PrismapInputError, match="`T_world_cam`: rotation is not orthonormal with det \\+1 .*" + message):
+    with pytest.raises(
+        PrismapInputError, match="`T_world_cam`: rotation is not orthonormal with det \\+1 .*" + message
+    ):
         check_pose(pose, "`T_world_cam`")
     image = np.zeros((4, 6), np.uint8)
     with pytest.raises(PrismapInputError, match="f0: `T_world_cam`: rotation is not orthonormal"):
@@ -290,11 +401,21 @@ def test_cameras_without_a_representable_depth_range_are_refused(focal, baseline
 
 
 def _map_fields(**changes):
-    fields = {"format": np.array("prismap-map"), "format_version": np.array(1), "voxel_size_m": np.array(0.1),
-              "p0": np.array(0.05), "ndim": np.array(3), "policy": np.array("mean"), "clamp": np.full(2, np.nan),
-              "occupied_threshold": np.array(0.5), "free_threshold": np.array(0.5), "n_frames": np.array(2),
-              "keys": np.array([[0, 0, 0], [1, 2, 3]], np.int32), "log_odds": np.array([0.5, -0.5], np.float32),
-              "counts": np.array([1, 2], np.uint16)}
+    fields = {
+        "format": np.array("prismap-map"),
+        "format_version": np.array(1),
+        "voxel_size_m": np.array(0.1),
+        "p0": np.array(0.05),
+        "ndim": np.array(3),
+        "policy": np.array("mean"),
+        "clamp": np.full(2, np.nan),
+        "occupied_threshold": np.array(0.5),
+        "free_threshold": np.array(0.5),
+        "n_frames": np.array(2),
+        "keys": np.array([[0, 0, 0], [1, 2, 3]], np.int32),
+        "log_odds": np.array([0.5, -0.5], np.float32),
+        "counts": np.array([1, 2], np.uint16),
+    }
     fields.update(changes)
     return fields
 
@@ -325,14 +446,21 @@ def test_map_files_with_fields_of_the_wrong_type_rank_or_value_are_refused(tmp_p
 
 @pytest.mark.parametrize(
     ("changes", "message"),
-    [({"version": np.array("1")}, "`version` must be an integer"),
-     ({"voxel_size_m": np.array([0.1])}, "`voxel_size_m` must be a number"),
-     ({"observed_keys": np.zeros(3, np.int64)}, r"`observed_keys` must be an \(N, 3\) integer array")],
+    [
+        ({"version": np.array("1")}, "`version` must be an integer"),
+        ({"voxel_size_m": np.array([0.1])}, "`voxel_size_m` must be a number"),
+        ({"observed_keys": np.zeros(3, np.int64)}, r"`observed_keys` must be an \(N, 3\) integer array"),
+    ],
 )
 def test_ground_truth_files_with_fields_of_the_wrong_type_or_rank_are_refused(tmp_path, changes, message):
-    fields = {"format": np.array("prismap-ground-truth-occupancy"), "version": np.array(1),
-              "voxel_size_m": np.array(0.1), "occupied_keys": np.zeros((1, 3), np.int64),
-              "observed_keys": np.zeros((1, 3), np.int64), **changes}
+    fields = {
+        "format": np.array("prismap-ground-truth-occupancy"),
+        "version": np.array(1),
+        "voxel_size_m": np.array(0.1),
+        "occupied_keys": np.zeros((1, 3), np.int64),
+        "observed_keys": np.zeros((1, 3), np.int64),
+        **changes,
+    }
     np.savez(tmp_path / "gt.npz", **fields)
     with pytest.raises(PrismapInputError, match=message):
         read_ground_truth(tmp_path / "gt.npz")
@@ -386,10 +514,18 @@ def test_dask_workers_drop_reports_of_bad_input_only():
     from prismap.cli._map import _DropInputErrors
 
     drop = _DropInputErrors()
-    bad = logging.LogRecord("distributed.worker", logging.ERROR, "", 0, "Compute Failed\nException: %r", (
-        PrismapInputError("x.png: left image cannot be decoded"),), None)
-    other = logging.LogRecord("distributed.worker", logging.ERROR, "", 0, "Compute Failed\nException: %r",
-                              (ZeroDivisionError("a bug"),), None)
+    bad = logging.LogRecord(
+        "distributed.worker",
+        logging.ERROR,
+        "",
+        0,
+        "Compute Failed\nException: %r",
+        (PrismapInputError("x.png: left image cannot be decoded"),),
+        None,
+    )
+    other = logging.LogRecord(
+        "distributed.worker", logging.ERROR, "", 0, "Compute Failed\nException: %r", (ZeroDivisionError("a bug"),), None
+    )
     assert not drop.filter(bad) and drop.filter(other)
 
 

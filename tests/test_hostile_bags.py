@@ -27,8 +27,9 @@ def _hostile_bag(path, frames, *, image=None, info_size=(96, 72), D=()):  # noqa
         for i, frame in enumerate(frames):
             for topic, pixels in ((LEFT, frame.left), (RIGHT, frame.right)):
                 data = image(frame) if image else cv2.imencode(".png", pixels)[1].tobytes()
-                msg = bag.T("sensor_msgs/msg/CompressedImage")(header=bag.header(stamp(i), "left"), format="png",
-                                                               data=np.frombuffer(data, np.uint8))
+                msg = bag.T("sensor_msgs/msg/CompressedImage")(
+                    header=bag.header(stamp(i), "left"), format="png", data=np.frombuffer(data, np.uint8)
+                )
                 bag.write(topic, msg, stamp(i))
             bag.write("/odom", bag.odometry(stamp(i), frame.T_world_cam), stamp(i))
     return path

@@ -23,15 +23,23 @@ def sequence_dir(tmp_path_factory):
 
 @pytest.mark.parametrize("mode", ["ray", "projective"])
 def test_dask_conditioned_prism_is_bit_identical_whatever_the_chunking(sequence_dir, mode):
-    cfg = config(model="prism", error_model=conditioned_error_model(feature="texture", edges=(20.0, 30.0)), mode=mode,
-                 disparity_source="matcher")  # SGBM's outliers put occupied evidence where free evidence saturates
+    cfg = config(
+        model="prism",
+        error_model=conditioned_error_model(feature="texture", edges=(20.0, 30.0)),
+        mode=mode,
+        disparity_source="matcher",
+    )  # SGBM's outliers put occupied evidence where free evidence saturates
     assert cfg.conditioned
     sequential = map_sequence(sequence_dir, cfg, progress=False)
     log = sequential.known_voxels()[1]
     assert log.min() < -2048 and log.max() > 0  # evidence of both signs beyond the old +-2048 saturation
     for n_workers, chunks in CHUNKS_BY_WORKERS.items():
-        with distributed.LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=False,
-                                      dashboard_address=None) as cluster, distributed.Client(cluster) as client:
+        with (
+            distributed.LocalCluster(
+                n_workers=n_workers, threads_per_worker=1, processes=False, dashboard_address=None
+            ) as cluster,
+            distributed.Client(cluster) as client,
+        ):
             for chunk_frames in chunks:
                 merged = map_sequence(sequence_dir, cfg, progress=False, client=client, chunk_frames=chunk_frames)
                 assert_identical_maps(merged, sequential)

@@ -21,8 +21,19 @@ from support import CAMERA, synthetic_sequence
 
 MAP = ["map", "--disparity-dir", "SEQ/disp", "--model", "hitmiss", "--voxel", "0.1"]
 CHARACTERISE = ["characterise", "--dataset", "SEQ/mb", "--matcher", "bm", "--out", "WORK/ch"]
-PRISM_MAP = ["map", "--disparity-dir", "SEQ/disp", "--model", "prism", "--error-model", "SEQ/em.json", "--voxel",
-             "0.1", "--out", "WORK/o.npz"]
+PRISM_MAP = [
+    "map",
+    "--disparity-dir",
+    "SEQ/disp",
+    "--model",
+    "prism",
+    "--error-model",
+    "SEQ/em.json",
+    "--voxel",
+    "0.1",
+    "--out",
+    "WORK/o.npz",
+]
 SPARSE_BYTES = 3 << 30
 """A file of 3 GB that takes no disk: reading it whole exceeds the subprocess's address-space limit."""
 
@@ -42,7 +53,8 @@ def _middlebury_folder(folder, *, height=24, width=40, doffs=3.0, disparity=None
     (folder / "calib.txt").write_text(
         f"cam0=[100.5 0 {width / 2}; 0 100.5 {height / 2}; 0 0 1]\n"
         f"cam1=[100.5 0 {width / 2 + 3}; 0 100.5 {height / 2}; 0 0 1]\n"
-        f"doffs={doffs}\nbaseline=120.5\nwidth={width}\nheight={height}\nndisp=32\nvmin=2\nvmax=20\n")
+        f"doffs={doffs}\nbaseline=120.5\nwidth={width}\nheight={height}\nndisp=32\nvmin=2\nvmax=20\n"
+    )
     if disparity is None:
         disparity = rng.uniform(2, 20, (height, width)).astype(np.float32)
     write_pfm(folder / "disp0.pfm", disparity)
@@ -57,10 +69,30 @@ def _absurd_means(seq, mean, width=None):
     """An error model whose selected mixture has means +-``mean`` px (num_disparities 64), made on a rig of image
     ``width`` (None: not recorded, so errors within MAX_ERROR_PX; else within max(64, width) px)."""
     mixture = GaussianMixture([0.5, 0.5], [mean, -mean], [0.5, 3.0])
-    rig = None if width is None else {"focal_px": 100.0, "baseline_m": 0.1, "width": width, "height": 96,
-                                      "matcher": "sgbm", "matcher_params": None}
-    write_error_model(ErrorModel("sgbm", {"num_disparities": 64}, "hostile", 1 / 32,
-                                 [MixtureFit(mixture, -1e3, 0.0, 0.0, 1e3, 10, True)], 2, rig=rig), seq / "em.json")
+    rig = (
+        None
+        if width is None
+        else {
+            "focal_px": 100.0,
+            "baseline_m": 0.1,
+            "width": width,
+            "height": 96,
+            "matcher": "sgbm",
+            "matcher_params": None,
+        }
+    )
+    write_error_model(
+        ErrorModel(
+            "sgbm",
+            {"num_disparities": 64},
+            "hostile",
+            1 / 32,
+            [MixtureFit(mixture, -1e3, 0.0, 0.0, 1e3, 10, True)],
+            2,
+            rig=rig,
+        ),
+        seq / "em.json",
+    )
 
 
 def _png_of(seq, build):
@@ -68,8 +100,9 @@ def _png_of(seq, build):
     breaks: the chunks of a grey 8-bit image of the sequence's size."""
     path = seq / "image_2" / "000001.png"
     height, width = cv2.imread(str(path), cv2.IMREAD_UNCHANGED).shape[:2]
-    path.write_bytes(PNG_SIGNATURE + b"".join(_chunk(kind, body) for kind, body in build(width, height)) +
-                     _chunk(b"IEND", b""))
+    path.write_bytes(
+        PNG_SIGNATURE + b"".join(_chunk(kind, body) for kind, body in build(width, height)) + _chunk(b"IEND", b"")
+    )
 
 
 def _ihdr(width, height, bit_depth=8):
@@ -107,37 +140,71 @@ def _calib_cx(seq, cx):
 # name -> (prepare(seq), argv with SEQ/WORK placeholders, expected text in the message)
 CASES = {
     # item 3: absurd calibrations
-    "calib.txt cx 1e300": (lambda s: _calib_cx(s, 1e300), [*MAP, "--out", "WORK/o.npz"],
-                           "calib.txt: `cx_px` must lie in (-1e+06, 1e+06) px"),
-    "Middlebury doffs -1e5": (lambda s: _middlebury_folder(s / "mb", doffs=-1e5), CHARACTERISE,
-                              "mb/calib.txt: `doffs_px` must be > -40 px"),
+    "calib.txt cx 1e300": (
+        lambda s: _calib_cx(s, 1e300),
+        [*MAP, "--out", "WORK/o.npz"],
+        "calib.txt: `cx_px` must lie in (-1e+06, 1e+06) px",
+    ),
+    "Middlebury doffs -1e5": (
+        lambda s: _middlebury_folder(s / "mb", doffs=-1e5),
+        CHARACTERISE,
+        "mb/calib.txt: `doffs_px` must be > -40 px",
+    ),
     # item 2: absurd error-model means
-    "error model means +-1e15 px": (lambda s: _absurd_means(s, 1e15), PRISM_MAP,
-                                    "`means` reach 1e+15 px; an error of this rig and matcher lies within +-16384 px"),
+    "error model means +-1e15 px": (
+        lambda s: _absurd_means(s, 1e15),
+        PRISM_MAP,
+        "`means` reach 1e+15 px; an error of this rig and matcher lies within +-16384 px",
+    ),
     "error model means +-1e10 px": (lambda s: _absurd_means(s, 1e10), PRISM_MAP, "`means` reach 1e+10 px"),
     "error model means +-16385 px": (lambda s: _absurd_means(s, 16385.0), PRISM_MAP, "`means` reach 16385 px"),
-    "error model means beyond the rig's image width": (lambda s: _absurd_means(s, 129.0, width=128), PRISM_MAP,
-                                                       "`means` reach 129 px; an error of this rig and matcher lies within +-128 px"),
+    "error model means beyond the rig's image width": (
+        lambda s: _absurd_means(s, 129.0, width=128),
+        PRISM_MAP,
+        "`means` reach 129 px; an error of this rig and matcher lies within +-128 px",
+    ),
     # item 16: PNGs of valid checksums but bad content (libpng printed a line of its own)
-    **{f"PNG with {fault}": (lambda s, fault=fault: _png_of(s, PNG_FAULTS[fault]), [*MAP, "--out", "WORK/o.npz"],
-                             "000001.png: left image cannot be decoded (truncated or corrupt PNG")
-       for fault in PNG_FAULTS},
+    **{
+        f"PNG with {fault}": (
+            lambda s, fault=fault: _png_of(s, PNG_FAULTS[fault]),
+            [*MAP, "--out", "WORK/o.npz"],
+            "000001.png: left image cannot be decoded (truncated or corrupt PNG",
+        )
+        for fault in PNG_FAULTS
+    },
     # item 11: a frame under the pixel limit that the matcher cannot match in the memory budget
-    "SGBM on 16000x8000": (_frames_of_16000x8000, ["map", "--matcher", "sgbm", "--model", "hitmiss", "--voxel", "0.1",
-                                                   "--frames", "0:1", "--out", "WORK/o.npz"],
-                           "sgbm: matching a 16000x8000 pair needs"),
+    "SGBM on 16000x8000": (
+        _frames_of_16000x8000,
+        ["map", "--matcher", "sgbm", "--model", "hitmiss", "--voxel", "0.1", "--frames", "0:1", "--out", "WORK/o.npz"],
+        "sgbm: matching a 16000x8000 pair needs",
+    ),
     # item 17: ground truth that cannot set the search range
-    "ground truth all negative": (lambda s: _middlebury_folder(s / "mb", disparity=np.full((24, 40), -3.0, np.float32)),
-                                  CHARACTERISE, "mb/disp0.pfm: every valid ground-truth disparity"),
+    "ground truth all negative": (
+        lambda s: _middlebury_folder(s / "mb", disparity=np.full((24, 40), -3.0, np.float32)),
+        CHARACTERISE,
+        "mb/disp0.pfm: every valid ground-truth disparity",
+    ),
     # item 10: files far larger than their content needs
-    "calib.txt of 3 GB": (lambda s: _sparse(s / "calib.txt"), [*MAP, "--out", "WORK/o.npz"],
-                          "calib.txt: KITTI calibration file holds 3221225472 bytes, more than the limit"),
-    "poses.txt of 3 GB": (lambda s: _sparse(s / "poses.txt"), [*MAP, "--out", "WORK/o.npz"],
-                          "poses.txt: pose file holds 3221225472 bytes, more than the limit"),
-    "disp0.pfm of 3 GB": (lambda s: _sparse(s / "mb" / "disp0.pfm"), CHARACTERISE,
-                          "disp0.pfm: PFM file holds 3221225472 bytes, more than the limit"),
-    "PNG of 3 GB": (lambda s: _sparse(s / "image_2" / "000001.png"), [*MAP, "--out", "WORK/o.npz"],
-                    "000001.png: left image holds 3221225472 bytes, more than the limit"),
+    "calib.txt of 3 GB": (
+        lambda s: _sparse(s / "calib.txt"),
+        [*MAP, "--out", "WORK/o.npz"],
+        "calib.txt: KITTI calibration file holds 3221225472 bytes, more than the limit",
+    ),
+    "poses.txt of 3 GB": (
+        lambda s: _sparse(s / "poses.txt"),
+        [*MAP, "--out", "WORK/o.npz"],
+        "poses.txt: pose file holds 3221225472 bytes, more than the limit",
+    ),
+    "disp0.pfm of 3 GB": (
+        lambda s: _sparse(s / "mb" / "disp0.pfm"),
+        CHARACTERISE,
+        "disp0.pfm: PFM file holds 3221225472 bytes, more than the limit",
+    ),
+    "PNG of 3 GB": (
+        lambda s: _sparse(s / "image_2" / "000001.png"),
+        [*MAP, "--out", "WORK/o.npz"],
+        "000001.png: left image holds 3221225472 bytes, more than the limit",
+    ),
 }
 
 

@@ -33,8 +33,9 @@ def error_model(tmp_path_factory):
     """A plausible SGBM-like error model (0.4 px core, 4 px outliers)."""
     path = tmp_path_factory.mktemp("em25") / "sgbm.json"
     mixture = GaussianMixture([0.9, 0.1], [0.0, 0.0], [0.4, 4.0])
-    write_error_model(ErrorModel("sgbm", {}, "hostile", 1 / 32, [MixtureFit(mixture, -1e3, 0.0, 0.0, 1e3, 10, True)],
-                                 2), path)
+    write_error_model(
+        ErrorModel("sgbm", {}, "hostile", 1 / 32, [MixtureFit(mixture, -1e3, 0.0, 0.0, 1e3, 10, True)], 2), path
+    )
     return path
 
 
@@ -62,30 +63,57 @@ def _device_named(work, name):
 CASES = {
     # item 9: an output that is an input of the run, or not a regular file
     "--out seq/poses.txt": (None, [*MAP, "--out", "SEQ/poses.txt"], "poses.txt, an input of this run"),
-    "--out seq/disp/000000.png": (None, [*MAP, "--out", "SEQ/disp/000000.png"],
-                                  "lies inside", ),
-    "export m.ply --to m.ply": (lambda s, w, m: shutil.copy(m, w / "m.ply"), ["export", "WORK/m.ply", "--to",
-                                                                               "WORK/m.ply"],
-                                "an input of this run (the map file)"),
-    "export --to a device": (lambda s, w, m: _device_named(w, "dev.ply"), ["export", "MAP", "--to", "WORK/dev.ply"],
-                             "exists and is not a regular file"),
+    "--out seq/disp/000000.png": (
+        None,
+        [*MAP, "--out", "SEQ/disp/000000.png"],
+        "lies inside",
+    ),
+    "export m.ply --to m.ply": (
+        lambda s, w, m: shutil.copy(m, w / "m.ply"),
+        ["export", "WORK/m.ply", "--to", "WORK/m.ply"],
+        "an input of this run (the map file)",
+    ),
+    "export --to a device": (
+        lambda s, w, m: _device_named(w, "dev.ply"),
+        ["export", "MAP", "--to", "WORK/dev.ply"],
+        "exists and is not a regular file",
+    ),
     # item 13: one line instead of a traceback
-    "--out of 300 characters": (None, [*MAP, "--out", "WORK/" + "x" * 296 + ".npz"],
-                                "the file name has 300 bytes; at most 200"),
+    "--out of 300 characters": (
+        None,
+        [*MAP, "--out", "WORK/" + "x" * 296 + ".npz"],
+        "the file name has 300 bytes; at most 200",
+    ),
     # item 12: workers bound by the cores
     "--workers 1000": (None, [*MAP, "--workers", "1000", "--out", "WORK/o.npz"], "--workers must lie in [1, "),
     # item 18: a refused run leaves no directory behind
     "--out a/b/c/o.npz refused": (None, [*MAP, "--p0", "2", "--out", "WORK/a/b/c/o.npz"], "`--p0` must lie in"),
     # item 4: a voxel size whose centres overflow
-    "map with voxel size 1e300": (lambda s, w, m: _with_voxel_size(m, w / "big.npz", 1e300),
-                                  ["export", "WORK/big.npz", "--to", "WORK/big.ply"],
-                                  "`voxel_size_m` must be at most 1e+06 m"),
+    "map with voxel size 1e300": (
+        lambda s, w, m: _with_voxel_size(m, w / "big.npz", 1e300),
+        ["export", "WORK/big.npz", "--to", "WORK/big.ply"],
+        "`voxel_size_m` must be at most 1e+06 m",
+    ),
     # items 5 and 15: bounded --distances
-    "--distances beyond the rig": (None, ["models", "compare", "--error-model", "EM", "--distances", "10000",
-                                          "--out", "WORK/cmp"], "10000 m lies beyond this rig's range"),
-    "--distances 17 values": (None, ["models", "compare", "--error-model", "EM", "--distances",
-                                     ",".join(str(d) for d in range(1, 18)), "--out", "WORK/cmp"],
-                              "holds 17 distances; at most 16"),
+    "--distances beyond the rig": (
+        None,
+        ["models", "compare", "--error-model", "EM", "--distances", "10000", "--out", "WORK/cmp"],
+        "10000 m lies beyond this rig's range",
+    ),
+    "--distances 17 values": (
+        None,
+        [
+            "models",
+            "compare",
+            "--error-model",
+            "EM",
+            "--distances",
+            ",".join(str(d) for d in range(1, 18)),
+            "--out",
+            "WORK/cmp",
+        ],
+        "holds 17 distances; at most 16",
+    ),
 }
 
 
@@ -106,8 +134,9 @@ def test_hostile_command_exits_2_with_one_line_and_writes_nothing(name, sequence
 def test_a_viewer_on_an_address_this_machine_lacks_is_refused_at_once(small_map, tmp_path):
     """Item 14: viser would retry 1000 ports on 203.0.113.7 (TEST-NET-3) and never say it is ready."""
     try:
-        status, stderr = _prismap(["view", str(small_map), "--host", "203.0.113.7", "--port", "0"], tmp_path,
-                                  timeout=60)
+        status, stderr = _prismap(
+            ["view", str(small_map), "--host", "203.0.113.7", "--port", "0"], tmp_path, timeout=60
+        )
     except subprocess.TimeoutExpired:
         pytest.fail("prismap view hung on an address it cannot bind")
     assert status == 2, stderr
@@ -187,8 +216,16 @@ def sequence_map(sequence, tmp_path_factory):
 
 FULL_DISK = {
     "evaluate --out DIR": ["evaluate", "--map", "SEQMAP", "--gt", "SEQ", "--out", "WORK/ev"],
-    "characterise --out DIR": ["characterise", "--dataset", "SEQ/mb", "--matcher", "bm", "--plain", "--out",
-                               "WORK/a/ch"],
+    "characterise --out DIR": [
+        "characterise",
+        "--dataset",
+        "SEQ/mb",
+        "--matcher",
+        "bm",
+        "--plain",
+        "--out",
+        "WORK/a/ch",
+    ],
     "export .mcap": ["export", "MAP", "--to", "WORK/m.mcap"],
     "export rosbag2 mcap": ["export", "MAP", "--to", "WORK/bag", "--format", "rosbag2"],
     "export rosbag2 sqlite3": ["export", "MAP", "--to", "WORK/d/bag", "--format", "rosbag2", "--storage", "sqlite3"],
@@ -196,16 +233,23 @@ FULL_DISK = {
 
 
 @pytest.mark.parametrize("name", list(FULL_DISK))
-def test_a_full_disk_is_one_line_and_leaves_no_directory(name, sequence, error_model, small_map, sequence_map,
-                                                         tmp_path):
+def test_a_full_disk_is_one_line_and_leaves_no_directory(
+    name, sequence, error_model, small_map, sequence_map, tmp_path
+):
     from test_hostile_inputs import _middlebury_folder
 
     seq, work = tmp_path / "seq", tmp_path / "work"
     shutil.copytree(sequence, seq)
     _middlebury_folder(seq / "mb")
     work.mkdir()
-    argv = [a.replace("SEQMAP", str(sequence_map)).replace("SEQ", str(seq)).replace("WORK", str(work))
-            .replace("EM", str(error_model)).replace("MAP", str(small_map)) for a in FULL_DISK[name]]
+    argv = [
+        a.replace("SEQMAP", str(sequence_map))
+        .replace("SEQ", str(seq))
+        .replace("WORK", str(work))
+        .replace("EM", str(error_model))
+        .replace("MAP", str(small_map))
+        for a in FULL_DISK[name]
+    ]
     # numba caches its kernels on a first run, which must not be the one under the file-size limit
     (tmp_path / "warm").mkdir()
     warm = [a.replace(str(work), str(tmp_path / "warm")) for a in argv]
@@ -220,8 +264,9 @@ def test_a_full_disk_is_one_line_and_leaves_no_directory(name, sequence, error_m
 
 
 def test_a_refused_experiment_writes_no_settings(tmp_path):
-    status, stderr = _prismap(["experiment", "--world", "office2d", "--quick", "--voxel", "1e-9", "--out",
-                               str(tmp_path / "exp")], tmp_path)
+    status, stderr = _prismap(
+        ["experiment", "--world", "office2d", "--quick", "--voxel", "1e-9", "--out", str(tmp_path / "exp")], tmp_path
+    )
     assert status == 2 and len(stderr.strip().splitlines()) == 1, stderr
     assert "`voxel_size_m` = 1e-09" in stderr
     assert list(tmp_path.iterdir()) == []
@@ -241,7 +286,12 @@ def test_a_characterisation_killed_while_drawing_its_classes_figure_is_redone(tm
     assert not stale.exists()
     (tmp_path / "errors_classes.png").write_bytes(b"x")
     assert sorted(p.name for p in written_characterisation(tmp_path).values()) == [
-        "error_model.json", "errors.png", "errors_classes.png", "errors_wide.png", "table.md"]
+        "error_model.json",
+        "errors.png",
+        "errors_classes.png",
+        "errors_wide.png",
+        "table.md",
+    ]
 
 
 def test_a_plain_characterisation_needs_no_classes_figure(tmp_path, error_model):

@@ -27,7 +27,25 @@ FUZZ = settings(
     database=None,
     suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large],
 )
-TOKENS = [b" nan", b"NaN", b" inf", b" 1.5", b" -2e3", b"x", b",", b":", b"\n", b" ", b"\t", b"e", b"-", b"<", b">", b"\x00", b"\xff"]
+TOKENS = [
+    b" nan",
+    b"NaN",
+    b" inf",
+    b" 1.5",
+    b" -2e3",
+    b"x",
+    b",",
+    b":",
+    b"\n",
+    b" ",
+    b"\t",
+    b"e",
+    b"-",
+    b"<",
+    b">",
+    b"\x00",
+    b"\xff",
+]
 
 
 @st.composite
@@ -77,7 +95,9 @@ def _matrix_line(name, values):
 P2 = np.array([[700.0, 0, 600, 42], [0, 700, 180, 0], [0, 0, 1, 0]])
 P3 = np.array([[700.0, 0, 600, -336], [0, 700, 180, 0], [0, 0, 1, 0]])
 VALID_CALIB = (
-    _matrix_line("P0", np.c_[P2[:, :3], np.zeros(3)]) + _matrix_line("P2", P2) + _matrix_line("P3", P3)
+    _matrix_line("P0", np.c_[P2[:, :3], np.zeros(3)])
+    + _matrix_line("P2", P2)
+    + _matrix_line("P3", P3)
     + _matrix_line("Tr", np.c_[np.eye(3), [0.1, 0.2, 0.3]])
 ).encode()
 VALID_POSES = b"".join(
@@ -85,8 +105,12 @@ VALID_POSES = b"".join(
 )
 VALID_TRACK = b"".join(f"{10 * i}, {-5 * i}, {i}, {i}, {-2 * i}, {3 * i}\n".encode() for i in range(4))
 VALID_VELODYNE = np.random.default_rng(0).normal(0, 10, size=(8, 4)).astype(np.float32).tobytes()
-VALID_DISPARITY16 = cv2.imencode(".png", (np.random.default_rng(1).random((12, 16)) * 20000).astype(np.uint16))[1].tobytes()
-VALID_DISPARITY8 = cv2.imencode(".png", np.random.default_rng(2).integers(1, 255, (12, 16), dtype=np.uint8))[1].tobytes()
+VALID_DISPARITY16 = cv2.imencode(".png", (np.random.default_rng(1).random((12, 16)) * 20000).astype(np.uint16))[
+    1
+].tobytes()
+VALID_DISPARITY8 = cv2.imencode(".png", np.random.default_rng(2).integers(1, 255, (12, 16), dtype=np.uint8))[
+    1
+].tobytes()
 
 
 def _valid_xml(workdir):

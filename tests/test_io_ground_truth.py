@@ -28,8 +28,10 @@ TR = np.array([[0, -1, 0, 0.0], [0, 0, -1, -0.08], [1, 0, 0, -0.27]])
 # v = 20 * -0.5 / 10 + 2.3 = 1.3, so pixel (row 1, column 6), disparity f b / z = 20 * 0.54 / 10 = 1.08 px.
 # The second point lies on the same ray twice as far (0.54 px, hidden); the third is behind the camera; the
 # fourth projects to u = 24.2, outside the 10-px-wide image.
-SCAN = np.array([[10.27, -0.94, 0.42, 0.3], [20.27, -1.94, 0.92, 0.1], [-5.0, 0.0, 0.0, 0.5], [10.27, -10.06, -0.08, 0.2]],
-                np.float32)
+SCAN = np.array(
+    [[10.27, -0.94, 0.42, 0.3], [20.27, -1.94, 0.92, 0.1], [-5.0, 0.0, 0.0, 0.5], [10.27, -10.06, -0.08, 0.2]],
+    np.float32,
+)
 HAND_PIXEL, HAND_DISPARITY = (1, 6), 1.08
 
 
@@ -57,8 +59,9 @@ def test_points_to_disparity_keeps_the_nearest_point_per_pixel():
     points = np.array([[1.0, -0.5, 10.0], [2.0, -1.0, 20.0], [-1.0, 0.0, -3.0], [10.0, 0.0, 10.0]])
     np.testing.assert_allclose(points_to_disparity(points, camera), _expected_velodyne_truth(), rtol=1e-6)
     # nearest pixel centre: u = 9.49 rounds into the last column, u = 9.5 falls outside; v = -0.5 is row 0
-    edge = np.array([[(9.49 - CX) / F_PX, (0.0 - CY) / F_PX, 1.0], [(9.5 - CX) / F_PX, 0.0, 1.0],
-                     [0.0, (-0.5 - CY) / F_PX, 1.0]])
+    edge = np.array(
+        [[(9.49 - CX) / F_PX, (0.0 - CY) / F_PX, 1.0], [(9.5 - CX) / F_PX, 0.0, 1.0], [0.0, (-0.5 - CY) / F_PX, 1.0]]
+    )
     disparity = points_to_disparity(edge, camera)
     assert disparity[0, 9] == pytest.approx(F_PX * BASELINE) and disparity[0, 4] == pytest.approx(F_PX * BASELINE)
     assert np.isfinite(disparity).sum() == 2
@@ -108,7 +111,10 @@ def test_kitti_odometry_missing_scan_or_transform_fails_on_opening(odometry):
     seq, _ = odometry
     (seq / "velodyne" / "000002.bin").unlink()
     assert len(open_ground_truth(seq, frames="0:2")) == 2
-    with pytest.raises(PrismapInputError, match=r"1 of the 3 selected frames have no ground truth; first frame 2: .*000002.bin not found"):
+    with pytest.raises(
+        PrismapInputError,
+        match=r"1 of the 3 selected frames have no ground truth; first frame 2: .*000002.bin not found",
+    ):
         open_ground_truth(seq)
     text = (seq / "calib.txt").read_text()
     (seq / "calib.txt").write_text(text[: text.index("Tr:")])
@@ -121,7 +127,8 @@ def test_kitti_raw_ground_truth_is_the_projected_velodyne_scan(tmp_path):
     drive = date / "2011_09_26_drive_0005_sync"
     date.mkdir()
     (date / "calib_cam_to_cam.txt").write_text(
-        "calib_time: 09-Jan-2012 13:57:47\n" + kitti_line("R_rect_00", np.eye(3))
+        "calib_time: 09-Jan-2012 13:57:47\n"
+        + kitti_line("R_rect_00", np.eye(3))
         + kitti_line("P_rect_02", kitti_projection(F_PX, CX, CY, T2))
         + kitti_line("P_rect_03", kitti_projection(F_PX, CX, CY, T2 - [BASELINE, 0, 0]))
     )
@@ -172,8 +179,11 @@ def test_kitti_stereo_frames_and_noc_or_occ_ground_truth(tmp_path, year):
 def test_kitti_stereo_without_disparities_or_calibration_or_with_other_sizes(tmp_path):
     rng = np.random.default_rng(0)
     root = write_kitti_stereo(tmp_path / "testing", [shifted_pair(rng, 8, 12, 2)], year=2012, disparities=())
-    with pytest.raises(PrismapInputError, match=r"testing: KITTI stereo 2012 folder without ground-truth disparities: "
-                                                r"no disp_noc/ \(the testing split has none\)"):
+    with pytest.raises(
+        PrismapInputError,
+        match=r"testing: KITTI stereo 2012 folder without ground-truth disparities: "
+        r"no disp_noc/ \(the testing split has none\)",
+    ):
         open_ground_truth(root)
     root = write_kitti_stereo(tmp_path / "training", [shifted_pair(rng, 8, 12, 2)], year=2015)
     with pytest.raises(PrismapInputError, match="no disp_occ_0/"):
@@ -246,8 +256,10 @@ def test_a_ground_truth_pixel_beyond_the_image_width_is_refused(tmp_path):
     disparity[2, 5] = 1e9
     _middlebury_scene(tmp_path / "scene", np.random.default_rng(0), disparity=disparity)
     frames = open_ground_truth(tmp_path / "scene")
-    message = (r"scene/disp0.pfm: ground-truth disparity 1e\+09 px at \(row 2, column 5\) is not below the image "
-               r"width 10 px")
+    message = (
+        r"scene/disp0.pfm: ground-truth disparity 1e\+09 px at \(row 2, column 5\) is not below the image "
+        r"width 10 px"
+    )
     with pytest.raises(PrismapInputError, match=message):
         frames.max_disparity_px(progress=False)
     with pytest.raises(PrismapInputError, match=message):
@@ -282,17 +294,20 @@ def test_a_sequence_with_disp_and_frame_selection(tmp_path):
     assert open_ground_truth(tmp_path / "seq", frames="0:7").indices == tuple(range(7))
 
 
-@pytest.mark.parametrize(("frames", "every", "message"), [
-    ("3:3", 1, "`frames` 3:3 selects no frame of the 7 frames of"),
-    ("5:2", 1, "`frames` 5:2 selects no frame"),
-    ("0:8", 1, "`frames` 0:8: 8 lies outside the 7 frames of .* \\(0..6\\)"),
-    ((-9, None), 1, "`frames` -9:: -9 lies outside the 7 frames"),
-    ("1-3", 1, "`frames` must look like A:B"),
-    ("a:3", 1, "`frames` must look like A:B"),
-    ((1, 2, 3), 1, "`frames` must be 'A:B', \\(start, stop\\) or None"),
-    (None, 0, "`every` must be an integer >= 1; got 0"),
-    (None, 1.5, "`every` must be an integer >= 1; got 1.5"),
-])
+@pytest.mark.parametrize(
+    ("frames", "every", "message"),
+    [
+        ("3:3", 1, "`frames` 3:3 selects no frame of the 7 frames of"),
+        ("5:2", 1, "`frames` 5:2 selects no frame"),
+        ("0:8", 1, "`frames` 0:8: 8 lies outside the 7 frames of .* \\(0..6\\)"),
+        ((-9, None), 1, "`frames` -9:: -9 lies outside the 7 frames"),
+        ("1-3", 1, "`frames` must look like A:B"),
+        ("a:3", 1, "`frames` must look like A:B"),
+        ((1, 2, 3), 1, "`frames` must be 'A:B', \\(start, stop\\) or None"),
+        (None, 0, "`every` must be an integer >= 1; got 0"),
+        (None, 1.5, "`every` must be an integer >= 1; got 1.5"),
+    ],
+)
 def test_bad_selections_are_clear_errors(tmp_path, frames, every, message):
     write_sequence(_sequence_frames(7, np.random.default_rng(0)), tmp_path / "seq")
     with pytest.raises(PrismapInputError, match=message):
@@ -332,12 +347,16 @@ def test_new_tsukuba_prefers_the_sub_pixel_depth_maps(tmp_path, with_depth):
     truth = root / "groundtruth"
     (truth / "disparity_maps" / "left").mkdir(parents=True)
     for number in (1, 2):
-        cv2.imwrite(str(truth / "disparity_maps/left" / f"tsukuba_disparity_L_{number:05d}.png"),
-                    np.full((4, 32), 20 + number, np.uint8))
+        cv2.imwrite(
+            str(truth / "disparity_maps/left" / f"tsukuba_disparity_L_{number:05d}.png"),
+            np.full((4, 32), 20 + number, np.uint8),
+        )
         if with_depth:
             (truth / "depth_maps" / "left").mkdir(parents=True, exist_ok=True)
-            _write_xml(truth / "depth_maps/left" / f"tsukuba_depth_L_{number:05d}.xml",
-                       np.full((4, 32), 300.0 * number, np.float32))
+            _write_xml(
+                truth / "depth_maps/left" / f"tsukuba_depth_L_{number:05d}.xml",
+                np.full((4, 32), 300.0 * number, np.float32),
+            )
     frames = open_ground_truth(root, frames="1:")
     assert frames.kind == "new-tsukuba" and len(frames) == 1
     np.testing.assert_array_equal(frames[0].left, lefts["left"][1])

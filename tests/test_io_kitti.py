@@ -86,7 +86,9 @@ def test_odometry_frames_camera_and_poses(odometry):
         expected = _projection(T2) @ x0
         ours = K @ (np.linalg.inv(T_world_cam) @ X)[:3]
         np.testing.assert_allclose(ours[:2] / ours[2], expected[:2] / expected[2], atol=1e-9)
-    np.testing.assert_allclose(seq.poses[0][:3, 3], -T2, atol=1e-12)  # first frame: camera 2 offset from the world origin
+    np.testing.assert_allclose(
+        seq.poses[0][:3, 3], -T2, atol=1e-12
+    )  # first frame: camera 2 offset from the world origin
 
 
 def test_odometry_velodyne_matches_devkit_projection(odometry):
@@ -98,7 +100,9 @@ def test_odometry_velodyne_matches_devkit_projection(odometry):
     expected = _projection(T2) @ np.vstack([TR, [0, 0, 0, 1]]) @ np.c_[scan[:, :3], np.ones(2)].T
     ours = K @ points.T
     np.testing.assert_allclose(ours[:2] / ours[2], expected[:2] / expected[2], atol=1e-6)
-    np.testing.assert_allclose(points, velodyne_to_camera(read_velodyne_bin(root / "sequences/04/velodyne/000001.bin"), seq.T_cam_velo))
+    np.testing.assert_allclose(
+        points, velodyne_to_camera(read_velodyne_bin(root / "sequences/04/velodyne/000001.bin"), seq.T_cam_velo)
+    )
 
 
 def test_odometry_without_poses_or_tr(odometry):
@@ -135,7 +139,12 @@ def test_raw_drive(tmp_path):
     seq = KittiRaw(drive)
     assert len(seq) == 2 and seq.poses is None
     assert seq.camera.baseline_m == pytest.approx(0.54)
-    expected = _projection(T2) @ np.vstack([np.c_[R_rect, np.zeros(3)], [0, 0, 0, 1]]) @ np.vstack([TR, [0, 0, 0, 1]]) @ [8, 2, -1, 1]
+    expected = (
+        _projection(T2)
+        @ np.vstack([np.c_[R_rect, np.zeros(3)], [0, 0, 0, 1]])
+        @ np.vstack([TR, [0, 0, 0, 1]])
+        @ [8, 2, -1, 1]
+    )
     ours = K @ seq.velodyne(1)[0]
     np.testing.assert_allclose(ours[:2] / ours[2], expected[:2] / expected[2], atol=1e-6)
 
@@ -233,7 +242,9 @@ def test_sequence_errors(odometry):
     data = (seq_dir / "image_2" / "000002.png").read_bytes()
     (seq_dir / "image_2" / "000002.png").write_bytes(data[: len(data) // 2])
     seq = KittiOdometry(root, 4)
-    with pytest.raises(PrismapInputError, match=r"000002.png: left image cannot be decoded \(truncated or corrupt PNG\)"):
+    with pytest.raises(
+        PrismapInputError, match=r"000002.png: left image cannot be decoded \(truncated or corrupt PNG\)"
+    ):
         seq[2]
     (seq_dir / "image_2" / "000002.png").write_bytes(b"GIF89a" + data)
     with pytest.raises(PrismapInputError, match="left image is not a PNG file"):
@@ -247,7 +258,9 @@ def test_sequence_errors(odometry):
 
 def test_disparity_and_velodyne_errors(tmp_path):
     cv2.imwrite(str(tmp_path / "d8.png"), np.full((2, 2), 7, np.uint8))
-    with pytest.raises(PrismapInputError, match="d8.png: KITTI disparity must be a single-channel uint16 PNG; got 1-channel uint8"):
+    with pytest.raises(
+        PrismapInputError, match="d8.png: KITTI disparity must be a single-channel uint16 PNG; got 1-channel uint8"
+    ):
         read_kitti_disparity(tmp_path / "d8.png")
     cv2.imwrite(str(tmp_path / "rgb16.png"), np.full((2, 2, 3), 7, np.uint16))
     with pytest.raises(PrismapInputError, match="got 3-channel uint16"):
@@ -255,7 +268,9 @@ def test_disparity_and_velodyne_errors(tmp_path):
     with pytest.raises(PrismapInputError, match="none.png: KITTI disparity not found"):
         read_kitti_disparity(tmp_path / "none.png")
     (tmp_path / "scan.bin").write_bytes(b"\0" * 36)
-    with pytest.raises(PrismapInputError, match=r"scan.bin: velodyne scan size must be a multiple of 16 bytes .*got 36 bytes"):
+    with pytest.raises(
+        PrismapInputError, match=r"scan.bin: velodyne scan size must be a multiple of 16 bytes .*got 36 bytes"
+    ):
         read_velodyne_bin(tmp_path / "scan.bin")
     np.array([[0, 0, 0, 1], [np.nan, 0, 0, 1]], np.float32).tofile(tmp_path / "scan.bin")
     with pytest.raises(PrismapInputError, match="velodyne point 1 is not finite"):
@@ -305,10 +320,16 @@ def test_read_sequence_of_a_kitti_sequence_without_poses(odometry):
     assert seq.poses is None and seq.pose_path is None and seq[0].T_world_cam is None
 
 
-@pytest.mark.parametrize(("lines", "match"), [
-    (lambda lines: lines[:2], r"poses[/\\]04\.txt: 2 poses for 3 frames"),
-    (lambda lines: [lines[0], "1 0 0 0 0 2 0 0 0 0 1 0\n", lines[2]], r"04\.txt line 2: rotation is not orthonormal"),
-])
+@pytest.mark.parametrize(
+    ("lines", "match"),
+    [
+        (lambda lines: lines[:2], r"poses[/\\]04\.txt: 2 poses for 3 frames"),
+        (
+            lambda lines: [lines[0], "1 0 0 0 0 2 0 0 0 0 1 0\n", lines[2]],
+            r"04\.txt line 2: rotation is not orthonormal",
+        ),
+    ],
+)
 def test_read_sequence_kitti_pose_errors_name_the_pose_file(odometry, lines, match):
     root, _, _ = odometry
     path = root / "poses" / "04.txt"

@@ -1,6 +1,5 @@
 """The .npz map file and the PLY export: round trips, and clear errors for bad files with nothing overwritten."""
 
-
 import numpy as np
 import pytest
 

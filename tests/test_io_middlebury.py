@@ -122,7 +122,9 @@ def test_calib_errors_name_file_and_field(tmp_path):
     with pytest.raises(PrismapInputError, match=r"calib.txt line 3, field doffs: expected numbers; got '12,4'"):
         read_middlebury_calib(path)
     path.write_text(MOTORCYCLE_CALIB.replace("[3979.911 0 1244.772; ", "[3979.911 0 1244.772 0; "))
-    with pytest.raises(PrismapInputError, match=r"calib.txt line 1, field cam0: expected a 3x3 matrix \[a b c; d e f; g h i\]"):
+    with pytest.raises(
+        PrismapInputError, match=r"calib.txt line 1, field cam0: expected a 3x3 matrix \[a b c; d e f; g h i\]"
+    ):
         read_middlebury_calib(path)
     path.write_text("cam0 [1 0 0; 0 1 0; 0 0 1]\n")
     with pytest.raises(PrismapInputError, match="calib.txt line 1: expected 'key=value'"):

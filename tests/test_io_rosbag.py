@@ -34,7 +34,9 @@ class BagWriter:
         self.ros1 = storage == "rosbag1"
         self.ts = get_typestore(Stores.ROS1_NOETIC if self.ros1 else Stores.ROS2_HUMBLE)
         if self.ros1:  # rosbags' Noetic store lacks tf2_msgs: the message is one line, registered here
-            self.ts.register(get_types_from_msg("geometry_msgs/TransformStamped[] transforms", "tf2_msgs/msg/TFMessage"))
+            self.ts.register(
+                get_types_from_msg("geometry_msgs/TransformStamped[] transforms", "tf2_msgs/msg/TFMessage")
+            )
         if self.ros1:
             self.writer = Writer1(path)
         else:
@@ -70,40 +72,61 @@ class BagWriter:
         array = np.ascontiguousarray(array)
         height, width = array.shape[:2]
         step = array.nbytes // height
-        return self.T("sensor_msgs/msg/Image")(header=self.header(stamp_ns, frame_id), height=height, width=width,
-                                               encoding=encoding, is_bigendian=0, step=step,
-                                               data=array.view(np.uint8).ravel())
+        return self.T("sensor_msgs/msg/Image")(
+            header=self.header(stamp_ns, frame_id),
+            height=height,
+            width=width,
+            encoding=encoding,
+            is_bigendian=0,
+            step=step,
+            data=array.view(np.uint8).ravel(),
+        )
 
     def camera_info(self, stamp_ns, K, P, *, D=(), R=None, size=(96, 72)):
         roi = self.T("sensor_msgs/msg/RegionOfInterest")(x_offset=0, y_offset=0, height=0, width=0, do_rectify=False)
-        matrices = {"d": np.asarray(D, float), "k": np.asarray(K, float).ravel(), "r": np.eye(3).ravel() if R is None else np.asarray(R, float).ravel(),
-                    "p": np.asarray(P, float).ravel()}
+        matrices = {
+            "d": np.asarray(D, float),
+            "k": np.asarray(K, float).ravel(),
+            "r": np.eye(3).ravel() if R is None else np.asarray(R, float).ravel(),
+            "p": np.asarray(P, float).ravel(),
+        }
         if self.ros1:
             matrices = {name.upper(): value for name, value in matrices.items()}
-        return self.T("sensor_msgs/msg/CameraInfo")(header=self.header(stamp_ns, "left"), height=size[1],
-                                                    width=size[0], distortion_model="plumb_bob", binning_x=0,
-                                                    binning_y=0, roi=roi, **matrices)
+        return self.T("sensor_msgs/msg/CameraInfo")(
+            header=self.header(stamp_ns, "left"),
+            height=size[1],
+            width=size[0],
+            distortion_model="plumb_bob",
+            binning_x=0,
+            binning_y=0,
+            roi=roi,
+            **matrices,
+        )
 
     def pose(self, T):
         point = self.T("geometry_msgs/msg/Point")(x=T[0, 3], y=T[1, 3], z=T[2, 3])
         x, y, z, w = Rotation.from_matrix(T[:3, :3]).as_quat()
-        return self.T("geometry_msgs/msg/Pose")(position=point,
-                                                orientation=self.T("geometry_msgs/msg/Quaternion")(x=x, y=y, z=z, w=w))
+        return self.T("geometry_msgs/msg/Pose")(
+            position=point, orientation=self.T("geometry_msgs/msg/Quaternion")(x=x, y=y, z=z, w=w)
+        )
 
     def odometry(self, stamp_ns, T):
         vector = self.T("geometry_msgs/msg/Vector3")(x=0.0, y=0.0, z=0.0)
         twist = self.T("geometry_msgs/msg/Twist")(linear=vector, angular=vector)
         return self.T("nav_msgs/msg/Odometry")(
-            header=self.header(stamp_ns, "odom"), child_frame_id="camera",
+            header=self.header(stamp_ns, "odom"),
+            child_frame_id="camera",
             pose=self.T("geometry_msgs/msg/PoseWithCovariance")(pose=self.pose(T), covariance=np.zeros(36)),
-            twist=self.T("geometry_msgs/msg/TwistWithCovariance")(twist=twist, covariance=np.zeros(36)))
+            twist=self.T("geometry_msgs/msg/TwistWithCovariance")(twist=twist, covariance=np.zeros(36)),
+        )
 
     def tf(self, stamp_ns, parent, child, T):
         pose = self.pose(T)
         translation = self.T("geometry_msgs/msg/Vector3")(x=pose.position.x, y=pose.position.y, z=pose.position.z)
         transform = self.T("geometry_msgs/msg/Transform")(translation=translation, rotation=pose.orientation)
-        stamped = self.T("geometry_msgs/msg/TransformStamped")(header=self.header(stamp_ns, parent),
-                                                               child_frame_id=child, transform=transform)
+        stamped = self.T("geometry_msgs/msg/TransformStamped")(
+            header=self.header(stamp_ns, parent), child_frame_id=child, transform=transform
+        )
         return self.T("tf2_msgs/msg/TFMessage")(transforms=[stamped])
 
     def disparity(self, stamp_ns, disparity):
@@ -111,8 +134,15 @@ class BagWriter:
         values = np.where(np.isfinite(disparity), disparity, -1.0).astype(np.float32)
         fields = {"T" if self.ros1 else "t": CAMERA.baseline_m}
         return self.T("stereo_msgs/msg/DisparityImage")(
-            header=self.header(stamp_ns, "left"), image=self.image(stamp_ns, values, "32FC1"), f=CAMERA.focal_px,
-            valid_window=roi, min_disparity=0.0, max_disparity=255.0, delta_d=1 / 16, **fields)
+            header=self.header(stamp_ns, "left"),
+            image=self.image(stamp_ns, values, "32FC1"),
+            f=CAMERA.focal_px,
+            valid_window=roi,
+            min_disparity=0.0,
+            max_disparity=255.0,
+            delta_d=1 / 16,
+            **fields,
+        )
 
 
 def projections(camera):
@@ -128,8 +158,20 @@ def stamp(i):
     return T0_NS + i * DT_NS
 
 
-def write_bag(frames, path, storage, *, poses="odom", encoding="rgb8", compressed=False, focal=None,
-              drop_right=(), right_jitter_ns=0, pose_stamps=None, truth=True):
+def write_bag(
+    frames,
+    path,
+    storage,
+    *,
+    poses="odom",
+    encoding="rgb8",
+    compressed=False,
+    focal=None,
+    drop_right=(),
+    right_jitter_ns=0,
+    pose_stamps=None,
+    truth=True,
+):
     """Write ``frames`` (StereoFrames) to a bag; the keyword options break it in the ways the tests need."""
     P, P_right = projections(CAMERA)
     K = CAMERA.K
@@ -148,8 +190,9 @@ def write_bag(frames, path, storage, *, poses="odom", encoding="rgb8", compresse
                     continue
                 if compressed:
                     _ok, png = cv2.imencode(".png", cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
-                    msg = bag.T("sensor_msgs/msg/CompressedImage")(header=bag.header(t + jitter, "left"),
-                                                                   format="png", data=png.ravel())
+                    msg = bag.T("sensor_msgs/msg/CompressedImage")(
+                        header=bag.header(t + jitter, "left"), format="png", data=png.ravel()
+                    )
                 else:
                     array = image[..., ::-1] if encoding == "bgr8" else image
                     msg = bag.image(t + jitter, array, encoding)
@@ -158,16 +201,23 @@ def write_bag(frames, path, storage, *, poses="odom", encoding="rgb8", compresse
                 bag.write("/stereo/disparity", bag.disparity(t, frame.disparity_gt), t)
             elif truth:
                 bag.write("/stereo/depth", bag.image(t, depth_image(frame, truth), truth), t)
-            for ts in (pose_stamps(i) if pose_stamps else [t]):
+            for ts in pose_stamps(i) if pose_stamps else [t]:
                 T = frame.T_world_cam if pose_stamps is None else pose_at(ts)
                 if poses == "odom":
                     bag.write("/odom", bag.odometry(ts, T), ts)
                 elif poses == "pose":
-                    bag.write("/pose", bag.T("geometry_msgs/msg/PoseStamped")(header=bag.header(ts, "map"),
-                                                                            pose=bag.pose(T)), ts)
+                    bag.write(
+                        "/pose",
+                        bag.T("geometry_msgs/msg/PoseStamped")(header=bag.header(ts, "map"), pose=bag.pose(T)),
+                        ts,
+                    )
                 elif poses == "tf":
-                    bag.write("/tf", bag.tf(ts, "odom", "base_link", T @ np.linalg.inv(T_BASE_CAM)), ts,
-                              publisher=f"/localiser{i % 2}")
+                    bag.write(
+                        "/tf",
+                        bag.tf(ts, "odom", "base_link", T @ np.linalg.inv(T_BASE_CAM)),
+                        ts,
+                        publisher=f"/localiser{i % 2}",
+                    )
     return path
 
 
@@ -220,8 +270,9 @@ def test_bag_frames_poses_camera_and_pairing_are_the_values_written(bags, frames
         np.testing.assert_array_equal(got.right, want.right)
         np.testing.assert_allclose(got.T_world_cam, want.T_world_cam, atol=1e-12)
         np.testing.assert_array_equal(np.isnan(got.disparity_gt), np.isnan(want.disparity_gt))
-        np.testing.assert_array_equal(got.disparity_gt[~np.isnan(got.disparity_gt)],
-                                      want.disparity_gt[~np.isnan(want.disparity_gt)])
+        np.testing.assert_array_equal(
+            got.disparity_gt[~np.isnan(got.disparity_gt)], want.disparity_gt[~np.isnan(want.disparity_gt)]
+        )
 
 
 @pytest.mark.parametrize("storage", STORAGES)
@@ -238,11 +289,45 @@ def test_cli_map_bag_writes_the_kitti_sequences_map(bags, frames, tmp_path):
     write_sequence(frames, tmp_path / "seq")
     common = ["--voxel", "0.2", "--max-range", "8", "--model", "hitmiss", "--matcher-param", "num_disparities=16"]
     assert main(["map", "--sequence", str(tmp_path / "seq"), *common, "--out", str(tmp_path / "a.npz")]) == 0
-    assert main(["map", "--bag", str(bags["mcap"]), "--left", LEFT, "--right", RIGHT, "--tf-frames", "odom:camera",
-                 *common, "--out", str(tmp_path / "b.npz")]) == 2  # the bag has /odom, not /tf
+    assert (
+        main(
+            [
+                "map",
+                "--bag",
+                str(bags["mcap"]),
+                "--left",
+                LEFT,
+                "--right",
+                RIGHT,
+                "--tf-frames",
+                "odom:camera",
+                *common,
+                "--out",
+                str(tmp_path / "b.npz"),
+            ]
+        )
+        == 2
+    )  # the bag has /odom, not /tf
     assert not (tmp_path / "b.npz").exists()
-    assert main(["map", "--bag", str(bags["mcap"]), "--left", LEFT, "--right", RIGHT, "--pose-topic", "/odom",
-                 *common, "--out", str(tmp_path / "b.npz")]) == 0
+    assert (
+        main(
+            [
+                "map",
+                "--bag",
+                str(bags["mcap"]),
+                "--left",
+                LEFT,
+                "--right",
+                RIGHT,
+                "--pose-topic",
+                "/odom",
+                *common,
+                "--out",
+                str(tmp_path / "b.npz"),
+            ]
+        )
+        == 0
+    )
     assert_same_map(load_map(tmp_path / "b.npz"), load_map(tmp_path / "a.npz"), atol=1e-6)
 
 
@@ -256,8 +341,13 @@ def test_tf_chain_with_a_static_edge_gives_the_camera_pose(frames, tmp_path, sto
 
 
 def test_poses_between_samples_are_interpolated_with_slerp(frames, tmp_path):
-    path = write_bag(frames, tmp_path / "interp.bag", "rosbag1", truth=False,
-                     pose_stamps=lambda i: [stamp(i) - 37_000_000, stamp(i) + 63_000_000])
+    path = write_bag(
+        frames,
+        tmp_path / "interp.bag",
+        "rosbag1",
+        truth=False,
+        pose_stamps=lambda i: [stamp(i) - 37_000_000, stamp(i) + 63_000_000],
+    )
     sequence = open_bag(path)
     for i, pose in enumerate(sequence.poses):
         np.testing.assert_allclose(pose, pose_at(stamp(i)), atol=1e-12)  # linear motion, constant rate: exact
@@ -297,10 +387,12 @@ def test_raw_images_are_rectified_with_K_D_R(frames, tmp_path):
     texture = cv2.GaussianBlur(frames[0].left, (0, 0), 2.0)
     with BagWriter(tmp_path / "raw", "mcap") as bag:
         for side, proj in (("left", P), ("right", P_right)):
-            bag.write(f"/cam/{side}/camera_info", bag.camera_info(stamp(0), CAMERA.K, proj, D=[0, 0, 0, 0, 0], R=R),
-                      stamp(0))
-            bag.write(f"/cam/{side}/image_raw", bag.image(stamp(0), cv2.warpPerspective(texture, H, size), "rgb8"),
-                      stamp(0))
+            bag.write(
+                f"/cam/{side}/camera_info", bag.camera_info(stamp(0), CAMERA.K, proj, D=[0, 0, 0, 0, 0], R=R), stamp(0)
+            )
+            bag.write(
+                f"/cam/{side}/image_raw", bag.image(stamp(0), cv2.warpPerspective(texture, H, size), "rgb8"), stamp(0)
+            )
     sequence = read_bag(tmp_path / "raw", left="/cam/left/image_raw", right="/cam/right/image_raw")
     assert sequence.poses is None
     rectified = sequence[0].left.astype(float)
@@ -326,8 +418,28 @@ def test_truncated_bag_is_refused_by_name(bags, tmp_path, storage):
     with pytest.raises(PrismapInputError, match=rf"{cut.name}: not a readable ROS bag \(truncated or damaged\?\)"):
         open_bag(cut)
     out = tmp_path / "map.npz"
-    assert main(["map", "--bag", str(cut), "--left", LEFT, "--right", RIGHT, "--pose-topic", "/odom", "--voxel", "0.2",
-                 "--model", "hitmiss", "--out", str(out)]) == 2
+    assert (
+        main(
+            [
+                "map",
+                "--bag",
+                str(cut),
+                "--left",
+                LEFT,
+                "--right",
+                RIGHT,
+                "--pose-topic",
+                "/odom",
+                "--voxel",
+                "0.2",
+                "--model",
+                "hitmiss",
+                "--out",
+                str(out),
+            ]
+        )
+        == 2
+    )
     assert not out.exists()
 
 
@@ -335,13 +447,24 @@ BAD_BAGS = {
     "missing topic": ({}, {"pose_topic": "/odometry"}, r"topic /odometry not in the bag"),
     "encoding": ({"encoding": "16UC1"}, {}, r"topic /stereo/left/image_raw: image encoding '16UC1' .* not supported"),
     "zero focal": ({"focal": 0.0}, {}, r"topic /stereo/left/camera_info: camera_info has a zero .*focal length"),
-    "no pose": ({"pose_stamps": lambda i: [stamp(0) + 1, stamp(2) + 9] if i == 0 else []}, {},
-                r"/odom: no pose within 0.25 s around the image stamp 1700000000.000000000 s"),
-    "pose gap": ({"pose_stamps": lambda i: [stamp(0) - 1, stamp(2) + 1] if i == 0 else []}, {"max_pose_gap_s": 0.1},
-                 r"/odom: no pose within 0.1 s around the image stamp 1700000000.000000000"),
-    "unpaired": ({"drop_right": (1,)}, {},
-                 (r"topic /stereo/left/image_raw: the message at stamp 1700000000.100000000 s has no partner on "
-                 r"/stereo/right/image_raw")),
+    "no pose": (
+        {"pose_stamps": lambda i: [stamp(0) + 1, stamp(2) + 9] if i == 0 else []},
+        {},
+        r"/odom: no pose within 0.25 s around the image stamp 1700000000.000000000 s",
+    ),
+    "pose gap": (
+        {"pose_stamps": lambda i: [stamp(0) - 1, stamp(2) + 1] if i == 0 else []},
+        {"max_pose_gap_s": 0.1},
+        r"/odom: no pose within 0.1 s around the image stamp 1700000000.000000000",
+    ),
+    "unpaired": (
+        {"drop_right": (1,)},
+        {},
+        (
+            r"topic /stereo/left/image_raw: the message at stamp 1700000000.100000000 s has no partner on "
+            r"/stereo/right/image_raw"
+        ),
+    ),
     "late right": ({"right_jitter_ns": 7_000_000}, {}, r"no partner on /stereo/right/image_raw within 0.005 s"),
 }
 
@@ -353,8 +476,23 @@ def test_bad_bags_are_refused_naming_the_topic_and_write_nothing(frames, tmp_pat
     with pytest.raises(PrismapInputError, match=message):
         open_bag(path, **reading)
     out = tmp_path / "map.npz"
-    argv = ["map", "--bag", str(path), "--left", LEFT, "--right", RIGHT, "--pose-topic", reading.get("pose_topic", "/odom"),
-            "--voxel", "0.2", "--model", "hitmiss", "--out", str(out)]
+    argv = [
+        "map",
+        "--bag",
+        str(path),
+        "--left",
+        LEFT,
+        "--right",
+        RIGHT,
+        "--pose-topic",
+        reading.get("pose_topic", "/odom"),
+        "--voxel",
+        "0.2",
+        "--model",
+        "hitmiss",
+        "--out",
+        str(out),
+    ]
     if "max_pose_gap_s" in reading:
         argv += ["--pose-gap", str(reading["max_pose_gap_s"])]
     assert main(argv) == 2
@@ -371,8 +509,21 @@ def test_cli_characterise_bag_fits_the_ground_truth_topic_like_the_library(bags,
     from prismap.characterise import characterise_matcher, write_error_model
     from prismap.stereo import make_matcher
 
-    argv = ["characterise", "--bag", str(bags["sqlite3"]), "--left", LEFT, "--right", RIGHT, "--matcher", "bm",
-            "--max-components", "1", "--out", str(tmp_path / "cli")]
+    argv = [
+        "characterise",
+        "--bag",
+        str(bags["sqlite3"]),
+        "--left",
+        LEFT,
+        "--right",
+        RIGHT,
+        "--matcher",
+        "bm",
+        "--max-components",
+        "1",
+        "--out",
+        str(tmp_path / "cli"),
+    ]
     assert main(argv) == 2  # without --truth-topic there is nothing to characterise against
     assert main([*argv, "--truth-topic", "/stereo/disparity"]) == 0
     largest = max(np.nanmax(f.disparity_gt) for f in frames)
@@ -382,16 +533,41 @@ def test_cli_characterise_bag_fits_the_ground_truth_topic_like_the_library(bags,
     assert (tmp_path / "cli" / "error_model.json").read_text() == (tmp_path / "lib.json").read_text()
 
 
-@pytest.mark.parametrize("extra, message", [
-    ([], "--bag: mapping needs poses; give --pose-topic TOPIC or --tf-frames WORLD:CAMERA"),
-    (["--tf-frames", "odom"], "--tf-frames 'odom': expected WORLD:CAMERA frame ids"),
-    (["--pose-topic", "/odom", "--workers", "1"], "--bag runs here, without checkpoints"),
-    (["--pose-topic", "/odom", "--sequence", "seq"], "give exactly one of --sequence DIR and --bag PATH"),
-    (["--pose-topic", "/odom", "--pair-tolerance", "0"], "--pair-tolerance must lie in (0, 86400] seconds; got 0.0"),
-])
+@pytest.mark.parametrize(
+    "extra, message",
+    [
+        ([], "--bag: mapping needs poses; give --pose-topic TOPIC or --tf-frames WORLD:CAMERA"),
+        (["--tf-frames", "odom"], "--tf-frames 'odom': expected WORLD:CAMERA frame ids"),
+        (["--pose-topic", "/odom", "--workers", "1"], "--bag runs here, without checkpoints"),
+        (["--pose-topic", "/odom", "--sequence", "seq"], "give exactly one of --sequence DIR and --bag PATH"),
+        (
+            ["--pose-topic", "/odom", "--pair-tolerance", "0"],
+            "--pair-tolerance must lie in (0, 86400] seconds; got 0.0",
+        ),
+    ],
+)
 def test_cli_map_bag_option_errors(bags, tmp_path, capsys, extra, message):
     out = tmp_path / "map.npz"
-    assert main(["map", "--bag", str(bags["rosbag1"]), "--left", LEFT, "--right", RIGHT, "--voxel", "0.2",
-                 "--model", "hitmiss", "--out", str(out), *extra]) == 2
+    assert (
+        main(
+            [
+                "map",
+                "--bag",
+                str(bags["rosbag1"]),
+                "--left",
+                LEFT,
+                "--right",
+                RIGHT,
+                "--voxel",
+                "0.2",
+                "--model",
+                "hitmiss",
+                "--out",
+                str(out),
+                *extra,
+            ]
+        )
+        == 2
+    )
     assert message in capsys.readouterr().err
     assert not out.exists()

@@ -50,8 +50,10 @@ def scan_points(t_ns):
     T_world_lidar = pose_at(t_ns) @ T_CAM_LIDAR
     elevation = np.deg2rad(np.linspace(-25.0, 25.0, 16))[:, None]
     azimuth = np.deg2rad(np.linspace(-40.0, 40.0, 300))[None, :]
-    directions = np.stack([np.cos(elevation) * np.sin(azimuth), np.sin(elevation) + 0 * azimuth,
-                           np.cos(elevation) * np.cos(azimuth)], axis=-1).reshape(-1, 3)
+    directions = np.stack(
+        [np.cos(elevation) * np.sin(azimuth), np.sin(elevation) + 0 * azimuth, np.cos(elevation) * np.cos(azimuth)],
+        axis=-1,
+    ).reshape(-1, 3)
     world = first_hit(T_world_lidar[:3, 3], directions)
     return (world - T_world_lidar[:3, 3]) @ T_world_lidar[:3, :3]
 
@@ -62,10 +64,17 @@ def pointcloud(bag, t_ns, points, frame_id="velodyne"):
     record["x"], record["y"], record["z"] = points.T
     field = bag.T("sensor_msgs/msg/PointField")
     fields = [field(name=name, offset=4 * i, datatype=7, count=1) for i, name in enumerate(record.dtype.names)]
-    return bag.T("sensor_msgs/msg/PointCloud2")(header=bag.header(t_ns, frame_id), height=1, width=len(record),
-                                                fields=fields, is_bigendian=False, point_step=16,
-                                                row_step=16 * len(record), data=record.view(np.uint8).ravel(),
-                                                is_dense=True)
+    return bag.T("sensor_msgs/msg/PointCloud2")(
+        header=bag.header(t_ns, frame_id),
+        height=1,
+        width=len(record),
+        fields=fields,
+        is_bigendian=False,
+        point_step=16,
+        row_step=16 * len(record),
+        data=record.view(np.uint8).ravel(),
+        is_dense=True,
+    )
 
 
 def write_lidar_bag(path, storage, *, n_frames=3, tf_static=True, scan=scan_points):
@@ -103,8 +112,9 @@ def test_projected_lidar_disparities_are_exact_pixel_by_pixel_with_occlusions(li
         edge = ndimage.maximum_filter(exact, size=3) != ndimage.minimum_filter(exact, size=3)
         np.testing.assert_allclose(frame.disparity_gt[kept & ~edge], exact[kept & ~edge], atol=2e-3)
         at_edge = kept & edge & ~np.isclose(frame.disparity_gt, exact, atol=2e-3)
-        np.testing.assert_allclose(frame.disparity_gt[at_edge], ndimage.maximum_filter(exact, size=3)[at_edge],
-                                   atol=2e-3)  # the board's, never a hidden wall point's
+        np.testing.assert_allclose(
+            frame.disparity_gt[at_edge], ndimage.maximum_filter(exact, size=3)[at_edge], atol=2e-3
+        )  # the board's, never a hidden wall point's
         on_board = exact > CAMERA.disparity_from_depth(WALL_Z) + 0.5
         assert (kept & on_board & ~edge).sum() > 20 and (kept & ~on_board & ~edge).sum() > 20
 
@@ -120,11 +130,14 @@ def test_without_motion_compensation_the_scan_misses_the_image(lidar_bag):
 
 def test_extrinsics_given_instead_of_tf_static(tmp_path):
     path = write_lidar_bag(tmp_path / "rec", "sqlite3", n_frames=1, tf_static=False)
-    with pytest.raises(PrismapInputError, match="no transform from the LiDAR frame 'velodyne' to the camera frame "
-                                                "'left'.*--lidar-extrinsics"):
+    with pytest.raises(
+        PrismapInputError,
+        match="no transform from the LiDAR frame 'velodyne' to the camera frame 'left'.*--lidar-extrinsics",
+    ):
         read_bag(path, left=LEFT, right=RIGHT, pose_topic="/odom", lidar_topic=LIDAR_TOPIC)
-    frame = read_bag(path, left=LEFT, right=RIGHT, pose_topic="/odom", lidar_topic=LIDAR_TOPIC,
-                     T_cam_lidar=T_CAM_LIDAR)[0]
+    frame = read_bag(
+        path, left=LEFT, right=RIGHT, pose_topic="/odom", lidar_topic=LIDAR_TOPIC, T_cam_lidar=T_CAM_LIDAR
+    )[0]
     exact = exact_disparity(pose_at(stamp(0)))
     edge = ndimage.maximum_filter(exact, size=3) != ndimage.minimum_filter(exact, size=3)
     kept = np.isfinite(frame.disparity_gt) & ~edge
@@ -143,8 +156,22 @@ def test_stamps_too_far_apart_and_scans_outside_the_image_are_refused(lidar_bag,
 def test_cli_characterise_with_a_bad_lidar_bag_exits_2_and_writes_nothing(tmp_path, capsys):
     path = write_lidar_bag(tmp_path / "rec", "mcap", n_frames=2, tf_static=False)
     out = tmp_path / "model"
-    argv = ["characterise", "--bag", str(path), "--left", LEFT, "--right", RIGHT, "--lidar-topic", LIDAR_TOPIC,
-            "--matcher", "sgbm", "--plain", "--out", str(out)]
+    argv = [
+        "characterise",
+        "--bag",
+        str(path),
+        "--left",
+        LEFT,
+        "--right",
+        RIGHT,
+        "--lidar-topic",
+        LIDAR_TOPIC,
+        "--matcher",
+        "sgbm",
+        "--plain",
+        "--out",
+        str(out),
+    ]
     assert main(argv) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "no transform from the LiDAR frame" in err

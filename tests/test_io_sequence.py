@@ -58,7 +58,10 @@ def test_round_trip_of_a_short_sequence(tmp_path):
 
 def test_calibration_follows_kitti_projection_matrices(tmp_path):
     write_sequence(_frames(1), tmp_path)
-    rows = {line.split(":")[0]: np.array(line.split()[1:], float).reshape(3, 4) for line in (tmp_path / "calib.txt").read_text().splitlines()}
+    rows = {
+        line.split(":")[0]: np.array(line.split()[1:], float).reshape(3, 4)
+        for line in (tmp_path / "calib.txt").read_text().splitlines()
+    }
     assert sorted(rows) == ["P0", "P1", "P2", "P3"]
     p2, p3 = rows["P2"], rows["P3"]
     assert (p2[0, 3] - p3[0, 3]) / p2[0, 0] == pytest.approx(0.25)
@@ -85,8 +88,14 @@ def test_ground_truth_file_round_trip_and_errors(tmp_path):
     back = read_ground_truth(path)
     np.testing.assert_array_equal(back.occupied_keys, _truth().occupied_keys)
     np.testing.assert_array_equal(back.observed_keys, _truth().observed_keys)
-    np.savez(tmp_path / "other.npz", format=np.array("prismap-ground-truth-occupancy"), version=np.array(7),
-             voxel_size_m=np.array(0.1), occupied_keys=np.zeros((0, 3), int), observed_keys=np.zeros((0, 3), int))
+    np.savez(
+        tmp_path / "other.npz",
+        format=np.array("prismap-ground-truth-occupancy"),
+        version=np.array(7),
+        voxel_size_m=np.array(0.1),
+        occupied_keys=np.zeros((0, 3), int),
+        observed_keys=np.zeros((0, 3), int),
+    )
     with pytest.raises(PrismapInputError, match="other.npz: expected format .* version 1; got .* version 7"):
         read_ground_truth(tmp_path / "other.npz")
     np.savez(tmp_path / "short.npz", voxel_size_m=np.array(0.1))
@@ -97,7 +106,10 @@ def test_ground_truth_file_round_trip_and_errors(tmp_path):
         read_ground_truth(tmp_path / "junk.npz")
     with pytest.raises(PrismapInputError, match="`occupied_keys` must be an \\(N, 3\\) integer array"):
         GroundTruthOccupancy(0.1, np.zeros((2, 2), int), np.zeros((0, 3), int))
-    with pytest.raises(PrismapInputError, match=r"`observed_keys` must lie in \[-1048576, 1048576\) \(\+-104858 m at 0.1 m voxels\); got values in \[0, 1048576\]"):
+    with pytest.raises(
+        PrismapInputError,
+        match=r"`observed_keys` must lie in \[-1048576, 1048576\) \(\+-104858 m at 0.1 m voxels\); got values in \[0, 1048576\]",
+    ):
         GroundTruthOccupancy(0.1, np.zeros((0, 3), int), np.array([[0, 1 << 20, 0]]))
 
 
@@ -124,20 +136,44 @@ def _replace_line(path, number, text):
     ("damage", "message"),
     [
         (lambda d: _replace_line(d / "calib.txt", 4, "P3: 1 2 3"), "calib.txt: field P3 must have 12 numbers; got 3"),
-        (lambda d: _replace_line(d / "calib.txt", 4, "Q3: 1 2 3"), r"calib.txt: missing field P3; found \['P0', 'P1', 'P2', 'Q3'\]"),
-        (lambda d: _replace_line(d / "calib.txt", 3, "P2: 1 2 x 4"), "calib.txt line 3, field P2: expected numbers; got '1 2 x 4'"),
-        (lambda d: _replace_line(d / "calib.txt", 2, "no colon here"), "calib.txt line 2: expected 'name: numbers'; got 'no colon here'"),
+        (
+            lambda d: _replace_line(d / "calib.txt", 4, "Q3: 1 2 3"),
+            r"calib.txt: missing field P3; found \['P0', 'P1', 'P2', 'Q3'\]",
+        ),
+        (
+            lambda d: _replace_line(d / "calib.txt", 3, "P2: 1 2 x 4"),
+            "calib.txt line 3, field P2: expected numbers; got '1 2 x 4'",
+        ),
+        (
+            lambda d: _replace_line(d / "calib.txt", 2, "no colon here"),
+            "calib.txt line 2: expected 'name: numbers'; got 'no colon here'",
+        ),
         (lambda d: (d / "calib.txt").unlink(), "calib.txt: KITTI calibration file not found"),
-        (lambda d: _replace_line(d / "poses.txt", 2, "1 0 0 0 0 1 0 0 0 0 1"), r"poses.txt line 2: expected 12 numbers \(3x4 pose\); got 11"),
-        (lambda d: _replace_line(d / "poses.txt", 1, "1 0 0 nan 0 1 0 0 0 0 1 0"), "poses.txt line 1: numbers must be finite"),
-        (lambda d: _replace_line(d / "poses.txt", 1, "1 0 0 a 0 1 0 0 0 0 1 0"), "poses.txt line 1: expected numbers; got '1 0 0 a 0 1 0 0 0 0 1 0'"),
+        (
+            lambda d: _replace_line(d / "poses.txt", 2, "1 0 0 0 0 1 0 0 0 0 1"),
+            r"poses.txt line 2: expected 12 numbers \(3x4 pose\); got 11",
+        ),
+        (
+            lambda d: _replace_line(d / "poses.txt", 1, "1 0 0 nan 0 1 0 0 0 0 1 0"),
+            "poses.txt line 1: numbers must be finite",
+        ),
+        (
+            lambda d: _replace_line(d / "poses.txt", 1, "1 0 0 a 0 1 0 0 0 0 1 0"),
+            "poses.txt line 1: expected numbers; got '1 0 0 a 0 1 0 0 0 0 1 0'",
+        ),
         (lambda d: (d / "poses.txt").write_text("1 0 0 0 0 1 0 0 0 0 1 0\n"), "poses.txt: 1 poses for 2 frames"),
-        (lambda d: (d / "image_3" / "000001.png").unlink(), r"image_3: missing 1 right image\(s\), first \'000001.png\'"),
+        (
+            lambda d: (d / "image_3" / "000001.png").unlink(),
+            r"image_3: missing 1 right image\(s\), first \'000001.png\'",
+        ),
         (
             lambda d: cv2.imwrite(str(d / "image_3" / "000001.png"), np.zeros((21, 32), np.uint8)),
             "image_3/000001.png: image size 32x21 differs from .*image_2/000000.png \\(32x20\\)",
         ),
-        (lambda d: (d / "image_2" / "000001.png").write_bytes(b"GIF89a" + bytes(30)), r"image_2/000001.png: left image is not a PNG file \(bad or truncated header\)"),
+        (
+            lambda d: (d / "image_2" / "000001.png").write_bytes(b"GIF89a" + bytes(30)),
+            r"image_2/000001.png: left image is not a PNG file \(bad or truncated header\)",
+        ),
         (lambda d: [p.unlink() for p in (d / "image_2").glob("*.png")], r"image_2: no files matching \'\*.png\'"),
     ],
 )
@@ -153,9 +189,14 @@ def test_broken_images_are_reported_on_access(tmp_path):
     (directory / "image_2" / "000001.png").write_bytes(data[:40])
     cv2.imwrite(str(directory / "disp" / "000000.png"), np.zeros((20, 32), np.uint8))
     seq = read_sequence(directory)
-    with pytest.raises(PrismapInputError, match=r"image_2/000001.png: left image cannot be decoded \(truncated or corrupt PNG\)"):
+    with pytest.raises(
+        PrismapInputError, match=r"image_2/000001.png: left image cannot be decoded \(truncated or corrupt PNG\)"
+    ):
         seq[1]
-    with pytest.raises(PrismapInputError, match="disp/000000.png: ground-truth disparity must be a single-channel uint16 PNG; got 1-channel uint8"):
+    with pytest.raises(
+        PrismapInputError,
+        match="disp/000000.png: ground-truth disparity must be a single-channel uint16 PNG; got 1-channel uint8",
+    ):
         seq[0]
     with pytest.raises(PrismapInputError, match="sequence directory not found"):
         read_sequence(directory / "nowhere")
@@ -164,7 +205,10 @@ def test_broken_images_are_reported_on_access(tmp_path):
 def test_write_rejects_inconsistent_frames(tmp_path):
     frames = _frames(2)
     other = StereoCamera(100.0, 15.25, 9.75, 0.25, width=32, height=20)
-    mixed = [frames[0], StereoFrame(frames[1].left, frames[1].right, other, frames[1].disparity_gt, frames[1].T_world_cam)]
+    mixed = [
+        frames[0],
+        StereoFrame(frames[1].left, frames[1].right, other, frames[1].disparity_gt, frames[1].T_world_cam),
+    ]
     with pytest.raises(PrismapInputError, match="`frames\\[1\\]` has another camera"):
         write_sequence(mixed, tmp_path / "a")
     no_pose = [frames[0], StereoFrame(frames[1].left, frames[1].right, CAMERA, frames[1].disparity_gt)]
@@ -174,7 +218,9 @@ def test_write_rejects_inconsistent_frames(tmp_path):
         write_sequence([], tmp_path / "c")
     with pytest.raises(PrismapInputError, match="`frames\\[0\\]` must be a StereoFrame"):
         write_sequence([np.zeros((2, 2))], tmp_path / "d")
-    big = StereoFrame(frames[0].left, frames[0].right, CAMERA, np.full((20, 32), 300.0, np.float32), frames[0].T_world_cam)
+    big = StereoFrame(
+        frames[0].left, frames[0].right, CAMERA, np.full((20, 32), 300.0, np.float32), frames[0].T_world_cam
+    )
     with pytest.raises(PrismapInputError, match="reaches 300.00 px; the uint16 x 256 format stores at most 255.99"):
         write_sequence([big], tmp_path / "e")
 
@@ -191,9 +237,15 @@ def _streamed(frames, bad_index, bad):
 
 
 BAD_LATER_FRAMES = {
-    "4-channel image": lambda f: StereoFrame(np.dstack([f.left, f.left[:, :, :1]]), f.right, CAMERA, f.disparity_gt, f.T_world_cam),
-    "disparity too large": lambda f: StereoFrame(f.left, f.right, CAMERA, np.full((20, 32), 300.0, np.float32), f.T_world_cam),
-    "other camera": lambda f: StereoFrame(f.left, f.right, StereoCamera(99.0, 15.25, 9.75, 0.25), f.disparity_gt, f.T_world_cam),
+    "4-channel image": lambda f: StereoFrame(
+        np.dstack([f.left, f.left[:, :, :1]]), f.right, CAMERA, f.disparity_gt, f.T_world_cam
+    ),
+    "disparity too large": lambda f: StereoFrame(
+        f.left, f.right, CAMERA, np.full((20, 32), 300.0, np.float32), f.T_world_cam
+    ),
+    "other camera": lambda f: StereoFrame(
+        f.left, f.right, StereoCamera(99.0, 15.25, 9.75, 0.25), f.disparity_gt, f.T_world_cam
+    ),
 }
 
 
@@ -243,7 +295,9 @@ def test_sequence_camera_is_the_kitti_reader_camera(tmp_path):
 
     write_sequence(_frames(1), tmp_path)
     calib = read_kitti_calib(tmp_path / "calib.txt")
-    expected = StereoCamera.from_kitti_projections(calib["P2"].reshape(3, 4), calib["P3"].reshape(3, 4), width=32, height=20)
+    expected = StereoCamera.from_kitti_projections(
+        calib["P2"].reshape(3, 4), calib["P3"].reshape(3, 4), width=32, height=20
+    )
     assert read_sequence(tmp_path).camera == expected == CAMERA
     assert calib["P3"][2] - calib["P2"][2] == CAMERA.doffs_px
 
@@ -253,8 +307,13 @@ def test_random_cameras_round_trip_through_calib_txt(tmp_path):
     image = np.zeros((4, 6), np.uint8)
     for trial in range(20):
         camera = StereoCamera(
-            rng.uniform(100, 2000), rng.uniform(0, 600), rng.uniform(0, 400), rng.uniform(0.01, 1.0),
-            doffs_px=rng.uniform(-5, 50), width=6, height=4,
+            rng.uniform(100, 2000),
+            rng.uniform(0, 600),
+            rng.uniform(0, 400),
+            rng.uniform(0.01, 1.0),
+            doffs_px=rng.uniform(-5, 50),
+            width=6,
+            height=4,
         )
         write_sequence([StereoFrame(image, image, camera)], tmp_path / str(trial))
         back = read_sequence(tmp_path / str(trial)).camera

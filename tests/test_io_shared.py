@@ -67,10 +67,14 @@ def test_disparity_png_scale_and_unknown_pixels(tmp_path):
     raw8 = np.array([[0, 5, 255]], np.uint8)
     disparity = read_disparity_png(_png(tmp_path / "d8.png", raw8), "disparity", dtype=np.uint8, scale=1.0)
     np.testing.assert_array_equal(disparity, [[np.nan, 5.0, 255.0]])
-    with pytest.raises(PrismapInputError, match="d8.png: disparity must be a single-channel uint16 PNG; got 1-channel uint8"):
+    with pytest.raises(
+        PrismapInputError, match="d8.png: disparity must be a single-channel uint16 PNG; got 1-channel uint8"
+    ):
         read_disparity_png(tmp_path / "d8.png", "disparity", dtype=np.uint16, scale=256.0)
     _png(tmp_path / "c16.png", np.zeros((2, 2, 3), np.uint16))
-    with pytest.raises(PrismapInputError, match="c16.png: raw must be a single-channel uint16 PNG; got 3-channel uint16"):
+    with pytest.raises(
+        PrismapInputError, match="c16.png: raw must be a single-channel uint16 PNG; got 3-channel uint16"
+    ):
         read_gray_png(tmp_path / "c16.png", "raw", np.uint16)
 
 
@@ -125,7 +129,9 @@ def test_read_number_rows(tmp_path):
     path.write_text("1 2 3\n4,5, 6\n\n\n")
     with pytest.raises(PrismapInputError, match="rows.txt line 2: expected numbers; got '4,5, 6'"):
         read_number_rows(path, "row file", 3, layout="x y z")
-    np.testing.assert_array_equal(read_number_rows(path, "row file", 3, layout="x y z", commas=True), [[1, 2, 3], [4, 5, 6]])
+    np.testing.assert_array_equal(
+        read_number_rows(path, "row file", 3, layout="x y z", commas=True), [[1, 2, 3], [4, 5, 6]]
+    )
     path.write_text("1 2 3\n\n4 5 6\n")
     with pytest.raises(PrismapInputError, match=r"rows.txt line 2: expected 3 numbers \(x y z\); got 0"):
         read_number_rows(path, "row file", 3, layout="x y z")
@@ -176,6 +182,8 @@ def test_write_disparity_png_refuses_values_beyond_the_format_and_keeps_the_old_
     path = tmp_path / "000000.png"
     write_disparity_png(path, np.full((2, 2), 3.0), "old")
     before = path.read_bytes()
-    with pytest.raises(PrismapInputError, match=r"`new` reaches 300.00 px; the uint16 x 256 format stores at most 255.99"):
+    with pytest.raises(
+        PrismapInputError, match=r"`new` reaches 300.00 px; the uint16 x 256 format stores at most 255.99"
+    ):
         write_disparity_png(path, np.full((2, 2), 300.0), "new")
     assert path.read_bytes() == before and sorted(p.name for p in tmp_path.iterdir()) == ["000000.png"]

@@ -74,8 +74,13 @@ def dataset(tmp_path):
     (truth / "disparity_maps" / "left").mkdir(parents=True)
     (truth / "depth_maps" / "left").mkdir(parents=True)
     for number in (2, 3):
-        cv2.imwrite(str(truth / "disparity_maps/left" / f"tsukuba_disparity_L_{number:05d}.png"), np.full((4, 6), 30 + number, np.uint8))
-        _write_xml(truth / "depth_maps/left" / f"tsukuba_depth_L_{number:05d}.xml", np.full((4, 6), 100.0 * number, np.float32))
+        cv2.imwrite(
+            str(truth / "disparity_maps/left" / f"tsukuba_disparity_L_{number:05d}.png"),
+            np.full((4, 6), 30 + number, np.uint8),
+        )
+        _write_xml(
+            truth / "depth_maps/left" / f"tsukuba_depth_L_{number:05d}.xml", np.full((4, 6), 100.0 * number, np.float32)
+        )
     (truth / "camera_track.txt").write_text("".join(", ".join(f"{v:g}" for v in row) + "\n" for row in TRACK))
     return root
 
@@ -148,5 +153,7 @@ def test_depth_errors(tmp_path):
 
 def test_disparity_of_wrong_type(tmp_path):
     cv2.imwrite(str(tmp_path / "d.png"), np.full((2, 2), 300, np.uint16))
-    with pytest.raises(PrismapInputError, match="Tsukuba disparity must be a single-channel uint8 PNG; got 1-channel uint16"):
+    with pytest.raises(
+        PrismapInputError, match="Tsukuba disparity must be a single-channel uint8 PNG; got 1-channel uint16"
+    ):
         read_tsukuba_disparity(tmp_path / "d.png")

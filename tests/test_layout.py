@@ -40,8 +40,10 @@ def _imported_subpackages(path):
 
 def test_the_import_scan_sees_every_form_of_import(tmp_path):
     module = tmp_path / "m.py"
-    module.write_text("import prismap.io._npz\nfrom prismap import camera, errors\n\n"
-                      "def f():\n    from prismap.stereo._base import to_grey\n")
+    module.write_text(
+        "import prismap.io._npz\nfrom prismap import camera, errors\n\n"
+        "def f():\n    from prismap.stereo._base import to_grey\n"
+    )
     assert _imported_subpackages(module) == {"io", "camera", "errors", "stereo"}
 
 
@@ -52,8 +54,11 @@ def test_the_grid_knows_nothing_of_cameras_stereo_sensor_models_or_files(path):
 
 
 def test_no_source_file_is_over_600_lines():
-    long = {str(p.relative_to(SRC)): n for p in SRC.rglob("*.py")
-            if (n := len(p.read_text(encoding="utf-8").splitlines())) > MAX_LINES}
+    long = {
+        str(p.relative_to(SRC)): n
+        for p in SRC.rglob("*.py")
+        if (n := len(p.read_text(encoding="utf-8").splitlines())) > MAX_LINES
+    }
     assert not long, f"source files over {MAX_LINES} lines: {long}"
 
 

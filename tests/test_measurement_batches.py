@@ -38,37 +38,57 @@ def test_disparity_batch_adds_noise_overhang_classes_and_image_when_asked():
     camera, pose, disparity = _frame()
     cov = np.diag([0.01, 0.02, 0.03])
     classes = np.arange(disparity.size, dtype=np.int64).reshape(disparity.shape) % 3
-    batch = disparity_batch(disparity, camera, pose, subsample=3, pose_covariance=cov, ray_class=classes,
-                            overhang_voxel_m=0.2, projective=True)
+    batch = disparity_batch(
+        disparity,
+        camera,
+        pose,
+        subsample=3,
+        pose_covariance=cov,
+        ray_class=classes,
+        overhang_voxel_m=0.2,
+        projective=True,
+    )
     rays_cam = camera.pixel_rays()[::3, ::3].reshape(-1, 3)
     np.testing.assert_array_equal(batch.ray_class, classes[::3, ::3].reshape(-1))
-    np.testing.assert_array_equal(batch.extra_noise_px, pose_noise_px(batch.measurement, rays_cam, pose[:3, :3], cov,
-                                                                      camera.focal_baseline, camera.doffs_px))
-    np.testing.assert_array_equal(batch.voxel_overhang_m,
-                                  frame_overhang_m(disparity, camera, pose[:3, :3], 0.2, 3, rays_cam))
+    np.testing.assert_array_equal(
+        batch.extra_noise_px,
+        pose_noise_px(batch.measurement, rays_cam, pose[:3, :3], cov, camera.focal_baseline, camera.doffs_px),
+    )
+    np.testing.assert_array_equal(
+        batch.voxel_overhang_m, frame_overhang_m(disparity, camera, pose[:3, :3], 0.2, 3, rays_cam)
+    )
     assert batch.image.subsample == 3 and batch.image.ray_index.shape == (20, 27)
     np.testing.assert_array_equal(batch.image.R_cam_world, pose[:3, :3].T)
 
 
 def test_integrate_disparity_is_the_map_of_its_batch():
     camera, pose, disparity = _frame()
-    model = make_sensor_model("prism", focal_baseline=camera.focal_baseline, error_model=GaussianMixture.gaussian(0.3),
-                              voxel_size_m=0.2, p0=0.05)
+    model = make_sensor_model(
+        "prism",
+        focal_baseline=camera.focal_baseline,
+        error_model=GaussianMixture.gaussian(0.3),
+        voxel_size_m=0.2,
+        p0=0.05,
+    )
     for mode in ("ray", "projective"):
         direct, batched = OccupancyMap(0.2, p0=0.05), OccupancyMap(0.2, p0=0.05)
         integrate_disparity(direct, disparity, camera, pose, model, mode=mode, max_range_m=8.0, subsample=2)
-        batch = disparity_batch(disparity, camera, pose, subsample=2, overhang_voxel_m=0.2,
-                                projective=mode == "projective")
+        batch = disparity_batch(
+            disparity, camera, pose, subsample=2, overhang_voxel_m=0.2, projective=mode == "projective"
+        )
         batched.integrate(batch, model, mode=mode, max_range_m=8.0)
         assert direct.n_known > 500
         assert_same_map(direct, batched)
 
 
-@pytest.mark.parametrize("kwargs, message", [
-    ({"subsample": 0}, "`subsample` must be an integer >= 1"),
-    ({"subsample": "a"}, "`subsample` must be an integer >= 1"),
-    ({"ray_class": np.zeros((3, 3), dtype=int)}, "`ray_class` must be an integer array of shape"),
-])
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        ({"subsample": 0}, "`subsample` must be an integer >= 1"),
+        ({"subsample": "a"}, "`subsample` must be an integer >= 1"),
+        ({"ray_class": np.zeros((3, 3), dtype=int)}, "`ray_class` must be an integer array of shape"),
+    ],
+)
 def test_disparity_batch_names_bad_arguments(kwargs, message):
     camera, pose, disparity = _frame()
     with pytest.raises(PrismapInputError, match=message):
@@ -134,8 +154,15 @@ def test_a_batch_subset_keeps_its_kind():
 def test_integrators_projectors_and_models_come_from_their_factories():
     from prismap.grid import PROJECTOR_NAMES, ImageProjection, make_integrator, make_projector
 
-    projector = make_projector("pinhole", R_cam_world=np.eye(3), focal_px=50.0, cx_px=3.0, cy_px=2.0, subsample=1,
-                               ray_index=np.zeros((4, 6), dtype=np.int32))
+    projector = make_projector(
+        "pinhole",
+        R_cam_world=np.eye(3),
+        focal_px=50.0,
+        cx_px=3.0,
+        cy_px=2.0,
+        subsample=1,
+        ray_index=np.zeros((4, 6), dtype=np.int32),
+    )
     assert PROJECTOR_NAMES == ("pinhole",) and isinstance(projector, ImageProjection) and projector.focal_px == 50.0
     with pytest.raises(PrismapInputError, match=r"`projector` must be one of \['pinhole'\]; got 'fisheye'"):
         make_projector("fisheye")

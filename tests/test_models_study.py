@@ -22,7 +22,9 @@ from prismap.study import (
 # Close to SGBM on Middlebury Motorcycle (quarter resolution), as `prismap characterise` fits it.
 MOTORCYCLE_SGBM = GaussianMixture([0.84, 0.10, 0.06], [0.01, -0.04, -10.4], [0.24, 0.92, 13.6])
 RIG = CAMERAS["middlebury-motorcycle"]
-SETUP = RaySetup(focal_baseline=RIG["focal_px"] * RIG["baseline_m"], doffs_px=RIG["doffs_px"], voxel_size_m=0.1, p0=0.05)
+SETUP = RaySetup(
+    focal_baseline=RIG["focal_px"] * RIG["baseline_m"], doffs_px=RIG["doffs_px"], voxel_size_m=0.1, p0=0.05
+)
 CLASSIC = ("ideal", "hitmiss", "convolution", "andert")
 
 
@@ -56,7 +58,11 @@ def test_single_noise_models_take_the_dominant_component_sigma():
     assert models["prism"].error_model == MOTORCYCLE_SGBM
     for model in models.values():
         assert (model.focal_baseline, model.doffs_px, model.voxel_size_m, model.p0) == (
-            SETUP.focal_baseline, SETUP.doffs_px, 0.1, 0.05)
+            SETUP.focal_baseline,
+            SETUP.doffs_px,
+            0.1,
+            0.05,
+        )
 
 
 def test_prism_profile_matches_the_discrete_reference():
@@ -75,8 +81,10 @@ def test_prism_profile_matches_the_discrete_reference():
 
 
 def _by_hand(p, q, inc_model, n):
-    kl = [pi * np.log(pi / qi) + (1 - pi) * np.log((1 - pi) / (1 - qi)) if pi > 0 else -np.log(1 - qi)
-          for pi, qi in zip(p[:n], q[:n])]
+    kl = [
+        pi * np.log(pi / qi) + (1 - pi) * np.log((1 - pi) / (1 - qi)) if pi > 0 else -np.log(1 - qi)
+        for pi, qi in zip(p[:n], q[:n])
+    ]
     cleared = sum(pi for pi, inc in zip(p[:n], inc_model[:n]) if inc < 0)
     return np.mean(np.abs(p[:n] - q[:n])), np.mean(kl), cleared
 
@@ -86,8 +94,9 @@ def test_divergence_against_hand_computed_values():
     p = np.array([0.0, 0.01, 0.02, 0.3, 0.6, 0.05, 0.05, 0.05, 0.05, 0.05])
     q = np.array([0.03, 0.03, 0.03, 0.03, 0.1, 0.05, 0.05, 0.2, 0.2, 0.2])
     inc_q = np.log(q / (1 - q)) - np.log(0.05 / 0.95)
-    profile = RayProfile(10.0, 1.45, 0.05, edges, {"prism": p, "m": q}, {"prism": p * 0, "m": inc_q},
-                         {"prism": 1.7, "m": 1.55})
+    profile = RayProfile(
+        10.0, 1.45, 0.05, edges, {"prism": p, "m": q}, {"prism": p * 0, "m": inc_q}, {"prism": 1.7, "m": 1.55}
+    )
     result = divergence(profile, "m")
     n = 7  # cells starting below max(1.7, 1.55)
     mad, kl, cleared = _by_hand(p, q, inc_q, n)
@@ -102,8 +111,15 @@ def test_divergence_against_hand_computed_values():
 
 def test_hard_zero_model_posterior_keeps_the_kl_finite():
     edges = np.array([1.0, 1.1, 1.2])
-    profile = RayProfile(1.0, 1.05, 0.05, edges, {"prism": np.array([0.2, 0.05]), "m": np.array([0.0, 1.0])},
-                         {"prism": np.zeros(2), "m": np.array([-50.0, 50.0])}, {"prism": 1.2, "m": 1.2})
+    profile = RayProfile(
+        1.0,
+        1.05,
+        0.05,
+        edges,
+        {"prism": np.array([0.2, 0.05]), "m": np.array([0.0, 1.0])},
+        {"prism": np.zeros(2), "m": np.array([-50.0, 50.0])},
+        {"prism": 1.2, "m": 1.2},
+    )
     assert np.isfinite(divergence(profile, "m")["kl"])
 
 
@@ -147,8 +163,15 @@ def test_influence_bound_covers_the_observed_reach():
 
 def test_prism_sweeps_vary_one_thing_at_a_time():
     g1 = GaussianMixture.gaussian(0.3)
-    sweeps = prism_sweeps(MOTORCYCLE_SGBM, setup=SETUP, distances_m=[3.0, 6.0], reference_m=5.0,
-                          noise_scales=(1.0, 3.0), cell_sizes_m=(0.1, 0.3), mixtures_by_components={1: g1, 3: MOTORCYCLE_SGBM})
+    sweeps = prism_sweeps(
+        MOTORCYCLE_SGBM,
+        setup=SETUP,
+        distances_m=[3.0, 6.0],
+        reference_m=5.0,
+        noise_scales=(1.0, 3.0),
+        cell_sizes_m=(0.1, 0.3),
+        mixtures_by_components={1: g1, 3: MOTORCYCLE_SGBM},
+    )
     assert list(sweeps) == ["distance", "noise", "cell size", "components"]
     assert [label for label, _ in sweeps["noise"]] == ["sigma x 1", "sigma x 3"]
     (_, fine), (_, coarse) = sweeps["cell size"]

@@ -28,8 +28,9 @@ def octree_states(tree, centers):
 def frame_maps():
     camera, pose, depth = planes_frame()
     grid = OccupancyMap(0.1, p0=0.5)
-    integrate_disparity(grid, camera.focal_baseline / depth, camera, pose, HitMissModel(camera.focal_baseline),
-                             max_range_m=12.0)
+    integrate_disparity(
+        grid, camera.focal_baseline / depth, camera, pose, HitMissModel(camera.focal_baseline), max_range_m=12.0
+    )
     tree = octomap.OcTree(0.1)
     tree.insertPointCloud(world_points(camera, pose, depth), pose[:3, 3].copy(), maxrange=12.0)
     return grid, tree

@@ -103,8 +103,9 @@ def test_no_voxel_beyond_the_bound_holds_the_plane():
 
 
 def _prism(**kw):
-    return make_sensor_model("prism", focal_baseline=CAMERA.focal_baseline, error_model=MIXTURE, voxel_size_m=0.1,
-                             p0=0.05, **kw)
+    return make_sensor_model(
+        "prism", focal_baseline=CAMERA.focal_baseline, error_model=MIXTURE, voxel_size_m=0.1, p0=0.05, **kw
+    )
 
 
 def _cells(seed=0, n_rays=30, cells_per_ray=40):
@@ -143,12 +144,15 @@ def test_prism_overhang_table_agrees_with_direct_and_zero_changes_nothing():
     disparity, norm, rays, start, end, overhang = _cells(seed=1)
     model = _prism()
     p_table, inc_table = model.cell_posteriors(disparity, norm, rays, start, end, voxel_overhang_m=overhang)
-    p_direct, inc_direct = model.cell_posteriors(disparity, norm, rays, start, end, voxel_overhang_m=overhang,
-                                                 method="direct")
+    p_direct, inc_direct = model.cell_posteriors(
+        disparity, norm, rays, start, end, voxel_overhang_m=overhang, method="direct"
+    )
     assert np.abs(p_table - p_direct).max() <= TABLE_TOLERANCE["posterior"]
     moderate = np.abs(inc_direct) <= TABLE_TOLERANCE["large"]
-    assert np.all(np.abs(inc_table - inc_direct)[moderate]
-                  <= TABLE_TOLERANCE["abs"] + TABLE_TOLERANCE["rel"] * np.abs(inc_direct[moderate]))
+    assert np.all(
+        np.abs(inc_table - inc_direct)[moderate]
+        <= TABLE_TOLERANCE["abs"] + TABLE_TOLERANCE["rel"] * np.abs(inc_direct[moderate])
+    )
     plain = model.cell_posteriors(disparity, norm, rays, start, end)
     for zero in (np.zeros_like(overhang), overhang):
         off = _prism(overhang_fraction=0.0) if zero is overhang else model
@@ -169,8 +173,9 @@ def test_prism_overhang_bad_input_is_named():
         _prism().cell_posteriors(disparity, norm, rays, start, end, voxel_overhang_m=overhang[:-1])
     grid = OccupancyMap(0.1, p0=0.05)
     with pytest.raises(PrismapInputError, match="voxel_overhang_m"):
-        grid.integrate_rays(np.zeros(3), np.array([[0.0, 0.0, 1.0]]), np.array([20.0]), _prism(),
-                            voxel_overhang_m=np.array([np.inf]))
+        grid.integrate_rays(
+            np.zeros(3), np.array([[0.0, 0.0, 1.0]]), np.array([20.0]), _prism(), voxel_overhang_m=np.array([np.inf])
+        )
 
 
 def _floor_frame(camera, height_m, floor_z_m):
@@ -200,8 +205,14 @@ def test_a_grazing_floor_stays_in_the_map_without_a_false_layer_above():
     means = {}
     for fraction in (0.0, 0.25):
         grid = OccupancyMap(0.1, p0=0.05)
-        model = make_sensor_model("prism", focal_baseline=camera.focal_baseline, error_model=GaussianMixture.gaussian(0.2),
-                                  voxel_size_m=0.1, p0=0.05, overhang_fraction=fraction)
+        model = make_sensor_model(
+            "prism",
+            focal_baseline=camera.focal_baseline,
+            error_model=GaussianMixture.gaussian(0.2),
+            voxel_size_m=0.1,
+            p0=0.05,
+            overhang_fraction=fraction,
+        )
         integrate_disparity(grid, disparity, camera, pose, model, max_range_m=8.0)
         keys = grid.known_voxels()[0]
         p = grid.probability_at_keys(keys)
@@ -219,19 +230,23 @@ def test_integrate_disparity_gives_the_overhang_it_fits_to_the_model_as_integrat
     camera = StereoCamera(80.0, 80.0, 60.0, 0.3, width=160, height=120)
     disparity, pose = _floor_frame(camera, 1.2, 0.05)
     disparity[:10, :30] = np.nan  # dropped rays: the overhang follows the kept ones
-    model = make_sensor_model("prism", focal_baseline=camera.focal_baseline, error_model=GaussianMixture.gaussian(0.2),
-                              voxel_size_m=0.1, p0=0.05, overhang_fraction=0.25)
+    model = make_sensor_model(
+        "prism",
+        focal_baseline=camera.focal_baseline,
+        error_model=GaussianMixture.gaussian(0.2),
+        voxel_size_m=0.1,
+        p0=0.05,
+        overhang_fraction=0.25,
+    )
     fitted, given = OccupancyMap(0.1, p0=0.05), OccupancyMap(0.1, p0=0.05)
     integrate_disparity(fitted, disparity, camera, pose, model, max_range_m=8.0)
     rays_cam = camera.pixel_rays(disparity.shape).reshape(-1, 3)
     overhang = frame_overhang_m(disparity, camera, pose[:3, :3], 0.1, 1, rays_cam)
     rays_w = rotate_rays(rays_cam, np.ascontiguousarray(pose[:3, :3]))  # as integrate_disparity rotates them
-    given.integrate_rays(pose[:3, 3], rays_w, disparity.reshape(-1), model, max_range_m=8.0,
-                         voxel_overhang_m=overhang)
+    given.integrate_rays(pose[:3, 3], rays_w, disparity.reshape(-1), model, max_range_m=8.0, voxel_overhang_m=overhang)
     assert fitted.n_known > 1000
     assert_same_map(fitted, given)
     bad = overhang.copy()
     bad[np.flatnonzero(np.isfinite(disparity.reshape(-1)))[0]] = -0.1
     with pytest.raises(PrismapInputError, match="`voxel_overhang_m` must be finite and >= 0 at every valid ray"):
-        given.integrate_rays(pose[:3, 3], rays_w, disparity.reshape(-1), model, max_range_m=8.0,
-                             voxel_overhang_m=bad)
+        given.integrate_rays(pose[:3, 3], rays_w, disparity.reshape(-1), model, max_range_m=8.0, voxel_overhang_m=bad)

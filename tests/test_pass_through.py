@@ -218,11 +218,13 @@ def test_pass_through_ratio_by_class_matches_dense_sampling_of_each_class():
 
 @pytest.mark.parametrize(
     ("kwargs", "message"),
-    [({"n_classes": 2}, "`n_classes` .* needs `ray_classes`"),
-     ({"ray_classes": [np.zeros((16, 16), int)] * 2, "n_classes": 1}, r"one array per frame \(1\); got 2"),
-     ({"ray_classes": [np.zeros((8, 16), int)], "n_classes": 1}, r"frame's shape \(16, 16\); got shape \(8, 16\)"),
-     ({"ray_classes": [np.full((16, 16), 2)], "n_classes": 2}, r"must lie in \[-1, 1\]"),
-     ({"ray_classes": [np.zeros((16, 16), int)]}, "n_classes")],
+    [
+        ({"n_classes": 2}, "`n_classes` .* needs `ray_classes`"),
+        ({"ray_classes": [np.zeros((16, 16), int)] * 2, "n_classes": 1}, r"one array per frame \(1\); got 2"),
+        ({"ray_classes": [np.zeros((8, 16), int)], "n_classes": 1}, r"frame's shape \(16, 16\); got shape \(8, 16\)"),
+        ({"ray_classes": [np.full((16, 16), 2)], "n_classes": 2}, r"must lie in \[-1, 1\]"),
+        ({"ray_classes": [np.zeros((16, 16), int)]}, "n_classes"),
+    ],
 )
 def test_bad_ray_classes_are_named(kwargs, message):
     scene = _rail_scene()

@@ -36,13 +36,28 @@ def sequence_dir(tmp_path_factory):
 def hand_map(sequence_dir, cfg, indices, disparity_of):
     """The reference: a plain loop of OccupancyMap.integrate_disparity over the frames."""
     sequence = read_sequence(sequence_dir)
-    model = build_sensor_model(cfg.model, sequence.camera, voxel_size_m=cfg.voxel_size_m, p0=cfg.p0,
-                               error_model=cfg.error_model, **cfg.model_options)
+    model = build_sensor_model(
+        cfg.model,
+        sequence.camera,
+        voxel_size_m=cfg.voxel_size_m,
+        p0=cfg.p0,
+        error_model=cfg.error_model,
+        **cfg.model_options,
+    )
     grid = OccupancyMap(cfg.voxel_size_m, p0=cfg.p0)
     for index in indices:
         frame = sequence[index]
-        integrate_disparity(grid, disparity_of(frame), sequence.camera, frame.T_world_cam, model, mode=cfg.mode,
-                                 policy=cfg.policy, max_range_m=cfg.max_range_m, subsample=cfg.subsample)
+        integrate_disparity(
+            grid,
+            disparity_of(frame),
+            sequence.camera,
+            frame.T_world_cam,
+            model,
+            mode=cfg.mode,
+            policy=cfg.policy,
+            max_range_m=cfg.max_range_m,
+            subsample=cfg.subsample,
+        )
     return grid
 
 
@@ -58,20 +73,27 @@ def test_build_sensor_model_gives_each_model_its_noise():
     assert prism.focal_baseline == pytest.approx(7.2) and prism.voxel_size_m == 0.1 and prism.p0 == 0.05
     conv = build_sensor_model("convolution", CAMERA, voxel_size_m=0.1, p0=0.05, error_model=MIXTURE)
     assert isinstance(conv, ConvolutionModel) and conv.sigma_px == 0.4
-    andert = build_sensor_model("andert", CAMERA, voxel_size_m=0.1, p0=0.05, error_model=MIXTURE, sigma_px=1.25, eta=0.2)
+    andert = build_sensor_model(
+        "andert", CAMERA, voxel_size_m=0.1, p0=0.05, error_model=MIXTURE, sigma_px=1.25, eta=0.2
+    )
     assert isinstance(andert, AndertModel) and andert.sigma_px == 1.25 and andert.eta == 0.2
     ideal = build_sensor_model("ideal", CAMERA, voxel_size_m=0.1, p0=0.05)  # needs no error model
     assert ideal.name == "ideal"
 
 
-@pytest.mark.parametrize(("name", "params", "message"), [
-    ("prism", {}, "'prism' needs an error model"),
-    ("andert", {}, "needs an error model (`error_model`) or an explicit sigma_px"),
-    ("hitmiss", {"sigma_px": 1.0}, "sensor model 'hitmiss': bad parameter(s) ['sigma_px']"),
-    ("octree", {}, "unknown sensor model 'octree'"),
-])
+@pytest.mark.parametrize(
+    ("name", "params", "message"),
+    [
+        ("prism", {}, "'prism' needs an error model"),
+        ("andert", {}, "needs an error model (`error_model`) or an explicit sigma_px"),
+        ("hitmiss", {"sigma_px": 1.0}, "sensor model 'hitmiss': bad parameter(s) ['sigma_px']"),
+        ("octree", {}, "unknown sensor model 'octree'"),
+    ],
+)
 def test_build_sensor_model_errors_name_the_problem(name, params, message):
-    with pytest.raises(PrismapInputError, match=message.replace("(", r"\(").replace(")", r"\)").replace("[", r"\[").replace("]", r"\]")):
+    with pytest.raises(
+        PrismapInputError, match=message.replace("(", r"\(").replace(")", r"\)").replace("[", r"\[").replace("]", r"\]")
+    ):
         build_sensor_model(name, CAMERA, voxel_size_m=0.1, p0=0.05, **params)
 
 
@@ -87,19 +109,22 @@ def test_config_is_hashable_picklable_and_fingerprinted_by_content():
     assert config(error_model=GaussianMixture.gaussian(0.41)).fingerprint() != config().fingerprint()
 
 
-@pytest.mark.parametrize(("changes", "message"), [
-    ({"voxel_size_m": 0}, "`voxel_size_m` must be a finite number > 0"),
-    ({"p0": 1.0}, r"`p0` must lie in \(0, 1\)"),
-    ({"mode": "octree"}, "`mode` must be one of"),
-    ({"policy": "vote"}, "`policy` must be one of"),
-    ({"subsample": 0}, "`subsample` must be an integer >= 1"),
-    ({"subsample": "a"}, "`subsample` must be an integer >= 1; got 'a'"),
-    ({"subsample": 1.5}, "`subsample` must be an integer >= 1; got 1.5"),
-    ({"frames": (3, 3)}, "`frames` 3:3 is empty"),
-    ({"frames": (-1, None)}, "`frames` must hold integers >= 0"),
-    ({"matcher": "census"}, "unknown matcher 'census'"),
-    ({"max_range_m": -2}, "`max_range_m` must be a finite number > 0"),
-])
+@pytest.mark.parametrize(
+    ("changes", "message"),
+    [
+        ({"voxel_size_m": 0}, "`voxel_size_m` must be a finite number > 0"),
+        ({"p0": 1.0}, r"`p0` must lie in \(0, 1\)"),
+        ({"mode": "octree"}, "`mode` must be one of"),
+        ({"policy": "vote"}, "`policy` must be one of"),
+        ({"subsample": 0}, "`subsample` must be an integer >= 1"),
+        ({"subsample": "a"}, "`subsample` must be an integer >= 1; got 'a'"),
+        ({"subsample": 1.5}, "`subsample` must be an integer >= 1; got 1.5"),
+        ({"frames": (3, 3)}, "`frames` 3:3 is empty"),
+        ({"frames": (-1, None)}, "`frames` must hold integers >= 0"),
+        ({"matcher": "census"}, "unknown matcher 'census'"),
+        ({"max_range_m": -2}, "`max_range_m` must be a finite number > 0"),
+    ],
+)
 def test_config_rejects_bad_values(changes, message):
     with pytest.raises(PrismapInputError, match=message):
         config(**changes)
@@ -119,8 +144,14 @@ def test_sequence_run_equals_a_hand_loop_over_ground_truth_disparity(sequence_di
 
 
 def test_matcher_run_equals_a_hand_loop_over_matched_disparity(sequence_dir):
-    cfg = config(disparity_source="matcher", matcher="bm", matcher_params={"num_disparities": 16, "block_size": 7},
-                 model="ideal", error_model=None, subsample=2)
+    cfg = config(
+        disparity_source="matcher",
+        matcher="bm",
+        matcher_params={"num_disparities": 16, "block_size": 7},
+        model="ideal",
+        error_model=None,
+        subsample=2,
+    )
     matcher = make_matcher("bm", num_disparities=16, block_size=7)
     grid = map_sequence(sequence_dir, cfg, progress=False)
     assert_same_map(grid, hand_map(sequence_dir, cfg, range(6), lambda f: matcher.compute(f.left, f.right)))
@@ -217,8 +248,13 @@ def test_a_disparity_error_surfaces_at_its_frame_with_the_frames_before_integrat
 
 
 def test_a_keyboard_interrupt_between_frames_stops_the_look_ahead(sequence_dir, monkeypatch):
-    cfg = config(disparity_source="matcher", matcher="bm", matcher_params={"num_disparities": 16, "block_size": 7},
-                 model="ideal", error_model=None)
+    cfg = config(
+        disparity_source="matcher",
+        matcher="bm",
+        matcher_params={"num_disparities": 16, "block_size": 7},
+        model="ideal",
+        error_model=None,
+    )
     computed, original = [], DisparitySource.__call__
 
     def counted(self, index):
@@ -316,8 +352,9 @@ def test_lidar_ground_truth_round_trips_and_scores_its_own_map_perfectly(tmp_pat
     again = read_ground_truth(tmp_path / "lidar.npz")
     np.testing.assert_array_equal(again.occupied_keys, truth.occupied_keys)
     keys = grid.known_voxels()[0]
-    probability, occupied = align_to_ground_truth(keys, grid.probability_at_keys(keys), again.occupied_keys,
-                                                  again.observed_keys, p0=grid.p0)
+    probability, occupied = align_to_ground_truth(
+        keys, grid.probability_at_keys(keys), again.occupied_keys, again.observed_keys, p0=grid.p0
+    )
     scores = score_map(probability, occupied)
     assert scores.occupied_called_free == 0 and scores.free_called_occupied == 0 and scores.roc_auc == 1.0
 
@@ -349,9 +386,13 @@ def test_progress_labels_name_the_model_its_variant_and_the_disparities(tmp_path
     cases = [
         (MappingConfig(model="prism", error_model=conditioned), "prism conditioned, sgbm"),
         (MappingConfig(model="prism", error_model=conditioned, conditioned=False, matcher="bm"), "prism plain, bm"),
-        (MappingConfig(model="convolution", error_model=MIXTURE, disparity_source="sequence"),
-         "convolution plain, the sequence's disparities"),
-        (MappingConfig(model="hitmiss", error_model=conditioned, conditioned=False, disparity_source=str(folder)),
-         "hitmiss, disparities from sgbm/disparity"),
+        (
+            MappingConfig(model="convolution", error_model=MIXTURE, disparity_source="sequence"),
+            "convolution plain, the sequence's disparities",
+        ),
+        (
+            MappingConfig(model="hitmiss", error_model=conditioned, conditioned=False, disparity_source=str(folder)),
+            "hitmiss, disparities from sgbm/disparity",
+        ),
     ]
     assert [config.label for config, _ in cases] == [label for _, label in cases]

@@ -26,15 +26,24 @@ def sequence_dir(tmp_path_factory):
 def hand_map(sequence_dir, cfg, disparity_of):
     """The reference: features, classes and integrate_disparity called frame by frame with the conditioned model."""
     sequence = read_sequence(sequence_dir)
-    model = conditioned_sensor_model(cfg.model, sequence.camera, voxel_size_m=cfg.voxel_size_m, p0=cfg.p0,
-                                     error_model=MODEL)
+    model = conditioned_sensor_model(
+        cfg.model, sequence.camera, voxel_size_m=cfg.voxel_size_m, p0=cfg.p0, error_model=MODEL
+    )
     grid = OccupancyMap(cfg.voxel_size_m, p0=cfg.p0)
     for frame in sequence:
         disparity = disparity_of(frame)
         features = compute_features(to_grey(frame.left), to_grey(frame.right), disparity)
         classes = MODEL.classes.assign(features.values, np.isfinite(disparity))
-        integrate_disparity(grid, disparity, sequence.camera, frame.T_world_cam, model, mode=cfg.mode,
-                                 max_range_m=cfg.max_range_m, ray_class=classes)
+        integrate_disparity(
+            grid,
+            disparity,
+            sequence.camera,
+            frame.T_world_cam,
+            model,
+            mode=cfg.mode,
+            max_range_m=cfg.max_range_m,
+            ray_class=classes,
+        )
     return grid
 
 
@@ -42,7 +51,9 @@ def hand_map(sequence_dir, cfg, disparity_of):
 def test_a_conditioned_map_equals_the_map_built_class_by_class(sequence_dir, name):
     cfg = config(model=name, error_model=MODEL)
     assert cfg.conditioned  # the default with a model of several classes
-    assert_same_map(map_sequence(sequence_dir, cfg, progress=False), hand_map(sequence_dir, cfg, lambda f: f.disparity_gt))
+    assert_same_map(
+        map_sequence(sequence_dir, cfg, progress=False), hand_map(sequence_dir, cfg, lambda f: f.disparity_gt)
+    )
 
 
 def test_a_conditioned_map_from_the_matcher_equals_the_hand_map(sequence_dir):
@@ -70,8 +81,10 @@ def test_models_that_ignore_the_error_model_are_unchanged(sequence_dir):
     cfg = config(model="hitmiss", error_model=MODEL)
     assert not isinstance(cfg.sensor_model(read_sequence(sequence_dir).camera), ConditionedModel)
     assert DisparitySource(read_sequence(sequence_dir), cfg)(0)[2] is None  # no features computed
-    assert_same_map(map_sequence(sequence_dir, cfg, progress=False),
-                    map_sequence(sequence_dir, config(model="hitmiss", error_model=None), progress=False))
+    assert_same_map(
+        map_sequence(sequence_dir, cfg, progress=False),
+        map_sequence(sequence_dir, config(model="hitmiss", error_model=None), progress=False),
+    )
 
 
 def test_the_fingerprint_covers_the_classes_and_the_flag(sequence_dir):
@@ -94,16 +107,29 @@ def test_a_checkpoint_of_the_plain_run_is_refused_by_the_conditioned_run(sequenc
         map_sequence(sequence_dir, config(model="prism", error_model=MODEL), progress=False, checkpoint=checkpoint)
 
 
-@pytest.mark.parametrize(("changes", "message"), [
-    ({"error_model": conditioned_error_model(matcher="bm"), "disparity_source": "matcher"},
-     "fitted to matcher 'bm'; this run uses 'sgbm'"),
-    ({"error_model": conditioned_error_model(feature="lr_disagreement_px", edges=(0.5, 1.0)),
-      "disparity_source": "matcher"}, "lr_disagreement_px, which needs the matcher's left-right check"),
-    ({"error_model": conditioned_error_model(feature="lr_disagreement_px", edges=(0.5, 1.0))},
-     "lr_disagreement_px, which needs the matcher's left-right check"),  # precomputed disparities have none
-])
-def test_a_model_whose_features_the_run_cannot_compute_is_refused_before_any_work(sequence_dir, tmp_path, monkeypatch,
-                                                                                  changes, message):
+@pytest.mark.parametrize(
+    ("changes", "message"),
+    [
+        (
+            {"error_model": conditioned_error_model(matcher="bm"), "disparity_source": "matcher"},
+            "fitted to matcher 'bm'; this run uses 'sgbm'",
+        ),
+        (
+            {
+                "error_model": conditioned_error_model(feature="lr_disagreement_px", edges=(0.5, 1.0)),
+                "disparity_source": "matcher",
+            },
+            "lr_disagreement_px, which needs the matcher's left-right check",
+        ),
+        (
+            {"error_model": conditioned_error_model(feature="lr_disagreement_px", edges=(0.5, 1.0))},
+            "lr_disagreement_px, which needs the matcher's left-right check",
+        ),  # precomputed disparities have none
+    ],
+)
+def test_a_model_whose_features_the_run_cannot_compute_is_refused_before_any_work(
+    sequence_dir, tmp_path, monkeypatch, changes, message
+):
     def no_frame(self, index):
         raise AssertionError("a frame was read")
 
@@ -116,8 +142,12 @@ def test_a_model_whose_features_the_run_cannot_compute_is_refused_before_any_wor
 
 def test_the_lr_feature_works_with_the_left_right_check(sequence_dir):
     model = conditioned_error_model(feature="lr_disagreement_px", edges=(0.25, 0.75))
-    cfg = config(model="andert", error_model=model, disparity_source="matcher",
-                 matcher_params={"num_disparities": 16, "left_right_check": True})
+    cfg = config(
+        model="andert",
+        error_model=model,
+        disparity_source="matcher",
+        matcher_params={"num_disparities": 16, "left_right_check": True},
+    )
     disparity, _, ray_class = DisparitySource(read_sequence(sequence_dir), cfg)(1)
     matcher = make_matcher("sgbm", num_disparities=16, left_right_check=True)
     frame = read_sequence(sequence_dir)[1]

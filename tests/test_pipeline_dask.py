@@ -14,8 +14,10 @@ distributed = pytest.importorskip("distributed")
 
 @pytest.fixture(scope="module")
 def client():
-    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster, \
-            distributed.Client(cluster) as dask_client:
+    with (
+        distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster,
+        distributed.Client(cluster) as dask_client,
+    ):
         yield dask_client
 
 
@@ -39,20 +41,28 @@ def test_dask_map_is_bit_identical_to_the_sequential_map_for_any_workers_and_chu
     sequential = map_sequence(sequence_dir, cfg, progress=False)
     assert sequential.n_known > 1000
     for chunk_frames in (1, 3):  # 7 frames: chunks of 1, and 3+3+1, on 2 worker processes
-        assert_identical_maps(map_sequence(sequence_dir, cfg, progress=False, client=client, chunk_frames=chunk_frames),
-                              sequential)
+        assert_identical_maps(
+            map_sequence(sequence_dir, cfg, progress=False, client=client, chunk_frames=chunk_frames), sequential
+        )
     for n_workers in (1, 3):  # thread workers: the merge order differs, the arithmetic is the same as processes'
-        with distributed.LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=False,
-                                      dashboard_address=None) as cluster, distributed.Client(cluster) as other:
-            assert_identical_maps(map_sequence(sequence_dir, cfg, progress=False, client=other, chunk_frames=2),
-                                  sequential)
+        with (
+            distributed.LocalCluster(
+                n_workers=n_workers, threads_per_worker=1, processes=False, dashboard_address=None
+            ) as cluster,
+            distributed.Client(cluster) as other,
+        ):
+            assert_identical_maps(
+                map_sequence(sequence_dir, cfg, progress=False, client=other, chunk_frames=2), sequential
+            )
 
 
 def test_dask_prism_map_is_bit_identical_to_the_sequential_map(sequence_dir, client):
     """PRISM's table caches differ between worker processes; the maps must not."""
     cfg = config(model="prism")
-    assert_identical_maps(map_sequence(sequence_dir, cfg, progress=False, client=client, chunk_frames=3),
-                          map_sequence(sequence_dir, cfg, progress=False))
+    assert_identical_maps(
+        map_sequence(sequence_dir, cfg, progress=False, client=client, chunk_frames=3),
+        map_sequence(sequence_dir, cfg, progress=False),
+    )
 
 
 def test_dask_conditioned_map_is_bit_identical_to_the_sequential_map(sequence_dir, client):
@@ -66,8 +76,7 @@ def test_dask_conditioned_map_is_bit_identical_to_the_sequential_map(sequence_di
 def test_dask_map_with_matcher_and_checkpoints(sequence_dir, client, tmp_path):
     cfg = config(model="ideal", error_model=None, disparity_source="matcher", frames=(1, 7))
     checkpoint = tmp_path / "run.checkpoint.npz"
-    parallel = map_sequence(sequence_dir, cfg, progress=False, client=client, checkpoint=checkpoint,
-                            checkpoint_every=2)
+    parallel = map_sequence(sequence_dir, cfg, progress=False, client=client, checkpoint=checkpoint, checkpoint_every=2)
     assert load_map(checkpoint).n_frames == 4  # chunks of 2 frames: saved after 2 and 4, not after the last
     assert_identical_maps(parallel, map_sequence(sequence_dir, cfg, progress=False))
     resumed = map_sequence(sequence_dir, cfg, progress=False, client=client, checkpoint=checkpoint)
@@ -84,8 +93,15 @@ def _assert_identical_histograms(a, b):
 def test_dask_characterisation_is_bit_identical_to_the_sequential_one(sequence_dir, client, conditioned):
     """Plain and conditioned; the conditioned run samples 3 of the 7 frames and keeps 16000 of their pixels."""
     params = {"num_disparities": 16, "block_size": 5}
-    options = {"matcher_params": params, "progress": False, "conditioned": conditioned, "max_components": 2,
-               "max_samples": 16000, "search_frames": 3, "max_classes": 3}
+    options = {
+        "matcher_params": params,
+        "progress": False,
+        "conditioned": conditioned,
+        "max_components": 2,
+        "max_samples": 16000,
+        "search_frames": 3,
+        "max_classes": 3,
+    }
     sequential = characterise_sequence(sequence_dir, "sgbm", **options)
     assert sequential.histogram.n_frames == 7
     assert sequential.histogram.counts.sum() > 0.5 * sequential.histogram.n_gt_valid  # the matcher found most pixels
@@ -113,8 +129,21 @@ def test_map_cli_on_a_running_scheduler_writes_the_sequential_map(sequence_dir, 
     from prismap.cli import main
 
     out = tmp_path / "map.npz"
-    argv = ["map", "--sequence", str(sequence_dir), "--model", "ideal", "--voxel", "0.2", "--max-range", "8",
-            "--disparity-dir", str(sequence_dir / "disp"), "--out", str(out)]
+    argv = [
+        "map",
+        "--sequence",
+        str(sequence_dir),
+        "--model",
+        "ideal",
+        "--voxel",
+        "0.2",
+        "--max-range",
+        "8",
+        "--disparity-dir",
+        str(sequence_dir / "disp"),
+        "--out",
+        str(out),
+    ]
     assert main([*argv, "--scheduler", client.scheduler.address, "--chunk-frames", "2"]) == 0
     assert "7 frames" in capsys.readouterr().out
     cfg = config(model="ideal", error_model=None)
@@ -132,8 +161,9 @@ def test_dask_map_keeps_the_persistent_failure_reading(sequence_dir, client):
     from support import MIXTURE
 
     block = {"model": "persistent-failure", "rate": 0.05, "persistence": 0.6}
-    error_model = ErrorModel("sgbm", {}, "test", 1 / 32, (MixtureFit(MIXTURE, -1.0, 1.0, 1.0, 100.0, 3, True),), 2,
-                             fusion=block)
+    error_model = ErrorModel(
+        "sgbm", {}, "test", 1 / 32, (MixtureFit(MIXTURE, -1.0, 1.0, 1.0, 100.0, 3, True),), 2, fusion=block
+    )
     cfg = replace(config(error_model=error_model), fusion="persistent-failure")
     sequential = map_sequence(sequence_dir, cfg, progress=False)
     chunked = map_sequence(sequence_dir, cfg, progress=False, client=client, chunk_frames=3)

@@ -21,8 +21,9 @@ def sequence_dir(tmp_path_factory):
 
 
 def _error_model(fusion=BLOCK):
-    return ErrorModel("sgbm", {}, "test", 1 / 32, (MixtureFit(MIXTURE, -1.0, 1.0, 1.0, 100.0, 3, True),), 2,
-                      fusion=fusion)
+    return ErrorModel(
+        "sgbm", {}, "test", 1 / 32, (MixtureFit(MIXTURE, -1.0, 1.0, 1.0, 100.0, 3, True),), 2, fusion=fusion
+    )
 
 
 def test_persistent_failure_reads_the_independent_sums(sequence_dir, tmp_path):

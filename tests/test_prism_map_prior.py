@@ -21,8 +21,16 @@ FB = 60.0
 
 
 def model(**changes):
-    options = dict(error_model=MIX, focal_baseline=FB, voxel_size_m=0.1, p0=0.05, near_m=2.0, far_depth_m=2.7,
-                   prior="map", overhang_fraction=0.0)
+    options = dict(
+        error_model=MIX,
+        focal_baseline=FB,
+        voxel_size_m=0.1,
+        p0=0.05,
+        near_m=2.0,
+        far_depth_m=2.7,
+        prior="map",
+        overhang_fraction=0.0,
+    )
     options.update(changes)
     return PrismModel(**options)
 
@@ -66,7 +74,9 @@ def test_kernel_is_the_exact_posterior_of_every_map_of_a_short_ray(seed):
     voxel_p = rng.uniform(0.01, 0.9, n)
     priors = 1 - (1 - voxel_p) ** (np.diff(edges) / 0.1)  # a cell of a voxel's probability P: its stretch's share
     d = FB / rng.uniform(2.1, 2.6) + rng.normal(0.0, 0.5)
-    post, inc = model().cell_posteriors([d], [1.0], np.zeros(n, int), edges[:-1], edges[1:], map_log_odds=logit(voxel_p))
+    post, inc = model().cell_posteriors(
+        [d], [1.0], np.zeros(n, int), edges[:-1], edges[1:], map_log_odds=logit(voxel_p)
+    )
     want, _ = brute_force(d, edges, priors, far_density(d, 2.7), [(k,) for k in range(n)])
     np.testing.assert_allclose(post, want, rtol=1e-9, atol=1e-13)
     np.testing.assert_allclose(inc, logit(want) - logit(priors), rtol=1e-9, atol=1e-9)
@@ -93,7 +103,8 @@ def test_a_stretch_to_the_next_cell_is_the_posterior_that_either_cell_is_occupie
     d = FB / 2.35
     overhang = 0.1  # metres along the ray; overhang_fraction 1, |r| 1: each cell's stretch ends at the next one's end
     post, inc = model(overhang_fraction=1.0).cell_posteriors(
-        [d], [1.0], np.zeros(7, int), edges[:-1], edges[1:], map_log_odds=logit(priors), voxel_overhang_m=[overhang])
+        [d], [1.0], np.zeros(7, int), edges[:-1], edges[1:], map_log_odds=logit(priors), voxel_overhang_m=[overhang]
+    )
     events = [(k, k + 1) if k < 6 else (k,) for k in range(7)]  # the last stretch is cut at the ray's end
     want, prior = brute_force(d, edges, priors, far_density(d, 2.7), events)
     np.testing.assert_allclose(post, want, rtol=1e-9)
@@ -104,10 +115,12 @@ def test_priors_at_p0_give_the_thesis_discrete_form_and_an_empty_map_is_p0():
     edges = np.linspace(2.0, 2.7, 8)  # cells of one voxel length: a voxel's prior is the cell's
     for d in (FB / 2.33 + 0.2, FB / 2.05, FB / 2.69 - 3.0):
         post, inc = model().cell_posteriors([d], [1.0], np.zeros(7, int), edges[:-1], edges[1:])
-        np.testing.assert_allclose(post, prism_discrete_posteriors(d, edges, MIX, focal_baseline=FB, p0=0.05),
-                                   rtol=1e-9, atol=1e-14)
-        explicit = model().cell_posteriors([d], [1.0], np.zeros(7, int), edges[:-1], edges[1:],
-                                           map_log_odds=np.full(7, logit(0.05)))
+        np.testing.assert_allclose(
+            post, prism_discrete_posteriors(d, edges, MIX, focal_baseline=FB, p0=0.05), rtol=1e-9, atol=1e-14
+        )
+        explicit = model().cell_posteriors(
+            [d], [1.0], np.zeros(7, int), edges[:-1], edges[1:], map_log_odds=np.full(7, logit(0.05))
+        )
         np.testing.assert_allclose(explicit[1], inc, rtol=1e-12, atol=1e-14)
 
 
@@ -125,18 +138,27 @@ def test_rays_are_independent_and_a_short_segment_takes_its_voxels_rate():
     # two rays in one call, cells given out of order: each ray as if alone; the second ray's half-voxel cells
     # in voxels of probability P have prior 1 - (1 - P)^(1/2)
     prism = model()
-    one = prism.cell_posteriors([FB / 2.3], [1.0], np.zeros(3, int), [2.0, 2.1, 2.2], [2.1, 2.2, 2.7],
-                                map_log_odds=[-1.0, 0.5, -2.0])
+    one = prism.cell_posteriors(
+        [FB / 2.3], [1.0], np.zeros(3, int), [2.0, 2.1, 2.2], [2.1, 2.2, 2.7], map_log_odds=[-1.0, 0.5, -2.0]
+    )
     half = 1 - (1 - 0.3) ** 0.5
-    alone = prism.cell_posteriors([FB / 2.5], [1.0], np.zeros(2, int), [2.0, 2.05], [2.05, 2.7],
-                                  map_log_odds=[logit(0.3), -2.0])
-    both = prism.cell_posteriors([FB / 2.3, FB / 2.5], [1.0, 1.0], [1, 0, 0, 1, 0], [2.0, 2.2, 2.0, 2.05, 2.1],
-                                 [2.05, 2.7, 2.1, 2.7, 2.2], map_log_odds=[logit(0.3), -2.0, -1.0, -2.0, 0.5])
+    alone = prism.cell_posteriors(
+        [FB / 2.5], [1.0], np.zeros(2, int), [2.0, 2.05], [2.05, 2.7], map_log_odds=[logit(0.3), -2.0]
+    )
+    both = prism.cell_posteriors(
+        [FB / 2.3, FB / 2.5],
+        [1.0, 1.0],
+        [1, 0, 0, 1, 0],
+        [2.0, 2.2, 2.0, 2.05, 2.1],
+        [2.05, 2.7, 2.1, 2.7, 2.2],
+        map_log_odds=[logit(0.3), -2.0, -1.0, -2.0, 0.5],
+    )
     np.testing.assert_allclose(both[1], [alone[1][0], one[1][2], one[1][0], alone[1][1], one[1][1]], rtol=1e-12)
     # the same cells in voxels of half the size, at the same rates: the first cell a whole voxel at prior `half`
     same_rate = np.log(np.expm1(np.logaddexp(0.0, -2.0) / 2))
-    scaled = model(voxel_size_m=0.05).cell_posteriors([FB / 2.5], [1.0], np.zeros(2, int), [2.0, 2.05], [2.05, 2.7],
-                                                      map_log_odds=[logit(half), same_rate])
+    scaled = model(voxel_size_m=0.05).cell_posteriors(
+        [FB / 2.5], [1.0], np.zeros(2, int), [2.0, 2.05], [2.05, 2.7], map_log_odds=[logit(half), same_rate]
+    )
     np.testing.assert_allclose(scaled[1], alone[1], rtol=1e-12)
 
 
@@ -191,8 +213,9 @@ def test_the_ray_integrator_hands_over_each_cells_map_log_odds_before_the_frame(
 def test_whole_rays_are_needed():
     batch = RayBatch(np.zeros(3), np.array([[0.0, 0.0, 1.0]]), np.array([1.0]), np.array([1.0]))
     with pytest.raises(PrismapInputError, match="needs whole rays: use mode='ray'"):
-        make_integrator("projective", voxel_size_m=0.1, map_log_odds=lambda rows: rows).integrate(None, batch,
-                                                                                                 RecordingModel())
+        make_integrator("projective", voxel_size_m=0.1, map_log_odds=lambda rows: rows).integrate(
+            None, batch, RecordingModel()
+        )
     with pytest.raises(PrismapInputError, match="needs `map_log_odds`"):
         make_integrator("ray", voxel_size_m=0.1).integrate(None, batch, RecordingModel())
     conditioned = ConditionedModel(model(), (model(),))
@@ -204,8 +227,9 @@ def test_the_pipeline_maps_with_the_map_prior_here_and_refuses_dask_and_projecti
     cfg = config(model="prism", model_params={"prior": "map", "near_m": 0.5}, error_model=MIXTURE)
     grid = map_sequence(sequence, cfg, progress=False)
     assert grid.n_frames == 2 and grid.n_known > 0
-    plain = map_sequence(sequence, config(model="prism", model_params={"near_m": 0.5}, error_model=MIXTURE),
-                         progress=False)
+    plain = map_sequence(
+        sequence, config(model="prism", model_params={"near_m": 0.5}, error_model=MIXTURE), progress=False
+    )
     assert plain.n_known == grid.n_known  # same rays, same voxels; other values
     with pytest.raises(PrismapInputError, match="cannot be merged"):
         map_sequence(sequence, cfg, progress=False, client=object())

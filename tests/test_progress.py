@@ -28,10 +28,17 @@ class Clock:
         return self.t
 
 
-@pytest.mark.parametrize(("env", "stream", "expected"), [
-    (None, FakeTty(), "bar"), (None, io.StringIO(), "lines"), ("0", FakeTty(), "off"),
-    ("lines", FakeTty(), "lines"), ("bar", io.StringIO(), "bar"), ("1", io.StringIO(), "bar"),
-])
+@pytest.mark.parametrize(
+    ("env", "stream", "expected"),
+    [
+        (None, FakeTty(), "bar"),
+        (None, io.StringIO(), "lines"),
+        ("0", FakeTty(), "off"),
+        ("lines", FakeTty(), "lines"),
+        ("bar", io.StringIO(), "bar"),
+        ("1", io.StringIO(), "bar"),
+    ],
+)
 def test_mode_follows_the_terminal_unless_the_environment_says(monkeypatch, env, stream, expected):
     if env is None:
         monkeypatch.delenv("PRISMAP_PROGRESS", raising=False)
@@ -76,13 +83,18 @@ def test_lines_by_update_without_total_and_long_durations():
 
 
 def test_a_piped_command_prints_progress_lines(tmp_path):
-    code = ("from prismap._progress import progress\n"
-            "for _ in progress(range(4), desc='demo', unit='step'): pass\n")
+    code = "from prismap._progress import progress\nfor _ in progress(range(4), desc='demo', unit='step'): pass\n"
     env = {"PATH": "/usr/bin:/bin", "PYTHONPATH": ":".join(sys.path)}
-    result = subprocess.run([sys.executable, "-c", code], check=False, capture_output=True, text=True, env=env, timeout=60)
+    result = subprocess.run(
+        [sys.executable, "-c", code], check=False, capture_output=True, text=True, env=env, timeout=60
+    )
     assert result.returncode == 0, result.stderr
     assert [line.split(" (")[0] for line in result.stderr.splitlines()] == [
-        "demo: 1/4 steps", "demo: 2/4 steps", "demo: 3/4 steps", "demo: 4/4 steps"]
+        "demo: 1/4 steps",
+        "demo: 2/4 steps",
+        "demo: 3/4 steps",
+        "demo: 4/4 steps",
+    ]
 
 
 def test_weighted_lines_estimate_from_the_work_done_not_the_count():

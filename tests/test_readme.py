@@ -32,8 +32,16 @@ def test_the_readme_is_short_and_in_the_issues_order():
     text = README.read_text(encoding="utf-8")
     assert len(text) <= MAX_CHARACTERS, f"README.md has {len(text)} characters; at most {MAX_CHARACTERS}"
     headings = re.findall(r"(?m)^## (.+)$", text)
-    assert headings == ["Install", "First run", "Your own data", "Results",
-                        "The whole story, and the tests", "Documentation", "Citing", "Licence"]
+    assert headings == [
+        "Install",
+        "First run",
+        "Your own data",
+        "Results",
+        "The whole story, and the tests",
+        "Documentation",
+        "Citing",
+        "Licence",
+    ]
     picture = re.search(r"!\[[^]]+\]\(([^)]+)\)", text).group(1)
     assert text.index(picture) < text.index("## Install") and (ROOT / picture).is_file()
     for link in re.findall(r"\]\(([^)#]+)\)", text):

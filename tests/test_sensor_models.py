@@ -78,8 +78,13 @@ def test_convolution_matches_closed_form_and_tends_to_ideal():
     np.testing.assert_allclose(post, _convolution_reference(model, 4.0, 1.1, centre), rtol=1e-10)
     np.testing.assert_allclose(inc, logit(post) - logit(0.05), rtol=1e-10, atol=1e-14)
     ideal_post, _ = make_sensor_model("ideal", **COMMON).cell_posteriors(d, r, rays, start, end)
-    gaps = [np.abs(make_sensor_model("convolution", **COMMON, sigma_px=s).cell_posteriors(d, r, rays, start, end)[0]
-                   - ideal_post).max() for s in (0.5, 0.05, 0.005, 1e-5)]
+    gaps = [
+        np.abs(
+            make_sensor_model("convolution", **COMMON, sigma_px=s).cell_posteriors(d, r, rays, start, end)[0]
+            - ideal_post
+        ).max()
+        for s in (0.5, 0.05, 0.005, 1e-5)
+    ]
     assert all(b < a for a, b in zip(gaps, gaps[1:])) and gaps[-1] < 1e-12, gaps
 
 

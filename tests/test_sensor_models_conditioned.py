@@ -16,8 +16,11 @@ from prismap.sensor_models._prism import AUTO_TABLE_FLOOR_MB
 
 CAMERA = StereoCamera(500.0, 320.0, 240.0, 0.2)
 WHOLE = GaussianMixture([0.8, 0.2], [0.0, -0.5], [0.3, 3.0])
-CLASS_MIXTURES = (GaussianMixture([0.6, 0.4], [0.0, -2.0], [0.6, 5.0]), GaussianMixture([0.95, 0.05], [0.0, 0.1], [0.15, 1.0]),
-                  GaussianMixture.gaussian(0.25, 0.05))
+CLASS_MIXTURES = (
+    GaussianMixture([0.6, 0.4], [0.0, -2.0], [0.6, 5.0]),
+    GaussianMixture([0.95, 0.05], [0.0, 0.1], [0.15, 1.0]),
+    GaussianMixture.gaussian(0.25, 0.05),
+)
 SETTINGS = {"voxel_size_m": 0.2, "p0": 0.05}
 
 
@@ -28,10 +31,21 @@ def _fit(mixture):
 def _error_model():
     inf = np.inf
     classes = ErrorClasses(("edge_distance_px",), [[-inf], [2.5], [10.0]], [[2.5], [10.0], [inf]])
-    class_models = tuple(ClassModel((_fit(m),), m.n_components, share, {"n_errors": 100})
-                         for m, share in zip(CLASS_MIXTURES, (0.2, 0.5, 0.3)))
-    return ErrorModel("sgbm", {}, "test", 1 / 32, (_fit(WHOLE),), 2, classes=classes, class_models=class_models,
-                      feature_settings={"edge_threshold_px": 1.0, "texture_window_px": 7})
+    class_models = tuple(
+        ClassModel((_fit(m),), m.n_components, share, {"n_errors": 100})
+        for m, share in zip(CLASS_MIXTURES, (0.2, 0.5, 0.3))
+    )
+    return ErrorModel(
+        "sgbm",
+        {},
+        "test",
+        1 / 32,
+        (_fit(WHOLE),),
+        2,
+        classes=classes,
+        class_models=class_models,
+        feature_settings={"edge_threshold_px": 1.0, "texture_window_px": 7},
+    )
 
 
 def _rays(seed=0, n_rays=40, cells_per_ray=30):
@@ -145,8 +159,9 @@ def test_conditioned_prism_reports_the_far_depth_the_key_reach_check_reads():
     from support import conditioned_error_model
 
     error_model = conditioned_error_model()
-    prism = conditioned_sensor_model("prism", TSUKUBA_CAMERA, voxel_size_m=0.1, p0=0.1, error_model=error_model,
-                                     far_depth_m=37.0)
+    prism = conditioned_sensor_model(
+        "prism", TSUKUBA_CAMERA, voxel_size_m=0.1, p0=0.1, error_model=error_model, far_depth_m=37.0
+    )
     assert prism.far_depth_m == 37.0 == prism.plain.far_depth_m
     andert = conditioned_sensor_model("andert", TSUKUBA_CAMERA, voxel_size_m=0.1, p0=0.1, error_model=error_model)
     assert not hasattr(andert, "far_depth_m")
@@ -157,22 +172,25 @@ def test_conditioned_prism_gives_each_class_its_rays_overhangs():
     assert model.takes_voxel_overhang
     disparity, norm, ray_class, rays, start, end = _rays(seed=2)
     overhang = np.random.default_rng(5).uniform(0.0, 1.0, disparity.size)
-    posterior, increment = model.cell_posteriors(disparity, norm, rays, start, end, ray_class=ray_class,
-                                                 voxel_overhang_m=overhang)
+    posterior, increment = model.cell_posteriors(
+        disparity, norm, rays, start, end, ray_class=ray_class, voxel_overhang_m=overhang
+    )
     for k in (-1, 0, 1, 2):
         mine = np.flatnonzero(ray_class == k)
         local = np.full(disparity.size, -1)
         local[mine] = np.arange(mine.size)
         cells = np.flatnonzero(np.isin(rays, mine))
-        p, inc = model._model(k).cell_posteriors(disparity[mine], norm[mine], local[rays[cells]], start[cells],
-                                                 end[cells], voxel_overhang_m=overhang[mine])
+        p, inc = model._model(k).cell_posteriors(
+            disparity[mine], norm[mine], local[rays[cells]], start[cells], end[cells], voxel_overhang_m=overhang[mine]
+        )
         np.testing.assert_array_equal(posterior[cells], p)
         np.testing.assert_array_equal(increment[cells], inc)
     without = model.cell_posteriors(disparity, norm, rays, start, end, ray_class=ray_class)[0]
     assert np.abs(without - posterior).max() > 1e-3
     plain = model.cell_posteriors(disparity, norm, rays, start, end, voxel_overhang_m=overhang)[0]
-    np.testing.assert_array_equal(plain, model.plain.cell_posteriors(disparity, norm, rays, start, end,
-                                                                     voxel_overhang_m=overhang)[0])
+    np.testing.assert_array_equal(
+        plain, model.plain.cell_posteriors(disparity, norm, rays, start, end, voxel_overhang_m=overhang)[0]
+    )
     with pytest.raises(PrismapInputError, match="voxel_overhang_m"):
         model.cell_posteriors(disparity, norm, rays, start, end, ray_class=ray_class, voxel_overhang_m=overhang[:3])
     assert not conditioned_sensor_model("andert", CAMERA, error_model=_error_model(), **SETTINGS).takes_voxel_overhang
@@ -180,21 +198,33 @@ def test_conditioned_prism_gives_each_class_its_rays_overhangs():
 
 def test_class_pass_through_gives_each_class_its_own_and_equals_that_class_by_hand():
     values = (0.02, 0.3, 0.0)
-    model = conditioned_sensor_model("prism", CAMERA, error_model=_error_model(), pass_through=0.1,
-                                     class_pass_through=values, **SETTINGS)
+    model = conditioned_sensor_model(
+        "prism", CAMERA, error_model=_error_model(), pass_through=0.1, class_pass_through=values, **SETTINGS
+    )
     assert [m.pass_through for m in model.class_models] == list(values) and model.plain.pass_through == 0.1
     disparity, norm, ray_class, rays, start, end = _rays(seed=3)
     posterior, increment = model.cell_posteriors(disparity, norm, rays, start, end, ray_class=ray_class)
     for k in (-1, 0, 1, 2):
-        by_hand = conditioned_sensor_model("prism", CAMERA, error_model=WHOLE if k < 0 else CLASS_MIXTURES[k],
-                                           pass_through=0.1 if k < 0 else values[k], **SETTINGS)
+        by_hand = conditioned_sensor_model(
+            "prism",
+            CAMERA,
+            error_model=WHOLE if k < 0 else CLASS_MIXTURES[k],
+            pass_through=0.1 if k < 0 else values[k],
+            **SETTINGS,
+        )
         cells = ray_class[rays] == k
         want = by_hand.cell_posteriors(disparity, norm, rays[cells], start[cells], end[cells])
         np.testing.assert_array_equal(posterior[cells], want[0])
         np.testing.assert_array_equal(increment[cells], want[1])
     # a thinner pass-through lets a ray's free evidence go deeper: class 2 (m = 0) below class 1 (m = 0.3)
-    free = model.cell_posteriors(np.array([20.0, 20.0]), np.ones(2), np.array([0, 1]), np.full(2, 1.0),
-                                 np.full(2, 1.1), ray_class=np.array([1, 2]))[1]
+    free = model.cell_posteriors(
+        np.array([20.0, 20.0]),
+        np.ones(2),
+        np.array([0, 1]),
+        np.full(2, 1.0),
+        np.full(2, 1.1),
+        ray_class=np.array([1, 2]),
+    )[1]
     assert free[1] < free[0] < 0 and free[0] >= np.log(0.3) - 1e-12
 
 
@@ -202,10 +232,13 @@ def test_bad_class_pass_through_is_named():
     with pytest.raises(PrismapInputError, match=r"`class_pass_through` must hold one value per class \(3\); got 2"):
         conditioned_sensor_model("prism", CAMERA, error_model=_error_model(), class_pass_through=(0.1, 0.2), **SETTINGS)
     with pytest.raises(PrismapInputError, match="`class_pass_through` needs PRISM with a conditioned error model"):
-        conditioned_sensor_model("andert", CAMERA, error_model=_error_model(), class_pass_through=(0.1,) * 3, **SETTINGS)
+        conditioned_sensor_model(
+            "andert", CAMERA, error_model=_error_model(), class_pass_through=(0.1,) * 3, **SETTINGS
+        )
     plain = ErrorModel("sgbm", {}, "test", 1 / 32, (_fit(WHOLE),), 2)
     with pytest.raises(PrismapInputError, match="`class_pass_through` needs PRISM with a conditioned error model"):
         conditioned_sensor_model("prism", CAMERA, error_model=plain, class_pass_through=(0.1,), **SETTINGS)
     with pytest.raises(PrismapInputError, match="pass_through"):
-        conditioned_sensor_model("prism", CAMERA, error_model=_error_model(), class_pass_through=(0.1, 1.0, 0.2),
-                                 **SETTINGS)
+        conditioned_sensor_model(
+            "prism", CAMERA, error_model=_error_model(), class_pass_through=(0.1, 1.0, 0.2), **SETTINGS
+        )

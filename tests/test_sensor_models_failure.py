@@ -58,12 +58,20 @@ def test_continuous_prism_with_failures_converges_to_the_discrete_reference(meth
     for length in (0.1, 0.025, 0.0125):
         edges = np.arange(1.0, 8.0 + 1e-9, length)
         p0 = -np.expm1(-rate * length)
-        model = PrismModel(error_model=FAILING, focal_baseline=FB, voxel_size_m=length, p0=p0, near_m=edges[0],
-                           far_depth_m=edges[-1], method=method)
+        model = PrismModel(
+            error_model=FAILING,
+            focal_baseline=FB,
+            voxel_size_m=length,
+            p0=p0,
+            near_m=edges[0],
+            far_depth_m=edges[-1],
+            method=method,
+        )
         n = edges.size - 1
         posterior, _ = model.cell_posteriors([d_hat], [1.0], np.zeros(n, np.int64), edges[:-1], edges[1:])
-        errors.append(np.abs(posterior - prism_discrete_posteriors(d_hat, edges, FAILING, focal_baseline=FB,
-                                                                   p0=p0)).max())
+        errors.append(
+            np.abs(posterior - prism_discrete_posteriors(d_hat, edges, FAILING, focal_baseline=FB, p0=p0)).max()
+        )
     assert errors[-1] < (2e-4 if method == "direct" else TABLE_TOLERANCE["posterior"]), errors
     assert errors[1] < 0.1 * errors[0]
 
@@ -88,10 +96,14 @@ def test_blend_increments_matches_the_probability_form():
     np.testing.assert_allclose(posterior, expected, rtol=1e-10)
     np.testing.assert_allclose(blended, logit(expected) - prior, rtol=1e-9, atol=1e-9)
     # exact where the failure-free increment is far beyond float64's probabilities
-    _, far = blend_increments(np.array([-800.0, 800.0]), np.array([-3.0, -3.0]), np.log([1e-4, 1e-4]),
-                              np.log1p([-1e-4, -1e-4]))
-    np.testing.assert_allclose(far, [-np.log1p((1 - 1e-4) / (1e-4 * (1 - expit(-3.0)))),
-                                     np.log1p((1 - 1e-4) / (1e-4 * expit(-3.0)))], rtol=1e-9)
+    _, far = blend_increments(
+        np.array([-800.0, 800.0]), np.array([-3.0, -3.0]), np.log([1e-4, 1e-4]), np.log1p([-1e-4, -1e-4])
+    )
+    np.testing.assert_allclose(
+        far,
+        [-np.log1p((1 - 1e-4) / (1e-4 * (1 - expit(-3.0)))), np.log1p((1 - 1e-4) / (1e-4 * expit(-3.0)))],
+        rtol=1e-9,
+    )
 
 
 def test_failure_posterior_never_drops_below_the_floor():
@@ -111,10 +123,12 @@ def test_failure_posterior_never_drops_below_the_floor():
 @pytest.mark.parametrize("method", ["direct", "table"])
 def test_no_measurement_moves_a_prism_cell_beyond_the_bound(method):
     rng = np.random.default_rng(4)
-    model = PrismModel(error_model=FAILING, focal_baseline=FB, voxel_size_m=0.1, p0=0.05, near_m=0.5,
-                       far_depth_m=60.0, method=method)
-    plain = PrismModel(error_model=GAUSSIANS, focal_baseline=FB, voxel_size_m=0.1, p0=0.05, near_m=0.5,
-                       far_depth_m=60.0, method=method)
+    model = PrismModel(
+        error_model=FAILING, focal_baseline=FB, voxel_size_m=0.1, p0=0.05, near_m=0.5, far_depth_m=60.0, method=method
+    )
+    plain = PrismModel(
+        error_model=GAUSSIANS, focal_baseline=FB, voxel_size_m=0.1, p0=0.05, near_m=0.5, far_depth_m=60.0, method=method
+    )
     disparity = np.round(rng.uniform(1.0, 63.0, 40) * 16) / 16  # gross failures anywhere in the search range
     norm = rng.uniform(1.0, 1.3, disparity.size)
     edges = np.arange(0.5, 20.0, 0.1)
@@ -171,8 +185,15 @@ def test_one_frame_moves_no_voxel_beyond_the_bound_through_the_map_update(gross)
     p0, voxel = 0.05, 0.2
     changes = []
     for error_model in (mixture, mixture.gaussian_part()):
-        model = PrismModel(error_model=error_model, focal_baseline=camera.focal_baseline, voxel_size_m=voxel, p0=p0,
-                           near_m=1.0, far_depth_m=40.0, overhang_fraction=0.0)
+        model = PrismModel(
+            error_model=error_model,
+            focal_baseline=camera.focal_baseline,
+            voxel_size_m=voxel,
+            p0=p0,
+            near_m=1.0,
+            far_depth_m=40.0,
+            overhang_fraction=0.0,
+        )
         grid = OccupancyMap(voxel, p0=p0)
         integrate_disparity(grid, disparity, camera, pose, model, mode="projective", max_range_m=30.0)
         changes.append(grid.known_voxels()[1] - logit(p0))
@@ -180,7 +201,7 @@ def test_one_frame_moves_no_voxel_beyond_the_bound_through_the_map_update(gross)
     norm_max = float(np.linalg.norm(camera.pixel_rays(), axis=-1).max())
     low = evidence_bound(mixture, 1 - (1 - p0) ** (np.sqrt(3.0) * norm_max))[0]  # the longest stretch
     high = evidence_bound(mixture, p0)[1]  # a voxel's depth along a ray is at least the voxel's
-    quantum = 2.0 ** -19
+    quantum = 2.0**-19
     assert change.size > 300
     assert change.min() >= low - quantum and change.max() <= high + quantum
     assert change.min() < 0.5 * low  # not vacuous: a frame reaches a good part of it

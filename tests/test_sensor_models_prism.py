@@ -17,6 +17,7 @@ from prismap.sensor_models import (
     _kernels_table,
     _prism,
     _prism_cache,
+    _prism_spacing,
     estimate_prior_from_likelihood,
     make_sensor_model,
     prior_from_ground_truth,
@@ -81,8 +82,15 @@ def test_continuous_converges_to_discrete_as_cells_shrink():
     for length in (0.2, 0.1, 0.05, 0.025, 0.0125):
         edges = np.arange(1.0, 8.0 + 1e-9, length)
         p0 = -np.expm1(-rate * length)
-        model = PrismModel(error_model=MIXTURE, focal_baseline=FB, voxel_size_m=length, p0=p0,
-                           near_m=edges[0], far_depth_m=edges[-1], method="direct")
+        model = PrismModel(
+            error_model=MIXTURE,
+            focal_baseline=FB,
+            voxel_size_m=length,
+            p0=p0,
+            near_m=edges[0],
+            far_depth_m=edges[-1],
+            method="direct",
+        )
         continuous, _ = model.cell_posteriors([d_hat], [1.0], *_one_ray_cells(edges))
         discrete = prism_discrete_posteriors(d_hat, edges, MIXTURE, focal_baseline=FB, p0=p0)
         errors.append(np.abs(continuous - discrete).max())
@@ -112,8 +120,9 @@ def test_table_agrees_with_direct_within_stated_bound(mixture, voxel, p0):
     rng = np.random.default_rng(3)
     depths = np.exp(rng.uniform(np.log(0.4), np.log(40.0), 25))
     model = make_sensor_model("prism", focal_baseline=FB, error_model=mixture, voxel_size_m=voxel, p0=p0)
-    _assert_table_within_tolerance(model, _on_grid(depths), rng.uniform(1.0, 1.3, depths.size),
-                                   _random_cells(rng, depths))
+    _assert_table_within_tolerance(
+        model, _on_grid(depths), rng.uniform(1.0, 1.3, depths.size), _random_cells(rng, depths)
+    )
 
 
 def _assert_table_within_tolerance(model, disparity, norm, cells, *, moderate_min=500, large_min=50):
@@ -134,8 +143,9 @@ def test_table_with_a_broad_front_agrees_with_direct_within_stated_bound(voxel):
     """A street rig and a mixture with 5 % outliers of 10 px: most of each table is its broad front."""
     rng = np.random.default_rng(4)
     depths = np.exp(rng.uniform(np.log(2.0), np.log(80.0), 25))
-    model = make_sensor_model("prism", focal_baseline=KITTI_FB, error_model=STREET, voxel_size_m=voxel, p0=0.05,
-                              near_m=1.5)
+    model = make_sensor_model(
+        "prism", focal_baseline=KITTI_FB, error_model=STREET, voxel_size_m=voxel, p0=0.05, near_m=1.5
+    )
     disparity = np.round(KITTI_FB / depths * 16) / 16
     _assert_table_within_tolerance(model, disparity, rng.uniform(1.0, 1.3, depths.size), _random_cells(rng, depths))
     meta = model._cache.meta
@@ -175,13 +185,19 @@ def test_table_within_stated_bound_at_the_rate_grids_half_steps(fb, mixture, vox
     model = make_sensor_model("prism", focal_baseline=fb, error_model=mixture, voxel_size_m=voxel, p0=p0, near_m=near)
     _, delta, _, _ = model._tables_for(disparity, norm)
     assert np.abs(delta).min() > 0.499 * _prism._LAMBDA_STEP
-    _assert_table_within_tolerance(model, disparity, norm, (np.concatenate(rays), np.concatenate(starts),
-                                                            np.concatenate(ends)), moderate_min=40_000, large_min=0)
+    _assert_table_within_tolerance(
+        model,
+        disparity,
+        norm,
+        (np.concatenate(rays), np.concatenate(starts), np.concatenate(ends)),
+        moderate_min=40_000,
+        large_min=0,
+    )
 
 
 def test_broad_segments_are_where_the_narrower_components_are_negligible():
-    e_front, e_back, ratio = _prism.broad_errors(STREET)
-    assert ratio == int(_prism._WIDE_SIGMAS * 10.0 / (0.3 * _prism._TABLE_STEP))
+    e_front, e_back, ratio = _prism_spacing.broad_errors(STREET)
+    assert ratio == int(_prism_spacing._WIDE_SIGMAS * 10.0 / (0.3 * _prism_spacing._TABLE_STEP))
     assert e_back < -2.0 < 0.0 < e_front
 
     def log_share(e):  # of the largest narrower component against the widest, errors e (pixels)
@@ -189,14 +205,13 @@ def test_broad_segments_are_where_the_narrower_components_are_negligible():
         return log_dens[:, :2].max(axis=1) - log_dens[:, 2]
 
     beyond = np.geomspace(1e-6, 100.0, 200)
-    assert np.all(log_share(np.concatenate([e_front + beyond, e_back - beyond])) <= _prism._BROAD_SHARE + 1e-9)
-    assert np.all(log_share(np.array([e_front - 0.05, e_back + 0.05])) > _prism._BROAD_SHARE)  # and not nearer
-    assert _prism.broad_errors(GaussianMixture.gaussian(0.5)) == (np.inf, -np.inf, 1)
-    assert _prism.broad_errors(GaussianMixture([0.5, 0.5], [0.0, 1.0], [1.0, 1.0]))[2] == 1
+    assert np.all(log_share(np.concatenate([e_front + beyond, e_back - beyond])) <= _prism_spacing._BROAD_SHARE + 1e-9)
+    assert np.all(log_share(np.array([e_front - 0.05, e_back + 0.05])) > _prism_spacing._BROAD_SHARE)  # and not nearer
+    assert _prism_spacing.broad_errors(GaussianMixture.gaussian(0.5)) == (np.inf, -np.inf, 1)
+    assert _prism_spacing.broad_errors(GaussianMixture([0.5, 0.5], [0.0, 1.0], [1.0, 1.0]))[2] == 1
 
 
-TWO_WIDE = GaussianMixture([0.70, 0.15, 0.02, 0.08, 0.05], [0.0, -0.4, -20.0, 38.0, 33.7],
-                           [0.3, 3.5, 0.15, 33.0, 33.5])
+TWO_WIDE = GaussianMixture([0.70, 0.15, 0.02, 0.08, 0.05], [0.0, -0.4, -20.0, 38.0, 33.7], [0.3, 3.5, 0.15, 33.0, 33.5])
 """A characterised class's mixture (SGBM on the street, half resolution): its own 33 px outlier component beside
 the whole image's 33.5 px one, and a narrow component 20 px behind the measurement."""
 
@@ -204,8 +219,10 @@ the whole image's 33.5 px one, and a narrow component 20 px behind the measureme
 def test_broad_segments_keep_every_wide_component():
     """Components at least half the widest sigma are all kept in the broad segments, spaced on the narrowest of
     them; the narrow ones are negligible beyond the segments' bounds, as with one wide component."""
-    e_front, e_back, ratio = _prism.broad_errors(TWO_WIDE)
-    assert ratio == min(int(_prism._WIDE_SIGMAS * 33.0 / (0.15 * _prism._TABLE_STEP)), _prism._COARSE_RATIO)
+    e_front, e_back, ratio = _prism_spacing.broad_errors(TWO_WIDE)
+    assert ratio == min(
+        int(_prism_spacing._WIDE_SIGMAS * 33.0 / (0.15 * _prism_spacing._TABLE_STEP)), _prism_spacing._COARSE_RATIO
+    )
     assert e_back < -20.0 < 0.0 < e_front
     m = TWO_WIDE
 
@@ -214,9 +231,9 @@ def test_broad_segments_keep_every_wide_component():
         return log_dens[:, :3].max(axis=1) - log_dens[:, 4]
 
     beyond = np.geomspace(1e-6, 100.0, 200)
-    assert np.all(log_share(np.concatenate([e_front + beyond, e_back - beyond])) <= _prism._BROAD_SHARE + 1e-9)
-    assert np.all(log_share(np.array([e_front - 0.05, e_back + 0.05])) > _prism._BROAD_SHARE)
-    assert _prism.broad_errors(GaussianMixture([0.5, 0.5], [0.0, 1.0], [1.0, 0.6]))[2] == 1  # both wide
+    assert np.all(log_share(np.concatenate([e_front + beyond, e_back - beyond])) <= _prism_spacing._BROAD_SHARE + 1e-9)
+    assert np.all(log_share(np.array([e_front - 0.05, e_back + 0.05])) > _prism_spacing._BROAD_SHARE)
+    assert _prism_spacing.broad_errors(GaussianMixture([0.5, 0.5], [0.0, 1.0], [1.0, 0.6]))[2] == 1  # both wide
 
 
 @pytest.mark.parametrize("voxel", [0.2, 0.1])
@@ -227,25 +244,33 @@ def test_table_with_two_wide_components_agrees_with_direct_within_stated_bound(v
     depths = np.exp(rng.uniform(np.log(3.0), np.log(80.0), 25))
     model = make_sensor_model("prism", focal_baseline=fb, error_model=TWO_WIDE, voxel_size_m=voxel, p0=0.05)
     disparity = np.round(fb / depths * 16) / 16
-    _assert_table_within_tolerance(model, disparity, rng.uniform(1.0, 1.1, depths.size), _random_cells(rng, depths),
-                                   large_min=0)
+    _assert_table_within_tolerance(
+        model, disparity, rng.uniform(1.0, 1.1, depths.size), _random_cells(rng, depths), large_min=0
+    )
     meta = model._cache.meta
     rows = [meta[:, _kernels_table.META_COLUMNS.index(f"row_{k}")] for k in range(_kernels_table.N_SEGMENTS)]
     assert np.all(rows[1] - rows[0] > 10)  # a broad front on every table
 
 
-NEEDLE = GaussianMixture([0.684, 0.288, 0.027, 0.0007, 0.0003], [-0.02, 0.08, -0.17, -0.7, 33.74],
-                         [0.14, 0.28, 0.01, 0.01, 33.54])
+NEEDLE = GaussianMixture(
+    [0.684, 0.288, 0.027, 0.0007, 0.0003], [-0.02, 0.08, -0.17, -0.7, 33.74], [0.14, 0.28, 0.01, 0.01, 33.54]
+)
 """A characterised class's mixture (SGBM on the half-resolution street) with components of 0.01 px beside 33.5 px
 outliers: its coarse front is spaced on the outliers' sigma."""
 
 
 def test_coarse_front_spacing_follows_the_widest_sigma_only_for_a_wide_span():
-    for mixture in (STREET, SGBM_LIKE, MIXTURE, GaussianMixture([0.64, 0.27, 0.05, 0.04], [0.05, -0.04, 0.2, 33.7],
-                                                                [0.168, 0.35, 3.27, 33.54])):
-        assert _prism.coarse_ratio(mixture) == _prism._COARSE_RATIO
-    spacing_px = _prism.coarse_ratio(NEEDLE) * _prism._TABLE_STEP * 0.01  # disparity between coarse nodes
-    assert 33.54 * _prism._COARSE_WIDE_SIGMAS - 0.01 < spacing_px <= 33.54 * _prism._COARSE_WIDE_SIGMAS
+    for mixture in (
+        STREET,
+        SGBM_LIKE,
+        MIXTURE,
+        GaussianMixture([0.64, 0.27, 0.05, 0.04], [0.05, -0.04, 0.2, 33.7], [0.168, 0.35, 3.27, 33.54]),
+    ):
+        assert _prism_spacing.coarse_ratio(mixture) == _prism_spacing._COARSE_RATIO
+    spacing_px = (
+        _prism_spacing.coarse_ratio(NEEDLE) * _prism_spacing._TABLE_STEP * 0.01
+    )  # disparity between coarse nodes
+    assert 33.54 * _prism_spacing._COARSE_WIDE_SIGMAS - 0.01 < spacing_px <= 33.54 * _prism_spacing._COARSE_WIDE_SIGMAS
 
 
 def test_table_with_a_needle_component_agrees_with_direct_within_stated_bound():
@@ -254,8 +279,9 @@ def test_table_with_a_needle_component_agrees_with_direct_within_stated_bound():
     depths = np.exp(rng.uniform(np.log(3.0), np.log(80.0), 12))
     model = make_sensor_model("prism", focal_baseline=fb, error_model=NEEDLE, voxel_size_m=0.2, p0=0.05)
     disparity = np.round(fb / depths * 16) / 16
-    _assert_table_within_tolerance(model, disparity, rng.uniform(1.0, 1.1, depths.size), _random_cells(rng, depths),
-                                   large_min=0)
+    _assert_table_within_tolerance(
+        model, disparity, rng.uniform(1.0, 1.1, depths.size), _random_cells(rng, depths), large_min=0
+    )
     meta = model._cache.meta
     column = _kernels_table.META_COLUMNS.index
     assert np.all(meta[:, column("row_1")] > 10)  # a coarse front, and the cells in it agree
@@ -266,8 +292,11 @@ FRAME_MIXTURE = GaussianMixture([0.9, 0.1], [0.0, 0.0], [0.3, 3.0])
 
 @pytest.mark.parametrize(
     ("fb", "mixture", "voxel", "p0", "near", "depth", "steep"),
-    [(KITTI_FB, STREET, 0.2, 0.05, 1.5, 5.0, True), (FB, SGBM_LIKE, 0.2, 0.05, 0.9, 5.0 * FB / KITTI_FB, False),
-     (13.125, FRAME_MIXTURE, 0.1, 0.1, 0.5, 3.0, False)],  # the last: tests/test_grid_frames.py's small frame
+    [
+        (KITTI_FB, STREET, 0.2, 0.05, 1.5, 5.0, True),
+        (FB, SGBM_LIKE, 0.2, 0.05, 0.9, 5.0 * FB / KITTI_FB, False),
+        (13.125, FRAME_MIXTURE, 0.1, 0.1, 0.5, 3.0, False),
+    ],  # the last: tests/test_grid_frames.py's small frame
 )
 def test_cells_in_a_tables_first_interval_agree_with_direct(fb, mixture, voxel, p0, near, depth, steep):
     """Cells ending between near_m and a table's first node: C from the steep front's asymptotic, or (no
@@ -286,18 +315,29 @@ def test_cells_in_a_tables_first_interval_agree_with_direct(fb, mixture, voxel, 
     ends = []
     for m in meta[table]:
         segment = next(k for k in range(_kernels_table.N_SEGMENTS) if m[column(f"row_{k + 1}")] > 0)  # holds row 0
-        first = _kernels_march.z_of_x(m[column(f"x_{segment}")] + m[column(f"h_{segment}")], m[column("lam")], model._ku())
+        first = _kernels_march.z_of_x(
+            m[column(f"x_{segment}")] + m[column(f"h_{segment}")], m[column("lam")], model._ku()
+        )
         ends.append(np.geomspace(near + 1e-4, first, 12))
     rays = np.repeat(np.arange(disparity.size), 12)
-    _assert_table_within_tolerance(model, disparity, norm, (rays, np.full(rays.size, near - 0.5), np.concatenate(ends)),
-                                   moderate_min=0, large_min=0)
+    _assert_table_within_tolerance(
+        model,
+        disparity,
+        norm,
+        (rays, np.full(rays.size, near - 0.5), np.concatenate(ends)),
+        moderate_min=0,
+        large_min=0,
+    )
 
 
 def _table_bound(inc_direct):
     """:data:`TABLE_TOLERANCE`'s bound on ``|inc_table - inc_direct|`` (log-odds) at each direct increment."""
     size = np.abs(inc_direct)
-    return np.where(size <= TABLE_TOLERANCE["large"], TABLE_TOLERANCE["abs"] + TABLE_TOLERANCE["rel"] * size,
-                    TABLE_TOLERANCE["large_rel"] * size)
+    return np.where(
+        size <= TABLE_TOLERANCE["large"],
+        TABLE_TOLERANCE["abs"] + TABLE_TOLERANCE["rel"] * size,
+        TABLE_TOLERANCE["large_rel"] * size,
+    )
 
 
 @pytest.mark.parametrize("mode", ["ray", "projective"])
@@ -319,12 +359,20 @@ def test_table_maps_agree_with_direct_maps_within_the_stated_bound(mode):
     for overhang in (0.0, _prism.OVERHANG_FRACTION):
         maps = {}
         for method, policy in itertools.product(("table", "direct"), ("mean", "max-abs")):
-            model = make_sensor_model("prism", focal_baseline=camera.focal_baseline, voxel_size_m=0.1, p0=0.1,
-                                      error_model=FRAME_MIXTURE, near_m=0.5, method=method,
-                                      overhang_fraction=overhang)
+            model = make_sensor_model(
+                "prism",
+                focal_baseline=camera.focal_baseline,
+                voxel_size_m=0.1,
+                p0=0.1,
+                error_model=FRAME_MIXTURE,
+                near_m=0.5,
+                method=method,
+                overhang_fraction=overhang,
+            )
             grid = OccupancyMap(0.1, p0=0.1)
-            integrate_disparity(grid, disparity, camera, pose, model, mode=mode, max_range_m=6.0, subsample=6,
-                                     policy=policy)
+            integrate_disparity(
+                grid, disparity, camera, pose, model, mode=mode, max_range_m=6.0, subsample=6, policy=policy
+            )
             keys, log, _ = grid.known_voxels()
             order = np.lexsort(keys.T)
             maps[method, policy] = keys[order], log[order] - prior
@@ -350,26 +398,38 @@ def test_table_combination_keeps_a_tiny_d_at_either_end():
     n = la.size
     side = a_is_d + 2
     post, ratio, fix_value = np.empty(n), np.empty(n), np.empty(n)
-    fixed = _kernels_lookup.prism_table_combine(0, n, la, lc, np.exp(la), np.exp(lc), side, length, post, ratio,
-                                         np.empty(n, dtype=np.int64), fix_value, 0.0)
+    fixed = _kernels_lookup.prism_table_combine(
+        0, n, la, lc, np.exp(la), np.exp(lc), side, length, post, ratio, np.empty(n, dtype=np.int64), fix_value, 0.0
+    )
     assert fixed == 0  # the linear-space pass, not the log-space fallback
     other_a, other_c = np.log(-np.expm1(la)), np.log(-np.expm1(lc))
-    expected = np.array([_kernels_direct.combine(*((oa, a) if d else (a, oa)), oc, c, ln)[1]
-                         for a, oa, c, oc, ln, d in zip(la, other_a, lc, other_c, length, a_is_d)])
+    expected = np.array(
+        [
+            _kernels_direct.combine(*((oa, a) if d else (a, oa)), oc, c, ln)[1]
+            for a, oa, c, oc, ln, d in zip(la, other_a, lc, other_c, length, a_is_d)
+        ]
+    )
     np.testing.assert_allclose(np.log(ratio), expected, rtol=1e-9, atol=1e-9)
 
 
 @pytest.mark.parametrize("method", ["table", "direct"])
 def test_finite_and_in_unit_interval_from_10cm_to_200m_with_high_rate(method):
     rate = 50.0  # per metre: p0 = 1 - e^-5 for 0.1 m cells
-    model = make_sensor_model("prism", focal_baseline=FB, error_model=GaussianMixture.gaussian(0.3),
-                              voxel_size_m=0.1, p0=-np.expm1(-rate * 0.1), method=method)
+    model = make_sensor_model(
+        "prism",
+        focal_baseline=FB,
+        error_model=GaussianMixture.gaussian(0.3),
+        voxel_size_m=0.1,
+        p0=-np.expm1(-rate * 0.1),
+        method=method,
+    )
     depths = np.array([0.1, 0.3, 2.0, 30.0, 150.0, 200.0])
     disparity = _on_grid(depths)
     edges = np.geomspace(0.1, 200.0, 150)
     rays = np.repeat(np.arange(depths.size), edges.size - 1)
-    post, inc = model.cell_posteriors(disparity, np.full(depths.size, 1.05), rays,
-                                      np.tile(edges[:-1], depths.size), np.tile(edges[1:], depths.size))
+    post, inc = model.cell_posteriors(
+        disparity, np.full(depths.size, 1.05), rays, np.tile(edges[:-1], depths.size), np.tile(edges[1:], depths.size)
+    )
     assert np.all(np.isfinite(post)) and np.all(np.isfinite(inc))
     assert np.all((post >= 0) & (post <= 1))
 
@@ -438,8 +498,16 @@ def _simulate_disparities(rng, p0, n, voxel=0.1, near=0.5, far=60.0):
 def test_prior_estimated_from_likelihood_recovers_the_simulated_prior():
     rng = np.random.default_rng(11)
     disparity, norm = _simulate_disparities(rng, 0.03, 600)
-    estimate = estimate_prior_from_likelihood(disparity, norm, error_model=MIXTURE, focal_baseline=FB,
-                                              voxel_size_m=0.1, near_m=0.5, far_depth_m=60.0, max_rays=600)
+    estimate = estimate_prior_from_likelihood(
+        disparity,
+        norm,
+        error_model=MIXTURE,
+        focal_baseline=FB,
+        voxel_size_m=0.1,
+        near_m=0.5,
+        far_depth_m=60.0,
+        max_rays=600,
+    )
     assert estimate == pytest.approx(0.03, rel=0.2)
 
 
@@ -492,8 +560,13 @@ def test_table_cache_evicts_least_recently_used_beyond_its_budget():
     assert len(model._cache) < 4  # the 2 m table went first
     np.testing.assert_array_equal(model.cell_posteriors(_on_grid([2.0]), [1.0], *cells)[1], first[1])
     # the tables one call needs stay, even beyond the budget
-    model.cell_posteriors(_on_grid([6.0, 7.0, 8.0, 9.0]), np.ones(4), np.repeat(np.arange(4), 59),
-                          np.tile(edges[:-1], 4), np.tile(edges[1:], 4))
+    model.cell_posteriors(
+        _on_grid([6.0, 7.0, 8.0, 9.0]),
+        np.ones(4),
+        np.repeat(np.arange(4), 59),
+        np.tile(edges[:-1], 4),
+        np.tile(edges[1:], 4),
+    )
     assert len(model._cache) == 4
     with pytest.raises(PrismapInputError, match="table_memory_mb"):
         PrismModel(error_model=MIXTURE, focal_baseline=FB, table_memory_mb=0.0)
@@ -506,8 +579,10 @@ def test_calls_from_two_threads_under_a_thrashing_cache_equal_serial_calls():
     from concurrent.futures import ThreadPoolExecutor
 
     edges = np.linspace(0.5, 12.0, 60)
-    calls = [(_on_grid([d, d + 0.7]), [1.0, 1.2], np.repeat([0, 1], 59), np.tile(edges[:-1], 2), np.tile(edges[1:], 2))
-             for d in np.linspace(1.0, 9.0, 12)]
+    calls = [
+        (_on_grid([d, d + 0.7]), [1.0, 1.2], np.repeat([0, 1], 59), np.tile(edges[:-1], 2), np.tile(edges[1:], 2))
+        for d in np.linspace(1.0, 9.0, 12)
+    ]
     want = [PrismModel(error_model=MIXTURE, focal_baseline=FB).cell_posteriors(*args)[1] for args in calls]
     model = PrismModel(error_model=MIXTURE, focal_baseline=FB, table_memory_mb=0.012)
     with ThreadPoolExecutor(2) as pool:
@@ -520,7 +595,9 @@ def test_calls_from_two_threads_under_a_thrashing_cache_equal_serial_calls():
 def _fake_tables(keys):
     """Tables of 100 nodes whose only content is their key (the cache never looks inside but for the offsets
     and lengths)."""
-    nodes = np.repeat(np.asarray(keys, dtype=np.float32), 100)[:, None] * np.ones(_kernels_table.TABLE_COLUMNS, np.float32)
+    nodes = np.repeat(np.asarray(keys, dtype=np.float32), 100)[:, None] * np.ones(
+        _kernels_table.TABLE_COLUMNS, np.float32
+    )
     meta = np.repeat(np.asarray(keys, dtype=np.float64)[:, None], len(_kernels_table.META_COLUMNS), axis=1)
     meta[:, _prism._OFFSET] = 100.0 * np.arange(len(keys))
     meta[:, _prism._LENGTH] = 100.0
@@ -556,8 +633,9 @@ def test_rate_derivatives_of_the_evidence_match_finite_differences(depth, max_ra
     log_far = float(model._log_far(shift))
 
     def march(lam):
-        return _kernels_march.prism_march(shift, lam, model.near_m, max_range, FB, model._ku(), 0.25, log_far,
-                                    -7.0, 0.0, 4, log_wn, means, sigmas)
+        return _kernels_march.prism_march(
+            shift, lam, model.near_m, max_range, FB, model._ku(), 0.25, log_far, -7.0, 0.0, 4, log_wn, means, sigmas
+        )
 
     lam, eps = 0.8, 1e-3
     _, log_c, log_d, log_z, log_far_w, _ = march(lam)
@@ -596,14 +674,19 @@ def test_endpoint_asymptotic_of_the_evidence_matches_fine_quadrature_where_steep
     shift, lam = _on_grid([3.0])[0], model.rate_per_m
     for depth in (0.3, 0.8, 1.5):  # measured at 3 m
         slope = _kernels_table._log_qg_slope(depth, lam, 0.1, FB, shift, log_wn, means, sigmas)[1]
-        hi, lo = (_kernels_table._log_qg_slope(depth * (1 + e), lam, 0.1, FB, shift, log_wn, means, sigmas)[0]
-                  for e in (1e-5, -1e-5))
+        hi, lo = (
+            _kernels_table._log_qg_slope(depth * (1 + e), lam, 0.1, FB, shift, log_wn, means, sigmas)[0]
+            for e in (1e-5, -1e-5)
+        )
         assert (hi - lo) / (2e-5 * depth) == pytest.approx(slope, rel=1e-6)  # the slope is d phi / dz
         asymptotic = _kernels_table._log_c_asymptotic(depth, lam, 0.1, FB, shift, log_wn, means, sigmas)
-        quadrature = _kernels_march.log_integral(0.1, depth, lam, model._ku(), 0.01, 0.1, FB, shift, log_wn, means, sigmas)
-        curvature = (_kernels_table._log_qg_slope(depth * (1 + 1e-5), lam, 0.1, FB, shift, log_wn, means, sigmas)[1]
-                     - _kernels_table._log_qg_slope(depth * (1 - 1e-5), lam, 0.1, FB, shift, log_wn, means, sigmas)[1]
-                     ) / (2e-5 * depth)
+        quadrature = _kernels_march.log_integral(
+            0.1, depth, lam, model._ku(), 0.01, 0.1, FB, shift, log_wn, means, sigmas
+        )
+        curvature = (
+            _kernels_table._log_qg_slope(depth * (1 + 1e-5), lam, 0.1, FB, shift, log_wn, means, sigmas)[1]
+            - _kernels_table._log_qg_slope(depth * (1 - 1e-5), lam, 0.1, FB, shift, log_wn, means, sigmas)[1]
+        ) / (2e-5 * depth)
         correction = abs(curvature) / slope**2  # the first neglected term, relative
         assert asymptotic < -40 and abs(asymptotic - quadrature) < 2 * correction + 1e-4
 
@@ -614,8 +697,9 @@ def test_table_keys_match_numpy_unique_of_the_packed_keys():
     disparity = np.round(rng.uniform(0.5, 80.0, 5000), 1)  # repeated disparities: few distinct keys
     log_norm = np.log(rng.choice([1.0, 1.02, 1.3, 1.9], 5000))
     unique, inverse = _kernels_lookup.table_keys(disparity, log_norm, 1 / 16, _prism._LAMBDA_STEP, _prism._KEY_L_SPAN)
-    key = (np.rint(disparity * 16).astype(np.int64) * _prism._KEY_L_SPAN
-           + np.minimum(np.rint(log_norm / _prism._LAMBDA_STEP).astype(np.int64), _prism._KEY_L_SPAN - 1))
+    key = np.rint(disparity * 16).astype(np.int64) * _prism._KEY_L_SPAN + np.minimum(
+        np.rint(log_norm / _prism._LAMBDA_STEP).astype(np.int64), _prism._KEY_L_SPAN - 1
+    )
     np.testing.assert_array_equal(unique[inverse], key)
     np.testing.assert_array_equal(np.sort(unique), np.unique(key))
 
@@ -624,8 +708,13 @@ def test_tables_built_in_threads_equal_tables_built_in_one(monkeypatch):
     depths = np.linspace(1.0, 30.0, 9)
     cells = _one_ray_cells(np.linspace(0.5, 40.0, 80))
     rays = np.repeat(np.arange(depths.size), cells[1].size)
-    args = (_on_grid(depths), np.linspace(1.0, 1.3, depths.size), rays, np.tile(cells[1], depths.size),
-            np.tile(cells[2], depths.size))
+    args = (
+        _on_grid(depths),
+        np.linspace(1.0, 1.3, depths.size),
+        rays,
+        np.tile(cells[1], depths.size),
+        np.tile(cells[2], depths.size),
+    )
     monkeypatch.setattr(_prism, "_BUILD_THREADS", 1)
     serial = PrismModel(error_model=MIXTURE, focal_baseline=FB).cell_posteriors(*args)
     monkeypatch.setattr(_prism, "_BUILD_THREADS", 2)
@@ -638,8 +727,25 @@ def test_vectorised_exp_and_log_match_numpy_over_the_whole_range():
     """``exp_into``/``log_into`` (PRISM's cell update) against numpy: 1e-13 relative where the result is normal,
     subnormal results to their spacing, and the special values (0, inf, NaN, underflow, overflow) exactly."""
     rng = np.random.default_rng(11)
-    edges = [-np.inf, -800.0, -745.2, -745.1332191019412, -745.13, -708.4, -708.3964185322641, -708.39, -0.0, 0.0,
-             1e-300, 709.78, 709.782712893384, 709.7827128933841, 710.0, np.inf, np.nan]
+    edges = [
+        -np.inf,
+        -800.0,
+        -745.2,
+        -745.1332191019412,
+        -745.13,
+        -708.4,
+        -708.3964185322641,
+        -708.39,
+        -0.0,
+        0.0,
+        1e-300,
+        709.78,
+        709.782712893384,
+        709.7827128933841,
+        710.0,
+        np.inf,
+        np.nan,
+    ]
     x = np.concatenate([rng.uniform(-760.0, 720.0, 200_000), rng.uniform(-1.0, 1.0, 20_000), edges])
     got = np.empty_like(x)
     _kernels_math.exp_into(x, got, x.size)
@@ -652,9 +758,27 @@ def test_vectorised_exp_and_log_match_numpy_over_the_whole_range():
     np.testing.assert_array_equal(got[~np.isfinite(want)], want[~np.isfinite(want)])
     assert got[x < -745.14].max() == 0.0 and np.all(got[x > 709.79] == np.inf)
 
-    y = np.concatenate([np.exp(rng.uniform(np.log(5e-324), np.log(1.79e308), 200_000)), 1.0 + rng.normal(0, 1e-9, 1000),
-                        [5e-324, 1e-310, np.finfo(np.float64).tiny, np.finfo(np.float64).max, 1.0, 0.5, 2.0, 0.0,
-                         -0.0, -1.0, np.inf, -np.inf, np.nan]])
+    y = np.concatenate(
+        [
+            np.exp(rng.uniform(np.log(5e-324), np.log(1.79e308), 200_000)),
+            1.0 + rng.normal(0, 1e-9, 1000),
+            [
+                5e-324,
+                1e-310,
+                np.finfo(np.float64).tiny,
+                np.finfo(np.float64).max,
+                1.0,
+                0.5,
+                2.0,
+                0.0,
+                -0.0,
+                -1.0,
+                np.inf,
+                -np.inf,
+                np.nan,
+            ],
+        ]
+    )
     got = np.empty_like(y)
     _kernels_math.log_into(y, got, y.size)
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -679,7 +803,9 @@ def test_log_sums_skip_underflowing_exps_without_changing_a_bit():
     equal the plain formulas bit for bit on both sides of the cuts (exp subnormal below -708.4, 0 below
     -745.13)."""
     a = np.array([0.0, 1.5, -3.0, 700.0, -40.0])
-    gaps = np.concatenate([[0.0, -1.0, -37.0, -700.0], np.linspace(-708.0, -709.0, 9), [-744.0, -745.1, -745.2, -746.0, -1e4, -np.inf]])
+    gaps = np.concatenate(
+        [[0.0, -1.0, -37.0, -700.0], np.linspace(-708.0, -709.0, 9), [-744.0, -745.1, -745.2, -746.0, -1e4, -np.inf]]
+    )
     for x in a:
         for gap in gaps:
             b = x + gap
@@ -699,23 +825,32 @@ def test_log_sums_skip_underflowing_exps_without_changing_a_bit():
 def test_march_blocks_match_the_one_panel_rule_and_the_tail_bound():
     """_log_panel_block (6 points, 16 panels at once) against _log_panel_moments (8 points, one panel) on a street
     table's fine panels (x-width 0.5) and broad ones (x-width 8), and _log_sup_tail_block against _log_sup_tail."""
-    model = make_sensor_model("prism", focal_baseline=KITTI_FB, error_model=STREET, voxel_size_m=0.2, p0=0.05,
-                              near_m=1.5)
+    model = make_sensor_model(
+        "prism", focal_baseline=KITTI_FB, error_model=STREET, voxel_size_m=0.2, p0=0.05, near_m=1.5
+    )
     log_wn, means, sigmas = model._mixture_arrays()
     lam, ku, shift = model.rate_per_m * 1.1, model._ku(), KITTI_FB / 12.0
     for width in (0.5, 8.0):
-        z = np.array([_kernels_march.z_of_x(x, lam, ku) for x in _kernels_march.x_of_z(1.5, lam, ku) + width * np.arange(40)])
+        z = np.array(
+            [_kernels_march.z_of_x(x, lam, ku) for x in _kernels_march.x_of_z(1.5, lam, ku) + width * np.arange(40)]
+        )
         out = np.full((z.size, 3), np.nan)
         sup = np.full(z.size, np.nan)
         scratch = np.empty((means.size + 5, _kernels_march._MARCH_GL * _kernels_march._MARCH_BLOCK))
         for first in range(1, z.size, _kernels_march._MARCH_BLOCK):
             count = min(_kernels_march._MARCH_BLOCK, z.size - first)
-            _kernels_march._log_panel_block(z, first, count, lam, 1.5, KITTI_FB, shift, log_wn, means, 1 / sigmas, out,
-                                      scratch)
-            _kernels_march._log_sup_tail_block(z, first, count, 80.0, KITTI_FB, shift, log_wn, means, 1 / sigmas, sup,
-                                         scratch)
-        ref = np.array([_kernels_march._log_panel_moments(a, b, lam, 1.5, KITTI_FB, shift, log_wn, means, sigmas)
-                        for a, b in zip(z[:-1], z[1:])])
+            _kernels_march._log_panel_block(
+                z, first, count, lam, 1.5, KITTI_FB, shift, log_wn, means, 1 / sigmas, out, scratch
+            )
+            _kernels_march._log_sup_tail_block(
+                z, first, count, 80.0, KITTI_FB, shift, log_wn, means, 1 / sigmas, sup, scratch
+            )
+        ref = np.array(
+            [
+                _kernels_march._log_panel_moments(a, b, lam, 1.5, KITTI_FB, shift, log_wn, means, sigmas)
+                for a, b in zip(z[:-1], z[1:])
+            ]
+        )
         np.testing.assert_allclose(out[1:], ref, rtol=0, atol=1e-8 if width < 1 else 1e-6)
         sup_ref = [_kernels_march._log_sup_tail(v, 80.0, KITTI_FB, shift, log_wn, means, sigmas) for v in z[1:]]
         np.testing.assert_allclose(sup[1:], sup_ref, rtol=1e-13, atol=1e-12)

@@ -38,7 +38,8 @@ def test_seeded_and_unlike_the_street():
     a, b = sim.avenue_scene(seed=1), sim.avenue_scene(seed=1)
     np.testing.assert_array_equal(a.box_lo, b.box_lo)
     assert not np.array_equal(sim.avenue_scene(seed=2).box_hi[:20], a.box_hi[:20]) or len(a.box_lo) != len(
-        sim.avenue_scene(seed=2).box_lo)
+        sim.avenue_scene(seed=2).box_lo
+    )
     small = sim.avenue_camera(scale=0.25)
     poses = sim.street_trajectory(6, seed=1)
     avenue = np.concatenate([a.cast(small, pose).ravel() for pose in poses])

@@ -83,7 +83,9 @@ def test_trajectory_is_smooth_and_clear_of_every_box():
     scene = sim.indoor_scene(seed=4)
     poses = sim.indoor_trajectory(40, seed=4)
     assert poses.shape == (40, 4, 4)
-    np.testing.assert_allclose(poses[:, :3, :3] @ poses[:, :3, :3].transpose(0, 2, 1), np.broadcast_to(np.eye(3), (40, 3, 3)), atol=1e-12)
+    np.testing.assert_allclose(
+        poses[:, :3, :3] @ poses[:, :3, :3].transpose(0, 2, 1), np.broadcast_to(np.eye(3), (40, 3, 3)), atol=1e-12
+    )
     positions = poses[:, :3, 3]
     gaps = np.maximum(np.maximum(scene.box_lo[None] - positions[:, None], positions[:, None] - scene.box_hi[None]), 0)
     assert np.linalg.norm(gaps, axis=-1).min() >= 0.5
@@ -147,8 +149,14 @@ def test_ground_truth_observed_voxels_match_numpy_reference():
             lambda: sim.Scene3D.from_boxes([[0, 0, 1]], [[1, 1, 2]]).render(StereoCamera(100, 5, 5, 0.1), np.eye(4)),
             "needs `width` and `height`",
         ),
-        (lambda: sim.Scene3D.from_boxes([[0, 0, 1]], [[1, 1, 2]]).render(SMALL, np.eye(4), noise_sigma=-1), "`noise_sigma`"),
-        (lambda: sim.Scene3D.from_boxes([[0, 0, 1]], [[1, 1, 2]]).render(SMALL, np.full((4, 4), np.nan)), "`T_world_cam` must be finite"),
+        (
+            lambda: sim.Scene3D.from_boxes([[0, 0, 1]], [[1, 1, 2]]).render(SMALL, np.eye(4), noise_sigma=-1),
+            "`noise_sigma`",
+        ),
+        (
+            lambda: sim.Scene3D.from_boxes([[0, 0, 1]], [[1, 1, 2]]).render(SMALL, np.full((4, 4), np.nan)),
+            "`T_world_cam` must be finite",
+        ),
         (lambda: sim.indoor_trajectory(0), r"`n_frames` must be an integer in \[1, 360\]"),
         (lambda: sim.indoor_trajectory(361), r"`n_frames` must be an integer in \[1, 360\].*got 361"),
         (lambda: sim.indoor_trajectory(True), r"`n_frames` must be an integer"),

@@ -58,8 +58,11 @@ def test_depths_span_2_to_80_m_along_the_drive():
 @pytest.mark.parametrize(("voxel", "n_keys"), [(0.2, 4), (0.25, 2)])  # x 6.92-7.08, y 5.52-5.68: keys 34-35 x 27-28
 def test_a_pole_is_voxelised_at_its_hand_computed_keys(voxel, n_keys):  # at 0.2 m; 27-28 x 22 at 0.25 m
     scene = sim.street_scene(seed=0)
-    pole = next(i for i, (lo, hi) in enumerate(zip(scene.box_lo, scene.box_hi))
-                if hi[2] == 6.0 and hi[0] - lo[0] < 0.2 and lo[0] < 8.0 and lo[1] > 0)
+    pole = next(
+        i
+        for i, (lo, hi) in enumerate(zip(scene.box_lo, scene.box_hi))
+        if hi[2] == 6.0 and hi[0] - lo[0] < 0.2 and lo[0] < 8.0 and lo[1] > 0
+    )
     lo, hi = scene.box_lo[pole], scene.box_hi[pole]
     np.testing.assert_allclose([lo, hi], [[6.92, 5.52, 0.15], [7.08, 5.68, 6.0]])
     keys = scene.ground_truth([], voxel).occupied_keys
@@ -77,8 +80,9 @@ def test_the_drive_moves_forward_level_and_clear_of_every_box():
     poses = sim.street_trajectory(30, step_m=1.5, seed=2)
     assert poses.shape == (30, 4, 4)
     rotations = poses[:, :3, :3]
-    np.testing.assert_allclose(rotations @ rotations.transpose(0, 2, 1), np.broadcast_to(np.eye(3), (30, 3, 3)),
-                               atol=1e-12)
+    np.testing.assert_allclose(
+        rotations @ rotations.transpose(0, 2, 1), np.broadcast_to(np.eye(3), (30, 3, 3)), atol=1e-12
+    )
     positions = poses[:, :3, 3]
     np.testing.assert_allclose(positions[:, 0], DRIVE_START_M + 1.5 * np.arange(30))
     np.testing.assert_allclose(positions[:, 2], CAMERA_HEIGHT_M)

@@ -12,7 +12,12 @@ def _segment_hits(origin, directions, rectangles):
     """Brute force: nearest positive intersection of rays with the four edges of every rectangle."""
     best = np.full(len(directions), np.inf)
     for x0, y0, x1, y1 in rectangles:
-        for (ax, ay), (bx, by) in [((x0, y0), (x1, y0)), ((x1, y0), (x1, y1)), ((x1, y1), (x0, y1)), ((x0, y1), (x0, y0))]:
+        for (ax, ay), (bx, by) in [
+            ((x0, y0), (x1, y0)),
+            ((x1, y0), (x1, y1)),
+            ((x1, y1), (x0, y1)),
+            ((x0, y1), (x0, y0)),
+        ]:
             edge = np.array([bx - ax, by - ay])
             for i, d in enumerate(directions):
                 matrix = np.array([[d[0], -edge[0]], [d[1], -edge[1]]])

@@ -75,14 +75,15 @@ def test_solid_depth_evaluates_the_stretch_before_each_cell(method):
     start = np.concatenate([np.linspace(0.5, 12.0, 41)[:-1] for _ in range(5)])
     end = start + 11.5 / 40
     solid = 0.3
-    posterior, increment = _model(solid_depth_m=solid).cell_posteriors(disparity, norm, rays, start, end,
-                                                                       method=method)
+    posterior, increment = _model(solid_depth_m=solid).cell_posteriors(disparity, norm, rays, start, end, method=method)
     stretched = np.maximum(start - solid / norm[rays], 0.5)
     ref_posterior, ref_increment = _model().cell_posteriors(disparity, norm, rays, stretched, end, method="direct")
     np.testing.assert_allclose(posterior, ref_posterior, rtol=0, atol=TABLE_TOLERANCE["posterior"])
     finite = np.abs(ref_increment) < TABLE_TOLERANCE["large"]
-    np.testing.assert_array_less(np.abs(increment - ref_increment)[finite],
-                                 (TABLE_TOLERANCE["abs"] + TABLE_TOLERANCE["rel"] * np.abs(ref_increment))[finite])
+    np.testing.assert_array_less(
+        np.abs(increment - ref_increment)[finite],
+        (TABLE_TOLERANCE["abs"] + TABLE_TOLERANCE["rel"] * np.abs(ref_increment))[finite],
+    )
     plain, _ = _model().cell_posteriors(disparity, norm, rays, start, end, method=method)
     measured = FB / disparity[rays]  # cells starting just behind each measured surface gain; the first cell does not
     behind = (start > measured) & (start < measured + 0.3)
@@ -96,11 +97,14 @@ def test_solid_depth_moves_the_influence_depth_back():
     np.testing.assert_allclose(solid - plain, 0.4 / norm)
 
 
-@pytest.mark.parametrize(("params", "message"), [
-    ({"solid_depth_m": -0.1}, "`solid_depth_m` must be a finite number >= 0; got -0.1"),
-    ({"solid_depth_m": float("nan")}, "`solid_depth_m` must be a finite number >= 0"),
-    ({"solid_depth_m": 0.2, "prior": "map"}, "`solid_depth_m` (0.2 m) works with prior='p0' only"),
-])
+@pytest.mark.parametrize(
+    ("params", "message"),
+    [
+        ({"solid_depth_m": -0.1}, "`solid_depth_m` must be a finite number >= 0; got -0.1"),
+        ({"solid_depth_m": float("nan")}, "`solid_depth_m` must be a finite number >= 0"),
+        ({"solid_depth_m": 0.2, "prior": "map"}, "`solid_depth_m` (0.2 m) works with prior='p0' only"),
+    ],
+)
 def test_bad_solid_depth_is_refused(params, message):
     with pytest.raises(PrismapInputError, match=message.replace("(", r"\(").replace(")", r"\)")):
         _model(**params)
@@ -154,8 +158,9 @@ def test_scene_solid_depth_is_the_quantile_of_the_hits_depths():
     hi = np.array([[0.0, 5.0, 2.3], [5.0, 5.0, 2.1]])
     depth = np.full((12, 16), 2.0)
     depth[:, 7:9] = np.inf  # the seam (x = 0) and nothing behind it
-    frame = SimpleNamespace(camera=camera, T_world_cam=np.eye(4), disparity_gt=camera.disparity_from_depth(depth),
-                            extras={"depth_m": depth})
+    frame = SimpleNamespace(
+        camera=camera, T_world_cam=np.eye(4), disparity_gt=camera.disparity_from_depth(depth), extras={"depth_m": depth}
+    )
     norm = np.linalg.norm(camera.pixel_rays(), axis=2)
     thickness = np.where(np.arange(16) < 7, 0.3, 0.1)[None, :] * norm
     keep = np.isfinite(depth)

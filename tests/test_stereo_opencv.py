@@ -115,14 +115,15 @@ def test_left_right_check_keeps_the_last_columns(name):
 def test_compute_with_confidence_returns_compute_and_the_disagreement_behind_the_check(name):
     left, right, (band_start, band_end) = _occluding_strip()
     lenient = {"uniqueness_ratio": 0, "speckle_window_size": 0}
-    checking = make_matcher(name, num_disparities=32, left_right_check=True, lr_max_difference_px=1.0, **lenient,
-                            **MATCHERS[name])
+    checking = make_matcher(
+        name, num_disparities=32, left_right_check=True, lr_max_difference_px=1.0, **lenient, **MATCHERS[name]
+    )
     disparity, disagreement = checking.compute_with_confidence(left, right)
     np.testing.assert_array_equal(disparity, checking.compute(left, right))
     assert disagreement.shape == left.shape and disagreement.dtype == np.float32
     # Kept pixels are exactly those that agree within the tolerance; the occluded band disagrees.
     np.testing.assert_array_equal(np.isfinite(disparity), disagreement <= 1.0)
-    assert np.nanmedian(disagreement[10:-10, band_start + 3:band_end - 3]) > 1.0
+    assert np.nanmedian(disagreement[10:-10, band_start + 3 : band_end - 3]) > 1.0
     plain, none = make_matcher(name, num_disparities=32, **MATCHERS[name]).compute_with_confidence(left, right)
     assert none is None and plain.shape == left.shape
 
@@ -200,9 +201,14 @@ def test_bad_images_are_named():
     grey = np.zeros((40, 60), dtype=np.uint8)
     with pytest.raises(PrismapInputError, match=r"one shape; got \(40, 60\) and \(40, 50\)"):
         matcher.compute(grey, grey[:, :50])
-    with pytest.raises(PrismapInputError, match=r"`right` must be an \(H, W\) grey or \(H, W, 3\) RGB uint8 image; got shape \(\d+, \d+\), dtype float32"):
+    with pytest.raises(
+        PrismapInputError,
+        match=r"`right` must be an \(H, W\) grey or \(H, W, 3\) RGB uint8 image; got shape \(\d+, \d+\), dtype float32",
+    ):
         matcher.compute(grey, grey.astype(np.float32))
-    with pytest.raises(PrismapInputError, match=r"`left` must be an \(H, W\) grey or \(H, W, 3\) RGB uint8 image; got shape"):
+    with pytest.raises(
+        PrismapInputError, match=r"`left` must be an \(H, W\) grey or \(H, W, 3\) RGB uint8 image; got shape"
+    ):
         matcher.compute(grey[0], grey[0])
     with pytest.raises(PrismapInputError, match=r"got shape \(40, 60, 4\)"):
         matcher.compute(np.zeros((40, 60, 4), np.uint8), np.zeros((40, 60, 4), np.uint8))

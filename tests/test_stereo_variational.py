@@ -37,6 +37,7 @@ def _pair(offset_px, slope_x, slope_y, seed=0):
     source = (cols + offset_px + slope_y * rows) / (1.0 - slope_x)
     right = ndimage.map_coordinates(texture, [rows, source + pad], order=3)
     truth = offset_px + slope_x * cols + slope_y * rows
+
     def as_uint8(image):
         return np.clip(np.rint(image), 0, 255).astype(np.uint8)
 
@@ -137,10 +138,16 @@ def test_bad_parameters_are_named(options, message):
     ("left", "right", "message"),
     [
         (np.zeros((20, 30), np.uint8), np.zeros((20, 31), np.uint8), "`left` and `right` must have one shape"),
-        (np.zeros((20, 30), np.float32), np.zeros((20, 30), np.uint8),
-         "`left` must be an (H, W) grey or (H, W, 3) RGB uint8 image; got shape (20, 30), dtype float32"),
-        (np.zeros((20, 30), np.uint8), np.zeros((2, 20, 30), np.uint8),
-         "`right` must be an (H, W) grey or (H, W, 3) RGB uint8 image; got shape (2, 20, 30), dtype uint8"),
+        (
+            np.zeros((20, 30), np.float32),
+            np.zeros((20, 30), np.uint8),
+            "`left` must be an (H, W) grey or (H, W, 3) RGB uint8 image; got shape (20, 30), dtype float32",
+        ),
+        (
+            np.zeros((20, 30), np.uint8),
+            np.zeros((2, 20, 30), np.uint8),
+            "`right` must be an (H, W) grey or (H, W, 3) RGB uint8 image; got shape (2, 20, 30), dtype uint8",
+        ),
         (np.zeros(30, np.uint8), np.zeros(30, np.uint8), "`left` must be an (H, W) grey or (H, W, 3) RGB uint8 image"),
     ],
 )
@@ -183,8 +190,9 @@ def _system_matrix(a, wh, wv):
         rows += [p, q, p, q]
         cols += [p, q, q, p]
         vals += [w, w, -w, -w]
-    return scipy.sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                                   shape=(height * width,) * 2)
+    return scipy.sparse.csr_matrix(
+        (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(height * width,) * 2
+    )
 
 
 def test_jacobi_sweep_matches_a_numpy_reference():
@@ -199,8 +207,12 @@ def test_jacobi_sweep_matches_a_numpy_reference():
     out = np.empty_like(x)
     _kernels.jacobi_sweep(x, a, b, wh, wv, np.float32(omega), out)
     np.testing.assert_allclose(out, expected, rtol=1e-5, atol=1e-4)
-    np.testing.assert_allclose(_kernels.residual(x, a, b, wh, wv),
-                               b - (matrix @ x.ravel().astype(np.float64)).reshape(x.shape), rtol=1e-5, atol=1e-3)
+    np.testing.assert_allclose(
+        _kernels.residual(x, a, b, wh, wv),
+        b - (matrix @ x.ravel().astype(np.float64)).reshape(x.shape),
+        rtol=1e-5,
+        atol=1e-3,
+    )
 
 
 def test_v_cycles_converge_to_the_direct_solution():
@@ -220,6 +232,7 @@ def _keys_cubic(row, positions):
     Kernel ``W(s) = 1.5|s|^3 - 2.5|s|^2 + 1`` for ``|s| <= 1``, ``-0.5|s|^3 + 2.5|s|^2 - 4|s| + 2`` for
     ``1 < |s| < 2``; the base sample is ``min(floor(u), n - 2)``, so ``u = n - 1`` uses offset 1.
     """
+
     def kernel(s):
         s = np.abs(s)
         return np.where(s <= 1, 1.5 * s**3 - 2.5 * s**2 + 1, np.where(s < 2, -0.5 * s**3 + 2.5 * s**2 - 4 * s + 2, 0))
@@ -264,8 +277,12 @@ def test_census_costs_and_path_aggregation_match_numpy_references():
 
     def census(image):
         padded = np.pad(image, radius, mode="edge")
-        bits = [padded[radius + di:radius + di + height, radius + dj:radius + dj + width] < image
-                for di in range(-radius, radius + 1) for dj in range(-radius, radius + 1) if (di, dj) != (0, 0)]
+        bits = [
+            padded[radius + di : radius + di + height, radius + dj : radius + dj + width] < image
+            for di in range(-radius, radius + 1)
+            for dj in range(-radius, radius + 1)
+            if (di, dj) != (0, 0)
+        ]
         return np.stack(bits)  # (8, H, W) booleans
 
     cl, cr = census(left), census(right)
@@ -275,8 +292,9 @@ def test_census_costs_and_path_aggregation_match_numpy_references():
         for j in range(width):
             if 0 <= j - (d_min + k) < width:
                 expected[:, j, k] = np.sum(cl[:, :, j] != cr[:, :, j - (d_min + k)], axis=0)
-    cost = _kernels.census_cost_volume(_kernels.census_transform(left, radius),
-                                       _kernels.census_transform(right, radius), d_min, n_disp, outside)
+    cost = _kernels.census_cost_volume(
+        _kernels.census_transform(left, radius), _kernels.census_transform(right, radius), d_min, n_disp, outside
+    )
     np.testing.assert_array_equal(cost, expected)
 
     p1, p2 = np.float32(2.0), np.float32(7.0)
@@ -310,9 +328,11 @@ def test_smoothness_weights_match_the_penalisers():
     disparity = rng.normal(0, 1, (6, 8)).astype(np.float32)
     fi, lam = 3.0, 0.5
     s_h, s_v = np.diff(disparity, axis=1), np.diff(disparity, axis=0)
-    for penalty, psi in [(_kernels.PENALTY_TICHONOV, lambda s: np.ones_like(s)),
-                         (_kernels.PENALTY_CHARBONNIER, lambda s: 1.0 / np.sqrt(1.0 + s**2 / lam**2)),
-                         (_kernels.PENALTY_PERONA_MALIK, lambda s: 1.0 / (1.0 + s**2 / lam**2))]:
+    for penalty, psi in [
+        (_kernels.PENALTY_TICHONOV, lambda s: np.ones_like(s)),
+        (_kernels.PENALTY_CHARBONNIER, lambda s: 1.0 / np.sqrt(1.0 + s**2 / lam**2)),
+        (_kernels.PENALTY_PERONA_MALIK, lambda s: 1.0 / (1.0 + s**2 / lam**2)),
+    ]:
         wh = np.empty((6, 7), np.float32)
         wv = np.empty((5, 8), np.float32)
         _kernels.smoothness_weights(disparity, fi, lam, penalty, wh, wv)

@@ -106,8 +106,11 @@ def small_map(tmp_path):
     grid = OccupancyMap(0.1, p0=0.5)
     a, b = np.meshgrid(np.arange(20), np.arange(20), indexing="ij")
     a, b = a.ravel(), b.ravel()
-    walls = {"high": np.c_[a, np.full_like(a, 20), b], "mid": np.c_[np.full_like(a, 20), a, b],
-             "free": np.c_[a, b, np.zeros_like(a)]}
+    walls = {
+        "high": np.c_[a, np.full_like(a, 20), b],
+        "mid": np.c_[np.full_like(a, 20), a, b],
+        "free": np.c_[a, b, np.zeros_like(a)],
+    }
     for name, keys in walls.items():
         grid.set_voxels(keys, np.full(len(keys), logit(PROBABILITIES[name]), np.float32), np.ones(len(keys), np.uint16))
     path = tmp_path / "map.npz"
@@ -143,10 +146,22 @@ def chromium():
 
 def test_view_serves_the_map_in_the_colormap_colours(tmp_path, chromium):
     path = small_map(tmp_path)
-    command = [sys.executable, "-c", "import sys; from prismap.cli import main; sys.exit(main())", "view", str(path),
-               "--port", "0"]
-    server = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                              env={"PATH": "/usr/bin:/bin", "PYTHONPATH": ":".join(sys.path), "PRISMAP_PROGRESS": "0"})
+    command = [
+        sys.executable,
+        "-c",
+        "import sys; from prismap.cli import main; sys.exit(main())",
+        "view",
+        str(path),
+        "--port",
+        "0",
+    ]
+    server = subprocess.Popen(
+        command,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        env={"PATH": "/usr/bin:/bin", "PYTHONPATH": ":".join(sys.path), "PRISMAP_PROGRESS": "0"},
+    )
     try:
         url = None
         for line in server.stdout:

@@ -28,8 +28,21 @@ except PackageNotFoundError:  # a source tree on sys.path that was never install
     __version__ = "0+unknown"
 
 _SUBPACKAGES = (
-    "camera", "stereo", "gmm", "characterise", "sensor_models", "grid", "io", "sim",
-    "evaluate", "study", "pipeline", "experiment", "plots", "cli", "viewer",
+    "camera",
+    "stereo",
+    "gmm",
+    "characterise",
+    "sensor_models",
+    "grid",
+    "io",
+    "sim",
+    "evaluate",
+    "study",
+    "pipeline",
+    "experiment",
+    "plots",
+    "cli",
+    "viewer",
 )
 
 __all__ = ["PrismapInputError", "__version__", *_SUBPACKAGES]

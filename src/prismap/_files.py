@@ -39,7 +39,7 @@ def remove_stale_temporaries(path):
     path = Path(path)
     removed = 0
     for candidate in path.parent.glob(f".{path.name}.*.tmp{path.suffix}"):
-        pid_text = candidate.name[len(path.name) + 2:].split(".", 1)[0]
+        pid_text = candidate.name[len(path.name) + 2 :].split(".", 1)[0]
         if pid_text.isdigit() and not _pid_alive(int(pid_text)):
             with contextlib.suppress(FileNotFoundError):
                 candidate.unlink()
@@ -98,8 +98,7 @@ def atomic_path(path):
     try:
         created = make_parents(path)
         remove_stale_temporaries(path)
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.{os.getpid()}.",
-                                   suffix=".tmp" + path.suffix)
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.{os.getpid()}.", suffix=".tmp" + path.suffix)
     except OSError as exc:
         remove_if_empty(created)
         raise PrismapInputError(f"{path}: cannot write ({_os_message(exc)})") from None
@@ -161,16 +160,19 @@ def check_output(path, option="--out", *, directory=False, inputs=()):
     path = Path(path)
     name_bytes = len(os.fsencode(path.name))
     if name_bytes > MAX_NAME_BYTES:
-        raise PrismapInputError(f"{option} {str(path)[:60]}...: the file name has {name_bytes} bytes; at most "
-                                f"{MAX_NAME_BYTES} (MAX_NAME_BYTES, room for the temporary file beside it)")
+        raise PrismapInputError(
+            f"{option} {str(path)[:60]}...: the file name has {name_bytes} bytes; at most "
+            f"{MAX_NAME_BYTES} (MAX_NAME_BYTES, room for the temporary file beside it)"
+        )
     if path.exists():
         if directory and not path.is_dir():
             raise PrismapInputError(f"{option} {path}: exists and is not a directory")
         if not directory and path.is_dir():
             raise PrismapInputError(f"{option} {path}: is a directory; expected a file name")
         if not directory and not path.is_file():
-            raise PrismapInputError(f"{option} {path}: exists and is not a regular file (a device, pipe or socket); "
-                                    "expected a file name")
+            raise PrismapInputError(
+                f"{option} {path}: exists and is not a regular file (a device, pipe or socket); expected a file name"
+            )
     _check_not_input(path, option, inputs)
     ancestor = path if directory and path.is_dir() else path.parent
     while not ancestor.exists():
@@ -192,8 +194,9 @@ def _check_not_input(path, option, inputs):
         inside = source.is_dir() and (resolved == source or source in resolved.parents)
         if inside or resolved == source:
             where = "is" if resolved == source else "lies inside"
-            raise PrismapInputError(f"{option} {path}: {where} {source}, an input of this run ({role}); "
-                                    "choose an output elsewhere")
+            raise PrismapInputError(
+                f"{option} {path}: {where} {source}, an input of this run ({role}); choose an output elsewhere"
+            )
 
 
 @contextlib.contextmanager
@@ -217,7 +220,9 @@ def exclusive_lock(path, option="--out"):
             fd = os.open(lock_path, os.O_RDWR | os.O_CREAT, umask_mode())
         except OSError as exc:
             remove_if_empty(created)
-            raise PrismapInputError(f"{option} {path}: cannot create the lock {lock_path} ({_os_message(exc)})") from None
+            raise PrismapInputError(
+                f"{option} {path}: cannot create the lock {lock_path} ({_os_message(exc)})"
+            ) from None
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:

@@ -69,8 +69,10 @@ def check_memory(nbytes, what, fix=""):
     budget = memory_budget()
     if not nbytes <= budget:
         advice = f"; {fix}" if fix else ""
-        raise PrismapInputError(f"{what} needs {_size(nbytes)}, more than the memory budget of {_size(budget)} "
-                                f"(half the memory available){advice}")
+        raise PrismapInputError(
+            f"{what} needs {_size(nbytes)}, more than the memory budget of {_size(budget)} "
+            f"(half the memory available){advice}"
+        )
 
 
 def _size(nbytes):

@@ -66,8 +66,14 @@ def progress(iterable=None, *, total=None, desc=None, unit="it", enabled=None, w
         return LineProgress(iterable, total=total, desc=desc, unit=unit, weights=weights)
     if weights is None:
         return tqdm(iterable, total=total, desc=desc, unit=unit, disable=mode == "off", leave=False, file=sys.stderr)
-    bar = tqdm(total=float(sum(weights)), desc=desc, disable=mode == "off", leave=False, file=sys.stderr,
-               bar_format="{desc}: {percentage:3.0f}% of the work|{bar}| {elapsed} elapsed, ~{remaining} left")
+    bar = tqdm(
+        total=float(sum(weights)),
+        desc=desc,
+        disable=mode == "off",
+        leave=False,
+        file=sys.stderr,
+        bar_format="{desc}: {percentage:3.0f}% of the work|{bar}| {elapsed} elapsed, ~{remaining} left",
+    )
     return _WeightedBar(iterable, weights, bar)
 
 
@@ -109,7 +115,7 @@ class _WeightedBar(_Progress):
 
     def update(self, n=1):
         """Count ``n`` more items done; the bar moves by their weights."""
-        self._bar.update(sum(self.weights[self.n:self.n + n]))
+        self._bar.update(sum(self.weights[self.n : self.n + n]))
         self.n += n
 
     def close(self):
@@ -125,8 +131,9 @@ class LineProgress(_Progress):
     ``(P% of the work)``, P and the time left from the weight done.
     """
 
-    def __init__(self, iterable=None, *, total=None, desc=None, unit="it", stream=None, clock=time.monotonic,
-                 weights=None):
+    def __init__(
+        self, iterable=None, *, total=None, desc=None, unit="it", stream=None, clock=time.monotonic, weights=None
+    ):
         if total is None and iterable is not None and hasattr(iterable, "__len__"):
             total = len(iterable)
         self.weights = None if weights is None else _checked_weights(weights, total)
@@ -169,7 +176,7 @@ class LineProgress(_Progress):
             if self.weights is None:
                 done, share = self.n / self.total, ""
             else:
-                done, share = sum(self.weights[:self.n]) / sum(self.weights), " of the work"
+                done, share = sum(self.weights[: self.n]) / sum(self.weights), " of the work"
             text += f"/{self.total} {self.unit}s ({100 * done:.0f}%{share}), {_duration(elapsed)} elapsed"
             left = elapsed / done * max(1 - done, 0)
             text += f", ~{_duration(left)} left"

@@ -58,8 +58,12 @@ def check_integer(value, name, *, expected="an integer", condition=None):
         number = int(value)
     except (TypeError, ValueError, OverflowError):
         number = None
-    if (number is None or isinstance(value, (bool, np.bool_)) or number != value
-            or (condition is not None and not condition(number))):
+    if (
+        number is None
+        or isinstance(value, (bool, np.bool_))
+        or number != value
+        or (condition is not None and not condition(number))
+    ):
         raise PrismapInputError(f"`{name}` must be {expected}; got {value!r}")
     return number
 
@@ -88,17 +92,22 @@ def parse_frame_range(text, name):
             raise ValueError
         return (int(first) if first.strip() else None, int(last) if last.strip() else None)
     except ValueError:
-        raise PrismapInputError(f"{name} must look like A:B with integers A and B (either may be omitted); "
-                                f"got {text!r}") from None
+        raise PrismapInputError(
+            f"{name} must look like A:B with integers A and B (either may be omitted); got {text!r}"
+        ) from None
 
 
 def check_classes(value, name, shape):
     """``value`` as a contiguous int32 array of ``shape``, every class >= -1 (-1 = no class), or raise."""
     array = np.asarray(value)
     if array.shape != tuple(shape) or not np.issubdtype(array.dtype, np.integer):
-        raise PrismapInputError(f"`{name}` must be an integer array of shape {tuple(shape)}; got {array.dtype} {array.shape}")
+        raise PrismapInputError(
+            f"`{name}` must be an integer array of shape {tuple(shape)}; got {array.dtype} {array.shape}"
+        )
     if array.size and (array.min() < -1 or array.max() > np.iinfo(np.int32).max):
-        raise PrismapInputError(f"`{name}` must hold classes >= 0 or -1 (no class); got values in [{array.min()}, {array.max()}]")
+        raise PrismapInputError(
+            f"`{name}` must hold classes >= 0 or -1 (no class); got values in [{array.min()}, {array.max()}]"
+        )
     return np.ascontiguousarray(array, dtype=np.int32)
 
 

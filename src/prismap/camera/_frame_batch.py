@@ -52,9 +52,13 @@ def voxel_overhang_m(normals_cam, rays_cam, R_world_cam, voxel_size_m, *, cap_vo
     -------
     (R,) float64, metres, in ``[0, cap_voxels * voxel_size_m]``
     """
-    return _overhang(np.ascontiguousarray(normals_cam, dtype=np.float64), np.ascontiguousarray(rays_cam, dtype=np.float64),
-                     np.ascontiguousarray(R_world_cam, dtype=np.float64), float(voxel_size_m),
-                     float(cap_voxels) * float(voxel_size_m))
+    return _overhang(
+        np.ascontiguousarray(normals_cam, dtype=np.float64),
+        np.ascontiguousarray(rays_cam, dtype=np.float64),
+        np.ascontiguousarray(R_world_cam, dtype=np.float64),
+        float(voxel_size_m),
+        float(cap_voxels) * float(voxel_size_m),
+    )
 
 
 def frame_overhang_m(disparity_px, camera, R_world_cam, voxel_size_m, subsample, rays_cam):
@@ -122,7 +126,9 @@ def pose_noise_px(disparity, rays_cam, R_world_cam, pose_covariance, focal_basel
     """
     cov = as_float_array(pose_covariance, "pose_covariance", ndim=2, allow_nan=False)
     if cov.shape not in ((3, 3), (6, 6)) or not np.allclose(cov, cov.T) or np.linalg.eigvalsh(cov).min() < -1e-12:
-        raise PrismapInputError(f"`pose_covariance` must be a symmetric positive semi-definite (3, 3) or (6, 6); got shape {cov.shape}")
+        raise PrismapInputError(
+            f"`pose_covariance` must be a symmetric positive semi-definite (3, 3) or (6, 6); got shape {cov.shape}"
+        )
     full = np.zeros((6, 6))
     full[: cov.shape[0], : cov.shape[0]] = cov
     rot = np.zeros((6, 6))
@@ -138,8 +144,17 @@ def pose_noise_px(disparity, rays_cam, R_world_cam, pose_covariance, focal_basel
     return focal_baseline * sigma_z / depth**2
 
 
-def disparity_batch(disparity_px, camera, T_world_cam, *, subsample=1, pose_covariance=None, ray_class=None,
-                    overhang_voxel_m=None, projective=False):
+def disparity_batch(
+    disparity_px,
+    camera,
+    T_world_cam,
+    *,
+    subsample=1,
+    pose_covariance=None,
+    ray_class=None,
+    overhang_voxel_m=None,
+    projective=False,
+):
     """The map's batch of one disparity image seen from pose ``T_world_cam``.
 
     Parameters
@@ -187,15 +202,34 @@ def disparity_batch(disparity_px, camera, T_world_cam, *, subsample=1, pose_cova
         image = None
         if projective:
             ray_index = np.arange(d.size, dtype=np.int32).reshape(disparity.shape)
-            image = make_projector("pinhole", R_cam_world=np.ascontiguousarray(rotation.T), focal_px=camera.focal_px,
-                                   cx_px=camera.cx_px, cy_px=camera.cy_px, subsample=step, ray_index=ray_index)
+            image = make_projector(
+                "pinhole",
+                R_cam_world=np.ascontiguousarray(rotation.T),
+                focal_px=camera.focal_px,
+                cx_px=camera.cx_px,
+                cy_px=camera.cy_px,
+                subsample=step,
+                ray_index=ray_index,
+            )
         rays_w = rotate_rays(np.ascontiguousarray(rays_cam), np.ascontiguousarray(rotation))
         overhang = None if overhang is None else overhang.result()
     return RayBatch(origin, rays_w, d, None, noise, classes, image, overhang)
 
 
-def integrate_disparity(grid, disparity_px, camera, T_world_cam, model, *, mode="ray", policy=None,
-                        max_range_m=np.inf, subsample=1, pose_covariance=None, ray_class=None):
+def integrate_disparity(
+    grid,
+    disparity_px,
+    camera,
+    T_world_cam,
+    model,
+    *,
+    mode="ray",
+    policy=None,
+    max_range_m=np.inf,
+    subsample=1,
+    pose_covariance=None,
+    ray_class=None,
+):
     """Integrate one disparity image seen from pose ``T_world_cam`` into ``grid``.
 
     :func:`disparity_batch` with what ``model`` and ``mode`` need (the voxel overhang of the map's voxels for a
@@ -217,9 +251,18 @@ def integrate_disparity(grid, disparity_px, camera, T_world_cam, model, *, mode=
         See :meth:`prismap.grid.OccupancyMap.integrate`.
     """
     if grid.ndim != 3:
-        raise PrismapInputError("`integrate_disparity` needs a 3-D map; a 2-D map takes rays in the plane: "
-                                "`OccupancyMap.integrate_rays`")
+        raise PrismapInputError(
+            "`integrate_disparity` needs a 3-D map; a 2-D map takes rays in the plane: `OccupancyMap.integrate_rays`"
+        )
     overhang = grid.voxel_size_m if model.takes_voxel_overhang else None
-    batch = disparity_batch(disparity_px, camera, T_world_cam, subsample=subsample, pose_covariance=pose_covariance,
-                            ray_class=ray_class, overhang_voxel_m=overhang, projective=mode == "projective")
+    batch = disparity_batch(
+        disparity_px,
+        camera,
+        T_world_cam,
+        subsample=subsample,
+        pose_covariance=pose_covariance,
+        ray_class=ray_class,
+        overhang_voxel_m=overhang,
+        projective=mode == "projective",
+    )
     grid.integrate(batch, model, mode=mode, policy=policy, max_range_m=max_range_m)

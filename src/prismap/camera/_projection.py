@@ -45,8 +45,9 @@ def project_points(points_cam, camera, shape):
     return points[inside, 2], row[inside].astype(np.int64), col[inside].astype(np.int64), u[inside], v[inside]
 
 
-def visible_points(disparity, row, col, shape, *, occlusion_window_px=OCCLUSION_WINDOW_PX,
-                   disparity_margin_px=DISPARITY_MARGIN_PX):
+def visible_points(
+    disparity, row, col, shape, *, occlusion_window_px=OCCLUSION_WINDOW_PX, disparity_margin_px=DISPARITY_MARGIN_PX
+):
     """Which projected points no nearer point within the window hides (module docstring).
 
     Parameters
@@ -67,8 +68,9 @@ def visible_points(disparity, row, col, shape, *, occlusion_window_px=OCCLUSION_
     -------
     (N,) bool
     """
-    window = check_integer(occlusion_window_px, "occlusion_window_px", expected="an integer >= 0",
-                           condition=lambda n: n >= 0)
+    window = check_integer(
+        occlusion_window_px, "occlusion_window_px", expected="an integer >= 0", condition=lambda n: n >= 0
+    )
     margin = check_positive(disparity_margin_px, "disparity_margin_px")
     buffer = np.full(shape, -np.inf)
     np.maximum.at(buffer, (row, col), disparity)
@@ -77,8 +79,9 @@ def visible_points(disparity, row, col, shape, *, occlusion_window_px=OCCLUSION_
     return disparity >= buffer[row, col] - margin
 
 
-def fitted_disparity(points_cam, camera, shape, *, max_residual_px=0.5, occlusion_window_px=0,
-                     disparity_margin_px=DISPARITY_MARGIN_PX):
+def fitted_disparity(
+    points_cam, camera, shape, *, max_residual_px=0.5, occlusion_window_px=0, disparity_margin_px=DISPARITY_MARGIN_PX
+):
     """Disparity at each pixel centre from dense 3-D points (another frame's), by a local affine fit.
 
     The visible points (:func:`visible_points`) whose nearest pixel is the pixel or one of its 8 neighbours are
@@ -105,8 +108,9 @@ def fitted_disparity(points_cam, camera, shape, *, max_residual_px=0.5, occlusio
     height, width = (int(s) for s in shape)
     depth, row, col, u, v = project_points(points_cam, camera, (height, width))
     d = camera.disparity_from_depth(depth)
-    keep = visible_points(d, row, col, (height, width), occlusion_window_px=occlusion_window_px,
-                          disparity_margin_px=disparity_margin_px)
+    keep = visible_points(
+        d, row, col, (height, width), occlusion_window_px=occlusion_window_px, disparity_margin_px=disparity_margin_px
+    )
     d, row, col, u, v = d[keep], row[keep], col[keep], u[keep], v[keep]
     sums = np.zeros((10, height * width))  # n, x, y, xx, xy, yy, d, dx, dy, dd
     for dy in (-1, 0, 1):
@@ -115,8 +119,9 @@ def fitted_disparity(points_cam, camera, shape, *, max_residual_px=0.5, occlusio
             ok = (r >= 0) & (r < height) & (c >= 0) & (c < width)
             index = r[ok] * width + c[ok]
             x, y, value = u[ok] - c[ok], v[ok] - r[ok], d[ok]
-            for k, term in enumerate((np.ones_like(x), x, y, x * x, x * y, y * y, value, value * x, value * y,
-                                      value * value)):
+            for k, term in enumerate(
+                (np.ones_like(x), x, y, x * x, x * y, y * y, value, value * x, value * y, value * value)
+            ):
                 sums[k] += np.bincount(index, weights=term, minlength=height * width)
     n, sx, sy, sxx, sxy, syy, sd, sdx, sdy, sdd = sums
     normal = np.stack([np.stack([n, sx, sy], -1), np.stack([sx, sxx, sxy], -1), np.stack([sy, sxy, syy], -1)], -2)

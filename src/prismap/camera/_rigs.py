@@ -2,8 +2,9 @@
 
 from prismap.camera._stereo_camera import StereoCamera
 
-MOTORCYCLE_CAMERA = StereoCamera(focal_px=994.978, cx_px=311.193, cy_px=254.877, baseline_m=0.193001, doffs_px=31.086,
-                                 width=741, height=500)
+MOTORCYCLE_CAMERA = StereoCamera(
+    focal_px=994.978, cx_px=311.193, cy_px=254.877, baseline_m=0.193001, doffs_px=31.086, width=741, height=500
+)
 """The quarter-resolution Middlebury 2014 Motorcycle rig bundled in scikit-image (DESIGN.md)."""
 
 TSUKUBA_CAMERA = StereoCamera(focal_px=615.0, cx_px=320.0, cy_px=240.0, baseline_m=0.10, width=640, height=480)

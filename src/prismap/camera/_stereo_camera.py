@@ -47,15 +47,20 @@ class StereoCamera:
     def __post_init__(self):
         object.__setattr__(self, "focal_px", _check_range(self.focal_px, "focal_px", FOCAL_RANGE_PX, "px"))
         object.__setattr__(self, "baseline_m", _check_range(self.baseline_m, "baseline_m", BASELINE_RANGE_M, "m"))
-        _check_range(self.focal_px * self.baseline_m, "focal_px * baseline_m (the depth of a 1 px disparity)",
-                     DEPTH_AT_ONE_PIXEL_RANGE_M, "m")
+        _check_range(
+            self.focal_px * self.baseline_m,
+            "focal_px * baseline_m (the depth of a 1 px disparity)",
+            DEPTH_AT_ONE_PIXEL_RANGE_M,
+            "m",
+        )
         for name in ("cx_px", "cy_px", "doffs_px"):
             value = float(getattr(self, name))
             if not np.isfinite(value):
                 raise PrismapInputError(f"`{name}` must be finite; got {value!r}")
             if abs(value) >= MAX_OFFSET_PX:
-                raise PrismapInputError(f"`{name}` must lie in (-{MAX_OFFSET_PX:g}, {MAX_OFFSET_PX:g}) px "
-                                        f"(MAX_OFFSET_PX); got {value:g}")
+                raise PrismapInputError(
+                    f"`{name}` must lie in (-{MAX_OFFSET_PX:g}, {MAX_OFFSET_PX:g}) px (MAX_OFFSET_PX); got {value:g}"
+                )
             object.__setattr__(self, name, value)
         for name in ("width", "height"):
             value = getattr(self, name)
@@ -64,8 +69,10 @@ class StereoCamera:
                     raise PrismapInputError(f"`{name}` must be a positive integer; got {value!r}")
                 object.__setattr__(self, name, int(value))
         if self.width is not None and self.doffs_px <= -self.width:
-            raise PrismapInputError(f"`doffs_px` must be > -{self.width} px (minus the image width): no disparity "
-                                    f"of the image gives a positive depth otherwise; got {self.doffs_px:g}")
+            raise PrismapInputError(
+                f"`doffs_px` must be > -{self.width} px (minus the image width): no disparity "
+                f"of the image gives a positive depth otherwise; got {self.doffs_px:g}"
+            )
 
     @classmethod
     def from_kitti_projections(cls, P2, P3, *, width=None, height=None):
@@ -235,6 +242,7 @@ def _check_range(value, name, bounds, unit):
     number = check_positive(value, name)
     low, high = bounds
     if not low <= number <= high:
-        raise PrismapInputError(f"`{name}` must lie in [{low:g}, {high:g}] {unit} (a representable depth range); "
-                                f"got {number:g}")
+        raise PrismapInputError(
+            f"`{name}` must lie in [{low:g}, {high:g}] {unit} (a representable depth range); got {number:g}"
+        )
     return number

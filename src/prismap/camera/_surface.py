@@ -53,8 +53,16 @@ def plane_normals(disparity_px, camera, *, window_px=PLANE_WINDOW_PX, subsample=
     if isinstance(window_px, bool) or int(window_px) != window_px or window_px < 3 or window_px % 2 == 0:
         raise PrismapInputError(f"`window_px` must be an odd integer >= 3; got {window_px!r}")
     check_integer(subsample, "subsample", expected="an integer >= 1", condition=lambda n: n >= 1)
-    return _plane_normals(np.ascontiguousarray(disparity), float(camera.focal_px), float(camera.cx_px),
-                          float(camera.cy_px), float(camera.doffs_px), int(window_px) // 2, int(subsample), MIN_WINDOW_SHARE)
+    return _plane_normals(
+        np.ascontiguousarray(disparity),
+        float(camera.focal_px),
+        float(camera.cx_px),
+        float(camera.cy_px),
+        float(camera.doffs_px),
+        int(window_px) // 2,
+        int(subsample),
+        MIN_WINDOW_SHARE,
+    )
 
 
 @nb.njit(cache=True, nogil=True)

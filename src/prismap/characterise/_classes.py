@@ -55,8 +55,11 @@ class ErrorClasses:
             bad = int(np.flatnonzero(~(lower < upper).all(axis=1))[0]) if not (lower < upper).all() else None
             raise PrismapInputError(
                 "error classes: every bound must be a number with lower < upper"
-                + (f"; class {bad} has lower {lower[bad].tolist()} and upper {upper[bad].tolist()}" if bad is not None
-                   else "")
+                + (
+                    f"; class {bad} has lower {lower[bad].tolist()} and upper {upper[bad].tolist()}"
+                    if bad is not None
+                    else ""
+                )
             )
         _check_tiling(features, lower, upper)
         for array in (lower, upper):
@@ -75,7 +78,9 @@ class ErrorClasses:
         """The grid of bins ``edges[f]`` (interior edges, increasing) on each feature; class index row-major."""
         features = tuple(features)
         if len(edges) != len(features):
-            raise PrismapInputError(f"error classes: {len(features)} feature(s) need as many edge lists; got {len(edges)}")
+            raise PrismapInputError(
+                f"error classes: {len(features)} feature(s) need as many edge lists; got {len(edges)}"
+            )
         bins = []
         for interior in edges:
             bounds = np.concatenate(([-np.inf], np.asarray(interior, dtype=np.float64).ravel(), [np.inf]))
@@ -137,16 +142,23 @@ class ErrorClasses:
         sizes = [c.size - 1 for c in cut_lists]
         lookup = np.full(int(np.prod(sizes)), NO_CLASS, dtype=np.int32)
         for k in range(self.n_classes):
-            ranges = [np.flatnonzero((c[:-1] >= self.lower[k, f]) & (c[1:] <= self.upper[k, f]))
-                      for f, c in enumerate(cut_lists)]
+            ranges = [
+                np.flatnonzero((c[:-1] >= self.lower[k, f]) & (c[1:] <= self.upper[k, f]))
+                for f, c in enumerate(cut_lists)
+            ]
             for cell in np.array(np.meshgrid(*ranges, indexing="ij")).reshape(len(sizes), -1).T:
                 lookup[np.ravel_multi_index(tuple(cell), sizes)] = k
         return lookup
 
     def to_list(self):
         """JSON form: one ``{feature: [lower or null, upper or null]}`` per class (null = infinite)."""
-        return [{name: [None if np.isinf(lo) else lo, None if np.isinf(hi) else hi]
-                 for name, (lo, hi) in self.bounds(k).items()} for k in range(self.n_classes)]
+        return [
+            {
+                name: [None if np.isinf(lo) else lo, None if np.isinf(hi) else hi]
+                for name, (lo, hi) in self.bounds(k).items()
+            }
+            for k in range(self.n_classes)
+        ]
 
 
 def _check_tiling(features, lower, upper):

@@ -45,12 +45,15 @@ class ErrorCorrelation:
 
     def to_dict(self):
         """JSON form (NaN as None)."""
-        return {name: (None if isinstance(value, float) and np.isnan(value) else value)
-                for name, value in self.__dict__.items()}
+        return {
+            name: (None if isinstance(value, float) and np.isnan(value) else value)
+            for name, value in self.__dict__.items()
+        }
 
 
-def frame_error_correlation(frames, disparities, camera, *, lag=1, step=2, limit_px=3.0, gross_px=1.0,
-                            depth_tolerance=0.02):
+def frame_error_correlation(
+    frames, disparities, camera, *, lag=1, step=2, limit_px=3.0, gross_px=1.0, depth_tolerance=0.02
+):
     """Pair the errors of frames ``lag`` apart at the same surface points (module docstring) and compare them.
 
     Parameters
@@ -85,17 +88,29 @@ def frame_error_correlation(frames, disparities, camera, *, lag=1, step=2, limit
     truths, computed = [], []
     for index, (frame, disparity) in enumerate(zip(frames, disparities)):
         if frame.disparity_gt is None or frame.T_world_cam is None:
-            raise PrismapInputError(f"frame {index} ({frame.name or 'unnamed'}): needs `disparity_gt` and `T_world_cam`")
+            raise PrismapInputError(
+                f"frame {index} ({frame.name or 'unnamed'}): needs `disparity_gt` and `T_world_cam`"
+            )
         truth, disparity = np.asarray(frame.disparity_gt, np.float64), np.asarray(disparity, np.float64)
         if disparity.shape != truth.shape:
-            raise PrismapInputError(f"frame {index}: disparity {disparity.shape} and ground truth {truth.shape} differ "
-                                    "in shape")
+            raise PrismapInputError(
+                f"frame {index}: disparity {disparity.shape} and ground truth {truth.shape} differ in shape"
+            )
         truths.append(truth)
         computed.append(disparity)
     earlier, later = [], []
     for i in range(len(frames) - lag):
-        e_i, e_j = _pairs(truths[i], computed[i], frames[i].T_world_cam, truths[i + lag], computed[i + lag],
-                          frames[i + lag].T_world_cam, camera, step, depth_tolerance)
+        e_i, e_j = _pairs(
+            truths[i],
+            computed[i],
+            frames[i].T_world_cam,
+            truths[i + lag],
+            computed[i + lag],
+            frames[i + lag].T_world_cam,
+            camera,
+            step,
+            depth_tolerance,
+        )
         earlier.append(e_i)
         later.append(e_j)
     e_i, e_j = np.concatenate(earlier), np.concatenate(later)
@@ -104,8 +119,13 @@ def frame_error_correlation(frames, disparities, camera, *, lag=1, step=2, limit
     if small.sum() >= 2 and e_i[small].std() > 0 and e_j[small].std() > 0:
         correlation = float(np.corrcoef(e_i[small], e_j[small])[0, 1])
     gross_i, gross_j = np.abs(e_i) > gross_px, np.abs(e_j) > gross_px
-    return ErrorCorrelation(lag, int(e_i.size), correlation, float(gross_j.mean()) if e_i.size else np.nan,
-                            float(gross_j[gross_i].mean()) if gross_i.any() else np.nan)
+    return ErrorCorrelation(
+        lag,
+        int(e_i.size),
+        correlation,
+        float(gross_j.mean()) if e_i.size else np.nan,
+        float(gross_j[gross_i].mean()) if gross_i.any() else np.nan,
+    )
 
 
 def _pairs(truth_i, disparity_i, pose_i, truth_j, disparity_j, pose_j, camera, step, depth_tolerance):

@@ -110,8 +110,9 @@ def texture_strength(grey, *, window_px=DEFAULT_TEXTURE_WINDOW_PX):
     window = _odd_window(window_px)
     gx = cv2.Sobel(image, cv2.CV_64F, 1, 0, ksize=3, scale=0.125, borderType=cv2.BORDER_REFLECT_101)
     gy = cv2.Sobel(image, cv2.CV_64F, 0, 1, ksize=3, scale=0.125, borderType=cv2.BORDER_REFLECT_101)
-    energy = cv2.boxFilter(gx * gx + gy * gy, cv2.CV_64F, (window, window), normalize=True,
-                           borderType=cv2.BORDER_REFLECT_101)
+    energy = cv2.boxFilter(
+        gx * gx + gy * gy, cv2.CV_64F, (window, window), normalize=True, borderType=cv2.BORDER_REFLECT_101
+    )
     return np.sqrt(np.maximum(energy, 0.0))
 
 
@@ -136,8 +137,7 @@ def disparity_gradient(disparity, *, window_px=DEFAULT_TEXTURE_WINDOW_PX):
     defined = cv2.erode(finite.astype(np.uint8), np.ones((3, 3), np.uint8), borderType=border).astype(bool)
     magnitude = np.where(defined, np.hypot(gx, gy), 0.0)
     total = cv2.boxFilter(magnitude, cv2.CV_64F, (window, window), normalize=False, borderType=border)
-    count = cv2.boxFilter(defined.astype(np.float64), cv2.CV_64F, (window, window), normalize=False,
-                          borderType=border)
+    count = cv2.boxFilter(defined.astype(np.float64), cv2.CV_64F, (window, window), normalize=False, borderType=border)
     mean = np.full(d.shape, np.inf)
     np.divide(np.maximum(total, 0.0), count, out=mean, where=count > 0.5)
     return mean
@@ -150,8 +150,15 @@ def _odd_window(window_px):
     return window
 
 
-def compute_features(left_grey, right_grey, disparity, lr_disagreement=None, *,
-                     edge_threshold_px=DEFAULT_EDGE_THRESHOLD_PX, texture_window_px=DEFAULT_TEXTURE_WINDOW_PX):
+def compute_features(
+    left_grey,
+    right_grey,
+    disparity,
+    lr_disagreement=None,
+    *,
+    edge_threshold_px=DEFAULT_EDGE_THRESHOLD_PX,
+    texture_window_px=DEFAULT_TEXTURE_WINDOW_PX,
+):
     """The confidence features of one frame (see the module docstring for each).
 
     Parameters

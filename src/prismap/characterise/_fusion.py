@@ -52,22 +52,37 @@ def fit_fusion(frames, disparities, camera, *, gross_px=FUSION_GROSS_PX):
     """
     frames, disparities = list(frames), list(disparities)
     if len(disparities) != len(frames) or len(frames) < 2:
-        raise PrismapInputError(f"fusion fit: needs at least 2 frames and one disparity image per frame; got "
-                                f"{len(frames)} frames and {len(disparities)} disparity images")
+        raise PrismapInputError(
+            f"fusion fit: needs at least 2 frames and one disparity image per frame; got "
+            f"{len(frames)} frames and {len(disparities)} disparity images"
+        )
     for index, frame in enumerate(frames):
         if frame.T_world_cam is None:
             raise PrismapInputError(f"fusion fit: frame {index} ({frame.name or 'unnamed'}) has no pose `T_world_cam`")
     order = path_order(np.array([frame.T_world_cam[:3, 3] for frame in frames]))
-    correlation = frame_error_correlation([frames[i] for i in order], [disparities[i] for i in order], camera,
-                                          lag=1, gross_px=gross_px, limit_px=max(gross_px, 3.0))
+    correlation = frame_error_correlation(
+        [frames[i] for i in order],
+        [disparities[i] for i in order],
+        camera,
+        lag=1,
+        gross_px=gross_px,
+        limit_px=max(gross_px, 3.0),
+    )
     if correlation.n_pairs < MIN_PAIRS:
-        raise PrismapInputError(f"fusion fit: {correlation.n_pairs} surface points seen in consecutive frames; "
-                                f"need at least {MIN_PAIRS} (more or closer characterisation frames)")
+        raise PrismapInputError(
+            f"fusion fit: {correlation.n_pairs} surface points seen in consecutive frames; "
+            f"need at least {MIN_PAIRS} (more or closer characterisation frames)"
+        )
     rate = correlation.gross_rate
     repeat = correlation.gross_repeat
     persistence = rate if math.isnan(repeat) else max(repeat, rate)
-    return {"model": "persistent-failure", "rate": rate, "persistence": persistence, "gross_px": float(gross_px),
-            "n_pairs": correlation.n_pairs}
+    return {
+        "model": "persistent-failure",
+        "rate": rate,
+        "persistence": persistence,
+        "gross_px": float(gross_px),
+        "n_pairs": correlation.n_pairs,
+    }
 
 
 def path_order(positions):
@@ -92,8 +107,9 @@ def fusion_from_block(block, *, source="error model"):
     if block is None:
         return None
     if not isinstance(block, dict) or block.get("model") not in FUSION_MODELS:
-        raise PrismapInputError(f"{source}: field 'fusion' must be an object with 'model' one of "
-                                f"{list(FUSION_MODELS)}; got {block!r:.80}")
+        raise PrismapInputError(
+            f"{source}: field 'fusion' must be an object with 'model' one of {list(FUSION_MODELS)}; got {block!r:.80}"
+        )
     if block["model"] == "independent":
         return None
     try:

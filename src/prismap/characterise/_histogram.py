@@ -9,7 +9,7 @@ from prismap.errors import PrismapInputError
 
 DEFAULT_BIN_WIDTH = 1.0 / 32.0
 DEFAULT_LIMIT_PX = 256.0
-SUM_RESOLUTION_PX = 2.0 ** -16
+SUM_RESOLUTION_PX = 2.0**-16
 """Resolution of ``sum_abs_error_px`` (pixels): float64 sums of its multiples are exact up to 2^37 px."""
 MAX_BINS = 1 << 22
 """Most bins a histogram may have (32 MiB of counts; the EM fit's cost grows with the bins)."""
@@ -74,13 +74,16 @@ class ErrorHistogram:
         """A histogram with no errors, to add frames to."""
         n_bins = int(round(2.0 * check_positive(limit_px, "limit_px") / check_positive(bin_width, "bin_width")))
         if n_bins > MAX_BINS:
-            raise PrismapInputError(f"`bin_width` {bin_width:g} px over +-{limit_px:g} px gives {n_bins} bins, more "
-                                    f"than MAX_BINS = {MAX_BINS}; bin_width must be >= {2 * limit_px / MAX_BINS:.3g} px")
+            raise PrismapInputError(
+                f"`bin_width` {bin_width:g} px over +-{limit_px:g} px gives {n_bins} bins, more "
+                f"than MAX_BINS = {MAX_BINS}; bin_width must be >= {2 * limit_px / MAX_BINS:.3g} px"
+            )
         return cls(np.zeros(n_bins, dtype=np.int64), bin_width, limit_px)
 
     @classmethod
-    def from_disparities(cls, disparity, disparity_gt, *, bin_width=DEFAULT_BIN_WIDTH, limit_px=DEFAULT_LIMIT_PX,
-                         name="frame"):
+    def from_disparities(
+        cls, disparity, disparity_gt, *, bin_width=DEFAULT_BIN_WIDTH, limit_px=DEFAULT_LIMIT_PX, name="frame"
+    ):
         """The errors of one frame.
 
         Parameters

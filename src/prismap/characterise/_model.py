@@ -267,13 +267,20 @@ class ErrorModel:
             "selection": self.selection,
             "selected_components": self.selected_components,
             "models": _fits_to_list(self.fits),
-            "features": {"names": list(self.classes.features),
-                         "units": {name: FEATURE_UNITS[name] for name in self.classes.features},
-                         **self.feature_settings},
+            "features": {
+                "names": list(self.classes.features),
+                "units": {name: FEATURE_UNITS[name] for name in self.classes.features},
+                **self.feature_settings,
+            },
             "classes": [
-                {"bounds": bounds, "share": model.share, "statistics": model.statistics,
-                 "selected_components": model.selected_components, "models": _fits_to_list(model.fits),
-                 **({} if model.outlier is None else {"outlier": model.outlier})}
+                {
+                    "bounds": bounds,
+                    "share": model.share,
+                    "statistics": model.statistics,
+                    "selected_components": model.selected_components,
+                    "models": _fits_to_list(model.fits),
+                    **({} if model.outlier is None else {"outlier": model.outlier}),
+                }
                 for bounds, model in zip(self.classes.to_list(), self.class_models)
             ],
             "class_selection": self.class_selection,
@@ -318,17 +325,29 @@ class ErrorModel:
         statistics = _object(data.get("statistics", {}), f"{source}: `statistics`")
         if version >= 2:
             extra.update(_classes_from_dict(data, source, bound_px))
-        mixtures = [fit.mixture for fit in fits] + [fit.mixture for model in extra.get("class_models", ())
-                                                    for fit in model.fits]
+        mixtures = [fit.mixture for fit in fits] + [
+            fit.mixture for model in extra.get("class_models", ()) for fit in model.fits
+        ]
         if version < 3 and any(mixture.search_range_px is not None for mixture in mixtures):
-            raise PrismapInputError(f"{source}: a failure component (`failure_weight`, `search_range_px`) needs "
-                                    f"format_version 3; this file says {version}")
+            raise PrismapInputError(
+                f"{source}: a failure component (`failure_weight`, `search_range_px`) needs "
+                f"format_version 3; this file says {version}"
+            )
         if data.get("fusion") is not None:
             fusion_from_block(data["fusion"], source=source)
             extra["fusion"] = dict(data["fusion"])
         try:
-            return cls(matcher["name"], dict(params), data["dataset"], bin_width, fits, selected, selection,
-                       statistics, **extra)
+            return cls(
+                matcher["name"],
+                dict(params),
+                data["dataset"],
+                bin_width,
+                fits,
+                selected,
+                selection,
+                statistics,
+                **extra,
+            )
         except PrismapInputError as exc:
             raise PrismapInputError(f"{source}: {exc}") from None
 

@@ -1,7 +1,6 @@
 """Validation of an error-model file's JSON: every number, integer, object and field checked and named where it
 fails, so a hostile or damaged file is refused with a message instead of building a broken model."""
 
-
 import numpy as np
 
 from prismap.characterise._class_model import ClassModel
@@ -35,8 +34,9 @@ def error_bound_px(params, image_width=None):
     """
     reach = params.get("num_disparities", params.get("max_disparity"))
     low = params.get("min_disparity", 0)
-    if image_width is None or not (_is_number(reach) and _is_number(low) and 0 < reach < MAX_ERROR_PX
-                                   and abs(low) < MAX_ERROR_PX):
+    if image_width is None or not (
+        _is_number(reach) and _is_number(low) and 0 < reach < MAX_ERROR_PX and abs(low) < MAX_ERROR_PX
+    ):
         return MAX_ERROR_PX
     return max(float(reach) + abs(float(low)), float(image_width) + abs(float(low)))
 
@@ -52,8 +52,10 @@ def check_mixture_range(means, sigmas, bound_px, where):
 
 
 def _fits_to_list(fits):
-    return [{"n_components": fit.n_components, **fit.mixture.to_dict(), **{k: getattr(fit, k) for k in _FIT_FIELDS}}
-            for fit in fits]
+    return [
+        {"n_components": fit.n_components, **fit.mixture.to_dict(), **{k: getattr(fit, k) for k in _FIT_FIELDS}}
+        for fit in fits
+    ]
 
 
 def _fits_from_list(entries, where, bound_px=MAX_ERROR_PX):
@@ -78,15 +80,17 @@ def _fits_from_list(entries, where, bound_px=MAX_ERROR_PX):
         check_mixture_range(mixture.means, mixture.sigmas, bound_px, at)
         if not isinstance(entry["converged"], bool):
             raise PrismapInputError(f"{at}: `converged` must be true or false; got {entry['converged']!r}")
-        fits.append(MixtureFit(
-            mixture,
-            _number(entry["log_likelihood"], f"{at}: `log_likelihood`"),
-            _number(entry["aic"], f"{at}: `aic`"),
-            _number(entry["bic"], f"{at}: `bic`"),
-            _number(entry["n_samples"], f"{at}: `n_samples`", low=0.0),
-            _integer(entry["n_iter"], f"{at}: `n_iter`", 0, 10**9),
-            entry["converged"],
-        ))
+        fits.append(
+            MixtureFit(
+                mixture,
+                _number(entry["log_likelihood"], f"{at}: `log_likelihood`"),
+                _number(entry["aic"], f"{at}: `aic`"),
+                _number(entry["bic"], f"{at}: `bic`"),
+                _number(entry["n_samples"], f"{at}: `n_samples`", low=0.0),
+                _integer(entry["n_iter"], f"{at}: `n_iter`", 0, 10**9),
+                entry["converged"],
+            )
+        )
     counts = [fit.n_components for fit in fits]
     if len(set(counts)) != len(counts):
         raise PrismapInputError(f"{where}: G = {counts} repeats a component count")
@@ -108,10 +112,16 @@ def _classes_from_dict(data, source, bound_px=MAX_ERROR_PX):
     if names:
         _require(features, ("edge_threshold_px", "texture_window_px"), f"{source}: `features`")
         settings = {
-            "edge_threshold_px": _number(features["edge_threshold_px"], f"{source}: `features.edge_threshold_px`",
-                                         low=0.0, open_low=True, high=1e6),
-            "texture_window_px": _integer(features["texture_window_px"], f"{source}: `features.texture_window_px`",
-                                          1, 10**4),
+            "edge_threshold_px": _number(
+                features["edge_threshold_px"],
+                f"{source}: `features.edge_threshold_px`",
+                low=0.0,
+                open_low=True,
+                high=1e6,
+            ),
+            "texture_window_px": _integer(
+                features["texture_window_px"], f"{source}: `features.texture_window_px`", 1, 10**4
+            ),
         }
     entries = data["classes"]
     if not isinstance(entries, list) or not entries:
@@ -142,21 +152,30 @@ def _classes_from_dict(data, source, bound_px=MAX_ERROR_PX):
         if "outlier" in entry:
             outlier = _object(entry["outlier"], f"{at}: `outlier`")
             _require(outlier, ("weight", "mean", "sigma"), f"{at}: `outlier`")
-            outlier = {"weight": _number(outlier["weight"], f"{at}: `outlier.weight`", low=0.0, high=0.999999),
-                       "mean": _number(outlier["mean"], f"{at}: `outlier.mean`"),
-                       "sigma": _number(outlier["sigma"], f"{at}: `outlier.sigma`", low=0.0, open_low=True)}
+            outlier = {
+                "weight": _number(outlier["weight"], f"{at}: `outlier.weight`", low=0.0, high=0.999999),
+                "mean": _number(outlier["mean"], f"{at}: `outlier.mean`"),
+                "sigma": _number(outlier["sigma"], f"{at}: `outlier.sigma`", low=0.0, open_low=True),
+            }
             check_mixture_range(np.array([outlier["mean"]]), np.array([outlier["sigma"]]), bound_px, f"{at}: `outlier`")
         try:
             models.append(ClassModel(fits, selected, share, statistics, outlier))
         except PrismapInputError as exc:
             raise PrismapInputError(f"{at}: {exc}") from None
     try:
-        classes = ErrorClasses(tuple(names), np.array(lower).reshape(len(entries), len(names)),
-                               np.array(upper).reshape(len(entries), len(names)))
+        classes = ErrorClasses(
+            tuple(names),
+            np.array(lower).reshape(len(entries), len(names)),
+            np.array(upper).reshape(len(entries), len(names)),
+        )
     except PrismapInputError as exc:
         raise PrismapInputError(f"{source}: {exc}") from None
-    return {"classes": classes, "class_models": tuple(models), "feature_settings": settings,
-            "class_selection": _object(data.get("class_selection", {}), f"{source}: `class_selection`")}
+    return {
+        "classes": classes,
+        "class_models": tuple(models),
+        "feature_settings": settings,
+        "class_selection": _object(data.get("class_selection", {}), f"{source}: `class_selection`"),
+    }
 
 
 def _provenance_from_dict(data, source):
@@ -170,8 +189,10 @@ def _provenance_from_dict(data, source):
     if rig is not None:
         rig = _object(rig, f"{source}: `rig`")
         _require(rig, ("focal_px", "baseline_m"), f"{source}: `rig`")
-        checked = {name: _number(rig[name], f"{source}: `rig.{name}`", low=0.0, open_low=True)
-                   for name in ("focal_px", "baseline_m")}
+        checked = {
+            name: _number(rig[name], f"{source}: `rig.{name}`", low=0.0, open_low=True)
+            for name in ("focal_px", "baseline_m")
+        }
         for name in ("width", "height"):
             value = rig.get(name)
             checked[name] = None if value is None else _integer(value, f"{source}: `rig.{name}`", 1, 10**6)
@@ -179,8 +200,10 @@ def _provenance_from_dict(data, source):
         if matcher is not None and not isinstance(matcher, str):
             raise PrismapInputError(f"{source}: `rig.matcher` must be a string or null; got {_short(matcher)}")
         params = rig.get("matcher_params")
-        checked.update(matcher=matcher,
-                       matcher_params=None if params is None else _object(params, f"{source}: `rig.matcher_params`"))
+        checked.update(
+            matcher=matcher,
+            matcher_params=None if params is None else _object(params, f"{source}: `rig.matcher_params`"),
+        )
         extra["rig"] = checked
     if "provenance" in data:
         extra["provenance"] = _object(data["provenance"], f"{source}: `provenance`")

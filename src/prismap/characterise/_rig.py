@@ -32,9 +32,14 @@ def describe_rig(camera, shape, matcher, matcher_params):
         The matcher's full parameters (``StereoMatcher.params()``); None = unknown.
     """
     height, width = shape if shape is not None else (camera.height, camera.width)
-    return {"focal_px": float(camera.focal_px), "baseline_m": float(camera.baseline_m),
-            "width": None if width is None else int(width), "height": None if height is None else int(height),
-            "matcher": matcher, "matcher_params": None if matcher_params is None else dict(matcher_params)}
+    return {
+        "focal_px": float(camera.focal_px),
+        "baseline_m": float(camera.baseline_m),
+        "width": None if width is None else int(width),
+        "height": None if height is None else int(height),
+        "matcher": matcher,
+        "matcher_params": None if matcher_params is None else dict(matcher_params),
+    }
 
 
 def rig_differences(recorded, current, *, rtol=RIG_RTOL):
@@ -86,14 +91,18 @@ def check_rig(model, current, *, strict, where="error model"):
     if model.rig is None:
         if not strict:
             return None
-        message = (f"{where} ({model.dataset}) records no rig, so it cannot be checked against this run's "
-                   f"({_summary(current)}); characterise this rig to be sure")
+        message = (
+            f"{where} ({model.dataset}) records no rig, so it cannot be checked against this run's "
+            f"({_summary(current)}); characterise this rig to be sure"
+        )
     else:
         found = rig_differences(model.rig, current)
         if not found:
             return None
-        message = (f"{where} was made on another rig ({model.dataset}: {_summary(model.rig)}) than this run's "
-                   f"({_summary(current)}): " + "; ".join(found))
+        message = (
+            f"{where} was made on another rig ({model.dataset}: {_summary(model.rig)}) than this run's "
+            f"({_summary(current)}): " + "; ".join(found)
+        )
     if strict:
         raise PrismapInputError(message + " (--strict-rig)")
     return message
@@ -102,5 +111,7 @@ def check_rig(model, current, *, strict, where="error model"):
 def _summary(rig):
     """``f 721.5 px, b 0.54 m, 1242x375, sgbm`` from a rig record."""
     size = f"{rig.get('width')}x{rig.get('height')}" if rig.get("width") is not None else "size unknown"
-    return f"f {rig.get('focal_px', float('nan')):g} px, b {rig.get('baseline_m', float('nan')):g} m, {size}, " \
-           f"{rig.get('matcher') or 'matcher unknown'}"
+    return (
+        f"f {rig.get('focal_px', float('nan')):g} px, b {rig.get('baseline_m', float('nan')):g} m, {size}, "
+        f"{rig.get('matcher') or 'matcher unknown'}"
+    )

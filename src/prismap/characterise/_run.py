@@ -108,12 +108,14 @@ def frame_errors(frame, matcher, position, settings):
     if frame.disparity_gt is None:
         raise PrismapInputError(f"{name}: has no ground-truth disparity; characterisation needs it")
     disparity, lr_disagreement = matcher.compute_with_confidence(frame.left, frame.right)
-    histogram = ErrorHistogram.from_disparities(disparity, frame.disparity_gt, bin_width=settings.bin_width,
-                                                limit_px=settings.limit_px, name=name)
+    histogram = ErrorHistogram.from_disparities(
+        disparity, frame.disparity_gt, bin_width=settings.bin_width, limit_px=settings.limit_px, name=name
+    )
     features = None
     if settings.feature_settings is not None:
-        features = compute_features(to_grey(frame.left), to_grey(frame.right), disparity, lr_disagreement,
-                                    **settings.feature_settings)
+        features = compute_features(
+            to_grey(frame.left), to_grey(frame.right), disparity, lr_disagreement, **settings.feature_settings
+        )
     return histogram, features, name
 
 
@@ -132,8 +134,9 @@ def sample_chunk(frames, matcher, positions, settings):
     for position in positions:
         frame = frames[position]
         part, features, name = frame_errors(frame, matcher, position, settings)
-        part_sample = PixelSample.from_frame(features, frame.disparity_gt, position, capacity=settings.max_samples,
-                                             seed=settings.seed, name=name)
+        part_sample = PixelSample.from_frame(
+            features, frame.disparity_gt, position, capacity=settings.max_samples, seed=settings.seed, name=name
+        )
         histogram, sample = histogram + part, part_sample if sample is None else sample + part_sample
     return histogram, sample
 
@@ -147,20 +150,42 @@ def class_histogram_chunk(frames, matcher, positions, settings, classes):
         part, features, _ = frame_errors(frame, matcher, position, settings)
         truth = np.asarray(frame.disparity_gt, dtype=np.float64)
         keep = characterised_pixels(features, truth)
-        frame_parts = class_histograms(classes, {name: array[keep] for name, array in features.values.items()},
-                                       truth[keep] - features.values["disparity_px"][keep],
-                                       bin_width=settings.bin_width, limit_px=settings.limit_px)
+        frame_parts = class_histograms(
+            classes,
+            {name: array[keep] for name, array in features.values.items()},
+            truth[keep] - features.values["disparity_px"][keep],
+            bin_width=settings.bin_width,
+            limit_px=settings.limit_px,
+        )
         histogram = histogram + part
         parts = [a + b for a, b in zip(parts, frame_parts)]
     return histogram, tuple(parts)
 
 
-def characterise_matcher(frames, matcher, *, max_components=4, bin_width=DEFAULT_BIN_WIDTH,
-                         limit_px=DEFAULT_LIMIT_PX, dataset="", criterion="bic", tolerance=0.01, restarts=4,
-                         seed=0, conditioned=True, max_classes=DEFAULT_MAX_CLASSES,
-                         edge_threshold_px=DEFAULT_EDGE_THRESHOLD_PX, texture_window_px=DEFAULT_TEXTURE_WINDOW_PX,
-                         max_samples=DEFAULT_MAX_SAMPLES, search_frames=DEFAULT_SEARCH_FRAMES, progress=True,
-                         map_chunks=None, chunk_frames=1, source="ground-truth", failures=True):
+def characterise_matcher(
+    frames,
+    matcher,
+    *,
+    max_components=4,
+    bin_width=DEFAULT_BIN_WIDTH,
+    limit_px=DEFAULT_LIMIT_PX,
+    dataset="",
+    criterion="bic",
+    tolerance=0.01,
+    restarts=4,
+    seed=0,
+    conditioned=True,
+    max_classes=DEFAULT_MAX_CLASSES,
+    edge_threshold_px=DEFAULT_EDGE_THRESHOLD_PX,
+    texture_window_px=DEFAULT_TEXTURE_WINDOW_PX,
+    max_samples=DEFAULT_MAX_SAMPLES,
+    search_frames=DEFAULT_SEARCH_FRAMES,
+    progress=True,
+    map_chunks=None,
+    chunk_frames=1,
+    source="ground-truth",
+    failures=True,
+):
     """Run ``matcher`` on ``frames``, histogram its errors and fit mixtures with G = 1..``max_components``.
 
     Each frame's errors ``e = d_true - d_computed`` are binned at once into the whole-image histogram.
@@ -240,17 +265,28 @@ def characterise_matcher(frames, matcher, *, max_components=4, bin_width=DEFAULT
     if len(frames) == 0:
         raise PrismapInputError("no frames to characterise: the frame set is empty")
     ErrorHistogram.empty(bin_width=bin_width, limit_px=limit_px)  # bad bins fail before any frame is matched
-    feature_settings = ({"edge_threshold_px": float(edge_threshold_px), "texture_window_px": int(texture_window_px)}
-                        if conditioned else None)
+    feature_settings = (
+        {"edge_threshold_px": float(edge_threshold_px), "texture_window_px": int(texture_window_px)}
+        if conditioned
+        else None
+    )
     settings = FrameSettings(float(bin_width), float(limit_px), feature_settings, max_samples, int(seed))
     passes = _Passes(frames, matcher, settings, map_chunks or map, int(chunk_frames), progress)
     search_range = matcher.search_range_px() if failures and hasattr(matcher, "search_range_px") else None
-    fit_options = {"max_components": max_components, "criterion": criterion, "tolerance": tolerance,
-                   "restarts": restarts, "seed": seed, "search_range_px": search_range}
+    fit_options = {
+        "max_components": max_components,
+        "criterion": criterion,
+        "tolerance": tolerance,
+        "restarts": restarts,
+        "seed": seed,
+        "search_range_px": search_range,
+    }
     every = list(range(len(frames)))
     first = frames[0]
-    recorded = {"source": source,
-                "rig": describe_rig(first.camera, np.shape(first.left)[:2], matcher.name, matcher.params())}
+    recorded = {
+        "source": source,
+        "rig": describe_rig(first.camera, np.shape(first.left)[:2], matcher.name, matcher.params()),
+    }
     if not conditioned:
         histogram = passes.run(histogram_chunk, every, "histogram")
         return _fit(histogram, (histogram,), dict(recorded), matcher, dataset, fit_options, passes)
@@ -259,11 +295,23 @@ def characterise_matcher(frames, matcher, *, max_components=4, bin_width=DEFAULT
     _check_fittable(histogram)
     values, errors, fold, held_out = sample.arrays()
     with passes.step(f"choose error classes on {sample.n_samples} of {sample.n_seen} pixels"):
-        classes, record = choose_classes(values, errors, fold, bin_edges=histogram.edges, max_classes=max_classes,
-                                         max_components=max_components, seed=seed,
-                                         search_range_px=search_range)
-    record = {"held_out": held_out, "n_search_frames": len(searched), "n_samples": sample.n_samples,
-              "n_search_pixels": sample.n_seen, **record}
+        classes, record = choose_classes(
+            values,
+            errors,
+            fold,
+            bin_edges=histogram.edges,
+            max_classes=max_classes,
+            max_components=max_components,
+            seed=seed,
+            search_range_px=search_range,
+        )
+    record = {
+        "held_out": held_out,
+        "n_search_frames": len(searched),
+        "n_samples": sample.n_samples,
+        "n_search_pixels": sample.n_seen,
+        **record,
+    }
     conditioning = {"class_selection": record, **recorded}
     if not classes.features:  # the plain model predicts held-out errors best
         if len(searched) < len(frames):
@@ -271,11 +319,18 @@ def characterise_matcher(frames, matcher, *, max_components=4, bin_width=DEFAULT
         return _fit(histogram, (histogram,), conditioning, matcher, dataset, fit_options, passes)
     conditioning.update(classes=classes, feature_settings=feature_settings)
     if len(searched) == len(frames) and sample.exhaustive:  # the sample is every error: no second pass
-        parts = class_histograms(classes, values, errors, bin_width=settings.bin_width, limit_px=settings.limit_px,
-                                 n_frames=histogram.n_frames)
+        parts = class_histograms(
+            classes,
+            values,
+            errors,
+            bin_width=settings.bin_width,
+            limit_px=settings.limit_px,
+            n_frames=histogram.n_frames,
+        )
     else:
-        histogram, parts = passes.run(functools.partial(class_histogram_chunk, classes=classes), every,
-                                      "class histograms")
+        histogram, parts = passes.run(
+            functools.partial(class_histogram_chunk, classes=classes), every, "class histograms"
+        )
         parts = tuple(dataclasses.replace(part, n_frames=histogram.n_frames) for part in parts)
     return _fit(histogram, parts, conditioning, matcher, dataset, fit_options, passes)
 
@@ -294,9 +349,14 @@ def _fit(histogram, parts, conditioning, matcher, dataset, fit_options, passes):
     classes, record = conditioning.get("classes"), conditioning.get("class_selection")
     n_fits = 1 + (classes.n_classes if classes is not None else 0)
     with passes.step(f"fit {n_fits} mixture(s) by EM, G = 1..{fit_options['max_components']}"):
-        fits = fit_mixtures(histogram.edges, histogram.counts, max_components=fit_options["max_components"],
-                            restarts=fit_options["restarts"], seed=fit_options["seed"],
-                            search_range_px=fit_options["search_range_px"])
+        fits = fit_mixtures(
+            histogram.edges,
+            histogram.counts,
+            max_components=fit_options["max_components"],
+            restarts=fit_options["restarts"],
+            seed=fit_options["seed"],
+            search_range_px=fit_options["search_range_px"],
+        )
         if record is None:
             selected = select_components(fits, criterion=criterion, tolerance=tolerance)
             selection = {"criterion": criterion, "tolerance_nats_per_error": float(tolerance)}
@@ -305,8 +365,12 @@ def _fit(histogram, parts, conditioning, matcher, dataset, fit_options, passes):
             selection = {"criterion": HELD_OUT, "held_out": record["held_out"]}
         if classes is not None:
             conditioning["class_models"] = fit_class_histograms(
-                classes, parts, components=record["components"],
-                outlier=outlier_component(fits[selected - 1].mixture), **fit_options)
+                classes,
+                parts,
+                components=record["components"],
+                outlier=outlier_component(fits[selected - 1].mixture),
+                **fit_options,
+            )
     model = ErrorModel(
         matcher=matcher.name,
         matcher_params=matcher.params(),
@@ -339,11 +403,10 @@ class _Passes:
 
     def run(self, task, positions, what):
         """``task(frames, matcher, chunk, settings)`` over chunks of ``positions``, merged."""
-        chunks = [positions[i:i + self.chunk_frames] for i in range(0, len(positions), self.chunk_frames)]
+        chunks = [positions[i : i + self.chunk_frames] for i in range(0, len(positions), self.chunk_frames)]
         function = functools.partial(task, self.frames, self.matcher, settings=self.settings)
         total = None
-        with progress_bar(total=len(positions), desc=f"{self.desc}: {what}", unit="frame",
-                          enabled=self.enabled) as bar:
+        with progress_bar(total=len(positions), desc=f"{self.desc}: {what}", unit="frame", enabled=self.enabled) as bar:
             for chunk, result in zip(chunks, self.map_chunks(function, chunks)):
                 total = result if total is None else _add(total, result)
                 bar.update(len(chunk))
@@ -357,8 +420,12 @@ class _Passes:
             bar.update(1)
 
 
-CHARACTERISATION_FILES = {"model": "error_model.json", "table": "table.md", "figure": "errors.png",
-                          "figure_wide": "errors_wide.png"}
+CHARACTERISATION_FILES = {
+    "model": "error_model.json",
+    "table": "table.md",
+    "figure": "errors.png",
+    "figure_wide": "errors_wide.png",
+}
 """What :func:`write_characterisation` writes, by role, in this order; a conditioned model adds
 ``figure_classes``: ``errors_classes.png``, last."""
 

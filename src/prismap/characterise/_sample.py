@@ -80,19 +80,23 @@ class PixelSample:
         computed = features.values["disparity_px"]
         truth = np.asarray(disparity_gt, dtype=np.float64)
         if truth.shape != computed.shape:
-            raise PrismapInputError(f"{name}: disparity and ground truth differ in shape: "
-                                    f"{computed.shape} vs {truth.shape}")
+            raise PrismapInputError(
+                f"{name}: disparity and ground truth differ in shape: {computed.shape} vs {truth.shape}"
+            )
         keep = characterised_pixels(features, truth)
         pixel = np.flatnonzero(keep)
         priority = np.random.default_rng((int(seed), int(position))).random(pixel.size)
         chosen = np.arange(pixel.size)
         if pixel.size > capacity:
-            chosen = np.sort(np.lexsort((pixel, priority))[:int(capacity)])
+            chosen = np.sort(np.lexsort((pixel, priority))[: int(capacity)])
         pixel = pixel[chosen]
         width = keep.shape[1]
         return cls(
-            capacity=int(capacity), n_seen=int(keep.sum()), priority=priority[chosen],
-            frame=np.full(pixel.size, int(position), dtype=np.int64), pixel=pixel,
+            capacity=int(capacity),
+            n_seen=int(keep.sum()),
+            priority=priority[chosen],
+            frame=np.full(pixel.size, int(position), dtype=np.int64),
+            pixel=pixel,
             right_half=pixel % width >= width / 2,
             values={feature: array.ravel()[pixel].astype(np.float32) for feature, array in features.values.items()},
             errors=(truth.ravel() - computed.ravel().astype(np.float64))[pixel],
@@ -104,16 +108,21 @@ class PixelSample:
         if self.capacity != other.capacity:
             raise PrismapInputError(f"only samples of one capacity merge; got {self.capacity} and {other.capacity}")
         if set(self.values) != set(other.values):
-            raise PrismapInputError(f"frames have features {sorted(other.values)}; earlier frames had "
-                                    f"{sorted(self.values)}")
+            raise PrismapInputError(
+                f"frames have features {sorted(other.values)}; earlier frames had {sorted(self.values)}"
+            )
         priority = np.concatenate((self.priority, other.priority))
         frame = np.concatenate((self.frame, other.frame))
         pixel = np.concatenate((self.pixel, other.pixel))
-        order = np.lexsort((pixel, frame, priority))[:self.capacity]
+        order = np.lexsort((pixel, frame, priority))[: self.capacity]
         order = order[np.lexsort((pixel[order], frame[order]))]  # canonical order: by frame, then pixel
         return PixelSample(
-            capacity=self.capacity, n_seen=self.n_seen + other.n_seen, priority=priority[order], frame=frame[order],
-            pixel=pixel[order], right_half=np.concatenate((self.right_half, other.right_half))[order],
+            capacity=self.capacity,
+            n_seen=self.n_seen + other.n_seen,
+            priority=priority[order],
+            frame=frame[order],
+            pixel=pixel[order],
+            right_half=np.concatenate((self.right_half, other.right_half))[order],
             values={name: np.concatenate((array, other.values[name]))[order] for name, array in self.values.items()},
             errors=np.concatenate((self.errors, other.errors))[order],
         )

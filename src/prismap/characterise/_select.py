@@ -51,7 +51,9 @@ class _SortedFeature:
     def __init__(self, values):
         values = np.asarray(values)
         self.sorted = np.sort(values[np.isfinite(values)])
-        self.distinct = self.sorted[np.r_[True, self.sorted[1:] != self.sorted[:-1]]] if self.sorted.size else self.sorted
+        self.distinct = (
+            self.sorted[np.r_[True, self.sorted[1:] != self.sorted[:-1]]] if self.sorted.size else self.sorted
+        )
 
     def edges(self, n_bins):
         """As :func:`quantile_edges` (``np.quantile(method="inverted_cdf")`` picks ``sorted[ceil(p N) - 1]``)."""
@@ -80,8 +82,12 @@ def candidate_classes(values, *, max_classes, pair_with=None):
     ``pair_with=name``: grids of quantile bins of ``name`` and each other feature (both counts of
     :func:`bin_counts`), at most ``max_classes`` cells.
     """
-    return [ErrorClasses.from_edges(features, edges) for features, edges in
-            _candidate_specs({name: _SortedFeature(v) for name, v in values.items()}, max_classes, pair_with)]
+    return [
+        ErrorClasses.from_edges(features, edges)
+        for features, edges in _candidate_specs(
+            {name: _SortedFeature(v) for name, v in values.items()}, max_classes, pair_with
+        )
+    ]
 
 
 def _candidate_specs(features, max_classes, pair_with):
@@ -91,9 +97,14 @@ def _candidate_specs(features, max_classes, pair_with):
     if pair_with is None:
         specs = [((), ())] + [((name,), (edges[name, n],)) for name in names for n in counts]
     else:
-        specs = [((pair_with, other), (edges[pair_with, n1], edges[other, n2]))
-                 for other in names if other != pair_with
-                 for n1 in counts for n2 in counts if n1 * n2 <= max_classes]
+        specs = [
+            ((pair_with, other), (edges[pair_with, n1], edges[other, n2]))
+            for other in names
+            if other != pair_with
+            for n1 in counts
+            for n2 in counts
+            if n1 * n2 <= max_classes
+        ]
     seen, unique = set(), []
     for spec in specs:
         if spec in seen or any(len(e) == 0 for e in spec[1]):
@@ -129,13 +140,27 @@ def class_histograms(classes, values, errors, *, bin_width, limit_px, n_frames=1
         One per class, in class order.
     """
     label = classes.assign(values, np.ones(np.shape(errors), bool))
-    return tuple(dataclasses.replace(ErrorHistogram.from_errors(errors[label == k], bin_width=bin_width,
-                                                                limit_px=limit_px), n_frames=n_frames)
-                 for k in range(classes.n_classes))
+    return tuple(
+        dataclasses.replace(
+            ErrorHistogram.from_errors(errors[label == k], bin_width=bin_width, limit_px=limit_px), n_frames=n_frames
+        )
+        for k in range(classes.n_classes)
+    )
 
 
-def fit_class_histograms(classes, histograms, *, max_components, criterion, tolerance, restarts=4, seed=0,
-                         components=None, outlier=None, search_range_px=None):
+def fit_class_histograms(
+    classes,
+    histograms,
+    *,
+    max_components,
+    criterion,
+    tolerance,
+    restarts=4,
+    seed=0,
+    components=None,
+    outlier=None,
+    search_range_px=None,
+):
     """One mixture per class: EM on each class's histogram, G given or by the criterion.
 
     Parameters
@@ -167,9 +192,16 @@ def fit_class_histograms(classes, histograms, *, max_components, criterion, tole
     for k, part in enumerate(histograms):
         if part.counts.sum() == 0:
             raise PrismapInputError(f"error class {k} ({classes.bounds(k)}) has no error to fit")
-        fits, selected = fit_class(part.counts.astype(np.float64), part.edges, max_components=max_components,
-                                   criterion=criterion, tolerance=tolerance, restarts=restarts, seed=seed,
-                                   search_range_px=search_range_px)
+        fits, selected = fit_class(
+            part.counts.astype(np.float64),
+            part.edges,
+            max_components=max_components,
+            criterion=criterion,
+            tolerance=tolerance,
+            restarts=restarts,
+            seed=seed,
+            search_range_px=search_range_px,
+        )
         if components is not None:
             selected = min(int(components[k]), len(fits))
         floor = None
@@ -180,17 +212,51 @@ def fit_class_histograms(classes, histograms, *, max_components, criterion, tole
     return tuple(models)
 
 
-def fit_classes(classes, values, errors, *, bin_width, limit_px, n_frames=1, max_components, criterion, tolerance,
-                restarts=4, seed=0, components=None, outlier=None, search_range_px=None):
+def fit_classes(
+    classes,
+    values,
+    errors,
+    *,
+    bin_width,
+    limit_px,
+    n_frames=1,
+    max_components,
+    criterion,
+    tolerance,
+    restarts=4,
+    seed=0,
+    components=None,
+    outlier=None,
+    search_range_px=None,
+):
     """:func:`class_histograms` of the samples, then :func:`fit_class_histograms`: ``(class_models, histograms)``."""
     histograms = class_histograms(classes, values, errors, bin_width=bin_width, limit_px=limit_px, n_frames=n_frames)
-    return fit_class_histograms(classes, histograms, max_components=max_components, criterion=criterion,
-                                tolerance=tolerance, restarts=restarts, seed=seed, components=components,
-                                outlier=outlier, search_range_px=search_range_px), histograms
+    return fit_class_histograms(
+        classes,
+        histograms,
+        max_components=max_components,
+        criterion=criterion,
+        tolerance=tolerance,
+        restarts=restarts,
+        seed=seed,
+        components=components,
+        outlier=outlier,
+        search_range_px=search_range_px,
+    ), histograms
 
 
-def choose_classes(values, errors, fold, *, bin_edges, max_classes, max_components, seed=0,
-                   min_class_errors=MIN_CLASS_ERRORS, search_range_px=None):
+def choose_classes(
+    values,
+    errors,
+    fold,
+    *,
+    bin_edges,
+    max_classes,
+    max_components,
+    seed=0,
+    min_class_errors=MIN_CLASS_ERRORS,
+    search_range_px=None,
+):
     """The candidate classes with the highest held-out log-likelihood, each class's G, and the record of the search.
 
     Each class's G (1 .. ``max_components``) is chosen by the same held-out log-likelihood as the classes,
@@ -235,11 +301,23 @@ def choose_classes(values, errors, fold, *, bin_edges, max_classes, max_componen
         factor -= 1
     bin_edges = bin_edges[::factor]
     fold = np.asarray(fold)
-    options = {"max_components": check_integer(max_components, "max_components", expected="an integer >= 1",
-                                                      condition=lambda n: n >= 1), "seed": seed, **SEARCH_FIT,
-               "search_range_px": search_range_px}
-    search = _Search(values, binned, (fold[binned] != 0) * (bin_edges.size - 1) + index[binned] // factor, bin_edges,
-                     int(max_classes), int(min_class_errors), options)
+    options = {
+        "max_components": check_integer(
+            max_components, "max_components", expected="an integer >= 1", condition=lambda n: n >= 1
+        ),
+        "seed": seed,
+        **SEARCH_FIT,
+        "search_range_px": search_range_px,
+    }
+    search = _Search(
+        values,
+        binned,
+        (fold[binned] != 0) * (bin_edges.size - 1) + index[binned] // factor,
+        bin_edges,
+        int(max_classes),
+        int(min_class_errors),
+        options,
+    )
     too_few = f"too few errors to compare error classes: each fold needs at least {min_class_errors} errors"
     plain = search.histograms((), ())
     _, plain_components = search.score(plain, None)
@@ -247,8 +325,9 @@ def choose_classes(values, errors, fold, *, bin_edges, max_classes, max_componen
         raise PrismapInputError(too_few)
     outliers = None if search_range_px is not None else {}
     for test_fold in (0, 1) if outliers is not None else ():
-        fits = fit_mixtures(bin_edges, plain[0, 1 - test_fold], max_components=plain_components[0], seed=seed,
-                            **SEARCH_FIT)
+        fits = fit_mixtures(
+            bin_edges, plain[0, 1 - test_fold], max_components=plain_components[0], seed=seed, **SEARCH_FIT
+        )
         outliers[test_fold] = outlier_component(fits[-1].mixture)
     record = []
     best, best_score, best_components = None, -np.inf, None
@@ -260,19 +339,29 @@ def choose_classes(values, errors, fold, *, bin_edges, max_classes, max_componen
             pair_with = best[0][0]
         for features, edges in _candidate_specs(search.features, int(max_classes), pair_with):
             score, components = search.score(search.histograms(features, edges), outliers)
-            record.append({"features": list(features), "edges": [list(e) for e in edges],
-                           "n_classes": int(np.prod([len(e) + 1 for e in edges])), "nats_per_error": score,
-                           "components": components})
+            record.append(
+                {
+                    "features": list(features),
+                    "edges": [list(e) for e in edges],
+                    "n_classes": int(np.prod([len(e) + 1 for e in edges])),
+                    "nats_per_error": score,
+                    "components": components,
+                }
+            )
             if score is not None and score > best_score + 1e-12:
                 best, best_score, best_components = (features, edges), score, components
     if best is None:
         raise PrismapInputError(too_few)
     plain_components = record[0]["components"]
     return ErrorClasses.from_edges(*best), {
-        "plain_nats_per_error": record[0]["nats_per_error"], "conditioned_nats_per_error": best_score,
+        "plain_nats_per_error": record[0]["nats_per_error"],
+        "conditioned_nats_per_error": best_score,
         "plain_components": None if plain_components is None else plain_components[0],
-        "components": best_components, "n_held_out_errors": int(binned.sum()),
-        "min_class_errors": int(min_class_errors), "candidates": record}
+        "components": best_components,
+        "n_held_out_errors": int(binned.sum()),
+        "min_class_errors": int(min_class_errors),
+        "candidates": record,
+    }
 
 
 def outlier_component(mixture):
@@ -295,8 +384,9 @@ class _Search:
         for name, feature in self.features.items():
             # every edge any candidate puts on this feature; a pixel's interval between them, found once
             self.cuts[name] = np.unique(np.concatenate([feature.edges(n) for n in bin_counts(max_classes)] + [[]]))
-            self.interval[name] = np.searchsorted(self.cuts[name], np.asarray(values[name])[binned], side="right").astype(
-                np.min_scalar_type(self.cuts[name].size))
+            self.interval[name] = np.searchsorted(
+                self.cuts[name], np.asarray(values[name])[binned], side="right"
+            ).astype(np.min_scalar_type(self.cuts[name].size))
         self.fold_bin = fold_bin  # (fold != 0) * bins + search bin, of each binned error
         self.bin_edges, self.centres = bin_edges, 0.5 * (bin_edges[:-1] + bin_edges[1:])
         self.min_class_errors, self.options = min_class_errors, options
@@ -328,10 +418,14 @@ class _Search:
             for test_fold in (0, 1):
                 train, test = histograms[k, 1 - test_fold], histograms[k, test_fold]
                 occupied = np.flatnonzero(test)
-                fits = fit_mixtures(self.bin_edges, train,
-                                    max_components=int(min(max_components, np.count_nonzero(train))),
-                                    seed=self.options["seed"], search_range_px=self.options["search_range_px"],
-                                    **SEARCH_FIT)
+                fits = fit_mixtures(
+                    self.bin_edges,
+                    train,
+                    max_components=int(min(max_components, np.count_nonzero(train))),
+                    seed=self.options["seed"],
+                    search_range_px=self.options["search_range_px"],
+                    **SEARCH_FIT,
+                )
                 mixtures = [fit.mixture for fit in fits]
                 if outliers is not None:
                     mixtures = [_with_outlier(m, outliers[test_fold], self.bin_edges, train) for m in mixtures]

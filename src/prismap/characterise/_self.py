@@ -60,8 +60,18 @@ class SelfCharacterisation:
     record: dict
 
 
-def carried_disparity(disparity_from, pose_from, pose_to, camera, shape, *, near_m=0.0,
-                      max_residual_px=MAX_RESIDUAL_PX, free_samples=FREE_SAMPLES, free_margin_px=GROSS_PX):
+def carried_disparity(
+    disparity_from,
+    pose_from,
+    pose_to,
+    camera,
+    shape,
+    *,
+    near_m=0.0,
+    max_residual_px=MAX_RESIDUAL_PX,
+    free_samples=FREE_SAMPLES,
+    free_margin_px=GROSS_PX,
+):
     """Frame ``from``'s computed disparity carried into frame ``to``'s pixels (NaN where none or unverified).
 
     The carried value of a pixel is the affine fit of ``from``'s points around it
@@ -90,8 +100,9 @@ def carried_disparity(disparity_from, pose_from, pose_to, camera, shape, *, near
     points = camera.triangulate(disparity_from)
     points = points[np.isfinite(points).all(axis=-1)]
     to_from = np.linalg.inv(pose_to) @ pose_from
-    carried = fitted_disparity(points @ to_from[:3, :3].T + to_from[:3, 3], camera, shape,
-                               max_residual_px=max_residual_px)
+    carried = fitted_disparity(
+        points @ to_from[:3, :3].T + to_from[:3, 3], camera, shape, max_residual_px=max_residual_px
+    )
     row, col = np.nonzero(np.isfinite(carried))
     depth = camera.depth_from_disparity(carried[row, col])
     rays = camera.pixel_rays(shape)[row, col] * depth[:, None]  # the surface points, frame ``to``
@@ -153,14 +164,25 @@ def lag_agreement(frames, disparities, camera, *, max_lag=DEFAULT_MAX_LAG, pairs
         starts = sorted({round(x) for x in np.linspace(0, len(frames) - 1 - lag, min(pairs, len(frames) - lag))})
         differences = []
         for k in starts:
-            carried = carried_disparity(disparities[k + lag], frames[k + lag].T_world_cam, frames[k].T_world_cam,
-                                        camera, np.shape(disparities[k]), near_m=near_m)
+            carried = carried_disparity(
+                disparities[k + lag],
+                frames[k + lag].T_world_cam,
+                frames[k].T_world_cam,
+                camera,
+                np.shape(disparities[k]),
+                near_m=near_m,
+            )
             difference = carried - disparities[k]
             differences.append(difference[np.isfinite(difference)])
         difference = np.concatenate(differences)
-        rows.append({"lag": lag, "n_pixels": int(difference.size),
-                     "core_sigma_px": _robust_sigma(difference) / np.sqrt(2.0),
-                     "gross_rate": float(np.mean(np.abs(difference) > GROSS_PX)) if difference.size else float("nan")})
+        rows.append(
+            {
+                "lag": lag,
+                "n_pixels": int(difference.size),
+                "core_sigma_px": _robust_sigma(difference) / np.sqrt(2.0),
+                "gross_rate": float(np.mean(np.abs(difference) > GROSS_PX)) if difference.size else float("nan"),
+            }
+        )
     return rows
 
 
@@ -177,8 +199,10 @@ def choose_min_lag(agreement, *, plateau=LAG_PLATEAU):
     """
     measured = [row for row in agreement if row["n_pixels"] >= MIN_LAG_PIXELS]
     if not measured:
-        raise PrismapInputError(f"no lag up to {len(agreement)} has {MIN_LAG_PIXELS} pixels that two frames see: the "
-                                "frames share too little surface to self-characterise (closer frames, or give min_lag)")
+        raise PrismapInputError(
+            f"no lag up to {len(agreement)} has {MIN_LAG_PIXELS} pixels that two frames see: the "
+            "frames share too little surface to self-characterise (closer frames, or give min_lag)"
+        )
     sigma = max(row["core_sigma_px"] for row in measured)
     gross = max(row["gross_rate"] for row in measured)
     for row in measured:
@@ -203,8 +227,18 @@ def median_variance(n, *, draws=200_000):
     return float(np.var(np.median(rng.standard_normal((draws, int(n))), axis=1)))
 
 
-def self_characterise(frames, matcher, *, min_lag=None, max_lag=DEFAULT_MAX_LAG, n_references=DEFAULT_REFERENCES,
-                      min_references=2, dataset="", progress=True, **options):
+def self_characterise(
+    frames,
+    matcher,
+    *,
+    min_lag=None,
+    max_lag=DEFAULT_MAX_LAG,
+    n_references=DEFAULT_REFERENCES,
+    min_references=2,
+    dataset="",
+    progress=True,
+    **options,
+):
     """Characterise ``matcher`` on a posed stereo sequence without ground truth (module docstring).
 
     Parameters
@@ -234,21 +268,30 @@ def self_characterise(frames, matcher, *, min_lag=None, max_lag=DEFAULT_MAX_LAG,
     frames = list(frames)
     max_lag = check_integer(max_lag, "max_lag", expected="an integer >= 1", condition=lambda n: n >= 1)
     n_references = check_integer(n_references, "n_references", expected="an integer >= 1", condition=lambda n: n >= 1)
-    min_references = check_integer(min_references, "min_references", expected=f"an integer in [1, {n_references}]",
-                                   condition=lambda n: 1 <= n <= n_references)
+    min_references = check_integer(
+        min_references,
+        "min_references",
+        expected=f"an integer in [1, {n_references}]",
+        condition=lambda n: 1 <= n <= n_references,
+    )
     if len(frames) < 2:
         raise PrismapInputError(f"self-characterisation needs at least 2 posed frames; got {len(frames)}")
     for index, frame in enumerate(frames):
         if frame.T_world_cam is None:
-            raise PrismapInputError(f"frame {index} ({frame.name or 'unnamed'}): has no pose (`T_world_cam`); "
-                                    "self-characterisation carries disparities between frames by their poses")
+            raise PrismapInputError(
+                f"frame {index} ({frame.name or 'unnamed'}): has no pose (`T_world_cam`); "
+                "self-characterisation carries disparities between frames by their poses"
+            )
         if frame.camera != frames[0].camera:
             raise PrismapInputError(f"frame {index} ({frame.name or 'unnamed'}): its camera differs from frame 0's")
     camera = frames[0].camera
     enabled = None if progress else False
-    disparities = [np.asarray(matcher.compute(frame.left, frame.right), np.float64)
-                   for frame in progress_bar(frames, total=len(frames), desc=f"self {matcher.name}: match",
-                                             unit="frame", enabled=enabled)]
+    disparities = [
+        np.asarray(matcher.compute(frame.left, frame.right), np.float64)
+        for frame in progress_bar(
+            frames, total=len(frames), desc=f"self {matcher.name}: match", unit="frame", enabled=enabled
+        )
+    ]
     largest = max((float(np.nanmax(d)) for d in disparities if np.isfinite(d).any()), default=np.nan)
     if not largest > 0:
         raise PrismapInputError(f"matcher {matcher.name!r} found no positive disparity in any frame")
@@ -256,15 +299,23 @@ def self_characterise(frames, matcher, *, min_lag=None, max_lag=DEFAULT_MAX_LAG,
     agreement = lag_agreement(frames, disparities, camera, max_lag=min(max_lag, len(frames) - 1), near_m=near_m)
     if min_lag is None:
         min_lag = choose_min_lag(agreement)
-    min_lag = check_integer(min_lag, "min_lag", expected=f"an integer in [1, {len(frames) - 1}]",
-                            condition=lambda n: 1 <= n < len(frames))
+    min_lag = check_integer(
+        min_lag, "min_lag", expected=f"an integer in [1, {len(frames) - 1}]", condition=lambda n: 1 <= n < len(frames)
+    )
     reference_frames_, pair_differences, counts, unreferenced = [], [], [], []
-    for k, frame in enumerate(progress_bar(frames, total=len(frames), desc=f"self {matcher.name}: references",
-                                           unit="frame", enabled=enabled)):
+    for k, frame in enumerate(
+        progress_bar(frames, total=len(frames), desc=f"self {matcher.name}: references", unit="frame", enabled=enabled)
+    ):
         shape = np.shape(disparities[k])
-        carried = np.stack([carried_disparity(disparities[j], frames[j].T_world_cam, frame.T_world_cam, camera, shape,
-                                              near_m=near_m)
-                            for j in reference_frames(k, len(frames), min_lag, n_references)] or [np.full(shape, np.nan)])
+        carried = np.stack(
+            [
+                carried_disparity(
+                    disparities[j], frames[j].T_world_cam, frame.T_world_cam, camera, shape, near_m=near_m
+                )
+                for j in reference_frames(k, len(frames), min_lag, n_references)
+            ]
+            or [np.full(shape, np.nan)]
+        )
         count = np.isfinite(carried).sum(axis=0)
         reference = np.full(shape, np.nan)
         enough = count >= min_references
@@ -279,22 +330,33 @@ def self_characterise(frames, matcher, *, min_lag=None, max_lag=DEFAULT_MAX_LAG,
             unreferenced.append(k)
     counts = np.concatenate(counts)
     if counts.size == 0:
-        raise PrismapInputError(f"no pixel of any frame has a reference from {min_references} other frame(s) at least "
-                                f"{min_lag} frame(s) away: the frames see no common surface")
+        raise PrismapInputError(
+            f"no pixel of any frame has a reference from {min_references} other frame(s) at least "
+            f"{min_lag} frame(s) away: the frames see no common surface"
+        )
     carried_sigma = _robust_sigma(np.concatenate(pair_differences)) / np.sqrt(2.0)
     values, shares = np.unique(counts, return_counts=True)
     factor = float(sum(share * median_variance(n) for n, share in zip(values, shares)) / counts.size)
     reference_variance = factor * carried_sigma**2 if np.isfinite(carried_sigma) else 0.0
     options.setdefault("search_frames", len(reference_frames_))
-    result = characterise_matcher(reference_frames_, matcher, dataset=dataset, progress=progress, source="self",
-                                  **options)
-    record = {"method": "median of other frames' disparities carried by the poses (docs/SENSOR_MODELS.md, "
-                        "Self-characterisation)",
-              "n_frames": len(frames), "frames_without_reference": unreferenced, "near_m": near_m,
-              "lag_agreement": agreement, "min_lag": int(min_lag),
-              "n_references": n_references, "min_references": min_references,
-              "mean_references": float(counts.mean()), "carried_sigma_px": carried_sigma,
-              "reference_variance_px2": reference_variance, "min_sigma_share": MIN_SIGMA_SHARE}
+    result = characterise_matcher(
+        reference_frames_, matcher, dataset=dataset, progress=progress, source="self", **options
+    )
+    record = {
+        "method": "median of other frames' disparities carried by the poses (docs/SENSOR_MODELS.md, "
+        "Self-characterisation)",
+        "n_frames": len(frames),
+        "frames_without_reference": unreferenced,
+        "near_m": near_m,
+        "lag_agreement": agreement,
+        "min_lag": int(min_lag),
+        "n_references": n_references,
+        "min_references": min_references,
+        "mean_references": float(counts.mean()),
+        "carried_sigma_px": carried_sigma,
+        "reference_variance_px2": reference_variance,
+        "min_sigma_share": MIN_SIGMA_SHARE,
+    }
     model = dataclasses.replace(remove_reference_noise(result.model, reference_variance), provenance=record)
     return SelfCharacterisation(dataclasses.replace(result, model=model), record)
 
@@ -324,4 +386,3 @@ def remove_reference_noise(model, variance):
     if not model.conditioned:
         class_models = ()
     return dataclasses.replace(model, fits=narrowed_fits(model.fits), class_models=class_models)
-

@@ -10,7 +10,7 @@ def register(subparsers):
     parser = subparsers.add_parser(
         "demo",
         help="the whole story on bundled data: error models, model comparison, 2-D office, 3-D room and street "
-             "(about 8 min on 2 idle cores; --quick: every step at tiny sizes)",
+        "(about 8 min on 2 idle cores; --quick: every step at tiny sizes)",
         description=(
             "Characterise the bundled Middlebury Motorcycle pair with bm, sgbm and variational, compare the "
             "sensor models on the SGBM error model (prismap models compare), run the experiments (2-D office, "
@@ -21,7 +21,9 @@ def register(subparsers):
         ),
     )
     add_out(parser, file=False, default=Path("outputs"), metavar="DIR", help="output directory")
-    parser.add_argument("--quick", action="store_true", help="tiny sizes: shows that every step works; its numbers are not meaningful")
+    parser.add_argument(
+        "--quick", action="store_true", help="tiny sizes: shows that every step works; its numbers are not meaningful"
+    )
     parser.add_argument("--seed", type=seed, default=0, help="seed of the experiments (default 0)")
     parser.set_defaults(func=run)
 

@@ -27,7 +27,7 @@ def register(subparsers):
             "observed score as its prior p0. Prints the scores and writes them as JSON: to --out/scores.json "
             "with reliability diagrams (--out/reliability.png, reliability_logit.png: logit-spaced bins reaching the "
             "extremes) and the per-frame evidence histogram (--out/evidence.png), or beside the map as "
-            "MAP.scores.json. The scores include the \"confident and wrong\" rates: truly free voxels at P >= 0.99 "
+            'MAP.scores.json. The scores include the "confident and wrong" rates: truly free voxels at P >= 0.99 '
             "and truly occupied voxels at P <= 0.01."
         ),
     )
@@ -55,19 +55,32 @@ def run(args):
         raise PrismapInputError(f"--gt {args.gt}: the ground truth observes no voxel: nothing to score")
     scores = score_grid(grid, truth)
     print(format_scores(scores, title=f"{args.map} against {args.gt}"))
-    result = {"map": str(args.map), "ground_truth": str(args.gt), "voxel_size_m": grid.voxel_size_m, "p0": grid.p0,
-              "policy": "+".join(grid.policies), "n_frames": grid.n_frames, "scores": scores.to_dict()}
+    result = {
+        "map": str(args.map),
+        "ground_truth": str(args.gt),
+        "voxel_size_m": grid.voxel_size_m,
+        "p0": grid.p0,
+        "policy": "+".join(grid.policies),
+        "n_frames": grid.n_frames,
+        "scores": scores.to_dict(),
+    }
     if args.out is None:
         json_path = args.map.with_name(args.map.name.removesuffix(".npz") + ".scores.json")
     else:
         from prismap.plots import plot_evidence_histograms, plot_reliability, plot_reliability_logit
 
         json_path = args.out / "scores.json"
-        plot_reliability({args.map.stem: scores}, path=args.out / "reliability.png", title=f"Reliability of {args.map.name}")
-        plot_reliability_logit({args.map.stem: scores}, path=args.out / "reliability_logit.png",
-                               title=f"Reliability of {args.map.name} at the extremes")
-        plot_evidence_histograms({args.map.stem: scores}, path=args.out / "evidence.png",
-                                 title=f"Evidence per frame of {args.map.name}")
+        plot_reliability(
+            {args.map.stem: scores}, path=args.out / "reliability.png", title=f"Reliability of {args.map.name}"
+        )
+        plot_reliability_logit(
+            {args.map.stem: scores},
+            path=args.out / "reliability_logit.png",
+            title=f"Reliability of {args.map.name} at the extremes",
+        )
+        plot_evidence_histograms(
+            {args.map.stem: scores}, path=args.out / "evidence.png", title=f"Evidence per frame of {args.map.name}"
+        )
         for name in ("reliability.png", "reliability_logit.png", "evidence.png"):
             print(f"wrote {args.out / name}")
     write_text_atomic(json_path, json.dumps(result, indent=1) + "\n")

@@ -1,6 +1,5 @@
 """``prismap experiment``: map a synthetic world with every sensor model and score the maps against exact truth."""
 
-
 from prismap.cli._args import add_out, seed
 
 
@@ -22,16 +21,21 @@ def register(subparsers):
             "resumes (finished cells are reused)."
         ),
     )
-    parser.add_argument("--world", required=True, choices=("office2d", "scene3d", "street3d", "avenue3d"), help="which experiment")
+    parser.add_argument(
+        "--world", required=True, choices=("office2d", "scene3d", "street3d", "avenue3d"), help="which experiment"
+    )
     add_out(parser, file=False, required=True, metavar="DIR", help="output directory")
     parser.add_argument("--frames", type=int, metavar="N", help="number of frames (default: the size's)")
     parser.add_argument("--voxel", type=float, metavar="M", help="voxel size in metres (default: the size's)")
     parser.add_argument("--seed", type=seed, default=0, help="seed of errors, scene and trajectory (default 0)")
     parser.add_argument("--quick", action="store_true", help="small sizes (seconds to a minute)")
-    parser.add_argument("--error-sources", action="store_true",
-                        help="scene3d/street3d: map with PRISM using error models from ground truth, a simulated "
-                             "LiDAR, self-characterisation of the mapping frames and Middlebury Motorcycle; "
-                             "writes sources.md/.json (bm and sgbm)")
+    parser.add_argument(
+        "--error-sources",
+        action="store_true",
+        help="scene3d/street3d: map with PRISM using error models from ground truth, a simulated "
+        "LiDAR, self-characterisation of the mapping frames and Middlebury Motorcycle; "
+        "writes sources.md/.json (bm and sgbm)",
+    )
     parser.set_defaults(func=run)
 
 

@@ -24,14 +24,25 @@ def register(subparsers):
     )
     parser.add_argument("map", type=Path, metavar="MAP.npz", help="map file (prismap map)")
     parser.add_argument("--to", required=True, type=Path, metavar="PATH", help="output file or bag directory")
-    parser.add_argument("--format", choices=(*sorted(set(FORMATS.values())), "rosbag2"),
-                        help="output format (default: from the suffix of --to)")
-    parser.add_argument("--storage", choices=("mcap", "sqlite3"), default="mcap",
-                        help="storage of a --format rosbag2 bag (default mcap)")
+    parser.add_argument(
+        "--format",
+        choices=(*sorted(set(FORMATS.values())), "rosbag2"),
+        help="output format (default: from the suffix of --to)",
+    )
+    parser.add_argument(
+        "--storage",
+        choices=("mcap", "sqlite3"),
+        default="mcap",
+        help="storage of a --format rosbag2 bag (default mcap)",
+    )
     parser.add_argument("--frame-id", default="map", help="PointCloud2 header.frame_id (default map)")
     parser.add_argument("--topic", default="/prismap/map", help="PointCloud2 topic (default /prismap/map)")
-    parser.add_argument("--min-probability", type=float, metavar="P",
-                        help="PointCloud2: keep voxels with P(occupied) >= P (default: every known voxel)")
+    parser.add_argument(
+        "--min-probability",
+        type=float,
+        metavar="P",
+        help="PointCloud2: keep voxels with P(occupied) >= P (default: every known voxel)",
+    )
     parser.set_defaults(func=run)
 
 
@@ -48,7 +59,9 @@ def run(args):
     if kind in FORMATS.values() and args.to.suffix != f".{kind}":
         raise PrismapInputError(f"--to {args.to}: --format {kind} files end in .{kind}")
     if kind == "rosbag2" and args.to.suffix in FORMATS:
-        raise PrismapInputError(f"--to {args.to}: a ROS 2 bag is a directory; its name must not end in {args.to.suffix}")
+        raise PrismapInputError(
+            f"--to {args.to}: a ROS 2 bag is a directory; its name must not end in {args.to.suffix}"
+        )
     check_output(args.to, "--to", directory=kind == "rosbag2", inputs=[("the map file", args.map)])
     grid = load_map(args.map)
     if kind == "ply":
@@ -58,8 +71,14 @@ def run(args):
         write_octomap(grid, args.to)
         count, what = grid.n_known, "known voxels"
     else:
-        count = write_pointcloud2(grid, args.to, storage=args.storage, frame_id=args.frame_id, topic=args.topic,
-                                  min_probability=args.min_probability)
+        count = write_pointcloud2(
+            grid,
+            args.to,
+            storage=args.storage,
+            frame_id=args.frame_id,
+            topic=args.topic,
+            min_probability=args.min_probability,
+        )
         what = f"points on {args.topic} (frame {args.frame_id})"
     print(f"wrote {args.to} ({kind}): {count} {what}")
     return 0

@@ -29,19 +29,35 @@ def register(subparsers):
     )
     source = parser.add_mutually_exclusive_group(required=True)
     source.add_argument("--kitti", type=Path, metavar="ROOT", help="KITTI odometry root (sequences/, poses/)")
-    source.add_argument("--raw", type=Path, metavar="DRIVE_DIR", help="KITTI raw drive (e.g. 2011_09_26_drive_0001_sync)")
+    source.add_argument(
+        "--raw", type=Path, metavar="DRIVE_DIR", help="KITTI raw drive (e.g. 2011_09_26_drive_0001_sync)"
+    )
     parser.add_argument("--sequence", metavar="NN", help="odometry sequence number (with --kitti)")
-    parser.add_argument("--calib-dir", type=Path, metavar="DIR",
-                        help="folder of calib_cam_to_cam.txt and calib_velo_to_cam.txt (with --raw; default the "
-                             "drive's parent)")
-    parser.add_argument("--poses", type=Path, metavar="FILE",
-                        help="one 3x4 row-major T_world_cam per frame of the left colour camera (image_2, as in "
-                             "prismap's poses.txt); needed for --raw, replaces poses/NN.txt with --kitti")
+    parser.add_argument(
+        "--calib-dir",
+        type=Path,
+        metavar="DIR",
+        help="folder of calib_cam_to_cam.txt and calib_velo_to_cam.txt (with --raw; default the drive's parent)",
+    )
+    parser.add_argument(
+        "--poses",
+        type=Path,
+        metavar="FILE",
+        help="one 3x4 row-major T_world_cam per frame of the left colour camera (image_2, as in "
+        "prismap's poses.txt); needed for --raw, replaces poses/NN.txt with --kitti",
+    )
     parser.add_argument("--voxel", required=True, type=float, metavar="M", help="voxel size in metres")
     parser.add_argument("--frames", default=":", metavar="A:B", help="frames A <= i < B (default all)")
-    parser.add_argument("--every", type=int, default=1, metavar="K", help="use every K-th frame of the range (default 1)")
-    parser.add_argument("--max-range", type=float, default=math.inf, metavar="M",
-                        help="points farther from the laser only clear free space up to this range (default: none)")
+    parser.add_argument(
+        "--every", type=int, default=1, metavar="K", help="use every K-th frame of the range (default 1)"
+    )
+    parser.add_argument(
+        "--max-range",
+        type=float,
+        default=math.inf,
+        metavar="M",
+        help="points farther from the laser only clear free space up to this range (default: none)",
+    )
     parser.add_argument("--full-scan", action="store_true", help="use the whole scan, not only the camera's view")
     add_out(parser, file=True, required=True, metavar="TRUTH.npz", help="output ground-truth file")
     parser.set_defaults(func=run)
@@ -67,7 +83,7 @@ def run(args):
         poses = read_kitti_poses(args.poses)
         if len(poses) != len(sequence):
             raise PrismapInputError(f"--poses {args.poses}: {len(poses)} poses for {len(sequence)} frames")
-    frames = range(len(sequence))[start:stop:args.every]
+    frames = range(len(sequence))[start : stop : args.every]
     if not frames:
         raise PrismapInputError(f"--frames {args.frames}: no frame of the {len(sequence)} in the sequence lies in it")
     scans = kitti_lidar_scans(sequence, frames=frames, poses=poses, camera_view=not args.full_scan)
@@ -75,8 +91,10 @@ def run(args):
     truth = ground_truth_from_map(grid)
     write_ground_truth(args.out, truth)
     n_occupied = len(truth.observed_occupied_keys)
-    print(f"{len(scans)} scans, voxel {voxel} m: {len(truth.observed_keys)} voxels observed, {n_occupied} occupied, "
-          f"{len(truth.observed_keys) - n_occupied} free; wrote {args.out}")
+    print(
+        f"{len(scans)} scans, voxel {voxel} m: {len(truth.observed_keys)} voxels observed, {n_occupied} occupied, "
+        f"{len(truth.observed_keys) - n_occupied} free; wrote {args.out}"
+    )
     return 0
 
 
@@ -92,12 +110,16 @@ def _open_sequence(args):
         sequence = KittiOdometry(args.kitti, args.sequence, load_poses=args.poses is None)
         seq_dir = args.kitti / "sequences" / f"{int(args.sequence):02d}"
         if args.poses is None and sequence.poses is None:
-            raise PrismapInputError(f"--kitti {args.kitti}: sequence {args.sequence} has no poses/"
-                                    f"{int(args.sequence):02d}.txt (KITTI has them for 00-10); give --poses FILE")
+            raise PrismapInputError(
+                f"--kitti {args.kitti}: sequence {args.sequence} has no poses/"
+                f"{int(args.sequence):02d}.txt (KITTI has them for 00-10); give --poses FILE"
+            )
         return sequence, seq_dir / "velodyne"
     if args.sequence is not None:
         raise PrismapInputError("--sequence belongs to --kitti; a raw drive is named by its folder")
     if args.poses is None:
-        raise PrismapInputError(f"--raw {args.raw}: a raw drive has no camera poses; give --poses FILE "
-                                "(T_world_cam of image_2 per frame, 3x4 row-major lines)")
+        raise PrismapInputError(
+            f"--raw {args.raw}: a raw drive has no camera poses; give --poses FILE "
+            "(T_world_cam of image_2 per frame, 3x4 row-major lines)"
+        )
     return KittiRaw(args.raw, calib_dir=args.calib_dir), args.raw / "velodyne_points" / "data"

@@ -62,8 +62,11 @@ def main(argv=None):
         print(f"prismap {name}: error: {_one_line(exc)}", file=sys.stderr)
         return 2
     except cv2.error as exc:
-        print(f"prismap {name}: error: OpenCV {exc.func or 'call'} refused the input: "
-              f"{(exc.err or str(exc)).strip().splitlines()[0]}", file=sys.stderr)
+        print(
+            f"prismap {name}: error: OpenCV {exc.func or 'call'} refused the input: "
+            f"{(exc.err or str(exc)).strip().splitlines()[0]}",
+            file=sys.stderr,
+        )
         return 2
     except OSError as exc:
         where = f"{exc.filename}: " if exc.filename else ""

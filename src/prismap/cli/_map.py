@@ -40,33 +40,65 @@ def register(subparsers):
     parser.add_argument("--sequence", type=Path, metavar="DIR", help="sequence directory (or --bag)")
     add_bag_arguments(parser, poses=True)
     parser.add_argument("--matcher", default="sgbm", choices=matcher_names(), help="stereo matcher (default sgbm)")
-    parser.add_argument("--matcher-param", action="append", default=[], metavar="KEY=VALUE",
-                        help="matcher parameter, repeatable (e.g. num_disparities=64)")
+    parser.add_argument(
+        "--matcher-param",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="matcher parameter, repeatable (e.g. num_disparities=64)",
+    )
     parser.add_argument("--model", default="prism", choices=model_names(), help="inverse sensor model (default prism)")
-    parser.add_argument("--model-param", action="append", default=[], metavar="KEY=VALUE",
-                        help="sensor model parameter, repeatable (e.g. p_hit=0.7)")
-    parser.add_argument("--error-model", type=Path, metavar="MODEL.json",
-                        help="the matcher's error model (prismap characterise); needed by prism, and by "
-                             "convolution/andert without sigma_px (they take the largest-weight component's sigma). "
-                             "A conditioned model (with error classes) gives each pixel its class's mixture")
-    parser.add_argument("--map-prior", action="store_true",
-                        help="prism: each cell's prior is the map's current probability, not --p0 (Kaufman et al. "
-                             "2016; the same as --model-param prior=map); ray mode, not on Dask")
-    parser.add_argument("--plain", action="store_true",
-                        help="use the error model's whole-image mixture for every pixel, not its classes")
-    parser.add_argument("--fusion", choices=("independent", "persistent-failure"), default="independent",
-                        help="how the map reads its sums: independent frames (default), or under the matcher's "
-                             "failure state that persists across views, from the error model's fusion block "
-                             "(docs/SENSOR_MODELS.md section 9)")
-    parser.add_argument("--strict-rig", action="store_true",
-                        help="refuse an error model made on another rig (focal length, baseline, image size, matcher "
-                             "or its parameters differ; default: print a warning naming both)")
+    parser.add_argument(
+        "--model-param",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="sensor model parameter, repeatable (e.g. p_hit=0.7)",
+    )
+    parser.add_argument(
+        "--error-model",
+        type=Path,
+        metavar="MODEL.json",
+        help="the matcher's error model (prismap characterise); needed by prism, and by "
+        "convolution/andert without sigma_px (they take the largest-weight component's sigma). "
+        "A conditioned model (with error classes) gives each pixel its class's mixture",
+    )
+    parser.add_argument(
+        "--map-prior",
+        action="store_true",
+        help="prism: each cell's prior is the map's current probability, not --p0 (Kaufman et al. "
+        "2016; the same as --model-param prior=map); ray mode, not on Dask",
+    )
+    parser.add_argument(
+        "--plain",
+        action="store_true",
+        help="use the error model's whole-image mixture for every pixel, not its classes",
+    )
+    parser.add_argument(
+        "--fusion",
+        choices=("independent", "persistent-failure"),
+        default="independent",
+        help="how the map reads its sums: independent frames (default), or under the matcher's "
+        "failure state that persists across views, from the error model's fusion block "
+        "(docs/SENSOR_MODELS.md section 9)",
+    )
+    parser.add_argument(
+        "--strict-rig",
+        action="store_true",
+        help="refuse an error model made on another rig (focal length, baseline, image size, matcher "
+        "or its parameters differ; default: print a warning naming both)",
+    )
     parser.add_argument("--voxel", required=True, type=float, metavar="M", help="voxel size in metres")
     parser.add_argument("--p0", type=float, default=0.05, help="prior occupancy of a voxel (default 0.05)")
     parser.add_argument("--mode", choices=("ray", "projective"), default="ray", help="integration mode (default ray)")
     parser.add_argument("--policy", choices=POLICIES, help="per-frame policy (default: the model's)")
-    parser.add_argument("--max-range", type=float, default=math.inf, metavar="M",
-                        help="distance along a ray beyond which nothing is updated (default: none)")
+    parser.add_argument(
+        "--max-range",
+        type=float,
+        default=math.inf,
+        metavar="M",
+        help="distance along a ray beyond which nothing is updated (default: none)",
+    )
     parser.add_argument("--subsample", type=int, default=1, metavar="S", help="use every S-th pixel (default 1)")
     parser.add_argument("--disparity-dir", type=Path, metavar="DIR", help="precomputed disparities instead of matching")
     parser.add_argument("--frames", default=":", metavar="A:B", help="frames A <= i < B (default all)")
@@ -74,8 +106,13 @@ def register(subparsers):
     where.add_argument("--workers", type=int, metavar="N", help="integrate on a local Dask cluster of N processes")
     where.add_argument("--scheduler", metavar="ADDRESS", help="integrate on an existing Dask cluster")
     parser.add_argument("--chunk-frames", type=int, metavar="C", help="frames per Dask task (default: automatic)")
-    parser.add_argument("--checkpoint-every", type=int, default=0, metavar="K",
-                        help="save a resumable checkpoint every K frames (default 0 = never)")
+    parser.add_argument(
+        "--checkpoint-every",
+        type=int,
+        default=0,
+        metavar="K",
+        help="save a resumable checkpoint every K frames (default 0 = never)",
+    )
     add_out(parser, file=True, required=True, metavar="MAP.npz", help="output map file")
     parser.set_defaults(func=run)
 
@@ -90,8 +127,9 @@ def run(args):
     if args.checkpoint_every < 0:
         raise PrismapInputError(f"--checkpoint-every must be >= 0; got {args.checkpoint_every}")
     if args.workers is not None and not 1 <= args.workers <= usable_cores():
-        raise PrismapInputError(f"--workers must lie in [1, {usable_cores()}] (the cores this process may use); "
-                                f"got {args.workers}")
+        raise PrismapInputError(
+            f"--workers must lie in [1, {usable_cores()}] (the cores this process may use); got {args.workers}"
+        )
     sequence = _open_input(args, read_sequence)
     model_params = parse_params(args.model_param, "--model-param")
     if args.map_prior:
@@ -99,16 +137,26 @@ def run(args):
             raise PrismapInputError(f"--map-prior is an option of --model prism; got --model {args.model}")
         model_params["prior"] = "map"
     if args.error_model is None and args.model in model_names() and needs_error_model(args.model, model_params):
-        raise PrismapInputError(f"sensor model {args.model!r} needs an error model (--error-model MODEL.json)"
-                                + (" or --model-param sigma_px=..." if args.model != "prism" else ""))
+        raise PrismapInputError(
+            f"sensor model {args.model!r} needs an error model (--error-model MODEL.json)"
+            + (" or --model-param sigma_px=..." if args.model != "prism" else "")
+        )
     config = MappingConfig(
-        model=args.model, voxel_size_m=check_positive(args.voxel, "--voxel"), p0=check_probability(args.p0, "--p0"),
-        error_model=_error_model(args.error_model), conditioned=False if args.plain else None,
+        model=args.model,
+        voxel_size_m=check_positive(args.voxel, "--voxel"),
+        p0=check_probability(args.p0, "--p0"),
+        error_model=_error_model(args.error_model),
+        conditioned=False if args.plain else None,
         model_params=model_params,
-        matcher=args.matcher, matcher_params=parse_params(args.matcher_param, "--matcher-param"),
+        matcher=args.matcher,
+        matcher_params=parse_params(args.matcher_param, "--matcher-param"),
         disparity_source="matcher" if args.disparity_dir is None else _disparity_dir(args.disparity_dir),
-        mode=args.mode, policy=args.policy, max_range_m=args.max_range, subsample=args.subsample,
-        frames=parse_frames(args.frames), fusion=args.fusion,
+        mode=args.mode,
+        policy=args.policy,
+        max_range_m=args.max_range,
+        subsample=args.subsample,
+        frames=parse_frames(args.frames),
+        fusion=args.fusion,
     )
     model_text = _error_text(config, sequence.camera)  # a bad model option fails here, not on a frame or a worker
     _check_rig(config, sequence, args)
@@ -116,15 +164,24 @@ def run(args):
     if args.checkpoint_every:
         checkpoint = args.out.with_name(args.out.name.removesuffix(".npz") + ".checkpoint.npz")
     with _dask_client(args.workers, args.scheduler) as client:
-        grid = map_sequence(sequence, config, progress=True, checkpoint=checkpoint,
-                            checkpoint_every=args.checkpoint_every, client=client, chunk_frames=args.chunk_frames)
+        grid = map_sequence(
+            sequence,
+            config,
+            progress=True,
+            checkpoint=checkpoint,
+            checkpoint_every=args.checkpoint_every,
+            client=client,
+            chunk_frames=args.chunk_frames,
+        )
     save_map(grid, args.out)
     if checkpoint is not None:
         remove_checkpoint(checkpoint)
     command = map_command(config, inputs=_input_arguments(args), error_model=args.error_model, out=args.out)
     record = write_map_record(args.out, command, config)
-    print(f"{grid.n_frames} frames, {grid.n_known} known voxels, {len(grid.occupied_voxels()[0])} occupied "
-          f"({config.model}, {model_text}, voxel {config.voxel_size_m} m); wrote {args.out}")
+    print(
+        f"{grid.n_frames} frames, {grid.n_known} known voxels, {len(grid.occupied_voxels()[0])} occupied "
+        f"({config.model}, {model_text}, voxel {config.voxel_size_m} m); wrote {args.out}"
+    )
     print(f"reproduce with: {shlex.join(command)}  (settings in {record})")
     return 0
 
@@ -188,8 +245,18 @@ def _input_arguments(args):
     if args.bag is None:
         return ["--sequence", str(args.sequence)]
     inputs = []
-    for option in ("bag", "left", "right", "left_info", "right_info", "rectified", "pair_tolerance", "pose_topic",
-                   "tf_frames", "pose_gap"):
+    for option in (
+        "bag",
+        "left",
+        "right",
+        "left_info",
+        "right_info",
+        "rectified",
+        "pair_tolerance",
+        "pose_topic",
+        "tf_frames",
+        "pose_gap",
+    ):
         value = getattr(args, option, None)
         if value is not None:
             inputs += [f"--{option.replace('_', '-')}", str(value)]
@@ -311,8 +378,9 @@ def _dask_client(workers, scheduler):
         except (OSError, TimeoutError, ValueError) as exc:
             raise PrismapInputError(f"--scheduler {scheduler}: cannot connect ({exc})") from None
     else:
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0",
-                               silence_logs=logging.ERROR)
+        cluster = LocalCluster(
+            n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0", silence_logs=logging.ERROR
+        )
         client = Client(cluster)
     client.run(quiet_input_errors)
     try:

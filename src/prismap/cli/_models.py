@@ -24,17 +24,30 @@ def register(subparsers):
             "models (convolution, andert) take the sigma of the mixture's largest-weight component."
         ),
     )
-    compare.add_argument("--error-model", required=True, type=Path, metavar="MODEL.json",
-                         help="error model written by `prismap characterise`")
+    compare.add_argument(
+        "--error-model",
+        required=True,
+        type=Path,
+        metavar="MODEL.json",
+        help="error model written by `prismap characterise`",
+    )
     add_out(compare, file=False, required=True, metavar="DIR", help="output directory")
-    compare.add_argument("--camera", choices=sorted(_cameras()), default=None,
-                         help="rig (default middlebury-motorcycle unless --focal-px/--baseline-m are given)")
+    compare.add_argument(
+        "--camera",
+        choices=sorted(_cameras()),
+        default=None,
+        help="rig (default middlebury-motorcycle unless --focal-px/--baseline-m are given)",
+    )
     compare.add_argument("--focal-px", type=float, default=None, metavar="F", help="focal length (pixels)")
     compare.add_argument("--baseline-m", type=float, default=None, metavar="B", help="baseline (metres)")
     compare.add_argument("--voxel", type=float, default=0.1, metavar="M", help="cell size in metres (default 0.1)")
     compare.add_argument("--p0", type=float, default=0.05, help="prior occupancy of one cell (default 0.05)")
-    compare.add_argument("--distances", default="2,5,10,20", metavar="LIST",
-                         help="measured distances in metres, comma-separated (default 2,5,10,20)")
+    compare.add_argument(
+        "--distances",
+        default="2,5,10,20",
+        metavar="LIST",
+        help="measured distances in metres, comma-separated (default 2,5,10,20)",
+    )
     compare.set_defaults(func=run)
 
 
@@ -49,7 +62,9 @@ def parse_distances(text):
     try:
         values = [float(item) for item in str(text).split(",") if item.strip()]
     except ValueError:
-        raise PrismapInputError(f"--distances: expected comma-separated metres such as 2,5,10,20; got {text!r}") from None
+        raise PrismapInputError(
+            f"--distances: expected comma-separated metres such as 2,5,10,20; got {text!r}"
+        ) from None
     if not values or not all(np.isfinite(v) and v > 0 for v in values):
         raise PrismapInputError(f"--distances: expected positive distances in metres; got {text!r}")
     return sorted(values)
@@ -63,8 +78,9 @@ def _camera(args):
     if any(v is not None for v in custom):
         if None in custom:
             raise PrismapInputError("--focal-px and --baseline-m must be given together")
-        return StereoCamera(check_positive(args.focal_px, "--focal-px"), 0.0, 0.0,
-                            check_positive(args.baseline_m, "--baseline-m"))
+        return StereoCamera(
+            check_positive(args.focal_px, "--focal-px"), 0.0, 0.0, check_positive(args.baseline_m, "--baseline-m")
+        )
     return args.camera or "middlebury-motorcycle"
 
 
@@ -78,8 +94,15 @@ def run(args):
     p0 = check_probability(args.p0, "--p0")
     camera = _camera(args)
     error_model = load_error_model(args.error_model)
-    result = run_models_compare(error_model, args.out, camera=camera, voxel_size_m=voxel, p0=p0,
-                                distances_m=distances, source=str(args.error_model))
+    result = run_models_compare(
+        error_model,
+        args.out,
+        camera=camera,
+        voxel_size_m=voxel,
+        p0=p0,
+        distances_m=distances,
+        source=str(args.error_model),
+    )
     print(result.header)
     print(result.comparison.to_markdown())
     for path in result.paths.values():

@@ -18,12 +18,22 @@ def register(subparsers):
         ),
     )
     parser.add_argument("map", type=Path, metavar="MAP", help="map file (.npz) from prismap map or experiment")
-    parser.add_argument("--gt", type=Path, metavar="TRUTH", help="ground-truth occupancy (.npz, e.g. SEQ/occupancy.npz)")
-    parser.add_argument("--poses", type=Path, metavar="PATH",
-                        help="camera trajectory: a sequence folder or a poses.txt of 3x4 T_world_cam rows")
-    parser.add_argument("--colour", choices=("probability", "agreement"), default="probability",
-                        help="colour the map's voxels by P(occupied) (default) or by agreement with --gt: correct "
-                             "occupied/free, occupied called free (danger), free called occupied")
+    parser.add_argument(
+        "--gt", type=Path, metavar="TRUTH", help="ground-truth occupancy (.npz, e.g. SEQ/occupancy.npz)"
+    )
+    parser.add_argument(
+        "--poses",
+        type=Path,
+        metavar="PATH",
+        help="camera trajectory: a sequence folder or a poses.txt of 3x4 T_world_cam rows",
+    )
+    parser.add_argument(
+        "--colour",
+        choices=("probability", "agreement"),
+        default="probability",
+        help="colour the map's voxels by P(occupied) (default) or by agreement with --gt: correct "
+        "occupied/free, occupied called free (danger), free called occupied",
+    )
     parser.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1)")
     parser.add_argument("--port", type=int, default=8080, help="port (default 8080; 0 = any free port)")
     parser.set_defaults(func=run)
@@ -43,13 +53,19 @@ def run(args):
     truth = read_ground_truth(args.gt) if args.gt is not None else None
     poses = load_trajectory(args.poses) if args.poses is not None else None
     try:
-        viewer = MapViewer(grid, truth=truth, poses_w=poses, host=args.host, port=args.port,
-                           agreement=args.colour == "agreement")
+        viewer = MapViewer(
+            grid, truth=truth, poses_w=poses, host=args.host, port=args.port, agreement=args.colour == "agreement"
+        )
     except OSError as exc:
-        raise PrismapInputError(f"--host {args.host} --port {args.port}: cannot listen ({exc.strerror or exc})") from None
+        raise PrismapInputError(
+            f"--host {args.host} --port {args.port}: cannot listen ({exc.strerror or exc})"
+        ) from None
     stats = viewer.stats
-    print(f"viewing {args.map}: {stats['points']:,} points (voxels of {stats['voxel_m']:g} m), scene built in "
-          f"{stats['build_s']:.2f} s", flush=True)
+    print(
+        f"viewing {args.map}: {stats['points']:,} points (voxels of {stats['voxel_m']:g} m), scene built in "
+        f"{stats['build_s']:.2f} s",
+        flush=True,
+    )
     print(f"open http://{args.host}:{viewer.port}/ (Ctrl-C to stop)", flush=True)
     try:
         while True:

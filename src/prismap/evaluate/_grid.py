@@ -21,6 +21,7 @@ def score_grid(grid, truth):
         With the per-frame evidence histograms of every voxel the map observed.
     """
     keys, probability, log, counts = grid.known_probabilities()
-    probability, occupied = align_to_ground_truth(keys, probability, truth.occupied_keys, truth.observed_keys,
-                                                  p0=grid.p0)
+    probability, occupied = align_to_ground_truth(
+        keys, probability, truth.occupied_keys, truth.observed_keys, p0=grid.p0
+    )
     return score_map(probability, occupied, evidence=(log - logit(grid.p0), counts))

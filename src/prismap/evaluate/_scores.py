@@ -24,8 +24,9 @@ LOGIT_BIN_EDGES = np.concatenate([[0.0], 1.0 / (1.0 + np.exp(-np.arange(-9.0, 9.
 """Edges of the logit-spaced reliability bins: 0, then ``sigmoid(-9 .. 9)`` in log-odds steps of 1.5, then 1, so
 that bins reach the extremes (``P`` below 1.2e-4 and above 1 - 1.2e-4) where equal-width bins hide everything."""
 
-EVIDENCE_EDGES = np.concatenate([-np.logspace(np.log10(2048.0), -1.0, 16)[:-1], [-0.1, 0.1],
-                                 np.logspace(-1.0, np.log10(2048.0), 16)[1:]])
+EVIDENCE_EDGES = np.concatenate(
+    [-np.logspace(np.log10(2048.0), -1.0, 16)[:-1], [-0.1, 0.1], np.logspace(-1.0, np.log10(2048.0), 16)[1:]]
+)
 """Edges (log-odds, nats) of the per-frame evidence histograms: symmetric, logarithmic from 0.1 to 2048 (the map's
 fixed-point bound) on each side, one bin ``[-0.1, 0.1)`` around no evidence; values beyond fall in the end bins."""
 
@@ -194,13 +195,15 @@ def score_map(probability, occupied, *, n_bins=10, n_hist_bins=20, evidence=None
     log_loss = -np.mean(np.where(y, np.log(clipped), np.log1p(-clipped)))
 
     bin_edges = np.linspace(0.0, 1.0, n_bins + 1)
-    bin_counts, bin_mean, bin_fraction = _reliability(p, y, np.minimum((p * n_bins).astype(np.int64), n_bins - 1),
-                                                      n_bins)
+    bin_counts, bin_mean, bin_fraction = _reliability(
+        p, y, np.minimum((p * n_bins).astype(np.int64), n_bins - 1), n_bins
+    )
     n_logit = len(LOGIT_BIN_EDGES) - 1
     logit_index = np.clip(np.searchsorted(LOGIT_BIN_EDGES, p, side="right") - 1, 0, n_logit - 1)
     logit_counts, logit_mean, logit_fraction = _reliability(p, y, logit_index, n_logit)
-    one_view, per_view = (np.zeros(len(EVIDENCE_EDGES) - 1, np.int64),) * 2 if evidence is None else \
-        evidence_histograms(*evidence)
+    one_view, per_view = (
+        (np.zeros(len(EVIDENCE_EDGES) - 1, np.int64),) * 2 if evidence is None else evidence_histograms(*evidence)
+    )
     filled = bin_counts > 0
     ece = float(np.sum(bin_counts[filled] * np.abs(bin_mean[filled] - bin_fraction[filled])) / p.size)
 
@@ -266,8 +269,10 @@ def evidence_histograms(increments, counts):
     total = as_float_array(increments, "increments", ndim=1, allow_nan=False)
     views = np.asarray(counts)
     if views.shape != total.shape or (views.size and (not np.issubdtype(views.dtype, np.integer) or views.min() < 1)):
-        raise PrismapInputError(f"`counts` must be {total.shape} integers >= 1 (frames per observed voxel); got shape "
-                                f"{views.shape}, dtype {views.dtype}")
+        raise PrismapInputError(
+            f"`counts` must be {total.shape} integers >= 1 (frames per observed voxel); got shape "
+            f"{views.shape}, dtype {views.dtype}"
+        )
     edges = EVIDENCE_EDGES
     inner = np.clip(total, edges[0], edges[-1])
     one_view = np.histogram(inner[views == 1], bins=edges)[0].astype(np.int64)

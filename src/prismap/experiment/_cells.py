@@ -142,10 +142,20 @@ def draw_extreme_figures(out_dir, matcher, scores):
     out = Path(out_dir)
     logit_path, evidence_path = out / f"reliability_logit_{matcher}.png", out / f"evidence_{matcher}.png"
     plot_reliability_logit(scores, path=logit_path, title=f"Reliability at the extremes, {matcher}")
-    figures = [(logit_path, f"Reliability on log-odds axes, bins reaching P = 1e-4 and 1 - 1e-4, with each model's "
-                            f"\"confident and wrong\" rates ({matcher}).")]
+    figures = [
+        (
+            logit_path,
+            f"Reliability on log-odds axes, bins reaching P = 1e-4 and 1 - 1e-4, with each model's "
+            f'"confident and wrong" rates ({matcher}).',
+        )
+    ]
     if any(s.evidence_per_view.any() for s in scores.values()):
         plot_evidence_histograms(scores, path=evidence_path, title=f"Evidence per frame, {matcher}")
-        figures.append((evidence_path, f"Log-odds increments per frame of the voxels each model's map observed "
-                                       f"({matcher}): one frame's for voxels seen once, the mean for all."))
+        figures.append(
+            (
+                evidence_path,
+                f"Log-odds increments per frame of the voxels each model's map observed "
+                f"({matcher}): one frame's for voxels seen once, the mean for all.",
+            )
+        )
     return figures

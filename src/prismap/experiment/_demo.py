@@ -37,14 +37,27 @@ class DemoExperiment:
 
 
 EXPERIMENTS = (
-    DemoExperiment("office2d", "2-D office, errors from a known mixture", run_office2d,
-                   full={"quick": False, "n_frames": 120}, quick={"quick": True, "n_frames": 12}),
-    DemoExperiment("scene3d", "3-D indoor scene, characterised matchers", run_scene3d,
-                   full={"quick": False, "n_frames": 20},
-                   quick={"quick": True, "n_frames": 4, "voxel_size_m": 0.2, "matchers": ("sgbm",)}),
-    DemoExperiment("street3d", "Street, KITTI-like rig, characterised matchers", run_street3d,
-                   full={"quick": False, "n_frames": 12, "matchers": ("bm", "sgbm")},
-                   quick={"quick": True, "n_frames": 4, "matchers": ("sgbm",)}),
+    DemoExperiment(
+        "office2d",
+        "2-D office, errors from a known mixture",
+        run_office2d,
+        full={"quick": False, "n_frames": 120},
+        quick={"quick": True, "n_frames": 12},
+    ),
+    DemoExperiment(
+        "scene3d",
+        "3-D indoor scene, characterised matchers",
+        run_scene3d,
+        full={"quick": False, "n_frames": 20},
+        quick={"quick": True, "n_frames": 4, "voxel_size_m": 0.2, "matchers": ("sgbm",)},
+    ),
+    DemoExperiment(
+        "street3d",
+        "Street, KITTI-like rig, characterised matchers",
+        run_street3d,
+        full={"quick": False, "n_frames": 12, "matchers": ("bm", "sgbm")},
+        quick={"quick": True, "n_frames": 4, "matchers": ("sgbm",)},
+    ),
 )
 """The demo's experiments in report order: add one here to add it to the demo. The street maps with block matching
 and semiglobal matching only: its variational cells cost two thirds of its mapping time, and the conditioned
@@ -55,10 +68,24 @@ MATCHERS = ("bm", "sgbm", "variational")
 
 
 STEP_SECONDS = {
-    "full": {"characterise bm": 40.0, "characterise sgbm": 40.0, "characterise variational": 45.0,
-             "models compare": 15.0, "office2d": 30.0, "scene3d": 160.0, "street3d": 150.0},
-    "quick": {"characterise bm": 85.0, "characterise sgbm": 85.0, "characterise variational": 105.0,
-              "models compare": 27.0, "office2d": 29.0, "scene3d": 72.0, "street3d": 229.0},
+    "full": {
+        "characterise bm": 40.0,
+        "characterise sgbm": 40.0,
+        "characterise variational": 45.0,
+        "models compare": 15.0,
+        "office2d": 30.0,
+        "scene3d": 160.0,
+        "street3d": 150.0,
+    },
+    "quick": {
+        "characterise bm": 85.0,
+        "characterise sgbm": 85.0,
+        "characterise variational": 105.0,
+        "models compare": 27.0,
+        "office2d": 29.0,
+        "scene3d": 72.0,
+        "street3d": 229.0,
+    },
 }
 """Each step's wall time (seconds, 2 cores): the progress lines' percentage and time left follow these shares,
 not the count of steps. ``quick``: a ``--quick`` run's report (Run time line) on the shared machine; ``full``:
@@ -97,8 +124,10 @@ def run_demo(out_dir, *, quick=False, seed=0):
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise PrismapInputError(f"--out {out}: exists and is not a directory")
-    steps = [(f"characterise {m}", lambda m=m: _characterise_motorcycle(out / "characterise" / m, m, quick=quick))
-             for m in MATCHERS]
+    steps = [
+        (f"characterise {m}", lambda m=m: _characterise_motorcycle(out / "characterise" / m, m, quick=quick))
+        for m in MATCHERS
+    ]
     steps.append(("models compare", lambda: _compare_models(out / "models", out / "characterise" / "sgbm")))
     experiments = {}
     steps += [(e.world, lambda e=e: _experiment(out, e, experiments, quick=quick, seed=seed)) for e in EXPERIMENTS]
@@ -114,14 +143,24 @@ def run_demo(out_dir, *, quick=False, seed=0):
             characterised.append(section)
         else:
             sections.append(section)
-    motorcycle = Section("Stereo error models (Middlebury Motorcycle, ground-truth disparity)",
-                         sum((s.headline for s in characterised), ()), sum((s.items for s in characterised), ()))
+    motorcycle = Section(
+        "Stereo error models (Middlebury Motorcycle, ground-truth disparity)",
+        sum((s.headline for s in characterised), ()),
+        sum((s.items for s in characterised), ()),
+    )
     sections.insert(0, motorcycle)
     sections = [Section(f"{i}. {s.title}", s.headline, s.items) for i, s in enumerate(sections, start=1)]
     write_text_atomic(out / "index.md", format_index_markdown(sections, timings, out, quick=quick))
     index = out / "index.html"
-    report = Report(tuple(sections), timings, out, quick=quick, experiments=experiments,
-                    render_3d=_render_3d(out, experiments), shell_dir=str(out_dir))
+    report = Report(
+        tuple(sections),
+        timings,
+        out,
+        quick=quick,
+        experiments=experiments,
+        render_3d=_render_3d(out, experiments),
+        shell_dir=str(out_dir),
+    )
     write_text_atomic(index, format_index_html(report))
     return index
 
@@ -141,16 +180,23 @@ def _render_3d(out, experiments):
     if result is None:
         return None
     names = {c.model for c in result.cells}
-    found = [(c.matcher, c.model) for m in matchers for model in models for c in result.cells
-             if c.matcher == m and c.model == model]
+    found = [
+        (c.matcher, c.model)
+        for m in matchers
+        for model in models
+        for c in result.cells
+        if c.matcher == m and c.model == model
+    ]
     if not found:
         return None
     matcher, model = found[0]
     map_path = cell_path(out / world, matcher, model).with_suffix(".npz")
     path = out / "map3d.png"
     plot_map_3d(load_map(map_path), read_ground_truth(out / world / "sequence" / "occupancy.npz"), path=path)
-    return path, (f"The {world} map of {matcher} with {model_label(model, names)} (right; voxels with P > 0.5) "
-                  "beside the ground truth's occupied voxels (left), coloured by height, the top layer left out.")
+    return path, (
+        f"The {world} map of {matcher} with {model_label(model, names)} (right; voxels with P > 0.5) "
+        "beside the ground truth's occupied voxels (left), coloured by height, the top layer left out."
+    )
 
 
 QUICK_MAX_CLASSES = 4
@@ -171,17 +217,29 @@ def _characterise_motorcycle(folder, matcher_name, *, quick):
         truth = frame.disparity_gt
         matcher = matcher_for(matcher_name, float(np.max(truth[np.isfinite(truth)])))
         options = {"max_classes": QUICK_MAX_CLASSES} if quick else {}
-        write_characterisation(characterise_matcher([frame], matcher, dataset="middlebury-motorcycle", **options),
-                               folder)
+        write_characterisation(
+            characterise_matcher([frame], matcher, dataset="middlebury-motorcycle", **options), folder
+        )
     model = load_error_model(model_path)
     mixture = model.mixture
     largest = mixture.weights.argmax()
-    headline = ((f"{matcher_name}: selected G = {model.selected_components}; largest component w = "
-                 f"{mixture.weights[largest]:.3f}, sigma = {mixture.sigmas[largest]:.3f} px."),)
-    items = ((folder / "table.md", (f"{matcher_name} on Motorcycle: mixtures G = 1..4, AIC/BIC, coverage, bad-1px, "
-                                    "bad-2px (thesis tables 3.1-3.3).")),
-             (folder / "errors.png", f"{matcher_name} on Motorcycle: error histogram and fitted mixtures."),
-             (folder / "errors_wide.png", f"{matcher_name} on Motorcycle: error tails (log scale)."))
+    headline = (
+        (
+            f"{matcher_name}: selected G = {model.selected_components}; largest component w = "
+            f"{mixture.weights[largest]:.3f}, sigma = {mixture.sigmas[largest]:.3f} px."
+        ),
+    )
+    items = (
+        (
+            folder / "table.md",
+            (
+                f"{matcher_name} on Motorcycle: mixtures G = 1..4, AIC/BIC, coverage, bad-1px, "
+                "bad-2px (thesis tables 3.1-3.3)."
+            ),
+        ),
+        (folder / "errors.png", f"{matcher_name} on Motorcycle: error histogram and fitted mixtures."),
+        (folder / "errors_wide.png", f"{matcher_name} on Motorcycle: error tails (log scale)."),
+    )
     return Section("", headline, items)
 
 
@@ -193,10 +251,14 @@ def _compare_models(folder, characterisation):
     if not all((folder / name).is_file() for name in COMPARE_FILES.values()):
         model_path = characterisation / "error_model.json"
         run_models_compare(load_error_model(model_path), folder, camera="middlebury-motorcycle", source=str(model_path))
-    items = tuple((folder / name, f"models compare: {Path(name).stem.replace('_', ' ')}.")
-                  for name in COMPARE_FILES.values())
-    return Section("Sensor models along one ray (SGBM error model)",
-                   ("The sensor models along one ray with the SGBM error model; PRISM is the exact yardstick.",), items)
+    items = tuple(
+        (folder / name, f"models compare: {Path(name).stem.replace('_', ' ')}.") for name in COMPARE_FILES.values()
+    )
+    return Section(
+        "Sensor models along one ray (SGBM error model)",
+        ("The sensor models along one ray with the SGBM error model; PRISM is the exact yardstick.",),
+        items,
+    )
 
 
 def _experiment(out, experiment, experiments, *, quick, seed):

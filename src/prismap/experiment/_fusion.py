@@ -16,10 +16,15 @@ from prismap.evaluate import align_to_ground_truth, score_map
 FUSIONS = ("independent", "persistent failure", "clamped at one view")
 """The readings compared, in table order."""
 
-FUSION_COLUMNS = (("Brier", "brier", "{:.4f}"), ("log-loss", "log_loss", "{:.4f}"), ("ECE", "ece", "{:.4f}"),
-                  ("ROC AUC", "roc_auc", "{:.4f}"), ("at 90 % free", "safety_occupied_called_free", "{:.4f}"),
-                  ("free at P >= 0.99", "free_confident_occupied", "{:.3%}"),
-                  ("occupied at P <= 0.01", "occupied_confident_free", "{:.3%}"))
+FUSION_COLUMNS = (
+    ("Brier", "brier", "{:.4f}"),
+    ("log-loss", "log_loss", "{:.4f}"),
+    ("ECE", "ece", "{:.4f}"),
+    ("ROC AUC", "roc_auc", "{:.4f}"),
+    ("at 90 % free", "safety_occupied_called_free", "{:.4f}"),
+    ("free at P >= 0.99", "free_confident_occupied", "{:.3%}"),
+    ("occupied at P <= 0.01", "occupied_confident_free", "{:.3%}"),
+)
 """(label, MapScores field, format) of the section's columns."""
 
 
@@ -34,8 +39,12 @@ class FusionRow:
 
     def to_dict(self):
         """Plain-JSON form (the scores' numbers, not their bins)."""
-        return {"matcher": self.matcher, "model": self.model, "fusion": self.fusion,
-                **{name: _plain(getattr(self.scores, name)) for _, name, _ in FUSION_COLUMNS}}
+        return {
+            "matcher": self.matcher,
+            "model": self.model,
+            "fusion": self.fusion,
+            **{name: _plain(getattr(self.scores, name)) for _, name, _ in FUSION_COLUMNS},
+        }
 
 
 FUSED_MODELS = ("andert", "prism")
@@ -97,8 +106,11 @@ def fused_probabilities(log_odds, counts, p0, failure):
     """
     independent = expit(np.asarray(log_odds, dtype=np.float64))
     low, high = failure.bounds(p0)
-    return {"independent": independent, "persistent failure": failure.probability(log_odds, counts, p0),
-            "clamped at one view": np.clip(independent, low, high)}
+    return {
+        "independent": independent,
+        "persistent failure": failure.probability(log_odds, counts, p0),
+        "clamped at one view": np.clip(independent, low, high),
+    }
 
 
 def compare_fusions(maps, truth, failures):
@@ -127,16 +139,24 @@ def compare_fusions(maps, truth, failures):
 def format_fusion_section(rows, failures):
     """Markdown section: the fitted failure models (matcher -> PersistentFailure, None = not fitted) and every map
     under every reading."""
-    lines = ["## Fusion of repeated failures", "",
-             "Each error-model map read three ways from the same stored sums: the independent sum; the persistent "
-             "failure state (rate r and persistence q fitted on the characterisation frames, errors beyond "
-             "3 px; docs/SENSOR_MODELS.md); the independent sum clamped to that model's one-view bound "
-             "[r p0, 1 - r (1 - p0)]. " + "; ".join(
-                 f"{name}: r = {f.rate:.4f}, q = {f.persistence:.3f}" if f is not None else
-                 f"{name}: not fitted (too few surface points seen from consecutive characterisation positions)"
-                 for name, f in failures.items()) + ".", "",
-             "| matcher | model | fusion | " + " | ".join(label for label, _, _ in FUSION_COLUMNS) + " |",
-             "|---|---|---|" + "---|" * len(FUSION_COLUMNS)]
+    lines = [
+        "## Fusion of repeated failures",
+        "",
+        "Each error-model map read three ways from the same stored sums: the independent sum; the persistent "
+        "failure state (rate r and persistence q fitted on the characterisation frames, errors beyond "
+        "3 px; docs/SENSOR_MODELS.md); the independent sum clamped to that model's one-view bound "
+        "[r p0, 1 - r (1 - p0)]. "
+        + "; ".join(
+            f"{name}: r = {f.rate:.4f}, q = {f.persistence:.3f}"
+            if f is not None
+            else f"{name}: not fitted (too few surface points seen from consecutive characterisation positions)"
+            for name, f in failures.items()
+        )
+        + ".",
+        "",
+        "| matcher | model | fusion | " + " | ".join(label for label, _, _ in FUSION_COLUMNS) + " |",
+        "|---|---|---|" + "---|" * len(FUSION_COLUMNS),
+    ]
     for row in rows:
         values = [fmt.format(getattr(row.scores, name)) for _, name, fmt in FUSION_COLUMNS]
         lines.append(f"| {row.matcher} | {row.model} | {row.fusion} | " + " | ".join(values) + " |")

@@ -9,8 +9,9 @@ from prismap.experiment._cells import ExperimentResult, claim_out_dir, draw_figu
 from prismap.experiment._results import MODELS, prior_of, write_results
 from prismap.gmm import GaussianMixture
 
-SGBM_LIKE_MIXTURE = GaussianMixture(np.array([0.84, 0.10, 0.06]), np.array([0.01, -0.04, -10.4]),
-                                    np.array([0.24, 0.92, 13.6]))
+SGBM_LIKE_MIXTURE = GaussianMixture(
+    np.array([0.84, 0.10, 0.06]), np.array([0.01, -0.04, -10.4]), np.array([0.24, 0.92, 13.6])
+)
 """Disparity error ``e = d_true - d_computed`` (pixels) shaped like a semiglobal matcher's: a sharp core,
 a wider shoulder and 6 % gross mismatches that put the surface too near (negative mean)."""
 
@@ -24,8 +25,9 @@ OFFICE_SIZES = {
 """Full and ``quick`` sizes: pose spacing along the office tour, scanner rays (90 degree field of view), voxel."""
 
 
-def office2d_settings(*, n_frames=None, voxel_size_m=None, seed=0, quick=False, error_model=SGBM_LIKE_MIXTURE,
-                      max_depth_m=15.0):
+def office2d_settings(
+    *, n_frames=None, voxel_size_m=None, seed=0, quick=False, error_model=SGBM_LIKE_MIXTURE, max_depth_m=15.0
+):
     """The settings dict of a 2-D run (sizes of ``OFFICE_SIZES`` unless overridden)."""
     sizes = dict(OFFICE_SIZES[bool(quick)])
     if voxel_size_m is not None:
@@ -34,13 +36,30 @@ def office2d_settings(*, n_frames=None, voxel_size_m=None, seed=0, quick=False, 
         check_integer(n_frames, "n_frames", expected="a positive integer or None", condition=lambda n: n >= 1)
     if not isinstance(error_model, GaussianMixture):
         raise PrismapInputError(f"`error_model` must be a GaussianMixture; got {type(error_model).__name__}")
-    return {"world": "office2d", "quick": bool(quick), "seed": int(seed), "n_frames": n_frames,
-            "max_depth_m": check_positive(max_depth_m, "max_depth_m"), "fov_deg": 90.0, "baseline_m": 0.1,
-            "error_model": error_model.to_dict(), **sizes}
+    return {
+        "world": "office2d",
+        "quick": bool(quick),
+        "seed": int(seed),
+        "n_frames": n_frames,
+        "max_depth_m": check_positive(max_depth_m, "max_depth_m"),
+        "fov_deg": 90.0,
+        "baseline_m": 0.1,
+        "error_model": error_model.to_dict(),
+        **sizes,
+    }
 
 
-def run_office2d(out_dir, *, n_frames=None, voxel_size_m=None, seed=0, quick=False, models=MODELS,
-                 error_model=SGBM_LIKE_MIXTURE, max_depth_m=15.0):
+def run_office2d(
+    out_dir,
+    *,
+    n_frames=None,
+    voxel_size_m=None,
+    seed=0,
+    quick=False,
+    models=MODELS,
+    error_model=SGBM_LIKE_MIXTURE,
+    max_depth_m=15.0,
+):
     """Map the office world with every sensor model from disparities with known-mixture errors; score them.
 
     The scanner (:class:`prismap.sim.StereoScanner2D`, 90 degree field of view, 0.1 m baseline) follows
@@ -78,19 +97,30 @@ def run_office2d(out_dir, *, n_frames=None, voxel_size_m=None, seed=0, quick=Fal
     from prismap.grid import OccupancyMap
     from prismap.pipeline import build_sensor_model
 
-    settings = office2d_settings(n_frames=n_frames, voxel_size_m=voxel_size_m, seed=seed, quick=quick,
-                                 error_model=error_model, max_depth_m=max_depth_m)
+    settings = office2d_settings(
+        n_frames=n_frames,
+        voxel_size_m=voxel_size_m,
+        seed=seed,
+        quick=quick,
+        error_model=error_model,
+        max_depth_m=max_depth_m,
+    )
     world = sim.office_world()
     poses = sim.waypoint_path(world.waypoints, step_m=settings["path_step_m"], turn_step_deg=settings["turn_step_deg"])
     if n_frames is not None:
         if n_frames > len(poses):
-            raise PrismapInputError(f"`n_frames` must be at most {len(poses)} (the scans of the office tour); "
-                                    f"got {n_frames}")
+            raise PrismapInputError(
+                f"`n_frames` must be at most {len(poses)} (the scans of the office tour); got {n_frames}"
+            )
         poses = poses[np.unique(np.linspace(0, len(poses) - 1, int(n_frames)).round().astype(int))]
     voxel = settings["voxel_size_m"]
-    scanner = sim.StereoScanner2D(n_rays=settings["n_rays"], fov_deg=settings["fov_deg"],
-                                  baseline_m=settings["baseline_m"], max_depth_m=settings["max_depth_m"],
-                                  error_model=error_model)
+    scanner = sim.StereoScanner2D(
+        n_rays=settings["n_rays"],
+        fov_deg=settings["fov_deg"],
+        baseline_m=settings["baseline_m"],
+        max_depth_m=settings["max_depth_m"],
+        error_model=error_model,
+    )
     frames = list(scanner.frames(world, poses, seed=seed))
     truth = world.ground_truth(frames, voxel, max_depth_m=settings["max_depth_m"])  # refuses absurd voxel sizes
     out = claim_out_dir(out_dir, settings)  # after every check of the settings: a refused run writes nothing
@@ -98,7 +128,9 @@ def run_office2d(out_dir, *, n_frames=None, voxel_size_m=None, seed=0, quick=Fal
 
     # rays stop where the scored cells do: the farthest ray reaches max_depth_m of camera depth at |r| times it
     # (an error can put a measured disparity near 0 px, whose free space would otherwise run for kilometres)
-    reach_m = settings["max_depth_m"] * float(np.linalg.norm(scanner.camera.pixel_rays((1, settings["n_rays"])), axis=-1).max())
+    reach_m = settings["max_depth_m"] * float(
+        np.linalg.norm(scanner.camera.pixel_rays((1, settings["n_rays"])), axis=-1).max()
+    )
 
     def build_map(model_name):
         model = build_sensor_model(model_name, scanner.camera, voxel_size_m=voxel, p0=p0, error_model=error_model)
@@ -115,8 +147,10 @@ def run_office2d(out_dir, *, n_frames=None, voxel_size_m=None, seed=0, quick=Fal
         f"p0 = {p0:.4f}: the occupancy ratio of the cells a perfect sensor observed (the scored cells).",
     )
     paths = write_results(results, out, title="2-D office, known error mixture", notes=notes, settings=settings)
-    artifacts = [(paths["table"], "Scores of every sensor model on the 2-D office (Markdown)."),
-                 (paths["json"], "The same scores with reliability bins and histograms (JSON).")]
+    artifacts = [
+        (paths["table"], "Scores of every sensor model on the 2-D office (Markdown)."),
+        (paths["json"], "The same scores with reliability bins and histograms (JSON)."),
+    ]
     artifacts += draw_figures(out, ERROR_SOURCE, results, maps, truth, layer=0, where="2-D office")
     return ExperimentResult("office2d", tuple(results), p0, settings, tuple(artifacts))
 

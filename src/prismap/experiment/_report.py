@@ -99,8 +99,10 @@ def format_index_html(report):
     body.append(f"<p>{html.escape(_run_time(report.timings))}</p>")
     for part in REPORT_PARTS:
         body += part(report)
-    return ("<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>prismap demo</title>"
-            f"<style>{_STYLE}</style></head><body>\n" + "\n".join(body) + "\n</body></html>\n")
+    return (
+        '<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8"><title>prismap demo</title>'
+        f"<style>{_STYLE}</style></head><body>\n" + "\n".join(body) + "\n</body></html>\n"
+    )
 
 
 def _summary(report):
@@ -116,10 +118,12 @@ def _summary(report):
         return []
     header = "".join(f"<th>{html.escape(h)}</th>" for h in ("world", "matcher", *(label for label, _ in scores)))
     body = "".join("<tr>" + "".join(f"<td>{c}</td>" for c in row) + "</tr>" for row in rows)
-    return ['<section id="summary"><h2>Which model wins</h2>',
-            "<p>The best model of each world and matcher on each score (lowest; highest for ROC AUC), over every "
-            "model the run mapped; PRISM in bold.</p>",
-            f"<table><thead><tr>{header}</tr></thead><tbody>{body}</tbody></table></section>"]
+    return [
+        '<section id="summary"><h2>Which model wins</h2>',
+        "<p>The best model of each world and matcher on each score (lowest; highest for ROC AUC), over every "
+        "model the run mapped; PRISM in bold.</p>",
+        f"<table><thead><tr>{header}</tr></thead><tbody>{body}</tbody></table></section>",
+    ]
 
 
 def _model_html(model, names):
@@ -145,17 +149,20 @@ def _prism_vs_octomap(report):
             if prism not in cells or "hitmiss" not in cells:
                 continue
             ours, theirs = cells[prism].scores, cells["hitmiss"].scores
-            texts = [f"{fmt.format(getattr(ours, name))} vs {fmt.format(getattr(theirs, name))}"
-                     for _, name, fmt in columns]
+            texts = [
+                f"{fmt.format(getattr(ours, name))} vs {fmt.format(getattr(theirs, name))}" for _, name, fmt in columns
+            ]
             rows.append([world, matcher, html.escape(model_label(prism, names)), *texts])
     if not rows:
         return []
     header = "".join(f"<th>{html.escape(h)}</th>" for h in ("world", "matcher", "PRISM", *(c[0] for c in columns)))
     body = "".join("<tr>" + "".join(f"<td>{c}</td>" for c in row) + "</tr>" for row in rows)
-    return ['<section id="headline"><h2>PRISM against OctoMap</h2>',
-            "<p>Each cell: PRISM vs OctoMap's hit/miss model on the same disparities and voxels (Brier score, "
-            "log-loss and occupied called free at 90 % free: lower is better; ROC AUC: higher).</p>",
-            f"<table><thead><tr>{header}</tr></thead><tbody>{body}</tbody></table></section>"]
+    return [
+        '<section id="headline"><h2>PRISM against OctoMap</h2>',
+        "<p>Each cell: PRISM vs OctoMap's hit/miss model on the same disparities and voxels (Brier score, "
+        "log-loss and occupied called free at 90 % free: lower is better; ROC AUC: higher).</p>",
+        f"<table><thead><tr>{header}</tr></thead><tbody>{body}</tbody></table></section>",
+    ]
 
 
 def _maps_at_a_glance(report):
@@ -187,14 +194,18 @@ def _map_files(report):
                 command += f" --gt {report.shell_dir}/{_relative(truth, report.out_dir)}"
             record = path.with_suffix(".run.json")
             again = "" if not record.is_file() else _link(record, report.out_dir, "prismap map command")
-            rows.append(f"<tr><td>{html.escape(world)}</td><td>{html.escape(cell.matcher)}</td>"
-                        f"<td>{html.escape(model_label(cell.model, names))}</td><td>{_link(path, report.out_dir)}</td>"
-                        f"<td><code>{html.escape(command)}</code></td><td>{again}</td></tr>")
+            rows.append(
+                f"<tr><td>{html.escape(world)}</td><td>{html.escape(cell.matcher)}</td>"
+                f"<td>{html.escape(model_label(cell.model, names))}</td><td>{_link(path, report.out_dir)}</td>"
+                f"<td><code>{html.escape(command)}</code></td><td>{again}</td></tr>"
+            )
     if not rows:
         return []
-    return ["<details><summary>Every map file, the command that opens it in the 3-D viewer and the one that makes "
-            "it again</summary><table><thead><tr><th>world</th><th>matcher</th><th>model</th><th>map</th>"
-            f"<th>open with</th><th>reproduce</th></tr></thead><tbody>{''.join(rows)}</tbody></table></details>"]
+    return [
+        "<details><summary>Every map file, the command that opens it in the 3-D viewer and the one that makes "
+        "it again</summary><table><thead><tr><th>world</th><th>matcher</th><th>model</th><th>map</th>"
+        f"<th>open with</th><th>reproduce</th></tr></thead><tbody>{''.join(rows)}</tbody></table></details>"
+    ]
 
 
 def _link(path, out_dir, text=None):
@@ -204,13 +215,18 @@ def _link(path, out_dir, text=None):
 
 def _details(report):
     """Every step's headline numbers, tables and figures; tables folded, targets left out."""
-    parts = ['<h2 id="details">Details</h2>', "<nav><ul>"
-             + "".join(f'<li><a href="#s{i}">{html.escape(s.title)}</a></li>' for i, s in enumerate(report.sections))
-             + "</ul></nav>"]
+    parts = [
+        '<h2 id="details">Details</h2>',
+        "<nav><ul>"
+        + "".join(f'<li><a href="#s{i}">{html.escape(s.title)}</a></li>' for i, s in enumerate(report.sections))
+        + "</ul></nav>",
+    ]
     for i, section in enumerate(report.sections):
         parts.append(f'<section id="s{i}"><h3>{html.escape(section.title)}</h3>')
         if section.headline:
-            parts.append('<ul class="headline">' + "".join(f"<li>{_inline(n)}</li>" for n in section.headline) + "</ul>")
+            parts.append(
+                '<ul class="headline">' + "".join(f"<li>{_inline(n)}</li>" for n in section.headline) + "</ul>"
+            )
         for path, caption in section.items:
             link = html.escape(_relative(path, report.out_dir), quote=True)
             suffix = Path(path).suffix.lower()
@@ -218,8 +234,10 @@ def _details(report):
                 parts.append(_figure(report, path, caption))
             elif suffix in TABLE_SUFFIXES and Path(path).is_file():
                 table = markdown_to_html(Path(path).read_text(encoding="utf-8"), skip=FOLDED_OUT)
-                parts.append(f'<details><summary>{_inline(caption)}</summary><p class="caption">'
-                             f'<a href="{link}">{link}</a></p>{table}</details>')
+                parts.append(
+                    f'<details><summary>{_inline(caption)}</summary><p class="caption">'
+                    f'<a href="{link}">{link}</a></p>{table}</details>'
+                )
             else:
                 parts.append(f'<p class="caption"><a href="{link}">{link}</a>: {_inline(caption)}</p>')
         parts.append("</section>")
@@ -233,19 +251,29 @@ def _confident_and_wrong(report):
         names = {c.model for c in result.cells}
         for cell in result.cells:
             scores = cell.scores
-            rows.append([html.escape(world), html.escape(cell.matcher), _model_html(cell.model, names),
-                         f"{scores.free_confident_occupied:.3%}", f"{scores.occupied_confident_free:.3%}"])
+            rows.append(
+                [
+                    html.escape(world),
+                    html.escape(cell.matcher),
+                    _model_html(cell.model, names),
+                    f"{scores.free_confident_occupied:.3%}",
+                    f"{scores.occupied_confident_free:.3%}",
+                ]
+            )
     if not rows:
         return []
-    header = "".join(f"<th>{h}</th>" for h in ("world", "matcher", "model", "free at P &ge; 0.99",
-                                                 "occupied at P &le; 0.01"))
+    header = "".join(
+        f"<th>{h}</th>" for h in ("world", "matcher", "model", "free at P &ge; 0.99", "occupied at P &le; 0.01")
+    )
     body = "".join("<tr>" + "".join(f"<td>{c}</td>" for c in row) + "</tr>" for row in rows)
-    return ['<section id="extremes"><h2>Confident and wrong</h2>',
-            "<p>Truly free voxels a map puts at P &ge; 0.99 and truly occupied voxels at P &le; 0.01: where a "
-            "planner trusts the map most, lower is better. The reliability diagrams on log-odds axes and the "
-            "per-frame evidence histograms (Details) show where they come from.</p>",
-            f"<details><summary>Every map</summary><table><thead><tr>{header}</tr></thead><tbody>{body}</tbody>"
-            "</table></details></section>"]
+    return [
+        '<section id="extremes"><h2>Confident and wrong</h2>',
+        "<p>Truly free voxels a map puts at P &ge; 0.99 and truly occupied voxels at P &le; 0.01: where a "
+        "planner trusts the map most, lower is better. The reliability diagrams on log-odds axes and the "
+        "per-frame evidence histograms (Details) show where they come from.</p>",
+        f"<details><summary>Every map</summary><table><thead><tr>{header}</tr></thead><tbody>{body}</tbody>"
+        "</table></details></section>",
+    ]
 
 
 REPORT_PARTS = (_summary, _prism_vs_octomap, _confident_and_wrong, _maps_at_a_glance, _details)
@@ -263,8 +291,10 @@ def _figure(report, path, caption):
     if report.embed and Path(path).is_file():
         kind = {".svg": "svg+xml", ".jpg": "jpeg"}.get(Path(path).suffix.lower(), "png")
         source = f"data:image/{kind};base64," + base64.b64encode(Path(path).read_bytes()).decode("ascii")
-    return (f'<figure><img src="{source}" alt="{html.escape(caption, quote=True)}" loading="eager">'
-            f'<figcaption>{_inline(caption)} (<a href="{link}">{link}</a>)</figcaption></figure>')
+    return (
+        f'<figure><img src="{source}" alt="{html.escape(caption, quote=True)}" loading="eager">'
+        f'<figcaption>{_inline(caption)} (<a href="{link}">{link}</a>)</figcaption></figure>'
+    )
 
 
 _CELL_NUMBER = re.compile(r"^[-+]?(\*\*)?[-+]?[\d.,]+(e[-+]?\d+)?%?(\*\*)?$", re.IGNORECASE)
@@ -326,15 +356,28 @@ def _table(rows):
     header, body = cells[0], cells[1:]
     if body and all(re.fullmatch(r":?-{3,}:?", c) for c in body[0]):
         body = body[1:]
-    numeric = [bool(body) and all(_CELL_NUMBER.match(r[j]) or r[j] in ("", "n/a") for r in body if j < len(r))
-               for j in range(len(header))]
+    numeric = [
+        bool(body) and all(_CELL_NUMBER.match(r[j]) or r[j] in ("", "n/a") for r in body if j < len(r))
+        for j in range(len(header))
+    ]
 
     def row_html(row, tag):
-        return "<tr>" + "".join(f'<{tag}{" class=num" if j < len(numeric) and numeric[j] else ""}>{_inline(c)}</{tag}>'
-                                for j, c in enumerate(row)) + "</tr>"
+        return (
+            "<tr>"
+            + "".join(
+                f"<{tag}{' class=num' if j < len(numeric) and numeric[j] else ''}>{_inline(c)}</{tag}>"
+                for j, c in enumerate(row)
+            )
+            + "</tr>"
+        )
 
-    return ("<table><thead>" + row_html(header, "th") + "</thead><tbody>"
-            + "".join(row_html(r, "td") for r in body) + "</tbody></table>")
+    return (
+        "<table><thead>"
+        + row_html(header, "th")
+        + "</thead><tbody>"
+        + "".join(row_html(r, "td") for r in body)
+        + "</tbody></table>"
+    )
 
 
 def _inline(text):

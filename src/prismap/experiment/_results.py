@@ -16,8 +16,16 @@ MODELS = ("ideal", "hitmiss", "convolution", "andert", "prism")
 
 CONDITIONED_SUFFIX = "_conditioned"
 """A cell's model ``NAME_conditioned`` maps with model NAME conditioned on the error classes."""
-MODELS_3D = ("ideal", "hitmiss", "convolution", "convolution_conditioned", "andert", "andert_conditioned", "prism",
-             "prism_conditioned")
+MODELS_3D = (
+    "ideal",
+    "hitmiss",
+    "convolution",
+    "convolution_conditioned",
+    "andert",
+    "andert_conditioned",
+    "prism",
+    "prism_conditioned",
+)
 """The cells of the 3-D experiments, in table order: every model, and each model that uses the error model both
 plain (the whole-image mixture) and conditioned (each pixel's class mixture)."""
 MAP_PRIOR_SUFFIX = "_map_prior"
@@ -52,6 +60,7 @@ def model_label(name, names=()):
     elif not conditioned and model + CONDITIONED_SUFFIX in names:
         variant.append("plain")
     return f"{model} ({', '.join(variant)})" if variant else model
+
 
 RESULTS_FORMAT = "prismap-experiment-results"
 RESULTS_VERSION = 3
@@ -90,25 +99,46 @@ class CellResult:
 
     def to_dict(self):
         """Plain-JSON form (scores via :meth:`MapScores.to_dict`, NaN as null)."""
-        return {"format": RESULTS_FORMAT + "-cell", "version": RESULTS_VERSION, "matcher": self.matcher,
-                "model": self.model, "time_s": self.time_s, "n_frames": self.n_frames, "settings": self.settings,
-                "scores": self.scores.to_dict()}
+        return {
+            "format": RESULTS_FORMAT + "-cell",
+            "version": RESULTS_VERSION,
+            "matcher": self.matcher,
+            "model": self.model,
+            "time_s": self.time_s,
+            "n_frames": self.n_frames,
+            "settings": self.settings,
+            "scores": self.scores.to_dict(),
+        }
 
     @classmethod
     def from_dict(cls, data, *, source="cell"):
         """Inverse of :meth:`to_dict`; ``source`` names the data in error messages."""
         try:
             if data["format"] != RESULTS_FORMAT + "-cell" or data["version"] not in READABLE_RESULTS_VERSIONS:
-                raise PrismapInputError(f"{source}: not a version {list(READABLE_RESULTS_VERSIONS)} experiment cell "
-                                        f"(format {data['format']!r}, version {data['version']!r})")
-            return cls(str(data["matcher"]), str(data["model"]), scores_from_dict(data["scores"]),
-                       float(data["time_s"]), int(data["n_frames"]), dict(data["settings"]))
+                raise PrismapInputError(
+                    f"{source}: not a version {list(READABLE_RESULTS_VERSIONS)} experiment cell "
+                    f"(format {data['format']!r}, version {data['version']!r})"
+                )
+            return cls(
+                str(data["matcher"]),
+                str(data["model"]),
+                scores_from_dict(data["scores"]),
+                float(data["time_s"]),
+                int(data["n_frames"]),
+                dict(data["settings"]),
+            )
         except (KeyError, TypeError, ValueError) as exc:
             raise PrismapInputError(f"{source}: malformed experiment cell ({type(exc).__name__}: {exc})") from None
 
 
-_INTEGER_ARRAYS = ("bin_counts", "hist_free", "hist_occupied", "logit_bin_counts", "evidence_one_view",
-                   "evidence_per_view")
+_INTEGER_ARRAYS = (
+    "bin_counts",
+    "hist_free",
+    "hist_occupied",
+    "logit_bin_counts",
+    "evidence_one_view",
+    "evidence_per_view",
+)
 """The :class:`MapScores` arrays of counts (integers in JSON)."""
 
 
@@ -172,8 +202,14 @@ def _plain(value):
 def format_results_table(results, *, title, notes=()):
     """Markdown: one row per (matcher, model) with every score, the voxel counts and the mapping time."""
     header = ["matcher", "model", *(c[0] for c in SCORE_COLUMNS), "time (s)"]
-    lines = [f"# {title}", "", *notes, *([""] if notes else []),
-             "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines = [
+        f"# {title}",
+        "",
+        *notes,
+        *([""] if notes else []),
+        "| " + " | ".join(header) + " |",
+        "|" + "---|" * len(header),
+    ]
     best = best_models(results)
     names = {result.model for result in results}
     for result in results:
@@ -189,9 +225,11 @@ def format_results_table(results, *, title, notes=()):
     first = results[0].scores if results else None
     if first is not None:
         counts = f"Scored voxels: {first.n_voxels} ({first.n_occupied} occupied, {first.n_free} free)."
-        legend = ("Bold: the best model of each matcher on that score (lowest, highest for ROC AUC). \"At 90 % free\": "
-                  "occupied voxels called free (P <= t) at the threshold t that calls 90 % of the free ones free, "
-                  "whatever the prior.")
+        legend = (
+            'Bold: the best model of each matcher on that score (lowest, highest for ROC AUC). "At 90 % free": '
+            "occupied voxels called free (P <= t) at the threshold t that calls 90 % of the free ones free, "
+            "whatever the prior."
+        )
         lines += ["", f"{counts} {legend}"]
     return "\n".join(lines) + "\n"
 
@@ -228,8 +266,14 @@ def write_results(results, out_dir, *, title, notes=(), settings=None, sections=
     paths = {"table": out / "results.md", "json": out / "results.json"}
     table = format_results_table(results, title=title, notes=notes)
     write_text_atomic(paths["table"], "\n".join([table, *sections]))
-    document = {"format": RESULTS_FORMAT, "version": RESULTS_VERSION, "title": title, "settings": settings or {},
-                "cells": [r.to_dict() for r in results], **(extra or {})}
+    document = {
+        "format": RESULTS_FORMAT,
+        "version": RESULTS_VERSION,
+        "title": title,
+        "settings": settings or {},
+        "cells": [r.to_dict() for r in results],
+        **(extra or {}),
+    }
     write_text_atomic(paths["json"], json.dumps(document, indent=1) + "\n")
     return paths
 

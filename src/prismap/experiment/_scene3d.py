@@ -32,9 +32,21 @@ from prismap.experiment._targets import format_targets, measure_targets
 from prismap.experiment._worlds3d import MATCHERS, WORLDS, render_world, scene3d_settings, split_frames
 
 
-def run_scene3d(out_dir, *, n_frames=None, voxel_size_m=None, seed=0, quick=False, matchers=MATCHERS,
-                models=MODELS_3D, characterise_every=4, max_range_m=None, grid_offset=0.5, between_frames=None,
-                class_pass_through=False):
+def run_scene3d(
+    out_dir,
+    *,
+    n_frames=None,
+    voxel_size_m=None,
+    seed=0,
+    quick=False,
+    matchers=MATCHERS,
+    models=MODELS_3D,
+    characterise_every=4,
+    max_range_m=None,
+    grid_offset=0.5,
+    between_frames=None,
+    class_pass_through=False,
+):
     """Characterise each matcher on some frames of the indoor room, map the others with every model, score.
 
     The seeded :func:`prismap.sim.indoor_scene` rendered along :func:`prismap.sim.indoor_trajectory` by the
@@ -44,15 +56,38 @@ def run_scene3d(out_dir, *, n_frames=None, voxel_size_m=None, seed=0, quick=Fals
     ``models=MODELS_3D_MAP_PRIOR`` adds conditioned PRISM with the map as prior. Arguments and result: see
     :func:`run_rendered_world`.
     """
-    return run_rendered_world("scene3d", out_dir, n_frames=n_frames, voxel_size_m=voxel_size_m, seed=seed,
-                              quick=quick, matchers=matchers, models=models, characterise_every=characterise_every,
-                              max_range_m=max_range_m, grid_offset=grid_offset,
-                              between_frames=between_frames, class_pass_through=class_pass_through)
+    return run_rendered_world(
+        "scene3d",
+        out_dir,
+        n_frames=n_frames,
+        voxel_size_m=voxel_size_m,
+        seed=seed,
+        quick=quick,
+        matchers=matchers,
+        models=models,
+        characterise_every=characterise_every,
+        max_range_m=max_range_m,
+        grid_offset=grid_offset,
+        between_frames=between_frames,
+        class_pass_through=class_pass_through,
+    )
 
 
-def run_street3d(out_dir, *, n_frames=None, voxel_size_m=None, seed=0, quick=False, matchers=MATCHERS,
-                 models=MODELS_3D, characterise_every=4, max_range_m=None, grid_offset=0.5, between_frames=None,
-                class_pass_through=False):
+def run_street3d(
+    out_dir,
+    *,
+    n_frames=None,
+    voxel_size_m=None,
+    seed=0,
+    quick=False,
+    matchers=MATCHERS,
+    models=MODELS_3D,
+    characterise_every=4,
+    max_range_m=None,
+    grid_offset=0.5,
+    between_frames=None,
+    class_pass_through=False,
+):
     """Characterise each matcher on some frames of the street drive, map the others with every model, score.
 
     The seeded :func:`prismap.sim.street_scene` rendered along :func:`prismap.sim.street_trajectory` by
@@ -61,15 +96,39 @@ def run_street3d(out_dir, *, n_frames=None, voxel_size_m=None, seed=0, quick=Fal
     0.2 m voxels, every 2nd pixel, rays to 40 m, projective integration. ``quick``: 310x94, 8 + 4 frames,
     0.4 m voxels, every pixel, rays to 30 m. Arguments and result: see :func:`run_rendered_world`.
     """
-    return run_rendered_world("street3d", out_dir, n_frames=n_frames, voxel_size_m=voxel_size_m, seed=seed,
-                              quick=quick, matchers=matchers, models=models, characterise_every=characterise_every,
-                              max_range_m=max_range_m, grid_offset=grid_offset,
-                              between_frames=between_frames, class_pass_through=class_pass_through)
+    return run_rendered_world(
+        "street3d",
+        out_dir,
+        n_frames=n_frames,
+        voxel_size_m=voxel_size_m,
+        seed=seed,
+        quick=quick,
+        matchers=matchers,
+        models=models,
+        characterise_every=characterise_every,
+        max_range_m=max_range_m,
+        grid_offset=grid_offset,
+        between_frames=between_frames,
+        class_pass_through=class_pass_through,
+    )
 
 
-def run_rendered_world(world, out_dir, *, n_frames=None, voxel_size_m=None, seed=0, quick=False, matchers=MATCHERS,
-                       models=MODELS_3D, characterise_every=4, max_range_m=None, grid_offset=0.5,
-                       between_frames=None, class_pass_through=False):
+def run_rendered_world(
+    world,
+    out_dir,
+    *,
+    n_frames=None,
+    voxel_size_m=None,
+    seed=0,
+    quick=False,
+    matchers=MATCHERS,
+    models=MODELS_3D,
+    characterise_every=4,
+    max_range_m=None,
+    grid_offset=0.5,
+    between_frames=None,
+    class_pass_through=False,
+):
     """The 3-D experiment on the world named ``world`` (a key of :data:`WORLDS`).
 
     Frames ``0, k, 2k, ...`` (``k = characterise_every``) of the drive, and the world's frames between the
@@ -127,10 +186,19 @@ def run_rendered_world(world, out_dir, *, n_frames=None, voxel_size_m=None, seed
     """
     from prismap.io import read_sequence, write_sequence
 
-    settings = scene3d_settings(world=world, n_frames=n_frames, voxel_size_m=voxel_size_m, seed=seed, quick=quick,
-                                matchers=matchers, characterise_every=characterise_every, max_range_m=max_range_m,
-                                grid_offset=grid_offset, between_frames=between_frames,
-                                class_pass_through=class_pass_through)
+    settings = scene3d_settings(
+        world=world,
+        n_frames=n_frames,
+        voxel_size_m=voxel_size_m,
+        seed=seed,
+        quick=quick,
+        matchers=matchers,
+        characterise_every=characterise_every,
+        max_range_m=max_range_m,
+        grid_offset=grid_offset,
+        between_frames=between_frames,
+        class_pass_through=class_pass_through,
+    )
     spec = WORLDS[world]()
     n_drive, n_between = settings["n_frames"], settings["between_frames"]
     char_index, map_index = split_frames(n_drive, settings["characterise_every"])
@@ -157,39 +225,72 @@ def run_rendered_world(world, out_dir, *, n_frames=None, voxel_size_m=None, seed
     layer = math.floor((spec.slice_height_m + shift) / voxel)
     for matcher_name in settings["matchers"]:
         matcher = matcher_for(matcher_name, largest)
-        error_model, char_artifacts = characterise_frames(out / matcher_name / "characterisation", char_frames, matcher,
-                                                    f"{scene.name} frames {char_index.tolist()}"
-                                                    + (f" and {n_between} between" if n_between else ""))
+        error_model, char_artifacts = characterise_frames(
+            out / matcher_name / "characterisation",
+            char_frames,
+            matcher,
+            f"{scene.name} frames {char_index.tolist()}" + (f" and {n_between} between" if n_between else ""),
+        )
         error_models[matcher_name] = error_model
         disparity_dir = match_frames(out / matcher_name / "disparity", map_frames, matcher)
         mapped_likelihoods[matcher_name] = mapped_log_likelihood(error_model, map_frames, disparity_dir)
         correlations[matcher_name] = mapped_error_correlation(sequence, disparity_dir, sequence.camera)
         matcher_params = model_params
         if settings.get("class_pass_through"):
-            matcher_params = class_model_params(model_params, settings, scene, drive_char_frames, error_model,
-                                                 match_frames(out / matcher_name / "characterisation_disparity",
-                                                        drive_char_frames, matcher))
-        build_map = mapper(sequence, disparity_dir, matcher_name, error_model, p0, matcher_params, settings,
-                           error_model_path=out / matcher_name / "characterisation" / "error_model.json")
-        cells, maps = run_cells(out, matcher_name, models, build_map, truth,
-                                dict(cell_settings, derived_model_params=matcher_params))
+            matcher_params = class_model_params(
+                model_params,
+                settings,
+                scene,
+                drive_char_frames,
+                error_model,
+                match_frames(out / matcher_name / "characterisation_disparity", drive_char_frames, matcher),
+            )
+        build_map = mapper(
+            sequence,
+            disparity_dir,
+            matcher_name,
+            error_model,
+            p0,
+            matcher_params,
+            settings,
+            error_model_path=out / matcher_name / "characterisation" / "error_model.json",
+        )
+        cells, maps = run_cells(
+            out, matcher_name, models, build_map, truth, dict(cell_settings, derived_model_params=matcher_params)
+        )
         results += cells
-        fusion_blocks[matcher_name], rows = compare_run_fusions(out / matcher_name, char_frames, matcher, camera, maps,
-                                                                truth)
+        fusion_blocks[matcher_name], rows = compare_run_fusions(
+            out / matcher_name, char_frames, matcher, camera, maps, truth
+        )
         fusion_rows += rows
         artifacts += char_artifacts
-        artifacts += draw_figures(out, matcher_name, cells, maps, truth, layer=layer,
-                                  where=f"z = {spec.slice_height_m} m")
-    notes = run_notes(spec, scene, camera, settings, char_index, map_index, p0, model_params, models,
-                      error_models, mapped_likelihoods)
+        artifacts += draw_figures(
+            out, matcher_name, cells, maps, truth, layer=layer, where=f"z = {spec.slice_height_m} m"
+        )
+    notes = run_notes(
+        spec, scene, camera, settings, char_index, map_index, p0, model_params, models, error_models, mapped_likelihoods
+    )
     targets = measure_targets(world, results, error_models, mapped_likelihoods)
     failures = {name: fusion_from_block(block) for name, block in fusion_blocks.items()}
-    paths = write_results(results, out, title=spec.title, notes=notes, settings=settings,
-                          sections=(format_targets(targets), format_error_correlation(correlations),
-                                    format_fusion_section(fusion_rows, failures)),
-                          extra={"targets": [t.to_dict() for t in targets],
-                                 "error_correlation": {name: c.to_dict() for name, c in correlations.items()},
-                                 "fusion": {"blocks": fusion_blocks, "rows": [r.to_dict() for r in fusion_rows]}})
-    artifacts = [(paths["table"], f"Scores of every matcher x sensor model: {spec.title} (Markdown)."),
-                 (paths["json"], "The same scores with reliability bins and histograms (JSON).")] + artifacts
+    paths = write_results(
+        results,
+        out,
+        title=spec.title,
+        notes=notes,
+        settings=settings,
+        sections=(
+            format_targets(targets),
+            format_error_correlation(correlations),
+            format_fusion_section(fusion_rows, failures),
+        ),
+        extra={
+            "targets": [t.to_dict() for t in targets],
+            "error_correlation": {name: c.to_dict() for name, c in correlations.items()},
+            "fusion": {"blocks": fusion_blocks, "rows": [r.to_dict() for r in fusion_rows]},
+        },
+    )
+    artifacts = [
+        (paths["table"], f"Scores of every matcher x sensor model: {spec.title} (Markdown)."),
+        (paths["json"], "The same scores with reliability bins and histograms (JSON)."),
+    ] + artifacts
     return ExperimentResult(world, tuple(results), p0, settings, tuple(artifacts))

@@ -30,8 +30,14 @@ SOURCE_MODELS = ("prism", "prism_conditioned")
 """The cells mapped with each source's error model."""
 SOURCE_MATCHERS = ("bm", "sgbm")
 SCORE_FIELDS = ("brier", "log_loss", "ece", "roc_auc", "occupied_called_free", "free_called_occupied")
-LOWER_IS_BETTER = {"brier": True, "log_loss": True, "ece": True, "roc_auc": False, "occupied_called_free": True,
-                   "free_called_occupied": True}
+LOWER_IS_BETTER = {
+    "brier": True,
+    "log_loss": True,
+    "ece": True,
+    "roc_auc": False,
+    "occupied_called_free": True,
+    "free_called_occupied": True,
+}
 WITHIN = 0.05
 """The self-characterised model's maps must score within 5 % of the ground-truth model's on Brier and log-loss."""
 LIDAR_WITHIN_NATS = 0.05
@@ -75,8 +81,12 @@ def class_log_likelihoods(model, reference, frames, disparities):
     totals = np.zeros((model.n_classes, 3))
     for frame, disparity in zip(frames, disparities):
         errors = np.asarray(frame.disparity_gt, np.float64) - disparity
-        labels = [m.classify_frame(frame.left, frame.right, disparity) if m.conditioned
-                  else np.where(np.isfinite(disparity), 0, -1) for m in (model, reference)]
+        labels = [
+            m.classify_frame(frame.left, frame.right, disparity)
+            if m.conditioned
+            else np.where(np.isfinite(disparity), 0, -1)
+            for m in (model, reference)
+        ]
         keep = np.isfinite(errors) & (labels[0] >= 0) & (labels[1] >= 0)
         errors, mine, theirs = errors[keep], labels[0][keep], labels[1][keep]
         logs = [np.empty(errors.size), np.empty(errors.size)]
@@ -88,14 +98,32 @@ def class_log_likelihoods(model, reference, frames, disparities):
             totals[k] += (at.sum(), logs[0][at].sum(), logs[1][at].sum())
     if totals[:, 0].sum() == 0:
         raise PrismapInputError("no mapping-frame pixel has a computed and a true disparity and a class of both models")
-    rows = [{"class": k, "n_errors": int(n), "model_nats_per_error": a / n if n else None,
-             "reference_nats_per_error": b / n if n else None} for k, (n, a, b) in enumerate(totals)]
+    rows = [
+        {
+            "class": k,
+            "n_errors": int(n),
+            "model_nats_per_error": a / n if n else None,
+            "reference_nats_per_error": b / n if n else None,
+        }
+        for k, (n, a, b) in enumerate(totals)
+    ]
     n, a, b = totals.sum(axis=0)
-    return rows + [{"class": "all", "n_errors": int(n), "model_nats_per_error": a / n, "reference_nats_per_error": b / n}]
+    return rows + [
+        {"class": "all", "n_errors": int(n), "model_nats_per_error": a / n, "reference_nats_per_error": b / n}
+    ]
 
 
-def run_error_sources(world, out_dir, *, quick=False, n_frames=None, seed=0, matchers=SOURCE_MATCHERS,
-                      models=SOURCE_MODELS, between_frames=None):
+def run_error_sources(
+    world,
+    out_dir,
+    *,
+    quick=False,
+    n_frames=None,
+    seed=0,
+    matchers=SOURCE_MATCHERS,
+    models=SOURCE_MODELS,
+    between_frames=None,
+):
     """Map ``world``'s mapping frames with PRISM using each source's error model, score them, write the tables.
 
     Parameters
@@ -137,8 +165,16 @@ def run_error_sources(world, out_dir, *, quick=False, n_frames=None, seed=0, mat
     from prismap.sim import lidar_disparity
 
     out = Path(out_dir)
-    base = run_rendered_world(world, out / "ground-truth", n_frames=n_frames, seed=seed, quick=quick,
-                              matchers=matchers, models=models, between_frames=between_frames)
+    base = run_rendered_world(
+        world,
+        out / "ground-truth",
+        n_frames=n_frames,
+        seed=seed,
+        quick=quick,
+        matchers=matchers,
+        models=models,
+        between_frames=between_frames,
+    )
     settings = base.settings
     scene, _, drive_char_frames, char_frames, map_frames = render_world(settings)
     sequence = read_sequence(out / "ground-truth" / "sequence")
@@ -153,27 +189,50 @@ def run_error_sources(world, out_dir, *, quick=False, n_frames=None, seed=0, mat
         matcher = matcher_for(name, largest)
         disparity_dir = out / "ground-truth" / name / "disparity"
         error_models[name] = {
-            "ground-truth": characterise_frames(out / "ground-truth" / name / "characterisation", char_frames,
-                                                matcher, "")[0],
-            "lidar": characterise_frames(out / "lidar" / name / "characterisation", lidar_frames, matcher,
-                                         f"{scene.name} characterisation frames, simulated LiDAR", source="lidar")[0],
+            "ground-truth": characterise_frames(
+                out / "ground-truth" / name / "characterisation", char_frames, matcher, ""
+            )[0],
+            "lidar": characterise_frames(
+                out / "lidar" / name / "characterisation",
+                lidar_frames,
+                matcher,
+                f"{scene.name} characterisation frames, simulated LiDAR",
+                source="lidar",
+            )[0],
             "self": _self_model(out / "self" / name / "characterisation", map_frames, matcher),
             "motorcycle": _motorcycle_model(out / "motorcycle" / name / "characterisation", name),
         }
         for source in SOURCES[1:]:
             build_map = mapper(sequence, disparity_dir, name, error_models[name][source], p0, model_params, settings)
-            for cell in run_cells(out / source, name, models, build_map, truth,
-                                  dict(settings, derived_model_params=model_params, source=source))[0]:
+            for cell in run_cells(
+                out / source,
+                name,
+                models,
+                build_map,
+                truth,
+                dict(settings, derived_model_params=model_params, source=source),
+            )[0]:
                 cells[(name, cell.model, source)] = cell
-        likelihood[name] = {source: mapped_log_likelihood(model, map_frames, disparity_dir)
-                            for source, model in error_models[name].items()}
+        likelihood[name] = {
+            source: mapped_log_likelihood(model, map_frames, disparity_dir)
+            for source, model in error_models[name].items()
+        }
         likelihood[name]["self_by_class"] = class_log_likelihoods(
-            error_models[name]["self"], error_models[name]["ground-truth"], map_frames,
-            list(read_disparities(disparity_dir, len(map_frames))))
-    document = {"world": world, "settings": settings, "p0": p0,
-                "cells": [{"matcher": m, "model": model, "source": s, "scores": _scores(c)}
-                          for (m, model, s), c in sorted(cells.items(), key=_order)],
-                "likelihood": likelihood}
+            error_models[name]["self"],
+            error_models[name]["ground-truth"],
+            map_frames,
+            list(read_disparities(disparity_dir, len(map_frames))),
+        )
+    document = {
+        "world": world,
+        "settings": settings,
+        "p0": p0,
+        "cells": [
+            {"matcher": m, "model": model, "source": s, "scores": _scores(c)}
+            for (m, model, s), c in sorted(cells.items(), key=_order)
+        ],
+        "likelihood": likelihood,
+    }
     document["targets"] = _targets(document)
     write_text_atomic(out / "sources.json", json.dumps(document, indent=1, default=_plain) + "\n")
     write_text_atomic(out / "sources.md", format_sources(document))
@@ -207,50 +266,89 @@ def _targets(document):
         gt, moto = by[(matcher, model, "ground-truth")], by[(matcher, model, "motorcycle")]
         for name in ("brier", "log_loss"):
             ratio = scores[name] / gt[name] - 1.0
-            targets.append({"target": f"{matcher} {model}: self {name} within {WITHIN:.0%} of ground truth",
-                            "value": ratio, "met": bool(ratio <= WITHIN)})
-        worse = [name for name in SCORE_FIELDS
-                 if (scores[name] >= moto[name] if LOWER_IS_BETTER[name] else scores[name] <= moto[name])]
-        targets.append({"target": f"{matcher} {model}: self better than Motorcycle on every score",
-                        "value": ", ".join(worse) or "none worse", "met": not worse})
+            targets.append(
+                {
+                    "target": f"{matcher} {model}: self {name} within {WITHIN:.0%} of ground truth",
+                    "value": ratio,
+                    "met": bool(ratio <= WITHIN),
+                }
+            )
+        worse = [
+            name
+            for name in SCORE_FIELDS
+            if (scores[name] >= moto[name] if LOWER_IS_BETTER[name] else scores[name] <= moto[name])
+        ]
+        targets.append(
+            {
+                "target": f"{matcher} {model}: self better than Motorcycle on every score",
+                "value": ", ".join(worse) or "none worse",
+                "met": not worse,
+            }
+        )
     for matcher, sources in document["likelihood"].items():
-        gap = (sources["ground-truth"]["conditioned_nats_per_error"]
-               - sources["lidar"]["conditioned_nats_per_error"])
-        targets.append({"target": f"{matcher}: LiDAR model's held-out log-likelihood within {LIDAR_WITHIN_NATS} "
-                                  "nats/error of the ground-truth one", "value": gap,
-                        "met": bool(gap <= LIDAR_WITHIN_NATS)})
+        gap = sources["ground-truth"]["conditioned_nats_per_error"] - sources["lidar"]["conditioned_nats_per_error"]
+        targets.append(
+            {
+                "target": f"{matcher}: LiDAR model's held-out log-likelihood within {LIDAR_WITHIN_NATS} "
+                "nats/error of the ground-truth one",
+                "value": gap,
+                "met": bool(gap <= LIDAR_WITHIN_NATS),
+            }
+        )
     return targets
 
 
 def format_sources(document):
     """Markdown: scores per matcher, model and source; likelihoods; per-class likelihoods; targets."""
-    lines = [f"# Error-model sources on {document['world']}", "",
-             "PRISM maps of the same mapping frames and disparities, each with the error model of one source "
-             "(ground truth, simulated LiDAR, self-characterisation from the mapping frames, Middlebury "
-             f"Motorcycle); p0 = {document['p0']:.4f}.", "",
-             "| matcher | model | source | " + " | ".join(SCORE_FIELDS) + " | Brier vs GT | log-loss vs GT |",
-             "|---" * (5 + len(SCORE_FIELDS)) + "|"]
+    lines = [
+        f"# Error-model sources on {document['world']}",
+        "",
+        "PRISM maps of the same mapping frames and disparities, each with the error model of one source "
+        "(ground truth, simulated LiDAR, self-characterisation from the mapping frames, Middlebury "
+        f"Motorcycle); p0 = {document['p0']:.4f}.",
+        "",
+        "| matcher | model | source | " + " | ".join(SCORE_FIELDS) + " | Brier vs GT | log-loss vs GT |",
+        "|---" * (5 + len(SCORE_FIELDS)) + "|",
+    ]
     by = {(c["matcher"], c["model"], c["source"]): c["scores"] for c in document["cells"]}
     for (matcher, model, source), scores in by.items():
         gt = by[(matcher, model, "ground-truth")]
-        lines.append(f"| {matcher} | {model} | {source} | " + " | ".join(f"{scores[n]:.4f}" for n in SCORE_FIELDS)
-                     + f" | {scores['brier'] / gt['brier'] - 1:+.1%} | {scores['log_loss'] / gt['log_loss'] - 1:+.1%} |")
-    lines += ["", "## Log-likelihood of the mapping frames' exact errors (nats per error)", "",
-              "| matcher | source | conditioned | plain | errors |", "|---|---|---|---|---|"]
+        lines.append(
+            f"| {matcher} | {model} | {source} | "
+            + " | ".join(f"{scores[n]:.4f}" for n in SCORE_FIELDS)
+            + f" | {scores['brier'] / gt['brier'] - 1:+.1%} | {scores['log_loss'] / gt['log_loss'] - 1:+.1%} |"
+        )
+    lines += [
+        "",
+        "## Log-likelihood of the mapping frames' exact errors (nats per error)",
+        "",
+        "| matcher | source | conditioned | plain | errors |",
+        "|---|---|---|---|---|",
+    ]
     for matcher, sources in document["likelihood"].items():
         for source in SOURCES:
             row = sources[source]
-            lines.append(f"| {matcher} | {source} | {row['conditioned_nats_per_error']:.4f} | "
-                         f"{row['plain_nats_per_error']:.4f} | {row['n_errors']} |")
-    lines += ["", "## Per class of the self-characterised model", "",
-              "Each class's pixels of the mapping frames, their exact errors under the self model's class mixture "
-              "and under the ground-truth model (each pixel under its own class there).", "",
-              "| matcher | class | errors | self | ground truth |", "|---|---|---|---|---|"]
+            lines.append(
+                f"| {matcher} | {source} | {row['conditioned_nats_per_error']:.4f} | "
+                f"{row['plain_nats_per_error']:.4f} | {row['n_errors']} |"
+            )
+    lines += [
+        "",
+        "## Per class of the self-characterised model",
+        "",
+        "Each class's pixels of the mapping frames, their exact errors under the self model's class mixture "
+        "and under the ground-truth model (each pixel under its own class there).",
+        "",
+        "| matcher | class | errors | self | ground truth |",
+        "|---|---|---|---|---|",
+    ]
     for matcher, sources in document["likelihood"].items():
         for row in sources["self_by_class"]:
             if row["n_errors"]:
-                lines.append(f"| {matcher} | {row['class']} | {row['n_errors']} | {row['model_nats_per_error']:.4f} | "
-                             f"{row['reference_nats_per_error']:.4f} |")
+                lines.append(
+                    f"| {matcher} | {row['class']} | {row['n_errors']} | {row['model_nats_per_error']:.4f} | "
+                    f"{row['reference_nats_per_error']:.4f} |"
+                )
     lines += ["", "## Targets", "", "| target | measured | met |", "|---|---|---|"]
     for target in document["targets"]:
         value = target["value"]

@@ -30,13 +30,17 @@ def characterise_frames(out_dir, frames, matcher, dataset, *, source="ground-tru
     if paths is None:
         # the class search samples every frame: classes chosen on a subset of the street's frames predicted the
         # mapping frames' errors worse (README, conditioned error models)
-        characterisation = characterise_matcher(frames, matcher, dataset=dataset, search_frames=len(frames),
-                                                source=source)
+        characterisation = characterise_matcher(
+            frames, matcher, dataset=dataset, search_frames=len(frames), source=source
+        )
         paths = write_characterisation(characterisation, out_dir)
     name = matcher.name
     artifacts = [
-        (paths["table"], f"{name}: fitted error mixtures G = 1..4 with AIC/BIC, coverage, bad-1px, bad-2px "
-                         "(thesis tables 3.1-3.3 layout)."),
+        (
+            paths["table"],
+            f"{name}: fitted error mixtures G = 1..4 with AIC/BIC, coverage, bad-1px, bad-2px "
+            "(thesis tables 3.1-3.3 layout).",
+        ),
         (paths["figure"], f"{name}: disparity error histogram with the fitted mixtures."),
         (paths["figure_wide"], f"{name}: the error tails on a log scale."),
         (paths["model"], f"{name}: the error model (JSON) every model of this matcher used."),
@@ -60,7 +64,9 @@ def match_frames(out_dir, frames, matcher):
     for index, frame in enumerate(progress(frames, total=len(frames), desc=f"match {matcher.name}", unit="frame")):
         path = out_dir / f"{index:06d}.png"
         if not path.is_file():
-            write_disparity_png(path, matcher.compute(frame.left, frame.right), f"{matcher.name} disparity of frame {index}")
+            write_disparity_png(
+                path, matcher.compute(frame.left, frame.right), f"{matcher.name} disparity of frame {index}"
+            )
     return out_dir
 
 
@@ -70,12 +76,13 @@ def derived_model_params(settings, scene, char_frames):
     params = {name: dict(values) for name, values in settings["model_params"].items()}
     prism = params.setdefault("prism", {})
     if "pass_through" not in prism:
-        prism["pass_through"] = scene.pass_through_ratio(char_frames, settings["voxel_size_m"],
-                                                         max_depth_m=settings["max_range_m"],
-                                                         subsample=settings["subsample"])
+        prism["pass_through"] = scene.pass_through_ratio(
+            char_frames, settings["voxel_size_m"], max_depth_m=settings["max_range_m"], subsample=settings["subsample"]
+        )
     if "solid_depth_m" not in prism:
-        prism["solid_depth_m"] = scene.solid_depth(char_frames, settings["voxel_size_m"],
-                                                   max_depth_m=settings["max_range_m"], subsample=settings["subsample"])
+        prism["solid_depth_m"] = scene.solid_depth(
+            char_frames, settings["voxel_size_m"], max_depth_m=settings["max_range_m"], subsample=settings["subsample"]
+        )
     return params
 
 
@@ -88,11 +95,18 @@ def class_model_params(model_params, settings, scene, char_frames, error_model, 
     prism = model_params["prism"]
     if not error_model.conditioned or CLASS_PASS_THROUGH in prism:
         return model_params
-    labels = [error_model.classify_frame(frame.left, frame.right, disparity)
-              for frame, disparity in zip(char_frames, read_disparities(disparity_dir, len(char_frames)))]
-    ratios = scene.pass_through_ratio(char_frames, settings["voxel_size_m"], max_depth_m=settings["max_range_m"],
-                                      subsample=settings["subsample"], ray_classes=labels,
-                                      n_classes=error_model.n_classes)
+    labels = [
+        error_model.classify_frame(frame.left, frame.right, disparity)
+        for frame, disparity in zip(char_frames, read_disparities(disparity_dir, len(char_frames)))
+    ]
+    ratios = scene.pass_through_ratio(
+        char_frames,
+        settings["voxel_size_m"],
+        max_depth_m=settings["max_range_m"],
+        subsample=settings["subsample"],
+        ray_classes=labels,
+        n_classes=error_model.n_classes,
+    )
     return dict(model_params, prism=dict(prism, **{CLASS_PASS_THROUGH: [float(m) for m in ratios]}))
 
 
@@ -118,11 +132,19 @@ def mapper(sequence, disparity_dir, matcher_name, error_model, p0, model_params,
             params.pop("solid_depth_m", None)
         if not conditioned:  # one pass-through per error class is for conditioned PRISM
             params.pop(CLASS_PASS_THROUGH, None)
-        config = MappingConfig(model=model_name, model_params=params,
-                               voxel_size_m=settings["voxel_size_m"], p0=p0, error_model=error_model,
-                               conditioned=None if conditioned else False, matcher=matcher_name,
-                               disparity_source=str(Path(disparity_dir).resolve()),
-                               max_range_m=settings["max_range_m"], subsample=settings["subsample"], mode=settings["mode"])
+        config = MappingConfig(
+            model=model_name,
+            model_params=params,
+            voxel_size_m=settings["voxel_size_m"],
+            p0=p0,
+            error_model=error_model,
+            conditioned=None if conditioned else False,
+            matcher=matcher_name,
+            disparity_source=str(Path(disparity_dir).resolve()),
+            max_range_m=settings["max_range_m"],
+            subsample=settings["subsample"],
+            mode=settings["mode"],
+        )
         return config
 
     def build_map(cell_model):
@@ -132,8 +154,12 @@ def mapper(sequence, disparity_dir, matcher_name, error_model, p0, model_params,
         from prismap.cli._map import map_command, write_map_record
 
         config = config_of(cell_model)
-        command = map_command(config, inputs=["--sequence", str(Path(sequence.path).resolve())],
-                              error_model=Path(error_model_path).resolve(), out=Path(map_path).resolve())
+        command = map_command(
+            config,
+            inputs=["--sequence", str(Path(sequence.path).resolve())],
+            error_model=Path(error_model_path).resolve(),
+            out=Path(map_path).resolve(),
+        )
         write_map_record(map_path, command, config)
 
     if error_model_path is not None:

@@ -20,9 +20,12 @@ TARGET_MATCHERS = ("sgbm", "bm")
 """Matchers whose maps the ranking targets cover."""
 LOG_LOSS_GAIN = {"street3d": ("sgbm", 0.10)}
 """World -> (matcher, least relative log-loss gain of conditioned over plain PRISM)."""
-RANKED = (("brier", "lowest Brier score", -1, True), ("log_loss", "lowest log-loss", -1, True),
-          ("roc_auc", "highest ROC AUC", 1, True),
-          ("safety_occupied_called_free", "safety score (occupied called free at 90 % free) no worse than", -1, False))
+RANKED = (
+    ("brier", "lowest Brier score", -1, True),
+    ("log_loss", "lowest log-loss", -1, True),
+    ("roc_auc", "highest ROC AUC", 1, True),
+    ("safety_occupied_called_free", "safety score (occupied called free at 90 % free) no worse than", -1, False),
+)
 """Scores ranked: (MapScores field, claim, +1 = higher is better / -1 = lower, strictly better needed)."""
 
 
@@ -79,25 +82,37 @@ def measure_targets(world, results, error_models, mapped_likelihoods=None):
             rival = max(others, key=lambda m: sign * others[m])
             met = bool(sign * mine > sign * others[rival] if strict else sign * mine >= sign * others[rival])
             said = f"a {claim} any other model's" if not strict else f"the {claim} of every model"
-            targets.append(Target(f"{world}, {matcher}: {model_label(CHAMPION)} has {said}",
-                                  f"{mine:.4f} against {others[rival]:.4f} for the best other ({model_label(rival, names)})",
-                                  met))
+            targets.append(
+                Target(
+                    f"{world}, {matcher}: {model_label(CHAMPION)} has {said}",
+                    f"{mine:.4f} against {others[rival]:.4f} for the best other ({model_label(rival, names)})",
+                    met,
+                )
+            )
     if world in LOG_LOSS_GAIN:
         matcher, gain = LOG_LOSS_GAIN[world]
         cells = {r.model: r.scores for r in results if r.matcher == matcher}
         if CHAMPION in cells and "prism" in cells:
             plain, mine = cells["prism"].log_loss, cells[CHAMPION].log_loss
             measured_gain = (plain - mine) / plain
-            targets.append(Target(
-                f"{world}, {matcher}: conditioned PRISM's log-loss at least {gain:.0%} below plain PRISM's",
-                f"{mine:.4f} against {plain:.4f}: {measured_gain:+.1%}", bool(measured_gain >= gain)))
+            targets.append(
+                Target(
+                    f"{world}, {matcher}: conditioned PRISM's log-loss at least {gain:.0%} below plain PRISM's",
+                    f"{mine:.4f} against {plain:.4f}: {measured_gain:+.1%}",
+                    bool(measured_gain >= gain),
+                )
+            )
     for matcher, model in error_models.items():
         targets.append(held_out_target(f"{world}, {matcher}", model))
     for matcher, mapped in (mapped_likelihoods or {}).items():
         conditioned, plain = mapped["conditioned_nats_per_error"], mapped["plain_nats_per_error"]
-        targets.append(Target(f"{world}, {matcher}: log-likelihood of the mapping frames' errors higher conditioned "
-                              "than plain", f"{conditioned:.4f} against {plain:.4f} nats per error "
-                              f"({mapped['n_errors']} errors)", bool(conditioned > plain)))
+        targets.append(
+            Target(
+                f"{world}, {matcher}: log-likelihood of the mapping frames' errors higher conditioned than plain",
+                f"{conditioned:.4f} against {plain:.4f} nats per error ({mapped['n_errors']} errors)",
+                bool(conditioned > plain),
+            )
+        )
     return targets
 
 
@@ -106,9 +121,12 @@ def held_out_target(where, error_model):
     chosen = error_model.class_selection
     plain = chosen.get("plain_nats_per_error", np.nan)
     conditioned = chosen.get("conditioned_nats_per_error", np.nan)
-    return Target(f"{where}: held-out log-likelihood of the errors higher conditioned than plain",
-                  f"{conditioned:.4f} against {plain:.4f} nats per error ({error_model.n_classes} classes, "
-                  f"{chosen.get('n_held_out_errors', 0)} held-out errors)", bool(conditioned > plain))
+    return Target(
+        f"{where}: held-out log-likelihood of the errors higher conditioned than plain",
+        f"{conditioned:.4f} against {plain:.4f} nats per error ({error_model.n_classes} classes, "
+        f"{chosen.get('n_held_out_errors', 0)} held-out errors)",
+        bool(conditioned > plain),
+    )
 
 
 def format_targets(targets):

@@ -59,13 +59,36 @@ def _scene3d_world():
     from prismap import sim
 
     return RenderedWorld(
-        "scene3d", "3-D indoor scene, characterised matchers",
-        {False: {"n_frames": 40, "between_frames": 0, "image_scale": 1.0, "voxel_size_m": 0.1, "subsample": 2,
-                 "max_range_m": 10.0, "mode": "ray", "model_params": {}},
-         True: {"n_frames": 16, "between_frames": 0, "image_scale": 0.25, "voxel_size_m": 0.1, "subsample": 1,
-                "max_range_m": 10.0, "mode": "ray", "model_params": {}}},
-        lambda seed: sim.indoor_scene(seed=seed), lambda n, seed: sim.indoor_trajectory(n, seed=seed),
-        lambda scale: sim.tsukuba_camera(scale=scale), 1.0, "Indoor scene, New Tsukuba camera")
+        "scene3d",
+        "3-D indoor scene, characterised matchers",
+        {
+            False: {
+                "n_frames": 40,
+                "between_frames": 0,
+                "image_scale": 1.0,
+                "voxel_size_m": 0.1,
+                "subsample": 2,
+                "max_range_m": 10.0,
+                "mode": "ray",
+                "model_params": {},
+            },
+            True: {
+                "n_frames": 16,
+                "between_frames": 0,
+                "image_scale": 0.25,
+                "voxel_size_m": 0.1,
+                "subsample": 1,
+                "max_range_m": 10.0,
+                "mode": "ray",
+                "model_params": {},
+            },
+        },
+        lambda seed: sim.indoor_scene(seed=seed),
+        lambda n, seed: sim.indoor_trajectory(n, seed=seed),
+        lambda scale: sim.tsukuba_camera(scale=scale),
+        1.0,
+        "Indoor scene, New Tsukuba camera",
+    )
 
 
 STREET_BETWEEN_FRAMES = 32
@@ -82,15 +105,37 @@ def _street3d_world():
     from prismap import sim
 
     return RenderedWorld(
-        "street3d", "3-D street, KITTI-like rig, characterised matchers",
-        {False: {"n_frames": 16, "between_frames": STREET_BETWEEN_FRAMES, "image_scale": 0.5, "voxel_size_m": 0.2,
-                 "subsample": 2, "max_range_m": 40.0, "mode": "projective",
-                 "model_params": {"prism": {"near_m": STREET_NEAR_M}}},
-         True: {"n_frames": 8, "between_frames": 4, "image_scale": 0.25, "voxel_size_m": 0.4, "subsample": 1,
-                "max_range_m": 30.0, "mode": "projective", "model_params": {"prism": {"near_m": STREET_NEAR_M}}}},
-        lambda seed: sim.street_scene(seed=seed), lambda n, seed: sim.street_trajectory(n, seed=seed),
-        lambda scale: sim.kitti_camera(scale=scale), 1.0, "Street scene, KITTI-like camera",
-        lambda n, n_between, seed: sim.street_trajectory_between(n, n_between, seed=seed))
+        "street3d",
+        "3-D street, KITTI-like rig, characterised matchers",
+        {
+            False: {
+                "n_frames": 16,
+                "between_frames": STREET_BETWEEN_FRAMES,
+                "image_scale": 0.5,
+                "voxel_size_m": 0.2,
+                "subsample": 2,
+                "max_range_m": 40.0,
+                "mode": "projective",
+                "model_params": {"prism": {"near_m": STREET_NEAR_M}},
+            },
+            True: {
+                "n_frames": 8,
+                "between_frames": 4,
+                "image_scale": 0.25,
+                "voxel_size_m": 0.4,
+                "subsample": 1,
+                "max_range_m": 30.0,
+                "mode": "projective",
+                "model_params": {"prism": {"near_m": STREET_NEAR_M}},
+            },
+        },
+        lambda seed: sim.street_scene(seed=seed),
+        lambda n, seed: sim.street_trajectory(n, seed=seed),
+        lambda scale: sim.kitti_camera(scale=scale),
+        1.0,
+        "Street scene, KITTI-like camera",
+        lambda n, n_between, seed: sim.street_trajectory_between(n, n_between, seed=seed),
+    )
 
 
 def _avenue3d_world():
@@ -99,23 +144,57 @@ def _avenue3d_world():
     from prismap import sim
 
     return RenderedWorld(
-        "avenue3d", "3-D avenue (second street world), characterised matchers",
-        {False: {"n_frames": 16, "between_frames": 0, "image_scale": 1.0, "voxel_size_m": 0.2, "subsample": 2,
-                 "max_range_m": 40.0, "mode": "projective", "model_params": {"prism": {"near_m": STREET_NEAR_M}}},
-         True: {"n_frames": 8, "between_frames": 2, "image_scale": 0.5, "voxel_size_m": 0.4, "subsample": 1,
-                "max_range_m": 30.0, "mode": "projective", "model_params": {"prism": {"near_m": STREET_NEAR_M}}}},
-        lambda seed: sim.avenue_scene(seed=seed), lambda n, seed: sim.street_trajectory(n, seed=seed),
-        lambda scale: sim.avenue_camera(scale=scale), 1.0, "Avenue scene, 620x188 rig",
-        lambda n, n_between, seed: sim.street_trajectory_between(n, n_between, seed=seed))
+        "avenue3d",
+        "3-D avenue (second street world), characterised matchers",
+        {
+            False: {
+                "n_frames": 16,
+                "between_frames": 0,
+                "image_scale": 1.0,
+                "voxel_size_m": 0.2,
+                "subsample": 2,
+                "max_range_m": 40.0,
+                "mode": "projective",
+                "model_params": {"prism": {"near_m": STREET_NEAR_M}},
+            },
+            True: {
+                "n_frames": 8,
+                "between_frames": 2,
+                "image_scale": 0.5,
+                "voxel_size_m": 0.4,
+                "subsample": 1,
+                "max_range_m": 30.0,
+                "mode": "projective",
+                "model_params": {"prism": {"near_m": STREET_NEAR_M}},
+            },
+        },
+        lambda seed: sim.avenue_scene(seed=seed),
+        lambda n, seed: sim.street_trajectory(n, seed=seed),
+        lambda scale: sim.avenue_camera(scale=scale),
+        1.0,
+        "Avenue scene, 620x188 rig",
+        lambda n, n_between, seed: sim.street_trajectory_between(n, n_between, seed=seed),
+    )
 
 
 WORLDS = {"scene3d": _scene3d_world, "street3d": _street3d_world, "avenue3d": _avenue3d_world}
 """Name -> :class:`RenderedWorld` factory of every 3-D experiment."""
 
 
-def scene3d_settings(*, world="scene3d", n_frames=None, voxel_size_m=None, seed=0, quick=False, matchers=MATCHERS,
-                     characterise_every=4, max_range_m=None, grid_offset=0.5, between_frames=None,
-                     class_pass_through=False):
+def scene3d_settings(
+    *,
+    world="scene3d",
+    n_frames=None,
+    voxel_size_m=None,
+    seed=0,
+    quick=False,
+    matchers=MATCHERS,
+    characterise_every=4,
+    max_range_m=None,
+    grid_offset=0.5,
+    between_frames=None,
+    class_pass_through=False,
+):
     """The settings dict of a 3-D run on ``world`` (its sizes unless overridden); ``class_pass_through`` is
     recorded only when set, so the settings of runs without it stay as they were."""
     if world not in WORLDS:
@@ -123,29 +202,40 @@ def scene3d_settings(*, world="scene3d", n_frames=None, voxel_size_m=None, seed=
     spec = WORLDS[world]()
     sizes = dict(spec.sizes[bool(quick)])
     if between_frames is not None:
-        sizes["between_frames"] = check_integer(between_frames, "between_frames", expected="an integer >= 0",
-                                                condition=lambda n: n >= 0)
+        sizes["between_frames"] = check_integer(
+            between_frames, "between_frames", expected="an integer >= 0", condition=lambda n: n >= 0
+        )
         if sizes["between_frames"] and spec.between_trajectory is None:
-            raise PrismapInputError(f"`between_frames`: world {world!r} has no drive between its frames; got "
-                                    f"{between_frames!r} (0 or None)")
+            raise PrismapInputError(
+                f"`between_frames`: world {world!r} has no drive between its frames; got {between_frames!r} (0 or None)"
+            )
     if n_frames is not None:
-        sizes["n_frames"] = check_integer(n_frames, "n_frames", expected="an integer >= 2 (characterisation + mapping)",
-                                          condition=lambda n: n >= 2)
+        sizes["n_frames"] = check_integer(
+            n_frames, "n_frames", expected="an integer >= 2 (characterisation + mapping)", condition=lambda n: n >= 2
+        )
     if voxel_size_m is not None:
         sizes["voxel_size_m"] = check_positive(voxel_size_m, "voxel_size_m")
     if max_range_m is not None:
         sizes["max_range_m"] = check_positive(max_range_m, "max_range_m")
-    every = check_integer(characterise_every, "characterise_every", expected="an integer >= 2",
-                          condition=lambda n: n >= 2)
+    every = check_integer(
+        characterise_every, "characterise_every", expected="an integer >= 2", condition=lambda n: n >= 2
+    )
     unknown = [m for m in matchers if m not in MATCHERS]
     if unknown or not matchers:
         raise PrismapInputError(f"`matchers` must be a non-empty subset of {list(MATCHERS)}; got {list(matchers)}")
     offset = float(grid_offset)
     if not 0.0 <= offset < 1.0:
         raise PrismapInputError(f"`grid_offset` must lie in [0, 1) voxels; got {grid_offset!r}")
-    return {"world": world, "quick": bool(quick), "seed": int(seed), "characterise_every": int(every),
-            "grid_offset_m": offset * sizes["voxel_size_m"], "matchers": list(matchers), **sizes,
-            **({"class_pass_through": True} if class_pass_through else {})}
+    return {
+        "world": world,
+        "quick": bool(quick),
+        "seed": int(seed),
+        "characterise_every": int(every),
+        "grid_offset_m": offset * sizes["voxel_size_m"],
+        "matchers": list(matchers),
+        **sizes,
+        **({"class_pass_through": True} if class_pass_through else {}),
+    }
 
 
 def split_frames(n_frames, every):
@@ -180,8 +270,9 @@ def render_world(settings):
         poses = np.concatenate([poses, spec.between_trajectory(n_drive, n_between, seed)])
     camera = spec.camera(settings["image_scale"])
     base, shift = spec.scene(seed), settings["grid_offset_m"]
-    scene = sim.Scene3D(base.box_lo + shift, base.box_hi + shift, base.box_texture, base.box_texel_m, base.box_tint,
-                        name=base.name)
+    scene = sim.Scene3D(
+        base.box_lo + shift, base.box_hi + shift, base.box_texture, base.box_texel_m, base.box_tint, name=base.name
+    )
     poses[:, :3, 3] += shift
     frames = list(progress(scene.frames(camera, poses, seed=seed), total=len(poses), desc="render", unit="frame"))
     drive_char_frames = [frames[i] for i in char_index]

@@ -13,5 +13,15 @@ from prismap.gmm._em import (
 )
 from prismap.gmm._mixture import GaussianMixture
 
-__all__ = ["DEFAULT_FAILURE_PRIOR", "GaussianMixture", "MixtureFit", "failure_prior_bound", "fit_histogram",
-           "fit_mixture", "fit_mixtures", "fit_outlier_weight", "n_parameters", "select_components"]
+__all__ = [
+    "DEFAULT_FAILURE_PRIOR",
+    "GaussianMixture",
+    "MixtureFit",
+    "failure_prior_bound",
+    "fit_histogram",
+    "fit_mixture",
+    "fit_mixtures",
+    "fit_outlier_weight",
+    "n_parameters",
+    "select_components",
+]

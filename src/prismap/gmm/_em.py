@@ -94,8 +94,20 @@ class MixtureFit:
         return self.log_likelihood / self.n_samples
 
 
-def fit_mixture(values, *, weights=None, n_components, bin_width=None, restarts=4, seed=0, tol=1e-9,
-                max_iter=3000, min_sigma=None, search_range_px=None, failure_prior=DEFAULT_FAILURE_PRIOR):
+def fit_mixture(
+    values,
+    *,
+    weights=None,
+    n_components,
+    bin_width=None,
+    restarts=4,
+    seed=0,
+    tol=1e-9,
+    max_iter=3000,
+    min_sigma=None,
+    search_range_px=None,
+    failure_prior=DEFAULT_FAILURE_PRIOR,
+):
     """Fit a G-component Gaussian mixture to 1-D samples by EM.
 
     Parameters
@@ -150,15 +162,47 @@ def fit_mixture(values, *, weights=None, n_components, bin_width=None, restarts=
         low = index.min() if index.size else 0
         binned = np.bincount(index - low, weights=counts)
         centres = (np.arange(binned.size) + low + 0.5) * width
-        return _fit(centres, binned, n_components=n_components, bin_width=width, restarts=restarts, seed=seed,
-                    tol=tol, max_iter=max_iter, min_sigma=min_sigma, search_range_px=search_range_px,
-                    failure_prior=failure_prior)
-    return _fit(points, counts, n_components=n_components, bin_width=None, restarts=restarts, seed=seed, tol=tol,
-                max_iter=max_iter, min_sigma=min_sigma, search_range_px=search_range_px, failure_prior=failure_prior)
+        return _fit(
+            centres,
+            binned,
+            n_components=n_components,
+            bin_width=width,
+            restarts=restarts,
+            seed=seed,
+            tol=tol,
+            max_iter=max_iter,
+            min_sigma=min_sigma,
+            search_range_px=search_range_px,
+            failure_prior=failure_prior,
+        )
+    return _fit(
+        points,
+        counts,
+        n_components=n_components,
+        bin_width=None,
+        restarts=restarts,
+        seed=seed,
+        tol=tol,
+        max_iter=max_iter,
+        min_sigma=min_sigma,
+        search_range_px=search_range_px,
+        failure_prior=failure_prior,
+    )
 
 
-def fit_histogram(bin_edges, counts, *, n_components, restarts=4, seed=0, tol=1e-9, max_iter=3000,
-                  min_sigma=None, search_range_px=None, failure_prior=DEFAULT_FAILURE_PRIOR):
+def fit_histogram(
+    bin_edges,
+    counts,
+    *,
+    n_components,
+    restarts=4,
+    seed=0,
+    tol=1e-9,
+    max_iter=3000,
+    min_sigma=None,
+    search_range_px=None,
+    failure_prior=DEFAULT_FAILURE_PRIOR,
+):
     """Fit a G-component Gaussian mixture to a histogram by EM on its counted bin centres.
 
     Parameters
@@ -184,9 +228,19 @@ def fit_histogram(bin_edges, counts, *, n_components, restarts=4, seed=0, tol=1e
     if np.any(values < 0):
         raise PrismapInputError("`counts` must be >= 0; got a negative count")
     centres = 0.5 * (edges[:-1] + edges[1:])
-    return _fit(centres, values, n_components=n_components, bin_width=float(widths[0]), restarts=restarts, seed=seed,
-                tol=tol, max_iter=max_iter, min_sigma=min_sigma, search_range_px=search_range_px,
-                failure_prior=failure_prior)
+    return _fit(
+        centres,
+        values,
+        n_components=n_components,
+        bin_width=float(widths[0]),
+        restarts=restarts,
+        seed=seed,
+        tol=tol,
+        max_iter=max_iter,
+        min_sigma=min_sigma,
+        search_range_px=search_range_px,
+        failure_prior=failure_prior,
+    )
 
 
 def fit_outlier_weight(mixture, outlier, bin_edges, counts, *, prior_count=1.0):
@@ -228,8 +282,9 @@ def fit_outlier_weight(mixture, outlier, bin_edges, counts, *, prior_count=1.0):
         return -(weights @ np.logaddexp(np.log1p(-np.exp(log_w)) + inlier, log_w + outside) + prior * log_w)
 
     # ln w from 1e-12 (far below 1 / N for any histogram) to ln 0.5
-    return float(np.exp(minimize_scalar(cost, bounds=(np.log(1e-12), np.log(0.5)), method="bounded",
-                                        options={"xatol": 1e-6}).x))
+    return float(
+        np.exp(minimize_scalar(cost, bounds=(np.log(1e-12), np.log(0.5)), method="bounded", options={"xatol": 1e-6}).x)
+    )
 
 
 def fit_mixtures(bin_edges, counts, *, max_components, **options):
@@ -281,8 +336,20 @@ def _check_count(value, name):
     return check_integer(value, name, expected="an integer >= 1", condition=lambda n: n >= 1)
 
 
-def _fit(points, counts, *, n_components, bin_width, restarts, seed, tol, max_iter, min_sigma, search_range_px=None,
-         failure_prior=DEFAULT_FAILURE_PRIOR):
+def _fit(
+    points,
+    counts,
+    *,
+    n_components,
+    bin_width,
+    restarts,
+    seed,
+    tol,
+    max_iter,
+    min_sigma,
+    search_range_px=None,
+    failure_prior=DEFAULT_FAILURE_PRIOR,
+):
     n_components = _check_count(n_components, "n_components")
     floor_density, prior = 0.0, 0.0
     if search_range_px is not None:
@@ -299,9 +366,7 @@ def _fit(points, counts, *, n_components, bin_width, restarts, seed, tol, max_it
         raise PrismapInputError("no data to fit: the error set is empty (or every weight/count is 0)")
     distinct = np.unique(points).size
     if n_components > distinct:
-        raise PrismapInputError(
-            f"`n_components` = {n_components} exceeds the {distinct} distinct value(s) in the data"
-        )
+        raise PrismapInputError(f"`n_components` = {n_components} exceeds the {distinct} distinct value(s) in the data")
     total = counts.sum()
     mean = counts @ points / total
     std = np.sqrt(counts @ (points - mean) ** 2 / total)
@@ -316,15 +381,25 @@ def _fit(points, counts, *, n_components, bin_width, restarts, seed, tol, max_it
     best, best_score = None, -np.inf
     for start in _starts(points, counts, n_components, restarts, seed, mean, std):
         w0, mu0, var0 = (np.ascontiguousarray(a, dtype=np.float64) for a in start)
-        result = em_weighted(points, counts, w0, mu0, np.maximum(var0, var_floor), var_floor, tol, max_iter,
-                             floor_density, floor_start, prior)
+        result = em_weighted(
+            points,
+            counts,
+            w0,
+            mu0,
+            np.maximum(var0, var_floor),
+            var_floor,
+            tol,
+            max_iter,
+            floor_density,
+            floor_start,
+            prior,
+        )
         score = result[4] + (prior * np.log(result[3]) if floor_density else 0.0)  # the log-posterior EM climbs
         if best is None or score > best_score:
             best, best_score = result, score
     weights, means, variances, failure_weight, log_lik, n_iter, converged = best
     order = np.argsort(-weights, kind="stable")
-    mixture = GaussianMixture(weights[order], means[order], np.sqrt(variances[order]), failure_weight,
-                              search_range_px)
+    mixture = GaussianMixture(weights[order], means[order], np.sqrt(variances[order]), failure_weight, search_range_px)
     k = n_parameters(n_components, floor_density > 0)
     return MixtureFit(
         mixture=mixture,

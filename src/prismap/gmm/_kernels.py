@@ -13,8 +13,19 @@ _LOG_SQRT_2PI = 0.5 * math.log(2.0 * math.pi)
 
 
 @numba.njit(cache=True)
-def em_weighted(points, counts, weights, means, variances, var_floor, tol, max_iter, floor_density=0.0,
-                floor_weight=0.0, prior_count=0.0):
+def em_weighted(
+    points,
+    counts,
+    weights,
+    means,
+    variances,
+    var_floor,
+    tol,
+    max_iter,
+    floor_density=0.0,
+    floor_weight=0.0,
+    prior_count=0.0,
+):
     """Run EM on weighted 1-D points from the given start; return the fit and its log-likelihood.
 
     With ``floor_density > 0`` the mixture has one more component of constant density (a matcher's failures,

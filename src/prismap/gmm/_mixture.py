@@ -65,8 +65,11 @@ class GaussianMixture:
         object.__setattr__(self, "means", means)
         object.__setattr__(self, "sigmas", sigmas)
         failure = self.failure_weight
-        if isinstance(failure, bool) or not isinstance(failure, (int, float, np.floating, np.integer)) \
-                or not 0.0 <= float(failure) < 1.0:
+        if (
+            isinstance(failure, bool)
+            or not isinstance(failure, (int, float, np.floating, np.integer))
+            or not 0.0 <= float(failure) < 1.0
+        ):
             raise PrismapInputError(f"GaussianMixture `failure_weight` must be a number in [0, 1); got {failure!r}")
         object.__setattr__(self, "failure_weight", float(failure))
         if self.search_range_px is not None:
@@ -186,16 +189,22 @@ class GaussianMixture:
     def widened(self, extra_sigma):
         """The mixture convolved with ``N(0, extra_sigma^2)`` (pixels): every sigma grows in quadrature."""
         extra = float(extra_sigma)
-        return GaussianMixture(self.weights, self.means, np.sqrt(self.sigmas**2 + extra**2), self.failure_weight,
-                               self.search_range_px)
+        return GaussianMixture(
+            self.weights, self.means, np.sqrt(self.sigmas**2 + extra**2), self.failure_weight, self.search_range_px
+        )
 
     def with_component(self, weight, mean, sigma):
         """``(1 - weight) * self + weight * N(mean, sigma^2)`` (pixels): one more component, the others scaled."""
         weight = float(weight)
         if not 0.0 <= weight < 1.0:
             raise PrismapInputError(f"`weight` of the added component must lie in [0, 1); got {weight!r}")
-        return GaussianMixture(np.append((1.0 - weight) * self.weights, weight), np.append(self.means, mean),
-                               np.append(self.sigmas, sigma), self.failure_weight, self.search_range_px)
+        return GaussianMixture(
+            np.append((1.0 - weight) * self.weights, weight),
+            np.append(self.means, mean),
+            np.append(self.sigmas, sigma),
+            self.failure_weight,
+            self.search_range_px,
+        )
 
     def to_dict(self):
         """Plain-JSON form: ``{"weights": [...], "means": [...], "sigmas": [...]}``, plus ``failure_weight`` and
@@ -214,8 +223,13 @@ class GaussianMixture:
         if missing:
             raise PrismapInputError(f"{source}: Gaussian mixture is missing field(s) {missing}")
         try:
-            return cls(data["weights"], data["means"], data["sigmas"], data.get("failure_weight", 0.0),
-                       data.get("search_range_px"))
+            return cls(
+                data["weights"],
+                data["means"],
+                data["sigmas"],
+                data.get("failure_weight", 0.0),
+                data.get("search_range_px"),
+            )
         except PrismapInputError as exc:
             raise PrismapInputError(f"{source}: {exc}") from None
         except (TypeError, ValueError) as exc:

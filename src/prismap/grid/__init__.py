@@ -25,12 +25,9 @@ from prismap.grid._fusion import PersistentFailure
 from prismap.grid._integrators import (
     INTEGRATOR_NAMES,
     MEASUREMENT_KINDS,
-    PROJECTOR_NAMES,
-    ImageProjection,
     Integrator,
     RayBatch,
     make_integrator,
-    make_projector,
 )
 from prismap.grid._keys import (
     KEY_LIMIT,
@@ -45,6 +42,7 @@ from prismap.grid._keys import (
 )
 from prismap.grid._map import FREE, OCCUPIED, OCTOMAP_CLAMP, UNKNOWN, OccupancyMap
 from prismap.grid._policies import POLICIES
+from prismap.grid._projectors import PROJECTOR_NAMES, ImageProjection, make_projector
 from prismap.grid._traverse import crossed_voxels
 
 __all__ = [

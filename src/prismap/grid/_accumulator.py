@@ -72,9 +72,19 @@ def cast_into(accumulator, origin, rays, t_stop, exclusive, voxel_size):
     parts, done = [], 0
     while True:
         table = accumulator
-        *cells, n = _kernels_traverse.cast_rays_into(table.table, table.block_keys, table.n_blocks,
-                                                     table.payload["acc"], table.payload["links"], origin, rays[done:],
-                                                     t_stop[done:], exclusive[done:], voxel_size, table.bits)
+        *cells, n = _kernels_traverse.cast_rays_into(
+            table.table,
+            table.block_keys,
+            table.n_blocks,
+            table.payload["acc"],
+            table.payload["links"],
+            origin,
+            rays[done:],
+            t_stop[done:],
+            exclusive[done:],
+            voxel_size,
+            table.bits,
+        )
         if done:
             cells[0] += done
         parts.append(cells)
@@ -100,8 +110,17 @@ def scatter_keys(accumulator, keys, increment):
     done = 0
     while True:
         table = accumulator
-        done = _kernels_accumulate.scatter_keys(table.table, table.block_keys, table.n_blocks, table.payload["acc"],
-                                                table.payload["links"], table.bits, keys, increment, done)
+        done = _kernels_accumulate.scatter_keys(
+            table.table,
+            table.block_keys,
+            table.n_blocks,
+            table.payload["acc"],
+            table.payload["links"],
+            table.bits,
+            keys,
+            increment,
+            done,
+        )
         if done >= keys.shape[0]:
             return
         grow(accumulator, 0)

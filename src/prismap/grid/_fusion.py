@@ -50,8 +50,10 @@ class PersistentFailure:
         if rate == 1.0:
             raise PrismapInputError("`rate` must lie in [0, 1): a matcher that always fails carries no evidence")
         if persistence < rate:
-            raise PrismapInputError(f"`persistence` {persistence!r} must be >= `rate` {rate!r} (a failure cannot "
-                                    "make the next view's failure less likely than its base rate)")
+            raise PrismapInputError(
+                f"`persistence` {persistence!r} must be >= `rate` {rate!r} (a failure cannot "
+                "make the next view's failure less likely than its base rate)"
+            )
         object.__setattr__(self, "rate", rate)
         object.__setattr__(self, "persistence", persistence)
 
@@ -81,7 +83,9 @@ class PersistentFailure:
         log = np.asarray(log_odds, dtype=np.float64)
         count = np.asarray(count)
         if log.shape != count.shape or log.ndim != 1:
-            raise PrismapInputError(f"`log_odds` and `count` must be 1-D of one shape; got {log.shape} and {count.shape}")
+            raise PrismapInputError(
+                f"`log_odds` and `count` must be 1-D of one shape; got {log.shape} and {count.shape}"
+            )
         prior = float(logit(check_probability(p0, "p0")))
         evidence = log - prior
         out = expit(log)

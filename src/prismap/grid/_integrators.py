@@ -31,6 +31,7 @@ import numpy as np
 
 from prismap.errors import PrismapInputError
 from prismap.grid import _accumulator, _kernels_project, _kernels_traverse
+from prismap.grid._projectors import ImageProjection
 
 RAYS_PER_CHUNK = 4096
 """Rays cast per model call in ray mode (fewer when they cross more than :data:`CELLS_PER_CHUNK` voxels)."""
@@ -64,27 +65,6 @@ NOISE_BIN_RATIO = 1.25
 
 MIN_NOISE_PX = 0.01
 """Pose-induced disparity noise below this (pixels) leaves the model unchanged."""
-
-
-@dataclass(frozen=True)
-class ImageProjection:
-    """The pinhole projector: where the frame's image sees the world, for projective integration (made by
-    :func:`make_projector`).
-
-    Attributes
-    ----------
-    R_cam_world : (3, 3) float64, rotation world -> camera
-    focal_px, cx_px, cy_px : float, pixels, of the full-resolution image
-    subsample : int >= 1, pixel step of the rays
-    ray_index : (rows, cols) int32, ray of each subsampled pixel, -1 = none
-    """
-
-    R_cam_world: np.ndarray
-    focal_px: float
-    cx_px: float
-    cy_px: float
-    subsample: int
-    ray_index: np.ndarray
 
 
 MEASUREMENT_KINDS = ("disparity", "range")
@@ -136,11 +116,21 @@ class RayBatch:
             new = np.full(keep.size, -1, dtype=np.int32)
             new[keep] = np.arange(int(keep.sum()), dtype=np.int32)
             flat = image.ray_index.reshape(-1)
-            ray_index = np.where(flat >= 0, new[np.maximum(flat, 0)], -1).astype(np.int32).reshape(image.ray_index.shape)
+            ray_index = (
+                np.where(flat >= 0, new[np.maximum(flat, 0)], -1).astype(np.int32).reshape(image.ray_index.shape)
+            )
             image = replace(image, ray_index=ray_index)
-        return RayBatch(self.origin_w, np.ascontiguousarray(self.rays_w[keep]), self.measurement[keep],
-                        self.ray_norm[keep], _take(self.extra_noise_px, keep), _take(self.ray_class, keep), image,
-                        _take(self.voxel_overhang_m, keep), self.kind)
+        return RayBatch(
+            self.origin_w,
+            np.ascontiguousarray(self.rays_w[keep]),
+            self.measurement[keep],
+            self.ray_norm[keep],
+            _take(self.extra_noise_px, keep),
+            _take(self.ray_class, keep),
+            image,
+            _take(self.voxel_overhang_m, keep),
+            self.kind,
+        )
 
     def class_kwargs(self, idx, model):
         """``{"ray_class": classes of rays idx}`` for a call of ``model``, or ``{}`` when the batch has no
@@ -173,7 +163,9 @@ def noise_groups(model, extra_noise_px):
     sigma = np.asarray(extra_noise_px, dtype=np.float64)
     small = ~(sigma >= MIN_NOISE_PX)
     groups = [(model, np.flatnonzero(small))] if small.any() else []
-    bins = np.round(np.log(np.where(small, MIN_NOISE_PX, sigma) / MIN_NOISE_PX) / np.log(NOISE_BIN_RATIO)).astype(np.int64)
+    bins = np.round(np.log(np.where(small, MIN_NOISE_PX, sigma) / MIN_NOISE_PX) / np.log(NOISE_BIN_RATIO)).astype(
+        np.int64
+    )
     for b in np.unique(bins[~small]):
         members = np.flatnonzero(~small & (bins == b))
         groups.append((model.with_extra_noise(MIN_NOISE_PX * NOISE_BIN_RATIO**b), members))
@@ -218,8 +210,10 @@ class Integrator(ABC):
                     f"(the {self.name} integrator does not cast rays from the camera)"
                 )
             if self.map_log_odds is None:
-                raise PrismapInputError(f"sensor model {model.name!r} takes the map as prior: the integrator needs "
-                                        "`map_log_odds` (OccupancyMap passes it)")
+                raise PrismapInputError(
+                    f"sensor model {model.name!r} takes the map as prior: the integrator needs "
+                    "`map_log_odds` (OccupancyMap passes it)"
+                )
         if len(batch):
             self._integrate(accumulator, batch, noise_groups(model, batch.extra_noise_px))
 
@@ -230,8 +224,9 @@ class Integrator(ABC):
     def stop_depths(self, model, batch, idx):
         """Depth at which each ray of ``idx`` stops and whether that stop excludes its voxel (cut by max range)."""
         measurement, ray_norm = _rows(batch.measurement, idx), _rows(batch.ray_norm, idx)
-        influence = np.asarray(model.influence_depth(measurement, ray_norm, **batch.class_kwargs(idx, model)),
-                               dtype=np.float64)
+        influence = np.asarray(
+            model.influence_depth(measurement, ray_norm, **batch.class_kwargs(idx, model)), dtype=np.float64
+        )
         if influence.shape != measurement.shape:
             raise PrismapInputError(
                 f"sensor model {model.name!r}: influence_depth returned shape {influence.shape}; expected {measurement.shape}"
@@ -253,8 +248,9 @@ class Integrator(ABC):
         kwargs = batch.cell_kwargs(idx, model)
         if map_log_odds is not None:
             kwargs["map_log_odds"] = map_log_odds
-        _, increment = model.cell_posteriors(_rows(batch.measurement, idx), _rows(batch.ray_norm, idx), ray_of_cell,
-                                             t_in, t_out, **kwargs)
+        _, increment = model.cell_posteriors(
+            _rows(batch.measurement, idx), _rows(batch.ray_norm, idx), ray_of_cell, t_in, t_out, **kwargs
+        )
         increment = np.asarray(increment, dtype=np.float64)
         if increment.shape != t_in.shape:
             raise PrismapInputError(
@@ -297,8 +293,10 @@ class RayIntegrator(Integrator):
     def _integrate(self, accumulator, batch, groups):
         origin, voxel = batch.origin_w, self.voxel_size_m
         stops = [(model, members, *self.stop_depths(model, batch, members)) for model, members in groups]
-        limits = [_kernels_traverse.cell_limits(origin, np.ascontiguousarray(_rows(batch.rays_w, members)), t_stop, voxel)
-                  for _, members, t_stop, _ in stops]
+        limits = [
+            _kernels_traverse.cell_limits(origin, np.ascontiguousarray(_rows(batch.rays_w, members)), t_stop, voxel)
+            for _, members, t_stop, _ in stops
+        ]
         longest = max((int(lim.max()) for lim in limits if lim.size), default=0)
         if longest > MAX_RAY_CELLS:
             raise PrismapInputError(
@@ -309,16 +307,30 @@ class RayIntegrator(Integrator):
         self._check_work(sum(int(lim.sum()) for lim in limits), "the sum over rays of the voxels each crosses")
         if all(model.hit_miss_increments() is not None for model, _ in groups):
             for model, members, t_stop, exclusive in stops:
-                _cast_hit_miss(accumulator, origin, np.ascontiguousarray(_rows(batch.rays_w, members)), t_stop,
-                               exclusive, model, voxel)
+                _cast_hit_miss(
+                    accumulator,
+                    origin,
+                    np.ascontiguousarray(_rows(batch.rays_w, members)),
+                    t_stop,
+                    exclusive,
+                    model,
+                    voxel,
+                )
             return
         chunks = []
         for (model, members, t_stop, exclusive), limit in zip(stops, limits):
             idx = np.arange(len(batch)) if members is None else members
             for part in _chunks(limit):
                 chunk = idx[part]
-                chunks.append((model, chunk, np.ascontiguousarray(batch.rays_w[chunk]),
-                               np.ascontiguousarray(t_stop[part]), np.ascontiguousarray(exclusive[part])))
+                chunks.append(
+                    (
+                        model,
+                        chunk,
+                        np.ascontiguousarray(batch.rays_w[chunk]),
+                        np.ascontiguousarray(t_stop[part]),
+                        np.ascontiguousarray(exclusive[part]),
+                    )
+                )
         # The model runs on chunks k - 1 and k in MODEL_THREADS threads while this thread casts chunk k + 1 and
         # adds finished chunks' increments in chunk order: it alone writes the accumulator (so the cast may grow
         # it), and the map is that of one thread.
@@ -328,8 +340,12 @@ class RayIntegrator(Integrator):
                 ray_of_cell, cell_index, t_in, t_out = _accumulator.cast_into(accumulator, origin, *cast, voxel)
                 if cell_index.size:
                     prior = self.map_log_odds(cell_index) if model.takes_map_prior else None
-                    pending.append((cell_index, threads.submit(self.cell_increments, model, batch, chunk, ray_of_cell,
-                                                               t_in, t_out, prior)))
+                    pending.append(
+                        (
+                            cell_index,
+                            threads.submit(self.cell_increments, model, batch, chunk, ray_of_cell, t_in, t_out, prior),
+                        )
+                    )
                 while len(pending) > MODEL_THREADS:
                     _scatter_next(accumulator, pending)
             while pending:
@@ -367,9 +383,22 @@ def _cast_hit_miss(accumulator, origin, rays, t_stop, exclusive, model, voxel_si
     done = 0
     while done < rays.shape[0]:
         table = accumulator
-        n, blocks = _kernels_traverse.cast_hit_miss(table.table, table.block_keys, table.n_blocks, table.payload["acc"],
-                                                    table.payload["links"], origin, rays[done:], t_stop[done:],
-                                                    exclusive[done:], z_hit[done:], l_hit, l_miss, voxel_size, table.bits)
+        n, blocks = _kernels_traverse.cast_hit_miss(
+            table.table,
+            table.block_keys,
+            table.n_blocks,
+            table.payload["acc"],
+            table.payload["links"],
+            origin,
+            rays[done:],
+            t_stop[done:],
+            exclusive[done:],
+            z_hit[done:],
+            l_hit,
+            l_miss,
+            voxel_size,
+            table.bits,
+        )
         done += n
         if done < rays.shape[0]:
             _accumulator.grow(accumulator, blocks)
@@ -393,8 +422,10 @@ class ProjectiveIntegrator(Integrator):
     def _integrate(self, accumulator, batch, groups):
         image = batch.image
         if image is None:
-            raise PrismapInputError("projective mode needs the batch's image geometry (`RayBatch.image`: "
-                                    "prismap.camera.disparity_batch(..., projective=True))")
+            raise PrismapInputError(
+                "projective mode needs the batch's image geometry (`RayBatch.image`: "
+                "prismap.camera.disparity_batch(..., projective=True))"
+            )
         n = len(batch)
         origin, rays, voxel = batch.origin_w, batch.rays_w, self.voxel_size_m
         t_stop = np.empty(n)
@@ -410,9 +441,22 @@ class ProjectiveIntegrator(Integrator):
         box = float(np.prod(shape.astype(np.float64)))
         self._check_work(box, f"the frustum's key box of {shape[0]} x {shape[1]} x {shape[2]} voxels")
         stops = _kernels_project.stop_image(image.ray_index, t_stop)
-        geometry = (key_min, shape, origin, image.R_cam_world, image.focal_px, image.cx_px, image.cy_px,
-                    float(image.subsample), image.ray_index, rays, exclusive, stops, _kernels_project.tile_stops(stops),
-                    voxel)
+        geometry = (
+            key_min,
+            shape,
+            origin,
+            image.R_cam_world,
+            image.focal_px,
+            image.cx_px,
+            image.cy_px,
+            float(image.subsample),
+            image.ray_index,
+            rays,
+            exclusive,
+            stops,
+            _kernels_project.tile_stops(stops),
+            voxel,
+        )
         if all(model.hit_miss_increments() is not None for model, _ in groups):
             _project_hit_miss(accumulator, geometry, t_stop, exclusive, groups[0][0])
             return
@@ -424,8 +468,9 @@ class ProjectiveIntegrator(Integrator):
         part_capacity = int(min(box, capacity) / (cuts.size - 1)) + 4096
 
         def part(start, stop):
-            keys, ray_of_cell, t_in, t_out, m = _kernels_project.project_part(*geometry, start, stop, part_capacity,
-                                                                              max_cells)
+            keys, ray_of_cell, t_in, t_out, m = _kernels_project.project_part(
+                *geometry, start, stop, part_capacity, max_cells
+            )
             if m > keys.shape[0]:  # over the bound: counted only
                 return keys, None, m
             cells = (ray_of_cell[:m], t_in[:m], t_out[:m])
@@ -468,8 +513,9 @@ class ProjectiveIntegrator(Integrator):
             mine = np.flatnonzero(group_of_cell == g)
             if in_group.any():
                 rank = np.cumsum(in_group) - 1  # index of each used ray among the group's used rays
-                increment[order[mine]] = self.cell_increments(model, batch, used[in_group], rank[local[mine]],
-                                                              t_in[mine], t_out[mine])
+                increment[order[mine]] = self.cell_increments(
+                    model, batch, used[in_group], rank[local[mine]], t_in[mine], t_out[mine]
+                )
         return increment
 
 
@@ -481,9 +527,19 @@ def _project_hit_miss(accumulator, geometry, t_stop, exclusive, model):
     line = 0
     while True:
         table = accumulator
-        line = _kernels_project.project_hit_miss(table.table, table.block_keys, table.n_blocks, table.payload["acc"],
-                                                 table.payload["links"], table.bits, *geometry, z_hit, l_hit, l_miss,
-                                                 line)
+        line = _kernels_project.project_hit_miss(
+            table.table,
+            table.block_keys,
+            table.n_blocks,
+            table.payload["acc"],
+            table.payload["links"],
+            table.bits,
+            *geometry,
+            z_hit,
+            l_hit,
+            l_miss,
+            line,
+        )
         if line < 0:
             return
         _accumulator.grow(accumulator, 0)
@@ -509,22 +565,3 @@ def make_integrator(name, **config):
     except (KeyError, TypeError):
         raise PrismapInputError(f"`mode` must be one of {list(_INTEGRATORS)}; got {name!r}") from None
     return cls(**config)
-
-
-_PROJECTORS = {"pinhole": ImageProjection}
-PROJECTOR_NAMES = tuple(_PROJECTORS)
-"""Names accepted by :func:`make_projector`."""
-
-
-def make_projector(name, **params):
-    """The projector called ``name`` (``"pinhole"``: :class:`ImageProjection`), built from ``params``.
-
-    The projective integrator maps voxel centres to the frame's pixels through it; as with the integrators
-    (:func:`make_integrator`) and the sensor models (:func:`prismap.sensor_models.make_sensor_model`), the three
-    are separate objects, so another sensor geometry is a new projector, not a new integrator.
-    """
-    try:
-        cls = _PROJECTORS[name]
-    except (KeyError, TypeError):
-        raise PrismapInputError(f"`projector` must be one of {list(_PROJECTORS)}; got {name!r}") from None
-    return cls(**params)

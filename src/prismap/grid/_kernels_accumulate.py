@@ -122,8 +122,9 @@ def scatter_keys(table, block_keys, n_blocks, acc, links, bits, keys, increment,
     n = keys.shape[0]
     for lo in range(start, n, SCATTER_RUN):
         hi = min(lo + SCATTER_RUN, n)
-        done, last_block, last_slot = register_run(table, block_keys, n_blocks, acc, links, keys, lo, hi, bits,
-                                                   scratch, last_block, last_slot)
+        done, last_block, last_slot = register_run(
+            table, block_keys, n_blocks, acc, links, keys, lo, hi, bits, scratch, last_block, last_slot
+        )
         for i in range(lo, done):
             add_increment(rows, scratch[i - lo], np.float32(increment[i]))
         if done < hi:
@@ -179,7 +180,9 @@ def apply_frame(table, block_keys, n_blocks, log, count, frame_keys, n_frame, ac
 
 
 @numba.njit(cache=True, nogil=True)
-def merge_blocks(table, block_keys, n_blocks, log, count, other_keys, n_other, other_log, other_count, clamp_lo, clamp_hi, prior_q):
+def merge_blocks(
+    table, block_keys, n_blocks, log, count, other_keys, n_other, other_log, other_count, clamp_lo, clamp_hi, prior_q
+):
     """Add another map's blocks: known in both -> ``q1 + q2 - q0`` (clamped); counts add (saturating)."""
     for s in range(n_other):
         slot = _map_block(table, block_keys, n_blocks, log, count, other_keys[s], prior_q)
@@ -191,7 +194,9 @@ def merge_blocks(table, block_keys, n_blocks, log, count, other_keys, n_other, o
             if mine == 0:
                 log[slot, v] = other_log[s, v]
             else:
-                log[slot, v] = _bounded(np.int64(log[slot, v]) + np.int64(other_log[s, v]) - prior_q, clamp_lo, clamp_hi)
+                log[slot, v] = _bounded(
+                    np.int64(log[slot, v]) + np.int64(other_log[s, v]) - prior_q, clamp_lo, clamp_hi
+                )
             count[slot, v] = min(mine + c, 65535)
 
 

@@ -14,8 +14,22 @@ from prismap.grid._kernels_traverse import write_cell
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _line_cells(line, walk, key_min, shape, origin, R_cam_world, focal, subsample, ray_index, rays, exclusive, stops,
-                tile_stop, voxel_size):
+def _line_cells(
+    line,
+    walk,
+    key_min,
+    shape,
+    origin,
+    R_cam_world,
+    focal,
+    subsample,
+    ray_index,
+    rays,
+    exclusive,
+    stops,
+    tile_stop,
+    voxel_size,
+):
     """The kept voxels of line ``line`` of the key box (``i0 * n1 + i1``: the voxels along the walk's line
     axis, :func:`_walk_setup`), written to the walk's line scratch in order along the line; returns how many.
 
@@ -47,9 +61,19 @@ def _line_cells(line, walk, key_min, shape, origin, R_cam_world, focal, subsampl
     for base in range(lo, hi, SPAN):
         top = min(base + SPAN, hi)
         last = top - 1
-        if _run_beyond_stops(px0 + base * step[0], py0 + base * step[1], pz0 + base * step[2], px0 + last * step[0],
-                             py0 + last * step[1], pz0 + last * step[2], scale_px, col_offset, row_offset, reach,
-                             tile_stop):
+        if _run_beyond_stops(
+            px0 + base * step[0],
+            py0 + base * step[1],
+            pz0 + base * step[2],
+            px0 + last * step[0],
+            py0 + last * step[1],
+            pz0 + last * step[2],
+            scale_px,
+            col_offset,
+            row_offset,
+            reach,
+            tile_stop,
+        ):
             continue
         for i2 in range(base, top):
             k[a2] = key_min[a2] + i2
@@ -71,8 +95,15 @@ def _line_cells(line, walk, key_min, shape, origin, R_cam_world, focal, subsampl
                 continue
             ray = ray_index[pixel_row, pixel_col]
             # Slab intersection of the ray with the voxel box, in depth units.
-            t0, t1 = _slab(rays[ray, 0], rays[ray, 1], rays[ray, 2], k[0] * voxel_size - origin[0],
-                           k[1] * voxel_size - origin[1], k[2] * voxel_size - origin[2], voxel_size)
+            t0, t1 = _slab(
+                rays[ray, 0],
+                rays[ray, 1],
+                rays[ray, 2],
+                k[0] * voxel_size - origin[0],
+                k[1] * voxel_size - origin[1],
+                k[2] * voxel_size - origin[2],
+                voxel_size,
+            )
             t0 = max(t0, 0.0)
             if t1 <= t0:
                 t0 = max(pz - half, 0.0)
@@ -98,15 +129,46 @@ def _walk_setup(R_cam_world, shape, focal, cx, cy, subsample, voxel_size):
     for r in range(3):
         step[r] = R_cam_world[r, a2] * voxel_size
     n2 = shape[a2]
-    walk = (a0, a1, a2, step, np.empty(3, dtype=np.int64), np.empty(3), cx / subsample + 0.5, cy / subsample + 0.5,
-            focal / subsample, np.empty((n2, 3), dtype=np.int32), np.empty(n2, dtype=np.int64), np.empty(n2),
-            np.empty(n2), np.empty(n2, dtype=np.int64))
+    walk = (
+        a0,
+        a1,
+        a2,
+        step,
+        np.empty(3, dtype=np.int64),
+        np.empty(3),
+        cx / subsample + 0.5,
+        cy / subsample + 0.5,
+        focal / subsample,
+        np.empty((n2, 3), dtype=np.int32),
+        np.empty(n2, dtype=np.int64),
+        np.empty(n2),
+        np.empty(n2),
+        np.empty(n2, dtype=np.int64),
+    )
     return walk, shape[a0] * shape[a1]
 
 
 @numba.njit(cache=True, nogil=True)
-def project_part(key_min, shape, origin, R_cam_world, focal, cx, cy, subsample, ray_index, rays, exclusive, stops,
-                 tile_stop, voxel_size, start, stop, capacity, max_cells):
+def project_part(
+    key_min,
+    shape,
+    origin,
+    R_cam_world,
+    focal,
+    cx,
+    cy,
+    subsample,
+    ray_index,
+    rays,
+    exclusive,
+    stops,
+    tile_stop,
+    voxel_size,
+    start,
+    stop,
+    capacity,
+    max_cells,
+):
     """Voxels of a key box seen by a pixel ray (:func:`_line_cells`) on lines ``start`` to ``stop - 1``, in the
     walk's order; the accumulator is not touched, so parts of the lines may be walked in several threads.
 
@@ -124,16 +186,31 @@ def project_part(key_min, shape, origin, R_cam_world, focal, cx, cy, subsample, 
     t_in, t_out = np.empty(size), np.empty(size)
     m = 0
     for line in range(start, stop):
-        c = _line_cells(line, walk, key_min, shape, origin, R_cam_world, focal, subsample, ray_index, rays, exclusive,
-                        stops, tile_stop, voxel_size)
+        c = _line_cells(
+            line,
+            walk,
+            key_min,
+            shape,
+            origin,
+            R_cam_world,
+            focal,
+            subsample,
+            ray_index,
+            rays,
+            exclusive,
+            stops,
+            tile_stop,
+            voxel_size,
+        )
         if c == 0:
             continue
         if m + c > ray_of_cell.size:
             if m + c > max_cells:  # over the bound: only count
                 m += c
                 continue
-            keys, ray_of_cell, t_in, t_out = _grown(keys, ray_of_cell, t_in, t_out, m,
-                                                    min(max(m + m // 2, m + c), max_cells))
+            keys, ray_of_cell, t_in, t_out = _grown(
+                keys, ray_of_cell, t_in, t_out, m, min(max(m + m // 2, m + c), max_cells)
+            )
         keys[m : m + c] = line_keys[:c]
         ray_of_cell[m : m + c] = line_ray[:c]
         t_in[m : m + c] = line_t0[:c]
@@ -143,8 +220,32 @@ def project_part(key_min, shape, origin, R_cam_world, focal, cx, cy, subsample, 
 
 
 @numba.njit(cache=True, nogil=True)
-def project_hit_miss(table, block_keys, n_blocks, acc, links, bits, key_min, shape, origin, R_cam_world, focal, cx, cy,
-                     subsample, ray_index, rays, exclusive, stops, tile_stop, voxel_size, z_hit, l_hit, l_miss, start):
+def project_hit_miss(
+    table,
+    block_keys,
+    n_blocks,
+    acc,
+    links,
+    bits,
+    key_min,
+    shape,
+    origin,
+    R_cam_world,
+    focal,
+    cx,
+    cy,
+    subsample,
+    ray_index,
+    rays,
+    exclusive,
+    stops,
+    tile_stop,
+    voxel_size,
+    z_hit,
+    l_hit,
+    l_miss,
+    start,
+):
     """:func:`project_part` for a hit/miss model: each kept voxel of interval ``[t_in, t_out)`` on ray ``i``
     gets ``l_hit`` if it holds ``z_hit[i]``, ``l_miss`` if it ends at or before it, 0 beyond (the rule of
     ``sensor_models._kernels.hitmiss_cells``), added to its accumulator row as ``_kernels_accumulate.scatter``
@@ -156,12 +257,27 @@ def project_hit_miss(table, block_keys, n_blocks, acc, links, bits, key_min, sha
     rows = acc.reshape((acc.shape[0] * acc.shape[1], acc.shape[2]))
     last_block, last_slot = EMPTY, np.int64(-1)
     for line in range(start, n_lines):
-        c = _line_cells(line, walk, key_min, shape, origin, R_cam_world, focal, subsample, ray_index, rays, exclusive,
-                        stops, tile_stop, voxel_size)
+        c = _line_cells(
+            line,
+            walk,
+            key_min,
+            shape,
+            origin,
+            R_cam_world,
+            focal,
+            subsample,
+            ray_index,
+            rays,
+            exclusive,
+            stops,
+            tile_stop,
+            voxel_size,
+        )
         if c == 0:
             continue
-        done, last_block, last_slot = register_run(table, block_keys, n_blocks, acc, links, line_keys, 0, c, bits,
-                                                   line_rows, last_block, last_slot)
+        done, last_block, last_slot = register_run(
+            table, block_keys, n_blocks, acc, links, line_keys, 0, c, bits, line_rows, last_block, last_slot
+        )
         if done < c:
             return line
         for j in range(c):

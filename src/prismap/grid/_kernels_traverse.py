@@ -165,8 +165,9 @@ def cast_rays_into(table, block_keys, n_blocks, acc, links, origin, rays, t_stop
 
 
 @numba.njit(cache=True, nogil=True)
-def cast_hit_miss(table, block_keys, n_blocks, acc, links, origin, rays, t_stop, exclusive, z_hit, l_hit, l_miss,
-                  voxel_size, bits):
+def cast_hit_miss(
+    table, block_keys, n_blocks, acc, links, origin, rays, t_stop, exclusive, z_hit, l_hit, l_miss, voxel_size, bits
+):
     """Cast rays and add hit/miss increments straight into the accumulator (no per-cell arrays).
 
     Voxels as :func:`cast_rays` keeps them; one of interval ``[t_in, t_out)`` on ray ``i`` gets ``l_hit``

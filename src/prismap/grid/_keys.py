@@ -44,8 +44,10 @@ def check_voxel_size(voxel_size_m, name="voxel_size_m"):
     """``float(voxel_size_m)`` if it is a finite number in (0, :data:`MAX_VOXEL_SIZE_M`], else raise naming ``name``."""
     size = check_positive(voxel_size_m, name)
     if size > MAX_VOXEL_SIZE_M:
-        raise PrismapInputError(f"`{name}` must be at most {MAX_VOXEL_SIZE_M:g} m (MAX_VOXEL_SIZE_M: voxel centres "
-                                f"must stay finite in float32); got {size:g}")
+        raise PrismapInputError(
+            f"`{name}` must be at most {MAX_VOXEL_SIZE_M:g} m (MAX_VOXEL_SIZE_M: voxel centres "
+            f"must stay finite in float32); got {size:g}"
+        )
     return size
 
 
@@ -62,8 +64,11 @@ def key_range_text(voxel_size_m):
 @numba.njit(cache=True, nogil=True, inline="always")
 def pack_block(bx, by, bz):
     """Packed int64 of a block coordinate triple (each in ``[-PACK_OFFSET, PACK_OFFSET)``)."""
-    return (((np.int64(bx) + PACK_OFFSET) << (2 * AXIS_BITS)) | ((np.int64(by) + PACK_OFFSET) << AXIS_BITS)
-            | (np.int64(bz) + PACK_OFFSET))
+    return (
+        ((np.int64(bx) + PACK_OFFSET) << (2 * AXIS_BITS))
+        | ((np.int64(by) + PACK_OFFSET) << AXIS_BITS)
+        | (np.int64(bz) + PACK_OFFSET)
+    )
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
@@ -110,11 +115,19 @@ def pack_key_sets(*key_arrays):
     low = stacked.min(axis=0)
     span = [int(hi) - int(lo) + 1 for lo, hi in zip(low, stacked.max(axis=0))]  # Python ints: no overflow
     if dims > 3 or max(span) > 2 * PACK_OFFSET:
-        raise PrismapInputError(f"keys span {span} voxels per axis: too far apart to pack into int64 "
-                                f"(at most 3 axes of {2 * PACK_OFFSET} keys)")
+        raise PrismapInputError(
+            f"keys span {span} voxels per axis: too far apart to pack into int64 "
+            f"(at most 3 axes of {2 * PACK_OFFSET} keys)"
+        )
     pad = np.full(3 - dims, -PACK_OFFSET, dtype=np.int64)
-    return tuple(pack_keys(np.column_stack([np.asarray(a, dtype=np.int64) - low - PACK_OFFSET,
-                                            np.broadcast_to(pad, (len(a), 3 - dims))])) for a in key_arrays)
+    return tuple(
+        pack_keys(
+            np.column_stack(
+                [np.asarray(a, dtype=np.int64) - low - PACK_OFFSET, np.broadcast_to(pad, (len(a), 3 - dims))]
+            )
+        )
+        for a in key_arrays
+    )
 
 
 def unpack_keys(packed):
@@ -152,8 +165,10 @@ def point_to_key(points_w, voxel_size_m):
     points = as_float_array(points_w, "points_w", allow_nan=False)
     scaled = np.floor(points / voxel)
     if scaled.size and np.abs(scaled).max() >= 2.0**62:
-        raise PrismapInputError(f"`points_w` must lie within the key range {key_range_text(voxel)}; got "
-                                f"coordinates up to {np.abs(points).max():.6g} m")
+        raise PrismapInputError(
+            f"`points_w` must lie within the key range {key_range_text(voxel)}; got "
+            f"coordinates up to {np.abs(points).max():.6g} m"
+        )
     return scaled.astype(np.int64)
 
 
@@ -183,7 +198,9 @@ def check_keys(keys, voxel_size_m, name="keys"):
     and the limit in metres at ``voxel_size_m``."""
     array = np.asarray(keys)
     if not np.issubdtype(array.dtype, np.integer) or array.ndim != 2 or array.shape[1] != 3:
-        raise PrismapInputError(f"`{name}` must be an (N, 3) integer array; got shape {array.shape}, dtype {array.dtype}")
+        raise PrismapInputError(
+            f"`{name}` must be an (N, 3) integer array; got shape {array.shape}, dtype {array.dtype}"
+        )
     if array.size and (array.min() < -KEY_LIMIT or array.max() >= KEY_LIMIT):
         raise PrismapInputError(
             f"`{name}` must lie in the key range {key_range_text(voxel_size_m)}; got values in [{array.min()}, {array.max()}]"

@@ -20,6 +20,7 @@ FREE, OCCUPIED, UNKNOWN = 0, 1, -1
 OCTOMAP_CLAMP = (0.1192, 0.971)
 """OctoMap's default clamping thresholds (probabilities)."""
 
+
 def _probability(log):
     """Probability of float log-odds (float64; no overflow warning at large |log|)."""
     return expit(np.asarray(log, dtype=np.float64))
@@ -57,8 +58,9 @@ class OccupancyMap:
         and map files do not depend on it.
     """
 
-    def __init__(self, voxel_size_m, *, p0, ndim=3, clamp=None, occupied_threshold=0.5, free_threshold=0.5,
-                 fusion=None):
+    def __init__(
+        self, voxel_size_m, *, p0, ndim=3, clamp=None, occupied_threshold=0.5, free_threshold=0.5, fusion=None
+    ):
         self.voxel_size_m = check_positive(voxel_size_m, "voxel_size_m")
         self.p0 = check_probability(p0, "p0")
         if ndim not in BLOCK_BITS:
@@ -123,8 +125,21 @@ class OccupancyMap:
             raise PrismapInputError(f"`batch` must be a RayBatch; got {type(batch).__name__}")
         self._integrate(self._checked(batch), model, mode, policy, max_range_m)
 
-    def integrate_rays(self, origin_w, rays_w, measurement, model, *, kind="disparity", mode="ray", policy=None,
-                       max_range_m=np.inf, extra_noise_px=None, ray_class=None, voxel_overhang_m=None):
+    def integrate_rays(
+        self,
+        origin_w,
+        rays_w,
+        measurement,
+        model,
+        *,
+        kind="disparity",
+        mode="ray",
+        policy=None,
+        max_range_m=np.inf,
+        extra_noise_px=None,
+        ray_class=None,
+        voxel_overhang_m=None,
+    ):
         """Integrate one frame given as arrays: :meth:`integrate` of their :class:`RayBatch` (ray mode).
 
         Parameters
@@ -150,8 +165,13 @@ class OccupancyMap:
             How far before its surface a voxel each ray crosses can still hold part of that surface
             (:func:`prismap.camera.voxel_overhang_m`), passed to models that ``takes_voxel_overhang`` (PRISM).
         """
-        self.integrate(RayBatch(origin_w, rays_w, measurement, None, extra_noise_px, ray_class, None, voxel_overhang_m,
-                                kind), model, mode=mode, policy=policy, max_range_m=max_range_m)
+        self.integrate(
+            RayBatch(origin_w, rays_w, measurement, None, extra_noise_px, ray_class, None, voxel_overhang_m, kind),
+            model,
+            mode=mode,
+            policy=policy,
+            max_range_m=max_range_m,
+        )
 
     def _checked(self, batch):
         """``batch`` with its arrays checked against the map, its ray norms computed and its invalid rays dropped."""
@@ -164,8 +184,9 @@ class OccupancyMap:
         ray_norm = np.sqrt(np.einsum("ri,ri->r", rays, rays))
         valid = np.isfinite(measurement) & np.isfinite(ray_norm)  # a non-finite ray has a non-finite norm
         if np.any(ray_norm[valid] < 1.0 - 1e-9):
-            raise PrismapInputError("`rays_w` must have norm >= 1 (camera rays (x/z, y/z, 1) rotated into the world, "
-                                    "or unit vectors)")
+            raise PrismapInputError(
+                "`rays_w` must have norm >= 1 (camera rays (x/z, y/z, 1) rotated into the world, or unit vectors)"
+            )
         noise = None
         if batch.extra_noise_px is not None:
             noise = as_float_array(batch.extra_noise_px, "extra_noise_px", shape=(n,))
@@ -185,18 +206,23 @@ class OccupancyMap:
         self._check_model(model)
         measurement = getattr(model, "measurement", "disparity")
         if measurement != batch.kind:
-            raise PrismapInputError(f"sensor model {getattr(model, 'name', type(model).__name__)!r} takes {measurement} "
-                                    f"measurements; the batch holds {batch.kind} measurements")
+            raise PrismapInputError(
+                f"sensor model {getattr(model, 'name', type(model).__name__)!r} takes {measurement} "
+                f"measurements; the batch holds {batch.kind} measurements"
+            )
         code = policy_code(policy, model)
         max_range = check_positive(max_range_m, "max_range_m") if np.isfinite(max_range_m) else np.inf
         origin_key = np.abs(np.floor(batch.origin_w / self.voxel_size_m)).max()
         reach = (KEY_LIMIT - 2 - origin_key) * self.voxel_size_m
         if reach <= 0:
-            raise PrismapInputError(f"`origin_w` {batch.origin_w.tolist()} lies outside the map's key range "
-                                    f"{key_range_text(self.voxel_size_m)}")
+            raise PrismapInputError(
+                f"`origin_w` {batch.origin_w.tolist()} lies outside the map's key range "
+                f"{key_range_text(self.voxel_size_m)}"
+            )
         prior = self._map_log_odds if model.takes_map_prior else None
-        integrator = make_integrator(mode, voxel_size_m=self.voxel_size_m, max_range_m=max_range, reach_m=reach,
-                                     map_log_odds=prior)
+        integrator = make_integrator(
+            mode, voxel_size_m=self.voxel_size_m, max_range_m=max_range, reach_m=reach, map_log_odds=prior
+        )
         self._accumulator.clear()
         integrator.integrate(self._accumulator, batch, model)
         self._apply_accumulator(code)
@@ -218,9 +244,15 @@ class OccupancyMap:
     def _map_log_odds(self, rows):
         """Log-odds (float64) of the voxels of frame accumulator rows ``rows``; ``logit(p0)`` where the map has none."""
         store, acc = self._store, self._accumulator
-        q = _kernels_accumulate.map_log_of_rows(store.table, store.block_keys, store.payload["log"], acc.block_keys,
-                                                np.ascontiguousarray(rows, dtype=np.int64), sum(store.bits),
-                                                np.int64(self.prior_q))
+        q = _kernels_accumulate.map_log_of_rows(
+            store.table,
+            store.block_keys,
+            store.payload["log"],
+            acc.block_keys,
+            np.ascontiguousarray(rows, dtype=np.int64),
+            sum(store.bits),
+            np.int64(self.prior_q),
+        )
         return from_fixed(q)
 
     def merge(self, other):
@@ -242,9 +274,20 @@ class OccupancyMap:
         store, theirs = self._store, other._store
         store.reserve(store.count_absent(theirs.block_keys, len(theirs)))
         lo, hi = self._clamp_q()
-        _kernels_accumulate.merge_blocks(store.table, store.block_keys, store.n_blocks,
-                                         store.payload["log"], store.payload["count"], theirs.block_keys, len(theirs),
-                                         theirs.payload["log"], theirs.payload["count"], lo, hi, self.prior_q)
+        _kernels_accumulate.merge_blocks(
+            store.table,
+            store.block_keys,
+            store.n_blocks,
+            store.payload["log"],
+            store.payload["count"],
+            theirs.block_keys,
+            len(theirs),
+            theirs.payload["log"],
+            theirs.payload["count"],
+            lo,
+            hi,
+            self.prior_q,
+        )
         self.policies = (*self.policies, *(p for p in other.policies if p not in self.policies))
         self.n_frames += other.n_frames
         return self
@@ -261,24 +304,44 @@ class OccupancyMap:
         keys = self._keys(keys)
         log = as_float_array(log_odds, "log_odds", shape=(keys.shape[0],), allow_nan=False)
         if log.size and np.abs(log).max() > Q_MAX * LOG_ODDS_STEP:
-            raise PrismapInputError(f"`log_odds` must lie within +-{Q_MAX * LOG_ODDS_STEP:.6g}; got up to {np.abs(log).max():.6g}")
+            raise PrismapInputError(
+                f"`log_odds` must lie within +-{Q_MAX * LOG_ODDS_STEP:.6g}; got up to {np.abs(log).max():.6g}"
+            )
         count = np.asarray(counts)
-        if (count.shape != (keys.shape[0],) or not np.issubdtype(count.dtype, np.integer)
-                or (count.size and (count.min() < 1 or count.max() > 65535))):
+        if (
+            count.shape != (keys.shape[0],)
+            or not np.issubdtype(count.dtype, np.integer)
+            or (count.size and (count.min() < 1 or count.max() > 65535))
+        ):
             raise PrismapInputError(
                 f"`counts` must be ({keys.shape[0]},) integers in [1, 65535]; got shape {count.shape}, dtype {count.dtype}"
             )
         store = self._store
         store.reserve(_kernels_hash.count_new_blocks(store.table, store.block_keys, keys, store.bits))
-        _kernels_accumulate.set_voxels(store.table, store.block_keys, store.n_blocks, store.payload["log"],
-                                       store.payload["count"], keys, to_fixed(log),
-                                       count.astype(np.uint16), store.bits, self.prior_q)
+        _kernels_accumulate.set_voxels(
+            store.table,
+            store.block_keys,
+            store.n_blocks,
+            store.payload["log"],
+            store.payload["count"],
+            keys,
+            to_fixed(log),
+            count.astype(np.uint16),
+            store.bits,
+            self.prior_q,
+        )
 
     def copy(self):
         """An independent copy of the map."""
-        twin = OccupancyMap(self.voxel_size_m, p0=self.p0, ndim=self.ndim, clamp=self.clamp,
-                            occupied_threshold=self.occupied_threshold, free_threshold=self.free_threshold,
-                            fusion=self.fusion)
+        twin = OccupancyMap(
+            self.voxel_size_m,
+            p0=self.p0,
+            ndim=self.ndim,
+            clamp=self.clamp,
+            occupied_threshold=self.occupied_threshold,
+            free_threshold=self.free_threshold,
+            fusion=self.fusion,
+        )
         twin.merge(self)
         twin.policies, twin.n_frames = self.policies, self.n_frames
         return twin
@@ -307,8 +370,15 @@ class OccupancyMap:
         """
         keys = self._keys(keys)
         store = self._store
-        q, count = _kernels_accumulate.lookup(store.table, store.block_keys, store.payload["log"],
-                                              store.payload["count"], keys, store.bits, np.int64(self.prior_q))
+        q, count = _kernels_accumulate.lookup(
+            store.table,
+            store.block_keys,
+            store.payload["log"],
+            store.payload["count"],
+            keys,
+            store.bits,
+            np.int64(self.prior_q),
+        )
         return from_fixed(q), count
 
     def probability_at_keys(self, keys):
@@ -413,7 +483,9 @@ class OccupancyMap:
         else:
             z_min, z_max = as_float_array(z_range_m, "z_range_m", shape=(2,), allow_nan=False)
             if not z_max > z_min:
-                raise PrismapInputError(f"`z_range_m` must be (z_min, z_max) with z_max > z_min; got {tuple(z_range_m)}")
+                raise PrismapInputError(
+                    f"`z_range_m` must be (z_min, z_max) with z_max > z_min; got {tuple(z_range_m)}"
+                )
             z_lo = int(point_to_key(z_min, self.voxel_size_m))
             z_hi = int(np.ceil(z_max / self.voxel_size_m)) - 1
         keys, log, count = self.known_voxels()
@@ -488,9 +560,20 @@ class OccupancyMap:
         acc, store = self._accumulator, self._store
         store.reserve(store.count_absent(acc.block_keys, len(acc)))
         lo, hi = self._clamp_q()
-        _kernels_accumulate.apply_frame(store.table, store.block_keys, store.n_blocks,
-                                        store.payload["log"], store.payload["count"], acc.block_keys, len(acc),
-                                        acc.payload["acc"], code, lo, hi, self.prior_q)
+        _kernels_accumulate.apply_frame(
+            store.table,
+            store.block_keys,
+            store.n_blocks,
+            store.payload["log"],
+            store.payload["count"],
+            acc.block_keys,
+            len(acc),
+            acc.payload["acc"],
+            code,
+            lo,
+            hi,
+            self.prior_q,
+        )
 
     def _points(self, value, name, *, single=False, as_direction=False):
         """(N, 3) (or (3,) if ``single``) float64 world coordinates; a 2-D map takes (.., 2) and pads z."""
@@ -510,5 +593,7 @@ class OccupancyMap:
         return keys
 
     def __repr__(self):
-        return (f"OccupancyMap(voxel_size_m={self.voxel_size_m}, p0={self.p0}, ndim={self.ndim}, "
-                f"clamp={self.clamp}, fusion={self.fusion}, known={self.n_known}, frames={self.n_frames})")
+        return (
+            f"OccupancyMap(voxel_size_m={self.voxel_size_m}, p0={self.p0}, ndim={self.ndim}, "
+            f"clamp={self.clamp}, fusion={self.fusion}, known={self.n_known}, frames={self.n_frames})"
+        )

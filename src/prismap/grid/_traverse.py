@@ -29,5 +29,6 @@ def crossed_voxels(origin_w, rays_w, t_stop, voxel_size_m):
     rays = as_float_array(rays_w, "rays_w", shape=(None, 3), allow_nan=False)
     stop = as_float_array(t_stop, "t_stop", shape=(rays.shape[0],))
     voxel = check_positive(voxel_size_m, "voxel_size_m")
-    return _kernels_traverse.cast_rays(origin, rays, np.where(np.isfinite(stop), stop, 0.0),
-                                       np.zeros(rays.shape[0], dtype=np.bool_), voxel)
+    return _kernels_traverse.cast_rays(
+        origin, rays, np.where(np.isfinite(stop), stop, 0.0), np.zeros(rays.shape[0], dtype=np.bool_), voxel
+    )

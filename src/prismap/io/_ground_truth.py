@@ -75,8 +75,9 @@ def open_ground_truth(dataset, *, frames=None, every=1, kitti_disparity="noc"):
     every = check_integer(every, "every", expected="an integer >= 1", condition=lambda k: k >= 1)
     kind, reader = _open(dataset, kitti_disparity)
     indices = _select(frames, every, len(reader), dataset)
-    missing = [i for i in indices if reader.ground_truth_path(i) is not None
-               and not reader.ground_truth_path(i).is_file()]
+    missing = [
+        i for i in indices if reader.ground_truth_path(i) is not None and not reader.ground_truth_path(i).is_file()
+    ]
     if missing:
         raise PrismapInputError(
             f"{dataset}: {len(missing)} of the {len(indices)} selected frames have no ground truth; first "
@@ -150,15 +151,18 @@ class GroundTruthFrames(LazyFrames):
             A disparity at or beyond the image width, no valid ground-truth pixel at all, or none above 0 px.
         """
         largest, where = -np.inf, None
-        for position in progress_bar(range(len(self)), total=len(self), desc="ground truth", unit="frame",
-                                     enabled=progress):
+        for position in progress_bar(
+            range(len(self)), total=len(self), desc="ground truth", unit="frame", enabled=progress
+        ):
             disparity = self.disparity_gt(position)
             valid = np.isfinite(disparity)
             if valid.any() and float(disparity[valid].max()) > largest:
                 largest, where = float(disparity[valid].max()), self._where(self.indices[position])
         if largest == -np.inf:
-            raise PrismapInputError(f"{self.source}: the dataset has no valid ground-truth disparity to characterise "
-                                    f"against ({len(self)} frames)")
+            raise PrismapInputError(
+                f"{self.source}: the dataset has no valid ground-truth disparity to characterise "
+                f"against ({len(self)} frames)"
+            )
         if largest <= 0:
             raise PrismapInputError(
                 f"{where}: every valid ground-truth disparity of {self.source} is <= 0 px (the largest, {largest:.6g} "
@@ -254,8 +258,9 @@ def _open(dataset, kitti_disparity):
         return MOTORCYCLE, _Motorcycle()
     path = Path(dataset)
     if not path.exists():
-        raise PrismapInputError(f"{dataset}: no such file or directory (expected '{MOTORCYCLE}' or a dataset "
-                                f"folder: {_LOOKED_FOR})")
+        raise PrismapInputError(
+            f"{dataset}: no such file or directory (expected '{MOTORCYCLE}' or a dataset folder: {_LOOKED_FOR})"
+        )
     if not path.is_dir():
         raise PrismapInputError(f"{dataset}: not a folder (expected '{MOTORCYCLE}' or a dataset folder)")
 
@@ -264,8 +269,9 @@ def _open(dataset, kitti_disparity):
 
     if (path / "im0.png").is_file():
         return "middlebury", MiddleburyScenes(path)
-    if has("image_0", "image_1") or (has("image_2", "image_3") and not (path / "calib.txt").is_file()
-                                     and (has("calib_cam_to_cam") or has("calib"))):
+    if has("image_0", "image_1") or (
+        has("image_2", "image_3") and not (path / "calib.txt").is_file() and (has("calib_cam_to_cam") or has("calib"))
+    ):
         stereo = KittiStereo(path, disparity=kitti_disparity)
         return f"kitti-stereo-{stereo.year}", stereo
     if has("image_2", "image_3") and (path / "calib.txt").is_file():
@@ -273,8 +279,10 @@ def _open(dataset, kitti_disparity):
             return "sequence", read_sequence(path)
         if has("velodyne"):
             return "kitti-odometry", _VelodyneTruth(KittiOdometry(path, None))
-        raise PrismapInputError(f"{path}: a KITTI-layout sequence without ground truth: neither disp/ "
-                                "(ground-truth disparities) nor velodyne/ (scans to project) is there")
+        raise PrismapInputError(
+            f"{path}: a KITTI-layout sequence without ground truth: neither disp/ "
+            "(ground-truth disparities) nor velodyne/ (scans to project) is there"
+        )
     if has("image_02/data", "image_03/data"):
         if not has("velodyne_points/data"):
             raise PrismapInputError(f"{path}: a KITTI raw drive without ground truth: no velodyne_points/data")

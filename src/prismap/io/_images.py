@@ -55,8 +55,10 @@ def read_png(path, what, flags=cv2.IMREAD_UNCHANGED):
 def check_image_pixels(path, what, width, height):
     """Refuse an image that declares more than :data:`MAX_IMAGE_PIXELS` (every image source, before decoding)."""
     if width * height > MAX_IMAGE_PIXELS:
-        raise PrismapInputError(f"{path}: {what} declares {width}x{height} pixels, more than the limit of "
-                                f"{MAX_IMAGE_PIXELS} pixels (MAX_IMAGE_PIXELS)")
+        raise PrismapInputError(
+            f"{path}: {what} declares {width}x{height} pixels, more than the limit of "
+            f"{MAX_IMAGE_PIXELS} pixels (MAX_IMAGE_PIXELS)"
+        )
 
 
 PNG_SLACK_BYTES = 1 << 20
@@ -102,17 +104,17 @@ def _png_header(data, path, what):
     filtered rows the header declares. libpng prints a line of its own on each of these faults, so they are
     refused here first.
     """
-    if data[:len(PNG_SIGNATURE)] != PNG_SIGNATURE:
+    if data[: len(PNG_SIGNATURE)] != PNG_SIGNATURE:
         raise PrismapInputError(f"{path}: {what} is not a PNG file (wrong signature)")
     corrupt = f"{path}: {what} cannot be decoded (truncated or corrupt PNG"
     offset, headers, idat, ended = len(PNG_SIGNATURE), [], [], False
     while offset + 12 <= len(data) and not ended:
-        length, kind = struct.unpack(">I4s", data[offset:offset + 8])
+        length, kind = struct.unpack(">I4s", data[offset : offset + 8])
         end = offset + 12 + length
-        if end > len(data) or zlib.crc32(data[offset + 4:end - 4]) != struct.unpack(">I", data[end - 4:end])[0]:
+        if end > len(data) or zlib.crc32(data[offset + 4 : end - 4]) != struct.unpack(">I", data[end - 4 : end])[0]:
             break
         if kind == b"IHDR":
-            headers.append((offset, data[offset + 8:end - 4]))
+            headers.append((offset, data[offset + 8 : end - 4]))
         elif kind == b"IDAT":
             idat.append((offset + 8, end - 4))
         ended = kind == b"IEND"
@@ -121,12 +123,19 @@ def _png_header(data, path, what):
         raise PrismapInputError(corrupt + ")")
     if len(headers) > 1 or headers[0][0] != len(PNG_SIGNATURE) or len(headers[0][1]) != 13:
         raise PrismapInputError(corrupt + ": IHDR must be the first chunk, once, of 13 bytes)")
-    width, height, bit_depth, colour_type, compression, filtering, interlace = struct.unpack(">IIBBBBB",
-                                                                                            headers[0][1])
-    if (bit_depth not in _PNG_BIT_DEPTHS.get(colour_type, ()) or compression or filtering or interlace > 1
-            or not width or not height):
-        raise PrismapInputError(corrupt + f": IHDR declares {width}x{height}, bit depth {bit_depth}, colour type "
-                                f"{colour_type}, methods {compression}/{filtering}/{interlace})")
+    width, height, bit_depth, colour_type, compression, filtering, interlace = struct.unpack(">IIBBBBB", headers[0][1])
+    if (
+        bit_depth not in _PNG_BIT_DEPTHS.get(colour_type, ())
+        or compression
+        or filtering
+        or interlace > 1
+        or not width
+        or not height
+    ):
+        raise PrismapInputError(
+            corrupt + f": IHDR declares {width}x{height}, bit depth {bit_depth}, colour type "
+            f"{colour_type}, methods {compression}/{filtering}/{interlace})"
+        )
     check_image_pixels(path, what, width, height)
     _check_idat(data, idat, _png_raw_bytes(width, height, bit_depth * _PNG_SAMPLES[colour_type], interlace), corrupt)
     channels = {0: 1, 2: 3, 3: 3, 4: 2, 6: 4}[colour_type]
@@ -181,9 +190,9 @@ def _jpeg_header(data, where):
         if marker in (0xD8, 0x01) or 0xD0 <= marker <= 0xD7:
             offset += 2
             continue
-        length = struct.unpack(">H", data[offset + 2:offset + 4])[0]
+        length = struct.unpack(">H", data[offset + 2 : offset + 4])[0]
         if marker in _JPEG_FRAME_MARKERS and offset + 10 <= len(data) and length >= 8:
-            height, width, components = struct.unpack(">HHB", data[offset + 5:offset + 10])
+            height, width, components = struct.unpack(">HHB", data[offset + 5 : offset + 10])
             return height, width, components
         if marker == 0xDA or length < 2:
             break
@@ -202,7 +211,7 @@ def check_encoded_image(data, where):
     (height, width) : pixels
     """
     data = bytes(data)
-    if data[:len(PNG_SIGNATURE)] == PNG_SIGNATURE:
+    if data[: len(PNG_SIGNATURE)] == PNG_SIGNATURE:
         height, width, bytes_per_pixel = _png_header(data, where, "compressed image")
     elif data[:3] == b"\xff\xd8\xff":
         height, width, components = _jpeg_header(data, where)
@@ -281,7 +290,6 @@ def read_disparity_png(path, what, *, dtype, scale):
     return disparity
 
 
-
 def write_disparity_png(path, disparity_px, what, *, scale=256.0):
     """Write a disparity map as KITTI's uint16 PNG (``round(scale * d)``, 0 = invalid), atomically.
 
@@ -310,6 +318,7 @@ def write_disparity_png(path, disparity_px, what, *, scale=256.0):
     with atomic_path(path) as tmp:
         if not cv2.imwrite(str(tmp), encoded):
             raise PrismapInputError(f"{path}: OpenCV could not write the image")
+
 
 def png_size(path, what):
     """``(height, width)`` in pixels from a PNG header, without decoding the image."""

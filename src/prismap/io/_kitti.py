@@ -330,8 +330,12 @@ class KittiRaw(_KittiSequence):
 _STEREO_LAYOUTS = {
     # year: left, right, (calibration folder, left field, right field) in order of preference, (noc, occ)
     2012: ("image_0", "image_1", (("calib", "P0", "P1"),), ("disp_noc", "disp_occ")),
-    2015: ("image_2", "image_3", (("calib_cam_to_cam", "P_rect_02", "P_rect_03"), ("calib", "P2", "P3")),
-           ("disp_noc_0", "disp_occ_0")),
+    2015: (
+        "image_2",
+        "image_3",
+        (("calib_cam_to_cam", "P_rect_02", "P_rect_03"), ("calib", "P2", "P3")),
+        ("disp_noc_0", "disp_occ_0"),
+    ),
 }
 KITTI_DISPARITIES = ("noc", "occ")
 
@@ -401,10 +405,16 @@ class KittiStereo(LazyFrames):
         name = self.names[index]
         left, right = read_pair(self._left_dir / name, self._right_dir / name, colour=True)
         calib_path = self._calib_paths[index]
-        camera, _ = _rectified_pair(read_kitti_calib(calib_path), calib_path, *self._fields,
-                                    width=left.shape[1], height=left.shape[0])
-        return StereoFrame(left, right, camera, disparity_gt=self.disparity_gt(index),
-                           name=f"kitti-stereo-{self.year}/{name.removesuffix('.png')}")
+        camera, _ = _rectified_pair(
+            read_kitti_calib(calib_path), calib_path, *self._fields, width=left.shape[1], height=left.shape[0]
+        )
+        return StereoFrame(
+            left,
+            right,
+            camera,
+            disparity_gt=self.disparity_gt(index),
+            name=f"kitti-stereo-{self.year}/{name.removesuffix('.png')}",
+        )
 
     def ground_truth_path(self, index):
         """Path of frame ``index``'s ground-truth disparity PNG, whether or not it exists."""

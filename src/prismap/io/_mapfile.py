@@ -27,9 +27,18 @@ READABLE_VERSIONS = (1, 2, 3)
 ``fusion``."""
 _FUSION_SPEC = {"fusion": array_field((2,), "float")}
 _SPEC = {
-    "format": TEXT, "format_version": INTEGER, "voxel_size_m": REAL, "p0": REAL, "ndim": INTEGER, "policy": TEXT,
-    "clamp": array_field((2,), "float"), "occupied_threshold": REAL, "free_threshold": REAL, "n_frames": INTEGER,
-    "keys": array_field((None, 3), "integer"), "log_odds": array_field((None,), "float"),
+    "format": TEXT,
+    "format_version": INTEGER,
+    "voxel_size_m": REAL,
+    "p0": REAL,
+    "ndim": INTEGER,
+    "policy": TEXT,
+    "clamp": array_field((2,), "float"),
+    "occupied_threshold": REAL,
+    "free_threshold": REAL,
+    "n_frames": INTEGER,
+    "keys": array_field((None, 3), "integer"),
+    "log_odds": array_field((None,), "float"),
     "counts": array_field((None,), "integer"),
 }
 #: Memory per stored voxel while loading: the arrays (12 + 8 + 2 bytes), the map's storage and the
@@ -53,11 +62,21 @@ def save_map(grid, path):
     fusion = np.array((np.nan, np.nan) if grid.fusion is None else (grid.fusion.rate, grid.fusion.persistence))
     with atomic_path(path) as tmp, open(tmp, "wb") as handle:
         np.savez_compressed(
-            handle, format=np.array(FORMAT), format_version=np.array(FORMAT_VERSION),
-            voxel_size_m=np.array(grid.voxel_size_m), p0=np.array(grid.p0), ndim=np.array(grid.ndim),
-            policy=np.array("+".join(grid.policies)), clamp=clamp,
-            occupied_threshold=np.array(grid.occupied_threshold), free_threshold=np.array(grid.free_threshold),
-            n_frames=np.array(grid.n_frames), keys=keys, log_odds=log, counts=counts, fusion=fusion,
+            handle,
+            format=np.array(FORMAT),
+            format_version=np.array(FORMAT_VERSION),
+            voxel_size_m=np.array(grid.voxel_size_m),
+            p0=np.array(grid.p0),
+            ndim=np.array(grid.ndim),
+            policy=np.array("+".join(grid.policies)),
+            clamp=clamp,
+            occupied_threshold=np.array(grid.occupied_threshold),
+            free_threshold=np.array(grid.free_threshold),
+            n_frames=np.array(grid.n_frames),
+            keys=keys,
+            log_odds=log,
+            counts=counts,
+            fusion=fusion,
         )
 
 
@@ -99,9 +118,12 @@ def load_map(path):
     fusion = read_npz(path, "map file", _FUSION_SPEC)["fusion"] if fields["format_version"] >= 3 else (np.nan,) * 2
     try:
         grid = OccupancyMap(
-            fields["voxel_size_m"], p0=fields["p0"], ndim=fields["ndim"],
+            fields["voxel_size_m"],
+            p0=fields["p0"],
+            ndim=fields["ndim"],
             clamp=None if np.isnan(clamp).any() else tuple(float(c) for c in clamp),
-            occupied_threshold=fields["occupied_threshold"], free_threshold=fields["free_threshold"],
+            occupied_threshold=fields["occupied_threshold"],
+            free_threshold=fields["free_threshold"],
             fusion=None if np.isnan(fusion).any() else PersistentFailure(float(fusion[0]), float(fusion[1])),
         )
         grid.set_voxels(keys, fields["log_odds"], fields["counts"])

@@ -67,8 +67,11 @@ def read_npz(path, what, spec, *, loaded_bytes_per_row=None):
             nbytes = sum(int(np.prod(shape)) * dtype.itemsize for shape, dtype in (headers[n] for n in spec))
             if loaded_bytes_per_row is not None:
                 nbytes = max(nbytes, rows * loaded_bytes_per_row)
-            check_memory(nbytes, f"{path}: the {what}'s {rows} declared rows",
-                         "the file is corrupt or too large for this machine")
+            check_memory(
+                nbytes,
+                f"{path}: the {what}'s {rows} declared rows",
+                "the file is corrupt or too large for this machine",
+            )
             with np.load(path, allow_pickle=False) as data:
                 arrays = {name: data[name] for name in spec}
     except (zipfile.BadZipFile, EOFError, OSError, ValueError) as exc:
@@ -96,15 +99,20 @@ def _check_header(path, name, kind, shape, dtype):
     """Raise unless the declared ``shape``/``dtype`` fit ``kind``; the number of rows (0 for 0-d)."""
     if kind in _KINDS:
         if shape != () or dtype.kind not in _KINDS[kind]:
-            raise PrismapInputError(f"{path}: `{name}` must be {_WORDS[kind]} (a 0-d array); "
-                                    f"got shape {shape}, dtype {dtype}")
+            raise PrismapInputError(
+                f"{path}: `{name}` must be {_WORDS[kind]} (a 0-d array); got shape {shape}, dtype {dtype}"
+            )
         return 0
     _, expected, element = kind
-    if (len(shape) != len(expected) or any(e is not None and e != s for e, s in zip(expected, shape, strict=True))
-            or dtype.kind not in _ARRAY_KINDS[element]):
+    if (
+        len(shape) != len(expected)
+        or any(e is not None and e != s for e, s in zip(expected, shape, strict=True))
+        or dtype.kind not in _ARRAY_KINDS[element]
+    ):
         words = "(" + ", ".join("N" if e is None else str(e) for e in expected) + (",)" if len(expected) == 1 else ")")
-        raise PrismapInputError(f"{path}: `{name}` must be an {words} {element} array; "
-                                f"got shape {shape}, dtype {dtype}")
+        raise PrismapInputError(
+            f"{path}: `{name}` must be an {words} {element} array; got shape {shape}, dtype {dtype}"
+        )
     return shape[0] if expected[0] is None else 0
 
 

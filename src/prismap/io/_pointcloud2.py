@@ -24,8 +24,9 @@ _FLOAT32 = 7  # sensor_msgs/PointField.FLOAT32
 _STORAGES = ("mcap", "sqlite3")
 
 
-def write_pointcloud2(grid, path, *, storage=None, frame_id="map", topic="/prismap/map", min_probability=None,
-                      stamp_ns=0):
+def write_pointcloud2(
+    grid, path, *, storage=None, frame_id="map", topic="/prismap/map", min_probability=None, stamp_ns=0
+):
     """Write the known voxels of ``grid`` as one PointCloud2 message, all or nothing.
 
     Parameters
@@ -109,12 +110,21 @@ def _points(grid, min_probability):
 def _message(typestore, points, frame_id, stamp_ns):
     types = typestore.types
     stamp = types["builtin_interfaces/msg/Time"](sec=int(stamp_ns) // 10**9, nanosec=int(stamp_ns) % 10**9)
-    fields = [types["sensor_msgs/msg/PointField"](name=name, offset=4 * i, datatype=_FLOAT32, count=1)
-              for i, name in enumerate(POINT_FIELDS)]
+    fields = [
+        types["sensor_msgs/msg/PointField"](name=name, offset=4 * i, datatype=_FLOAT32, count=1)
+        for i, name in enumerate(POINT_FIELDS)
+    ]
     return types["sensor_msgs/msg/PointCloud2"](
-        header=types["std_msgs/msg/Header"](stamp=stamp, frame_id=frame_id), height=1, width=len(points),
-        fields=fields, is_bigendian=False, point_step=points.itemsize, row_step=points.nbytes,
-        data=points.view(np.uint8).ravel(), is_dense=True)
+        header=types["std_msgs/msg/Header"](stamp=stamp, frame_id=frame_id),
+        height=1,
+        width=len(points),
+        fields=fields,
+        is_bigendian=False,
+        point_step=points.itemsize,
+        row_step=points.nbytes,
+        data=points.view(np.uint8).ravel(),
+        is_dense=True,
+    )
 
 
 _FIELD_TYPES = {1: "i1", 2: "u1", 3: "i2", 4: "u2", 5: "i4", 6: "u4", 7: "f4", 8: "f8"}
@@ -142,14 +152,18 @@ def pointcloud2_xyz(msg, where):
     data = np.asarray(msg.data, dtype=np.uint8)
     needed = (n_rows - 1) * row_step + n_cols * step if n_rows and n_cols else 0
     if data.size < needed:
-        raise PrismapInputError(f"{where}: PointCloud2 data holds {data.size} bytes; {n_rows}x{n_cols} points of "
-                                f"{step} bytes in rows of {row_step} need more")
+        raise PrismapInputError(
+            f"{where}: PointCloud2 data holds {data.size} bytes; {n_rows}x{n_cols} points of "
+            f"{step} bytes in rows of {row_step} need more"
+        )
     columns = []
     for name in "xyz":
         field = fields[name]
         if field.datatype not in _FIELD_TYPES or field.offset + np.dtype(_FIELD_TYPES[field.datatype]).itemsize > step:
-            raise PrismapInputError(f"{where}: PointCloud2 field {name!r} has datatype {field.datatype} at offset "
-                                    f"{field.offset}; expected a number type inside the {step}-byte point")
+            raise PrismapInputError(
+                f"{where}: PointCloud2 field {name!r} has datatype {field.datatype} at offset "
+                f"{field.offset}; expected a number type inside the {step}-byte point"
+            )
         dtype = np.dtype(order + _FIELD_TYPES[field.datatype])
         rows = [np.ndarray((n_cols,), dtype, data, r * row_step + field.offset, (step,)) for r in range(n_rows)]
         columns.append(np.concatenate(rows).astype(np.float64) if rows else np.empty(0))

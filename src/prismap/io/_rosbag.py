@@ -37,7 +37,7 @@ import numpy as np
 from prismap.errors import PrismapInputError
 from prismap.io._frame import StereoFrame, frame_index
 from prismap.io._rosbag_messages import _ENCODINGS, _decode, _pixels, _rig
-from prismap.io._rosbag_poses import _interpolate, _pose_series, _seconds, _stamp_ns, _tf_poses
+from prismap.io._rosbag_poses import _interpolate, _pair, _pose_series, _seconds, _stamp_ns, _tf_poses
 
 PAIR_TOLERANCE_S = 0.005
 """Default largest absolute stamp difference of a left and a right image of one frame, seconds."""
@@ -86,9 +86,23 @@ _DAMAGE = (struct.error, EOFError, KeyError, IndexError, ValueError, OSError, sq
 """What rosbags raises, besides its own errors, for a file cut short."""
 
 
-def read_bag(path, *, left, right, left_info=None, right_info=None, pose_topic=None, tf_frames=None,
-             truth_topic=None, rectified=None, pair_tolerance_s=PAIR_TOLERANCE_S, max_pose_gap_s=MAX_POSE_GAP_S,
-             lidar_topic=None, T_cam_lidar=None, scan_tolerance_s=SCAN_TOLERANCE_S):
+def read_bag(
+    path,
+    *,
+    left,
+    right,
+    left_info=None,
+    right_info=None,
+    pose_topic=None,
+    tf_frames=None,
+    truth_topic=None,
+    rectified=None,
+    pair_tolerance_s=PAIR_TOLERANCE_S,
+    max_pose_gap_s=MAX_POSE_GAP_S,
+    lidar_topic=None,
+    T_cam_lidar=None,
+    scan_tolerance_s=SCAN_TOLERANCE_S,
+):
     """Open a stereo recording in a ROS bag as a sequence (see the module docstring).
 
     Parameters
@@ -130,10 +144,22 @@ def read_bag(path, *, left, right, left_info=None, right_info=None, pose_topic=N
         image has no partner or no pose within the tolerances; no LiDAR-to-camera transform; a scan too far
         in time from its image, or with no point in the image. The message names the topic (and stamp).
     """
-    return BagSequence(path, left=left, right=right, left_info=left_info, right_info=right_info,
-                       pose_topic=pose_topic, tf_frames=tf_frames, truth_topic=truth_topic, rectified=rectified,
-                       pair_tolerance_s=pair_tolerance_s, max_pose_gap_s=max_pose_gap_s, lidar_topic=lidar_topic,
-                       T_cam_lidar=T_cam_lidar, scan_tolerance_s=scan_tolerance_s)
+    return BagSequence(
+        path,
+        left=left,
+        right=right,
+        left_info=left_info,
+        right_info=right_info,
+        pose_topic=pose_topic,
+        tf_frames=tf_frames,
+        truth_topic=truth_topic,
+        rectified=rectified,
+        pair_tolerance_s=pair_tolerance_s,
+        max_pose_gap_s=max_pose_gap_s,
+        lidar_topic=lidar_topic,
+        T_cam_lidar=T_cam_lidar,
+        scan_tolerance_s=scan_tolerance_s,
+    )
 
 
 class BagSequence:
@@ -157,9 +183,24 @@ class BagSequence:
     pose_path = None
     ground_truth = None
 
-    def __init__(self, path, *, left, right, left_info=None, right_info=None, pose_topic=None, tf_frames=None,
-                 truth_topic=None, rectified=None, pair_tolerance_s=PAIR_TOLERANCE_S, max_pose_gap_s=MAX_POSE_GAP_S,
-                 lidar_topic=None, T_cam_lidar=None, scan_tolerance_s=SCAN_TOLERANCE_S):
+    def __init__(
+        self,
+        path,
+        *,
+        left,
+        right,
+        left_info=None,
+        right_info=None,
+        pose_topic=None,
+        tf_frames=None,
+        truth_topic=None,
+        rectified=None,
+        pair_tolerance_s=PAIR_TOLERANCE_S,
+        max_pose_gap_s=MAX_POSE_GAP_S,
+        lidar_topic=None,
+        T_cam_lidar=None,
+        scan_tolerance_s=SCAN_TOLERANCE_S,
+    ):
         self.path = Path(path)
         self._access = None
         if pose_topic is not None and tf_frames is not None:
@@ -170,8 +211,12 @@ class BagSequence:
         right_info = right_info or _info_topic(right)
         with _open(self.path) as reader:
             connections = _connections(reader, self.path)
-            wanted = {left: (IMAGE, COMPRESSED), right: (IMAGE, COMPRESSED), left_info: (CAMERA_INFO,),
-                      right_info: (CAMERA_INFO,)}
+            wanted = {
+                left: (IMAGE, COMPRESSED),
+                right: (IMAGE, COMPRESSED),
+                left_info: (CAMERA_INFO,),
+                right_info: (CAMERA_INFO,),
+            }
             if pose_topic is not None:
                 wanted[pose_topic] = (ODOMETRY, POSE_STAMPED)
             if truth_topic is not None:
@@ -197,8 +242,14 @@ class BagSequence:
         self.stamps_ns = np.array([stamp for stamp, _, _ in self._left], dtype=np.int64)
         self.names = [f"{i:06d}.png" for i in range(len(self._left))]
         shape = next(meta.shape for _, _, meta in messages[left] if meta.shape is not None)
-        self.camera, self._maps = _rig(messages[left_info], messages[right_info], left_info, right_info, shape,
-                                       rectified if rectified is not None else _named_rectified(left, right))
+        self.camera, self._maps = _rig(
+            messages[left_info],
+            messages[right_info],
+            left_info,
+            right_info,
+            shape,
+            rectified if rectified is not None else _named_rectified(left, right),
+        )
         self._truth = None
         if truth_topic is not None:
             truth = messages[truth_topic]
@@ -209,21 +260,24 @@ class BagSequence:
             series = _pose_series(messages[pose_topic], pose_topic)
             self.poses = _interpolate(series, self.stamps_ns, max_pose_gap_s, pose_topic)
         elif tf_frames is not None:
-            self.poses = _tf_poses(messages["/tf"], messages.get("/tf_static", []), tf_frames, self.stamps_ns,
-                                   max_pose_gap_s)
+            self.poses = _tf_poses(
+                messages["/tf"], messages.get("/tf_static", []), tf_frames, self.stamps_ns, max_pose_gap_s
+            )
         self._lidar = None
         if lidar_topic is not None:
             camera_frame = messages[left_info][0][2].header.frame_id
-            self._lidar = _lidar_setup(messages, lidar_topic, T_cam_lidar, camera_frame, self._left, left,
-                                       scan_tolerance_s)
+            self._lidar = _lidar_setup(
+                messages, lidar_topic, T_cam_lidar, camera_frame, self._left, left, scan_tolerance_s
+            )
             self._truth = self._lidar.scans
             if self.poses is not None:  # the camera's motion between each scan and its image
                 scan_stamps = np.array([stamp for stamp, _, _ in self._truth], dtype=np.int64)
                 if pose_topic is not None:
                     at_scan = _interpolate(series, scan_stamps, max_pose_gap_s, pose_topic)
                 else:
-                    at_scan = _tf_poses(messages["/tf"], messages.get("/tf_static", []), tf_frames, scan_stamps,
-                                        max_pose_gap_s)
+                    at_scan = _tf_poses(
+                        messages["/tf"], messages.get("/tf_static", []), tf_frames, scan_stamps, max_pose_gap_s
+                    )
                 self._lidar = replace(self._lidar, image_from_scan=np.linalg.inv(self.poses) @ at_scan)
 
     def _check_encodings(self, messages, left, right, truth_topic):
@@ -275,8 +329,9 @@ class BagSequence:
         elif self._truth is not None:
             disparity = self._disparity(found["truth"])
         pose = None if self.poses is None else self.poses[index].copy()
-        return StereoFrame(left, right, self.camera, disparity, pose,
-                           name=f"{self.path.name}@{_seconds(self.stamps_ns[index])}")
+        return StereoFrame(
+            left, right, self.camera, disparity, pose, name=f"{self.path.name}@{_seconds(self.stamps_ns[index])}"
+        )
 
     def ground_truth_path(self, index):
         """None: a bag's ground truth is a topic, not a file (the reader interface of ``GroundTruthFrames``)."""
@@ -358,11 +413,14 @@ class _Lidar:
         where = f"{path}: topic {self.topic} at stamp {_seconds(self.scans[index][0])} s"
         points = pointcloud2_xyz(msg, where)
         T = self.T_cam_lidar if self.image_from_scan is None else self.image_from_scan[index] @ self.T_cam_lidar
-        disparity = points_to_disparity(points @ T[:3, :3].T + T[:3, 3], camera,
-                                        occlusion_window_px=LIDAR_OCCLUSION_WINDOW_PX)
+        disparity = points_to_disparity(
+            points @ T[:3, :3].T + T[:3, 3], camera, occlusion_window_px=LIDAR_OCCLUSION_WINDOW_PX
+        )
         if not np.isfinite(disparity).any():
-            raise PrismapInputError(f"{where}: none of the scan's {len(points)} points lies in front of the camera "
-                                    "inside its image (wrong extrinsics, or a scan of another direction?)")
+            raise PrismapInputError(
+                f"{where}: none of the scan's {len(points)} points lies in front of the camera "
+                "inside its image (wrong extrinsics, or a scan of another direction?)"
+            )
         return disparity
 
 
@@ -379,14 +437,18 @@ def _lidar_setup(messages, topic, T_cam_lidar, camera_frame, left_items, left, t
     if T_cam_lidar is None:
         lidar_frame = frame_ids.pop()
         if "/tf_static" not in messages:
-            raise PrismapInputError(f"no transform from the LiDAR frame {lidar_frame!r} to the camera frame "
-                                    f"{camera_frame!r}: the bag has no /tf_static; give --lidar-extrinsics FILE")
+            raise PrismapInputError(
+                f"no transform from the LiDAR frame {lidar_frame!r} to the camera frame "
+                f"{camera_frame!r}: the bag has no /tf_static; give --lidar-extrinsics FILE"
+            )
         try:
             first = np.array([left_items[0][0]], dtype=np.int64)
             T_cam_lidar = _tf_poses([], messages["/tf_static"], (camera_frame, lidar_frame), first, 0.0)[0]
         except PrismapInputError as exc:
-            raise PrismapInputError(f"no transform from the LiDAR frame {lidar_frame!r} to the camera frame "
-                                    f"{camera_frame!r} in /tf_static ({exc}); give --lidar-extrinsics FILE") from None
+            raise PrismapInputError(
+                f"no transform from the LiDAR frame {lidar_frame!r} to the camera frame "
+                f"{camera_frame!r} in /tf_static ({exc}); give --lidar-extrinsics FILE"
+            ) from None
     return _Lidar(topic, [scans[i] for i in index], np.asarray(T_cam_lidar, dtype=np.float64))
 
 
@@ -454,8 +516,9 @@ def _damage():
 def _unreadable(path, exc):
     """One line naming the bag and the reader's complaint (a YAML parser's spans several lines: joined)."""
     detail = " ".join(line.strip() for line in str(exc).splitlines() if line.strip() and line.strip() != "^")
-    return PrismapInputError(f"{path}: not a readable ROS bag (truncated or damaged?): {type(exc).__name__}: "
-                             f"{detail[:300]}")
+    return PrismapInputError(
+        f"{path}: not a readable ROS bag (truncated or damaged?): {type(exc).__name__}: {detail[:300]}"
+    )
 
 
 def _connections(reader, path):
@@ -478,8 +541,10 @@ def _deserialize(reader, raw, connection, path):
     try:
         return reader.deserialize(raw, connection.msgtype)
     except _damage() as exc:  # a message cut short or not of its declared type
-        raise PrismapInputError(f"{path}: topic {connection.topic}: a {connection.msgtype} message does not "
-                                f"deserialize (truncated or damaged?): {exc}") from None
+        raise PrismapInputError(
+            f"{path}: topic {connection.topic}: a {connection.msgtype} message does not "
+            f"deserialize (truncated or damaged?): {exc}"
+        ) from None
 
 
 @dataclass(frozen=True)
@@ -511,36 +576,3 @@ def _scan(reader, connections, path):
     for items in out.values():
         items.sort(key=lambda item: item[0])
     return out
-
-
-def _pair(first, second, first_topic, second_topic, tolerance_s, *, both=True):
-    """Indices ``(i, j)`` pairing each message of ``first`` with the nearest-stamped one of ``second``.
-
-    Raises when a message of ``first`` (and, with ``both``, of ``second``) has no partner within
-    ``tolerance_s``, or two of ``first`` would share one of ``second``.
-    """
-    a = np.array([item[0] for item in first], dtype=np.int64)
-    b = np.array([item[0] for item in second], dtype=np.int64)
-    tolerance_ns = round(tolerance_s * 1e9)
-    if b.size == 0:
-        raise PrismapInputError(f"topic {second_topic} has no messages to pair with {first_topic}")
-    j = np.clip(np.searchsorted(b, a), 1, max(1, b.size - 1)) if b.size > 1 else np.zeros(a.size, dtype=np.intp)
-    if b.size > 1:
-        j = np.where(np.abs(b[j - 1] - a) <= np.abs(b[j] - a), j - 1, j)
-    far = np.abs(b[j] - a) > tolerance_ns
-    if np.any(far):
-        stamp = a[np.argmax(far)]
-        raise PrismapInputError(
-            f"topic {first_topic}: the message at stamp {_seconds(stamp)} s has no partner on {second_topic} "
-            f"within {tolerance_s} s ({int(far.sum())} unpaired)"
-        )
-    if np.unique(j).size != j.size:
-        raise PrismapInputError(f"topics {first_topic} and {second_topic}: two messages pair with one; "
-                                f"lower the pairing tolerance (now {tolerance_s} s)")
-    if both and j.size != b.size:
-        lonely = np.setdiff1d(np.arange(b.size), j)[0]
-        raise PrismapInputError(
-            f"topic {second_topic}: the message at stamp {_seconds(b[lonely])} s has no partner on {first_topic} "
-            f"within {tolerance_s} s ({b.size - j.size} unpaired)"
-        )
-    return np.arange(a.size), j

@@ -1,7 +1,6 @@
 """ROS messages to prismap's types: ``sensor_msgs/CameraInfo`` pairs to a :class:`~prismap.camera.StereoCamera`
 (with the rectification maps of raw images), ``sensor_msgs/Image`` and ``CompressedImage`` to pixel arrays."""
 
-
 import cv2
 import numpy as np
 
@@ -27,37 +26,50 @@ def _rig(left_infos, right_infos, left_topic, right_topic, shape, rectified):
         if not items:
             raise PrismapInputError(f"topic {topic} has no camera_info message")
         msg = items[0][2]
-        K, D, R, P = _field(msg, "k").reshape(3, 3), _field(msg, "d"), _field(msg, "r").reshape(3, 3), \
-            _field(msg, "p").reshape(3, 4)
+        K, D, R, P = (
+            _field(msg, "k").reshape(3, 3),
+            _field(msg, "d"),
+            _field(msg, "r").reshape(3, 3),
+            _field(msg, "p").reshape(3, 4),
+        )
         if not (K[0, 0] > 0 and K[1, 1] > 0 and P[0, 0] > 0 and P[1, 1] > 0):
             raise PrismapInputError(
                 f"topic {topic}: camera_info has a zero or negative focal length (K fx, fy = {K[0, 0]}, {K[1, 1]}; "
                 f"P fx, fy = {P[0, 0]}, {P[1, 1]}): the camera is not calibrated"
             )
         if (msg.height, msg.width) != shape:
-            raise PrismapInputError(f"topic {topic}: camera_info is for {msg.width}x{msg.height} images; "
-                                    f"the images are {shape[1]}x{shape[0]}")
+            raise PrismapInputError(
+                f"topic {topic}: camera_info is for {msg.width}x{msg.height} images; "
+                f"the images are {shape[1]}x{shape[0]}"
+            )
         for name, values in (("K", K), ("D", D), ("R", R), ("P", P)):
             if not np.all(np.isfinite(values)):
-                raise PrismapInputError(f"topic {topic}: camera_info field {name} holds non-finite values "
-                                        f"({values.ravel()[~np.isfinite(values.ravel())][:3]}): the camera is not "
-                                        "calibrated")
+                raise PrismapInputError(
+                    f"topic {topic}: camera_info field {name} holds non-finite values "
+                    f"({values.ravel()[~np.isfinite(values.ravel())][:3]}): the camera is not "
+                    "calibrated"
+                )
         infos.append((topic, msg.distortion_model, K, D, R, P))
     try:
         camera = StereoCamera.from_kitti_projections(infos[0][5], infos[1][5], width=shape[1], height=shape[0])
     except PrismapInputError as exc:
-        raise PrismapInputError(f"topics {left_topic}, {right_topic}: the P matrices are not a rectified stereo "
-                                f"pair as stereo_image_proc publishes them (right P[0, 3] = -fx * baseline): {exc}") from None
+        raise PrismapInputError(
+            f"topics {left_topic}, {right_topic}: the P matrices are not a rectified stereo "
+            f"pair as stereo_image_proc publishes them (right P[0, 3] = -fx * baseline): {exc}"
+        ) from None
     if rectified is None:
-        rectified = all(not np.any(D) and np.allclose(R, np.eye(3)) and np.allclose(K, P[:, :3])
-                        for _, _, K, D, R, P in infos)
+        rectified = all(
+            not np.any(D) and np.allclose(R, np.eye(3)) and np.allclose(K, P[:, :3]) for _, _, K, D, R, P in infos
+        )
     if rectified:
         return camera, None
     maps = []
     for topic, model, K, D, R, P in infos:
         if model not in _DISTORTIONS:
-            raise PrismapInputError(f"topic {topic}: distortion model {model!r} not supported; expected one of "
-                                    f"{[m for m in _DISTORTIONS if m]}")
+            raise PrismapInputError(
+                f"topic {topic}: distortion model {model!r} not supported; expected one of "
+                f"{[m for m in _DISTORTIONS if m]}"
+            )
         size = (shape[1], shape[0])
         if model == "equidistant":
             maps.append(cv2.fisheye.initUndistortRectifyMap(K, D[:4], R, P[:, :3], size, cv2.CV_32FC1))
@@ -69,17 +81,20 @@ def _rig(left_infos, right_infos, left_topic, right_topic, shape, rectified):
 def _pixels(msg, topic, encodings):
     """The (H, W[, C]) array of a ``sensor_msgs/Image`` whose encoding is in ``encodings`` {name: (dtype, channels)}."""
     if msg.encoding not in encodings:
-        raise PrismapInputError(f"topic {topic}: image encoding {msg.encoding!r} is not supported; "
-                                f"expected one of {sorted(encodings)}")
+        raise PrismapInputError(
+            f"topic {topic}: image encoding {msg.encoding!r} is not supported; expected one of {sorted(encodings)}"
+        )
     dtype, channels = encodings[msg.encoding]
     check_image_pixels(f"topic {topic}", "image", msg.width, msg.height)
     dtype = np.dtype(dtype).newbyteorder(">" if msg.is_bigendian else "<")
     row_bytes = msg.width * channels * dtype.itemsize
     data = np.asarray(msg.data, dtype=np.uint8)
     if msg.step < row_bytes or data.size < msg.step * msg.height:
-        raise PrismapInputError(f"topic {topic}: image data of {data.size} bytes is too short for "
-                                f"{msg.width}x{msg.height} {msg.encoding} (step {msg.step})")
-    rows = data[:msg.step * msg.height].reshape(msg.height, msg.step)[:, :row_bytes]
+        raise PrismapInputError(
+            f"topic {topic}: image data of {data.size} bytes is too short for "
+            f"{msg.width}x{msg.height} {msg.encoding} (step {msg.step})"
+        )
+    rows = data[: msg.step * msg.height].reshape(msg.height, msg.step)[:, :row_bytes]
     values = np.ascontiguousarray(rows).view(dtype).reshape(msg.height, msg.width, channels)
     return values[..., 0] if channels == 1 else values
 

@@ -1,6 +1,5 @@
-"""Poses of a ROS bag's images: time stamps, pose samples as series, interpolation at an image stamp (linear in
+"""Poses and stamps of a ROS bag's messages: pairing by nearest stamp, pose samples as series, interpolation at an image stamp (linear in
 position, slerp in rotation, refused across large gaps) and ``/tf`` + ``/tf_static`` chains composed edge by edge."""
-
 
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
@@ -31,8 +30,9 @@ def _pose_series(items, topic):
 def _series(stamps, translations, quaternions, what):
     norms = np.linalg.norm(quaternions, axis=1)
     if not np.all(np.isfinite(translations)) or not np.all(np.abs(norms - 1) < 1e-3):
-        raise PrismapInputError(f"{what}: poses must be finite with unit quaternions; got norms in "
-                                f"[{norms.min():.6g}, {norms.max():.6g}]")
+        raise PrismapInputError(
+            f"{what}: poses must be finite with unit quaternions; got norms in [{norms.min():.6g}, {norms.max():.6g}]"
+        )
     stamps, first = np.unique(stamps, return_index=True)
     return stamps, translations[first], Rotation.from_quat(quaternions[first])
 
@@ -57,7 +57,9 @@ def _interpolate(series, stamps_ns, max_gap_s, what):
     poses = np.tile(np.eye(4), (t.size, 1, 1))
     for axis in range(3):
         poses[:, axis, 3] = np.interp(query, seconds, translations[:, axis])
-    poses[:, :3, :3] = (Slerp(seconds, rotations)(query) if times.size > 1 else rotations[np.zeros(t.size, int)]).as_matrix()
+    poses[:, :3, :3] = (
+        Slerp(seconds, rotations)(query) if times.size > 1 else rotations[np.zeros(t.size, int)]
+    ).as_matrix()
     return poses
 
 
@@ -75,8 +77,9 @@ def _tf_poses(dynamic, static, frames, stamps_ns, max_gap_s):
                 t, q = transform.transform.translation, transform.transform.rotation
                 entry = edges.setdefault(child, (parent, [], is_static))
                 if entry[0] != parent or entry[2] != is_static:
-                    raise PrismapInputError(f"/tf: frame {child!r} has two parents or is both static and dynamic "
-                                            f"({entry[0]!r}, {parent!r})")
+                    raise PrismapInputError(
+                        f"/tf: frame {child!r} has two parents or is both static and dynamic ({entry[0]!r}, {parent!r})"
+                    )
                 entry[1].append((_stamp_ns(transform.header), [t.x, t.y, t.z], [q.x, q.y, q.z, q.w]))
     world, camera = world.strip("/"), camera.strip("/")
 
@@ -91,8 +94,10 @@ def _tf_poses(dynamic, static, frames, stamps_ns, max_gap_s):
     up_camera, up_world = chain(camera), chain(world)
     common = next((f for f in up_camera if f in up_world), None)
     if common is None:
-        raise PrismapInputError(f"/tf, /tf_static: no chain of transforms joins frames {world!r} and {camera!r}; "
-                                f"known frames are {sorted(set(edges) | {p for p, _ in edges.values()})}")
+        raise PrismapInputError(
+            f"/tf, /tf_static: no chain of transforms joins frames {world!r} and {camera!r}; "
+            f"known frames are {sorted(set(edges) | {p for p, _ in edges.values()})}"
+        )
 
     def to_ancestor(path):
         """(N, 4, 4) T_ancestor_frame along ``path`` (frame first, ancestor last)."""
@@ -113,6 +118,41 @@ def _tf_poses(dynamic, static, frames, stamps_ns, max_gap_s):
             T = step @ T
         return T
 
-    T_common_cam = to_ancestor(up_camera[:up_camera.index(common) + 1])
-    T_common_world = to_ancestor(up_world[:up_world.index(common) + 1])
+    T_common_cam = to_ancestor(up_camera[: up_camera.index(common) + 1])
+    T_common_world = to_ancestor(up_world[: up_world.index(common) + 1])
     return np.linalg.inv(T_common_world) @ T_common_cam
+
+
+def _pair(first, second, first_topic, second_topic, tolerance_s, *, both=True):
+    """Indices ``(i, j)`` pairing each message of ``first`` with the nearest-stamped one of ``second``.
+
+    Raises when a message of ``first`` (and, with ``both``, of ``second``) has no partner within
+    ``tolerance_s``, or two of ``first`` would share one of ``second``.
+    """
+    a = np.array([item[0] for item in first], dtype=np.int64)
+    b = np.array([item[0] for item in second], dtype=np.int64)
+    tolerance_ns = round(tolerance_s * 1e9)
+    if b.size == 0:
+        raise PrismapInputError(f"topic {second_topic} has no messages to pair with {first_topic}")
+    j = np.clip(np.searchsorted(b, a), 1, max(1, b.size - 1)) if b.size > 1 else np.zeros(a.size, dtype=np.intp)
+    if b.size > 1:
+        j = np.where(np.abs(b[j - 1] - a) <= np.abs(b[j] - a), j - 1, j)
+    far = np.abs(b[j] - a) > tolerance_ns
+    if np.any(far):
+        stamp = a[np.argmax(far)]
+        raise PrismapInputError(
+            f"topic {first_topic}: the message at stamp {_seconds(stamp)} s has no partner on {second_topic} "
+            f"within {tolerance_s} s ({int(far.sum())} unpaired)"
+        )
+    if np.unique(j).size != j.size:
+        raise PrismapInputError(
+            f"topics {first_topic} and {second_topic}: two messages pair with one; "
+            f"lower the pairing tolerance (now {tolerance_s} s)"
+        )
+    if both and j.size != b.size:
+        lonely = np.setdiff1d(np.arange(b.size), j)[0]
+        raise PrismapInputError(
+            f"topic {second_topic}: the message at stamp {_seconds(b[lonely])} s has no partner on {first_topic} "
+            f"within {tolerance_s} s ({b.size - j.size} unpaired)"
+        )
+    return np.arange(a.size), j

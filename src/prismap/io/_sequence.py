@@ -112,8 +112,11 @@ class GroundTruthOccupancy:
 
 
 _GROUND_TRUTH_SPEC = {
-    "format": TEXT, "version": INTEGER, "voxel_size_m": REAL,
-    "occupied_keys": array_field((None, 3), "integer"), "observed_keys": array_field((None, 3), "integer"),
+    "format": TEXT,
+    "version": INTEGER,
+    "voxel_size_m": REAL,
+    "occupied_keys": array_field((None, 3), "integer"),
+    "observed_keys": array_field((None, 3), "integer"),
 }
 
 
@@ -212,8 +215,9 @@ def _write_files(frames, out_dir, occupancy):
         _write_image(out_dir / "image_2" / stem, frame.left, f"frames[{index}].left")
         _write_image(out_dir / "image_3" / stem, frame.right, f"frames[{index}].right")
         if has_disparity:
-            write_disparity_png(out_dir / "disp" / stem, frame.disparity_gt, f"frames[{index}].disparity_gt",
-                                scale=_DISPARITY_SCALE)
+            write_disparity_png(
+                out_dir / "disp" / stem, frame.disparity_gt, f"frames[{index}].disparity_gt", scale=_DISPARITY_SCALE
+            )
         count += 1
     if count == 0:
         raise PrismapInputError("`frames` is empty: a sequence needs at least one frame")

@@ -31,8 +31,9 @@ def file_size(path, what):
 def check_size(path, what, size, max_bytes, bound="MAX_READ_BYTES"):
     """Refuse a file of ``size`` bytes above ``max_bytes``, before it is read (``bound`` names the limit)."""
     if size > max_bytes:
-        raise PrismapInputError(f"{path}: {what} holds {size} bytes, more than the limit of {max_bytes} bytes "
-                                f"({bound})")
+        raise PrismapInputError(
+            f"{path}: {what} holds {size} bytes, more than the limit of {max_bytes} bytes ({bound})"
+        )
 
 
 def read_bytes(path, what, *, max_bytes=MAX_READ_BYTES, bound="MAX_READ_BYTES"):

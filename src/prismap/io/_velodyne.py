@@ -92,8 +92,14 @@ def points_to_disparity(points_cam, camera, *, occlusion_window_px=0, disparity_
         raise PrismapInputError("`camera` needs its image size (width, height) to project points into its image")
     shape = (camera.height, camera.width)
     depth, row, col = project_points(points_cam, camera, shape)[:3]
-    keep = visible_points(camera.disparity_from_depth(depth), row, col, shape, occlusion_window_px=occlusion_window_px,
-                          disparity_margin_px=disparity_margin_px)
+    keep = visible_points(
+        camera.disparity_from_depth(depth),
+        row,
+        col,
+        shape,
+        occlusion_window_px=occlusion_window_px,
+        disparity_margin_px=disparity_margin_px,
+    )
     nearest = np.full(shape, np.inf)
     np.minimum.at(nearest, (row[keep], col[keep]), depth[keep])
     return camera.disparity_from_depth(nearest).astype(np.float32)

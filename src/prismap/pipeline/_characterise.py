@@ -16,8 +16,19 @@ def _dask_map(client, function, chunks):
         yield future.result()
 
 
-def characterise_sequence(dataset, matcher, *, matcher_params=None, frames=None, every=1, kitti_disparity="noc",
-                          client=None, chunk_frames=None, progress=True, **options):
+def characterise_sequence(
+    dataset,
+    matcher,
+    *,
+    matcher_params=None,
+    frames=None,
+    every=1,
+    kitti_disparity="noc",
+    client=None,
+    chunk_frames=None,
+    progress=True,
+    **options,
+):
     """Characterise a matcher's disparity errors over the frames of any dataset with ground truth.
 
     Parameters
@@ -51,13 +62,21 @@ def characterise_sequence(dataset, matcher, *, matcher_params=None, frames=None,
     if not isinstance(dataset, GroundTruthFrames):
         dataset = open_ground_truth(dataset, frames=frames, every=every, kitti_disparity=kitti_disparity)
     elif (frames, every, kitti_disparity) != (None, 1, "noc"):
-        raise PrismapInputError("`frames`, `every` and `kitti_disparity` select from a dataset path; "
-                                "GroundTruthFrames are already a selection")
+        raise PrismapInputError(
+            "`frames`, `every` and `kitti_disparity` select from a dataset path; "
+            "GroundTruthFrames are already a selection"
+        )
     stereo = make_matcher(matcher, **dict(matcher_params or {}))  # bad names or parameters fail here, not on a worker
     options.setdefault("dataset", str(dataset.source))
     if client is None:
         return characterise_matcher(dataset, stereo, progress=progress, **options)
     n_workers = max(1, sum(client.nthreads().values()))
     size = int(chunk_frames) if chunk_frames else max(1, math.ceil(len(dataset) / (4 * n_workers)))
-    return characterise_matcher(dataset, stereo, progress=progress, map_chunks=functools.partial(_dask_map, client),
-                                chunk_frames=size, **options)
+    return characterise_matcher(
+        dataset,
+        stereo,
+        progress=progress,
+        map_chunks=functools.partial(_dask_map, client),
+        chunk_frames=size,
+        **options,
+    )

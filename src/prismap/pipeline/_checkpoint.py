@@ -107,12 +107,16 @@ def _read_meta(meta_path, map_path):
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise PrismapInputError(f"checkpoint {meta_path}: not valid JSON ({exc}); delete it to start afresh") from None
     if not isinstance(meta, dict) or meta.get("format") != FORMAT or meta.get("format_version") != FORMAT_VERSION:
-        raise PrismapInputError(f"checkpoint {meta_path}: not a {FORMAT} version {FORMAT_VERSION} file; delete "
-                                f"{meta_path} and {map_path} to start afresh")
+        raise PrismapInputError(
+            f"checkpoint {meta_path}: not a {FORMAT} version {FORMAT_VERSION} file; delete "
+            f"{meta_path} and {map_path} to start afresh"
+        )
     digests = meta.get("map_sha256")
     if not isinstance(digests, list) or not all(isinstance(d, str) for d in digests):
-        raise PrismapInputError(f"checkpoint {meta_path}: `map_sha256` must be a list of SHA-256 digests; got "
-                                f"{digests!r}; delete {meta_path} and {map_path} to start afresh")
+        raise PrismapInputError(
+            f"checkpoint {meta_path}: `map_sha256` must be a list of SHA-256 digests; got "
+            f"{digests!r}; delete {meta_path} and {map_path} to start afresh"
+        )
     return meta
 
 
@@ -121,11 +125,15 @@ def _check_fits(grid, map_path, config, n_frames):
     if config is not None:
         for name, mine, theirs in (("voxel size", config.voxel_size_m, grid.voxel_size_m), ("p0", config.p0, grid.p0)):
             if not math.isclose(mine, theirs, rel_tol=1e-12):
-                raise PrismapInputError(f"checkpoint map {map_path}: {name} {theirs:g}, this run's is {mine:g}; "
-                                        "delete the checkpoint to start afresh")
+                raise PrismapInputError(
+                    f"checkpoint map {map_path}: {name} {theirs:g}, this run's is {mine:g}; "
+                    "delete the checkpoint to start afresh"
+                )
     if n_frames is not None and not 0 <= grid.n_frames <= n_frames:
-        raise PrismapInputError(f"checkpoint map {map_path}: holds {grid.n_frames} frames, this run has {n_frames}; "
-                                "delete the checkpoint to start afresh")
+        raise PrismapInputError(
+            f"checkpoint map {map_path}: holds {grid.n_frames} frames, this run has {n_frames}; "
+            "delete the checkpoint to start afresh"
+        )
 
 
 def save_checkpoint(path, fingerprint, grid):
@@ -163,6 +171,14 @@ def _digest(path):
 
 
 def _write_meta(meta_path, fingerprint, frames_done, digests):
-    text = json.dumps({"format": FORMAT, "format_version": FORMAT_VERSION, "fingerprint": fingerprint,
-                       "frames_done": int(frames_done), "map_sha256": list(digests)}, indent=1)
+    text = json.dumps(
+        {
+            "format": FORMAT,
+            "format_version": FORMAT_VERSION,
+            "fingerprint": fingerprint,
+            "frames_done": int(frames_done),
+            "map_sha256": list(digests),
+        },
+        indent=1,
+    )
     write_text_atomic(meta_path, text + "\n")

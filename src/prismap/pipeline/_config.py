@@ -27,8 +27,11 @@ DISPARITY_FROM_MATCHER = "matcher"
 DISPARITY_FROM_SEQUENCE = "sequence"
 """Models parametrised by one disparity noise ``sigma_px``: taken from the error model unless given."""
 RESERVED_MODEL_PARAMS = {
-    "voxel_size_m": "the map's voxel size (--voxel)", "p0": "the map's prior (--p0)",
-    "error_model": "--error-model", "focal_baseline": "the camera", "doffs_px": "the camera",
+    "voxel_size_m": "the map's voxel size (--voxel)",
+    "p0": "the map's prior (--p0)",
+    "error_model": "--error-model",
+    "focal_baseline": "the camera",
+    "doffs_px": "the camera",
     "measurement": "the camera (disparities)",
 }
 """Sensor model arguments the run sets itself, with where they come from; a model parameter may not set them."""
@@ -38,8 +41,9 @@ def _check_model_params(params, option):
     reserved = sorted(set(params) & set(RESERVED_MODEL_PARAMS))
     if reserved:
         name = reserved[0]
-        raise PrismapInputError(f"{option} {name}: cannot be set as a model parameter; it comes from "
-                                f"{RESERVED_MODEL_PARAMS[name]}")
+        raise PrismapInputError(
+            f"{option} {name}: cannot be set as a model parameter; it comes from {RESERVED_MODEL_PARAMS[name]}"
+        )
 
 
 def _as_mixture(error_model):
@@ -100,10 +104,19 @@ def build_sensor_model(name, camera, *, voxel_size_m, p0, error_model=None, **pa
     params = dict(params)
     _check_model_params(params, "model parameter")
     if mixture is None and needs_error_model(name, params):
-        raise PrismapInputError(f"sensor model {name!r} needs an error model (`error_model`)"
-                                + (" or an explicit sigma_px" if error_model_use(name) == "sigma" else ""))
-    return model_for_mixture(name, mixture, focal_baseline=camera.focal_baseline, doffs_px=camera.doffs_px,
-                             voxel_size_m=voxel_size_m, p0=p0, **params)
+        raise PrismapInputError(
+            f"sensor model {name!r} needs an error model (`error_model`)"
+            + (" or an explicit sigma_px" if error_model_use(name) == "sigma" else "")
+        )
+    return model_for_mixture(
+        name,
+        mixture,
+        focal_baseline=camera.focal_baseline,
+        doffs_px=camera.doffs_px,
+        voxel_size_m=voxel_size_m,
+        p0=p0,
+        **params,
+    )
 
 
 def _frozen_params(value, name):
@@ -202,21 +215,27 @@ class MappingConfig:
         _check_model_params(dict(self.model_params), "model_params")
         set_("matcher_params", _frozen_params(self.matcher_params, "matcher_params"))
         if not isinstance(self.disparity_source, str) or not self.disparity_source:
-            raise PrismapInputError(f"`disparity_source` must be 'matcher', 'sequence' or a directory; got {self.disparity_source!r}")
+            raise PrismapInputError(
+                f"`disparity_source` must be 'matcher', 'sequence' or a directory; got {self.disparity_source!r}"
+            )
         if self.mode not in MODES:
             raise PrismapInputError(f"`mode` must be one of {list(MODES)}; got {self.mode!r}")
         if self.policy is not None and self.policy not in POLICIES:
             raise PrismapInputError(f"`policy` must be one of {list(POLICIES)} or None; got {self.policy!r}")
         max_range = float(self.max_range_m)
         set_("max_range_m", max_range if max_range == math.inf else check_positive(max_range, "max_range_m"))
-        set_("subsample", check_integer(self.subsample, "subsample", expected="an integer >= 1",
-                                        condition=lambda n: n >= 1))
+        set_(
+            "subsample",
+            check_integer(self.subsample, "subsample", expected="an integer >= 1", condition=lambda n: n >= 1),
+        )
         set_("frames", _check_frames(self.frames))
         if self.fusion not in FUSION_MODELS:
             raise PrismapInputError(f"`fusion` must be one of {list(FUSION_MODELS)}; got {self.fusion!r}")
         if self.fusion != "independent" and getattr(self.error_model, "fusion", None) is None:
-            raise PrismapInputError(f"`fusion` {self.fusion!r} needs an error model with a fusion block (characterised "
-                                    "on frames with poses; see prismap.characterise.fit_fusion)")
+            raise PrismapInputError(
+                f"`fusion` {self.fusion!r} needs an error model with a fusion block (characterised "
+                "on frames with poses; see prismap.characterise.fit_fusion)"
+            )
 
     @property
     def persistent_failure(self):
@@ -243,10 +262,22 @@ class MappingConfig:
         :func:`prismap.sensor_models.conditioned_sensor_model`: a ConditionedModel for the models that use the
         error model, whose rays then need ``ray_class``; the plain model for ``ideal`` and ``hitmiss``."""
         if self.conditioned:
-            return conditioned_sensor_model(self.model, camera, voxel_size_m=self.voxel_size_m, p0=self.p0,
-                                            error_model=self.error_model, **self.model_options)
-        return build_sensor_model(self.model, camera, voxel_size_m=self.voxel_size_m, p0=self.p0,
-                                  error_model=self.mixture, **self.model_options)
+            return conditioned_sensor_model(
+                self.model,
+                camera,
+                voxel_size_m=self.voxel_size_m,
+                p0=self.p0,
+                error_model=self.error_model,
+                **self.model_options,
+            )
+        return build_sensor_model(
+            self.model,
+            camera,
+            voxel_size_m=self.voxel_size_m,
+            p0=self.p0,
+            error_model=self.mixture,
+            **self.model_options,
+        )
 
     @property
     def label(self):
@@ -289,13 +320,20 @@ class MappingConfig:
         error_model = self.error_model if self.conditioned else self.mixture
         defaults = {k: v for k, v in model_defaults(self.model).items() if k not in RESERVED_MODEL_PARAMS}
         return {
-            "model": self.model, "model_params": {**defaults, **self.model_options}, "conditioned": self.conditioned,
+            "model": self.model,
+            "model_params": {**defaults, **self.model_options},
+            "conditioned": self.conditioned,
             "error_model": None if error_model is None else error_model.to_dict(),
-            "voxel_size_m": self.voxel_size_m, "p0": self.p0,
-            "matcher": self.matcher, "matcher_params": self.matcher_options,
-            "disparity_source": self.disparity_source, "mode": self.mode, "policy": self.policy,
+            "voxel_size_m": self.voxel_size_m,
+            "p0": self.p0,
+            "matcher": self.matcher,
+            "matcher_params": self.matcher_options,
+            "disparity_source": self.disparity_source,
+            "mode": self.mode,
+            "policy": self.policy,
             "max_range_m": None if math.isinf(self.max_range_m) else self.max_range_m,
-            "subsample": self.subsample, "frames": list(self.frames),
+            "subsample": self.subsample,
+            "frames": list(self.frames),
             **({} if self.fusion == "independent" else {"fusion": self.error_model.fusion}),
         }
 

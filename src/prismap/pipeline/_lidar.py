@@ -47,11 +47,13 @@ def lidar_reference_map(scans, voxel_size_m, *, max_range_m=np.inf, p_hit=0.7, p
     """
     voxel = check_positive(voxel_size_m, "voxel_size_m")
     grid = OccupancyMap(voxel, p0=LIDAR_P0)
-    model = make_sensor_model("hitmiss", measurement="range", voxel_size_m=voxel, p0=LIDAR_P0, p_hit=p_hit,
-                              p_miss=p_miss)
+    model = make_sensor_model(
+        "hitmiss", measurement="range", voxel_size_m=voxel, p0=LIDAR_P0, p_hit=p_hit, p_miss=p_miss
+    )
     total = len(scans) if hasattr(scans, "__len__") else None
-    for index, scan in enumerate(progress_bar(scans, total=total, desc="lidar", unit="scan",
-                                              enabled=None if progress else False)):
+    for index, scan in enumerate(
+        progress_bar(scans, total=total, desc="lidar", unit="scan", enabled=None if progress else False)
+    ):
         try:
             points, pose = scan
         except (TypeError, ValueError):
@@ -63,8 +65,15 @@ def lidar_reference_map(scans, voxel_size_m, *, max_range_m=np.inf, p_hit=0.7, p
         offsets_w = points[:, :3] @ pose[:3, :3].T
         ranges = np.sqrt((offsets_w**2).sum(axis=1))
         keep = ranges > 0
-        grid.integrate_rays(pose[:3, 3], offsets_w[keep] / ranges[keep, None], ranges[keep], model, kind="range",
-                            policy="occupied-wins", max_range_m=max_range_m)
+        grid.integrate_rays(
+            pose[:3, 3],
+            offsets_w[keep] / ranges[keep, None],
+            ranges[keep],
+            model,
+            kind="range",
+            policy="occupied-wins",
+            max_range_m=max_range_m,
+        )
     if grid.n_frames == 0:
         raise PrismapInputError("`scans` is empty: a reference map needs at least one scan")
     return grid
@@ -153,7 +162,9 @@ def kitti_lidar_scans(sequence, *, frames=None, poses=None, camera_view=True):
             )
     poses = as_float_array(poses, "poses", ndim=3, allow_nan=False)
     if poses.shape != (count, 4, 4):
-        raise PrismapInputError(f"`poses` must be ({count}, 4, 4), one pose per frame of the sequence; got {poses.shape}")
+        raise PrismapInputError(
+            f"`poses` must be ({count}, 4, 4), one pose per frame of the sequence; got {poses.shape}"
+        )
     frames = list(range(count)) if frames is None else [int(i) for i in frames]
     if not frames:
         raise PrismapInputError("`frames` is empty: a reference map needs at least one scan")

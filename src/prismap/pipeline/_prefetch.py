@@ -52,4 +52,3 @@ class Prefetch:
             if k + 1 < len(items):
                 self._ahead = self._thread.submit(self._produce, items[k + 1])
             yield item, result
-

@@ -68,14 +68,17 @@ class DisparitySource:
             try:
                 self.matcher = make_matcher(config.matcher, **config.matcher_options)
             except TypeError as exc:
-                raise PrismapInputError(f"matcher {config.matcher!r}: bad parameter(s) {config.matcher_options}: {exc}") from None
+                raise PrismapInputError(
+                    f"matcher {config.matcher!r}: bad parameter(s) {config.matcher_options}: {exc}"
+                ) from None
         elif self.kind != DISPARITY_FROM_SEQUENCE and not Path(self.kind).is_dir():
             raise PrismapInputError(f"disparity directory {self.kind}: not found")
         self.error_model = None
         if isinstance(sensor_model_for(config, sequence.camera), ConditionedModel):
             self.error_model = config.error_model
-            self.error_model.check_usable(config.matcher,
-                                          left_right_check=bool(getattr(self.matcher, "left_right_check", False)))
+            self.error_model.check_usable(
+                config.matcher, left_right_check=bool(getattr(self.matcher, "left_right_check", False))
+            )
 
     def __call__(self, index):
         """``(disparity, T_world_cam, ray_class)`` of frame ``index``.
@@ -99,19 +102,26 @@ class DisparitySource:
             disparity, lr_disagreement = self.matcher.compute_with_confidence(frame.left, frame.right)
         elif self.kind == DISPARITY_FROM_SEQUENCE:
             if frame.disparity_gt is None:
-                raise PrismapInputError(f"{self.sequence.path / 'disp' / self.sequence.names[index]}: disparity file missing")
+                raise PrismapInputError(
+                    f"{self.sequence.path / 'disp' / self.sequence.names[index]}: disparity file missing"
+                )
             disparity = frame.disparity_gt
         else:
             disparity = self._read(index, frame)
         if self.error_model is None:
             return disparity, frame.T_world_cam, None
-        return disparity, frame.T_world_cam, self.error_model.classify_frame(frame.left, frame.right, disparity,
-                                                                           lr_disagreement)
+        return (
+            disparity,
+            frame.T_world_cam,
+            self.error_model.classify_frame(frame.left, frame.right, disparity, lr_disagreement),
+        )
 
     def _read(self, index, frame):
         path = Path(self.kind) / self.sequence.names[index]
         if not path.is_file():
-            raise PrismapInputError(f"{path}: disparity file missing (expected one uint16 PNG per frame, value / 256 = px)")
+            raise PrismapInputError(
+                f"{path}: disparity file missing (expected one uint16 PNG per frame, value / 256 = px)"
+            )
         disparity = read_kitti_disparity(path)
         if disparity.shape != frame.left.shape[:2]:
             raise PrismapInputError(f"{path}: size {disparity.shape} differs from the images' {frame.left.shape[:2]}")
@@ -141,8 +151,18 @@ def integrate_frames(grid, sequence, config, indices, *, on_frame=None):
     source = DisparitySource(sequence, config)
     with Prefetch(source, indices) as frames:
         for _, (disparity, pose, ray_class) in frames:
-            integrate_disparity(grid, disparity, sequence.camera, pose, model, mode=config.mode, policy=config.policy,
-                                     max_range_m=config.max_range_m, subsample=config.subsample, ray_class=ray_class)
+            integrate_disparity(
+                grid,
+                disparity,
+                sequence.camera,
+                pose,
+                model,
+                mode=config.mode,
+                policy=config.policy,
+                max_range_m=config.max_range_m,
+                subsample=config.subsample,
+                ray_class=ray_class,
+            )
             if on_frame is not None:
                 on_frame(grid)
     return grid
@@ -189,8 +209,9 @@ def _chunk_map(config, result):
     return chunk
 
 
-def map_sequence(sequence, config, *, progress=True, checkpoint=None, checkpoint_every=0, client=None,
-                 chunk_frames=None):
+def map_sequence(
+    sequence, config, *, progress=True, checkpoint=None, checkpoint_every=0, client=None, chunk_frames=None
+):
     """Integrate a stereo sequence into an occupancy map.
 
     Parameters
@@ -232,8 +253,9 @@ def map_sequence(sequence, config, *, progress=True, checkpoint=None, checkpoint
     """
     if not isinstance(config, MappingConfig):
         raise PrismapInputError(f"`config` must be a MappingConfig; got {type(config).__name__}")
-    checkpoint_every = check_integer(checkpoint_every, "checkpoint_every", expected="an integer >= 0",
-                                     condition=lambda n: n >= 0)
+    checkpoint_every = check_integer(
+        checkpoint_every, "checkpoint_every", expected="an integer >= 0", condition=lambda n: n >= 0
+    )
     sequence = open_sequence(sequence)
     indices = config.frame_indices(len(sequence))
     check_key_reach(sequence, config, indices)
@@ -245,8 +267,10 @@ def map_sequence(sequence, config, *, progress=True, checkpoint=None, checkpoint
             "before it, so chunks mapped apart on Dask cannot be merged into that map: map sequentially (no client)"
         )
     if config.mode != "ray" and map_prior:
-        raise PrismapInputError(f"sensor model {config.model!r} with the map as prior (prior='map') needs whole rays: "
-                                f"mode 'ray', not {config.mode!r}")
+        raise PrismapInputError(
+            f"sensor model {config.model!r} with the map as prior (prior='map') needs whole rays: "
+            f"mode 'ray', not {config.mode!r}"
+        )
     if checkpoint is None:
         return _map_frames(sequence, config, indices, progress, None, checkpoint_every, client, chunk_frames)
     with exclusive_lock(checkpoint, "checkpoint"):
@@ -261,15 +285,21 @@ def _map_frames(sequence, config, indices, progress, checkpoint, checkpoint_ever
         fingerprint = run_fingerprint(sequence, config)
         grid = open_checkpoint(checkpoint, fingerprint, config, len(indices))
     grid = new_map(config) if grid is None else grid
-    todo = indices[grid.n_frames:]
-    bar = progress_bar(total=len(indices), desc=f"map {config.label}", unit="frame", enabled=None if progress else False)
+    todo = indices[grid.n_frames :]
+    bar = progress_bar(
+        total=len(indices), desc=f"map {config.label}", unit="frame", enabled=None if progress else False
+    )
     bar.update(grid.n_frames)
     saved = [grid.n_frames]
 
     def after(done):
         bar.update(done.n_frames - bar.n)
-        if checkpoint is not None and checkpoint_every and done.n_frames - saved[0] >= checkpoint_every \
-                and done.n_frames < len(indices):
+        if (
+            checkpoint is not None
+            and checkpoint_every
+            and done.n_frames - saved[0] >= checkpoint_every
+            and done.n_frames < len(indices)
+        ):
             save_checkpoint(checkpoint, fingerprint, done)
             saved[0] = done.n_frames
 
@@ -291,8 +321,12 @@ def _map_on_dask(grid, sequence, config, todo, client, chunk_frames, checkpoint_
         if checkpoint_every:
             chunk_frames = min(chunk_frames, checkpoint_every)
     else:
-        chunk_frames = check_integer(chunk_frames, "chunk_frames", expected="an integer >= 1", condition=lambda n: n >= 1)
-    chunks = [(todo[i], todo[min(i + int(chunk_frames), len(todo)) - 1] + 1) for i in range(0, len(todo), int(chunk_frames))]
+        chunk_frames = check_integer(
+            chunk_frames, "chunk_frames", expected="an integer >= 1", condition=lambda n: n >= 1
+        )
+    chunks = [
+        (todo[i], todo[min(i + int(chunk_frames), len(todo)) - 1] + 1) for i in range(0, len(todo), int(chunk_frames))
+    ]
     path = os.path.abspath(sequence.path)  # symbolic links kept: a KITTI tree is recognised by its path
     pending = []
     for start, stop in chunks:

@@ -52,7 +52,7 @@ def plot_error_fits(histogram, model, *, path=None, half_width_px=None):
         ax.set_xlabel("error e = d_true - d_computed (px)")
         ax.set_ylabel("probability density")
         ax.legend(fontsize=8, loc="upper right")
-    for ax in axes[len(panels):]:
+    for ax in axes[len(panels) :]:
         ax.set_visible(False)
     fig.suptitle(f"{model.matcher} on {model.dataset or 'data'}: {total} errors", fontsize=11)
     return _finish(fig, path)
@@ -87,8 +87,13 @@ def plot_error_tails(histogram, model, *, path=None):
     ax.stairs(np.nan_to_num(shown, nan=0.0), edges, fill=True, alpha=0.45, color="0.45", label="error hist")
     x = np.linspace(low, high, 4001)
     selected = model.selected_components
-    ax.plot(x, model.mixture.pdf(x), color="C3", lw=1.4,
-            label=f"GMM, G = {selected} (selected)" + _failure_label(model.mixture))
+    ax.plot(
+        x,
+        model.mixture.pdf(x),
+        color="C3",
+        lw=1.4,
+        label=f"GMM, G = {selected} (selected)" + _failure_label(model.mixture),
+    )
     if model.mixture.failure_weight > 0:
         ax.axhline(model.mixture.failure_density, color="C2", lw=0.9, ls=":", label="failure floor w_f / W")
     if selected != 1 and any(fit.n_components == 1 for fit in model.fits):
@@ -144,8 +149,13 @@ def plot_class_fits(class_histograms, model, *, path=None, half_width_px=8.0):
         density_edges, density, total = _display_density(histogram)
         edges, values = _rebin(density_edges, density, factor, -half, half)
         ax.stairs(values, edges, fill=True, alpha=0.45, color="0.45", label="error hist")
-        ax.plot(x, class_model.mixture.pdf(x), color="C3", lw=1.4,
-                label=f"class GMM, G = {class_model.selected_components}" + _failure_label(class_model.mixture))
+        ax.plot(
+            x,
+            class_model.mixture.pdf(x),
+            color="C3",
+            lw=1.4,
+            label=f"class GMM, G = {class_model.selected_components}" + _failure_label(class_model.mixture),
+        )
         ax.plot(x, model.mixture.pdf(x), color="C0", lw=1.0, ls="--", label="plain GMM")
         ax.set_yscale("log")
         positive = values[values > 0]
@@ -156,7 +166,7 @@ def plot_class_fits(class_histograms, model, *, path=None, half_width_px=8.0):
         ax.set_xlabel("error e = d_true - d_computed (px)")
         ax.set_ylabel("probability density")
         ax.legend(fontsize=7, loc="upper right")
-    for ax in axes[model.n_classes:]:
+    for ax in axes[model.n_classes :]:
         ax.set_visible(False)
     fig.suptitle(f"{model.matcher} on {model.dataset or 'data'}: errors by class", fontsize=11)
     return _finish(fig, path)

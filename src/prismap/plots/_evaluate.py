@@ -72,11 +72,15 @@ def plot_reliability_logit(scores_by_model, *, path=None, title="Reliability at 
         filled = scores.logit_bin_counts > 0
         x = _logit(scores.logit_bin_mean_probability[filled], limit)
         y = _logit(scores.logit_bin_occupied_fraction[filled], limit)
-        (line,) = ax.plot(x, y, marker="o", label=f"{name} (free at P>=0.99 {scores.free_confident_occupied:.2%}, "
-                                                    f"occupied at P<=0.01 {scores.occupied_confident_free:.2%})")
+        (line,) = ax.plot(
+            x,
+            y,
+            marker="o",
+            label=f"{name} (free at P>=0.99 {scores.free_confident_occupied:.2%}, "
+            f"occupied at P<=0.01 {scores.occupied_confident_free:.2%})",
+        )
         ax_count.plot(x, scores.logit_bin_counts[filled], marker=".", color=line.get_color())
-    ax.set(xlim=(-limit, limit), ylim=(-limit - 0.5, limit + 0.5), ylabel="logit of the occupied fraction",
-           title=title)
+    ax.set(xlim=(-limit, limit), ylim=(-limit - 0.5, limit + 0.5), ylabel="logit of the occupied fraction", title=title)
     ax.legend(loc="upper left", fontsize="x-small")
     ax_count.set(xlabel="logit of the predicted P(occupied)", ylabel="voxels", yscale="log")
     return _finish(fig, path)

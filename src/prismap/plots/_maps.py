@@ -61,11 +61,14 @@ def plot_map_slices(maps_by_model, truth, *, layer, path=None, title="", scores_
     from scipy.special import expit
 
     if not isinstance(maps_by_model, dict) or not maps_by_model:
-        raise PrismapInputError(f"`maps_by_model` must be a non-empty dict of name -> OccupancyMap; got {maps_by_model!r:.80}")
+        raise PrismapInputError(
+            f"`maps_by_model` must be a non-empty dict of name -> OccupancyMap; got {maps_by_model!r:.80}"
+        )
     for name, grid in maps_by_model.items():
         if abs(grid.voxel_size_m - truth.voxel_size_m) > 1e-9 * truth.voxel_size_m:
-            raise PrismapInputError(f"map {name!r} has voxel size {grid.voxel_size_m} m; the ground truth's is "
-                                    f"{truth.voxel_size_m} m")
+            raise PrismapInputError(
+                f"map {name!r} has voxel size {grid.voxel_size_m} m; the ground truth's is {truth.voxel_size_m} m"
+            )
     if int(layer) != layer:
         raise PrismapInputError(f"`layer` must be an integer z key; got {layer!r}")
     keys, truth_image, extent = slice_raster(truth, int(layer))
@@ -90,7 +93,7 @@ def plot_map_slices(maps_by_model, truth, *, layer, path=None, title="", scores_
         image = ax.imshow(data, origin="lower", extent=extent, cmap=cmap, vmin=0.0, vmax=1.0, interpolation="nearest")
         ax.set_title(label, fontsize="small")
         ax.set(xlabel="x (m)", ylabel="y (m)")
-    for ax in axes.flat[len(panels):]:
+    for ax in axes.flat[len(panels) :]:
         ax.set_axis_off()
     fig.colorbar(image, ax=axes, shrink=0.8, label="P(occupied); light blue = unknown")
     return _finish(fig, title, path, dpi=110)
@@ -128,8 +131,9 @@ def plot_map_3d(grid, truth, *, path=None, title="", threshold=0.5, max_height_m
     from matplotlib.figure import Figure
 
     if abs(grid.voxel_size_m - truth.voxel_size_m) > 1e-9 * truth.voxel_size_m:
-        raise PrismapInputError(f"the map has voxel size {grid.voxel_size_m} m; the ground truth's is "
-                                f"{truth.voxel_size_m} m")
+        raise PrismapInputError(
+            f"the map has voxel size {grid.voxel_size_m} m; the ground truth's is {truth.voxel_size_m} m"
+        )
     if not 0.0 <= threshold < 1.0:
         raise PrismapInputError(f"`threshold` must lie in [0, 1); got {threshold!r}")
     voxel = truth.voxel_size_m
@@ -140,8 +144,10 @@ def plot_map_3d(grid, truth, *, path=None, title="", threshold=0.5, max_height_m
     lo, hi = truth.observed_keys.min(axis=0), truth.observed_keys.max(axis=0)
     keys = _above(grid, threshold)
     inside = np.all((keys >= lo) & (keys <= hi), axis=1)
-    panels = [(f"ground truth: {int(np.sum(truth_keys[:, 2] <= top)):,} occupied voxels", truth_keys),
-              (f"map: {int(np.sum(inside & (keys[:, 2] <= top))):,} voxels with P > {threshold:g}", keys[inside])]
+    panels = [
+        (f"ground truth: {int(np.sum(truth_keys[:, 2] <= top)):,} occupied voxels", truth_keys),
+        (f"map: {int(np.sum(inside & (keys[:, 2] <= top))):,} voxels with P > {threshold:g}", keys[inside]),
+    ]
     fig = Figure(figsize=(11.0, 5.0), layout="constrained")
     rng = np.random.default_rng(0)
     for i, (label, shown) in enumerate(panels):
@@ -150,11 +156,27 @@ def plot_map_3d(grid, truth, *, path=None, title="", threshold=0.5, max_height_m
             shown = shown[np.sort(rng.choice(shown.shape[0], MAX_POINTS_3D, replace=False))]
         centres = (shown + 0.5) * voxel
         ax = fig.add_subplot(1, 2, i + 1, projection="3d")
-        ax.scatter(centres[:, 0], centres[:, 1], centres[:, 2], c=centres[:, 2], cmap="viridis", marker="s",
-                   s=float(np.clip(3e4 / max(len(centres), 1), 1.5, 10.0)), linewidths=0, depthshade=True,
-                   vmin=(lo[2] + 0.5) * voxel, vmax=(top + 0.5) * voxel)
-        ax.set(xlim=(lo[0] * voxel, (hi[0] + 1) * voxel), ylim=(lo[1] * voxel, (hi[1] + 1) * voxel),
-               zlim=(lo[2] * voxel, (top + 1) * voxel), xlabel="x (m)", ylabel="y (m)", zlabel="z (m)")
+        ax.scatter(
+            centres[:, 0],
+            centres[:, 1],
+            centres[:, 2],
+            c=centres[:, 2],
+            cmap="viridis",
+            marker="s",
+            s=float(np.clip(3e4 / max(len(centres), 1), 1.5, 10.0)),
+            linewidths=0,
+            depthshade=True,
+            vmin=(lo[2] + 0.5) * voxel,
+            vmax=(top + 0.5) * voxel,
+        )
+        ax.set(
+            xlim=(lo[0] * voxel, (hi[0] + 1) * voxel),
+            ylim=(lo[1] * voxel, (hi[1] + 1) * voxel),
+            zlim=(lo[2] * voxel, (top + 1) * voxel),
+            xlabel="x (m)",
+            ylabel="y (m)",
+            zlabel="z (m)",
+        )
         ax.set_box_aspect((hi[0] - lo[0] + 1, hi[1] - lo[1] + 1, top - lo[2] + 1))
         ax.view_init(elev=elev, azim=azim)
         ax.set_title(label, fontsize="small")

@@ -46,8 +46,12 @@ def plot_ray_profiles(comparison, *, path=None):
             ax.stairs(posterior, profile.edges_m, baseline=None, label=name, linewidth=2.0 if name == "prism" else 1.2)
         ax.axhline(profile.prior, color="0.5", linestyle="--", linewidth=1, label="prior p0")
         ax.axvline(profile.measured_m, color="0.3", linestyle=":", linewidth=1)
-        ax.set(xlim=_window(profile, 2.0), title=f"measured {profile.measured_m:.2f} m "
-               f"(d = {profile.disparity_px:g} px)", xlabel="distance along the ray (m)", ylabel="P(occupied)")
+        ax.set(
+            xlim=_window(profile, 2.0),
+            title=f"measured {profile.measured_m:.2f} m (d = {profile.disparity_px:g} px)",
+            xlabel="distance along the ray (m)",
+            ylabel="P(occupied)",
+        )
     axes[0].legend(fontsize="small")
     return _finish(fig, path)
 
@@ -101,8 +105,11 @@ def plot_influence(measured_m, bound_m, observed_m, *, path=None):
     ax.plot(measured_m, bound_m, marker="o", label="bound used by ray casting (influence_depth)")
     ax.plot(measured_m, observed_m, marker="s", label="last cell with |increment| >= epsilon")
     ax.axhline(0.0, color="0.5", linewidth=0.8)
-    ax.set(xlabel="measured distance (m)", ylabel="influence behind the measurement (m)",
-           title="PRISM: maximum influence distance")
+    ax.set(
+        xlabel="measured distance (m)",
+        ylabel="influence behind the measurement (m)",
+        title="PRISM: maximum influence distance",
+    )
     ax.legend(fontsize="small")
     return _finish(fig, path)
 
@@ -122,8 +129,11 @@ def plot_divergence(comparison, *, path=None):
     if not comparison.divergences:
         raise PrismapInputError("the comparison has no model besides PRISM")
     measured = [p.measured_m for p in comparison.profiles]
-    metrics = (("mad", "mean |P - P_prism| per cell"), ("kl", "mean KL(PRISM || model) per cell (nats)"),
-               ("cleared", "PRISM occupancy the model clears (cells)"))
+    metrics = (
+        ("mad", "mean |P - P_prism| per cell"),
+        ("kl", "mean KL(PRISM || model) per cell (nats)"),
+        ("cleared", "PRISM occupancy the model clears (cells)"),
+    )
     fig, axes = _figure(len(metrics), ncols=3, sharey=False)
     for ax, (key, label) in zip(axes, metrics):
         for name, values in comparison.divergences.items():

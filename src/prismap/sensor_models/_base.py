@@ -99,7 +99,9 @@ def check_cell_arrays(disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_
     if rays.shape != start.shape:
         raise PrismapInputError(f"`ray_of_cell` must have shape {start.shape}; got {rays.shape}")
     if rays.size and (rays.min() < 0 or rays.max() >= disparity.size):
-        raise PrismapInputError(f"`ray_of_cell` must index {disparity.size} rays; got values in [{rays.min()}, {rays.max()}]")
+        raise PrismapInputError(
+            f"`ray_of_cell` must index {disparity.size} rays; got values in [{rays.min()}, {rays.max()}]"
+        )
     return disparity, norm, rays, start, end
 
 
@@ -125,8 +127,11 @@ def model_defaults(name):
         cls = _REGISTRY[name]
     except KeyError:
         raise PrismapInputError(f"unknown sensor model {name!r}; expected one of {list(_REGISTRY)}") from None
-    return {f.name: f.default for f in dataclasses.fields(cls)
-            if f.init and not f.name.startswith("_") and isinstance(f.default, (bool, int, float, str, type(None)))}
+    return {
+        f.name: f.default
+        for f in dataclasses.fields(cls)
+        if f.init and not f.name.startswith("_") and isinstance(f.default, (bool, int, float, str, type(None)))
+    }
 
 
 def error_model_use(name):

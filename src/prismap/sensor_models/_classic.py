@@ -95,7 +95,9 @@ class IdealModel(_ProfileModel):
         _, norm, rays, start, end, z_hat = self._prepare(
             disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m
         )
-        return _kernels_classic.ideal_cells(z_hat, norm, rays, start, end, 0.5 * self.alpha_m, self.p_free, self.p_occ, self.p0)
+        return _kernels_classic.ideal_cells(
+            z_hat, norm, rays, start, end, 0.5 * self.alpha_m, self.p_free, self.p_occ, self.p0
+        )
 
     def influence_depth(self, disparity_px, ray_norm):
         """End of the occupied band: ``z^ + alpha / (2 |r|)`` (metres)."""
@@ -185,8 +187,16 @@ class ConvolutionModel(_ProfileModel):
             disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m
         )
         posterior, increment = _kernels_classic.convolution_cells(
-            z_hat, self._sigma_depth(z_hat, self.sigma_px), norm, rays, start, end,
-            0.5 * self.alpha_m, self.p_free, self.p_occ, self.p0,
+            z_hat,
+            self._sigma_depth(z_hat, self.sigma_px),
+            norm,
+            rays,
+            start,
+            end,
+            0.5 * self.alpha_m,
+            self.p_free,
+            self.p_occ,
+            self.p0,
         )
         return _with_failures(self, posterior, increment, self.p0)
 
@@ -250,8 +260,16 @@ class AndertModel(RayModel):
             disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m
         )
         posterior, increment = _kernels_classic.andert_cells(
-            z_hat, self._sigma_depth(z_hat, self.sigma_px), norm, rays, start, end,
-            self.eta, self.p_min, self.p_max, self.p0,
+            z_hat,
+            self._sigma_depth(z_hat, self.sigma_px),
+            norm,
+            rays,
+            start,
+            end,
+            self.eta,
+            self.p_min,
+            self.p_max,
+            self.p0,
         )
         return _with_failures(self, posterior, increment, 0.5)
 

@@ -102,8 +102,18 @@ class ConditionedModel(InverseSensorModel):
             )
         return classes.astype(np.int64)
 
-    def cell_posteriors(self, disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m, *, ray_class=None,
-                        voxel_overhang_m=None, map_log_odds=None):
+    def cell_posteriors(
+        self,
+        disparity_px,
+        ray_norm,
+        ray_of_cell,
+        depth_start_m,
+        depth_end_m,
+        *,
+        ray_class=None,
+        voxel_overhang_m=None,
+        map_log_odds=None,
+    ):
         """Posterior and increment per cell (see :class:`InverseSensorModel`), each ray by its class's model.
 
         Parameters
@@ -173,8 +183,10 @@ class ConditionedModel(InverseSensorModel):
 
     def with_extra_noise(self, sigma_px):
         """A copy whose every sub-model (the plain one included) is widened by ``N(0, sigma_px^2)``."""
-        return ConditionedModel(self.plain.with_extra_noise(sigma_px),
-                                tuple(model.with_extra_noise(sigma_px) for model in self.class_models))
+        return ConditionedModel(
+            self.plain.with_extra_noise(sigma_px),
+            tuple(model.with_extra_noise(sigma_px) for model in self.class_models),
+        )
 
 
 def share_table_floor(models):
@@ -186,8 +198,11 @@ def share_table_floor(models):
     it no longer uses; with the floor split, the classes together keep about two frames' tables, like the
     plain model. Models without tables (not PRISM, or with a fixed ``table_memory_mb``) are left as they are.
     """
-    caches = [cache for cache in (getattr(model, "_cache", None) for model in models)
-              if cache is not None and cache.budget_bytes is None]
+    caches = [
+        cache
+        for cache in (getattr(model, "_cache", None) for model in models)
+        if cache is not None and cache.budget_bytes is None
+    ]
     for cache in caches:
         cache.floor_bytes = min(cache.floor_bytes, int(AUTO_TABLE_FLOOR_MB * 2**20) // len(caches))
 
@@ -208,8 +223,9 @@ def model_for_mixture(name, mixture, *, focal_baseline, doffs_px, voxel_size_m, 
         if mixture.failure_weight > 0:
             params.setdefault("failure_floor", failure_floor(mixture))
     try:
-        return make_sensor_model(name, focal_baseline=focal_baseline, doffs_px=doffs_px, voxel_size_m=voxel_size_m,
-                                 p0=p0, **params)
+        return make_sensor_model(
+            name, focal_baseline=focal_baseline, doffs_px=doffs_px, voxel_size_m=voxel_size_m, p0=p0, **params
+        )
     except TypeError as exc:
         raise PrismapInputError(f"sensor model {name!r}: bad parameter(s) {sorted(params)}: {exc}") from None
 
@@ -253,19 +269,32 @@ def conditioned_sensor_model(name, camera, *, voxel_size_m, p0, error_model, **p
         )
     params = dict(params)
     per_class = params.pop(CLASS_PASS_THROUGH, None)
-    build = {"focal_baseline": camera.focal_baseline, "doffs_px": camera.doffs_px, "voxel_size_m": voxel_size_m,
-             "p0": p0, **params}
+    build = {
+        "focal_baseline": camera.focal_baseline,
+        "doffs_px": camera.doffs_px,
+        "voxel_size_m": voxel_size_m,
+        "p0": p0,
+        **params,
+    }
     plain = model_for_mixture(name, whole, **build)
     if per_class is not None:
         if error_model_use(name) != "mixture" or not class_mixtures:
-            raise PrismapInputError(f"`{CLASS_PASS_THROUGH}` needs PRISM with a conditioned error model; got model "
-                                    f"{name!r} with {len(class_mixtures)} classes")
+            raise PrismapInputError(
+                f"`{CLASS_PASS_THROUGH}` needs PRISM with a conditioned error model; got model "
+                f"{name!r} with {len(class_mixtures)} classes"
+            )
         per_class = np.asarray(per_class, dtype=np.float64).reshape(-1)
         if per_class.size != len(class_mixtures):
-            raise PrismapInputError(f"`{CLASS_PASS_THROUGH}` must hold one value per class ({len(class_mixtures)}); "
-                                    f"got {per_class.size}")
-        return ConditionedModel(plain, tuple(model_for_mixture(name, mixture, **{**build, "pass_through": float(m)})
-                                             for mixture, m in zip(class_mixtures, per_class)))
+            raise PrismapInputError(
+                f"`{CLASS_PASS_THROUGH}` must hold one value per class ({len(class_mixtures)}); got {per_class.size}"
+            )
+        return ConditionedModel(
+            plain,
+            tuple(
+                model_for_mixture(name, mixture, **{**build, "pass_through": float(m)})
+                for mixture, m in zip(class_mixtures, per_class)
+            ),
+        )
     if not class_mixtures or error_model_use(name) is None:
         return plain
     return ConditionedModel(plain, tuple(model_for_mixture(name, mixture, **build) for mixture in class_mixtures))

@@ -96,8 +96,9 @@ def prism_direct_cells(
         for k in range(1, nb_):
             panels[k] = log_integral(bounds[k - 1], bounds[k], lam[r], ku, hq, z0, fb, shift[r], log_wn, means, sigmas)
             log_c[k] = logaddexp(log_c[k - 1], panels[k])
-        tail = log_tail(bounds[nb_ - 1], log_c[nb_ - 1], lam[r], ku, hq, z0, z_max, fb, shift[r], log_far[r],
-                        log_wn, means, sigmas)
+        tail = log_tail(
+            bounds[nb_ - 1], log_c[nb_ - 1], lam[r], ku, hq, z0, z_max, fb, shift[r], log_far[r], log_wn, means, sigmas
+        )
         log_d = np.empty(nb_)
         log_d[nb_ - 1] = tail
         for k in range(nb_ - 1, 0, -1):
@@ -124,6 +125,5 @@ def prism_log_evidence(shift, lam, z0, z_max, fb, ku, hq, log_far, log_wn, means
     """``log Z`` (the marginal density of each measured disparity, 1/pixel) for every ray."""
     out = np.empty(shift.size)
     for r in range(shift.size):
-        out[r] = prism_march(shift[r], lam[r], z0, z_max, fb, ku, hq, log_far[r], 0.0, 0.0, 0, log_wn,
-                               means, sigmas)[3]
+        out[r] = prism_march(shift[r], lam[r], z0, z_max, fb, ku, hq, log_far[r], 0.0, 0.0, 0, log_wn, means, sigmas)[3]
     return out

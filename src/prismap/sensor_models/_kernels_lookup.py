@@ -35,6 +35,7 @@ from prismap.sensor_models._kernels_table import (
 
 _FASTMATH = {"nsz", "arcp", "contract", "afn", "reassoc"}  # never nnan/ninf: NaN marks values not looked up
 
+
 @nb.njit(cache=True, nogil=True, inline="always")
 def _locate(x, s, seg_x, seg_row, seg_inv, n_seg):
     """Row (from the table's first) of the node left of ``x``, the fraction to the next, and the segment:
@@ -68,8 +69,12 @@ def _interpolate(nodes, o, f, step, col, delta):
     y_1 = nodes[o + 1, col] + delta * nodes[o + 1, col + 2]
     s_0 = nodes[o, col + 1] + delta * nodes[o, col + 3]
     s_1 = nodes[o + 1, col + 1] + delta * nodes[o + 1, col + 3]
-    return ((1.0 + 2.0 * f) * g * g * y_0 + f * f * (3.0 - 2.0 * f) * y_1 + f * g * step * (g * s_0 - f * s_1)
-            + half * delta * (g * nodes[o, col + 4] + f * nodes[o + 1, col + 4]))
+    return (
+        (1.0 + 2.0 * f) * g * g * y_0
+        + f * f * (3.0 - 2.0 * f) * y_1
+        + f * g * step * (g * s_0 - f * s_1)
+        + half * delta * (g * nodes[o, col + 4] + f * nodes[o + 1, col + 4])
+    )
 
 
 @nb.njit(cache=True, nogil=True, inline="always", error_model="numpy")
@@ -79,8 +84,11 @@ def _cell_prior(x):
     that a loop over cells stays branch-free."""
     q = fast_exp(-x)
     x2 = x * x
-    p = x * ((1.0 - 0.5 * x) + x2 * (1.0 / 6.0 - x * (1.0 / 24.0))
-             + x2 * x2 * ((1.0 / 120.0 - x * (1.0 / 720.0)) + x2 * (1.0 / 5040.0 - x * (1.0 / 40320.0))))
+    p = x * (
+        (1.0 - 0.5 * x)
+        + x2 * (1.0 / 6.0 - x * (1.0 / 24.0))
+        + x2 * x2 * ((1.0 / 120.0 - x * (1.0 / 720.0)) + x2 * (1.0 / 5040.0 - x * (1.0 / 40320.0)))
+    )
     small = x < 0.2
     return (p if small else 1.0 - q), (1.0 - p if small else q)
 
@@ -99,8 +107,13 @@ def combine_small(l_a, l_c, a_is_d, c_is_d, lam_len):
         return math.exp(log_num), log_num - lam_len - log1mexp(-lam_len)
     other_a = log1mexp(l_a)
     other_c = log1mexp(l_c)
-    return combine(other_a if a_is_d else l_a, l_a if a_is_d else other_a,
-                   other_c if c_is_d else l_c, l_c if c_is_d else other_c, lam_len)
+    return combine(
+        other_a if a_is_d else l_a,
+        l_a if a_is_d else other_a,
+        other_c if c_is_d else l_c,
+        l_c if c_is_d else other_c,
+        lam_len,
+    )
 
 
 @nb.njit(cache=True, nogil=True)
@@ -123,8 +136,31 @@ _SKIP = 4
 
 
 @nb.njit(cache=True, nogil=True, fastmath=_FASTMATH)
-def prism_table_lookup(lam, table, delta, ray_of_cell, start, end, stretch, lo, hi, z0, z_max, fb, ku, hq, meta,
-                       nodes, log_wn, means, sigmas, l_a, l_c, side, lam_len):
+def prism_table_lookup(
+    lam,
+    table,
+    delta,
+    ray_of_cell,
+    start,
+    end,
+    stretch,
+    lo,
+    hi,
+    z0,
+    z_max,
+    fb,
+    ku,
+    hq,
+    meta,
+    nodes,
+    log_wn,
+    means,
+    sigmas,
+    l_a,
+    l_c,
+    side,
+    lam_len,
+):
     """First stage of tabulated PRISM on cells ``lo:hi``: per cell end, the log of the smaller of C/Z, D/Z.
 
     A cell is ``[start[i], end[i] + stretch[r]]`` (``stretch``: the ray's voxel overhang share, depth metres).
@@ -210,7 +246,9 @@ def prism_table_lookup(lam, table, delta, ray_of_cell, start, end, stretch, lo, 
                 if k == 0:  # first interval: log C is -inf at z0
                     lca = -np.inf
                     if a > z0:
-                        lca = _log_c_first(a, steep, lam_r, ku, seg_h[s_a], z0, fb, shift, log_wn, means, sigmas) - log_z
+                        lca = (
+                            _log_c_first(a, steep, lam_r, ku, seg_h[s_a], z0, fb, shift, log_wn, means, sigmas) - log_z
+                        )
                 else:
                     lca = _interpolate(nodes, o, f, seg_h[s_a], 0, dl)
                 if lca < _LOG_HALF:
@@ -272,8 +310,14 @@ def prism_table_combine(lo, hi, l_a, l_c, e_a, e_c, side, lam_len, post, ratio, 
         delta = max(c_c - c_a, 0.0) if c_c < 0.5 else max(d_a - d_c, 0.0)
         num = p_c * c_a + delta
         den = q_c * c_a + d_c
-        ok = ((s != _SKIP) & (min(l_a[j], l_c[j]) >= -600.0) & (lam_len[j] <= 40.0) & (num > 0.0) & (den > 0.0)
-              & (p_c > 0.0))
+        ok = (
+            (s != _SKIP)
+            & (min(l_a[j], l_c[j]) >= -600.0)
+            & (lam_len[j] <= 40.0)
+            & (num > 0.0)
+            & (den > 0.0)
+            & (p_c > 0.0)
+        )
         thinned = pass_through + (1.0 - pass_through) * ((num * q_c) / (den * p_c))  # = the ratio when m = 0
         post[lo + j] = num / (num + den) if pass_through == 0.0 else p_c * thinned / (p_c * thinned + q_c)
         ratio[j] = thinned if ok else -1.0
@@ -294,8 +338,27 @@ def prism_table_combine(lo, hi, l_a, l_c, e_a, e_c, side, lam_len, post, ratio, 
 
 
 @nb.njit(cache=True, nogil=True)
-def prism_table_cells(lam, table, delta, ray_of_cell, start, end, stretch, block, z0, z_max, fb, ku, hq, meta, nodes,
-                      log_wn, means, sigmas, pass_through):
+def prism_table_cells(
+    lam,
+    table,
+    delta,
+    ray_of_cell,
+    start,
+    end,
+    stretch,
+    block,
+    z0,
+    z_max,
+    fb,
+    ku,
+    hq,
+    meta,
+    nodes,
+    log_wn,
+    means,
+    sigmas,
+    pass_through,
+):
     """Tabulated PRISM on every cell ``[start[i], end[i] + stretch[r]]``: posterior and increment, (C,) each.
 
     Blocks of ``block`` cells go through :func:`prism_table_lookup`, :func:`exp_into` (both ends),
@@ -313,16 +376,41 @@ def prism_table_cells(lam, table, delta, ray_of_cell, start, end, stretch, block
     for lo in range(0, n, size):
         hi = min(lo + size, n)
         m = hi - lo
-        prism_table_lookup(lam, table, delta, ray_of_cell, start, end, stretch, lo, hi, z0, z_max, fb, ku, hq, meta,
-                           nodes, log_wn, means, sigmas, l_a, l_c, side, lam_len)
+        prism_table_lookup(
+            lam,
+            table,
+            delta,
+            ray_of_cell,
+            start,
+            end,
+            stretch,
+            lo,
+            hi,
+            z0,
+            z_max,
+            fb,
+            ku,
+            hq,
+            meta,
+            nodes,
+            log_wn,
+            means,
+            sigmas,
+            l_a,
+            l_c,
+            side,
+            lam_len,
+        )
         exp_into(l_a, e_a, m)
         exp_into(l_c, e_c, m)
-        n_fix = prism_table_combine(lo, hi, l_a, l_c, e_a, e_c, side, lam_len, post, ratio, fix_index, fix_value,
-                                    pass_through)
+        n_fix = prism_table_combine(
+            lo, hi, l_a, l_c, e_a, e_c, side, lam_len, post, ratio, fix_index, fix_value, pass_through
+        )
         log_into(ratio, inc[lo:hi], m)
         for k in range(n_fix):
             inc[lo + fix_index[k]] = fix_value[k]
     return post, inc
+
 
 @nb.njit(cache=True, nogil=True)
 def table_keys(disparity, log_norm, disparity_step, lambda_step, key_l_span):
@@ -343,7 +431,8 @@ def table_keys(disparity, log_norm, disparity_step, lambda_step, key_l_span):
     k = 0
     for i in range(n):
         key = np.int64(np.rint(disparity[i] / disparity_step)) * key_l_span + min(
-            np.int64(np.rint(log_norm[i] / lambda_step)), key_l_span - 1)
+            np.int64(np.rint(log_norm[i] / lambda_step)), key_l_span - 1
+        )
         h = np.int64((np.uint64(key) * np.uint64(0x9E3779B97F4A7C15)) >> np.uint64(32)) & mask
         while slots[h] >= 0 and unique[slots[h]] != key:
             h = (h + 1) & mask

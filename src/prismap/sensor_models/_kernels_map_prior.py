@@ -68,8 +68,28 @@ def _log_hit(log_survive, hazard, a, c, fb, shift, log_w, means, sigmas):
 
 
 @nb.njit(cache=True, nogil=True)
-def prism_map_prior_cells(shift, lam, order, ray_start, start, end, stretch, cell_rate, z0, z_max, fb, ku, hq,
-                          log_rest, log_far, log_wn, log_w, means, sigmas, pass_through):
+def prism_map_prior_cells(
+    shift,
+    lam,
+    order,
+    ray_start,
+    start,
+    end,
+    stretch,
+    cell_rate,
+    z0,
+    z_max,
+    fb,
+    ku,
+    hq,
+    log_rest,
+    log_far,
+    log_wn,
+    log_w,
+    means,
+    sigmas,
+    pass_through,
+):
     """PRISM with per-cell priors on rays of consecutive cells: exact posterior and increment of every cell.
 
     The cells of ray ``r`` are ``order[ray_start[r]:ray_start[r + 1]]``, nearest first, each starting where
@@ -113,8 +133,22 @@ def prism_map_prior_cells(shift, lam, order, ray_start, start, end, stretch, cel
             before[k + 1] = logaddexp(before[k], t[k])
         tail = -np.inf
         if c[m - 1] < z_max:
-            tail = log_tail(c[m - 1], before[m] - log_s[m], lam[r], ku, hq, c[m - 1], z_max, fb, shift[r], log_far[r],
-                            log_wn, means, sigmas, log_rest)
+            tail = log_tail(
+                c[m - 1],
+                before[m] - log_s[m],
+                lam[r],
+                ku,
+                hq,
+                c[m - 1],
+                z_max,
+                fb,
+                shift[r],
+                log_far[r],
+                log_wn,
+                means,
+                sigmas,
+                log_rest,
+            )
         else:
             tail = log_far[r]
         after = np.empty(m + 1)  # after[k]: evidence of a first surface beyond cell k - 1 (cells >= k, tail)
@@ -141,9 +175,10 @@ def prism_map_prior_cells(shift, lam, order, ray_start, start, end, stretch, cel
                     part = h[j] * (e - a[j]) / (c[j] - a[j])
                     hazard += part
                     hit = logaddexp(hit, _log_hit(log_s[j], part, a[j], e, fb, shift[r], log_w, means, sigmas))
-                    beyond = logaddexp(after[j + 1],
-                                       _log_hit(log_s[j] - part, h[j] - part, e, c[j], fb, shift[r], log_w, means,
-                                                sigmas))
+                    beyond = logaddexp(
+                        after[j + 1],
+                        _log_hit(log_s[j] - part, h[j] - part, e, c[j], fb, shift[r], log_w, means, sigmas),
+                    )
             log_p = log1mexp(-hazard)
             log_num = logaddexp(log_p + before[k], hit)
             log_den = logaddexp(-hazard + before[k], beyond)

@@ -132,8 +132,27 @@ def prism_march(shift, lam, z0, z_max, fb, ku, hq, log_far, log_eps_bound, lam_s
     factor ``1 +- lam_slack`` of ``lam``. The march stops (not before node ``i_min``) once the remaining
     evidence is below e^-40 of ``C``.
     """
-    return _march(shift, lam, z0, z0, np.full(3, -np.inf), np.zeros(3, dtype=np.int64), hq, z_max, fb, ku, hq,
-                  log_far, log_eps_bound, lam_slack, i_min, 1, log_wn, means, sigmas)[:6]
+    return _march(
+        shift,
+        lam,
+        z0,
+        z0,
+        np.full(3, -np.inf),
+        np.zeros(3, dtype=np.int64),
+        hq,
+        z_max,
+        fb,
+        ku,
+        hq,
+        log_far,
+        log_eps_bound,
+        lam_slack,
+        i_min,
+        1,
+        log_wn,
+        means,
+        sigmas,
+    )[:6]
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
@@ -302,8 +321,27 @@ def _log_cumsum_block(terms, out, first, count, step, scratch):
 
 
 @nb.njit(cache=True, nogil=True, error_model="numpy")
-def _march(shift, lam, z0, z_start, log_c_start, counts, h_wide, z_max, fb, ku, hq, log_far, log_eps_bound,
-           lam_slack, i_min, far_ratio, log_wn, means, sigmas):
+def _march(
+    shift,
+    lam,
+    z0,
+    z_start,
+    log_c_start,
+    counts,
+    h_wide,
+    z_max,
+    fb,
+    ku,
+    hq,
+    log_far,
+    log_eps_bound,
+    lam_slack,
+    i_min,
+    far_ratio,
+    log_wn,
+    means,
+    sigmas,
+):
     """:func:`prism_march` from ``z_start``, where the moments of C are ``log_c_start`` (3,), on panels of
     x-width ``h_wide`` (``counts[0]``: a table's broad front), ``hq`` (``counts[1]``), ``h_wide``
     (``counts[2]``: its broad back), then ``hq`` (:func:`_march_x`), and with ``far_ratio > 1`` from the first
@@ -352,8 +390,7 @@ def _march(shift, lam, z0, z_start, log_c_start, counts, h_wide, z_max, fb, ku, 
             bound = -lam * (z[i] - z0) + max(sup[i], log_far)
             if i_infl < 0 and bound + lam_slack * lam * (z[i] - z0) + slack - log_c[i, 0] < log_eps_bound:
                 i_infl = i
-            if (i < n_max and i >= i_min and (i_far < 0 or (i - i_far) % 4 == 0)
-                    and bound - log_c[i, 0] < -40.0):
+            if i < n_max and i >= i_min and (i_far < 0 or (i - i_far) % 4 == 0) and bound - log_c[i, 0] < -40.0:
                 n = i
                 tail = bound
                 stopped = True

@@ -66,8 +66,27 @@ N_SEGMENTS = 6
 
 
 @nb.njit(cache=True, nogil=True)
-def prism_table(shift, lam, z0, z_max, fb, ku, h, log_far, log_eps_bound, lam_slack, coarse_ratio, coarse_below,
-                e_front, e_back, wide_ratio, wide_efolds, log_wn, means, sigmas):
+def prism_table(
+    shift,
+    lam,
+    z0,
+    z_max,
+    fb,
+    ku,
+    h,
+    log_far,
+    log_eps_bound,
+    lam_slack,
+    coarse_ratio,
+    coarse_below,
+    e_front,
+    e_back,
+    wide_ratio,
+    wide_efolds,
+    log_wn,
+    means,
+    sigmas,
+):
     """The table of one (d^, lam): a node per march panel, every ``coarse_ratio``-th one where C/Z is tiny.
 
     Node columns (see :data:`TABLE_COLUMNS`): ``log(C/Z)``, ``d log(C/Z)/dx``, the first and second
@@ -80,7 +99,7 @@ def prism_table(shift, lam, z0, z_max, fb, ku, h, log_far, log_eps_bound, lam_sl
     the influence depth (beyond which only the cells that straddle it look up), four equal intervals to
     the end of the march. The march's panels are the node intervals (:data:`_MARCH_GL`-point Gauss-Legendre
     is exact far below the tolerance on half a narrowest sigma, and on a broad segment, where only the wide
-    error components are not negligible (``_prism.broad_errors``), on a quarter of the narrowest of them), and
+    error components are not negligible (``_prism_spacing.broad_errors``), on a quarter of the narrowest of them), and
     past the influence node, where only the four back intervals remain, :data:`_FAR_RATIO` times wider (:func:`_march`).
 
     Before ``x_split`` ``q g`` rises steeply (``|phi''| / phi'^2 < _STEEP``, ``phi = log(q g)``) and
@@ -120,8 +139,10 @@ def prism_table(shift, lam, z0, z_max, fb, ku, h, log_far, log_eps_bound, lam_sl
     while x0 + (n_steep + 2) * h_coarse < x_end:
         z = z_of_x(x0 + (n_steep + 1) * h_coarse, lam, ku)
         slope = _log_qg_slope(z, lam, z0, fb, shift, log_wn, means, sigmas)[1]
-        curvature = (_log_qg_slope(z * (1.0 + 1e-5), lam, z0, fb, shift, log_wn, means, sigmas)[1]
-                     - _log_qg_slope(z * (1.0 - 1e-5), lam, z0, fb, shift, log_wn, means, sigmas)[1]) / (2e-5 * z)
+        curvature = (
+            _log_qg_slope(z * (1.0 + 1e-5), lam, z0, fb, shift, log_wn, means, sigmas)[1]
+            - _log_qg_slope(z * (1.0 - 1e-5), lam, z0, fb, shift, log_wn, means, sigmas)[1]
+        ) / (2e-5 * z)
         if not slope > 0.0 or abs(curvature) > _STEEP * slope * slope:
             break
         n_steep += 1
@@ -143,12 +164,33 @@ def prism_table(shift, lam, z0, z_max, fb, ku, h, log_far, log_eps_bound, lam_sl
         x_fine += counts[1] * h
         counts[2] = max(int((min(x_lam, x_end - h) - x_fine) / h_wide), 0)
         z, log_c, log_d, log_z, log_far_w, i_infl, i_far, h_far = _march(
-            shift, lam, z0, z_split, log_c_start, counts, h_wide, z_max, fb, ku, h, log_far, log_eps_bound,
-            lam_slack, counts[0] + 2, _FAR_RATIO, log_wn, means, sigmas,
+            shift,
+            lam,
+            z0,
+            z_split,
+            log_c_start,
+            counts,
+            h_wide,
+            z_max,
+            fb,
+            ku,
+            h,
+            log_far,
+            log_eps_bound,
+            lam_slack,
+            counts[0] + 2,
+            _FAR_RATIO,
+            log_wn,
+            means,
+            sigmas,
         )
         fit = n_coarse
-        while fit > 0 and _log_c_asymptotic(z_of_x(x0 + fit * h_coarse, lam, ku), lam, z0, fb, shift, log_wn,
-                                            means, sigmas) - log_z >= coarse_below:
+        while (
+            fit > 0
+            and _log_c_asymptotic(z_of_x(x0 + fit * h_coarse, lam, ku), lam, z0, fb, shift, log_wn, means, sigmas)
+            - log_z
+            >= coarse_below
+        ):
             fit -= 1
         if fit == n_coarse:
             break
@@ -186,9 +228,10 @@ def prism_table(shift, lam, z0, z_max, fb, ku, h, log_far, log_eps_bound, lam_sl
         slope_c = np.nan
         xi = x0 + row * h_coarse
         if 0 < row <= n_coarse:  # the slope of the asymptotic, also at x_split (the end of a coarse interval)
-            slope_c = (_log_c_asymptotic(z_of_x(xi + 0.25 * h, lam, ku), lam, z0, fb, shift, log_wn, means, sigmas)
-                       - _log_c_asymptotic(z_of_x(xi - 0.25 * h, lam, ku), lam, z0, fb, shift, log_wn, means,
-                                           sigmas)) / (0.5 * h)
+            slope_c = (
+                _log_c_asymptotic(z_of_x(xi + 0.25 * h, lam, ku), lam, z0, fb, shift, log_wn, means, sigmas)
+                - _log_c_asymptotic(z_of_x(xi - 0.25 * h, lam, ku), lam, z0, fb, shift, log_wn, means, sigmas)
+            ) / (0.5 * h)
         if row < n_coarse:
             zi = z_of_x(xi, lam, ku) if row > 0 else z0
             row_c[:] = -np.inf
@@ -218,7 +261,8 @@ def prism_table(shift, lam, z0, z_max, fb, ku, h, log_far, log_eps_bound, lam_sl
         nodes[row, _D_COLUMN] = row_d[0] - log_z
         nodes[row, _D_COLUMN + 1] = -math.exp(log_qg - row_d[0]) / dx_dz
         nodes[row, _D_COLUMN + 2], nodes[row, _D_COLUMN + 3], nodes[row, _D_COLUMN + 4] = _rate_columns(
-            nodes[row, _D_COLUMN + 1], d_1, d_2, z_1, z_2, lam_s)
+            nodes[row, _D_COLUMN + 1], d_1, d_2, z_1, z_2, lam_s
+        )
     nodes[0, 2:_D_COLUMN] = nodes[1, 2:_D_COLUMN]
     meta = np.empty(3 * N_SEGMENTS + 5)
     x_march = x_of_z(z[0], lam, ku)
@@ -231,28 +275,59 @@ def prism_table(shift, lam, z0, z_max, fb, ku, h, log_far, log_eps_bound, lam_sl
     meta[N_SEGMENTS - 1] = _march_x(i_back, x_march, counts, h_wide, h)
     meta[2 * N_SEGMENTS - 1] = n_coarse + i_back
     meta[3 * N_SEGMENTS - 1] = max(back, 1) * back_width
-    meta[3 * N_SEGMENTS:] = z[n], z[i_infl], log_z, z_1, z_2
+    meta[3 * N_SEGMENTS :] = z[n], z[i_infl], log_z, z_1, z_2
     return nodes, meta
-
 
 
 _PACK_ROWS = 192
 """Rows a table :func:`prism_tables` makes room for at first (a street table has about 170)."""
 
-META_COLUMNS = ("lam", *(f"x_{k}" for k in range(N_SEGMENTS)), *(f"row_{k}" for k in range(N_SEGMENTS)),
-                *(f"h_{k}" for k in range(N_SEGMENTS)), "z_end", "z_infl", "log_z", "log_z_1", "log_z_2", "shift", "log_far",
-                "offset", "length")
+META_COLUMNS = (
+    "lam",
+    *(f"x_{k}" for k in range(N_SEGMENTS)),
+    *(f"row_{k}" for k in range(N_SEGMENTS)),
+    *(f"h_{k}" for k in range(N_SEGMENTS)),
+    "z_end",
+    "z_infl",
+    "log_z",
+    "log_z_1",
+    "log_z_2",
+    "shift",
+    "log_far",
+    "offset",
+    "length",
+)
 """Columns of the per-table metadata matrix that :func:`prism_table_lookup` reads (one row per table): the
 rate, :func:`prism_table`'s meta (per segment its first x, first row and spacing, then ``z_end``, ``z_infl``,
 ``log Z`` and its two derivatives in ``log lam``), then the shift, far term, first row and row count of its nodes."""
 _LAM, _X, _ROW, _SPACING = 0, 1, 1 + N_SEGMENTS, 1 + 2 * N_SEGMENTS
-_Z_END, _Z_INFL, _LOG_Z, _LOG_Z_1, _LOG_Z_2, _SHIFT, _LOG_FAR, _OFFSET, _LENGTH = range(1 + 3 * N_SEGMENTS,
-                                                                                      10 + 3 * N_SEGMENTS)
+_Z_END, _Z_INFL, _LOG_Z, _LOG_Z_1, _LOG_Z_2, _SHIFT, _LOG_FAR, _OFFSET, _LENGTH = range(
+    1 + 3 * N_SEGMENTS, 10 + 3 * N_SEGMENTS
+)
 
 
 @nb.njit(cache=True, nogil=True)
-def prism_tables(shifts, lams, log_fars, z0, z_max, fb, ku, h, log_eps_bound, lam_slack, coarse_ratio, coarse_below,
-                 e_front, e_back, wide_ratio, wide_efolds, log_wn, means, sigmas):
+def prism_tables(
+    shifts,
+    lams,
+    log_fars,
+    z0,
+    z_max,
+    fb,
+    ku,
+    h,
+    log_eps_bound,
+    lam_slack,
+    coarse_ratio,
+    coarse_below,
+    e_front,
+    e_back,
+    wide_ratio,
+    wide_efolds,
+    log_wn,
+    means,
+    sigmas,
+):
     """:func:`prism_table` of every ``(shifts[k], lams[k], log_fars[k])``, packed for the table cache.
 
     Returns ``nodes`` (N, :data:`TABLE_COLUMNS`) float32, every table's rows back to back (their rounding is
@@ -267,18 +342,37 @@ def prism_tables(shifts, lams, log_fars, z0, z_max, fb, ku, h, log_eps_bound, la
     packed = np.empty((_PACK_ROWS * n_tables, TABLE_COLUMNS), dtype=np.float32)
     total = 0
     for k in range(n_tables):
-        nodes, table_meta = prism_table(shifts[k], lams[k], z0, z_max, fb, ku, h, log_fars[k], log_eps_bound,
-                                        lam_slack, coarse_ratio, coarse_below, e_front, e_back, wide_ratio,
-                                        wide_efolds, log_wn, means, sigmas)
+        nodes, table_meta = prism_table(
+            shifts[k],
+            lams[k],
+            z0,
+            z_max,
+            fb,
+            ku,
+            h,
+            log_fars[k],
+            log_eps_bound,
+            lam_slack,
+            coarse_ratio,
+            coarse_below,
+            e_front,
+            e_back,
+            wide_ratio,
+            wide_efolds,
+            log_wn,
+            means,
+            sigmas,
+        )
         rows = nodes.shape[0]
         if total + rows > packed.shape[0]:
-            grown = np.empty((max(total + rows, packed.shape[0] + packed.shape[0] // 2), TABLE_COLUMNS),
-                             dtype=np.float32)
+            grown = np.empty(
+                (max(total + rows, packed.shape[0] + packed.shape[0] // 2), TABLE_COLUMNS), dtype=np.float32
+            )
             grown[:total] = packed[:total]
             packed = grown
         packed[total : total + rows] = nodes
         meta[k, _LAM] = lams[k]
-        meta[k, _X : _SHIFT] = table_meta
+        meta[k, _X:_SHIFT] = table_meta
         meta[k, _SHIFT] = shifts[k]
         meta[k, _LOG_FAR] = log_fars[k]
         meta[k, _OFFSET] = total

@@ -41,8 +41,9 @@ class RayModel(InverseSensorModel):
 
     def __post_init__(self):
         if self.measurement not in self.MEASUREMENTS:
-            raise PrismapInputError(f"{self.name}: `measurement` must be one of {list(self.MEASUREMENTS)}; "
-                                    f"got {self.measurement!r}")
+            raise PrismapInputError(
+                f"{self.name}: `measurement` must be one of {list(self.MEASUREMENTS)}; got {self.measurement!r}"
+            )
         if self.measurement == "disparity" or self.focal_baseline is not None:
             object.__setattr__(self, "focal_baseline", check_positive(self.focal_baseline, "focal_baseline"))
         doffs = float(self.doffs_px)

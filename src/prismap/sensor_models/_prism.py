@@ -27,6 +27,12 @@ from prismap.sensor_models._failure import blend_increments, log_failure_posteri
 from prismap.sensor_models._params import RayModel
 from prismap.sensor_models._prism_cache import _LENGTH, _OFFSET, TableCache
 from prismap.sensor_models._prism_discrete import log_mean_likelihood
+from prismap.sensor_models._prism_spacing import (
+    _COARSE_BELOW,
+    _TABLE_STEP,
+    broad_errors,
+    coarse_ratio,
+)
 
 INFLUENCE_EPSILON = 1e-3
 """Default log-odds bound beyond the influence depth: every later cell has ``|increment| < epsilon``."""
@@ -46,13 +52,6 @@ table's four back intervals or its end's tail bound (e^-40 of ``C``; ``"direct"`
 the increment (30-50) is off by up to about 7 % (``P`` is 1 in float64 either way)."""
 
 _QUAD_STEP = 0.25  # x-width of one Gauss-Legendre panel (x: one unit per prior e-fold or narrowest sigma)
-_TABLE_STEP = 0.5  # table node spacing in x, also the width of its march's panels
-_COARSE_RATIO = 64  # node spacing 32 in x where log(C/Z) < _COARSE_BELOW (near-quadratic in x) and past influence
-_COARSE_WIDE_SIGMAS = 0.125  # coarse-front node spacing may reach this many widest sigmas (see coarse_ratio)
-_COARSE_BELOW = -40.0
-_BROAD_SHARE = -20.0  # log share of g below which a table's broad front drops the narrower error components
-_WIDE_SIGMAS = 0.25  # broad-front node spacing, at most this many sigmas of the narrowest wide component
-_WIDE_KEEP = 0.5  # wide error components: sigma at least this share of the widest (kept in a broad segment)
 _WIDE_EFOLDS = 0.5  # broad-front node spacing, at most this many e-folds of the prior
 MAX_TABLE_NODES = 1 << 20
 """Most nodes one table may need (32 MiB of float32 rows; see ``PrismModel._check_table_size``)."""
@@ -259,8 +258,18 @@ class PrismModel(RayModel):
         return log_mean_likelihood(0.0, u_max, disparity, self.error_model, self.doffs_px)
 
     # ------------------------------------------------------------------ interface
-    def cell_posteriors(self, disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m, *, method=None,
-                        voxel_overhang_m=None, map_log_odds=None):
+    def cell_posteriors(
+        self,
+        disparity_px,
+        ray_norm,
+        ray_of_cell,
+        depth_start_m,
+        depth_end_m,
+        *,
+        method=None,
+        voxel_overhang_m=None,
+        map_log_odds=None,
+    ):
         """Posterior and increment per cell (see :class:`InverseSensorModel`); ``method`` overrides the model's.
 
         ``voxel_overhang_m`` ((R,) float, metres along each ray, or None = 0): each cell ``[a, c]`` is
@@ -285,8 +294,11 @@ class PrismModel(RayModel):
         if self.prior == "map":
             result = self._map_prior_cells(lam, disparity, norm, rays, start, end, stretch, map_log_odds)
             if self.error_model.failure_weight > 0:
-                cell_rate = np.logaddexp(0.0, map_log_odds) / self.voxel_size_m * norm[rays] \
-                    if map_log_odds is not None else cell_rate
+                cell_rate = (
+                    np.logaddexp(0.0, map_log_odds) / self.voxel_size_m * norm[rays]
+                    if map_log_odds is not None
+                    else cell_rate
+                )
             method = "table"
         elif map_log_odds is not None:
             raise PrismapInputError("prism: `map_log_odds` is used only with prior='map'; this model has prior='p0'")
@@ -294,9 +306,20 @@ class PrismModel(RayModel):
             order = np.argsort(rays, kind="stable")
             ray_start = np.searchsorted(rays[order], np.arange(disparity.size + 1))
             result = _kernels_direct.prism_direct_cells(
-                disparity + self.doffs_px, lam, order, ray_start, start, end + stretch[rays], self.near_m,
-                self.far_depth_m, self.focal_baseline, self._ku(), _QUAD_STEP, self._log_far(disparity),
-                *self._mixture_arrays(), self.pass_through,
+                disparity + self.doffs_px,
+                lam,
+                order,
+                ray_start,
+                start,
+                end + stretch[rays],
+                self.near_m,
+                self.far_depth_m,
+                self.focal_baseline,
+                self._ku(),
+                _QUAD_STEP,
+                self._log_far(disparity),
+                *self._mixture_arrays(),
+                self.pass_through,
             )
         elif method == "table":
             result = self._table_cells(lam, disparity, norm, rays, start, end, stretch)
@@ -316,9 +339,17 @@ class PrismModel(RayModel):
             table, delta, meta, _ = self._tables_for(disparity, norm)
             log_z = meta[table, _LOG_Z] + delta * (meta[table, _LOG_Z_1] + 0.5 * delta * meta[table, _LOG_Z_2])
         else:
-            log_z = _kernels_direct.prism_log_evidence(disparity + self.doffs_px, lam, self.near_m, self.far_depth_m,
-                                                       self.focal_baseline, self._ku(), _QUAD_STEP,
-                                                       self._log_far(disparity), *self._mixture_arrays())
+            log_z = _kernels_direct.prism_log_evidence(
+                disparity + self.doffs_px,
+                lam,
+                self.near_m,
+                self.far_depth_m,
+                self.focal_baseline,
+                self._ku(),
+                _QUAD_STEP,
+                self._log_far(disparity),
+                *self._mixture_arrays(),
+            )
         log_fail, log_ok = log_failure_posterior(self.error_model, log_z)
         length = np.clip(end, self.near_m, self.far_depth_m) - np.clip(start, self.near_m, self.far_depth_m)
         with np.errstate(divide="ignore"):
@@ -369,9 +400,26 @@ class PrismModel(RayModel):
         log_w = np.log(self.error_model.weights)
         log_wn, means, sigmas = self._mixture_arrays()
         return _kernels_map_prior.prism_map_prior_cells(
-            disparity + self.doffs_px, lam, order, ray_start, start, end, stretch, cell_rate, self.near_m,
-            self.far_depth_m, self.focal_baseline, self._ku(), _TAIL_STEP, _TAIL_REST, self._log_far(disparity), log_wn,
-            log_w, means, sigmas, self.pass_through,
+            disparity + self.doffs_px,
+            lam,
+            order,
+            ray_start,
+            start,
+            end,
+            stretch,
+            cell_rate,
+            self.near_m,
+            self.far_depth_m,
+            self.focal_baseline,
+            self._ku(),
+            _TAIL_STEP,
+            _TAIL_REST,
+            self._log_far(disparity),
+            log_wn,
+            log_w,
+            means,
+            sigmas,
+            self.pass_through,
         )
 
     # ------------------------------------------------------------------ tables
@@ -380,16 +428,36 @@ class PrismModel(RayModel):
         (``_kernels_lookup.prism_table_cells``: table look-ups, vectorised exp, combination, vectorised log)."""
         table, delta, meta, nodes = self._tables_for(disparity, norm)
         log_wn, means, sigmas = self._mixture_arrays()
-        return _kernels_lookup.prism_table_cells(lam, table, delta, rays, start, end, stretch, _CHUNK_CELLS, self.near_m,
-                                          self.far_depth_m, self.focal_baseline, self._ku(), _QUAD_STEP, meta, nodes,
-                                          log_wn, means, sigmas, self.pass_through)
+        return _kernels_lookup.prism_table_cells(
+            lam,
+            table,
+            delta,
+            rays,
+            start,
+            end,
+            stretch,
+            _CHUNK_CELLS,
+            self.near_m,
+            self.far_depth_m,
+            self.focal_baseline,
+            self._ku(),
+            _QUAD_STEP,
+            meta,
+            nodes,
+            log_wn,
+            means,
+            sigmas,
+            self.pass_through,
+        )
 
     def _tables_for(self, disparity, norm):
         """Table row and ``delta = log(lambda_ray / lambda_table)`` of every ray, building missing tables, and
         the cache's ``meta`` and ``nodes`` arrays those rows index: taken under the cache's lock, so a call in
         another thread that builds or evicts (new arrays, new rows) leaves this call's view intact."""
         log_norm = np.log(np.maximum(norm, 1.0))
-        unique, inverse = _kernels_lookup.table_keys(disparity, log_norm, self.disparity_step_px, _LAMBDA_STEP, _KEY_L_SPAN)
+        unique, inverse = _kernels_lookup.table_keys(
+            disparity, log_norm, self.disparity_step_px, _LAMBDA_STEP, _KEY_L_SPAN
+        )
         with self._cache.lock:
             rows = self._cache.rows(unique, self._build_tables)
             meta, nodes = self._cache.meta, self._cache.nodes
@@ -414,9 +482,25 @@ class PrismModel(RayModel):
 
         def build(share):
             return _kernels_table.prism_tables(
-                shift[share], lam[share], log_far[share], self.near_m, self.far_depth_m, self.focal_baseline, ku,
-                _TABLE_STEP, log_eps_bound, _LAMBDA_SLACK, coarse, _COARSE_BELOW, e_front, e_back, wide_ratio,
-                _WIDE_EFOLDS, log_wn, means, sigmas,
+                shift[share],
+                lam[share],
+                log_far[share],
+                self.near_m,
+                self.far_depth_m,
+                self.focal_baseline,
+                ku,
+                _TABLE_STEP,
+                log_eps_bound,
+                _LAMBDA_SLACK,
+                coarse,
+                _COARSE_BELOW,
+                e_front,
+                e_back,
+                wide_ratio,
+                _WIDE_EFOLDS,
+                log_wn,
+                means,
+                sigmas,
             )
 
         n = shift.size
@@ -435,7 +519,9 @@ class PrismModel(RayModel):
                 first += share_nodes.shape[0]
             nodes = [share_nodes for share_nodes, _ in shares]  # the cache copies them in; no concatenation
         if n and meta[:, _LENGTH].min() < 2:
-            raise PrismapInputError(f"prism: near_m={self.near_m} to far_depth_m={self.far_depth_m} is too short to tabulate")
+            raise PrismapInputError(
+                f"prism: near_m={self.near_m} to far_depth_m={self.far_depth_m} is too short to tabulate"
+            )
         return nodes, meta
 
 
@@ -462,58 +548,3 @@ def _share(value, name, *, one):
     if number > 1 or (number == 1 and not one):
         raise PrismapInputError(f"prism: `{name}` must lie in [0, 1{']' if one else ')'}; got {value!r}")
     return number
-
-
-def coarse_ratio(mixture):
-    """Fine nodes per node of a PRISM table's coarse front (where ``C/Z < e^_COARSE_BELOW``).
-
-    There the measurement is far behind, only the widest error component produces it and ``log(q g)`` is nearly
-    quadratic in ``x``: :data:`_COARSE_RATIO`, or, when the mixture's sigmas span more than that allows, nodes
-    :data:`_COARSE_WIDE_SIGMAS` widest sigmas of disparity apart (a characterised class with a component of
-    0.01 px beside outliers of 33 px would otherwise put thousands of nodes between ``near_m`` and the
-    measurement's first evidence). Mixtures whose widest sigma is below 256 narrowest ones keep
-    :data:`_COARSE_RATIO`.
-    """
-    sd = mixture.sigmas
-    return max(_COARSE_RATIO, int(_COARSE_WIDE_SIGMAS * sd.max() / (sd.min() * _TABLE_STEP)))
-
-
-def broad_errors(mixture):
-    """Where a PRISM table may drop its narrow error components, and its node spacing there.
-
-    The wide components are those whose sigma is at least :data:`_WIDE_KEEP` of the widest one's (a
-    characterised mixture often holds two: a class's own outlier component and the whole image's); the others
-    are narrow. For errors ``e >= e_front`` (pixels; true disparity above ``d^ + e_front``, in front of the
-    measurement) and ``e <= e_back`` (behind it) every narrow component's density is below ``e^_BROAD_SHARE`` of
-    the widest one's, so ``C``, ``D`` and their moments there are smooth on the narrowest wide sigma's scale:
-    nodes every ``wide_ratio`` fine nodes (at most ``_WIDE_SIGMAS`` of that sigma apart). ``wide_ratio`` 1 (a
-    one-component mixture, or one whose components are all wide): no broad segments.
-
-    Parameters
-    ----------
-    mixture : GaussianMixture
-        Disparity error ``e = d_true - d_computed`` (pixels).
-
-    Returns
-    -------
-    e_front, e_back : float, pixels (``inf``, ``-inf``: none; ``-inf``, ``inf``: everywhere)
-    wide_ratio : int >= 1
-    """
-    w, mu, sd = mixture.weights, mixture.means, mixture.sigmas
-    b = int(np.argmax(sd))
-    wide = sd >= _WIDE_KEEP * sd[b]
-    if wide.all():
-        return np.inf, -np.inf, 1
-    e_front, e_back = -np.inf, np.inf
-    for j in np.flatnonzero(~wide):
-        # log(w_j N_j(e)) - log(w_b N_b(e)) - _BROAD_SHARE = a e^2 + b e + c, a < 0: it is < 0 outside its roots
-        a = 0.5 / sd[b] ** 2 - 0.5 / sd[j] ** 2
-        lin = mu[j] / sd[j] ** 2 - mu[b] / sd[b] ** 2
-        c = (np.log(w[j] / sd[j]) - np.log(w[b] / sd[b]) - 0.5 * (mu[j] / sd[j]) ** 2 + 0.5 * (mu[b] / sd[b]) ** 2
-             - _BROAD_SHARE)
-        disc = lin * lin - 4.0 * a * c
-        if disc > 0:
-            e_front = max(e_front, (-lin - np.sqrt(disc)) / (2.0 * a))
-            e_back = min(e_back, (-lin + np.sqrt(disc)) / (2.0 * a))
-    wide_ratio = int(_WIDE_SIGMAS * sd[wide].min() / (sd.min() * _TABLE_STEP))
-    return float(e_front), float(e_back), max(min(wide_ratio, _COARSE_RATIO), 1)

@@ -59,8 +59,10 @@ class TableCache:
 
     def _table_bytes(self):
         """Bytes of each table (its nodes and metadata row)."""
-        return (self.meta[:, _LENGTH] * (self.nodes.itemsize * _kernels_table.TABLE_COLUMNS)
-                + self.meta.itemsize * self.meta.shape[1])
+        return (
+            self.meta[:, _LENGTH] * (self.nodes.itemsize * _kernels_table.TABLE_COLUMNS)
+            + self.meta.itemsize * self.meta.shape[1]
+        )
 
     def rows(self, keys, build):
         """Metadata row of each (distinct) key, calling ``build(missing keys)`` for absent ones (it returns

@@ -31,9 +31,20 @@ def prior_from_ground_truth(occupied):
     return float((occupied.sum() + 1.0) / (occupied.size + 2.0))
 
 
-def estimate_prior_from_likelihood(disparity_px, ray_norm, *, error_model, focal_baseline, doffs_px=0.0,
-                                   voxel_size_m=0.1, near_m=0.1, far_depth_m=200.0, max_rays=2000, seed=0,
-                                   bounds=(1e-4, 0.9)):
+def estimate_prior_from_likelihood(
+    disparity_px,
+    ray_norm,
+    *,
+    error_model,
+    focal_baseline,
+    doffs_px=0.0,
+    voxel_size_m=0.1,
+    near_m=0.1,
+    far_depth_m=200.0,
+    max_rays=2000,
+    seed=0,
+    bounds=(1e-4, 0.9),
+):
     """``p0`` maximising the measurements' likelihood under PRISM's forward model.
 
     Each measured disparity has density ``Z(d^; lambda_z)`` (the normaliser of section 5, a proper density
@@ -66,18 +77,36 @@ def estimate_prior_from_likelihood(disparity_px, ray_norm, *, error_model, focal
     if disparity.size > max_rays:
         pick = np.random.default_rng(seed).choice(disparity.size, size=int(max_rays), replace=False)
         disparity, norm = disparity[pick], norm[pick]
-    model = PrismModel(error_model=error_model, focal_baseline=focal_baseline, doffs_px=doffs_px,
-                       voxel_size_m=voxel_size_m, near_m=near_m, far_depth_m=far_depth_m)
+    model = PrismModel(
+        error_model=error_model,
+        focal_baseline=focal_baseline,
+        doffs_px=doffs_px,
+        voxel_size_m=voxel_size_m,
+        near_m=near_m,
+        far_depth_m=far_depth_m,
+    )
     shift = disparity + model.doffs_px
     log_far = model._log_far(disparity)
     log_wn, means, sigmas = model._mixture_arrays()
 
     def negative_log_likelihood(log_p0):
         lam = -np.log1p(-np.exp(log_p0)) / model.voxel_size_m * norm
-        log_z = _kernels_direct.prism_log_evidence(shift, lam, model.near_m, model.far_depth_m, model.focal_baseline,
-                                                   model._ku(), _QUAD_STEP, log_far, log_wn, means, sigmas)
+        log_z = _kernels_direct.prism_log_evidence(
+            shift,
+            lam,
+            model.near_m,
+            model.far_depth_m,
+            model.focal_baseline,
+            model._ku(),
+            _QUAD_STEP,
+            log_far,
+            log_wn,
+            means,
+            sigmas,
+        )
         return -with_floor(log_z, error_model).sum()
 
-    result = minimize_scalar(negative_log_likelihood, bounds=(np.log(lo), np.log(hi)), method="bounded",
-                             options={"xatol": 1e-3})
+    result = minimize_scalar(
+        negative_log_likelihood, bounds=(np.log(lo), np.log(hi)), method="bounded", options={"xatol": 1e-3}
+    )
     return float(np.exp(result.x))

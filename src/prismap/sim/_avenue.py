@@ -56,19 +56,39 @@ def avenue_scene(*, seed=0):
         ((cross_lo, 40.0, 0.0), (cross_hi, 42.0, 15.0), tex["retina"], 0.08, (0.9, 0.8, 0.8)),  # down the side street
         ((cross_lo, -42.0, 0.0), (cross_hi, -40.0, 15.0), tex["text"], 0.06, (0.85, 0.85, 0.9)),
     ]
-    left_looks = [(tex["immunohistochemistry"], 0.06), (tex["retina"], 0.07), (tex["checkerboard"], 0.12),
-                  (tex["clock"], 0.05), (tex["cell"], 0.05), (noise + 2, 0.06)]
+    left_looks = [
+        (tex["immunohistochemistry"], 0.06),
+        (tex["retina"], 0.07),
+        (tex["checkerboard"], 0.12),
+        (tex["clock"], 0.05),
+        (tex["cell"], 0.05),
+        (noise + 2, 0.06),
+    ]
     for start, end in ((-10.0, cross_lo), (cross_hi, length)):  # the left row, broken by the side street
         x = start
         while x < end:
             size = min(rng.uniform(10.0, 18.0), end - x)
             near = 10.0 + rng.uniform(0.0, 0.5)
             texture, texel = left_looks[int(rng.integers(len(left_looks)))]
-            boxes.append(((x, near, 0.0), (x + size, near + 3.0, rng.uniform(12.0, 24.0)), texture, texel,
-                          rng.uniform(0.7, 1.0, 3)))
+            boxes.append(
+                (
+                    (x, near, 0.0),
+                    (x + size, near + 3.0, rng.uniform(12.0, 24.0)),
+                    texture,
+                    texel,
+                    rng.uniform(0.7, 1.0, 3),
+                )
+            )
             if size > 4.0:  # a shop front on the ground floor
-                boxes.append(((x + 1.0, near - 0.4, 0.0), (x + size - 1.0, near, 3.5), photos[int(rng.integers(10))],
-                              0.02, rng.uniform(0.6, 1.0, 3)))
+                boxes.append(
+                    (
+                        (x + 1.0, near - 0.4, 0.0),
+                        (x + size - 1.0, near, 3.5),
+                        photos[int(rng.integers(10))],
+                        0.02,
+                        rng.uniform(0.6, 1.0, 3),
+                    )
+                )
             x += size
     for start, end in ((-10.0, cross_lo), (cross_hi, length)):
         boxes.append(((start, -9.6, 0.12), (end, -9.5, 1.2), noise + 3, 0.01, (0.45, 0.5, 0.45)))  # fence
@@ -76,8 +96,15 @@ def avenue_scene(*, seed=0):
         x, depth = rng.uniform(-5.0, length - 15.0), rng.uniform(22.0, 30.0)
         if x + 15.0 > cross_lo and x < cross_hi:
             continue
-        boxes.append(((x, -depth - 8.0, 0.0), (x + rng.uniform(8.0, 15.0), -depth, rng.uniform(10.0, 25.0)),
-                      photos[int(rng.integers(10))], 0.1, rng.uniform(0.6, 0.9, 3)))
+        boxes.append(
+            (
+                (x, -depth - 8.0, 0.0),
+                (x + rng.uniform(8.0, 15.0), -depth, rng.uniform(10.0, 25.0)),
+                photos[int(rng.integers(10))],
+                0.1,
+                rng.uniform(0.6, 0.9, 3),
+            )
+        )
     for _ in range(5):  # park trees
         x, y = rng.uniform(0.0, length - 10.0), -rng.uniform(12.0, 20.0)
         boxes.append(((x - 0.15, y - 0.15, 0.0), (x + 0.15, y + 0.15, 3.0), noise, 0.02, (0.45, 0.35, 0.3)))
@@ -102,7 +129,8 @@ def avenue_scene(*, seed=0):
     boxes.append(((shelter, -9.3, 0.12), (shelter + 4.0, -9.2, 2.5), tex["text"], 0.01, (0.9, 0.9, 1.0)))  # back
     boxes.append(((shelter, -9.3, 2.5), (shelter + 4.0, -7.6, 2.65), noise + 1, 0.02, (0.7, 0.7, 0.75)))  # roof
     for x in np.arange(55.0, 70.0, 1.5):  # bollards: a repeated structure
-        boxes.append(((x - 0.1, -road - 0.5, 0.12), (x + 0.1, -road - 0.3, 1.0), tex["checkerboard"], 0.01,
-                      (0.8, 0.8, 0.8)))
+        boxes.append(
+            ((x - 0.1, -road - 0.5, 0.12), (x + 0.1, -road - 0.3, 1.0), tex["checkerboard"], 0.01, (0.8, 0.8, 0.8))
+        )
     lo, hi, texture, texel, tint = (np.array(column) for column in zip(*boxes))
     return Scene3D(lo, hi, texture, texel, tint, name=f"avenue-{seed}")

@@ -13,9 +13,15 @@ def scaled_camera(camera, scale):
     scale = check_positive(scale, "scale")
     if scale == 1.0:
         return camera
-    return StereoCamera(camera.focal_px * scale, (camera.cx_px + 0.5) * scale - 0.5, (camera.cy_px + 0.5) * scale - 0.5,
-                        camera.baseline_m, doffs_px=camera.doffs_px * scale, width=round(camera.width * scale),
-                        height=round(camera.height * scale))
+    return StereoCamera(
+        camera.focal_px * scale,
+        (camera.cx_px + 0.5) * scale - 0.5,
+        (camera.cy_px + 0.5) * scale - 0.5,
+        camera.baseline_m,
+        doffs_px=camera.doffs_px * scale,
+        width=round(camera.width * scale),
+        height=round(camera.height * scale),
+    )
 
 
 def tsukuba_camera(*, scale=1.0):

@@ -19,8 +19,17 @@ RANGE_SIGMA_M = 0.02
 """Standard deviation of the range noise (metres; a spinning LiDAR's 2 cm)."""
 
 
-def lidar_scan(scene, camera, T_world_cam, *, T_cam_lidar=None, beams=BEAMS, columns_per_pixel=1.5,
-               range_sigma_m=RANGE_SIGMA_M, rng=None):
+def lidar_scan(
+    scene,
+    camera,
+    T_world_cam,
+    *,
+    T_cam_lidar=None,
+    beams=BEAMS,
+    columns_per_pixel=1.5,
+    range_sigma_m=RANGE_SIGMA_M,
+    rng=None,
+):
     """A LiDAR scan covering the camera's view, in the LiDAR's frame.
 
     The beams are the rows of a pinhole view from the LiDAR's origin with the camera's orientation, 15 %
@@ -54,8 +63,14 @@ def lidar_scan(scene, camera, T_world_cam, *, T_cam_lidar=None, beams=BEAMS, col
     focal_u = camera.focal_px * columns_per_pixel
     focal_v = camera.focal_px * beams / (camera.height * 1.15)
     # a pinhole with separate horizontal and vertical focal lengths: cast square pixels, then scale v
-    view = StereoCamera(focal_u, (width - 1) / 2, (beams - 1) / 2 * focal_u / focal_v, camera.baseline_m,
-                        width=width, height=round(beams * focal_u / focal_v))
+    view = StereoCamera(
+        focal_u,
+        (width - 1) / 2,
+        (beams - 1) / 2 * focal_u / focal_v,
+        camera.baseline_m,
+        width=width,
+        height=round(beams * focal_u / focal_v),
+    )
     rows = np.round(np.arange(beams) * focal_u / focal_v).astype(int)
     rows = rows[rows < view.height]
     depth = scene.cast(view, np.asarray(T_world_cam, float) @ T_cam_lidar)[rows]
@@ -84,7 +99,8 @@ def lidar_disparity(scene, frame, *, T_cam_lidar=None, rng=None, **options):
     -------
     (H, W) float32, pixels, NaN where no visible point projects.
     """
-    points, T_cam_lidar = lidar_scan(scene, frame.camera, frame.T_world_cam, T_cam_lidar=T_cam_lidar, rng=rng,
-                                     **options)
+    points, T_cam_lidar = lidar_scan(
+        scene, frame.camera, frame.T_world_cam, T_cam_lidar=T_cam_lidar, rng=rng, **options
+    )
     points_cam = points @ T_cam_lidar[:3, :3].T + T_cam_lidar[:3, 3]
     return points_to_disparity(points_cam, frame.camera, occlusion_window_px=2)

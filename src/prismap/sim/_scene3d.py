@@ -144,19 +144,35 @@ class Scene3D:
         """
         return ground_truth(self.box_lo, self.box_hi, frames, voxel_size_m, max_depth_m=max_depth_m)
 
-    def pass_through_ratio(self, frames, voxel_size_m, *, max_depth_m=np.inf, subsample=1, ray_classes=None,
-                           n_classes=None):
+    def pass_through_ratio(
+        self, frames, voxel_size_m, *, max_depth_m=np.inf, subsample=1, ray_classes=None, n_classes=None
+    ):
         """How often a ray crosses an occupied voxel without meeting its surface there, seen by ``frames``
         (see ``prismap.sim._truth.pass_through_ratio``): PRISM's ``pass_through`` for this world, or with
         ``ray_classes`` one per pixel class (``class_pass_through``)."""
-        return pass_through_ratio(self.box_lo, self.box_hi, frames, voxel_size_m, max_depth_m=max_depth_m,
-                                  subsample=subsample, ray_classes=ray_classes, n_classes=n_classes)
+        return pass_through_ratio(
+            self.box_lo,
+            self.box_hi,
+            frames,
+            voxel_size_m,
+            max_depth_m=max_depth_m,
+            subsample=subsample,
+            ray_classes=ray_classes,
+            n_classes=n_classes,
+        )
 
     def solid_depth(self, frames, voxel_size_m, *, max_depth_m=np.inf, subsample=1, quantile=SOLID_DEPTH_QUANTILE):
         """Depth of solid behind all but ``quantile`` of the noise-free hits of ``frames`` (metres along the
         ray; see ``prismap.sim._truth.solid_depth``): PRISM's ``solid_depth_m`` for this world."""
-        return solid_depth(self.box_lo, self.box_hi, frames, voxel_size_m, max_depth_m=max_depth_m,
-                           subsample=subsample, quantile=quantile)
+        return solid_depth(
+            self.box_lo,
+            self.box_hi,
+            frames,
+            voxel_size_m,
+            max_depth_m=max_depth_m,
+            subsample=subsample,
+            quantile=quantile,
+        )
 
 
 ROOM_M = (14.0, 9.0, 3.0)  # interior of the indoor scene: x, y, z extents from the origin
@@ -224,8 +240,12 @@ def indoor_trajectory(n_frames=40, *, seed=0):
     -------
     T_world_cam : (n_frames, 4, 4) float64
     """
-    n_frames = check_integer(n_frames, "n_frames", expected=f"an integer in [1, {MAX_INDOOR_FRAMES}] (one frame per "
-                             "degree of the loop at most)", condition=lambda n: 1 <= n <= MAX_INDOOR_FRAMES)
+    n_frames = check_integer(
+        n_frames,
+        "n_frames",
+        expected=f"an integer in [1, {MAX_INDOOR_FRAMES}] (one frame per degree of the loop at most)",
+        condition=lambda n: 1 <= n <= MAX_INDOOR_FRAMES,
+    )
     rng = np.random.default_rng(seed)
     amplitude, phase = rng.uniform(-0.05, 0.05, 2), rng.uniform(0, 2 * np.pi, 3)
     angle = np.linspace(0.0, 2 * np.pi, int(n_frames), endpoint=False)

@@ -81,8 +81,16 @@ def street_scene(*, seed=0):
         ((-10.0, -facade - 1.5, 0.0), (length, -road, 0.15), noise, 0.05, (0.85, 0.8, 0.75)),  # right pavement
         ((length, -back, 0.0), (length + depth, back, 14.0), tex["brick"], 0.08, (0.9, 0.75, 0.65)),  # far end
     ]
-    facade_looks = [(tex["brick"], 0.05), (tex["coffee"], 0.04), (tex["rocket"], 0.05), (tex["chelsea"], 0.04),
-                    (tex["astronaut"], 0.05), (noise + 1, 0.05), (noise + 2, 0.06), (tex["camera"], 0.04)]
+    facade_looks = [
+        (tex["brick"], 0.05),
+        (tex["coffee"], 0.04),
+        (tex["rocket"], 0.05),
+        (tex["chelsea"], 0.04),
+        (tex["astronaut"], 0.05),
+        (noise + 1, 0.05),
+        (noise + 2, 0.06),
+        (tex["camera"], 0.04),
+    ]
     for side in (1.0, -1.0):  # a row of buildings on each side
         x = -10.0
         while x < length:
@@ -102,8 +110,9 @@ def street_scene(*, seed=0):
             texture, tint = int(rng.integers(n_textures)), rng.uniform(0.3, 1.0, 3)
             boxes.append(((x, y0, 0.2), (x + car_length, y1, 0.95), texture, 0.02, tint))  # body
             inset = 0.6
-            boxes.append(((x + inset + 0.3, y0 + 0.1, 0.95), (x + car_length - inset, y1 - 0.1, 1.5), texture, 0.02,
-                          0.6 * tint))  # cabin
+            boxes.append(
+                ((x + inset + 0.3, y0 + 0.1, 0.95), (x + car_length - inset, y1 - 0.1, 1.5), texture, 0.02, 0.6 * tint)
+            )  # cabin
             x += car_length + rng.uniform(1.0, 9.0)
     for side in (1.0, -1.0):  # street-light poles
         for x in np.arange(7.0, length - 3.0, 14.0):
@@ -152,8 +161,10 @@ def street_trajectory(n_frames=12, *, step_m=1.0, seed=0, start_m=DRIVE_START_M)
     n = int(n_frames)
     end = start + step * (n - 1)
     if end > STREET_LENGTH_M - 30.0:
-        raise PrismapInputError(f"{n} frames of {step} m end at x = {end:g} m: the street allows up to "
-                                f"x = {STREET_LENGTH_M - 30.0:g} m (fewer frames or a shorter `step_m`)")
+        raise PrismapInputError(
+            f"{n} frames of {step} m end at x = {end:g} m: the street allows up to "
+            f"x = {STREET_LENGTH_M - 30.0:g} m (fewer frames or a shorter `step_m`)"
+        )
     rng = np.random.default_rng(seed)
     phase = rng.uniform(0.0, 2.0 * np.pi, 2)
     x = start + step * np.arange(n)
@@ -162,8 +173,9 @@ def street_trajectory(n_frames=12, *, step_m=1.0, seed=0, start_m=DRIVE_START_M)
     slope = 0.3 * 2.0 * np.pi / wavelength * np.cos(2.0 * np.pi * x / wavelength + phase[0])
     heading = np.arctan(slope) + np.radians(1.5) * np.sin(2.0 * np.pi * x / 40.0 + phase[1])
     pitch = np.radians(1.5 + 0.5 * np.sin(2.0 * np.pi * x / 17.0 + phase[1]))
-    return np.array([pose_from_heading((a, b, CAMERA_HEIGHT_M), h, pitch_rad=p)
-                     for a, b, h, p in zip(x, y, heading, pitch)])
+    return np.array(
+        [pose_from_heading((a, b, CAMERA_HEIGHT_M), h, pitch_rad=p) for a, b, h, p in zip(x, y, heading, pitch)]
+    )
 
 
 def street_trajectory_between(n_frames, n_between, *, step_m=1.0, seed=0):
@@ -188,6 +200,9 @@ def street_trajectory_between(n_frames, n_between, *, step_m=1.0, seed=0):
     T_world_cam : (n_between, 4, 4) float64
     """
     n = check_integer(n_frames, "n_frames", expected="a positive integer", condition=lambda k: k >= 1)
-    step = n * check_real(step_m, "step_m", minimum=0.0) / check_integer(
-        n_between, "n_between", expected="a positive integer", condition=lambda k: k >= 1)
+    step = (
+        n
+        * check_real(step_m, "step_m", minimum=0.0)
+        / check_integer(n_between, "n_between", expected="a positive integer", condition=lambda k: k >= 1)
+    )
     return street_trajectory(n_between, step_m=step, start_m=DRIVE_START_M + 0.5 * step, seed=seed)

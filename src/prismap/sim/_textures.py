@@ -8,8 +8,18 @@ import numpy as np
 TEXTURE_SIZE = 256
 PHOTOGRAPHS = ("astronaut", "camera", "coffee", "chelsea", "rocket", "brick", "grass", "gravel")
 N_NOISE = 4
-OTHER_PHOTOGRAPHS = ("hubble_deep_field", "immunohistochemistry", "coins", "page", "moon", "retina", "text", "clock",
-                     "cell", "checkerboard")
+OTHER_PHOTOGRAPHS = (
+    "hubble_deep_field",
+    "immunohistochemistry",
+    "coins",
+    "page",
+    "moon",
+    "retina",
+    "text",
+    "clock",
+    "cell",
+    "checkerboard",
+)
 """Photographs only the avenue world wears (bank indices from :data:`FIRST_OTHER`), so that a model tuned on the
 street meets textures it never saw; ``checkerboard`` is a repeated pattern, a matcher's classic failure."""
 FIRST_OTHER = len(PHOTOGRAPHS) + N_NOISE

@@ -52,9 +52,17 @@ def ground_truth(box_lo, box_hi, frames, voxel_size_m, *, planar=False, max_dept
     for index, frame in enumerate(frames):
         camera, pose, depth = _true_view(index, frame)
         mark_visible(
-            seen, bounds_lo, voxel, 0.0 if planar else np.nan, np.ascontiguousarray(pose[:3, :3]),
+            seen,
+            bounds_lo,
+            voxel,
+            0.0 if planar else np.nan,
+            np.ascontiguousarray(pose[:3, :3]),
             np.ascontiguousarray(pose[:3, 3]),
-            camera.focal_px, camera.cx_px, camera.cy_px, np.where(np.isnan(depth), np.inf, depth), max_depth,
+            camera.focal_px,
+            camera.cx_px,
+            camera.cy_px,
+            np.where(np.isnan(depth), np.inf, depth),
+            max_depth,
         )
         hit = np.isfinite(depth) & (depth <= max_depth)
         points_w = (camera.pixel_rays(depth.shape)[hit] * depth[hit, None]) @ pose[:3, :3].T + pose[:3, 3]
@@ -91,7 +99,9 @@ def _occupied_volume(box_lo, box_hi, voxel_size_m, planar):
         bounds_lo[2] = bounds_hi[2] = 0
     shape = tuple(int(n) for n in bounds_hi - bounds_lo + 1)
     if np.prod(shape, dtype=np.float64) > 2e8:
-        raise PrismapInputError(f"`voxel_size_m` = {voxel_size_m} gives {shape} voxels over the world: choose a larger one")
+        raise PrismapInputError(
+            f"`voxel_size_m` = {voxel_size_m} gives {shape} voxels over the world: choose a larger one"
+        )
     occupied = np.zeros(shape, dtype=np.bool_)
     for lo, hi in zip(key_lo - bounds_lo, key_hi - bounds_lo):
         if planar:
@@ -100,8 +110,9 @@ def _occupied_volume(box_lo, box_hi, voxel_size_m, planar):
     return occupied, bounds_lo
 
 
-def pass_through_ratio(box_lo, box_hi, frames, voxel_size_m, *, max_depth_m=np.inf, subsample=1, ray_classes=None,
-                       n_classes=None):
+def pass_through_ratio(
+    box_lo, box_hi, frames, voxel_size_m, *, max_depth_m=np.inf, subsample=1, ray_classes=None, n_classes=None
+):
     """How often a ray crosses an occupied voxel without meeting its surface there: PRISM's ``pass_through``.
 
     A voxel is occupied when any part of a solid lies in it, so a ray can cross one and go on (a table's
@@ -172,8 +183,9 @@ def _ray_class_labels(ray_classes, n_classes, frames):
         if n_classes is not None:
             raise PrismapInputError(f"`n_classes` ({n_classes!r}) needs `ray_classes`")
         return None
-    count = check_integer(n_classes, "n_classes", expected="an integer >= 1 with `ray_classes`",
-                          condition=lambda n: n >= 1)
+    count = check_integer(
+        n_classes, "n_classes", expected="an integer >= 1 with `ray_classes`", condition=lambda n: n >= 1
+    )
     labels = list(ray_classes)
     if len(labels) != len(frames):
         raise PrismapInputError(f"`ray_classes` must hold one array per frame ({len(frames)}); got {len(labels)}")
@@ -182,17 +194,22 @@ def _ray_class_labels(ray_classes, n_classes, frames):
         label = np.asarray(label)
         shape = np.shape(frame.disparity_gt)
         if label.shape != shape or not np.issubdtype(label.dtype, np.integer):
-            raise PrismapInputError(f"`ray_classes[{index}]` must be integers of the frame's shape {shape}; got "
-                                    f"shape {label.shape}, dtype {label.dtype}")
+            raise PrismapInputError(
+                f"`ray_classes[{index}]` must be integers of the frame's shape {shape}; got "
+                f"shape {label.shape}, dtype {label.dtype}"
+            )
         if label.size and (label.min() < -1 or label.max() >= count):
-            raise PrismapInputError(f"`ray_classes[{index}]` must lie in [-1, {count - 1}]; got values in "
-                                    f"[{label.min()}, {label.max()}]")
+            raise PrismapInputError(
+                f"`ray_classes[{index}]` must lie in [-1, {count - 1}]; got values in [{label.min()}, {label.max()}]"
+            )
         checked.append(label.astype(np.int64))
     return checked
 
 
 _STEP_M = 1e-6  # how far past a box's exit face the march looks for the next box (metres)
-_ENTRY_M = 1e-3  # the march starts this far behind the hit: a depth from a float32 disparity misses the face by up to ~1e-4 m
+_ENTRY_M = (
+    1e-3  # the march starts this far behind the hit: a depth from a float32 disparity misses the face by up to ~1e-4 m
+)
 _MAX_BOXES = 64  # most boxes one ray marches through before its depth counts as ``cap_m``
 
 
@@ -245,7 +262,9 @@ def solid_depth_along_rays(box_lo, box_hi, origins_w, directions_w, hit_m, *, ca
         inside = np.all((points[:, None, :] >= lo - tolerance) & (points[:, None, :] <= hi + tolerance), axis=2)
         # exit distance of each box along the ray (slab method): the nearest face ahead on each axis
         face = np.where(directions[rows, None, :] > 0, hi, lo)
-        exit_axis = np.where(directions[rows, None, :] != 0, (face - points[:, None, :]) * inverse[rows, None, :], np.inf)
+        exit_axis = np.where(
+            directions[rows, None, :] != 0, (face - points[:, None, :]) * inverse[rows, None, :], np.inf
+        )
         exit_m = np.where(inside, exit_axis.min(axis=2), -np.inf).max(axis=1)
         stop = ~np.isfinite(exit_m)  # in no box (or in none along this ray)
         t[rows[~stop]] += np.maximum(exit_m[~stop], 0.0) + _STEP_M
@@ -255,8 +274,9 @@ def solid_depth_along_rays(box_lo, box_hi, origins_w, directions_w, hit_m, *, ca
     return np.where(entered, np.clip(t - hit, 0.0, cap), 0.0)
 
 
-def solid_depth(box_lo, box_hi, frames, voxel_size_m, *, max_depth_m=np.inf, subsample=1,
-                quantile=SOLID_DEPTH_QUANTILE):
+def solid_depth(
+    box_lo, box_hi, frames, voxel_size_m, *, max_depth_m=np.inf, subsample=1, quantile=SOLID_DEPTH_QUANTILE
+):
     """PRISM's ``solid_depth_m`` of a box world: the ``quantile`` of the solid depth behind noise-free hits.
 
     Surfaces are the faces of solids (docs/SENSOR_MODELS.md, "Solid depth"). Every ``subsample``-th pixel of
@@ -287,8 +307,16 @@ def solid_depth(box_lo, box_hi, frames, voxel_size_m, *, max_depth_m=np.inf, sub
         hit = np.isfinite(depth) & (depth <= max_depth_m)
         norm = np.linalg.norm(rays_cam[hit], axis=1)
         directions = (rays_cam[hit] / norm[:, None]) @ pose[:3, :3].T
-        depths.append(solid_depth_along_rays(box_lo, box_hi, np.broadcast_to(pose[:3, 3], directions.shape),
-                                             directions, depth[hit] * norm, cap_m=SOLID_DEPTH_CAP_VOXELS * voxel))
+        depths.append(
+            solid_depth_along_rays(
+                box_lo,
+                box_hi,
+                np.broadcast_to(pose[:3, 3], directions.shape),
+                directions,
+                depth[hit] * norm,
+                cap_m=SOLID_DEPTH_CAP_VOXELS * voxel,
+            )
+        )
     depths = np.concatenate(depths) if depths else np.empty(0)
     if depths.size == 0:
         raise PrismapInputError("no ray of `frames` meets a surface within `max_depth_m`: no solid depth")

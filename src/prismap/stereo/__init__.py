@@ -9,5 +9,11 @@ from prismap.stereo._base import (
     search_range,
 )
 
-__all__ = ["StereoMatcher", "left_right_check", "left_right_disagreement", "make_matcher", "matcher_names",
-           "search_range"]
+__all__ = [
+    "StereoMatcher",
+    "left_right_check",
+    "left_right_disagreement",
+    "make_matcher",
+    "matcher_names",
+    "search_range",
+]

@@ -166,8 +166,12 @@ def linearise_data_term(left, right, right_dx, disparity, eps2, out_a, out_b):
             b = 0.0
             for c in range(channels):
                 warped = c0 * right[c, i, k0] + c1 * right[c, i, k] + c2 * right[c, i, k + 1] + c3 * right[c, i, k3]
-                grad = (c0 * right_dx[c, i, k0] + c1 * right_dx[c, i, k] + c2 * right_dx[c, i, k + 1]
-                        + c3 * right_dx[c, i, k3])
+                grad = (
+                    c0 * right_dx[c, i, k0]
+                    + c1 * right_dx[c, i, k]
+                    + c2 * right_dx[c, i, k + 1]
+                    + c3 * right_dx[c, i, k3]
+                )
                 r = warped - left[c, i, j]
                 weight = 1.0 if eps2 == 0.0 else 1.0 / np.sqrt(1.0 + r * r / eps2)
                 a += weight * grad * grad

@@ -26,10 +26,15 @@ class _OpenCVMatcher(StereoMatcher):
     def __init__(self, *, min_disparity, num_disparities, block_size, left_right_check, lr_max_difference_px):
         lr_max = check_real(lr_max_difference_px, "lr_max_difference_px", minimum=0.0)
         self.min_disparity = check_integer(min_disparity, "min_disparity")
-        self.num_disparities = check_integer(num_disparities, "num_disparities", expected="a positive multiple of 16",
-                                             condition=lambda n: n > 0 and n % 16 == 0)
-        self.block_size = check_integer(block_size, "block_size", expected="an odd positive integer",
-                                        condition=lambda n: n > 0 and n % 2)
+        self.num_disparities = check_integer(
+            num_disparities,
+            "num_disparities",
+            expected="a positive multiple of 16",
+            condition=lambda n: n > 0 and n % 16 == 0,
+        )
+        self.block_size = check_integer(
+            block_size, "block_size", expected="an odd positive integer", condition=lambda n: n > 0 and n % 2
+        )
         self.left_right_check = bool(left_right_check)
         self.lr_max_difference_px = lr_max
 
@@ -66,9 +71,11 @@ class _OpenCVMatcher(StereoMatcher):
                 f"{left.shape[1]} px (no pixel could be matched)"
             )
         height, width = left.shape[:2]
-        check_memory(height * width * MATCH_BYTES_PER_PIXEL * (2 if self.left_right_check else 1),
-                     f"{self.name}: matching a {width}x{height} pair",
-                     fix="use smaller images (MAX_IMAGE_PIXELS bounds decoding; matching needs the memory budget too)")
+        check_memory(
+            height * width * MATCH_BYTES_PER_PIXEL * (2 if self.left_right_check else 1),
+            f"{self.name}: matching a {width}x{height} pair",
+            fix="use smaller images (MAX_IMAGE_PIXELS bounds decoding; matching needs the memory budget too)",
+        )
         matcher = self._create(channels=1 if left.ndim == 2 else left.shape[2])
         disparity = self._to_float(matcher.compute(left, right))
         if not self.left_right_check:
@@ -172,16 +179,20 @@ class BlockMatcher(_OpenCVMatcher):
             left_right_check=left_right_check,
             lr_max_difference_px=lr_max_difference_px,
         )
-        check_integer(block_size, "block_size", expected="odd in 5..255 for block matching", condition=lambda n: 5 <= n <= 255)
+        check_integer(
+            block_size, "block_size", expected="odd in 5..255 for block matching", condition=lambda n: 5 <= n <= 255
+        )
         if pre_filter_type not in self._PRE_FILTERS:
             raise PrismapInputError(
                 f"`pre_filter_type` must be one of {list(self._PRE_FILTERS)}; got {pre_filter_type!r}"
             )
         self.pre_filter_type = pre_filter_type
-        self.pre_filter_size = check_integer(pre_filter_size, "pre_filter_size", expected="odd in 5..255",
-                                             condition=lambda n: 5 <= n <= 255 and n % 2)
-        self.pre_filter_cap = check_integer(pre_filter_cap, "pre_filter_cap", expected="an integer in 1..63",
-                                            condition=lambda n: 1 <= n <= 63)
+        self.pre_filter_size = check_integer(
+            pre_filter_size, "pre_filter_size", expected="odd in 5..255", condition=lambda n: 5 <= n <= 255 and n % 2
+        )
+        self.pre_filter_cap = check_integer(
+            pre_filter_cap, "pre_filter_cap", expected="an integer in 1..63", condition=lambda n: 1 <= n <= 63
+        )
         self.texture_threshold = _non_negative(texture_threshold, "texture_threshold")
         self.uniqueness_ratio = _non_negative(uniqueness_ratio, "uniqueness_ratio")
         self.speckle_window_size = _non_negative(speckle_window_size, "speckle_window_size")

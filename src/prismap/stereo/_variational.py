@@ -15,8 +15,24 @@ _PENALTIES = {
 }
 _CYCLES = ("v", "none")
 _PARAMETERS = (
-    "levels", "pyr_scale", "n_iter", "n_sweeps", "min_disparity", "max_disparity", "poly_n", "poly_sigma", "fi",
-    "lambda_", "penalization", "cycle", "median_radius", "gamma", "data_epsilon", "census_radius", "sgm_p1", "sgm_p2",
+    "levels",
+    "pyr_scale",
+    "n_iter",
+    "n_sweeps",
+    "min_disparity",
+    "max_disparity",
+    "poly_n",
+    "poly_sigma",
+    "fi",
+    "lambda_",
+    "penalization",
+    "cycle",
+    "median_radius",
+    "gamma",
+    "data_epsilon",
+    "census_radius",
+    "sgm_p1",
+    "sgm_p2",
 )
 _COARSEST_GRID_PX = 8  # the multigrid hierarchy stops once a side would drop below this
 
@@ -228,7 +244,9 @@ class VariationalMatcher(StereoMatcher):
     def _features(self, image):
         """(K, H, W) float32 features of one level: the (smoothed) grey image, then its weighted derivatives."""
         if self.poly_sigma > 0.0 and self.poly_n > 1:
-            image = cv2.GaussianBlur(image, (self.poly_n, self.poly_n), self.poly_sigma, borderType=cv2.BORDER_REPLICATE)
+            image = cv2.GaussianBlur(
+                image, (self.poly_n, self.poly_n), self.poly_sigma, borderType=cv2.BORDER_REPLICATE
+            )
         channels = [image]
         if self.gamma > 0.0:
             root = np.float32(np.sqrt(self.gamma))

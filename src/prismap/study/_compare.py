@@ -44,8 +44,9 @@ def check_distances(distances_m, setup, far_depth_m):
     if not distances:
         raise PrismapInputError("`distances_m` is empty")
     if len(distances) > MAX_DISTANCES:
-        raise PrismapInputError(f"`distances_m` holds {len(distances)} distances; at most {MAX_DISTANCES} "
-                                "(MAX_DISTANCES)")
+        raise PrismapInputError(
+            f"`distances_m` holds {len(distances)} distances; at most {MAX_DISTANCES} (MAX_DISTANCES)"
+        )
     limit = min(setup.focal_baseline / MIN_DISPARITY_PX, far_depth_m / INFLUENCE_REACH)
     if distances[-1] > limit:
         raise PrismapInputError(
@@ -74,8 +75,16 @@ class ModelsCompareRun:
     comparison: object
 
 
-def run_models_compare(error_model, out_dir, *, camera="middlebury-motorcycle", voxel_size_m=0.1, p0=0.05,
-                       distances_m=(2.0, 5.0, 10.0, 20.0), source=""):
+def run_models_compare(
+    error_model,
+    out_dir,
+    *,
+    camera="middlebury-motorcycle",
+    voxel_size_m=0.1,
+    p0=0.05,
+    distances_m=(2.0, 5.0, 10.0, 20.0),
+    source="",
+):
     """Profiles, PRISM sweeps, influence distances and divergences of every model, written to ``out_dir``.
 
     Parameters
@@ -100,8 +109,10 @@ def run_models_compare(error_model, out_dir, *, camera="middlebury-motorcycle", 
     from prismap.plots import plot_divergence, plot_influence, plot_prism_sweeps, plot_ray_profiles
 
     if isinstance(camera, StereoCamera):
-        label, rig = "custom", {"focal_px": camera.focal_px, "baseline_m": camera.baseline_m,
-                                "doffs_px": camera.doffs_px}
+        label, rig = (
+            "custom",
+            {"focal_px": camera.focal_px, "baseline_m": camera.baseline_m, "doffs_px": camera.doffs_px},
+        )
     elif camera in CAMERAS:
         label, rig = camera, CAMERAS[camera]
     else:
@@ -109,8 +120,9 @@ def run_models_compare(error_model, out_dir, *, camera="middlebury-motorcycle", 
     voxel = check_positive(voxel_size_m, "voxel_size_m")
     p0 = check_probability(p0, "p0")
     mixture = error_model.mixture
-    setup = RaySetup(focal_baseline=rig["focal_px"] * rig["baseline_m"], doffs_px=rig["doffs_px"],
-                     voxel_size_m=voxel, p0=p0)
+    setup = RaySetup(
+        focal_baseline=rig["focal_px"] * rig["baseline_m"], doffs_px=rig["doffs_px"], voxel_size_m=voxel, p0=p0
+    )
     distances = check_distances(distances_m, setup, PrismModel.far_depth_m)
     out = Path(out_dir)
     paths = {key: out / name for key, name in COMPARE_FILES.items()}
@@ -120,8 +132,13 @@ def run_models_compare(error_model, out_dir, *, camera="middlebury-motorcycle", 
     plot_ray_profiles(comparison, path=paths["profiles"])
     steps.update()
     by_g = {fit.n_components: fit.mixture for fit in error_model.fits}
-    sweeps = prism_sweeps(mixture, setup=setup, distances_m=distances, reference_m=float(np.median(distances)),
-                          mixtures_by_components=by_g)
+    sweeps = prism_sweeps(
+        mixture,
+        setup=setup,
+        distances_m=distances,
+        reference_m=float(np.median(distances)),
+        mixtures_by_components=by_g,
+    )
     plot_prism_sweeps(sweeps, path=paths["sweeps"])
     steps.update()
     influence = influence_distances(mixture, np.linspace(1.0, 1.5 * max(distances), 16), setup=setup)
@@ -131,25 +148,46 @@ def run_models_compare(error_model, out_dir, *, camera="middlebury-motorcycle", 
     steps.update()
     steps.close()
 
-    header = (f"Error model {source} ({error_model.matcher} on {error_model.dataset}, G = "
-              f"{error_model.selected_components}); camera {label}: f*b = {setup.focal_baseline:.3f} px*m, "
-              f"doffs = {rig['doffs_px']:g} px; cells of {voxel:g} m, p0 = {p0:g}; single-noise sigma "
-              f"{comparison.noise_sigma_px:.3f} px (largest-weight component)" + _failure_note(mixture) + ".")
+    header = (
+        f"Error model {source} ({error_model.matcher} on {error_model.dataset}, G = "
+        f"{error_model.selected_components}); camera {label}: f*b = {setup.focal_baseline:.3f} px*m, "
+        f"doffs = {rig['doffs_px']:g} px; cells of {voxel:g} m, p0 = {p0:g}; single-noise sigma "
+        f"{comparison.noise_sigma_px:.3f} px (largest-weight component)" + _failure_note(mixture) + "."
+    )
     influence_rows = ["| measured (m) | bound behind (m) | observed behind (m) |", "|---:|---:|---:|"]
     influence_rows += [f"| {m:.2f} | {b:.2f} | {o:.2f} |" for m, b, o in zip(*influence)]
-    tables = "\n".join([
-        "# Sensor models against PRISM", "", header, "",
-        "## Divergence from PRISM", "",
-        "Over the cells either model updates, from the camera to the larger influence depth. Cleared occupancy: "
-        "PRISM's expected occupied cells among those the model pushes toward free.", "",
-        comparison.to_markdown(), "## PRISM's maximum influence distance", "", "\n".join(influence_rows), "",
-        "Per-cell costs of the models: `benchmarks/bench_models_table.py`.", "",
-    ])
+    tables = "\n".join(
+        [
+            "# Sensor models against PRISM",
+            "",
+            header,
+            "",
+            "## Divergence from PRISM",
+            "",
+            "Over the cells either model updates, from the camera to the larger influence depth. Cleared occupancy: "
+            "PRISM's expected occupied cells among those the model pushes toward free.",
+            "",
+            comparison.to_markdown(),
+            "## PRISM's maximum influence distance",
+            "",
+            "\n".join(influence_rows),
+            "",
+            "Per-cell costs of the models: `benchmarks/bench_models_table.py`.",
+            "",
+        ]
+    )
     write_text_atomic(paths["tables"], tables)
-    record = {"error_model": source, "camera": label, "comparison": comparison.to_dict(),
-              "failure": {"weight": mixture.failure_weight, "search_range_px": mixture.search_range_px,
-                          "floor": failure_floor(mixture)},
-              "influence": {k: v.tolist() for k, v in zip(("measured_m", "bound_m", "observed_m"), influence)}}
+    record = {
+        "error_model": source,
+        "camera": label,
+        "comparison": comparison.to_dict(),
+        "failure": {
+            "weight": mixture.failure_weight,
+            "search_range_px": mixture.search_range_px,
+            "floor": failure_floor(mixture),
+        },
+        "influence": {k: v.tolist() for k, v in zip(("measured_m", "bound_m", "observed_m"), influence)},
+    }
     write_text_atomic(paths["json"], json.dumps(record, indent=2) + "\n")
     return ModelsCompareRun(paths, header, comparison)
 
@@ -159,5 +197,7 @@ def _failure_note(mixture):
     if mixture.search_range_px is None:
         return "; no matcher-failure component (a format-1/2 model: Gaussian tails only)"
     lo, hi = mixture.search_range_px
-    return (f"; matcher failures w_f = {mixture.failure_weight:.2e} uniform over {lo:g}..{hi:g} px "
-            f"(W = {hi - lo:g} px), least failure posterior eps = {failure_floor(mixture):.2e}")
+    return (
+        f"; matcher failures w_f = {mixture.failure_weight:.2e} uniform over {lo:g}..{hi:g} px "
+        f"(W = {hi - lo:g} px), least failure posterior eps = {failure_floor(mixture):.2e}"
+    )

@@ -118,13 +118,23 @@ def study_models(mixture, *, setup, names=None, prism_method="direct"):
     """
     if not isinstance(mixture, GaussianMixture):
         raise PrismapInputError(f"`mixture` must be a GaussianMixture; got {type(mixture).__name__}")
-    common = {"focal_baseline": setup.focal_baseline, "doffs_px": setup.doffs_px,
-              "voxel_size_m": setup.voxel_size_m, "p0": setup.p0}
+    common = {
+        "focal_baseline": setup.focal_baseline,
+        "doffs_px": setup.doffs_px,
+        "voxel_size_m": setup.voxel_size_m,
+        "p0": setup.p0,
+    }
     models = {}
     for name in model_names() if names is None else names:
         if name == "prism":
-            model = make_sensor_model(name, error_model=mixture, near_m=setup.near_m, method=prism_method,
-                                      influence_epsilon=setup.epsilon, **common)
+            model = make_sensor_model(
+                name,
+                error_model=mixture,
+                near_m=setup.near_m,
+                method=prism_method,
+                influence_epsilon=setup.epsilon,
+                **common,
+            )
         else:
             model = make_sensor_model(name, **common)
             if hasattr(model, "sigma_px"):
@@ -210,8 +220,12 @@ def divergence(profile, name, *, reference="prism"):
     q = np.clip(profile.posterior[name][cells], KL_CLIP, 1.0 - KL_CLIP)
     kl = rel_entr(p, q) + rel_entr(1.0 - p, 1.0 - q)
     cleared = profile.increment[name][cells] < 0
-    return {"mad": float(np.abs(p - q).mean()), "kl": float(kl.mean()), "cleared": float(p[cleared].sum()),
-            "n_cells": int(cells.sum())}
+    return {
+        "mad": float(np.abs(p - q).mean()),
+        "kl": float(kl.mean()),
+        "cleared": float(p[cleared].sum()),
+        "n_cells": int(cells.sum()),
+    }
 
 
 @dataclass(frozen=True)
@@ -243,18 +257,27 @@ class ModelComparison:
             "distances_m": self.distances_m.tolist(),
             "measured_m": [p.measured_m for p in self.profiles],
             "disparity_px": [p.disparity_px for p in self.profiles],
-            "influence_m": {name: [p.influence_m[name] for p in self.profiles] for name in self.profiles[0].influence_m},
-            "divergences": {name: {k: v.tolist() for k, v in metrics.items()} for name, metrics in self.divergences.items()},
+            "influence_m": {
+                name: [p.influence_m[name] for p in self.profiles] for name in self.profiles[0].influence_m
+            },
+            "divergences": {
+                name: {k: v.tolist() for k, v in metrics.items()} for name, metrics in self.divergences.items()
+            },
         }
 
     def to_markdown(self):
         """Markdown table: one row per model and distance with MAD, KL and cleared occupancy."""
-        lines = ["| model | distance (m) | mean abs. diff. of P | mean KL(PRISM \\|\\| model) (nats) | "
-                 "cleared occupancy (cells) |", "|---|---:|---:|---:|---:|"]
+        lines = [
+            "| model | distance (m) | mean abs. diff. of P | mean KL(PRISM \\|\\| model) (nats) | "
+            "cleared occupancy (cells) |",
+            "|---|---:|---:|---:|---:|",
+        ]
         for name, metrics in self.divergences.items():
             for i, profile in enumerate(self.profiles):
-                lines.append(f"| {name} | {profile.measured_m:.2f} | {metrics['mad'][i]:.4f} | "
-                             f"{metrics['kl'][i]:.4f} | {metrics['cleared'][i]:.3f} |")
+                lines.append(
+                    f"| {name} | {profile.measured_m:.2f} | {metrics['mad'][i]:.4f} | "
+                    f"{metrics['kl'][i]:.4f} | {metrics['cleared'][i]:.3f} |"
+                )
         return "\n".join(lines) + "\n"
 
 
@@ -320,8 +343,16 @@ def influence_distances(mixture, distances_m, *, setup):
     return np.array(measured), np.array(bound), np.array(observed)
 
 
-def prism_sweeps(mixture, *, setup, distances_m=(2.0, 5.0, 10.0, 20.0), reference_m=10.0,
-                 noise_scales=(0.5, 1.0, 2.0, 4.0), cell_sizes_m=(0.05, 0.1, 0.2, 0.4), mixtures_by_components=None):
+def prism_sweeps(
+    mixture,
+    *,
+    setup,
+    distances_m=(2.0, 5.0, 10.0, 20.0),
+    reference_m=10.0,
+    noise_scales=(0.5, 1.0, 2.0, 4.0),
+    cell_sizes_m=(0.05, 0.1, 0.2, 0.4),
+    mixtures_by_components=None,
+):
     """PRISM's profile as one thing changes at a time (thesis figs 5.11-5.15).
 
     Parameters
@@ -345,6 +376,7 @@ def prism_sweeps(mixture, *, setup, distances_m=(2.0, 5.0, 10.0, 20.0), referenc
     dict of str -> list of (label, RayProfile)
         Keys ``distance``, ``noise``, ``cell size`` and (if given) ``components``.
     """
+
     def prism_profile(mix, ray_setup, distance):
         models = study_models(mix, setup=ray_setup, names=["prism"])
         return ray_profile(models, ray_setup.disparity_at(distance), setup=ray_setup)
@@ -356,11 +388,17 @@ def prism_sweeps(mixture, *, setup, distances_m=(2.0, 5.0, 10.0, 20.0), referenc
         "cell size": [(f"{c:g} m", prism_profile(mixture, setup.with_cell_size(c), reference)) for c in cell_sizes_m],
     }
     if mixtures_by_components:
-        sweeps["components"] = [(f"G = {g}", prism_profile(mix, setup, reference))
-                                for g, mix in sorted(mixtures_by_components.items())]
+        sweeps["components"] = [
+            (f"G = {g}", prism_profile(mix, setup, reference)) for g, mix in sorted(mixtures_by_components.items())
+        ]
     return sweeps
 
 
 def _scaled(mixture, factor):
-    return GaussianMixture(mixture.weights, mixture.means, mixture.sigmas * check_positive(factor, "noise scale"),
-                           mixture.failure_weight, mixture.search_range_px)
+    return GaussianMixture(
+        mixture.weights,
+        mixture.means,
+        mixture.sigmas * check_positive(factor, "noise scale"),
+        mixture.failure_weight,
+        mixture.search_range_px,
+    )

@@ -69,9 +69,13 @@ def agreement_legend():
     """HTML legend of :data:`AGREEMENT`: a swatch of each colour and its name (shown by the checkboxes below it)."""
     rows = "".join(
         f'<div><span style="display:inline-block;width:0.9em;height:0.9em;margin-right:0.4em;vertical-align:middle;'
-        f'background:rgb({r},{g},{b})"></span>{name}</div>' for (r, g, b), name in zip(AGREEMENT_COLORS, AGREEMENT))
-    return ('<div style="font-size:0.85em;padding:0.3em 0.5em"><b>Agreement with the truth</b> (colour by: '
-            f"agreement; the map's thresholds decide free and occupied){rows}</div>")
+        f'background:rgb({r},{g},{b})"></span>{name}</div>'
+        for (r, g, b), name in zip(AGREEMENT_COLORS, AGREEMENT)
+    )
+    return (
+        '<div style="font-size:0.85em;padding:0.3em 0.5em"><b>Agreement with the truth</b> (colour by: '
+        f"agreement; the map's thresholds decide free and occupied){rows}</div>"
+    )
 
 
 def _framing_box(level, occupied_threshold):
@@ -111,12 +115,15 @@ class MapViewer:
     that fits the budget is sent.
     """
 
-    def __init__(self, grid, *, truth=None, poses_w=None, host="127.0.0.1", port=8080, budget=POINT_BUDGET,
-                 agreement=False):
+    def __init__(
+        self, grid, *, truth=None, poses_w=None, host="127.0.0.1", port=8080, budget=POINT_BUDGET, agreement=False
+    ):
         try:
             import viser
         except ImportError:
-            raise PrismapInputError("prismap view needs the optional `viser` module: pip install -e '.[view]'") from None
+            raise PrismapInputError(
+                "prismap view needs the optional `viser` module: pip install -e '.[view]'"
+            ) from None
 
         start = time.perf_counter()
         keys, probability, _, _ = grid.known_probabilities()
@@ -135,13 +142,20 @@ class MapViewer:
         z_top = None
         if truth is not None and len(truth.occupied_keys):
             if abs(truth.voxel_size_m - grid.voxel_size_m) > 1e-9 * grid.voxel_size_m:
-                raise PrismapInputError(f"the ground truth's voxels are {truth.voxel_size_m} m, the map's "
-                                        f"{grid.voxel_size_m} m: they must match")
+                raise PrismapInputError(
+                    f"the ground truth's voxels are {truth.voxel_size_m} m, the map's "
+                    f"{grid.voxel_size_m} m: they must match"
+                )
             occupied = truth.observed_occupied_keys
             occupied = occupied if len(occupied) else truth.occupied_keys
             self.truth_levels = voxel_pyramid(occupied, np.ones(len(occupied)), truth.voxel_size_m)
-            codes = agreement_codes(keys, base.probability, truth, free_threshold=grid.free_threshold,
-                                    occupied_threshold=grid.occupied_threshold)
+            codes = agreement_codes(
+                keys,
+                base.probability,
+                truth,
+                free_threshold=grid.free_threshold,
+                occupied_threshold=grid.occupied_threshold,
+            )
             self.agreement = voxel_pyramid(keys, codes, grid.voxel_size_m)
             if occupied[:, 2].max() > occupied[:, 2].min():
                 z_top = float(occupied[:, 2].max() * truth.voxel_size_m)  # the top layer's floor
@@ -161,31 +175,47 @@ class MapViewer:
         self.server.initial_camera.look_at = tuple(center)
         self.server.initial_camera.position = tuple(center + extent * np.array([0.0, -0.42, 0.4]))
 
-        gui.add_markdown(f"**{len(keys):,} voxels** of {base.size_m:g} m. Colour: P(occupied), {COLORMAP} "
-                         "(violet 0, teal 0.5, yellow 1); grey: unobserved inside the map's box.")
+        gui.add_markdown(
+            f"**{len(keys):,} voxels** of {base.size_m:g} m. Colour: P(occupied), {COLORMAP} "
+            "(violet 0, teal 0.5, yellow 1); grey: unobserved inside the map's box."
+        )
         with_truth = self.agreement is not None
-        self.colour_by = gui.add_dropdown("colour by", COLOUR_MODES if with_truth else COLOUR_MODES[:1],
-                                          initial_value=COLOUR_MODES[int(bool(agreement))], visible=with_truth)
+        self.colour_by = gui.add_dropdown(
+            "colour by",
+            COLOUR_MODES if with_truth else COLOUR_MODES[:1],
+            initial_value=COLOUR_MODES[int(bool(agreement))],
+            visible=with_truth,
+        )
         self.threshold = gui.add_slider("P(occupied) >=", 0.0, 1.0, 0.01, 0.0)
         self.show = {name: gui.add_checkbox(name, name == "occupied") for name in ("occupied", "unknown", "free")}
         gui.add_html(agreement_legend(), visible=with_truth)
-        self.show_agreement = [gui.add_checkbox(name, code in AGREEMENT_SHOWN, visible=with_truth)
-                               for code, name in enumerate(AGREEMENT)]
+        self.show_agreement = [
+            gui.add_checkbox(name, code in AGREEMENT_SHOWN, visible=with_truth) for code, name in enumerate(AGREEMENT)
+        ]
         z_lo, z_hi = float(z_lo), float(z_hi)
         start_hi = z_top if z_top is not None and z_lo < z_top < z_hi else z_hi
         self.z_range = gui.add_multi_slider("height z (m)", z_lo, z_hi, base.size_m, (z_lo, start_hi))
         self.show_truth = gui.add_checkbox("ground truth (beside)", True, visible=with_truth)
         self.status = gui.add_markdown("")
-        for control in (self.colour_by, self.threshold, self.z_range, self.show_truth, *self.show.values(),
-                        *self.show_agreement):
+        for control in (
+            self.colour_by,
+            self.threshold,
+            self.z_range,
+            self.show_truth,
+            *self.show.values(),
+            *self.show_agreement,
+        ):
             control.on_update(lambda _: self.refresh())
 
         if poses_w is not None:
             self._add_trajectory(np.asarray(poses_w, dtype=np.float64))
         scene.add_label("/labels/map", "map", position=tuple((lo_w + hi_w) / 2 * [1, 1, 0] + [0, 0, hi_w[2]]))
         if self.truth_levels is not None:
-            scene.add_label("/labels/truth", "ground truth",
-                            position=tuple((lo_w + hi_w) / 2 * [1, 1, 0] + [0, 0, hi_w[2]] + self.truth_offset_w))
+            scene.add_label(
+                "/labels/truth",
+                "ground truth",
+                position=tuple((lo_w + hi_w) / 2 * [1, 1, 0] + [0, 0, hi_w[2]] + self.truth_offset_w),
+            )
         self.stats = self.refresh()
         self.stats["build_s"] = time.perf_counter() - start
 
@@ -201,23 +231,34 @@ class MapViewer:
         z_range = tuple(self.z_range.value)
         if self.colour_by.value == COLOUR_MODES[1]:
             shown = tuple(code for code, box in enumerate(self.show_agreement) if box.value)
-            level = self._layer("/map/voxels", ("agreement", shown, z_range),
-                                lambda: self._agreement_layer(shown, z_range))
+            level = self._layer(
+                "/map/voxels", ("agreement", shown, z_range), lambda: self._agreement_layer(shown, z_range)
+            )
         else:
-            level = self._layer("/map/voxels", (self.threshold.value, classes, z_range),
-                                lambda: self._map_layer(classes, z_range))
+            level = self._layer(
+                "/map/voxels", (self.threshold.value, classes, z_range), lambda: self._map_layer(classes, z_range)
+            )
         self._layer("/map/unobserved", (self.show["unknown"].value, z_range), lambda: self._unobserved_layer(z_range))
         self._layer("/truth/voxels", (self.show_truth.value, z_range), lambda: self._truth_layer(z_range))
-        stats = {"level": level.level, "voxel_m": level.size_m,
-                 "points": sum(count for count, _ in self._shown.values())}
+        stats = {
+            "level": level.level,
+            "voxel_m": level.size_m,
+            "points": sum(count for count, _ in self._shown.values()),
+        }
         coarse = f" (2^{level.level} coarser: over the {self.budget:,}-point budget)" if level.level else ""
         self.status.content = f"{stats['points']:,} points shown; map voxels {level.size_m:g} m{coarse}."
         return stats
 
     def _map_layer(self, classes, z_range):
-        level, mask = select(self.levels, threshold=self.threshold.value, classes=classes, z_range_m=z_range,
-                             free_threshold=self.grid.free_threshold,
-                             occupied_threshold=self.grid.occupied_threshold, budget=self.budget)
+        level, mask = select(
+            self.levels,
+            threshold=self.threshold.value,
+            classes=classes,
+            z_range_m=z_range,
+            free_threshold=self.grid.free_threshold,
+            occupied_threshold=self.grid.occupied_threshold,
+            budget=self.budget,
+        )
         return level, (level.centers_w[mask], probability_colors(level.probability[mask]), level.size_m)
 
     def _agreement_layer(self, shown, z_range):
@@ -263,8 +304,15 @@ class MapViewer:
         reach = float(np.abs(centers_w).max())
         precision = "float16" if reach < 256 * size_m else "float32"  # float16 steps stay under size / 4
         return self.server.scene.add_point_cloud(
-            name, centers_w, np.ascontiguousarray(colors), point_size=size_m, point_shape="square",
-            point_shading="flat", precision=precision, position=tuple(position))
+            name,
+            centers_w,
+            np.ascontiguousarray(colors),
+            point_size=size_m,
+            point_shape="square",
+            point_shading="flat",
+            precision=precision,
+            position=tuple(position),
+        )
 
     def _add_trajectory(self, poses_w):
         if poses_w.ndim != 3 or poses_w.shape[1:] != (4, 4) or len(poses_w) == 0:
@@ -274,15 +322,22 @@ class MapViewer:
         centres = poses_w[:, :3, 3]
         if len(centres) > 1:
             segments = np.stack([centres[:-1], centres[1:]], axis=1)
-            self.server.scene.add_line_segments("/trajectory/path", segments, TRAJECTORY_COLOR, thickness=3.0,
-                                                thickness_units="screen")
+            self.server.scene.add_line_segments(
+                "/trajectory/path", segments, TRAJECTORY_COLOR, thickness=3.0, thickness_units="screen"
+            )
         xyzw = Rotation.from_matrix(poses_w[:, :3, :3]).as_quat()
         wxyz = np.roll(xyzw, 1, axis=1)
         step = max(1, len(poses_w) // 50)
         for index in range(0, len(poses_w), step):
-            self.server.scene.add_camera_frustum(f"/trajectory/camera_{index:05d}", fov=1.0, aspect=4 / 3,
-                                                 scale=0.15, color=TRAJECTORY_COLOR, wxyz=tuple(wxyz[index]),
-                                                 position=tuple(centres[index]))
+            self.server.scene.add_camera_frustum(
+                f"/trajectory/camera_{index:05d}",
+                fov=1.0,
+                aspect=4 / 3,
+                scale=0.15,
+                color=TRAJECTORY_COLOR,
+                wxyz=tuple(wxyz[index]),
+                position=tuple(centres[index]),
+            )
 
     def stop(self):
         """Stop the server."""
@@ -305,8 +360,9 @@ def _start_server(viser, host, port):
         with socket.socket(infos[0][0], socket.SOCK_STREAM) as probe:
             probe.bind(infos[0][4])
     except (OSError, UnicodeError) as exc:
-        raise PrismapInputError(f"--host {host}: cannot listen on this address "
-                                f"({getattr(exc, 'strerror', None) or exc})") from None
+        raise PrismapInputError(
+            f"--host {host}: cannot listen on this address ({getattr(exc, 'strerror', None) or exc})"
+        ) from None
     started = {}
 
     def start():
@@ -321,6 +377,8 @@ def _start_server(viser, host, port):
     if "error" in started:
         raise started["error"]
     if "server" not in started:
-        raise PrismapInputError(f"--host {host} --port {port}: the viewer did not start listening within "
-                                f"{READY_TIMEOUT_S:g} s (READY_TIMEOUT_S)")
+        raise PrismapInputError(
+            f"--host {host} --port {port}: the viewer did not start listening within "
+            f"{READY_TIMEOUT_S:g} s (READY_TIMEOUT_S)"
+        )
     return started["server"]

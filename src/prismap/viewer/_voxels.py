@@ -95,11 +95,14 @@ def voxel_pyramid(keys, probability, voxel_size_m, *, min_voxels=4096):
     keys = np.asarray(keys)
     probability = np.asarray(probability)
     if keys.ndim != 2 or keys.shape[1] != 3 or probability.shape != (keys.shape[0],):
-        raise PrismapInputError(f"`keys` must be (N, 3) with (N,) `probability`; got {keys.shape} and {probability.shape}")
+        raise PrismapInputError(
+            f"`keys` must be (N, 3) with (N,) `probability`; got {keys.shape} and {probability.shape}"
+        )
     if not voxel_size_m > 0:
         raise PrismapInputError(f"`voxel_size_m` must be > 0; got {voxel_size_m!r}")
-    return VoxelPyramid(VoxelLevel(0, float(voxel_size_m), keys.astype(np.int64), probability.astype(np.float32)),
-                        min_voxels)
+    return VoxelPyramid(
+        VoxelLevel(0, float(voxel_size_m), keys.astype(np.int64), probability.astype(np.float32)), min_voxels
+    )
 
 
 class VoxelPyramid:
@@ -152,8 +155,16 @@ def voxel_classes(probability, free_threshold, occupied_threshold):
     return out
 
 
-def select(levels, *, threshold=0.0, classes=("occupied",), z_range_m=(-np.inf, np.inf), free_threshold=0.5,
-           occupied_threshold=0.5, budget=2_000_000):
+def select(
+    levels,
+    *,
+    threshold=0.0,
+    classes=("occupied",),
+    z_range_m=(-np.inf, np.inf),
+    free_threshold=0.5,
+    occupied_threshold=0.5,
+    budget=2_000_000,
+):
     """The voxels a viewer shows: P >= ``threshold``, class in ``classes``, centre height within
     ``z_range_m``, at the finest level of ``levels`` that shows at most ``budget`` of them.
 
@@ -204,13 +215,19 @@ def unobserved_cells(base, *, budget=2_000_000):
     return VoxelLevel(base.level + k, base.size_m * 2**k, empty, np.full(len(empty), np.nan, dtype=np.float32))
 
 
-AGREEMENT = ("undecided or not in the truth", "correct free", "correct occupied", "free called occupied",
-             "occupied called free (danger)")
+AGREEMENT = (
+    "undecided or not in the truth",
+    "correct free",
+    "correct occupied",
+    "free called occupied",
+    "occupied called free (danger)",
+)
 """A map voxel's agreement with the ground truth, by code (the index): the higher the code, the more a coarse
 voxel of the pyramid shows it (a danger voxel is never hidden by coarsening)."""
 
-AGREEMENT_COLORS = np.array([(150, 150, 150), (85, 172, 238), (120, 177, 89), (244, 144, 12), (221, 46, 68)],
-                            dtype=np.uint8)
+AGREEMENT_COLORS = np.array(
+    [(150, 150, 150), (85, 172, 238), (120, 177, 89), (244, 144, 12), (221, 46, 68)], dtype=np.uint8
+)
 """RGB of each :data:`AGREEMENT` code: grey, blue, green, orange, red."""
 
 
