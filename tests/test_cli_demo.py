@@ -59,7 +59,7 @@ def test_html_report_leads_with_the_answer_and_loads_in_chromium(quick_demo, tmp
     out, _ = quick_demo
     page = (out / "index.html").read_text()
     tops = re.findall(r"<h2[^>]*>([^<]+)</h2>", page)
-    assert tops == ["Which model wins", "PRISM against OctoMap", "The maps", "Details"]
+    assert tops == ["Which model wins", "PRISM against OctoMap", "Confident and wrong", "The maps", "Details"]
     titles = re.findall(r'<section id="s\d+"><h3>([^<]+)</h3>', page)  # the steps (tables' own titles are h3 too)
     assert [t.split(". ", 1)[1].split()[0] for t in titles] == ["Stereo", "Sensor", "2-D", "3-D", "Street,"]
     # self-contained: every image embedded, the first of them the 3-D render, then the map slices

@@ -60,8 +60,12 @@ def test_the_mapping_frames_likelihood_matches_a_per_pixel_reference(street):
     measured = mapped_log_likelihood(model, frames, out / "sgbm" / "disparity")
     assert model.conditioned
 
-    def density(mixture, e):  # the mixture's pdf written out, not its logpdf
-        return sum(w * norm.pdf(e, m, s) for w, m, s in zip(mixture.weights, mixture.means, mixture.sigmas))
+    def density(mixture, e):  # the mixture's pdf written out, not its logpdf: Gaussians, then the failure floor
+        gaussian = sum(w * norm.pdf(e, m, s) for w, m, s in zip(mixture.weights, mixture.means, mixture.sigmas))
+        if mixture.search_range_px is None:
+            return gaussian
+        low, high = mixture.search_range_px
+        return (1.0 - mixture.failure_weight) * gaussian + mixture.failure_weight / (high - low)
 
     labels, errors = [], []
     for index, frame in enumerate(frames):

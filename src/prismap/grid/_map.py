@@ -486,7 +486,7 @@ class OccupancyMap:
                 raise PrismapInputError(
                     f"`z_range_m` must be (z_min, z_max) with z_max > z_min; got {tuple(z_range_m)}"
                 )
-            z_lo = int(point_to_key(z_min, self.voxel_size_m))
+            z_lo = int(point_to_key([z_min], self.voxel_size_m)[0])
             z_hi = int(np.ceil(z_max / self.voxel_size_m)) - 1
         keys, log, count = self.known_voxels()
         inside = (keys[:, 2] >= z_lo) & (keys[:, 2] <= z_hi)
