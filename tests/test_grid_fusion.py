@@ -112,3 +112,13 @@ def test_the_map_reads_its_sums_with_its_fusion_and_keeps_it_in_files_and_merges
         fused.merge(plain)
     with pytest.raises(PrismapInputError, match="`fusion` must be a PersistentFailure"):
         OccupancyMap(0.2, p0=0.1, fusion=(0.05, 0.5))
+
+
+def test_the_reading_stays_a_probability_at_saturated_sums():
+    """The failure shares sum to one only up to rounding; a reading of +-2048 log-odds must still lie in [0, 1]
+    (the demo's scoring refused 1.0000000000000002)."""
+    fusion = PersistentFailure(rate=0.3, persistence=0.9)
+    counts = np.repeat(np.arange(1, 65), 3)
+    log_odds = np.tile([2048.0, -2048.0, 700.0], 64)
+    p = fusion.probability(log_odds, counts, 0.05)
+    assert np.all((p >= 0.0) & (p <= 1.0)) and p[0] > 0.5 > p[1]

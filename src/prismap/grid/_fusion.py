@@ -97,7 +97,7 @@ class PersistentFailure:
             for start in range(0, where.size, _CHUNK):
                 part = where[start : start + _CHUNK]
                 out[part] = expit(prior + evidence[part, None] * share[None, :]) @ weight
-        return out
+        return np.clip(out, 0.0, 1.0, out=out)  # the weights sum to 1 only up to rounding
 
     def bounds(self, p0, n_views=1):
         """The probabilities ``(P_min, P_max)`` no evidence of ``n_views`` views can pass: all views failed
