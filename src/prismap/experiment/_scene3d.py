@@ -32,85 +32,29 @@ from prismap.experiment._targets import format_targets, measure_targets
 from prismap.experiment._worlds3d import MATCHERS, WORLDS, render_world, scene3d_settings, split_frames
 
 
-def run_scene3d(
-    out_dir,
-    *,
-    n_frames=None,
-    voxel_size_m=None,
-    seed=0,
-    quick=False,
-    matchers=MATCHERS,
-    models=MODELS_3D,
-    characterise_every=4,
-    max_range_m=None,
-    grid_offset=0.5,
-    between_frames=None,
-    class_pass_through=False,
-):
+def run_scene3d(out_dir, **options):
     """Characterise each matcher on some frames of the indoor room, map the others with every model, score.
 
     The seeded :func:`prismap.sim.indoor_scene` rendered along :func:`prismap.sim.indoor_trajectory` by the
     New Tsukuba camera. Full size: 640x480, 40 frames, 0.1 m voxels, every 2nd pixel, rays to 10 m.
     ``quick``: 160x120, 16 frames, every pixel: the smallest size found where PRISM beats ideal and
     hit/miss with SGBM on Brier, log-loss and occupied-called-free. Ray mode, so
-    ``models=MODELS_3D_MAP_PRIOR`` adds conditioned PRISM with the map as prior. Arguments and result: see
-    :func:`run_rendered_world`.
+    ``models=MODELS_3D_MAP_PRIOR`` adds conditioned PRISM with the map as prior. Keyword arguments and
+    result: :func:`run_rendered_world`.
     """
-    return run_rendered_world(
-        "scene3d",
-        out_dir,
-        n_frames=n_frames,
-        voxel_size_m=voxel_size_m,
-        seed=seed,
-        quick=quick,
-        matchers=matchers,
-        models=models,
-        characterise_every=characterise_every,
-        max_range_m=max_range_m,
-        grid_offset=grid_offset,
-        between_frames=between_frames,
-        class_pass_through=class_pass_through,
-    )
+    return run_rendered_world("scene3d", out_dir, **options)
 
 
-def run_street3d(
-    out_dir,
-    *,
-    n_frames=None,
-    voxel_size_m=None,
-    seed=0,
-    quick=False,
-    matchers=MATCHERS,
-    models=MODELS_3D,
-    characterise_every=4,
-    max_range_m=None,
-    grid_offset=0.5,
-    between_frames=None,
-    class_pass_through=False,
-):
+def run_street3d(out_dir, **options):
     """Characterise each matcher on some frames of the street drive, map the others with every model, score.
 
     The seeded :func:`prismap.sim.street_scene` rendered along :func:`prismap.sim.street_trajectory` by
     :func:`prismap.sim.kitti_camera`. Full size: half resolution (621x188), 16 frames 1 m apart and 32 more
     characterisation frames from the positions between them (:func:`prismap.sim.street_trajectory_between`),
     0.2 m voxels, every 2nd pixel, rays to 40 m, projective integration. ``quick``: 310x94, 8 + 4 frames,
-    0.4 m voxels, every pixel, rays to 30 m. Arguments and result: see :func:`run_rendered_world`.
+    0.4 m voxels, every pixel, rays to 30 m. Keyword arguments and result: :func:`run_rendered_world`.
     """
-    return run_rendered_world(
-        "street3d",
-        out_dir,
-        n_frames=n_frames,
-        voxel_size_m=voxel_size_m,
-        seed=seed,
-        quick=quick,
-        matchers=matchers,
-        models=models,
-        characterise_every=characterise_every,
-        max_range_m=max_range_m,
-        grid_offset=grid_offset,
-        between_frames=between_frames,
-        class_pass_through=class_pass_through,
-    )
+    return run_rendered_world("street3d", out_dir, **options)
 
 
 def run_rendered_world(

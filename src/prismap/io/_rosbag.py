@@ -86,24 +86,10 @@ _DAMAGE = (struct.error, EOFError, KeyError, IndexError, ValueError, OSError, sq
 """What rosbags raises, besides its own errors, for a file cut short."""
 
 
-def read_bag(
-    path,
-    *,
-    left,
-    right,
-    left_info=None,
-    right_info=None,
-    pose_topic=None,
-    tf_frames=None,
-    truth_topic=None,
-    rectified=None,
-    pair_tolerance_s=PAIR_TOLERANCE_S,
-    max_pose_gap_s=MAX_POSE_GAP_S,
-    lidar_topic=None,
-    T_cam_lidar=None,
-    scan_tolerance_s=SCAN_TOLERANCE_S,
-):
+def read_bag(path, **options):
     """Open a stereo recording in a ROS bag as a sequence (see the module docstring).
+
+    The keyword arguments are :class:`BagSequence`'s, all keyword-only.
 
     Parameters
     ----------
@@ -144,22 +130,7 @@ def read_bag(
         image has no partner or no pose within the tolerances; no LiDAR-to-camera transform; a scan too far
         in time from its image, or with no point in the image. The message names the topic (and stamp).
     """
-    return BagSequence(
-        path,
-        left=left,
-        right=right,
-        left_info=left_info,
-        right_info=right_info,
-        pose_topic=pose_topic,
-        tf_frames=tf_frames,
-        truth_topic=truth_topic,
-        rectified=rectified,
-        pair_tolerance_s=pair_tolerance_s,
-        max_pose_gap_s=max_pose_gap_s,
-        lidar_topic=lidar_topic,
-        T_cam_lidar=T_cam_lidar,
-        scan_tolerance_s=scan_tolerance_s,
-    )
+    return BagSequence(path, **options)
 
 
 class BagSequence:
