@@ -226,6 +226,7 @@ FULL_DISK = {
         "--out",
         "WORK/a/ch",
     ],
+    "models compare --out DIR": ["models", "compare", "--error-model", "EM", "--out", "WORK/mc"],
     "export .mcap": ["export", "MAP", "--to", "WORK/m.mcap"],
     "export rosbag2 mcap": ["export", "MAP", "--to", "WORK/bag", "--format", "rosbag2"],
     "export rosbag2 sqlite3": ["export", "MAP", "--to", "WORK/d/bag", "--format", "rosbag2", "--storage", "sqlite3"],
