@@ -69,28 +69,27 @@ MATCHERS = ("bm", "sgbm", "variational")
 
 STEP_SECONDS = {
     "full": {
-        "characterise bm": 40.0,
-        "characterise sgbm": 40.0,
-        "characterise variational": 45.0,
-        "models compare": 15.0,
-        "office2d": 30.0,
-        "scene3d": 160.0,
-        "street3d": 150.0,
+        "characterise bm": 26.0,
+        "characterise sgbm": 21.0,
+        "characterise variational": 21.0,
+        "models compare": 2.0,
+        "office2d": 4.0,
+        "scene3d": 258.0,
+        "street3d": 261.0,
     },
     "quick": {
-        "characterise bm": 85.0,
-        "characterise sgbm": 85.0,
-        "characterise variational": 105.0,
-        "models compare": 27.0,
-        "office2d": 29.0,
-        "scene3d": 72.0,
-        "street3d": 229.0,
+        "characterise bm": 7.0,
+        "characterise sgbm": 4.0,
+        "characterise variational": 9.0,
+        "models compare": 32.0,
+        "office2d": 17.0,
+        "scene3d": 11.0,
+        "street3d": 30.0,
     },
 }
-"""Each step's wall time (seconds, 2 cores): the progress lines' percentage and time left follow these shares,
-not the count of steps. ``quick``: a ``--quick`` run's report (Run time line) on the shared machine; ``full``:
-the street's 145-152 s of the 472-486 s fresh-clone runs of issue #27, the other steps in the proportions of
-this round's loaded runs."""
+"""Each step's wall time (seconds, 2 idle cores), from the Run time line of a report: the progress lines'
+percentage and time left follow these shares, not the count of steps. ``full``: a ``make demo`` run; ``quick``: a
+first ``--quick`` run, numba compiling the kernels (the step that first calls a kernel pays for it)."""
 
 
 @dataclass(frozen=True)
