@@ -34,7 +34,7 @@ from prismap.camera._stereo_camera import StereoCamera
 from prismap.camera._surface import plane_normals
 from prismap.errors import PrismapInputError
 from prismap.grid import OccupancyMap, RayBatch, make_projector
-from prismap.sensor_models import InverseSensorModel
+from prismap.grid._sensor_model import SensorModel
 
 OVERHANG_CAP_VOXELS = 8.0
 """Largest overhang (voxels): at grazing incidence the bound grows without limit, and across a depth
@@ -247,7 +247,7 @@ def integrate_disparity(
     disparity_px: npt.ArrayLike,
     camera: StereoCamera,
     T_world_cam: npt.ArrayLike,
-    model: InverseSensorModel,
+    model: SensorModel,
     *,
     mode: str = "ray",
     policy: str | None = None,

@@ -36,7 +36,7 @@ import numpy as np
 from prismap.errors import PrismapInputError
 from prismap.grid import _accumulator, _kernels_project, _kernels_traverse
 from prismap.grid._projectors import ImageProjection
-from prismap.grid._ray_model import RayModel
+from prismap.grid._sensor_model import SensorModel
 from prismap.grid._storage import BlockTable
 
 RAYS_PER_CHUNK = 4096
@@ -138,14 +138,14 @@ class RayBatch:
             self.kind,
         )
 
-    def class_kwargs(self, idx: np.ndarray | None, model: RayModel) -> dict[str, Any]:
+    def class_kwargs(self, idx: np.ndarray | None, model: SensorModel) -> dict[str, Any]:
         """``{"ray_class": classes of rays idx}`` for a call of ``model``, or ``{}`` when the batch has no
         classes or the model is a hit/miss model (those ignore classes)."""
         if self.ray_class is None or model.hit_miss_increments() is not None:
             return {}
         return {"ray_class": self.ray_class if idx is None else self.ray_class[idx]}
 
-    def cell_kwargs(self, idx: np.ndarray | None, model: RayModel) -> dict[str, Any]:
+    def cell_kwargs(self, idx: np.ndarray | None, model: SensorModel) -> dict[str, Any]:
         """:meth:`class_kwargs` plus ``{"voxel_overhang_m": ...}`` of rays idx when the batch has overhangs and
         ``model.takes_voxel_overhang``: the keywords of ``model.cell_posteriors``."""
         kwargs = self.class_kwargs(idx, model)
@@ -214,7 +214,7 @@ class Integrator(ABC):
         self.reach_m = float(reach_m)
         self.map_log_odds = map_log_odds
 
-    def integrate(self, accumulator: BlockTable, batch: RayBatch, model: RayModel) -> None:
+    def integrate(self, accumulator: BlockTable, batch: RayBatch, model: SensorModel) -> None:
         """Add the batch's (voxel, increment) pairs of ``model`` to ``accumulator`` (cleared by the caller)."""
         if model.takes_map_prior:
             if not self.whole_rays:
@@ -234,7 +234,7 @@ class Integrator(ABC):
     def _integrate(self, accumulator, batch, groups):
         """Fill ``accumulator`` from ``batch``; ``groups`` from :func:`noise_groups`."""
 
-    def stop_depths(self, model: RayModel, batch: RayBatch, idx: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    def stop_depths(self, model: SensorModel, batch: RayBatch, idx: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
         """Depth at which each ray of ``idx`` stops and whether that stop excludes its voxel (cut by max range)."""
         measurement, ray_norm = _rows(batch.measurement, idx), _rows(batch.ray_norm, idx)
         influence = np.asarray(
@@ -257,7 +257,7 @@ class Integrator(ABC):
 
     def cell_increments(
         self,
-        model: RayModel,
+        model: SensorModel,
         batch: RayBatch,
         idx: np.ndarray | None,
         ray_of_cell: np.ndarray,

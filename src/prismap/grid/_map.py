@@ -14,7 +14,7 @@ from prismap.grid._integrators import MEASUREMENT_KINDS, RayBatch, make_integrat
 from prismap.grid._keys import BLOCK_BITS, KEY_LIMIT, check_keys, key_range_text, key_to_center, point_to_key
 from prismap.grid._logodds import LOG_ODDS_STEP, Q_DTYPE, Q_MAX, Q_MIN, from_fixed, logit, to_fixed
 from prismap.grid._policies import policy_code, policy_name
-from prismap.grid._ray_model import RayModel
+from prismap.grid._sensor_model import SensorModel
 from prismap.grid._slice import horizontal_slice
 from prismap.grid._storage import BlockTable
 from prismap.grid._traverse import crossed_voxels
@@ -106,7 +106,7 @@ class OccupancyMap:
     def integrate(
         self,
         batch: RayBatch,
-        model: RayModel,
+        model: SensorModel,
         *,
         mode: str = "ray",
         policy: str | None = None,
@@ -151,7 +151,7 @@ class OccupancyMap:
         origin_w: npt.ArrayLike,
         rays_w: npt.ArrayLike,
         measurement: npt.ArrayLike,
-        model: RayModel,
+        model: SensorModel,
         *,
         kind: str = "disparity",
         mode: str = "ray",

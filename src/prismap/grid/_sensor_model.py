@@ -8,7 +8,7 @@ from typing import Protocol
 import numpy as np
 
 
-class RayModel(Protocol):
+class SensorModel(Protocol):
     """An inverse sensor model as the integrators and :class:`~prismap.grid.OccupancyMap` use it.
 
     The grid also passes the keywords ``ray_class``, ``voxel_overhang_m`` and ``map_log_odds`` to
@@ -36,7 +36,7 @@ class RayModel(Protocol):
         """(R,) depth (metres) where each ray's cast stops, as ``InverseSensorModel.influence_depth``."""
         ...
 
-    def with_extra_noise(self, sigma_px: float) -> RayModel:
+    def with_extra_noise(self, sigma_px: float) -> SensorModel:
         """The model with its disparity noise widened by ``N(0, sigma_px^2)`` (pixels)."""
         ...
 
