@@ -36,10 +36,10 @@ def _public_methods(cls):
 
 
 def _public_callables():
-    """(label, function, bound) of every public function and public method of every subpackage's ``__all__``."""
+    """(label, function, bound) of every public function and public method of ``prismap.__all__`` and every
+    subpackage's ``__all__``."""
     found = {}
-    for package in prismap._SUBPACKAGES:
-        module = importlib.import_module(f"prismap.{package}")
+    for module in (prismap, *(importlib.import_module(f"prismap.{name}") for name in prismap._SUBPACKAGES)):
         for name in module.__all__:
             obj = getattr(module, name)
             if inspect.isclass(obj) and _is_prismap(obj):
