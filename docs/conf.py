@@ -48,6 +48,7 @@ autosummary_generate = True
 autosummary_imported_members = True   # the subpackages export what their private modules define
 autosummary_ignore_module_all = False  # ... exactly what ``__all__`` lists
 autodoc_default_options = {"members": True}
+autodoc_typehints = "none"  # the numpydoc docstrings describe each type with its shape and unit; the hints are for tools
 numpydoc_show_class_members = False
 numpydoc_class_members_toctree = False
 

@@ -20,23 +20,35 @@ along ``n`` (axis-aligned voxels), so it can hold part of the plane only if ``t 
 the *overhang*. Models that reason about it (PRISM's ``overhang_fraction``) get it per ray.
 """
 
+from __future__ import annotations
+
 from concurrent.futures import ThreadPoolExecutor
 
 import numba as nb
 import numpy as np
+import numpy.typing as npt
 
 from prismap._depth import depth_from_disparity
 from prismap._validate import as_float_array, check_classes, check_integer
+from prismap.camera._stereo_camera import StereoCamera
 from prismap.camera._surface import plane_normals
 from prismap.errors import PrismapInputError
-from prismap.grid import RayBatch, make_projector
+from prismap.grid import OccupancyMap, RayBatch, make_projector
+from prismap.grid._sensor_model import SensorModel
 
 OVERHANG_CAP_VOXELS = 8.0
 """Largest overhang (voxels): at grazing incidence the bound grows without limit, and across a depth
 discontinuity the plane fit leans toward grazing."""
 
 
-def voxel_overhang_m(normals_cam, rays_cam, R_world_cam, voxel_size_m, *, cap_voxels=OVERHANG_CAP_VOXELS):
+def voxel_overhang_m(
+    normals_cam: np.ndarray,
+    rays_cam: np.ndarray,
+    R_world_cam: np.ndarray,
+    voxel_size_m: float,
+    *,
+    cap_voxels: float = OVERHANG_CAP_VOXELS,
+) -> npt.NDArray[np.float64]:
     """The overhang bound ``v |n_w|_1 / cos(theta)`` of each ray, capped (metres along the ray).
 
     Parameters
@@ -61,7 +73,14 @@ def voxel_overhang_m(normals_cam, rays_cam, R_world_cam, voxel_size_m, *, cap_vo
     )
 
 
-def frame_overhang_m(disparity_px, camera, R_world_cam, voxel_size_m, subsample, rays_cam):
+def frame_overhang_m(
+    disparity_px: npt.ArrayLike,
+    camera: StereoCamera,
+    R_world_cam: np.ndarray,
+    voxel_size_m: float,
+    subsample: int,
+    rays_cam: np.ndarray,
+) -> npt.NDArray[np.float64]:
     """:func:`voxel_overhang_m` of every ``subsample``-th pixel of a disparity image, flattened row by row.
 
     The normals are fitted on windows of the full image (:func:`prismap.camera.plane_normals`) at those
@@ -101,7 +120,14 @@ def rotate_rays(rays, rotation):
     return out
 
 
-def pose_noise_px(disparity, rays_cam, R_world_cam, pose_covariance, focal_baseline, doffs_px):
+def pose_noise_px(
+    disparity: np.ndarray,
+    rays_cam: np.ndarray,
+    R_world_cam: np.ndarray,
+    pose_covariance: npt.ArrayLike,
+    focal_baseline: float,
+    doffs_px: float,
+) -> npt.NDArray[np.float64]:
     """Disparity noise (pixels) equivalent to a pose covariance, per ray (first order).
 
     A small pose error ``(dt, dtheta)`` (world axes) moves the measured point ``p = z r`` (camera frame) by
@@ -145,16 +171,16 @@ def pose_noise_px(disparity, rays_cam, R_world_cam, pose_covariance, focal_basel
 
 
 def disparity_batch(
-    disparity_px,
-    camera,
-    T_world_cam,
+    disparity_px: npt.ArrayLike,
+    camera: StereoCamera,
+    T_world_cam: npt.ArrayLike,
     *,
-    subsample=1,
-    pose_covariance=None,
-    ray_class=None,
-    overhang_voxel_m=None,
-    projective=False,
-):
+    subsample: int = 1,
+    pose_covariance: npt.ArrayLike | None = None,
+    ray_class: npt.ArrayLike | None = None,
+    overhang_voxel_m: float | None = None,
+    projective: bool = False,
+) -> RayBatch:
     """The map's batch of one disparity image seen from pose ``T_world_cam``.
 
     Parameters
@@ -217,19 +243,19 @@ def disparity_batch(
 
 
 def integrate_disparity(
-    grid,
-    disparity_px,
-    camera,
-    T_world_cam,
-    model,
+    grid: OccupancyMap,
+    disparity_px: npt.ArrayLike,
+    camera: StereoCamera,
+    T_world_cam: npt.ArrayLike,
+    model: SensorModel,
     *,
-    mode="ray",
-    policy=None,
-    max_range_m=np.inf,
-    subsample=1,
-    pose_covariance=None,
-    ray_class=None,
-):
+    mode: str = "ray",
+    policy: str | None = None,
+    max_range_m: float = np.inf,
+    subsample: int = 1,
+    pose_covariance: npt.ArrayLike | None = None,
+    ray_class: npt.ArrayLike | None = None,
+) -> None:
     """Integrate one disparity image seen from pose ``T_world_cam`` into ``grid``.
 
     :func:`disparity_batch` with what ``model`` and ``mode`` need (the voxel overhang of the map's voxels for a

@@ -13,10 +13,14 @@ fit of the points around it (:func:`fitted_disparity`); rounding each point to i
 would err by the disparity gradient times up to half a pixel.
 """
 
+from __future__ import annotations
+
 import numpy as np
+import numpy.typing as npt
 from scipy.ndimage import maximum_filter
 
 from prismap._validate import as_float_array, check_integer, check_positive
+from prismap.camera._stereo_camera import StereoCamera
 
 OCCLUSION_WINDOW_PX = 2
 """Half-width (pixels) of the window in which a nearer point hides a farther one."""
@@ -28,7 +32,15 @@ MIN_FIT_POINTS = 4
 """Fewest points around a pixel for its affine fit (three fix the plane; one more checks it)."""
 
 
-def project_points(points_cam, camera, shape):
+def project_points(
+    points_cam: npt.ArrayLike, camera: StereoCamera, shape: tuple[int, int]
+) -> tuple[
+    npt.NDArray[np.float64],
+    npt.NDArray[np.int64],
+    npt.NDArray[np.int64],
+    npt.NDArray[np.float64],
+    npt.NDArray[np.float64],
+]:
     """The points in front of the camera that fall inside an image of ``shape`` (H, W).
 
     Returns
@@ -46,8 +58,14 @@ def project_points(points_cam, camera, shape):
 
 
 def visible_points(
-    disparity, row, col, shape, *, occlusion_window_px=OCCLUSION_WINDOW_PX, disparity_margin_px=DISPARITY_MARGIN_PX
-):
+    disparity: np.ndarray,
+    row: np.ndarray,
+    col: np.ndarray,
+    shape: tuple[int, int],
+    *,
+    occlusion_window_px: int = OCCLUSION_WINDOW_PX,
+    disparity_margin_px: float = DISPARITY_MARGIN_PX,
+) -> npt.NDArray[np.bool_]:
     """Which projected points no nearer point within the window hides (module docstring).
 
     Parameters
@@ -80,8 +98,14 @@ def visible_points(
 
 
 def fitted_disparity(
-    points_cam, camera, shape, *, max_residual_px=0.5, occlusion_window_px=0, disparity_margin_px=DISPARITY_MARGIN_PX
-):
+    points_cam: npt.ArrayLike,
+    camera: StereoCamera,
+    shape: tuple[int, int],
+    *,
+    max_residual_px: float = 0.5,
+    occlusion_window_px: int = 0,
+    disparity_margin_px: float = DISPARITY_MARGIN_PX,
+) -> npt.NDArray[np.float64]:
     """Disparity at each pixel centre from dense 3-D points (another frame's), by a local affine fit.
 
     The visible points (:func:`visible_points`) whose nearest pixel is the pixel or one of its 8 neighbours are

@@ -1,9 +1,12 @@
 """Rectification of two calibrated cameras by the thesis construction (eq. 3.4-3.6)."""
 
+from __future__ import annotations
+
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
+import numpy.typing as npt
 
 from prismap._validate import as_float_array
 from prismap.camera._stereo_camera import StereoCamera
@@ -31,7 +34,15 @@ class Rectification:
     T_world_cam: np.ndarray
 
 
-def rectify_stereo(K_left, T_world_left, K_right, T_world_right, *, width=None, height=None):
+def rectify_stereo(
+    K_left: npt.ArrayLike,
+    T_world_left: npt.ArrayLike,
+    K_right: npt.ArrayLike,
+    T_world_right: npt.ArrayLike,
+    *,
+    width: int | None = None,
+    height: int | None = None,
+) -> Rectification:
     """Rectify two calibrated pinhole cameras (thesis eq. 3.4-3.6).
 
     The cameras are ``P = K R [I | -C]`` with ``R`` world -> camera and ``C`` the centre in the
@@ -86,7 +97,9 @@ def rectify_stereo(K_left, T_world_left, K_right, T_world_right, *, width=None, 
     return Rectification(camera=camera, H_left=H_left, H_right=H_right, T_world_cam=T_world_cam)
 
 
-def warp_pair(left, right, rectification, *, interpolation=cv2.INTER_LINEAR):
+def warp_pair(
+    left: np.ndarray, right: np.ndarray, rectification: Rectification, *, interpolation: int = cv2.INTER_LINEAR
+) -> tuple[np.ndarray, np.ndarray]:
     """Resample an original image pair into the rectified views (``cv2.warpPerspective``).
 
     Parameters

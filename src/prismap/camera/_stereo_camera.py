@@ -1,8 +1,13 @@
 """A rectified stereo camera: pinhole intrinsics shared by both views, a baseline, a disparity offset."""
 
+from __future__ import annotations
+
+from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from prismap._depth import depth_from_disparity, disparity_from_depth
 from prismap._validate import as_float_array, check_positive
@@ -75,7 +80,9 @@ class StereoCamera:
             )
 
     @classmethod
-    def from_kitti_projections(cls, P2, P3, *, width=None, height=None):
+    def from_kitti_projections(
+        cls, P2: npt.ArrayLike, P3: npt.ArrayLike, *, width: int | None = None, height: int | None = None
+    ) -> StereoCamera:
         """The camera of a KITTI rectified pair from its projection matrices (left = ``P2``).
 
         KITTI writes each rectified camera as ``P_i = K_i [I | t_i]`` relative to camera 0, so
@@ -128,7 +135,7 @@ class StereoCamera:
         )
 
     @classmethod
-    def from_middlebury_calib(cls, fields, *, source="calib"):
+    def from_middlebury_calib(cls, fields: Mapping[str, Any], *, source: str = "calib") -> StereoCamera:
         """The camera of a Middlebury 2014/2021 pair from its ``calib.txt`` fields.
 
         Parameters
@@ -168,24 +175,24 @@ class StereoCamera:
             raise PrismapInputError(f"{source}: {exc}") from None
 
     @property
-    def focal_baseline(self):
+    def focal_baseline(self) -> float:
         """``f * b`` in pixel-metres: depth (m) = focal_baseline / (disparity + doffs)."""
         return self.focal_px * self.baseline_m
 
     @property
-    def K(self):
+    def K(self) -> npt.NDArray[np.float64]:
         """(3, 3) float64 intrinsic matrix of the left camera."""
         return np.array([[self.focal_px, 0.0, self.cx_px], [0.0, self.focal_px, self.cy_px], [0.0, 0.0, 1.0]])
 
-    def depth_from_disparity(self, disparity_px):
+    def depth_from_disparity(self, disparity_px: npt.ArrayLike) -> npt.NDArray[np.float64]:
         """Depth ``z = f b / (d + doffs)`` (metres); NaN where ``d + doffs <= 0`` or ``d`` is not finite."""
         return depth_from_disparity(disparity_px, self.focal_baseline, self.doffs_px)
 
-    def disparity_from_depth(self, depth_m):
+    def disparity_from_depth(self, depth_m: npt.ArrayLike) -> npt.NDArray[np.float64]:
         """Disparity ``d = f b / z - doffs`` (pixels); NaN where ``z <= 0`` or not finite."""
         return disparity_from_depth(depth_m, self.focal_baseline, self.doffs_px)
 
-    def project(self, points_cam):
+    def project(self, points_cam: npt.ArrayLike) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
         """Pixel coordinates ``(u, v) = (f x / z + cx, f y / z + cy)`` of points in the left camera frame.
 
         The inverse of :meth:`pixel_rays` (pixel centres at integers). ``points_cam`` is ``(..., 3)``
@@ -199,7 +206,7 @@ class StereoCamera:
         v = np.where(in_front, self.focal_px * y / safe_z + self.cy_px, np.nan)
         return u, v
 
-    def pixel_rays(self, shape=None):
+    def pixel_rays(self, shape: tuple[int, int] | None = None) -> npt.NDArray[np.float64]:
         """Rays ``((u - cx)/f, (v - cy)/f, 1)`` of every pixel, camera frame: (H, W, 3) float64.
 
         ``shape`` is ``(H, W)``; it defaults to the camera's own ``(height, width)``.
@@ -213,7 +220,7 @@ class StereoCamera:
         rays[..., 2] = 1.0
         return rays
 
-    def triangulate(self, disparity_px):
+    def triangulate(self, disparity_px: npt.ArrayLike) -> npt.NDArray[np.float64]:
         """3-D points of a whole disparity map (thesis eq. 3.8), left-camera frame, metres.
 
         Parameters

@@ -7,10 +7,14 @@ domain where the stereo noise is uniform (disparity) rather than growing with de
 come from summed-area tables (one numba pass over the image), then each fitted pixel costs a constant.
 """
 
+from __future__ import annotations
+
 import numba as nb
 import numpy as np
+import numpy.typing as npt
 
 from prismap._validate import check_integer
+from prismap.camera._stereo_camera import StereoCamera
 from prismap.errors import PrismapInputError
 
 PLANE_WINDOW_PX = 7
@@ -20,7 +24,9 @@ MIN_WINDOW_SHARE = 0.5
 """Fewest valid pixels a window may hold for its fit (share of the window); fewer: no normal."""
 
 
-def plane_normals(disparity_px, camera, *, window_px=PLANE_WINDOW_PX, subsample=1):
+def plane_normals(
+    disparity_px: npt.ArrayLike, camera: StereoCamera, *, window_px: int = PLANE_WINDOW_PX, subsample: int = 1
+) -> npt.NDArray[np.float64]:
     """Unit normal of the surface at each (``subsample``-th) pixel, camera frame, facing the camera.
 
     Parameters

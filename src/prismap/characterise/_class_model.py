@@ -1,8 +1,11 @@
 """One class of pixels in an error model: its fitted mixtures over G and the one selected."""
 
+from __future__ import annotations
+
 from dataclasses import dataclass, field
 
 from prismap.errors import PrismapInputError
+from prismap.gmm import GaussianMixture, MixtureFit
 
 
 def _find_fit(fits, n_components):
@@ -43,12 +46,12 @@ class ClassModel:
         if self.outlier is not None:
             _ = self.mixture  # a bad outlier component fails here, not at first use
 
-    def fit(self, n_components):
+    def fit(self, n_components: int) -> MixtureFit:
         """The :class:`MixtureFit` with ``n_components`` components."""
         return _find_fit(self.fits, n_components)
 
     @property
-    def mixture(self):
+    def mixture(self) -> GaussianMixture:
         """The selected :class:`GaussianMixture` (pixels), with the outlier component if there is one."""
         fitted = self.fit(self.selected_components).mixture
         if self.outlier is None:

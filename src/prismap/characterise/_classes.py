@@ -6,10 +6,14 @@ overlap, so every pixel with a valid disparity falls in exactly one class. With 
 class holding every valid pixel (a plain, unconditioned error model).
 """
 
+from __future__ import annotations
+
 import itertools
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 
 from prismap.characterise._features import FEATURE_UNITS
 from prismap.errors import PrismapInputError
@@ -69,12 +73,12 @@ class ErrorClasses:
         object.__setattr__(self, "upper", upper)
 
     @classmethod
-    def single(cls):
+    def single(cls) -> ErrorClasses:
         """One class holding every valid pixel (no feature)."""
         return cls((), np.zeros((1, 0)), np.zeros((1, 0)))
 
     @classmethod
-    def from_edges(cls, features, edges):
+    def from_edges(cls, features: Sequence[str], edges: Sequence[npt.ArrayLike]) -> ErrorClasses:
         """The grid of bins ``edges[f]`` (interior edges, increasing) on each feature; class index row-major."""
         features = tuple(features)
         if len(edges) != len(features):
@@ -91,15 +95,15 @@ class ErrorClasses:
         return cls(features, lower, upper)
 
     @property
-    def n_classes(self):
+    def n_classes(self) -> int:
         """Number of classes K."""
         return self.lower.shape[0]
 
-    def bounds(self, k):
+    def bounds(self, k: int) -> dict[str, tuple[float, float]]:
         """``{feature: (lower, upper)}`` of class ``k``."""
         return {name: (float(self.lower[k, f]), float(self.upper[k, f])) for f, name in enumerate(self.features)}
 
-    def assign(self, values, valid=None):
+    def assign(self, values: Mapping[str, np.ndarray], valid: np.ndarray | None = None) -> npt.NDArray[np.int32]:
         """Class of each sample: int32 of the samples' shape, :data:`NO_CLASS` where invalid or NaN.
 
         Parameters
@@ -150,7 +154,7 @@ class ErrorClasses:
                 lookup[np.ravel_multi_index(tuple(cell), sizes)] = k
         return lookup
 
-    def to_list(self):
+    def to_list(self) -> list[dict[str, list[float | None]]]:
         """JSON form: one ``{feature: [lower or null, upper or null]}`` per class (null = infinite)."""
         return [
             {

@@ -9,12 +9,19 @@ projected into frame ``i + lag`` and paired with the pixel it lands on (nearest 
 the same point: its true depth within ``depth_tolerance`` of the point's depth in that frame.
 """
 
+from __future__ import annotations
+
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from prismap._validate import check_integer, check_positive
+from prismap.camera import StereoCamera
 from prismap.errors import PrismapInputError
+from prismap.io._frame import StereoFrame
 
 
 @dataclass(frozen=True)
@@ -43,7 +50,7 @@ class ErrorCorrelation:
     gross_rate: float
     gross_repeat: float
 
-    def to_dict(self):
+    def to_dict(self) -> dict[str, Any]:
         """JSON form (NaN as None)."""
         return {
             name: (None if isinstance(value, float) and np.isnan(value) else value)
@@ -52,8 +59,16 @@ class ErrorCorrelation:
 
 
 def frame_error_correlation(
-    frames, disparities, camera, *, lag=1, step=2, limit_px=3.0, gross_px=1.0, depth_tolerance=0.02
-):
+    frames: Sequence[StereoFrame],
+    disparities: Sequence[npt.ArrayLike],
+    camera: StereoCamera,
+    *,
+    lag: int = 1,
+    step: int = 2,
+    limit_px: float = 3.0,
+    gross_px: float = 1.0,
+    depth_tolerance: float = 0.02,
+) -> ErrorCorrelation:
     """Pair the errors of frames ``lag`` apart at the same surface points (module docstring) and compare them.
 
     Parameters

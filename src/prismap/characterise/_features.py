@@ -22,10 +22,13 @@ so a mapping run can compute it for each frame and pick the error mixture of eac
 - ``disparity_px`` (pixels): the computed disparity itself.
 """
 
+from __future__ import annotations
+
 from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
+import numpy.typing as npt
 from scipy import ndimage
 
 from prismap._validate import as_float_array, check_positive
@@ -65,17 +68,19 @@ class PixelFeatures:
     settings: dict = field(default_factory=dict)
 
     @property
-    def names(self):
+    def names(self) -> tuple[str, ...]:
         """Names of the features present."""
         return tuple(self.values)
 
     @property
-    def shape(self):
+    def shape(self) -> tuple[int, ...]:
         """``(H, W)`` of the frame."""
         return self.valid.shape
 
 
-def discontinuity_mask(disparity, *, edge_threshold_px=DEFAULT_EDGE_THRESHOLD_PX):
+def discontinuity_mask(
+    disparity: npt.ArrayLike, *, edge_threshold_px: float = DEFAULT_EDGE_THRESHOLD_PX
+) -> npt.NDArray[np.bool_]:
     """(H, W) bool: pixels on a disparity discontinuity (a 4-neighbour jump above the threshold, or invalid)."""
     d = as_float_array(disparity, "disparity", ndim=2)
     threshold = check_positive(edge_threshold_px, "edge_threshold_px")
@@ -116,7 +121,9 @@ def texture_strength(grey, *, window_px=DEFAULT_TEXTURE_WINDOW_PX):
     return np.sqrt(np.maximum(energy, 0.0))
 
 
-def disparity_gradient(disparity, *, window_px=DEFAULT_TEXTURE_WINDOW_PX):
+def disparity_gradient(
+    disparity: npt.ArrayLike, *, window_px: int = DEFAULT_TEXTURE_WINDOW_PX
+) -> npt.NDArray[np.float64]:
     """(H, W) float64, pixels per pixel: mean Sobel gradient magnitude of the disparity over a square window.
 
     Only pixels whose 3x3 neighbourhood is wholly finite have a gradient; the window averages those
@@ -151,14 +158,14 @@ def _odd_window(window_px):
 
 
 def compute_features(
-    left_grey,
-    right_grey,
-    disparity,
-    lr_disagreement=None,
+    left_grey: npt.ArrayLike,
+    right_grey: npt.ArrayLike | None,
+    disparity: npt.ArrayLike,
+    lr_disagreement: npt.ArrayLike | None = None,
     *,
-    edge_threshold_px=DEFAULT_EDGE_THRESHOLD_PX,
-    texture_window_px=DEFAULT_TEXTURE_WINDOW_PX,
-):
+    edge_threshold_px: float = DEFAULT_EDGE_THRESHOLD_PX,
+    texture_window_px: int = DEFAULT_TEXTURE_WINDOW_PX,
+) -> PixelFeatures:
     """The confidence features of one frame (see the module docstring for each).
 
     Parameters

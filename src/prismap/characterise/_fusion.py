@@ -10,13 +10,20 @@ the failure state's rate ``r`` and the share of gross errors after a gross error
 ``{"model": "independent"}`` (or no field) is today's independent sum.
 """
 
+from __future__ import annotations
+
 import math
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
+from prismap.camera import StereoCamera
 from prismap.characterise._correlation import frame_error_correlation
 from prismap.errors import PrismapInputError
 from prismap.grid import PersistentFailure
+from prismap.io._frame import StereoFrame
 
 FUSION_MODELS = ("independent", "persistent-failure")
 """The fusion block's ``model`` values."""
@@ -29,7 +36,13 @@ MIN_PAIRS = 100
 """Fewest paired surface points a fit accepts: fewer cannot estimate a rate of a few per cent."""
 
 
-def fit_fusion(frames, disparities, camera, *, gross_px=FUSION_GROSS_PX):
+def fit_fusion(
+    frames: Sequence[StereoFrame],
+    disparities: Sequence[npt.ArrayLike],
+    camera: StereoCamera,
+    *,
+    gross_px: float = FUSION_GROSS_PX,
+) -> dict[str, Any]:
     """The persistent-failure block of a matcher from characterisation frames with truth and poses.
 
     Parameters
@@ -96,7 +109,7 @@ def path_order(positions):
     return order
 
 
-def fusion_from_block(block, *, source="error model"):
+def fusion_from_block(block: dict[str, Any] | None, *, source: str = "error model") -> PersistentFailure | None:
     """The :class:`~prismap.grid.PersistentFailure` of a fusion block, or None for independent fusion.
 
     Raises
@@ -120,7 +133,7 @@ def fusion_from_block(block, *, source="error model"):
         raise PrismapInputError(f"{source}: field 'fusion': {exc}") from None
 
 
-def fusion_block(fusion, **fit):
+def fusion_block(fusion: PersistentFailure | None, **fit: Any) -> dict[str, Any]:
     """The JSON block of ``fusion`` (a :class:`~prismap.grid.PersistentFailure` or None); ``fit`` adds what
     the fit recorded (``gross_px``, ``n_pairs``)."""
     if fusion is None:

@@ -1,8 +1,11 @@
 """Disparity errors of a matcher against ground truth, accumulated in a fixed-bin histogram."""
 
+from __future__ import annotations
+
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 
 from prismap._validate import as_float_array, check_positive
 from prismap.errors import PrismapInputError
@@ -70,7 +73,7 @@ class ErrorHistogram:
         object.__setattr__(self, "limit_px", limit)
 
     @classmethod
-    def empty(cls, *, bin_width=DEFAULT_BIN_WIDTH, limit_px=DEFAULT_LIMIT_PX):
+    def empty(cls, *, bin_width: float = DEFAULT_BIN_WIDTH, limit_px: float = DEFAULT_LIMIT_PX) -> ErrorHistogram:
         """A histogram with no errors, to add frames to."""
         n_bins = int(round(2.0 * check_positive(limit_px, "limit_px") / check_positive(bin_width, "bin_width")))
         if n_bins > MAX_BINS:
@@ -82,8 +85,14 @@ class ErrorHistogram:
 
     @classmethod
     def from_disparities(
-        cls, disparity, disparity_gt, *, bin_width=DEFAULT_BIN_WIDTH, limit_px=DEFAULT_LIMIT_PX, name="frame"
-    ):
+        cls,
+        disparity: npt.ArrayLike,
+        disparity_gt: npt.ArrayLike,
+        *,
+        bin_width: float = DEFAULT_BIN_WIDTH,
+        limit_px: float = DEFAULT_LIMIT_PX,
+        name: str = "frame",
+    ) -> ErrorHistogram:
         """The errors of one frame.
 
         Parameters
@@ -121,7 +130,14 @@ class ErrorHistogram:
         return cls.from_errors(errors, n_gt_valid=n_known, bin_width=bin_width, limit_px=limit_px)
 
     @classmethod
-    def from_errors(cls, errors, *, n_gt_valid=None, bin_width=DEFAULT_BIN_WIDTH, limit_px=DEFAULT_LIMIT_PX):
+    def from_errors(
+        cls,
+        errors: npt.ArrayLike,
+        *,
+        n_gt_valid: int | None = None,
+        bin_width: float = DEFAULT_BIN_WIDTH,
+        limit_px: float = DEFAULT_LIMIT_PX,
+    ) -> ErrorHistogram:
         """One frame's errors ``e = d_true - d_computed`` (pixels, finite, any shape).
 
         ``n_gt_valid`` (default: the number of errors, i.e. full coverage) is the frame's count of
@@ -164,48 +180,48 @@ class ErrorHistogram:
         )
 
     @property
-    def edges(self):
+    def edges(self) -> npt.NDArray[np.float64]:
         """(B + 1,) float64, pixels: bin edges."""
         return -self.limit_px + self.bin_width * np.arange(self.counts.size + 1)
 
     @property
-    def centres(self):
+    def centres(self) -> npt.NDArray[np.float64]:
         """(B,) float64, pixels: bin centres."""
         return -self.limit_px + self.bin_width * (np.arange(self.counts.size) + 0.5)
 
     @property
-    def n_errors(self):
+    def n_errors(self) -> int:
         """Pixels with both a computed value and ground truth, binned or not."""
         return int(self.counts.sum()) + self.n_below + self.n_above
 
     @property
-    def coverage(self):
+    def coverage(self) -> float:
         """Share of ground-truth pixels with a computed value."""
         return self.n_errors / self.n_gt_valid if self.n_gt_valid else float("nan")
 
     @property
-    def bad_1px(self):
+    def bad_1px(self) -> float:
         """Share of computed pixels with ``|e| > 1`` px."""
         return self.n_bad_1px / self.n_errors if self.n_errors else float("nan")
 
     @property
-    def bad_2px(self):
+    def bad_2px(self) -> float:
         """Share of computed pixels with ``|e| > 2`` px."""
         return self.n_bad_2px / self.n_errors if self.n_errors else float("nan")
 
     @property
-    def mean_abs_error_px(self):
+    def mean_abs_error_px(self) -> float:
         """Mean ``|e|`` (pixels) over computed pixels."""
         return self.sum_abs_error_px / self.n_errors if self.n_errors else float("nan")
 
-    def density(self):
+    def density(self) -> npt.NDArray[np.float64]:
         """(B,) float64, 1/pixel: the binned errors as a probability density (integrates to 1)."""
         total = self.counts.sum()
         if total == 0:
             raise PrismapInputError("the error histogram is empty: no error to show as a density")
         return self.counts / (total * self.bin_width)
 
-    def statistics(self):
+    def statistics(self) -> dict[str, int | float]:
         """The summary numbers as a JSON-ready dict."""
         return {
             "n_frames": self.n_frames,

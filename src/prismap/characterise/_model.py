@@ -46,14 +46,21 @@ Means and sigmas are pixels; AIC and BIC use ``k = 3G - 1``, ``3G`` with a failu
 measured against ground truth on an unrecorded rig).
 """
 
+from __future__ import annotations
+
 import json
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
 
 from prismap._files import write_text_atomic
 from prismap.characterise._class_model import ClassModel, _describe, _find_fit
 from prismap.characterise._classes import ErrorClasses
-from prismap.characterise._features import FEATURE_UNITS, LR_FEATURE, compute_features
+from prismap.characterise._features import FEATURE_UNITS, LR_FEATURE, PixelFeatures, compute_features
 from prismap.characterise._fusion import fusion_from_block
 from prismap.characterise._model_json import (
     MAX_COMPONENTS,
@@ -68,6 +75,8 @@ from prismap.characterise._model_json import (
     error_bound_px,
 )
 from prismap.errors import PrismapInputError
+from prismap.gmm import GaussianMixture, MixtureFit
+from prismap.grid import PersistentFailure
 from prismap.io._text import read_text
 from prismap.stereo._base import to_grey
 
@@ -170,31 +179,31 @@ class ErrorModel:
         object.__setattr__(self, "classes", classes)
         object.__setattr__(self, "class_models", class_models)
 
-    def fit(self, n_components):
+    def fit(self, n_components: int) -> MixtureFit:
         """The whole-image :class:`MixtureFit` with ``n_components`` components."""
         return _find_fit(self.fits, n_components)
 
     @property
-    def mixture(self):
+    def mixture(self) -> GaussianMixture:
         """The selected whole-image :class:`GaussianMixture` (pixels): what the plain sensor models use."""
         return self.fit(self.selected_components).mixture
 
     @property
-    def n_classes(self):
+    def n_classes(self) -> int:
         """Number of error classes (1 for a plain model)."""
         return self.classes.n_classes
 
     @property
-    def conditioned(self):
+    def conditioned(self) -> bool:
         """Whether the classes split pixels by features (False: one class, the plain model)."""
         return bool(self.classes.features)
 
     @property
-    def class_mixtures(self):
+    def class_mixtures(self) -> tuple[GaussianMixture, ...]:
         """The selected mixture of each class, in class order: tuple of GaussianMixture (pixels)."""
         return tuple(model.mixture for model in self.class_models)
 
-    def check_usable(self, matcher, *, left_right_check):
+    def check_usable(self, matcher: str, *, left_right_check: bool) -> None:
         """Raise unless a run with this matcher can compute the features the classes need.
 
         Parameters
@@ -218,7 +227,7 @@ class ErrorModel:
                 "check; this run has it off (turn on left_right_check, or use the plain model)"
             )
 
-    def classify(self, features):
+    def classify(self, features: PixelFeatures) -> npt.NDArray[np.int32]:
         """Class of each pixel of one frame.
 
         Parameters
@@ -238,7 +247,13 @@ class ErrorModel:
                 )
         return self.classes.assign(features.values, features.valid)
 
-    def classify_frame(self, left, right, disparity, lr_disagreement=None):
+    def classify_frame(
+        self,
+        left: np.ndarray,
+        right: np.ndarray,
+        disparity: npt.ArrayLike,
+        lr_disagreement: npt.ArrayLike | None = None,
+    ) -> npt.NDArray[np.int32]:
         """Class of each pixel of a stereo frame: its features (this model's :attr:`feature_settings`) from the
         images and the computed disparity, then :meth:`classify`.
 
@@ -255,7 +270,7 @@ class ErrorModel:
         features = compute_features(to_grey(left), to_grey(right), disparity, lr_disagreement, **self.feature_settings)
         return self.classify(features)
 
-    def to_dict(self):
+    def to_dict(self) -> dict[str, Any]:
         """The JSON form documented in this module."""
         return {
             "format": FORMAT,
@@ -291,12 +306,12 @@ class ErrorModel:
         }
 
     @property
-    def persistent_failure(self):
+    def persistent_failure(self) -> PersistentFailure | None:
         """The :class:`prismap.grid.PersistentFailure` of the fusion block, or None (independent fusion)."""
         return fusion_from_block(self.fusion)
 
     @classmethod
-    def from_dict(cls, data, *, source="error model"):
+    def from_dict(cls, data: dict[str, Any], *, source: str = "error model") -> ErrorModel:
         """Inverse of :meth:`to_dict` (also reads format versions 1 and 2); ``source`` starts every error message."""
         if not isinstance(data, dict):
             raise PrismapInputError(f"{source}: expected a JSON object; got {type(data).__name__}")
@@ -352,7 +367,7 @@ class ErrorModel:
             raise PrismapInputError(f"{source}: {exc}") from None
 
 
-def write_error_model(model, path):
+def write_error_model(model: ErrorModel, path: str | os.PathLike[str]) -> None:
     """Write ``model`` as JSON to ``path`` atomically (the file appears whole or not at all)."""
     write_text_atomic(path, json.dumps(model.to_dict(), indent=2, default=_plain) + "\n")
 
@@ -364,7 +379,7 @@ def _plain(value):
     raise TypeError(f"cannot write {type(value).__name__} to an error model")
 
 
-def load_error_model(path):
+def load_error_model(path: str | os.PathLike[str]) -> ErrorModel:
     """Read an error-model JSON file; ``.mixture`` of the result is the selected mixture.
 
     Raises

@@ -1,13 +1,15 @@
 """The Markdown table of an error model: every fitted G with AIC/BIC, the selected one, and each class."""
 
+from __future__ import annotations
+
 from prismap.characterise._class_model import _describe
 from prismap.characterise._features import FEATURE_UNITS
-from prismap.characterise._model import HELD_OUT
+from prismap.characterise._model import HELD_OUT, ErrorModel
 
 TABLE_MIN_WEIGHT = 0.1
 
 
-def format_table(model):
+def format_table(model: ErrorModel) -> str:
     """Markdown table of the fits in the layout of the thesis's tables 3.1-3.3.
 
     One row per G with AIC, BIC and ``mu, sigma, w`` per component, heaviest component first. Like the

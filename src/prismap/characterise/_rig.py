@@ -7,8 +7,14 @@ a street camera) gives PRISM wrong likelihoods without any sign of it, so the ma
 model's recorded rig with their own and warn, naming both, or refuse with ``--strict-rig``.
 """
 
-import math
+from __future__ import annotations
 
+import math
+from collections.abc import Mapping
+from typing import Any
+
+from prismap.camera import StereoCamera
+from prismap.characterise._model import ErrorModel
 from prismap.errors import PrismapInputError
 
 RIG_RTOL = 0.01
@@ -18,7 +24,9 @@ _NUMBERS = (("focal_px", "focal length", "px"), ("baseline_m", "baseline", "m"))
 _SIZES = (("width", "image width", "px"), ("height", "image height", "px"))
 
 
-def describe_rig(camera, shape, matcher, matcher_params):
+def describe_rig(
+    camera: StereoCamera, shape: tuple[int, int] | None, matcher: str | None, matcher_params: Mapping[str, Any] | None
+) -> dict[str, Any]:
     """The rig record of an error model (JSON): camera, image size and matcher.
 
     Parameters
@@ -42,7 +50,7 @@ def describe_rig(camera, shape, matcher, matcher_params):
     }
 
 
-def rig_differences(recorded, current, *, rtol=RIG_RTOL):
+def rig_differences(recorded: Mapping[str, Any], current: Mapping[str, Any], *, rtol: float = RIG_RTOL) -> list[str]:
     """What differs between two rig records, in words (empty when they agree).
 
     Focal length and baseline differ beyond ``rtol`` (relative); image sizes, the matcher and each matcher
@@ -68,7 +76,7 @@ def rig_differences(recorded, current, *, rtol=RIG_RTOL):
     return found
 
 
-def check_rig(model, current, *, strict, where="error model"):
+def check_rig(model: ErrorModel, current: Mapping[str, Any], *, strict: bool, where: str = "error model") -> str | None:
     """Compare ``model``'s recorded rig with the run's: the warning to print, or raise when ``strict``.
 
     Parameters

@@ -6,10 +6,15 @@ whatever the number of frames. Work runs in chunks of frame positions whose resu
 model.
 """
 
+from __future__ import annotations
+
 import contextlib
 import dataclasses
 import functools
+import os
+from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -36,7 +41,9 @@ from prismap.characterise._select import (
     outlier_component,
 )
 from prismap.errors import PrismapInputError
-from prismap.gmm import fit_mixtures, select_components
+from prismap.gmm import GaussianMixture, fit_mixtures, select_components
+from prismap.io._frame import StereoFrame
+from prismap.stereo import StereoMatcher
 from prismap.stereo._base import to_grey
 
 DEFAULT_MAX_CLASSES = 24
@@ -63,7 +70,7 @@ class Characterisation:
     class_histograms: tuple = ()
 
     @property
-    def mixture(self):
+    def mixture(self) -> GaussianMixture:
         """The selected whole-image :class:`~prismap.gmm.GaussianMixture` (pixels)."""
         return self.model.mixture
 
@@ -163,29 +170,29 @@ def class_histogram_chunk(frames, matcher, positions, settings, classes):
 
 
 def characterise_matcher(
-    frames,
-    matcher,
+    frames: Sequence[StereoFrame],
+    matcher: StereoMatcher,
     *,
-    max_components=4,
-    bin_width=DEFAULT_BIN_WIDTH,
-    limit_px=DEFAULT_LIMIT_PX,
-    dataset="",
-    criterion="bic",
-    tolerance=0.01,
-    restarts=4,
-    seed=0,
-    conditioned=True,
-    max_classes=DEFAULT_MAX_CLASSES,
-    edge_threshold_px=DEFAULT_EDGE_THRESHOLD_PX,
-    texture_window_px=DEFAULT_TEXTURE_WINDOW_PX,
-    max_samples=DEFAULT_MAX_SAMPLES,
-    search_frames=DEFAULT_SEARCH_FRAMES,
-    progress=True,
-    map_chunks=None,
-    chunk_frames=1,
-    source="ground-truth",
-    failures=True,
-):
+    max_components: int = 4,
+    bin_width: float = DEFAULT_BIN_WIDTH,
+    limit_px: float = DEFAULT_LIMIT_PX,
+    dataset: str = "",
+    criterion: str = "bic",
+    tolerance: float = 0.01,
+    restarts: int = 4,
+    seed: int = 0,
+    conditioned: bool = True,
+    max_classes: int = DEFAULT_MAX_CLASSES,
+    edge_threshold_px: float = DEFAULT_EDGE_THRESHOLD_PX,
+    texture_window_px: int = DEFAULT_TEXTURE_WINDOW_PX,
+    max_samples: int = DEFAULT_MAX_SAMPLES,
+    search_frames: int = DEFAULT_SEARCH_FRAMES,
+    progress: bool = True,
+    map_chunks: Callable[..., Iterable[Any]] | None = None,
+    chunk_frames: int = 1,
+    source: str = "ground-truth",
+    failures: bool = True,
+) -> Characterisation:
     """Run ``matcher`` on ``frames``, histogram its errors and fit mixtures with G = 1..``max_components``.
 
     Each frame's errors ``e = d_true - d_computed`` are binned at once into the whole-image histogram.
@@ -459,7 +466,7 @@ def written_characterisation(out_dir):
     return paths if all(path.is_file() for path in paths.values()) else None
 
 
-def write_characterisation(result, out_dir):
+def write_characterisation(result: Characterisation, out_dir: str | os.PathLike[str]) -> dict[str, Path]:
     """Write ``error_model.json``, ``table.md``, ``errors.png``, ``errors_wide.png`` into ``out_dir``.
 
     A conditioned model adds ``errors_classes.png`` (one panel per class).

@@ -9,11 +9,15 @@ of a union is the lowest ``capacity`` of the parts' lowest, so samples of chunks
 (``a + b``) into exactly the sample of all of them, in any order and on any worker.
 """
 
+from __future__ import annotations
+
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 
 from prismap._validate import check_integer
+from prismap.characterise._features import PixelFeatures
 from prismap.errors import PrismapInputError
 
 DEFAULT_MAX_SAMPLES = 4_000_000
@@ -61,7 +65,16 @@ class PixelSample:
     errors: np.ndarray
 
     @classmethod
-    def from_frame(cls, features, disparity_gt, position, *, capacity=DEFAULT_MAX_SAMPLES, seed=0, name="frame"):
+    def from_frame(
+        cls,
+        features: PixelFeatures,
+        disparity_gt: npt.ArrayLike,
+        position: int,
+        *,
+        capacity: int = DEFAULT_MAX_SAMPLES,
+        seed: int = 0,
+        name: str = "frame",
+    ) -> PixelSample:
         """The sample of one frame's characterised pixels.
 
         Parameters
@@ -128,16 +141,16 @@ class PixelSample:
         )
 
     @property
-    def n_samples(self):
+    def n_samples(self) -> int:
         """Pixels kept."""
         return int(self.errors.size)
 
     @property
-    def exhaustive(self):
+    def exhaustive(self) -> bool:
         """Whether every characterised pixel seen is kept."""
         return self.n_samples == self.n_seen
 
-    def arrays(self):
+    def arrays(self) -> tuple[dict[str, npt.NDArray[np.float64]], np.ndarray, npt.NDArray[np.int64], str]:
         """What the class search takes: float64 features, errors, the held-out fold of each pixel, its description.
 
         The folds are frames of even and odd position when the sample holds two frames or more, else the

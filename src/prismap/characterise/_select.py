@@ -17,7 +17,11 @@ O(bins)) from one start (:data:`SEARCH_FIT`); the held-out log-densities are tho
 same for every candidate.
 """
 
+from __future__ import annotations
+
 import dataclasses
+from collections.abc import Mapping
+from typing import Any
 
 import numpy as np
 
@@ -246,17 +250,17 @@ def fit_classes(
 
 
 def choose_classes(
-    values,
-    errors,
-    fold,
+    values: Mapping[str, np.ndarray],
+    errors: np.ndarray,
+    fold: np.ndarray,
     *,
-    bin_edges,
-    max_classes,
-    max_components,
-    seed=0,
-    min_class_errors=MIN_CLASS_ERRORS,
-    search_range_px=None,
-):
+    bin_edges: np.ndarray,
+    max_classes: int,
+    max_components: int,
+    seed: int = 0,
+    min_class_errors: int = MIN_CLASS_ERRORS,
+    search_range_px: tuple[float, float] | None = None,
+) -> tuple[ErrorClasses, dict[str, Any]]:
     """The candidate classes with the highest held-out log-likelihood, each class's G, and the record of the search.
 
     Each class's G (1 .. ``max_components``) is chosen by the same held-out log-likelihood as the classes,

@@ -10,16 +10,23 @@ disagree as much as distant ones do is measured first (:func:`lag_agreement`). T
 assumptions are docs/SENSOR_MODELS.md, "Self-characterisation".
 """
 
+from __future__ import annotations
+
 import dataclasses
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from prismap._progress import progress as progress_bar
 from prismap._validate import check_integer
-from prismap.camera import fitted_disparity
+from prismap.camera import StereoCamera, fitted_disparity
 from prismap.characterise._run import Characterisation, characterise_matcher
 from prismap.errors import PrismapInputError
 from prismap.gmm import GaussianMixture
+from prismap.io._frame import StereoFrame
+from prismap.stereo import StereoMatcher
 
 DEFAULT_REFERENCES = 4
 """Frames whose disparities make each frame's reference (the nearest allowed ones)."""
@@ -129,7 +136,15 @@ def _robust_sigma(values):
     return float(_MAD_TO_SIGMA * np.median(np.abs(values - np.median(values))))
 
 
-def lag_agreement(frames, disparities, camera, *, max_lag=DEFAULT_MAX_LAG, pairs=LAG_PAIRS, near_m=0.0):
+def lag_agreement(
+    frames: Sequence[StereoFrame],
+    disparities: Sequence[npt.ArrayLike],
+    camera: StereoCamera,
+    *,
+    max_lag: int = DEFAULT_MAX_LAG,
+    pairs: int = LAG_PAIRS,
+    near_m: float = 0.0,
+) -> list[dict[str, Any]]:
     """How much frames ``lag`` apart disagree at the same pixels, for lag = 1..``max_lag``.
 
     For frame pairs ``(k, k + lag)`` the later frame's disparity is carried into the earlier one and
@@ -228,17 +243,17 @@ def median_variance(n, *, draws=200_000):
 
 
 def self_characterise(
-    frames,
-    matcher,
+    frames: Sequence[StereoFrame],
+    matcher: StereoMatcher,
     *,
-    min_lag=None,
-    max_lag=DEFAULT_MAX_LAG,
-    n_references=DEFAULT_REFERENCES,
-    min_references=2,
-    dataset="",
-    progress=True,
-    **options,
-):
+    min_lag: int | None = None,
+    max_lag: int = DEFAULT_MAX_LAG,
+    n_references: int = DEFAULT_REFERENCES,
+    min_references: int = 2,
+    dataset: str = "",
+    progress: bool = True,
+    **options: Any,
+) -> SelfCharacterisation:
     """Characterise ``matcher`` on a posed stereo sequence without ground truth (module docstring).
 
     Parameters

@@ -9,12 +9,15 @@ inputs, :func:`run_inputs`) and locked (``fcntl``) for its whole duration, so tw
 refused run removes the ``--out`` directory it created.
 """
 
+from __future__ import annotations
+
 import argparse
 import contextlib
 import importlib
 import shutil
 import signal
 import sys
+from collections.abc import Sequence
 from pathlib import Path
 
 import cv2
@@ -46,7 +49,7 @@ def build_parser():
     return parser
 
 
-def main(argv=None):
+def main(argv: Sequence[str] | None = None) -> int:
     """Run ``prismap`` with ``argv`` (default ``sys.argv[1:]``); return the exit status."""
     parser = build_parser()
     args = parser.parse_args(argv)

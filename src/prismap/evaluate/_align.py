@@ -1,13 +1,23 @@
 """Line a map's voxels up with a ground truth, by integer key, in 2-D or 3-D."""
 
+from __future__ import annotations
+
 import numpy as np
+import numpy.typing as npt
 
 from prismap._validate import as_float_array, check_probability
 from prismap.errors import PrismapInputError
 from prismap.grid import pack_key_sets
 
 
-def align_to_ground_truth(keys, probability, occupied_keys, region_keys, *, p0):
+def align_to_ground_truth(
+    keys: npt.ArrayLike,
+    probability: npt.ArrayLike,
+    occupied_keys: npt.ArrayLike,
+    region_keys: npt.ArrayLike,
+    *,
+    p0: float,
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.bool_]]:
     """Predicted ``P`` and true occupancy for every voxel of the evaluated region.
 
     Parameters

@@ -1,12 +1,16 @@
 """A map scored against ground-truth occupancy: the one place a map's voxels meet the scores."""
 
+from __future__ import annotations
+
 from scipy.special import logit
 
 from prismap.evaluate._align import align_to_ground_truth
-from prismap.evaluate._scores import score_map
+from prismap.evaluate._scores import MapScores, score_map
+from prismap.grid import OccupancyMap
+from prismap.io import GroundTruthOccupancy
 
 
-def score_grid(grid, truth):
+def score_grid(grid: OccupancyMap, truth: GroundTruthOccupancy) -> MapScores:
     """Score ``grid`` on every voxel ``truth`` observed; an unknown voxel scores as ``grid.p0``.
 
     Parameters

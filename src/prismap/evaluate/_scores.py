@@ -1,10 +1,14 @@
 """Proper scores of a probabilistic map against true occupancy (SENSOR_MODELS.md section 6)."""
 
+from __future__ import annotations
+
 import math
 from dataclasses import dataclass, field
 from fractions import Fraction
+from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 from scipy.stats import rankdata
 
 from prismap._validate import as_float_array
@@ -132,7 +136,7 @@ class MapScores:
     evidence_one_view: np.ndarray = field(default_factory=lambda: np.zeros(len(EVIDENCE_EDGES) - 1, np.int64))
     evidence_per_view: np.ndarray = field(default_factory=lambda: np.zeros(len(EVIDENCE_EDGES) - 1, np.int64))
 
-    def to_dict(self):
+    def to_dict(self) -> dict[str, Any]:
         """Plain Python types for JSON: arrays become lists and NaN becomes ``None``."""
         out = {}
         for name, value in self.__dict__.items():
@@ -149,7 +153,14 @@ def _plain(value):
     return value
 
 
-def score_map(probability, occupied, *, n_bins=10, n_hist_bins=20, evidence=None):
+def score_map(
+    probability: npt.ArrayLike,
+    occupied: npt.ArrayLike,
+    *,
+    n_bins: int = 10,
+    n_hist_bins: int = 20,
+    evidence: tuple[npt.ArrayLike, npt.ArrayLike] | None = None,
+) -> MapScores:
     """Score predicted occupancy probabilities of a set of voxels against the truth.
 
     Parameters
@@ -249,7 +260,9 @@ def _reliability(p, y, index, n_bins):
     return counts.astype(np.int64), mean, fraction
 
 
-def evidence_histograms(increments, counts):
+def evidence_histograms(
+    increments: npt.ArrayLike, counts: npt.ArrayLike
+) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]:
     """Histograms on :data:`EVIDENCE_EDGES` of the evidence frames gave the map's voxels.
 
     Parameters
@@ -280,7 +293,9 @@ def evidence_histograms(increments, counts):
     return one_view, per_view
 
 
-def safety_score(probability, occupied, *, free_share=SAFETY_FREE_SHARE):
+def safety_score(
+    probability: npt.ArrayLike, occupied: npt.ArrayLike, *, free_share: float = SAFETY_FREE_SHARE
+) -> tuple[float, float]:
     """Share of truly occupied voxels called free at the threshold that calls ``free_share`` of the free ones free.
 
     A voxel is called free when ``P <= t``. The threshold ``t`` is the smallest such that at least
@@ -322,7 +337,7 @@ def safety_score(probability, occupied, *, free_share=SAFETY_FREE_SHARE):
     return score, threshold
 
 
-def roc_auc(score, positive):
+def roc_auc(score: npt.ArrayLike, positive: npt.ArrayLike) -> float:
     """Area under the ROC curve from ranks (Mann-Whitney U), ties counted one half.
 
     Parameters

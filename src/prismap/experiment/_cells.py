@@ -1,5 +1,7 @@
 """The shared part of both experiments: map with every model (resumably), score, and draw the figures."""
 
+from __future__ import annotations
+
 import json
 import time
 from dataclasses import dataclass
@@ -35,7 +37,7 @@ class ExperimentResult:
     settings: dict
     artifacts: tuple
 
-    def cell(self, matcher, model):
+    def cell(self, matcher: str, model: str) -> CellResult:
         """The :class:`CellResult` of ``(matcher, model)``; raises if the run has none."""
         for result in self.cells:
             if result.matcher == matcher and result.model == model:

@@ -1,5 +1,10 @@
 """The 2-D experiment: a stereo range scanner whose errors follow a known mixture, through the office world."""
 
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+
 import numpy as np
 
 from prismap._progress import progress
@@ -50,16 +55,16 @@ def office2d_settings(
 
 
 def run_office2d(
-    out_dir,
+    out_dir: str | os.PathLike[str],
     *,
-    n_frames=None,
-    voxel_size_m=None,
-    seed=0,
-    quick=False,
-    models=MODELS,
-    error_model=SGBM_LIKE_MIXTURE,
-    max_depth_m=15.0,
-):
+    n_frames: int | None = None,
+    voxel_size_m: float | None = None,
+    seed: int = 0,
+    quick: bool = False,
+    models: Sequence[str] = MODELS,
+    error_model: GaussianMixture = SGBM_LIKE_MIXTURE,
+    max_depth_m: float = 15.0,
+) -> ExperimentResult:
     """Map the office world with every sensor model from disparities with known-mixture errors; score them.
 
     The scanner (:class:`prismap.sim.StereoScanner2D`, 90 degree field of view, 0.1 m baseline) follows

@@ -1,14 +1,20 @@
 """One experiment cell (a matcher's disparities mapped with one sensor model), its scores, and the results table."""
 
+from __future__ import annotations
+
 import json
+import os
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from prismap._files import write_text_atomic
 from prismap.errors import PrismapInputError
 from prismap.evaluate import SCORE_COLUMNS, MapScores
+from prismap.io import GroundTruthOccupancy
 from prismap.sensor_models import prior_from_ground_truth
 
 MODELS = ("ideal", "hitmiss", "convolution", "andert", "prism")
@@ -97,7 +103,7 @@ class CellResult:
     n_frames: int
     settings: dict = field(default_factory=dict)
 
-    def to_dict(self):
+    def to_dict(self) -> dict[str, Any]:
         """Plain-JSON form (scores via :meth:`MapScores.to_dict`, NaN as null)."""
         return {
             "format": RESULTS_FORMAT + "-cell",
@@ -111,7 +117,7 @@ class CellResult:
         }
 
     @classmethod
-    def from_dict(cls, data, *, source="cell"):
+    def from_dict(cls, data: dict[str, Any], *, source: str = "cell") -> CellResult:
         """Inverse of :meth:`to_dict`; ``source`` names the data in error messages."""
         try:
             if data["format"] != RESULTS_FORMAT + "-cell" or data["version"] not in READABLE_RESULTS_VERSIONS:
@@ -156,7 +162,7 @@ def scores_from_dict(data):
     return MapScores(**values)
 
 
-def prior_of(truth):
+def prior_of(truth: GroundTruthOccupancy) -> float:
     """``p0`` for a map on ``truth``'s grid: the occupancy ratio of the voxels it observed (Laplace-smoothed).
 
     This is the "estimate it from a ground-truth map" rule of SENSOR_MODELS.md section 5: the fraction of
@@ -199,7 +205,7 @@ def _plain(value):
     return json.loads(json.dumps(value))
 
 
-def format_results_table(results, *, title, notes=()):
+def format_results_table(results: Sequence[CellResult], *, title: str, notes: Sequence[str] = ()) -> str:
     """Markdown: one row per (matcher, model) with every score, the voxel counts and the mapping time."""
     header = ["matcher", "model", *(c[0] for c in SCORE_COLUMNS), "time (s)"]
     lines = [
@@ -252,7 +258,16 @@ def best_models(results):
     return {key: model for key, (model, _) in best.items()}
 
 
-def write_results(results, out_dir, *, title, notes=(), settings=None, sections=(), extra=None):
+def write_results(
+    results: Sequence[CellResult],
+    out_dir: str | os.PathLike[str],
+    *,
+    title: str,
+    notes: Sequence[str] = (),
+    settings: dict[str, Any] | None = None,
+    sections: Sequence[str] = (),
+    extra: dict[str, Any] | None = None,
+) -> dict[str, Path]:
     """Write ``results.md`` and ``results.json`` (every cell with its full scores) into ``out_dir``.
 
     ``sections`` (Markdown texts) follow the table in ``results.md``; ``extra`` (plain-JSON fields) joins
@@ -278,7 +293,7 @@ def write_results(results, out_dir, *, title, notes=(), settings=None, sections=
     return paths
 
 
-def read_results(path):
+def read_results(path: str | os.PathLike[str]) -> list[CellResult]:
     """The cells of a ``results.json`` written by :func:`write_results`, as a list of :class:`CellResult`."""
     path = Path(path)
     try:

@@ -1,7 +1,12 @@
 """The 3-D experiments: rendered stereo pairs of a box world (the indoor room, the street, the avenue), each matcher
 characterised on frames it then does not map, every sensor model scored against the exact ground truth."""
 
+from __future__ import annotations
+
 import math
+import os
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
@@ -32,7 +37,7 @@ from prismap.experiment._targets import format_targets, measure_targets
 from prismap.experiment._worlds3d import MATCHERS, WORLDS, render_world, scene3d_settings, split_frames
 
 
-def run_scene3d(out_dir, **options):
+def run_scene3d(out_dir: str | os.PathLike[str], **options: Any) -> ExperimentResult:
     """Characterise each matcher on some frames of the indoor room, map the others with every model, score.
 
     The seeded :func:`prismap.sim.indoor_scene` rendered along :func:`prismap.sim.indoor_trajectory` by the
@@ -45,7 +50,7 @@ def run_scene3d(out_dir, **options):
     return run_rendered_world("scene3d", out_dir, **options)
 
 
-def run_street3d(out_dir, **options):
+def run_street3d(out_dir: str | os.PathLike[str], **options: Any) -> ExperimentResult:
     """Characterise each matcher on some frames of the street drive, map the others with every model, score.
 
     The seeded :func:`prismap.sim.street_scene` rendered along :func:`prismap.sim.street_trajectory` by
@@ -58,21 +63,21 @@ def run_street3d(out_dir, **options):
 
 
 def run_rendered_world(
-    world,
-    out_dir,
+    world: str,
+    out_dir: str | os.PathLike[str],
     *,
-    n_frames=None,
-    voxel_size_m=None,
-    seed=0,
-    quick=False,
-    matchers=MATCHERS,
-    models=MODELS_3D,
-    characterise_every=4,
-    max_range_m=None,
-    grid_offset=0.5,
-    between_frames=None,
-    class_pass_through=False,
-):
+    n_frames: int | None = None,
+    voxel_size_m: float | None = None,
+    seed: int = 0,
+    quick: bool = False,
+    matchers: Sequence[str] = MATCHERS,
+    models: Sequence[str] = MODELS_3D,
+    characterise_every: int = 4,
+    max_range_m: float | None = None,
+    grid_offset: float = 0.5,
+    between_frames: int | None = None,
+    class_pass_through: bool = False,
+) -> ExperimentResult:
     """The 3-D experiment on the world named ``world`` (a key of :data:`WORLDS`).
 
     Frames ``0, k, 2k, ...`` (``k = characterise_every``) of the drive, and the world's frames between the

@@ -15,9 +15,14 @@ Every map is scored against the exact occupancy, and every model's log-likelihoo
 exact errors is measured, per class of the self-characterised model beside the ground-truth model's.
 """
 
+from __future__ import annotations
+
 import dataclasses
 import json
+import os
+from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -114,16 +119,16 @@ def class_log_likelihoods(model, reference, frames, disparities):
 
 
 def run_error_sources(
-    world,
-    out_dir,
+    world: str,
+    out_dir: str | os.PathLike[str],
     *,
-    quick=False,
-    n_frames=None,
-    seed=0,
-    matchers=SOURCE_MATCHERS,
-    models=SOURCE_MODELS,
-    between_frames=None,
-):
+    quick: bool = False,
+    n_frames: int | None = None,
+    seed: int = 0,
+    matchers: Sequence[str] = SOURCE_MATCHERS,
+    models: Sequence[str] = SOURCE_MODELS,
+    between_frames: int | None = None,
+) -> dict[str, Any]:
     """Map ``world``'s mapping frames with PRISM using each source's error model, score them, write the tables.
 
     Parameters

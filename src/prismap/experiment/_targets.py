@@ -7,11 +7,16 @@ any other; on the street with SGBM it improves plain PRISM's log-loss by at leas
 conditioned error model predicts held-out errors better than the plain one.
 """
 
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
-from prismap.experiment._results import CONDITIONED_SUFFIX, model_label, split_variant
+from prismap.characterise import ErrorModel
+from prismap.experiment._results import CONDITIONED_SUFFIX, CellResult, model_label, split_variant
 
 CHAMPION = "prism" + CONDITIONED_SUFFIX
 """The model the targets are about. Its rivals are every other model's cells; cells of the same model and error
@@ -45,12 +50,17 @@ class Target:
     measured: str
     met: bool
 
-    def to_dict(self):
+    def to_dict(self) -> dict[str, Any]:
         """Plain-JSON form."""
         return {"claim": self.claim, "measured": self.measured, "met": self.met}
 
 
-def measure_targets(world, results, error_models, mapped_likelihoods=None):
+def measure_targets(
+    world: str,
+    results: Sequence[CellResult],
+    error_models: Mapping[str, ErrorModel],
+    mapped_likelihoods: Mapping[str, Mapping[str, Any]] | None = None,
+) -> list[Target]:
     """The targets of a 3-D run on ``world``.
 
     Parameters

@@ -1,9 +1,12 @@
 """The rendered worlds of the 3-D experiments (the indoor room, the street): what each run needs to know of its
 world, its full and quick sizes, and the settings of a run on it."""
 
+from __future__ import annotations
+
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 
 from prismap._validate import check_integer, check_positive
 from prismap.errors import PrismapInputError
@@ -238,7 +241,7 @@ def scene3d_settings(
     }
 
 
-def split_frames(n_frames, every):
+def split_frames(n_frames: int, every: int) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]:
     """Indices ``(characterisation, mapping)``: every ``every``-th frame (from 0) characterises, the rest map."""
     indices = np.arange(n_frames)
     return indices[indices % every == 0], indices[indices % every != 0]

@@ -13,9 +13,14 @@ References
 .. [2] D. Arthur, S. Vassilvitskii, "k-means++: the advantages of careful seeding", SODA 2007.
 """
 
+from __future__ import annotations
+
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 from scipy.optimize import minimize_scalar
 
 from prismap._validate import as_float_array, check_integer, check_positive
@@ -28,12 +33,12 @@ DEFAULT_FAILURE_PRIOR = 1.0
 """Pseudo-failures of the failure weight's prior (``Beta(1 + a, 1)`` with ``a = 1``, MAP: see :func:`fit_mixture`)."""
 
 
-def n_parameters(n_components, with_failure):
+def n_parameters(n_components: int, with_failure: bool) -> int:
     """Free parameters of a G-component mixture: ``3G - 1``, plus 1 for a failure component's weight."""
     return 3 * n_components - 1 + int(bool(with_failure))
 
 
-def failure_prior_bound(n_errors, failure_prior=DEFAULT_FAILURE_PRIOR):
+def failure_prior_bound(n_errors: float, failure_prior: float = DEFAULT_FAILURE_PRIOR) -> float:
     """The least failure weight the prior allows after ``n_errors`` errors none of which is gross.
 
     MAP-EM gives ``w_f = (R_f + a) / (N + a)`` with ``a = failure_prior`` pseudo-failures (a ``Beta(1 + a, 1)``
@@ -79,35 +84,35 @@ class MixtureFit:
     converged: bool
 
     @property
-    def n_components(self):
+    def n_components(self) -> int:
         """Number of components G."""
         return self.mixture.n_components
 
     @property
-    def n_parameters(self):
+    def n_parameters(self) -> int:
         """Free parameters ``k = 3G - 1``, plus 1 for a failure component's weight."""
         return n_parameters(self.n_components, self.mixture.search_range_px is not None)
 
     @property
-    def mean_log_likelihood(self):
+    def mean_log_likelihood(self) -> float:
         """``ln L / N``: nats per sample."""
         return self.log_likelihood / self.n_samples
 
 
 def fit_mixture(
-    values,
+    values: npt.ArrayLike,
     *,
-    weights=None,
-    n_components,
-    bin_width=None,
-    restarts=4,
-    seed=0,
-    tol=1e-9,
-    max_iter=3000,
-    min_sigma=None,
-    search_range_px=None,
-    failure_prior=DEFAULT_FAILURE_PRIOR,
-):
+    weights: npt.ArrayLike | None = None,
+    n_components: int,
+    bin_width: float | None = None,
+    restarts: int = 4,
+    seed: int = 0,
+    tol: float = 1e-9,
+    max_iter: int = 3000,
+    min_sigma: float | None = None,
+    search_range_px: tuple[float, float] | None = None,
+    failure_prior: float = DEFAULT_FAILURE_PRIOR,
+) -> MixtureFit:
     """Fit a G-component Gaussian mixture to 1-D samples by EM.
 
     Parameters
@@ -191,18 +196,18 @@ def fit_mixture(
 
 
 def fit_histogram(
-    bin_edges,
-    counts,
+    bin_edges: npt.ArrayLike,
+    counts: npt.ArrayLike,
     *,
-    n_components,
-    restarts=4,
-    seed=0,
-    tol=1e-9,
-    max_iter=3000,
-    min_sigma=None,
-    search_range_px=None,
-    failure_prior=DEFAULT_FAILURE_PRIOR,
-):
+    n_components: int,
+    restarts: int = 4,
+    seed: int = 0,
+    tol: float = 1e-9,
+    max_iter: int = 3000,
+    min_sigma: float | None = None,
+    search_range_px: tuple[float, float] | None = None,
+    failure_prior: float = DEFAULT_FAILURE_PRIOR,
+) -> MixtureFit:
     """Fit a G-component Gaussian mixture to a histogram by EM on its counted bin centres.
 
     Parameters
@@ -243,7 +248,14 @@ def fit_histogram(
     )
 
 
-def fit_outlier_weight(mixture, outlier, bin_edges, counts, *, prior_count=1.0):
+def fit_outlier_weight(
+    mixture: GaussianMixture,
+    outlier: GaussianMixture,
+    bin_edges: npt.ArrayLike,
+    counts: npt.ArrayLike,
+    *,
+    prior_count: float = 1.0,
+) -> float:
     """Weight ``w`` of a fixed outlier component mixed into a fitted mixture: ``(1 - w) mixture + w outlier``.
 
     The two shapes stay as they are; ``w`` maximises the histogram's log-likelihood plus
@@ -287,7 +299,9 @@ def fit_outlier_weight(mixture, outlier, bin_edges, counts, *, prior_count=1.0):
     )
 
 
-def fit_mixtures(bin_edges, counts, *, max_components, **options):
+def fit_mixtures(
+    bin_edges: npt.ArrayLike, counts: npt.ArrayLike, *, max_components: int, **options: Any
+) -> list[MixtureFit]:
     """Fit G = 1 .. ``max_components`` to one histogram; ``options`` go to :func:`fit_histogram`.
 
     Returns
@@ -298,7 +312,7 @@ def fit_mixtures(bin_edges, counts, *, max_components, **options):
     return [fit_histogram(bin_edges, counts, n_components=g, **options) for g in range(1, max_components + 1)]
 
 
-def select_components(fits, *, criterion="bic", tolerance=0.01):
+def select_components(fits: Sequence[MixtureFit], *, criterion: str = "bic", tolerance: float = 0.01) -> int:
     """Pick G: the smallest G whose criterion is within ``tolerance`` nats per sample of the best.
 
     With millions of errors the AIC/BIC penalties (tens) vanish against log-likelihood gains (thousands),

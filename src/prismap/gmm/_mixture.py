@@ -1,10 +1,14 @@
 """The 1-D Gaussian mixture used as a stereo matcher's disparity-error model (thesis eq. 3.9-3.10), with an
 optional matcher-failure component uniform over the matcher's disparity search range (SENSOR_MODELS.md 8)."""
 
+from __future__ import annotations
+
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 from scipy.special import log_ndtr, ndtr
 
 from prismap.errors import PrismapInputError
@@ -79,18 +83,18 @@ class GaussianMixture:
             raise PrismapInputError("GaussianMixture with `failure_weight` > 0 needs `search_range_px` (lo, hi)")
 
     @property
-    def failure_width(self):
+    def failure_width(self) -> float:
         """``W``: width of the search range (pixels); infinity without one."""
         if self.search_range_px is None:
             return math.inf
         return self.search_range_px[1] - self.search_range_px[0]
 
     @property
-    def failure_density(self):
+    def failure_density(self) -> float:
         """``w_f / W``: the failure component's density (1/pixel), the floor of :meth:`pdf`."""
         return self.failure_weight / self.failure_width
 
-    def peak_density(self):
+    def peak_density(self) -> float:
         """An upper bound (1/pixel) of the Gaussian part's density: ``sum_j w_j / (sqrt(2 pi) sigma_j)``.
 
         It bounds the likelihood any measurement can have under the Gaussians, and with it the evidence
@@ -98,16 +102,16 @@ class GaussianMixture:
         """
         return float(np.sum(self.weights / self.sigmas) / np.sqrt(2.0 * np.pi))
 
-    def gaussian_part(self):
+    def gaussian_part(self) -> GaussianMixture:
         """The Gaussians alone (no failure component), same weights, means and sigmas."""
         return GaussianMixture(self.weights, self.means, self.sigmas)
 
-    def with_failure(self, failure_weight, search_range_px):
+    def with_failure(self, failure_weight: float, search_range_px: tuple[float, float]) -> GaussianMixture:
         """The Gaussians of this mixture with the failure component ``w_f`` over ``search_range_px`` (pixels)."""
         return GaussianMixture(self.weights, self.means, self.sigmas, failure_weight, search_range_px)
 
     @property
-    def n_components(self):
+    def n_components(self) -> int:
         """Number of components G."""
         return self.weights.size
 
@@ -115,7 +119,7 @@ class GaussianMixture:
         e = np.asarray(errors, dtype=np.float64)
         return e, (e[..., None] - self.means) / self.sigmas
 
-    def logpdf(self, errors):
+    def logpdf(self, errors: npt.ArrayLike) -> npt.NDArray[np.float64] | float:
         """Log density at ``errors`` (pixels), any shape; computed stably with log-sum-exp.
 
         With a failure component the density is that of an error whose disparity the matcher returned (inside
@@ -129,7 +133,7 @@ class GaussianMixture:
             return gaussian
         return np.logaddexp(np.log1p(-self.failure_weight) + gaussian, np.log(self.failure_density))
 
-    def pdf(self, errors):
+    def pdf(self, errors: npt.ArrayLike) -> npt.NDArray[np.float64] | float:
         """Density at ``errors`` (1/pixel), same shape as ``errors`` (see :meth:`logpdf`)."""
         _, z = self._standardised(errors)
         gaussian = (self.weights / self.sigmas * np.exp(-0.5 * z * z)).sum(axis=-1) / np.sqrt(2.0 * np.pi)
@@ -137,19 +141,21 @@ class GaussianMixture:
             return gaussian
         return (1.0 - self.failure_weight) * gaussian + self.failure_density
 
-    def cdf(self, errors):
+    def cdf(self, errors: npt.ArrayLike) -> npt.NDArray[np.float64] | float:
         """``P(e <= errors)`` of the Gaussians, same shape as ``errors`` (the failure part needs ``d_true``)."""
         _, z = self._standardised(errors)
         return (self.weights * ndtr(z)).sum(axis=-1)
 
-    def logcdf(self, errors):
+    def logcdf(self, errors: npt.ArrayLike) -> npt.NDArray[np.float64] | float:
         """``log P(e <= errors)`` of the Gaussians, accurate far in the left tail."""
         _, z = self._standardised(errors)
         terms = np.log(self.weights) + log_ndtr(z)
         peak = terms.max(axis=-1)
         return peak + np.log(np.exp(terms - peak[..., None]).sum(axis=-1))
 
-    def sample(self, n, rng, *, truth_px=None):
+    def sample(
+        self, n: int, rng: np.random.Generator | int | None, *, truth_px: npt.ArrayLike | None = None
+    ) -> npt.NDArray[np.float64]:
         """Draw ``n`` errors (pixels) with the generator ``rng`` (``np.random.Generator`` or a seed).
 
         With a failure component, a failed pixel's error is ``truth_px - U(lo, hi)``: the matcher returned a
@@ -169,16 +175,16 @@ class GaussianMixture:
         lo, hi = self.search_range_px
         return np.where(failed, truth - rng.uniform(lo, hi, n), errors)
 
-    def mean(self):
+    def mean(self) -> float:
         """Mixture mean (pixels)."""
         return float(self.weights @ self.means)
 
-    def std(self):
+    def std(self) -> float:
         """Mixture standard deviation (pixels)."""
         second = self.weights @ (self.sigmas**2 + self.means**2)
         return float(np.sqrt(second - self.mean() ** 2))
 
-    def dominant_sigma(self):
+    def dominant_sigma(self) -> float:
         """Standard deviation (pixels) of the heaviest component: the core most pixels follow.
 
         Models with one Gaussian disparity noise (convolution, Andert) take it; the mixture's overall std
@@ -186,14 +192,14 @@ class GaussianMixture:
         """
         return float(self.sigmas[int(np.argmax(self.weights))])
 
-    def widened(self, extra_sigma):
+    def widened(self, extra_sigma: float) -> GaussianMixture:
         """The mixture convolved with ``N(0, extra_sigma^2)`` (pixels): every sigma grows in quadrature."""
         extra = float(extra_sigma)
         return GaussianMixture(
             self.weights, self.means, np.sqrt(self.sigmas**2 + extra**2), self.failure_weight, self.search_range_px
         )
 
-    def with_component(self, weight, mean, sigma):
+    def with_component(self, weight: float, mean: float, sigma: float) -> GaussianMixture:
         """``(1 - weight) * self + weight * N(mean, sigma^2)`` (pixels): one more component, the others scaled."""
         weight = float(weight)
         if not 0.0 <= weight < 1.0:
@@ -206,7 +212,7 @@ class GaussianMixture:
             self.search_range_px,
         )
 
-    def to_dict(self):
+    def to_dict(self) -> dict[str, Any]:
         """Plain-JSON form: ``{"weights": [...], "means": [...], "sigmas": [...]}``, plus ``failure_weight`` and
         ``search_range_px`` when there is a search range."""
         data = {"weights": self.weights.tolist(), "means": self.means.tolist(), "sigmas": self.sigmas.tolist()}
@@ -215,7 +221,7 @@ class GaussianMixture:
         return data
 
     @classmethod
-    def from_dict(cls, data, *, source="mixture"):
+    def from_dict(cls, data: dict[str, Any], *, source: str = "mixture") -> GaussianMixture:
         """Inverse of :meth:`to_dict`; ``source`` names the file or field in error messages."""
         if not isinstance(data, dict):
             raise PrismapInputError(f"{source}: a Gaussian mixture must be a JSON object; got {type(data).__name__}")
@@ -236,7 +242,7 @@ class GaussianMixture:
             raise PrismapInputError(f"{source}: Gaussian mixture fields must be lists of numbers ({exc})") from None
 
     @classmethod
-    def gaussian(cls, sigma, mean=0.0):
+    def gaussian(cls, sigma: float, mean: float = 0.0) -> GaussianMixture:
         """A single Gaussian ``N(mean, sigma^2)`` (pixels)."""
         return cls([1.0], [mean], [sigma])
 

@@ -10,10 +10,13 @@ number ``k`` of failed views of ``sigmoid(logit(p0) + (1 - k / n) S)``. The upda
 addition per voxel and frame; the read costs ``O(min(n, MAX_VIEWS))`` per voxel.
 """
 
+from __future__ import annotations
+
 from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
+import numpy.typing as npt
 from scipy.special import expit
 
 from prismap._validate import check_probability
@@ -57,7 +60,7 @@ class PersistentFailure:
         object.__setattr__(self, "rate", rate)
         object.__setattr__(self, "persistence", persistence)
 
-    def failure_counts(self, n_views):
+    def failure_counts(self, n_views: int) -> npt.NDArray[np.float64]:
         """``P(K = k)`` for ``k`` from 0 to ``n_views``: how many of ``n_views`` consecutive views are in the failure state.
 
         Returns
@@ -66,7 +69,7 @@ class PersistentFailure:
         """
         return _failure_counts(self.rate, self.persistence, int(n_views))
 
-    def probability(self, log_odds, count, p0):
+    def probability(self, log_odds: npt.ArrayLike, count: npt.ArrayLike, p0: float) -> npt.NDArray[np.float64]:
         """``P(occupied)`` of voxels with stored log-odds ``log_odds`` (``logit(p0)`` plus the frames' evidence)
         observed by ``count`` frames.
 
@@ -99,14 +102,14 @@ class PersistentFailure:
                 out[part] = expit(prior + evidence[part, None] * share[None, :]) @ weight
         return np.clip(out, 0.0, 1.0, out=out)  # the weights sum to 1 only up to rounding
 
-    def bounds(self, p0, n_views=1):
+    def bounds(self, p0: float, n_views: int = 1) -> tuple[float, float]:
         """The probabilities ``(P_min, P_max)`` no evidence of ``n_views`` views can pass: all views failed
         (probability ``r q^(n - 1)``) leave the voxel at ``p0``."""
         stuck = float(self.failure_counts(n_views)[-1])
         p0 = check_probability(p0, "p0")
         return stuck * p0, 1.0 - stuck * (1.0 - p0)
 
-    def to_dict(self):
+    def to_dict(self) -> dict[str, float]:
         """JSON form."""
         return {"rate": self.rate, "persistence": self.persistence}
 

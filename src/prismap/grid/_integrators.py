@@ -22,16 +22,22 @@ Work per frame is bounded before it starts (:data:`MAX_FRAME_CELLS`, :data:`MAX_
 accumulator's memory while it runs (``_accumulator.frame_budget_bytes``); docs/errors.md lists the bounds.
 """
 
+from __future__ import annotations
+
 from abc import ABC, abstractmethod
 from collections import deque
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 
 from prismap.errors import PrismapInputError
 from prismap.grid import _accumulator, _kernels_project, _kernels_traverse
 from prismap.grid._projectors import ImageProjection
+from prismap.grid._sensor_model import SensorModel
+from prismap.grid._storage import BlockTable
 
 RAYS_PER_CHUNK = 4096
 """Rays cast per model call in ray mode (fewer when they cross more than :data:`CELLS_PER_CHUNK` voxels)."""
@@ -109,7 +115,7 @@ class RayBatch:
     def __len__(self):
         return self.measurement.size
 
-    def subset(self, keep):
+    def subset(self, keep: np.ndarray) -> RayBatch:
         """The batch of the rays where ``keep`` ((R,) bool) holds; the image's ray index follows."""
         image = self.image
         if image is not None:
@@ -132,14 +138,14 @@ class RayBatch:
             self.kind,
         )
 
-    def class_kwargs(self, idx, model):
+    def class_kwargs(self, idx: np.ndarray | None, model: SensorModel) -> dict[str, Any]:
         """``{"ray_class": classes of rays idx}`` for a call of ``model``, or ``{}`` when the batch has no
         classes or the model is a hit/miss model (those ignore classes)."""
         if self.ray_class is None or model.hit_miss_increments() is not None:
             return {}
         return {"ray_class": self.ray_class if idx is None else self.ray_class[idx]}
 
-    def cell_kwargs(self, idx, model):
+    def cell_kwargs(self, idx: np.ndarray | None, model: SensorModel) -> dict[str, Any]:
         """:meth:`class_kwargs` plus ``{"voxel_overhang_m": ...}`` of rays idx when the batch has overhangs and
         ``model.takes_voxel_overhang``: the keywords of ``model.cell_posteriors``."""
         kwargs = self.class_kwargs(idx, model)
@@ -195,13 +201,20 @@ class Integrator(ABC):
     whole_rays = False
     """Whether the cells handed to the model tile each ray from the camera on (what ``takes_map_prior`` needs)."""
 
-    def __init__(self, *, voxel_size_m, max_range_m=np.inf, reach_m=np.inf, map_log_odds=None):
+    def __init__(
+        self,
+        *,
+        voxel_size_m: float,
+        max_range_m: float = np.inf,
+        reach_m: float = np.inf,
+        map_log_odds: Callable[[np.ndarray], np.ndarray] | None = None,
+    ) -> None:
         self.voxel_size_m = float(voxel_size_m)
         self.max_range_m = float(max_range_m)
         self.reach_m = float(reach_m)
         self.map_log_odds = map_log_odds
 
-    def integrate(self, accumulator, batch, model):
+    def integrate(self, accumulator: BlockTable, batch: RayBatch, model: SensorModel) -> None:
         """Add the batch's (voxel, increment) pairs of ``model`` to ``accumulator`` (cleared by the caller)."""
         if model.takes_map_prior:
             if not self.whole_rays:
@@ -221,7 +234,7 @@ class Integrator(ABC):
     def _integrate(self, accumulator, batch, groups):
         """Fill ``accumulator`` from ``batch``; ``groups`` from :func:`noise_groups`."""
 
-    def stop_depths(self, model, batch, idx):
+    def stop_depths(self, model: SensorModel, batch: RayBatch, idx: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
         """Depth at which each ray of ``idx`` stops and whether that stop excludes its voxel (cut by max range)."""
         measurement, ray_norm = _rows(batch.measurement, idx), _rows(batch.ray_norm, idx)
         influence = np.asarray(
@@ -242,7 +255,16 @@ class Integrator(ABC):
             )
         return t_stop, exclusive
 
-    def cell_increments(self, model, batch, idx, ray_of_cell, t_in, t_out, map_log_odds=None):
+    def cell_increments(
+        self,
+        model: SensorModel,
+        batch: RayBatch,
+        idx: np.ndarray | None,
+        ray_of_cell: np.ndarray,
+        t_in: np.ndarray,
+        t_out: np.ndarray,
+        map_log_odds: np.ndarray | None = None,
+    ) -> np.ndarray:
         """The model's log-odds increments of the cells of rays ``idx``, checked for shape; ``map_log_odds``
         ((C,) float64 or None) is passed on as the keyword of that name when given."""
         kwargs = batch.cell_kwargs(idx, model)
@@ -558,7 +580,7 @@ INTEGRATOR_NAMES = tuple(_INTEGRATORS)
 """Names accepted by :func:`make_integrator` (the grid's ``mode``)."""
 
 
-def make_integrator(name, **config):
+def make_integrator(name: str, **config: Any) -> Integrator:
     """The integrator called ``name`` (``"ray"`` or ``"projective"``), built from ``config`` (see :class:`Integrator`)."""
     try:
         cls = _INTEGRATORS[name]

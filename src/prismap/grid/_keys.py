@@ -12,8 +12,11 @@ Everything here is pure arithmetic, apart from storage; numba versions of the pa
 grid's kernels inline, numpy versions are for whole arrays (ground-truth files, evaluation).
 """
 
+from __future__ import annotations
+
 import numba
 import numpy as np
+import numpy.typing as npt
 
 from prismap._validate import as_float_array, check_positive
 from prismap.errors import PrismapInputError
@@ -51,12 +54,12 @@ def check_voxel_size(voxel_size_m, name="voxel_size_m"):
     return size
 
 
-def key_limit_m(voxel_size_m):
+def key_limit_m(voxel_size_m: float) -> float:
     """Distance from the world origin (metres, per axis) that the key range covers at this voxel size."""
     return KEY_LIMIT * float(voxel_size_m)
 
 
-def key_range_text(voxel_size_m):
+def key_range_text(voxel_size_m: float) -> str:
     """``[-L, L)`` keys as text with the limit in metres, for error messages."""
     return f"[-{KEY_LIMIT}, {KEY_LIMIT}) (+-{key_limit_m(voxel_size_m):.6g} m at {voxel_size_m:g} m voxels)"
 
@@ -83,7 +86,7 @@ PACKED_STEPS = (1 << (2 * AXIS_BITS), 1 << AXIS_BITS, 1)
 """Difference of two packed keys one apart on x, y, z (the accumulator's face links use it)."""
 
 
-def pack_keys(coords):
+def pack_keys(coords: npt.ArrayLike) -> npt.NDArray[np.int64]:
     """One int64 per (x, y, z) coordinate triple, ordered like the triples lexicographically.
 
     Parameters
@@ -102,7 +105,7 @@ def pack_keys(coords):
     return (k[:, 0] << (2 * AXIS_BITS)) | (k[:, 1] << AXIS_BITS) | k[:, 2]
 
 
-def pack_key_sets(*key_arrays):
+def pack_key_sets(*key_arrays: npt.ArrayLike) -> tuple[npt.NDArray[np.int64], ...]:
     """One int64 per key of several (N_i, D) key arrays (D <= 3), equal codes for equal keys across them.
 
     Keys are taken relative to the smallest key of all arrays on each axis, so they may lie anywhere as
@@ -130,7 +133,7 @@ def pack_key_sets(*key_arrays):
     )
 
 
-def unpack_keys(packed):
+def unpack_keys(packed: npt.ArrayLike) -> npt.NDArray[np.int64]:
     """(N, 3) int64 coordinates of packed keys: the inverse of :func:`pack_keys`."""
     shifts = np.array([2 * AXIS_BITS, AXIS_BITS, 0], dtype=np.int64)
     return ((np.asarray(packed, dtype=np.int64)[:, None] >> shifts) & _AXIS_MASK) - PACK_OFFSET
@@ -146,7 +149,7 @@ def block_voxel_keys(block_coords, bits):
     return (np.asarray(block_coords, dtype=np.int64)[:, None, :] << np.array(bits, dtype=np.int64)) + offsets[None]
 
 
-def point_to_key(points_w, voxel_size_m):
+def point_to_key(points_w: npt.ArrayLike, voxel_size_m: float) -> npt.NDArray[np.int64]:
     """Integer key of the voxel containing each point.
 
     Parameters
@@ -172,7 +175,7 @@ def point_to_key(points_w, voxel_size_m):
     return scaled.astype(np.int64)
 
 
-def key_to_center(keys, voxel_size_m):
+def key_to_center(keys: npt.ArrayLike, voxel_size_m: float) -> npt.NDArray[np.float64]:
     """World coordinates of the centre of each voxel key.
 
     Parameters

@@ -1,6 +1,9 @@
 """The occupancy map: an unbounded sparse grid of hashed voxel blocks holding log-odds and counts."""
 
+from __future__ import annotations
+
 import numpy as np
+import numpy.typing as npt
 from scipy.special import expit
 
 from prismap._validate import as_float_array, check_classes, check_positive, check_probability
@@ -11,6 +14,8 @@ from prismap.grid._integrators import MEASUREMENT_KINDS, RayBatch, make_integrat
 from prismap.grid._keys import BLOCK_BITS, KEY_LIMIT, check_keys, key_range_text, key_to_center, point_to_key
 from prismap.grid._logodds import LOG_ODDS_STEP, Q_DTYPE, Q_MAX, Q_MIN, from_fixed, logit, to_fixed
 from prismap.grid._policies import policy_code, policy_name
+from prismap.grid._sensor_model import SensorModel
+from prismap.grid._slice import horizontal_slice
 from prismap.grid._storage import BlockTable
 from prismap.grid._traverse import crossed_voxels
 
@@ -59,8 +64,16 @@ class OccupancyMap:
     """
 
     def __init__(
-        self, voxel_size_m, *, p0, ndim=3, clamp=None, occupied_threshold=0.5, free_threshold=0.5, fusion=None
-    ):
+        self,
+        voxel_size_m: float,
+        *,
+        p0: float,
+        ndim: int = 3,
+        clamp: tuple[float, float] | None = None,
+        occupied_threshold: float = 0.5,
+        free_threshold: float = 0.5,
+        fusion: PersistentFailure | None = None,
+    ) -> None:
         self.voxel_size_m = check_positive(voxel_size_m, "voxel_size_m")
         self.p0 = check_probability(p0, "p0")
         if ndim not in BLOCK_BITS:
@@ -90,7 +103,15 @@ class OccupancyMap:
         self._accumulator = _accumulator.new_accumulator(self._store.bits)
 
     # ----------------------------------------------------------------------------------- integration
-    def integrate(self, batch, model, *, mode="ray", policy=None, max_range_m=np.inf):
+    def integrate(
+        self,
+        batch: RayBatch,
+        model: SensorModel,
+        *,
+        mode: str = "ray",
+        policy: str | None = None,
+        max_range_m: float = np.inf,
+    ) -> None:
         """Integrate one frame's measurements.
 
         Parameters
@@ -127,19 +148,19 @@ class OccupancyMap:
 
     def integrate_rays(
         self,
-        origin_w,
-        rays_w,
-        measurement,
-        model,
+        origin_w: npt.ArrayLike,
+        rays_w: npt.ArrayLike,
+        measurement: npt.ArrayLike,
+        model: SensorModel,
         *,
-        kind="disparity",
-        mode="ray",
-        policy=None,
-        max_range_m=np.inf,
-        extra_noise_px=None,
-        ray_class=None,
-        voxel_overhang_m=None,
-    ):
+        kind: str = "disparity",
+        mode: str = "ray",
+        policy: str | None = None,
+        max_range_m: float = np.inf,
+        extra_noise_px: npt.ArrayLike | None = None,
+        ray_class: npt.ArrayLike | None = None,
+        voxel_overhang_m: npt.ArrayLike | None = None,
+    ) -> None:
         """Integrate one frame given as arrays: :meth:`integrate` of their :class:`RayBatch` (ray mode).
 
         Parameters
@@ -255,7 +276,7 @@ class OccupancyMap:
         )
         return from_fixed(q)
 
-    def merge(self, other):
+    def merge(self, other: OccupancyMap) -> OccupancyMap:
         """Add another map of the same grid into this one (in place); returns ``self``.
 
         Voxels known to both get ``l1 + l2 - logit(p0)`` (the sum of both maps' evidence; clamped if
@@ -292,7 +313,7 @@ class OccupancyMap:
         self.n_frames += other.n_frames
         return self
 
-    def set_voxels(self, keys, log_odds, counts):
+    def set_voxels(self, keys: npt.ArrayLike, log_odds: npt.ArrayLike, counts: npt.ArrayLike) -> None:
         """Overwrite the log-odds and counts of the given voxels (the map file reader uses this).
 
         Parameters
@@ -331,7 +352,7 @@ class OccupancyMap:
             self.prior_q,
         )
 
-    def copy(self):
+    def copy(self) -> OccupancyMap:
         """An independent copy of the map."""
         twin = OccupancyMap(
             self.voxel_size_m,
@@ -348,15 +369,15 @@ class OccupancyMap:
 
     # --------------------------------------------------------------------------------------- queries
     @property
-    def n_known(self):
+    def n_known(self) -> int:
         """Number of voxels observed at least once."""
         return int(np.count_nonzero(self._store.payload["count"][: len(self._store)]))
 
-    def nbytes(self):
+    def nbytes(self) -> int:
         """Bytes of memory the map's storage holds (allocated, including spare capacity)."""
         return self._store.nbytes()
 
-    def lookup_keys(self, keys):
+    def lookup_keys(self, keys: npt.ArrayLike) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.uint16]]:
         """Log-odds and observation count at each key.
 
         Parameters
@@ -381,29 +402,29 @@ class OccupancyMap:
         )
         return from_fixed(q), count
 
-    def probability_at_keys(self, keys):
+    def probability_at_keys(self, keys: npt.ArrayLike) -> npt.NDArray[np.float64]:
         """(N,) float64 occupancy probability at each key (``p0`` where unknown)."""
         return self._read(*self.lookup_keys(keys))
 
-    def state_at_keys(self, keys):
+    def state_at_keys(self, keys: npt.ArrayLike) -> npt.NDArray[np.int8]:
         """(N,) int8 state at each key: :data:`FREE`, :data:`OCCUPIED` or :data:`UNKNOWN`."""
         log, count = self.lookup_keys(keys)
         return self._states(log, count)
 
-    def probability(self, points_w):
+    def probability(self, points_w: npt.ArrayLike) -> npt.NDArray[np.float64]:
         """(N,) float64 occupancy probability at world points ((N, 3), or (N, 2) in a 2-D map), metres."""
         return self.probability_at_keys(self.point_keys(points_w))
 
-    def state(self, points_w):
+    def state(self, points_w: npt.ArrayLike) -> npt.NDArray[np.int8]:
         """(N,) int8 state (:data:`FREE`, :data:`OCCUPIED`, :data:`UNKNOWN`) at world points, metres."""
         return self.state_at_keys(self.point_keys(points_w))
 
-    def point_keys(self, points_w):
+    def point_keys(self, points_w: npt.ArrayLike) -> npt.NDArray[np.int32]:
         """(N, 3) int32 keys of world points ((N, 3), or (N, 2) in a 2-D map: z key 0)."""
         points = self._points(points_w, "points_w")
         return self._keys(point_to_key(points, self.voxel_size_m))
 
-    def known_voxels(self):
+    def known_voxels(self) -> tuple[npt.NDArray[np.int32], npt.NDArray[np.float64], npt.NDArray[np.uint16]]:
         """Every observed voxel.
 
         Returns
@@ -419,7 +440,9 @@ class OccupancyMap:
         keys = store.voxel_keys()[known].astype(np.int32)
         return keys, from_fixed(store.payload["log"][:n][known]), count[known]
 
-    def known_probabilities(self):
+    def known_probabilities(
+        self,
+    ) -> tuple[npt.NDArray[np.int32], npt.NDArray[np.float64], npt.NDArray[np.float64], npt.NDArray[np.uint16]]:
         """Every observed voxel with its occupancy probability (read under the map's ``fusion``; one pass over the
         storage, no second look-up).
 
@@ -433,7 +456,7 @@ class OccupancyMap:
         keys, log, counts = self.known_voxels()
         return keys, self._read(log, counts), log, counts
 
-    def occupied_voxels(self):
+    def occupied_voxels(self) -> tuple[npt.NDArray[np.int32], npt.NDArray[np.float64], npt.NDArray[np.float64]]:
         """Voxels in the occupied state.
 
         Returns
@@ -447,14 +470,18 @@ class OccupancyMap:
         keys = keys[mine]
         return keys, key_to_center(keys, self.voxel_size_m), self._read(log[mine], count[mine])
 
-    def bounding_box(self, *, occupied_only=False):
+    def bounding_box(
+        self, *, occupied_only: bool = False
+    ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]] | None:
         """Axis-aligned box of the known (or occupied) voxels: ``(min_w, max_w)`` (3,) metres, or None if empty."""
         keys = self.occupied_voxels()[0] if occupied_only else self.known_voxels()[0]
         if keys.shape[0] == 0:
             return None
         return keys.min(axis=0) * self.voxel_size_m, (keys.max(axis=0) + 1.0) * self.voxel_size_m
 
-    def slice_image(self, *, layer=None, z_range_m=None):
+    def slice_image(
+        self, *, layer: int | None = None, z_range_m: tuple[float, float] | None = None
+    ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
         """A horizontal slice as an image of occupancy probabilities, NaN = unknown.
 
         Parameters
@@ -471,37 +498,11 @@ class OccupancyMap:
         extent_m : (4,) float64, ``(x_min, x_max, y_min, y_max)`` of the image's outer edges, metres
             (``imshow(image, origin="lower", extent=extent_m)``).
         """
-        if (layer is None) == (z_range_m is None):
-            if self.ndim == 2 and layer is None and z_range_m is None:
-                layer = 0
-            else:
-                raise PrismapInputError("give exactly one of `layer` or `z_range_m`")
-        if layer is not None:
-            if int(layer) != layer:
-                raise PrismapInputError(f"`layer` must be an integer z key; got {layer!r}")
-            z_lo = z_hi = int(layer)
-        else:
-            z_min, z_max = as_float_array(z_range_m, "z_range_m", shape=(2,), allow_nan=False)
-            if not z_max > z_min:
-                raise PrismapInputError(
-                    f"`z_range_m` must be (z_min, z_max) with z_max > z_min; got {tuple(z_range_m)}"
-                )
-            z_lo = int(point_to_key([z_min], self.voxel_size_m)[0])
-            z_hi = int(np.ceil(z_max / self.voxel_size_m)) - 1
-        keys, log, count = self.known_voxels()
-        inside = (keys[:, 2] >= z_lo) & (keys[:, 2] <= z_hi)
-        keys, prob = keys[inside], self._read(log[inside], count[inside])
-        if keys.shape[0] == 0:
-            return np.full((0, 0), np.nan), np.zeros(4)
-        x0, y0 = keys[:, 0].min(), keys[:, 1].min()
-        width, height = keys[:, 0].max() - x0 + 1, keys[:, 1].max() - y0 + 1
-        image = np.full((height, width), -np.inf)
-        np.maximum.at(image, (keys[:, 1] - y0, keys[:, 0] - x0), prob)
-        image[np.isneginf(image)] = np.nan
-        v = self.voxel_size_m
-        return image, np.array([x0 * v, (x0 + width) * v, y0 * v, (y0 + height) * v])
+        return horizontal_slice(self, layer, z_range_m)
 
-    def first_occupied(self, origin_w, directions_w, *, max_range_m):
+    def first_occupied(
+        self, origin_w: npt.ArrayLike, directions_w: npt.ArrayLike, *, max_range_m: float
+    ) -> tuple[npt.NDArray[np.bool_], npt.NDArray[np.int32], npt.NDArray[np.float64]]:
         """First occupied voxel along each ray; unknown voxels are passed through.
 
         Parameters

@@ -4,7 +4,10 @@ As wavemap and Voxblox keep them, the projector, the measurement model and the i
 each made by its own factory, so another sensor geometry is a new projector, not a new integrator.
 """
 
+from __future__ import annotations
+
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -37,7 +40,7 @@ PROJECTOR_NAMES = tuple(_PROJECTORS)
 """Names accepted by :func:`make_projector`."""
 
 
-def make_projector(name, **params):
+def make_projector(name: str, **params: Any) -> ImageProjection:
     """The projector called ``name`` (``"pinhole"``: :class:`ImageProjection`), built from ``params``.
 
     The projective integrator maps voxel centres to the frame's pixels through it; as with the integrators

@@ -1,12 +1,17 @@
 """The voxels rays cross, for callers outside the integrators (queries, ground truth): the traversal, checked."""
 
+from __future__ import annotations
+
 import numpy as np
+import numpy.typing as npt
 
 from prismap._validate import as_float_array, check_positive
 from prismap.grid import _kernels_traverse
 
 
-def crossed_voxels(origin_w, rays_w, t_stop, voxel_size_m):
+def crossed_voxels(
+    origin_w: npt.ArrayLike, rays_w: npt.ArrayLike, t_stop: npt.ArrayLike, voxel_size_m: float
+) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int32], npt.NDArray[np.float64], npt.NDArray[np.float64]]:
     """Voxels each ray ``origin_w + t rays_w[i]`` crosses for ``t_in <= t_stop[i]`` (Amanatides & Woo).
 
     The voxel holding the stop point is included; voxels a ray only touches are not (as the integrators).

@@ -20,8 +20,13 @@ KITTI odometry and raw drives have no disparity maps: the ground truth is the Ve
 the left colour camera (:func:`points_to_disparity`, the thesis's fig. 3.16), sparse, NaN elsewhere.
 """
 
+from __future__ import annotations
+
+import os
+from collections.abc import Iterable
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -44,7 +49,13 @@ _LOOKED_FOR = (
 )
 
 
-def open_ground_truth(dataset, *, frames=None, every=1, kitti_disparity="noc"):
+def open_ground_truth(
+    dataset: str | os.PathLike[str],
+    *,
+    frames: str | tuple[int | None, int | None] | None = None,
+    every: int = 1,
+    kitti_disparity: str = "noc",
+) -> GroundTruthFrames:
     """Open a dataset with ground-truth disparity and select frames; nothing is decoded yet.
 
     Parameters
@@ -103,7 +114,7 @@ class GroundTruthFrames(LazyFrames):
         The selected frames' positions in the whole dataset.
     """
 
-    def __init__(self, reader, kind, source, indices):
+    def __init__(self, reader: Any, kind: str, source: str, indices: Iterable[int]) -> None:
         self._reader = reader
         self.kind = kind
         self.source = source
@@ -118,7 +129,7 @@ class GroundTruthFrames(LazyFrames):
         _check_bound(frame.disparity_gt, self._where(index))
         return frame
 
-    def disparity_gt(self, position):
+    def disparity_gt(self, position: int) -> np.ndarray:
         """Ground truth of selected frame ``position`` without decoding its images.
 
         Returns
@@ -130,7 +141,7 @@ class GroundTruthFrames(LazyFrames):
         _check_bound(disparity, self._where(index))
         return disparity
 
-    def max_disparity_px(self, *, progress=None):
+    def max_disparity_px(self, *, progress: bool | None = None) -> float:
         """The largest valid ground-truth disparity over the selection, from one pass over the ground truth only.
 
         The matcher's search range is set from it. Every value has been checked to lie below its image's

@@ -5,13 +5,17 @@ helpers turn both into the reader conventions: a :class:`PrismapInputError` that
 its role, and RGB channel order.
 """
 
+from __future__ import annotations
+
 import dataclasses
+import os
 import struct
 import zlib
 from pathlib import Path
 
 import cv2
 import numpy as np
+import numpy.typing as npt
 
 from prismap._files import atomic_path
 from prismap._memory import check_memory
@@ -290,7 +294,9 @@ def read_disparity_png(path, what, *, dtype, scale):
     return disparity
 
 
-def write_disparity_png(path, disparity_px, what, *, scale=256.0):
+def write_disparity_png(
+    path: str | os.PathLike[str], disparity_px: npt.ArrayLike, what: str, *, scale: float = 256.0
+) -> None:
     """Write a disparity map as KITTI's uint16 PNG (``round(scale * d)``, 0 = invalid), atomically.
 
     The inverse of ``read_disparity_png(path, what, dtype=np.uint16, scale=scale)``. Non-finite and

@@ -3,11 +3,14 @@
 Every failure becomes a :class:`PrismapInputError` naming the file (and line or field) and the problem.
 """
 
+from __future__ import annotations
+
 import dataclasses
 import os
 from pathlib import Path
 
 import numpy as np
+import numpy.typing as npt
 
 from prismap._validate import check_pose
 from prismap.camera import StereoCamera
@@ -33,7 +36,7 @@ _TEXT_FIELDS = frozenset({"calib_time"})
 # ----------------------------------------------------------------------------- KITTI files
 
 
-def read_kitti_calib(path):
+def read_kitti_calib(path: str | os.PathLike[str]) -> dict[str, np.ndarray]:
     """Read a KITTI calibration file of ``name: numbers`` lines.
 
     Covers odometry ``calib.txt`` (``P0``..``P3``, optional ``Tr``), raw ``calib_cam_to_cam.txt``
@@ -98,7 +101,7 @@ def _T_left_cam0(P_left):
     return T
 
 
-def read_kitti_poses(path):
+def read_kitti_poses(path: str | os.PathLike[str]) -> np.ndarray:
     """Read an odometry ``poses/NN.txt``: one 3x4 row-major camera-to-world pose per line.
 
     Parameters
@@ -143,7 +146,7 @@ def _camera_poses(T_world_cam0, P_camera):
     return T_world_cam0 @ np.linalg.inv(_T_left_cam0(P_camera))
 
 
-def read_kitti_disparity(path):
+def read_kitti_disparity(path: str | os.PathLike[str]) -> np.ndarray:
     """Read a KITTI stereo 2012/2015 ground-truth disparity (``disp_occ_0/000000_10.png``, ``disp_noc``...).
 
     Parameters
@@ -197,21 +200,21 @@ class _KittiSequence(LazyFrames):
         )
 
     @property
-    def T_cam_velo(self):
+    def T_cam_velo(self) -> npt.NDArray[np.float64]:
         """(4, 4) float64: Velodyne frame -> left (reference) camera frame, metres."""
         if self._T_cam_velo is None:
             raise PrismapInputError(f"{self._source}: the calibration has no Velodyne transform (Tr)")
         return self._T_cam_velo.copy()
 
-    def velodyne_path(self, index):
+    def velodyne_path(self, index: int) -> Path:
         """Path of frame ``index``'s Velodyne scan (``velodyne/NNNNNN.bin``), whether or not it exists."""
         return self._velodyne_dir / f"{Path(self._names[self._index(index)]).stem}.bin"
 
-    def velodyne(self, index):
+    def velodyne(self, index: int) -> npt.NDArray[np.float64]:
         """Velodyne points of frame ``index`` in the left camera frame: (N, 3) float64, metres."""
         return velodyne_to_camera(read_velodyne_bin(self.velodyne_path(index)), self.T_cam_velo)
 
-    def velodyne_disparity(self, index):
+    def velodyne_disparity(self, index: int) -> npt.NDArray[np.float32]:
         """Sparse ground-truth disparity of frame ``index`` from its Velodyne scan (thesis fig. 3.16).
 
         Returns
@@ -253,7 +256,7 @@ class KittiOdometry(_KittiSequence):
     ``T_cam2_velo = [I | t2] @ Tr``. The world frame stays camera 0 of the first frame.
     """
 
-    def __init__(self, root, sequence, *, load_poses=True):
+    def __init__(self, root: str | os.PathLike[str], sequence: str | int | None, *, load_poses: bool = True) -> None:
         root = Path(root)
         if sequence is None:
             absolute = Path(os.path.abspath(root))  # as the user wrote it, links unresolved
@@ -302,7 +305,7 @@ class KittiRaw(_KittiSequence):
     carry GPS/IMU (oxts) rather than camera poses: ``poses`` is None.
     """
 
-    def __init__(self, drive_dir, *, calib_dir=None):
+    def __init__(self, drive_dir: str | os.PathLike[str], *, calib_dir: str | os.PathLike[str] | None = None) -> None:
         drive_dir = Path(drive_dir)
         calib_dir = drive_dir.parent if calib_dir is None else Path(calib_dir)
         cam_path = calib_dir / "calib_cam_to_cam.txt"
@@ -368,7 +371,7 @@ class KittiStereo(LazyFrames):
     frame is accessed.
     """
 
-    def __init__(self, root, *, disparity="noc"):
+    def __init__(self, root: str | os.PathLike[str], *, disparity: str = "noc") -> None:
         if disparity not in KITTI_DISPARITIES:
             raise PrismapInputError(f"`disparity` must be one of {KITTI_DISPARITIES}; got {disparity!r}")
         self.root = Path(root)
@@ -416,11 +419,11 @@ class KittiStereo(LazyFrames):
             name=f"kitti-stereo-{self.year}/{name.removesuffix('.png')}",
         )
 
-    def ground_truth_path(self, index):
+    def ground_truth_path(self, index: int) -> Path:
         """Path of frame ``index``'s ground-truth disparity PNG, whether or not it exists."""
         return self._disparity_dir / self.names[self._index(index)]
 
-    def disparity_gt(self, index):
+    def disparity_gt(self, index: int) -> np.ndarray:
         """Frame ``index``'s ground truth, (H, W) float32, pixels, NaN = unknown; its size must be the image's."""
         path = self.ground_truth_path(index)
         disparity = read_kitti_disparity(path)

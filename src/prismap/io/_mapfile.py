@@ -10,6 +10,9 @@ observed voxels are stored. Version 1 files (float32 log-odds) are still read; t
 fixed point. Version 1 and 2 files have no ``fusion`` and read as independent.
 """
 
+from __future__ import annotations
+
+import os
 from pathlib import Path
 
 import numpy as np
@@ -46,7 +49,7 @@ _SPEC = {
 _BYTES_PER_VOXEL = 64
 
 
-def save_map(grid, path):
+def save_map(grid: OccupancyMap, path: str | os.PathLike[str]) -> None:
     """Write ``grid`` to ``path`` (``.npz``) atomically: the file appears whole or not at all.
 
     Parameters
@@ -80,7 +83,7 @@ def save_map(grid, path):
         )
 
 
-def load_map(path):
+def load_map(path: str | os.PathLike[str]) -> OccupancyMap:
     """Read a map written by :func:`save_map`.
 
     Every field's type and rank, and the memory the declared voxels need, are checked from the archive's

@@ -5,6 +5,9 @@
 scalars (``isint``, ``vmin``, ``vmax``, ``dyavg``, ``dymax``).
 """
 
+from __future__ import annotations
+
+import os
 from pathlib import Path
 
 import numpy as np
@@ -17,7 +20,7 @@ from prismap.io._pfm import read_pfm
 from prismap.io._text import location, parse_numbers, read_text
 
 
-def read_middlebury_calib(path):
+def read_middlebury_calib(path: str | os.PathLike[str]) -> StereoCamera:
     """The stereo camera of a Middlebury ``calib.txt``.
 
     Parameters
@@ -35,7 +38,7 @@ def read_middlebury_calib(path):
     return StereoCamera.from_middlebury_calib(_parse_calib(path), source=str(path))
 
 
-def load_middlebury_folder(path):
+def load_middlebury_folder(path: str | os.PathLike[str]) -> StereoFrame:
     """One Middlebury scene folder as a :class:`StereoFrame`.
 
     Parameters
@@ -94,7 +97,7 @@ class MiddleburyScenes(LazyFrames):
     :func:`load_middlebury_folder` when accessed.
     """
 
-    def __init__(self, path):
+    def __init__(self, path: str | os.PathLike[str]) -> None:
         path = Path(path)
         if (path / "im0.png").is_file():
             self.folders = [path]
@@ -109,17 +112,17 @@ class MiddleburyScenes(LazyFrames):
     def _frame(self, index):
         return load_middlebury_folder(self.folders[index])
 
-    def ground_truth_path(self, index):
+    def ground_truth_path(self, index: int) -> Path:
         """Path of scene ``index``'s ``disp0.pfm``, whether or not it exists."""
         return self.folders[self._index(index)] / "disp0.pfm"
 
-    def disparity_gt(self, index):
+    def disparity_gt(self, index: int) -> np.ndarray:
         """Scene ``index``'s ground truth, (H, W) float32, pixels, NaN = unknown; the images are not decoded."""
         folder = self.folders[self._index(index)]
         return _read_disparity(folder, png_size(folder / "im0.png", "left image"))
 
 
-def load_middlebury_motorcycle():
+def load_middlebury_motorcycle() -> StereoFrame:
     """Middlebury 2014 Motorcycle at quarter resolution, from scikit-image's bundled copy.
 
     Returns

@@ -1,6 +1,10 @@
 """Export to OctoMap (``.ot`` full log-odds, ``.bt`` free/occupied) through the optional ``octomap`` module."""
 
+from __future__ import annotations
+
+import os
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -22,7 +26,7 @@ def _octomap():
     return octomap
 
 
-def to_octree(grid):
+def to_octree(grid: OccupancyMap) -> Any:
     """An ``octomap.OcTree`` holding every known voxel of ``grid`` with its log-odds.
 
     The tree's clamping is widened to +-20 log-odds so the values arrive unchanged, and its occupancy
@@ -47,7 +51,7 @@ def to_octree(grid):
     return tree
 
 
-def write_octomap(grid, path):
+def write_octomap(grid: OccupancyMap, path: str | os.PathLike[str]) -> None:
     """Write ``grid`` as an OctoMap file, atomically: ``.ot`` (full log-odds) or ``.bt`` (free/occupied)."""
     path = Path(path)
     if path.suffix not in (".ot", ".bt"):

@@ -5,7 +5,12 @@ sign gives the byte order (negative = little-endian), each on its own line; then
 with the rows stored bottom to top. Middlebury marks unknown disparities with ``+inf``.
 """
 
+from __future__ import annotations
+
+import os
+
 import numpy as np
+import numpy.typing as npt
 
 from prismap._files import atomic_path
 from prismap.errors import PrismapInputError
@@ -16,7 +21,7 @@ HEADER_BYTES = 256
 """Bytes a PFM header fits in (three short lines)."""
 
 
-def read_pfm(path):
+def read_pfm(path: str | os.PathLike[str]) -> npt.NDArray[np.float32]:
     """Read a PFM file.
 
     Parameters
@@ -51,7 +56,7 @@ def read_pfm(path):
     return np.flipud(data.reshape(shape)).astype(np.float32)
 
 
-def write_pfm(path, array):
+def write_pfm(path: str | os.PathLike[str], array: npt.ArrayLike) -> None:
     """Write a PFM file (little-endian, scale -1), atomically.
 
     Parameters

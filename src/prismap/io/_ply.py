@@ -1,13 +1,18 @@
 """Occupied voxels as a binary PLY point cloud (vertex x, y, z float32 and probability float32)."""
 
+from __future__ import annotations
+
+import os
+
 import numpy as np
+import numpy.typing as npt
 
 from prismap._files import atomic_path
 from prismap.errors import PrismapInputError
 from prismap.grid import OccupancyMap
 
 
-def write_ply(grid, path):
+def write_ply(grid: OccupancyMap, path: str | os.PathLike[str]) -> int:
     """Write the occupied voxels' centres (metres, world frame) and probabilities to a binary PLY.
 
     Parameters
@@ -39,7 +44,7 @@ def write_ply(grid, path):
     return len(prob)
 
 
-def read_ply(path):
+def read_ply(path: str | os.PathLike[str]) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]:
     """Read a PLY written by :func:`write_ply`: ``(centers_w (N, 3) float32, probability (N,) float32)``."""
     data = open(path, "rb").read()
     end = data.find(b"end_header\n")

@@ -5,6 +5,8 @@ The cloud is unorganised (``height = 1``), little-endian, dense, with the fields
 centres, metres, the map's world frame) and ``probability`` (P(occupied)), all float32, 16 bytes a point.
 """
 
+from __future__ import annotations
+
 import os
 import shutil
 import sqlite3
@@ -25,8 +27,15 @@ _STORAGES = ("mcap", "sqlite3")
 
 
 def write_pointcloud2(
-    grid, path, *, storage=None, frame_id="map", topic="/prismap/map", min_probability=None, stamp_ns=0
-):
+    grid: OccupancyMap,
+    path: str | os.PathLike[str],
+    *,
+    storage: str | None = None,
+    frame_id: str = "map",
+    topic: str = "/prismap/map",
+    min_probability: float | None = None,
+    stamp_ns: int = 0,
+) -> int:
     """Write the known voxels of ``grid`` as one PointCloud2 message, all or nothing.
 
     Parameters

@@ -25,14 +25,19 @@ like a KITTI-layout :class:`~prismap.io.Sequence`: same attributes, same :class:
   stamp and the image's; then projected with occlusion handling (:func:`prismap.io.points_to_disparity`).
 """
 
+from __future__ import annotations
+
 import contextlib
+import os
 import sqlite3
 import struct
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
+import numpy.typing as npt
 
 from prismap.errors import PrismapInputError
 from prismap.io._frame import StereoFrame, frame_index
@@ -86,7 +91,7 @@ _DAMAGE = (struct.error, EOFError, KeyError, IndexError, ValueError, OSError, sq
 """What rosbags raises, besides its own errors, for a file cut short."""
 
 
-def read_bag(path, **options):
+def read_bag(path: str | os.PathLike[str], **options: Any) -> BagSequence:
     """Open a stereo recording in a ROS bag as a sequence (see the module docstring).
 
     The keyword arguments are :class:`BagSequence`'s, all keyword-only.
@@ -156,22 +161,22 @@ class BagSequence:
 
     def __init__(
         self,
-        path,
+        path: str | os.PathLike[str],
         *,
-        left,
-        right,
-        left_info=None,
-        right_info=None,
-        pose_topic=None,
-        tf_frames=None,
-        truth_topic=None,
-        rectified=None,
-        pair_tolerance_s=PAIR_TOLERANCE_S,
-        max_pose_gap_s=MAX_POSE_GAP_S,
-        lidar_topic=None,
-        T_cam_lidar=None,
-        scan_tolerance_s=SCAN_TOLERANCE_S,
-    ):
+        left: str,
+        right: str,
+        left_info: str | None = None,
+        right_info: str | None = None,
+        pose_topic: str | None = None,
+        tf_frames: tuple[str, str] | None = None,
+        truth_topic: str | None = None,
+        rectified: bool | None = None,
+        pair_tolerance_s: float = PAIR_TOLERANCE_S,
+        max_pose_gap_s: float = MAX_POSE_GAP_S,
+        lidar_topic: str | None = None,
+        T_cam_lidar: npt.ArrayLike | None = None,
+        scan_tolerance_s: float = SCAN_TOLERANCE_S,
+    ) -> None:
         self.path = Path(path)
         self._access = None
         if pose_topic is not None and tf_frames is not None:
@@ -304,11 +309,11 @@ class BagSequence:
             left, right, self.camera, disparity, pose, name=f"{self.path.name}@{_seconds(self.stamps_ns[index])}"
         )
 
-    def ground_truth_path(self, index):
+    def ground_truth_path(self, index: int) -> None:
         """None: a bag's ground truth is a topic, not a file (the reader interface of ``GroundTruthFrames``)."""
         return None
 
-    def disparity_gt(self, index):
+    def disparity_gt(self, index: int) -> np.ndarray:
         """Ground-truth disparity of frame ``index`` from the truth topic: (H, W) float32, pixels, NaN = unknown."""
         if self._truth is None:
             raise PrismapInputError(f"{self.path}: no ground-truth topic was given (--truth-topic or --lidar-topic)")
@@ -322,7 +327,7 @@ class BagSequence:
             self._access = access
         return self._access.reader
 
-    def close(self):
+    def close(self) -> None:
         """Close the bag file kept open for frame access (reopened if a frame is read again)."""
         if self._access is not None:
             self._access.__exit__(None, None, None)

@@ -21,9 +21,12 @@ converted from camera 0 to the image_2 camera exactly as :class:`prismap.io.Kitt
 and ``velodyne/`` are ignored. Sequences 11-21 ship without poses and open without them.
 """
 
+from __future__ import annotations
+
 import os
 import shutil
 import tempfile
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -97,12 +100,12 @@ class GroundTruthOccupancy:
             object.__setattr__(self, name, keys)
 
     @property
-    def free_keys(self):
+    def free_keys(self) -> np.ndarray:
         """(K, 3) int64: observed keys that hold no solid, sorted."""
         return self.observed_keys[~self._observed_is_occupied()]
 
     @property
-    def observed_occupied_keys(self):
+    def observed_occupied_keys(self) -> np.ndarray:
         """(K, 3) int64: observed keys that hold a solid, sorted."""
         return self.observed_keys[self._observed_is_occupied()]
 
@@ -120,7 +123,7 @@ _GROUND_TRUTH_SPEC = {
 }
 
 
-def write_ground_truth(path, truth):
+def write_ground_truth(path: str | os.PathLike[str], truth: GroundTruthOccupancy) -> None:
     """Write ``truth`` (:class:`GroundTruthOccupancy`) to ``path`` (``.npz``) atomically.
 
     Fields: ``format`` (str), ``version`` (int), ``voxel_size_m`` (float), ``occupied_keys`` and
@@ -137,7 +140,7 @@ def write_ground_truth(path, truth):
         )
 
 
-def read_ground_truth(path):
+def read_ground_truth(path: str | os.PathLike[str]) -> GroundTruthOccupancy:
     """Read a file written by :func:`write_ground_truth`; clear errors name the file and the field."""
     path = Path(path)
     if not path.is_file():
@@ -154,7 +157,9 @@ def read_ground_truth(path):
         raise PrismapInputError(f"{path}: {exc}") from None
 
 
-def write_sequence(frames, out_dir, *, occupancy=None):
+def write_sequence(
+    frames: Iterable[StereoFrame], out_dir: str | os.PathLike[str], *, occupancy: GroundTruthOccupancy | None = None
+) -> int:
     """Write stereo frames as a KITTI-layout sequence (see the module docstring), all or nothing.
 
     The files are written into a temporary directory beside ``out_dir`` and moved into ``out_dir``
@@ -291,7 +296,7 @@ class Sequence:
         Frame file names (``NNNNNN.png``), sorted.
     """
 
-    def __init__(self, path):
+    def __init__(self, path: str | os.PathLike[str]) -> None:
         self.path = Path(path)
         if not self.path.is_dir():
             raise PrismapInputError(f"{self.path}: sequence directory not found")
@@ -328,7 +333,7 @@ class Sequence:
         self._ground_truth = None
 
     @property
-    def ground_truth(self):
+    def ground_truth(self) -> GroundTruthOccupancy | None:
         """GroundTruthOccupancy of ``occupancy.npz``, or None without the file (read once, then kept)."""
         path = self.path / "occupancy.npz"
         if self._ground_truth is None and path.is_file():
@@ -349,11 +354,11 @@ class Sequence:
         pose = None if self.poses is None else self.poses[index].copy()
         return StereoFrame(left, right, self.camera, disparity, pose, name=f"{self.path.name}/{name}")
 
-    def ground_truth_path(self, index):
+    def ground_truth_path(self, index: int) -> Path:
         """Path of frame ``index``'s ground-truth disparity ``disp/NNNNNN.png``, whether or not it exists."""
         return self.path / "disp" / self.names[range(len(self))[index]]
 
-    def disparity_gt(self, index):
+    def disparity_gt(self, index: int) -> np.ndarray:
         """Frame ``index``'s ground truth from ``disp/``: (H, W) float32, pixels, NaN = unknown.
 
         Its size must be the images' (checked on opening); the images are not decoded.
@@ -378,7 +383,7 @@ def _kitti_odometry_pose_path(path):
     return pose_path if pose_path.is_file() else None
 
 
-def read_sequence(path):
+def read_sequence(path: str | os.PathLike[str]) -> Sequence:
     """Open a sequence directory written by :func:`write_sequence`, or a KITTI odometry ``ROOT/sequences/NN``.
 
     Poses come from ``poses.txt`` (image_2 camera), else, in a KITTI odometry tree, from ``ROOT/poses/NN.txt``

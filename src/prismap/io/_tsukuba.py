@@ -10,11 +10,15 @@ Layout::
 with ``<name>`` one of daylight, flashlight, fluorescent, lamps; frames are numbered from 1.
 """
 
+from __future__ import annotations
+
+import os
 import re
 from pathlib import Path
 
 import cv2
 import numpy as np
+import numpy.typing as npt
 
 from prismap.camera import TSUKUBA_CAMERA
 from prismap.errors import PrismapInputError
@@ -26,7 +30,9 @@ _OPENGL_TO_OPENCV = np.diag([1.0, -1.0, -1.0, 1.0])
 _GROUND_TRUTH = (None, "disparity", "depth")
 
 
-def read_tsukuba_track(path, *, baseline_m=TSUKUBA_CAMERA.baseline_m):
+def read_tsukuba_track(
+    path: str | os.PathLike[str], *, baseline_m: float = TSUKUBA_CAMERA.baseline_m
+) -> npt.NDArray[np.float64]:
     """Read ``groundtruth/camera_track.txt`` into left-camera poses.
 
     Parameters
@@ -84,7 +90,7 @@ def _rot_z(angle):
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
-def read_tsukuba_depth(path):
+def read_tsukuba_depth(path: str | os.PathLike[str]) -> npt.NDArray[np.float64]:
     """Read a ground-truth depth map ``tsukuba_depth_L_00001.xml`` (OpenCV FileStorage, node ``depth``).
 
     Parameters
@@ -129,7 +135,7 @@ def read_tsukuba_depth(path):
     return depth
 
 
-def read_tsukuba_disparity(path):
+def read_tsukuba_disparity(path: str | os.PathLike[str]) -> np.ndarray:
     """Read a ground-truth disparity map ``tsukuba_disparity_L_00001.png``.
 
     Parameters
@@ -172,7 +178,9 @@ class NewTsukuba(LazyFrames):
         ``T_world_cam`` of the left camera (:func:`read_tsukuba_track`); None without the track.
     """
 
-    def __init__(self, root, *, illumination="daylight", ground_truth="disparity"):
+    def __init__(
+        self, root: str | os.PathLike[str], *, illumination: str = "daylight", ground_truth: str = "disparity"
+    ) -> None:
         if ground_truth not in _GROUND_TRUTH:
             raise PrismapInputError(f"`ground_truth` must be one of {_GROUND_TRUTH}; got {ground_truth!r}")
         self._root = Path(root)
@@ -221,7 +229,7 @@ class NewTsukuba(LazyFrames):
             name=f"tsukuba/{self._illumination}/{number:05d}",
         )
 
-    def ground_truth_path(self, index):
+    def ground_truth_path(self, index: int) -> Path:
         """Path of frame ``index``'s ground-truth file (disparity PNG or depth XML), whether or not it exists."""
         number = self._numbers[self._index(index)]
         truth = self._root / "groundtruth"
@@ -229,7 +237,7 @@ class NewTsukuba(LazyFrames):
             return truth / "depth_maps" / "left" / f"tsukuba_depth_L_{number:05d}.xml"
         return truth / "disparity_maps" / "left" / f"tsukuba_disparity_L_{number:05d}.png"
 
-    def disparity_gt(self, index):
+    def disparity_gt(self, index: int) -> np.ndarray:
         """Frame ``index``'s ground-truth disparity, (H, W) float32, pixels; the images are not decoded.
 
         From the integer PNG (``ground_truth="disparity"``) or ``f b / z`` of the depth map (``"depth"``);

@@ -1,16 +1,21 @@
 """Velodyne scans as KITTI stores them: float32 (x, y, z, reflectance) records, sensor frame."""
 
+from __future__ import annotations
+
+import os
+
 import numpy as np
+import numpy.typing as npt
 
 from prismap._validate import as_float_array
-from prismap.camera import DISPARITY_MARGIN_PX, project_points, visible_points
+from prismap.camera import DISPARITY_MARGIN_PX, StereoCamera, project_points, visible_points
 from prismap.errors import PrismapInputError
 from prismap.io._text import read_bytes
 
 _RECORD_BYTES = 16
 
 
-def read_velodyne_bin(path):
+def read_velodyne_bin(path: str | os.PathLike[str]) -> npt.NDArray[np.float32]:
     """Read one KITTI ``velodyne/NNNNNN.bin`` scan.
 
     Parameters
@@ -42,7 +47,7 @@ def read_velodyne_bin(path):
     return points
 
 
-def velodyne_to_camera(points_velo, T_cam_velo):
+def velodyne_to_camera(points_velo: npt.ArrayLike, T_cam_velo: npt.ArrayLike) -> npt.NDArray[np.float64]:
     """Move Velodyne points into a camera frame.
 
     Parameters
@@ -63,7 +68,13 @@ def velodyne_to_camera(points_velo, T_cam_velo):
     return points[:, :3] @ T[:3, :3].T + T[:3, 3]
 
 
-def points_to_disparity(points_cam, camera, *, occlusion_window_px=0, disparity_margin_px=DISPARITY_MARGIN_PX):
+def points_to_disparity(
+    points_cam: npt.ArrayLike,
+    camera: StereoCamera,
+    *,
+    occlusion_window_px: int = 0,
+    disparity_margin_px: float = DISPARITY_MARGIN_PX,
+) -> npt.NDArray[np.float32]:
     """Sparse ground-truth disparity of the left image from 3-D points, e.g. a Velodyne scan (thesis fig. 3.16).
 
     Every point in front of the camera is projected with the pinhole model to the pixel whose centre is

@@ -1,9 +1,14 @@
 """A matcher's error model over a dataset's frames, here or on Dask workers (histograms and samples add up)."""
 
+from __future__ import annotations
+
 import functools
 import math
+import os
+from collections.abc import Mapping
+from typing import Any
 
-from prismap.characterise import characterise_matcher
+from prismap.characterise import Characterisation, characterise_matcher
 from prismap.errors import PrismapInputError
 from prismap.io import GroundTruthFrames, open_ground_truth
 from prismap.stereo import make_matcher
@@ -17,18 +22,18 @@ def _dask_map(client, function, chunks):
 
 
 def characterise_sequence(
-    dataset,
-    matcher,
+    dataset: str | os.PathLike[str] | GroundTruthFrames,
+    matcher: str,
     *,
-    matcher_params=None,
-    frames=None,
-    every=1,
-    kitti_disparity="noc",
-    client=None,
-    chunk_frames=None,
-    progress=True,
-    **options,
-):
+    matcher_params: Mapping[str, Any] | None = None,
+    frames: str | tuple[int | None, int | None] | None = None,
+    every: int = 1,
+    kitti_disparity: str = "noc",
+    client: Any = None,
+    chunk_frames: int | None = None,
+    progress: bool = True,
+    **options: Any,
+) -> Characterisation:
     """Characterise a matcher's disparity errors over the frames of any dataset with ground truth.
 
     Parameters

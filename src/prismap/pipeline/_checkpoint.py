@@ -10,22 +10,26 @@ voxel size, prior or frame count does not fit the run. How many frames the map h
 ``n_frames``; the JSON's ``frames_done`` is for people.
 """
 
+from __future__ import annotations
+
 import hashlib
 import json
 import math
+import os
 from pathlib import Path
 
 from prismap._files import atomic_path, write_text_atomic
 from prismap.errors import PrismapInputError
-from prismap.io import load_map, save_map
-from prismap.pipeline._config import DISPARITY_FROM_MATCHER, DISPARITY_FROM_SEQUENCE
+from prismap.grid import OccupancyMap
+from prismap.io import BagSequence, Sequence, load_map, save_map
+from prismap.pipeline._config import DISPARITY_FROM_MATCHER, DISPARITY_FROM_SEQUENCE, MappingConfig
 
 FORMAT = "prismap-map-checkpoint"
 FORMAT_VERSION = 2
 """Version 2 added ``map_sha256``; version 1 checkpoints (no digest) are refused with how to start afresh."""
 
 
-def run_fingerprint(sequence, config):
+def run_fingerprint(sequence: Sequence | BagSequence, config: MappingConfig) -> str:
     """SHA-256 (hex) of the config and of the inputs it reads from ``sequence``.
 
     Inputs are fingerprinted cheaply: ``calib.txt`` and the pose file (``poses.txt``, or a KITTI
@@ -54,7 +58,9 @@ def _paths(path):
     return path.with_suffix(".npz"), path.with_suffix(".json")
 
 
-def open_checkpoint(path, fingerprint, config=None, n_frames=None):
+def open_checkpoint(
+    path: str | os.PathLike[str], fingerprint: str, config: MappingConfig | None = None, n_frames: int | None = None
+) -> OccupancyMap | None:
     """Start or resume a checkpointed run; returns the checkpointed map or None.
 
     Parameters
@@ -136,7 +142,7 @@ def _check_fits(grid, map_path, config, n_frames):
         )
 
 
-def save_checkpoint(path, fingerprint, grid):
+def save_checkpoint(path: str | os.PathLike[str], fingerprint: str, grid: OccupancyMap) -> None:
     """Write ``grid`` as the checkpoint map (atomic) and record its digest and ``n_frames`` in the JSON.
 
     While the new map waits beside the old one the JSON vouches for both (its ``frames_done`` still the
@@ -153,7 +159,7 @@ def save_checkpoint(path, fingerprint, grid):
     _write_meta(meta_path, fingerprint, grid.n_frames, [new])
 
 
-def remove_checkpoint(path):
+def remove_checkpoint(path: str | os.PathLike[str]) -> None:
     """Delete a checkpoint's files (once the final result is safely written): the JSON that vouches for the map
     first, so that no moment shows a checkpoint whose map is already gone."""
     map_path, meta_path = _paths(path)

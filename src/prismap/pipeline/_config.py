@@ -1,19 +1,24 @@
 """What a mapping run is: one frozen configuration, and the sensor model it builds for a camera."""
 
+from __future__ import annotations
+
 import hashlib
 import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from prismap._validate import check_integer, check_positive, check_probability
+from prismap.camera import StereoCamera
 from prismap.characterise import FUSION_MODELS, ErrorModel
 from prismap.errors import PrismapInputError
 from prismap.gmm import GaussianMixture
-from prismap.grid import POLICIES
+from prismap.grid import POLICIES, PersistentFailure
 from prismap.sensor_models import (
+    InverseSensorModel,
     conditioned_sensor_model,
     error_model_use,
     model_defaults,
@@ -73,7 +78,15 @@ def needs_error_model(name, params):
     return use == "mixture" or (use == "sigma" and "sigma_px" not in params)
 
 
-def build_sensor_model(name, camera, *, voxel_size_m, p0, error_model=None, **params):
+def build_sensor_model(
+    name: str,
+    camera: StereoCamera,
+    *,
+    voxel_size_m: float,
+    p0: float,
+    error_model: ErrorModel | GaussianMixture | None = None,
+    **params: Any,
+) -> InverseSensorModel:
     """The inverse sensor model ``name`` for ``camera`` on a map of ``voxel_size_m`` and prior ``p0``.
 
     Parameters
@@ -238,26 +251,26 @@ class MappingConfig:
             )
 
     @property
-    def persistent_failure(self):
+    def persistent_failure(self) -> PersistentFailure | None:
         """The map's :class:`~prismap.grid.PersistentFailure` reading, or None (independent fusion)."""
         return None if self.fusion == "independent" else self.error_model.persistent_failure
 
     @property
-    def model_options(self):
+    def model_options(self) -> dict[str, Any]:
         """Sensor model parameters as a dict."""
         return dict(self.model_params)
 
     @property
-    def matcher_options(self):
+    def matcher_options(self) -> dict[str, Any]:
         """Matcher parameters as a dict."""
         return dict(self.matcher_params)
 
     @property
-    def mixture(self):
+    def mixture(self) -> GaussianMixture | None:
         """The whole-image error mixture (GaussianMixture, pixels) or None: what a plain model uses."""
         return _as_mixture(self.error_model)
 
-    def sensor_model(self, camera):
+    def sensor_model(self, camera: StereoCamera) -> InverseSensorModel:
         """The configured sensor model for ``camera``: :func:`build_sensor_model` when plain, else
         :func:`prismap.sensor_models.conditioned_sensor_model`: a ConditionedModel for the models that use the
         error model, whose rays then need ``ray_class``; the plain model for ``ideal`` and ``hitmiss``."""
@@ -280,7 +293,7 @@ class MappingConfig:
         )
 
     @property
-    def label(self):
+    def label(self) -> str:
         """What the run maps with, for progress lines: model, variant, disparities, e.g.
         ``"prism conditioned, sgbm"`` or ``"hit_miss, disparities from sgbm/disparity"``.
 
@@ -298,7 +311,7 @@ class MappingConfig:
             source = f"disparities from {folder.parent.name}/{folder.name}"
         return f"{self.model}{variant}, {source}"
 
-    def frame_indices(self, n_frames):
+    def frame_indices(self, n_frames: int) -> range:
         """``range`` of the frames of a sequence of ``n_frames`` this config maps; raises if empty."""
         start, stop = self.frames
         stop = n_frames if stop is None else min(stop, n_frames)
@@ -309,7 +322,7 @@ class MappingConfig:
             )
         return range(start, stop)
 
-    def to_dict(self):
+    def to_dict(self) -> dict[str, Any]:
         """Plain-JSON form: the error model as its weights, means and sigmas, with its classes when they are used.
 
         A plain run records only the whole-image mixture, so it fingerprints the same whether it was
@@ -337,7 +350,7 @@ class MappingConfig:
             **({} if self.fusion == "independent" else {"fusion": self.error_model.fusion}),
         }
 
-    def fingerprint(self):
+    def fingerprint(self) -> str:
         """SHA-256 (hex) of :meth:`to_dict`: equal configs give equal fingerprints."""
         text = json.dumps(self.to_dict(), sort_keys=True, default=repr)
         return hashlib.sha256(text.encode("utf-8")).hexdigest()

@@ -1,21 +1,33 @@
 """Reference occupancy from LiDAR scans (thesis sec. 6.3.3): noise-free rays, OctoMap's hit/miss rule."""
 
-from collections.abc import Sequence
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
 
 import numpy as np
+import numpy.typing as npt
 
 from prismap._progress import progress as progress_bar
 from prismap._validate import as_float_array, check_positive
+from prismap.camera import StereoCamera
 from prismap.errors import PrismapInputError
 from prismap.grid import OccupancyMap
-from prismap.io import GroundTruthOccupancy
+from prismap.io import GroundTruthOccupancy, KittiOdometry, KittiRaw
 from prismap.sensor_models import make_sensor_model
 
 LIDAR_P0 = 0.5
 """Prior of the reference map: OctoMap's uninformed 0.5, so one hit in a scan makes a voxel occupied."""
 
 
-def lidar_reference_map(scans, voxel_size_m, *, max_range_m=np.inf, p_hit=0.7, p_miss=0.4, progress=True):
+def lidar_reference_map(
+    scans: Iterable[tuple[np.ndarray, np.ndarray]],
+    voxel_size_m: float,
+    *,
+    max_range_m: float = np.inf,
+    p_hit: float = 0.7,
+    p_miss: float = 0.4,
+    progress: bool = True,
+) -> OccupancyMap:
     """Integrate LiDAR scans into a map with the noise-free hit/miss model (OctoMap's ``insertPointCloud``).
 
     Each point is a ray from the sensor origin; the voxel holding the point gets ``logit(p_hit)``, the
@@ -79,7 +91,7 @@ def lidar_reference_map(scans, voxel_size_m, *, max_range_m=np.inf, p_hit=0.7, p
     return grid
 
 
-def ground_truth_from_map(grid):
+def ground_truth_from_map(grid: OccupancyMap) -> GroundTruthOccupancy:
     """A reference map as ground truth: occupied = ``P > 0.5``, evaluated region = the known voxels.
 
     Parameters
@@ -107,7 +119,9 @@ class KittiLidarScans(Sequence):
     long drive is never held in memory. Feed it to :func:`lidar_reference_map`.
     """
 
-    def __init__(self, sequence, frames, poses, camera):
+    def __init__(
+        self, sequence: KittiOdometry | KittiRaw, frames: Sequence[int], poses: np.ndarray, camera: StereoCamera | None
+    ) -> None:
         self._sequence = sequence
         self._frames = frames
         self._poses = poses
@@ -128,7 +142,13 @@ class KittiLidarScans(Sequence):
         return points_cam - self._T_cam_sensor[:3, 3], self._poses[frame] @ self._T_cam_sensor
 
 
-def kitti_lidar_scans(sequence, *, frames=None, poses=None, camera_view=True):
+def kitti_lidar_scans(
+    sequence: KittiOdometry | KittiRaw,
+    *,
+    frames: Iterable[int] | None = None,
+    poses: npt.ArrayLike | None = None,
+    camera_view: bool = True,
+) -> KittiLidarScans:
     """The Velodyne scans of a KITTI odometry sequence or raw drive, posed in the colour camera's world.
 
     Parameters
@@ -179,7 +199,7 @@ def kitti_lidar_scans(sequence, *, frames=None, poses=None, camera_view=True):
     return KittiLidarScans(sequence, frames, poses, camera)
 
 
-def in_camera_view(points_cam, camera):
+def in_camera_view(points_cam: npt.ArrayLike, camera: StereoCamera) -> npt.NDArray[np.bool_]:
     """Which points lie in front of a camera and project into its image.
 
     Parameters

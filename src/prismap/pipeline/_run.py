@@ -1,8 +1,12 @@
 """Frames in, map out: a sequence integrated frame by frame, here or on Dask workers, resumably."""
 
+from __future__ import annotations
+
 import math
 import os
+from collections.abc import Callable, Iterable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -60,7 +64,7 @@ class DisparitySource:
         disparities, which have none).
     """
 
-    def __init__(self, sequence, config):
+    def __init__(self, sequence: Sequence | BagSequence, config: MappingConfig) -> None:
         self.sequence = sequence
         self.kind = config.disparity_source
         self.matcher = None
@@ -128,7 +132,14 @@ class DisparitySource:
         return disparity
 
 
-def integrate_frames(grid, sequence, config, indices, *, on_frame=None):
+def integrate_frames(
+    grid: OccupancyMap,
+    sequence: Sequence | BagSequence,
+    config: MappingConfig,
+    indices: Iterable[int],
+    *,
+    on_frame: Callable[[OccupancyMap], object] | None = None,
+) -> OccupancyMap:
     """Integrate frames ``indices`` of ``sequence`` into ``grid`` (in place), in order.
 
     Parameters
@@ -210,8 +221,15 @@ def _chunk_map(config, result):
 
 
 def map_sequence(
-    sequence, config, *, progress=True, checkpoint=None, checkpoint_every=0, client=None, chunk_frames=None
-):
+    sequence: str | os.PathLike[str] | Sequence | BagSequence,
+    config: MappingConfig,
+    *,
+    progress: bool = True,
+    checkpoint: str | os.PathLike[str] | None = None,
+    checkpoint_every: int = 0,
+    client: Any = None,
+    chunk_frames: int | None = None,
+) -> OccupancyMap:
     """Integrate a stereo sequence into an occupancy map.
 
     Parameters

@@ -1,12 +1,25 @@
 """Figures of a matcher's disparity errors with the fitted mixtures (after thesis figs. 3.8-3.10), whole and per class."""
 
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+
 import numpy as np
+from matplotlib.figure import Figure
 
 from prismap._files import atomic_path
+from prismap.characterise import ErrorHistogram, ErrorModel
 from prismap.errors import PrismapInputError
 
 
-def plot_error_fits(histogram, model, *, path=None, half_width_px=None):
+def plot_error_fits(
+    histogram: ErrorHistogram,
+    model: ErrorModel,
+    *,
+    path: str | os.PathLike[str] | None = None,
+    half_width_px: float | None = None,
+) -> Figure:
     """Error histogram as a density with the fitted mixtures for G = 1, 2, 3 and the selected G.
 
     One panel per G over a narrow range around the peak, where the dominant components live.
@@ -25,8 +38,6 @@ def plot_error_fits(histogram, model, *, path=None, half_width_px=None):
     -------
     matplotlib.figure.Figure
     """
-    from matplotlib.figure import Figure
-
     density_edges, density, total = _display_density(histogram)
     dominant = model.mixture
     centre = float(dominant.means[0])
@@ -58,7 +69,9 @@ def plot_error_fits(histogram, model, *, path=None, half_width_px=None):
     return _finish(fig, path)
 
 
-def plot_error_tails(histogram, model, *, path=None):
+def plot_error_tails(
+    histogram: ErrorHistogram, model: ErrorModel, *, path: str | os.PathLike[str] | None = None
+) -> Figure:
     """The whole error range on a log density axis, so the wide outlier components show.
 
     The histogram is shown in bins of about 1/4 px with the selected mixture and the single Gaussian.
@@ -73,8 +86,6 @@ def plot_error_tails(histogram, model, *, path=None):
     -------
     matplotlib.figure.Figure
     """
-    from matplotlib.figure import Figure
-
     edges, density, total = _display_density(histogram)
     occupied = np.flatnonzero(histogram.counts)
     low = float(edges[occupied[0]]) - 1.0
@@ -114,7 +125,13 @@ def plot_error_tails(histogram, model, *, path=None):
     return _finish(fig, path)
 
 
-def plot_class_fits(class_histograms, model, *, path=None, half_width_px=8.0):
+def plot_class_fits(
+    class_histograms: Sequence[ErrorHistogram],
+    model: ErrorModel,
+    *,
+    path: str | os.PathLike[str] | None = None,
+    half_width_px: float = 8.0,
+) -> Figure:
     """One panel per error class: its errors as a log density with its selected mixture and the plain one.
 
     The per-class view of a conditioned error model: how the error spreads from the class nearest the
@@ -134,8 +151,6 @@ def plot_class_fits(class_histograms, model, *, path=None, half_width_px=8.0):
     -------
     matplotlib.figure.Figure
     """
-    from matplotlib.figure import Figure
-
     if len(class_histograms) != model.n_classes:
         raise PrismapInputError(f"{model.n_classes} class(es) need as many histograms; got {len(class_histograms)}")
     columns = min(3, model.n_classes)

@@ -1,14 +1,22 @@
 """Figures of map scores: reliability diagrams (equal-width and logit-spaced), the P histograms of free and occupied
 voxels, and the histograms of the evidence frames gave the voxels."""
 
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping
+
 import numpy as np
+from matplotlib.figure import Figure
 
 from prismap._files import atomic_path
 from prismap.errors import PrismapInputError
 from prismap.evaluate import MapScores
 
 
-def plot_reliability(scores_by_model, *, path=None, title="Reliability"):
+def plot_reliability(
+    scores_by_model: Mapping[str, MapScores], *, path: str | os.PathLike[str] | None = None, title: str = "Reliability"
+) -> Figure:
     """Reliability diagram of several maps in one figure.
 
     Parameters
@@ -44,7 +52,12 @@ def plot_reliability(scores_by_model, *, path=None, title="Reliability"):
     return _finish(fig, path)
 
 
-def plot_reliability_logit(scores_by_model, *, path=None, title="Reliability at the extremes"):
+def plot_reliability_logit(
+    scores_by_model: Mapping[str, MapScores],
+    *,
+    path: str | os.PathLike[str] | None = None,
+    title: str = "Reliability at the extremes",
+) -> Figure:
     """Reliability diagram on log-odds axes, from the logit-spaced bins (:data:`prismap.evaluate.LOGIT_BIN_EDGES`).
 
     Equal-width bins put every ``P`` below 0.1 in one bin; these reach ``P`` of 1e-4 and 1 - 1e-4, where a
@@ -86,7 +99,12 @@ def plot_reliability_logit(scores_by_model, *, path=None, title="Reliability at 
     return _finish(fig, path)
 
 
-def plot_evidence_histograms(scores_by_model, *, path=None, title="Evidence per frame"):
+def plot_evidence_histograms(
+    scores_by_model: Mapping[str, MapScores],
+    *,
+    path: str | os.PathLike[str] | None = None,
+    title: str = "Evidence per frame",
+) -> Figure:
     """Histograms of the log-odds increments frames gave the voxels, one panel per model.
 
     Parameters
@@ -129,7 +147,9 @@ def _logit(p, limit):
         return np.clip(np.log(p) - np.log1p(-p), -limit, limit)
 
 
-def plot_probability_histograms(scores_by_model, *, path=None, density=True):
+def plot_probability_histograms(
+    scores_by_model: Mapping[str, MapScores], *, path: str | os.PathLike[str] | None = None, density: bool = True
+) -> Figure:
     """Histograms of ``P`` for truly free and truly occupied voxels, one panel per model.
 
     Parameters
@@ -173,7 +193,6 @@ def _check_scores(scores_by_model):
 
 
 def _figure(rows, *, sharex, height_ratios=None):
-    from matplotlib.figure import Figure
 
     fig = Figure(figsize=(6, 2.2 + 2.2 * rows), layout="constrained")
     axes = fig.subplots(rows, 1, sharex=sharex, squeeze=False, gridspec_kw={"height_ratios": height_ratios})[:, 0]

@@ -1,9 +1,18 @@
 """Figures of maps beside the ground truth: a horizontal slice of every model's map, one map in 3-D."""
 
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping
+
 import numpy as np
+from matplotlib.figure import Figure
 
 from prismap._files import atomic_path
 from prismap.errors import PrismapInputError
+from prismap.evaluate import MapScores
+from prismap.grid import OccupancyMap
+from prismap.io import GroundTruthOccupancy
 
 
 def slice_raster(truth, layer):
@@ -34,7 +43,15 @@ def slice_raster(truth, layer):
     return keys, image, np.array([x0 * v, (x0 + width) * v, y0 * v, (y0 + height) * v])
 
 
-def plot_map_slices(maps_by_model, truth, *, layer, path=None, title="", scores_by_model=None):
+def plot_map_slices(
+    maps_by_model: Mapping[str, OccupancyMap],
+    truth: GroundTruthOccupancy,
+    *,
+    layer: int,
+    path: str | os.PathLike[str] | None = None,
+    title: str = "",
+    scores_by_model: Mapping[str, MapScores | None] | None = None,
+) -> Figure:
     """One horizontal voxel layer of each map beside the ground truth, on one shared window.
 
     Parameters
@@ -57,7 +74,6 @@ def plot_map_slices(maps_by_model, truth, *, layer, path=None, title="", scores_
         observed are light blue; the window is the ground truth's observed voxels of that layer.
     """
     from matplotlib import colormaps
-    from matplotlib.figure import Figure
     from scipy.special import expit
 
     if not isinstance(maps_by_model, dict) or not maps_by_model:
@@ -103,7 +119,17 @@ MAX_POINTS_3D = 60_000
 """Most voxels one 3-D panel draws; more are thinned to every k-th (seeded choice, the same for every panel)."""
 
 
-def plot_map_3d(grid, truth, *, path=None, title="", threshold=0.5, max_height_m=None, elev=32.0, azim=-58.0):
+def plot_map_3d(
+    grid: OccupancyMap,
+    truth: GroundTruthOccupancy,
+    *,
+    path: str | os.PathLike[str] | None = None,
+    title: str = "",
+    threshold: float = 0.5,
+    max_height_m: float | None = None,
+    elev: float = 32.0,
+    azim: float = -58.0,
+) -> Figure:
     """The map's occupied voxels beside the ground truth's, in 3-D from one viewpoint.
 
     Parameters
@@ -128,8 +154,6 @@ def plot_map_3d(grid, truth, *, path=None, title="", threshold=0.5, max_height_m
         Two panels, the truth's occupied voxels that a perfect sensor observed and the map's voxels above
         ``threshold`` within the truth's observed box, coloured by height, with the voxel counts.
     """
-    from matplotlib.figure import Figure
-
     if abs(grid.voxel_size_m - truth.voxel_size_m) > 1e-9 * truth.voxel_size_m:
         raise PrismapInputError(
             f"the map has voxel size {grid.voxel_size_m} m; the ground truth's is {truth.voxel_size_m} m"

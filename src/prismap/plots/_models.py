@@ -1,13 +1,20 @@
 """Figures of the sensor-model study along one ray: profiles, PRISM sweeps, influence, divergences."""
 
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping, Sequence
+
 import numpy as np
+import numpy.typing as npt
+from matplotlib.figure import Figure
 
 from prismap.errors import PrismapInputError
 from prismap.plots._evaluate import _finish
+from prismap.study import ModelComparison, RayProfile
 
 
 def _figure(n_panels, *, ncols=2, sharey=True):
-    from matplotlib.figure import Figure
 
     ncols = min(ncols, n_panels)
     nrows = -(-n_panels // ncols)
@@ -23,7 +30,7 @@ def _window(profile, pad_m):
     return 0.0, max(profile.measured_m + pad_m, min(max(profile.influence_m.values()), 2.0 * profile.measured_m))
 
 
-def plot_ray_profiles(comparison, *, path=None):
+def plot_ray_profiles(comparison: ModelComparison, *, path: str | os.PathLike[str] | None = None) -> Figure:
     """Every model's ``P`` along the ray, one panel per measured distance (thesis figs 5.2-5.7, 6.1, 6.2).
 
     Parameters
@@ -56,7 +63,9 @@ def plot_ray_profiles(comparison, *, path=None):
     return _finish(fig, path)
 
 
-def plot_prism_sweeps(sweeps, *, path=None):
+def plot_prism_sweeps(
+    sweeps: Mapping[str, Sequence[tuple[str, RayProfile]]], *, path: str | os.PathLike[str] | None = None
+) -> Figure:
     """PRISM's profile as one parameter varies: one panel per sweep (thesis figs 5.11-5.15).
 
     Parameters
@@ -85,7 +94,13 @@ def plot_prism_sweeps(sweeps, *, path=None):
     return _finish(fig, path)
 
 
-def plot_influence(measured_m, bound_m, observed_m, *, path=None):
+def plot_influence(
+    measured_m: npt.ArrayLike,
+    bound_m: npt.ArrayLike,
+    observed_m: npt.ArrayLike,
+    *,
+    path: str | os.PathLike[str] | None = None,
+) -> Figure:
     """PRISM's maximum influence distance behind the measurement against the measured distance.
 
     Parameters
@@ -114,7 +129,7 @@ def plot_influence(measured_m, bound_m, observed_m, *, path=None):
     return _finish(fig, path)
 
 
-def plot_divergence(comparison, *, path=None):
+def plot_divergence(comparison: ModelComparison, *, path: str | os.PathLike[str] | None = None) -> Figure:
     """Each model's divergence from PRISM against the measured distance: MAD, KL and cleared occupancy.
 
     Parameters

@@ -11,10 +11,14 @@ Every model returns, per cell, the posterior ``P(m = 1 | d^)`` and the log-odds 
 nothing about gets increment 0.
 """
 
+from __future__ import annotations
+
 import dataclasses
 from abc import ABC, abstractmethod
+from typing import Any, TypeVar
 
 import numpy as np
+import numpy.typing as npt
 
 from prismap._validate import as_float_array
 from prismap.errors import PrismapInputError
@@ -51,7 +55,14 @@ class InverseSensorModel(ABC):
     """Whether :meth:`cell_posteriors` needs the keyword ``map_log_odds`` (the grid looks it up only then)."""
 
     @abstractmethod
-    def cell_posteriors(self, disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m):
+    def cell_posteriors(
+        self,
+        disparity_px: npt.ArrayLike,
+        ray_norm: npt.ArrayLike,
+        ray_of_cell: npt.ArrayLike,
+        depth_start_m: npt.ArrayLike,
+        depth_end_m: npt.ArrayLike,
+    ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
         """Posterior and log-odds increment of every cell.
 
         Parameters
@@ -68,17 +79,17 @@ class InverseSensorModel(ABC):
         """
 
     @abstractmethod
-    def influence_depth(self, disparity_px, ray_norm):
+    def influence_depth(self, disparity_px: npt.ArrayLike, ray_norm: npt.ArrayLike) -> npt.NDArray[np.float64]:
         """Depth (metres) beyond which the measurement no longer changes a cell, per ray: (R,) float64.
 
         Ray casting stops there (or at the map's max range, whichever is nearer).
         """
 
     @abstractmethod
-    def with_extra_noise(self, sigma_px):
+    def with_extra_noise(self, sigma_px: float) -> InverseSensorModel:
         """A copy whose disparity noise is widened by ``N(0, sigma_px^2)`` (robot pose uncertainty)."""
 
-    def hit_miss_increments(self):
+    def hit_miss_increments(self) -> tuple[float, float] | None:
         """``(l_hit, l_miss)`` log-odds if this model is a hit/miss model, else None (the default).
 
         A hit/miss model gives ``l_miss`` to every cell ending at or before the ray's
@@ -107,19 +118,21 @@ def check_cell_arrays(disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_
 
 _REGISTRY = {}
 
+_Model = TypeVar("_Model", bound=type[InverseSensorModel])
 
-def register_model(cls):
+
+def register_model(cls: _Model) -> _Model:
     """Class decorator: make ``cls`` available to :func:`make_sensor_model` under ``cls.name``."""
     _REGISTRY[cls.name] = cls
     return cls
 
 
-def model_names():
+def model_names() -> tuple[str, ...]:
     """Names accepted by :func:`make_sensor_model`, in registration order."""
     return tuple(_REGISTRY)
 
 
-def model_defaults(name):
+def model_defaults(name: str) -> dict[str, Any]:
     """The default of every public parameter of the model called ``name`` that is a plain number, string or
     None: what a run without that parameter uses (recorded in run fingerprints, so a changed default is a
     changed run)."""
@@ -134,7 +147,7 @@ def model_defaults(name):
     }
 
 
-def error_model_use(name):
+def error_model_use(name: str) -> str | None:
     """What the model called ``name`` takes from an error model (its class's ``error_model_use``)."""
     try:
         return _REGISTRY[name].error_model_use
@@ -142,7 +155,7 @@ def error_model_use(name):
         raise PrismapInputError(f"unknown sensor model {name!r}; expected one of {list(_REGISTRY)}") from None
 
 
-def make_sensor_model(name, **params):
+def make_sensor_model(name: str, **params: Any) -> InverseSensorModel:
     """Build the model called ``name`` (``ideal``, ``hitmiss``, ``convolution``, ``andert``, ``prism``...)."""
     try:
         cls = _REGISTRY[name]

@@ -6,10 +6,13 @@ their increment is ``logit(P_model)``, and the posterior reported is the one a c
 reaches after that one increment.
 """
 
+from __future__ import annotations
+
 import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 from scipy.special import logit, ndtri
 
 from prismap._validate import check_positive, check_probability
@@ -91,7 +94,14 @@ class IdealModel(_ProfileModel):
     default_policy = "mean"
     MEASUREMENTS = ("disparity", "range")
 
-    def cell_posteriors(self, disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m):
+    def cell_posteriors(
+        self,
+        disparity_px: npt.ArrayLike,
+        ray_norm: npt.ArrayLike,
+        ray_of_cell: npt.ArrayLike,
+        depth_start_m: npt.ArrayLike,
+        depth_end_m: npt.ArrayLike,
+    ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
         _, norm, rays, start, end, z_hat = self._prepare(
             disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m
         )
@@ -99,12 +109,12 @@ class IdealModel(_ProfileModel):
             z_hat, norm, rays, start, end, 0.5 * self.alpha_m, self.p_free, self.p_occ, self.p0
         )
 
-    def influence_depth(self, disparity_px, ray_norm):
+    def influence_depth(self, disparity_px: npt.ArrayLike, ray_norm: npt.ArrayLike) -> npt.NDArray[np.float64]:
         """End of the occupied band: ``z^ + alpha / (2 |r|)`` (metres)."""
         z_hat = self._depth_hat(np.asarray(disparity_px, dtype=np.float64), np.asarray(ray_norm, dtype=np.float64))
         return z_hat + 0.5 * self.alpha_m / np.asarray(ray_norm, dtype=np.float64)
 
-    def with_extra_noise(self, sigma_px):
+    def with_extra_noise(self, sigma_px: float) -> IdealModel:
         """The ideal model has no noise to widen: returns itself."""
         check_positive(sigma_px, "sigma_px")
         return self
@@ -134,20 +144,27 @@ class HitMissModel(RayModel):
         super().__post_init__()
         _set_probabilities_around_half(self, "p_miss", "p_hit")
 
-    def cell_posteriors(self, disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m):
+    def cell_posteriors(
+        self,
+        disparity_px: npt.ArrayLike,
+        ray_norm: npt.ArrayLike,
+        ray_of_cell: npt.ArrayLike,
+        depth_start_m: npt.ArrayLike,
+        depth_end_m: npt.ArrayLike,
+    ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
         _, _, rays, start, end, z_hat = self._prepare(disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m)
         return _kernels_classic.hitmiss_cells(z_hat, rays, start, end, logit(self.p_hit), logit(self.p_miss), self.p0)
 
-    def influence_depth(self, disparity_px, ray_norm):
+    def influence_depth(self, disparity_px: npt.ArrayLike, ray_norm: npt.ArrayLike) -> npt.NDArray[np.float64]:
         """The measured depth itself (the grid includes the cell that contains it)."""
         return self._depth_hat(np.asarray(disparity_px, dtype=np.float64), np.asarray(ray_norm, dtype=np.float64))
 
-    def with_extra_noise(self, sigma_px):
+    def with_extra_noise(self, sigma_px: float) -> HitMissModel:
         """Hit/miss has no noise to widen: returns itself."""
         check_positive(sigma_px, "sigma_px")
         return self
 
-    def hit_miss_increments(self):
+    def hit_miss_increments(self) -> tuple[float, float]:
         """``(logit(p_hit), logit(p_miss))``: the grid adds them while casting (see the base class)."""
         return float(logit(self.p_hit)), float(logit(self.p_miss))
 
@@ -182,7 +199,14 @@ class ConvolutionModel(_ProfileModel):
         object.__setattr__(self, "sigma_px", check_positive(self.sigma_px, "sigma_px"))
         _check_failure_floor(self)
 
-    def cell_posteriors(self, disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m):
+    def cell_posteriors(
+        self,
+        disparity_px: npt.ArrayLike,
+        ray_norm: npt.ArrayLike,
+        ray_of_cell: npt.ArrayLike,
+        depth_start_m: npt.ArrayLike,
+        depth_end_m: npt.ArrayLike,
+    ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
         _, norm, rays, start, end, z_hat = self._prepare(
             disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m
         )
@@ -200,7 +224,7 @@ class ConvolutionModel(_ProfileModel):
         )
         return _with_failures(self, posterior, increment, self.p0)
 
-    def influence_depth(self, disparity_px, ray_norm):
+    def influence_depth(self, disparity_px: npt.ArrayLike, ray_norm: npt.ArrayLike) -> npt.NDArray[np.float64]:
         """Depth where ``|P - p0|`` falls below ``INFLUENCE_EPSILON * p0 (1 - p0) / 2`` (log-odds change ~epsilon)."""
         z_hat = self._depth_hat(np.asarray(disparity_px, dtype=np.float64), np.asarray(ray_norm, dtype=np.float64))
         norm = np.asarray(ray_norm, dtype=np.float64)
@@ -208,7 +232,7 @@ class ConvolutionModel(_ProfileModel):
         k = -ndtri(INFLUENCE_EPSILON * self.p0 * (1 - self.p0) / (2 * spread))
         return z_hat + (0.5 * self.alpha_m + k * norm * self._sigma_depth(z_hat, self.sigma_px)) / norm
 
-    def with_extra_noise(self, sigma_px):
+    def with_extra_noise(self, sigma_px: float) -> ConvolutionModel:
         """A copy whose ``sigma_px`` grows in quadrature by ``sigma_px``."""
         extra = check_positive(sigma_px, "sigma_px")
         return dataclasses.replace(self, sigma_px=float(np.hypot(self.sigma_px, extra)))
@@ -255,7 +279,14 @@ class AndertModel(RayModel):
         _set_probabilities_around_half(self, "p_min", "p_max")
         _check_failure_floor(self)
 
-    def cell_posteriors(self, disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m):
+    def cell_posteriors(
+        self,
+        disparity_px: npt.ArrayLike,
+        ray_norm: npt.ArrayLike,
+        ray_of_cell: npt.ArrayLike,
+        depth_start_m: npt.ArrayLike,
+        depth_end_m: npt.ArrayLike,
+    ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
         _, norm, rays, start, end, z_hat = self._prepare(
             disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m
         )
@@ -273,7 +304,7 @@ class AndertModel(RayModel):
         )
         return _with_failures(self, posterior, increment, 0.5)
 
-    def influence_depth(self, disparity_px, ray_norm):
+    def influence_depth(self, disparity_px: npt.ArrayLike, ray_norm: npt.ArrayLike) -> npt.NDArray[np.float64]:
         """Depth behind ``z^`` where ``|logit P|`` falls below ``INFLUENCE_EPSILON``."""
         z_hat = self._depth_hat(np.asarray(disparity_px, dtype=np.float64), np.asarray(ray_norm, dtype=np.float64))
         sigma_z = self._sigma_depth(z_hat, self.sigma_px)
@@ -281,7 +312,7 @@ class AndertModel(RayModel):
         k = np.sqrt(2.0 * np.log(np.maximum(4.0 * excess / INFLUENCE_EPSILON, 1.0)))
         return z_hat + k * sigma_z
 
-    def with_extra_noise(self, sigma_px):
+    def with_extra_noise(self, sigma_px: float) -> AndertModel:
         """A copy whose ``sigma_px`` grows in quadrature by ``sigma_px``."""
         extra = check_positive(sigma_px, "sigma_px")
         return dataclasses.replace(self, sigma_px=float(np.hypot(self.sigma_px, extra)))

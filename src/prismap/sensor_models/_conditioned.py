@@ -8,9 +8,13 @@ without a class (``-1``). Each ray is handed to the sub-model of its class, so o
 is exactly that sub-model's. Ideal and hit/miss do not use the error model and are never wrapped.
 """
 
+from __future__ import annotations
+
 from dataclasses import dataclass
+from typing import Any, Protocol
 
 import numpy as np
+import numpy.typing as npt
 
 from prismap.errors import PrismapInputError
 from prismap.gmm import GaussianMixture
@@ -25,6 +29,35 @@ from prismap.sensor_models._prism import AUTO_TABLE_FLOOR_MB
 
 CLASS_PASS_THROUGH = "class_pass_through"
 """PRISM parameter of a conditioned run: one ``pass_through`` per class (the plain sub-model keeps ``pass_through``)."""
+
+
+class CameraRig(Protocol):
+    """What a sensor model takes from a camera (:class:`prismap.camera.StereoCamera` has it; this package
+    does not import the camera's)."""
+
+    @property
+    def focal_baseline(self) -> float:
+        """``f * b``, pixel-metres."""
+        ...
+
+    @property
+    def doffs_px(self) -> float:
+        """Disparity offset, pixels."""
+        ...
+
+
+class ClassedErrors(Protocol):
+    """What a sensor model takes from an error model (:class:`prismap.characterise.ErrorModel` has it)."""
+
+    @property
+    def mixture(self) -> GaussianMixture:
+        """The whole image's error mixture."""
+        ...
+
+    @property
+    def class_mixtures(self) -> tuple[GaussianMixture, ...]:
+        """One error mixture per class."""
+        ...
 
 
 @dataclass(frozen=True, eq=False)
@@ -58,32 +91,32 @@ class ConditionedModel(InverseSensorModel):
         share_table_floor((self.plain, *models))
 
     @property
-    def name(self):
+    def name(self) -> str:
         """The sub-models' name (``prism``, ``andert``, ``convolution``)."""
         return self.plain.name
 
     @property
-    def default_policy(self):
+    def default_policy(self) -> str:
         """The sub-models' per-frame policy."""
         return self.plain.default_policy
 
     @property
-    def takes_voxel_overhang(self):
+    def takes_voxel_overhang(self) -> bool:
         """The sub-models' (PRISM's with ``overhang_fraction > 0``)."""
         return self.plain.takes_voxel_overhang
 
     @property
-    def takes_map_prior(self):
+    def takes_map_prior(self) -> bool:
         """The sub-models' (PRISM's with ``prior="map"``)."""
         return self.plain.takes_map_prior
 
     @property
-    def far_depth_m(self):
+    def far_depth_m(self) -> float:
         """The farthest depth (metres) any sub-model reasons to; AttributeError for models without one (not PRISM)."""
         return max(model.far_depth_m for model in (self.plain, *self.class_models))
 
     @property
-    def n_classes(self):
+    def n_classes(self) -> int:
         """Number of classes (the plain model not counted)."""
         return len(self.class_models)
 
@@ -104,16 +137,16 @@ class ConditionedModel(InverseSensorModel):
 
     def cell_posteriors(
         self,
-        disparity_px,
-        ray_norm,
-        ray_of_cell,
-        depth_start_m,
-        depth_end_m,
+        disparity_px: npt.ArrayLike,
+        ray_norm: npt.ArrayLike,
+        ray_of_cell: npt.ArrayLike,
+        depth_start_m: npt.ArrayLike,
+        depth_end_m: npt.ArrayLike,
         *,
-        ray_class=None,
-        voxel_overhang_m=None,
-        map_log_odds=None,
-    ):
+        ray_class: npt.ArrayLike | None = None,
+        voxel_overhang_m: npt.ArrayLike | None = None,
+        map_log_odds: npt.ArrayLike | None = None,
+    ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
         """Posterior and increment per cell (see :class:`InverseSensorModel`), each ray by its class's model.
 
         Parameters
@@ -164,7 +197,9 @@ class ConditionedModel(InverseSensorModel):
             )
         return posterior, increment
 
-    def influence_depth(self, disparity_px, ray_norm, *, ray_class=None):
+    def influence_depth(
+        self, disparity_px: npt.ArrayLike, ray_norm: npt.ArrayLike, *, ray_class: npt.ArrayLike | None = None
+    ) -> npt.NDArray[np.float64]:
         """Depth (metres) beyond which a ray's measurement changes no cell, by its class's model: (R,) float64."""
         if ray_class is None:
             return self.plain.influence_depth(disparity_px, ray_norm)
@@ -181,7 +216,7 @@ class ConditionedModel(InverseSensorModel):
             depth[rays] = self._model(int(k)).influence_depth(disparity[rays], norm[rays])
         return depth
 
-    def with_extra_noise(self, sigma_px):
+    def with_extra_noise(self, sigma_px: float) -> ConditionedModel:
         """A copy whose every sub-model (the plain one included) is widened by ``N(0, sigma_px^2)``."""
         return ConditionedModel(
             self.plain.with_extra_noise(sigma_px),
@@ -207,7 +242,16 @@ def share_table_floor(models):
         cache.floor_bytes = min(cache.floor_bytes, int(AUTO_TABLE_FLOOR_MB * 2**20) // len(caches))
 
 
-def model_for_mixture(name, mixture, *, focal_baseline, doffs_px, voxel_size_m, p0, **params):
+def model_for_mixture(
+    name: str,
+    mixture: GaussianMixture | None,
+    *,
+    focal_baseline: float,
+    doffs_px: float,
+    voxel_size_m: float,
+    p0: float,
+    **params: Any,
+) -> InverseSensorModel:
     """The sensor model ``name`` for one error mixture: PRISM with it, convolution/Andert with its dominant sigma
     and, when it has a matcher-failure component, its :func:`~prismap.sensor_models.failure_floor`.
 
@@ -230,7 +274,15 @@ def model_for_mixture(name, mixture, *, focal_baseline, doffs_px, voxel_size_m, 
         raise PrismapInputError(f"sensor model {name!r}: bad parameter(s) {sorted(params)}: {exc}") from None
 
 
-def conditioned_sensor_model(name, camera, *, voxel_size_m, p0, error_model, **params):
+def conditioned_sensor_model(
+    name: str,
+    camera: CameraRig,
+    *,
+    voxel_size_m: float,
+    p0: float,
+    error_model: ClassedErrors | GaussianMixture,
+    **params: Any,
+) -> InverseSensorModel:
     """The sensor model ``name`` for a (possibly conditioned) error model: what a mapping run builds.
 
     Parameters

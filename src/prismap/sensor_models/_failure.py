@@ -13,13 +13,17 @@ Gaussians (PRISM's normaliser ``Z``). ``p_G(d^)`` never exceeds the Gaussians' p
 no more than :func:`evidence_bound`. docs/SENSOR_MODELS.md, "Matcher failures", derives all of it.
 """
 
+from __future__ import annotations
+
 import numpy as np
+import numpy.typing as npt
 
 from prismap._validate import as_float_array
 from prismap.errors import PrismapInputError
+from prismap.gmm import GaussianMixture
 
 
-def failure_floor(mixture):
+def failure_floor(mixture: GaussianMixture) -> float:
     """``eps``: the least posterior failure probability any measurement has under ``mixture`` (0 without failures).
 
     Parameters
@@ -39,7 +43,9 @@ def failure_floor(mixture):
     return float(floor / ((1.0 - mixture.failure_weight) * mixture.peak_density() + floor))
 
 
-def evidence_bound(mixture, cell_prior):
+def evidence_bound(
+    mixture: GaussianMixture, cell_prior: npt.ArrayLike
+) -> tuple[npt.NDArray[np.float64] | float, npt.NDArray[np.float64] | float]:
     """The log-odds change one measurement can cause in a cell of prior ``cell_prior``, at most.
 
     From ``P in [eps p_c, 1 - eps (1 - p_c)]`` (:func:`failure_floor`): the increment
@@ -68,7 +74,9 @@ def evidence_bound(mixture, cell_prior):
     return -np.log1p(odds / (1.0 - prior))[()], np.log1p(odds / prior)[()]
 
 
-def log_failure_posterior(mixture, log_marginal):
+def log_failure_posterior(
+    mixture: GaussianMixture, log_marginal: npt.ArrayLike
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
     """``log(1 - rho)`` and ``log(rho)`` of each ray from the log of its failure-free marginal ``p_G(d^)``.
 
     Parameters
@@ -92,7 +100,9 @@ def log_failure_posterior(mixture, log_marginal):
     return np.maximum(log_floor - log_total, np.log(eps)), np.minimum(log_good - log_total, np.log1p(-eps))
 
 
-def blend_increments(increment, prior_log_odds, log_fail, log_ok):
+def blend_increments(
+    increment: npt.ArrayLike, prior_log_odds: npt.ArrayLike, log_fail: npt.ArrayLike, log_ok: npt.ArrayLike
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
     """The increments of ``rho P_G + (1 - rho) p_c`` from those of ``P_G``: ``(posterior, increment)`` per cell.
 
     With ``R = exp(increment)`` (the odds ratio of ``P_G`` to ``p_c``) and ``A = 1 - p_c + p_c R``

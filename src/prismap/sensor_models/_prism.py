@@ -11,12 +11,15 @@ E. Kaufman, T. Lee, Z. Ai, "Bayesian occupancy grid mapping via an exact inverse
 L. Matthies, S. Shafer, "Error modeling in stereo navigation", IEEE J. Robotics and Automation, 1987.
 """
 
+from __future__ import annotations
+
 import dataclasses
 import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
+import numpy.typing as npt
 
 from prismap._validate import as_float_array, check_positive, check_real
 from prismap.errors import PrismapInputError
@@ -231,17 +234,17 @@ class PrismModel(RayModel):
 
     # ------------------------------------------------------------------ derived constants
     @property
-    def takes_voxel_overhang(self):
+    def takes_voxel_overhang(self) -> bool:
         """True when ``overhang_fraction > 0``: the grid then computes each ray's voxel overhang."""
         return self.overhang_fraction > 0
 
     @property
-    def takes_map_prior(self):
+    def takes_map_prior(self) -> bool:
         """True when ``prior == "map"``: the grid then passes each cell's current map log-odds."""
         return self.prior == "map"
 
     @property
-    def rate_per_m(self):
+    def rate_per_m(self) -> float:
         """``lambda``: surfaces per metre of ray, from ``p0`` and ``voxel_size_m``."""
         return -np.log1p(-self.p0) / self.voxel_size_m
 
@@ -260,16 +263,16 @@ class PrismModel(RayModel):
     # ------------------------------------------------------------------ interface
     def cell_posteriors(
         self,
-        disparity_px,
-        ray_norm,
-        ray_of_cell,
-        depth_start_m,
-        depth_end_m,
+        disparity_px: npt.ArrayLike,
+        ray_norm: npt.ArrayLike,
+        ray_of_cell: npt.ArrayLike,
+        depth_start_m: npt.ArrayLike,
+        depth_end_m: npt.ArrayLike,
         *,
-        method=None,
-        voxel_overhang_m=None,
-        map_log_odds=None,
-    ):
+        method: str | None = None,
+        voxel_overhang_m: npt.ArrayLike | None = None,
+        map_log_odds: npt.ArrayLike | None = None,
+    ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
         """Posterior and increment per cell (see :class:`InverseSensorModel`); ``method`` overrides the model's.
 
         ``voxel_overhang_m`` ((R,) float, metres along each ray, or None = 0): each cell ``[a, c]`` is
@@ -356,7 +359,7 @@ class PrismModel(RayModel):
             prior_log_odds = np.log(np.expm1(cell_rate * np.maximum(length, 0.0)))
         return blend_increments(result[1], prior_log_odds, log_fail[rays], log_ok[rays])
 
-    def influence_depth(self, disparity_px, ray_norm):
+    def influence_depth(self, disparity_px: npt.ArrayLike, ray_norm: npt.ArrayLike) -> npt.NDArray[np.float64]:
         """Depth beyond which every cell's ``|logit(P) - logit(p_c)| < influence_epsilon`` (metres), per ray.
 
         From the bound ``|increment(a)| <= log(1 + e^{-lambda (a - z0)} sup_{t >= a} g(t) / C(a))``, which
@@ -371,7 +374,7 @@ class PrismModel(RayModel):
             depth = np.minimum(depth + self.solid_depth_m / norm, self.far_depth_m)
         return depth
 
-    def with_extra_noise(self, sigma_px):
+    def with_extra_noise(self, sigma_px: float) -> PrismModel:
         """A copy whose error model is ``error_model.widened(sigma_px)``.
 
         Copies are memoised per ``sigma_px``, so their tables survive from frame to frame.

@@ -6,11 +6,15 @@ References
 E. Kaufman, T. Lee, Z. Ai, "Bayesian occupancy grid mapping via an exact inverse sensor model", ACC 2016.
 """
 
+from __future__ import annotations
+
 import numpy as np
+import numpy.typing as npt
 from scipy.special import log_ndtr, logsumexp
 
 from prismap._validate import as_float_array, check_positive, check_probability
 from prismap.errors import PrismapInputError
+from prismap.gmm import GaussianMixture
 
 
 def _log_diff_ndtr(hi, lo):
@@ -32,7 +36,13 @@ def with_floor(log_likelihood, mixture):
     return np.logaddexp(np.log1p(-mixture.failure_weight) + log_likelihood, np.log(mixture.failure_density))
 
 
-def log_mean_likelihood(u_lo, u_hi, disparity_px, mixture, doffs_px=0.0):
+def log_mean_likelihood(
+    u_lo: npt.ArrayLike,
+    u_hi: npt.ArrayLike,
+    disparity_px: npt.ArrayLike,
+    mixture: GaussianMixture,
+    doffs_px: float = 0.0,
+) -> npt.NDArray[np.float64]:
     """Log of ``g`` averaged over true disparities uniform in ``[u_lo, u_hi]`` (pixels); arrays broadcast.
 
     ``g(u) = sum_j w_j N(u - doffs - d^; mu_j, sigma_j^2)``, so the average is a sum of normal-CDF
@@ -46,7 +56,15 @@ def log_mean_likelihood(u_lo, u_hi, disparity_px, mixture, doffs_px=0.0):
     return logsumexp(terms, axis=-1) - np.log(u_hi - u_lo)
 
 
-def prism_discrete_posteriors(disparity_px, cell_edges_depth_m, mixture, *, focal_baseline, doffs_px=0.0, p0=0.05):
+def prism_discrete_posteriors(
+    disparity_px: float,
+    cell_edges_depth_m: npt.ArrayLike,
+    mixture: GaussianMixture,
+    *,
+    focal_baseline: float,
+    doffs_px: float = 0.0,
+    p0: float = 0.05,
+) -> npt.NDArray[np.float64]:
     """The thesis's discrete PRISM on one ray of equal cells: O(n) with prefix sums, in log space.
 
     Cell ``k`` (1-based) is the first occupied one with ``pi_k = p0 (1 - p0)^(k-1)`` and then produces

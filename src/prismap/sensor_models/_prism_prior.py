@@ -1,17 +1,21 @@
 """The prior occupancy ``p0`` that PRISM and every other model need: from a ground-truth map, or the value that
 maximises the measurements' likelihood under PRISM's forward model (SENSOR_MODELS.md section 5)."""
 
+from __future__ import annotations
+
 import numpy as np
+import numpy.typing as npt
 from scipy.optimize import minimize_scalar
 
 from prismap._validate import as_float_array, check_probability
 from prismap.errors import PrismapInputError
+from prismap.gmm import GaussianMixture
 from prismap.sensor_models import _kernels_direct
 from prismap.sensor_models._prism import _QUAD_STEP, PrismModel
 from prismap.sensor_models._prism_discrete import with_floor
 
 
-def prior_from_ground_truth(occupied):
+def prior_from_ground_truth(occupied: npt.ArrayLike) -> float:
     """``p0`` as the occupancy ratio of a ground-truth map: the fraction of its known cells that are occupied.
 
     Parameters
@@ -32,19 +36,19 @@ def prior_from_ground_truth(occupied):
 
 
 def estimate_prior_from_likelihood(
-    disparity_px,
-    ray_norm,
+    disparity_px: npt.ArrayLike,
+    ray_norm: npt.ArrayLike,
     *,
-    error_model,
-    focal_baseline,
-    doffs_px=0.0,
-    voxel_size_m=0.1,
-    near_m=0.1,
-    far_depth_m=200.0,
-    max_rays=2000,
-    seed=0,
-    bounds=(1e-4, 0.9),
-):
+    error_model: GaussianMixture,
+    focal_baseline: float,
+    doffs_px: float = 0.0,
+    voxel_size_m: float = 0.1,
+    near_m: float = 0.1,
+    far_depth_m: float = 200.0,
+    max_rays: int = 2000,
+    seed: int = 0,
+    bounds: tuple[float, float] = (1e-4, 0.9),
+) -> float:
     """``p0`` maximising the measurements' likelihood under PRISM's forward model.
 
     Each measured disparity has density ``Z(d^; lambda_z)`` (the normaliser of section 5, a proper density

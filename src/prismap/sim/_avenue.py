@@ -8,6 +8,8 @@ vans, a bus shelter and a row of bollards, dressed in scikit-image photographs t
 (:data:`~prismap.sim._textures.OTHER_PHOTOGRAPHS`, a checkerboard among them).
 """
 
+from __future__ import annotations
+
 import numpy as np
 
 from prismap.sim._scene3d import Scene3D
@@ -21,7 +23,7 @@ CROSSING_M = (40.0, 50.0)
 """x range of the side street crossing the avenue: no façade, fence or parked vehicle there."""
 
 
-def avenue_scene(*, seed=0):
+def avenue_scene(*, seed: int = 0) -> Scene3D:
     """The avenue: 84 m between a closing building at x = 84 m and the drive's start, seeded layout and looks.
 
     Contents: the road slab; a median of 1 m (kerb 0.2 m) at y = 1-2 m with a young tree (trunk and

@@ -1,10 +1,12 @@
 """The stereo rigs of the simulated worlds at any image scale (the rigs themselves live in :mod:`prismap.camera`)."""
 
+from __future__ import annotations
+
 from prismap._validate import check_positive
 from prismap.camera import AVENUE_CAMERA, KITTI_LIKE_CAMERA, TSUKUBA_CAMERA, StereoCamera
 
 
-def scaled_camera(camera, scale):
+def scaled_camera(camera: StereoCamera, scale: float) -> StereoCamera:
     """``camera`` with its image resized by ``scale``: focal length and size scaled, pixel centres kept.
 
     The principal point maps as ``(c + 0.5) scale - 0.5`` (pixel centres at integers), the size as
@@ -24,12 +26,12 @@ def scaled_camera(camera, scale):
     )
 
 
-def tsukuba_camera(*, scale=1.0):
+def tsukuba_camera(*, scale: float = 1.0) -> StereoCamera:
     """The New Tsukuba rig (:data:`prismap.camera.TSUKUBA_CAMERA`) with its image scaled by ``scale``."""
     return scaled_camera(TSUKUBA_CAMERA, scale)
 
 
-def kitti_camera(*, scale=1.0):
+def kitti_camera(*, scale: float = 1.0) -> StereoCamera:
     """The KITTI-like rig (:data:`prismap.camera.KITTI_LIKE_CAMERA`: 1242x375, f = 720 px, b = 0.54 m), scaled.
 
     ``scale=0.5`` gives KITTI's half size, 621x188 (f = 360 px).
@@ -37,6 +39,6 @@ def kitti_camera(*, scale=1.0):
     return scaled_camera(KITTI_LIKE_CAMERA, scale)
 
 
-def avenue_camera(*, scale=1.0):
+def avenue_camera(*, scale: float = 1.0) -> StereoCamera:
     """The avenue's rig (:data:`prismap.camera.AVENUE_CAMERA`: 620x188, f = 358 px, b = 0.54 m), scaled."""
     return scaled_camera(AVENUE_CAMERA, scale)

@@ -5,11 +5,17 @@ The scan is cast from the LiDAR's origin, not the camera's, so it holds points t
 :func:`prismap.io.points_to_disparity` is what turns it into ground truth, as on a real rig.
 """
 
+from __future__ import annotations
+
+from typing import Any
+
 import numpy as np
+import numpy.typing as npt
 
 from prismap._validate import as_float_array, check_integer
 from prismap.camera import StereoCamera
-from prismap.io import points_to_disparity
+from prismap.io import StereoFrame, points_to_disparity
+from prismap.sim._scene3d import Scene3D
 
 LIDAR_FROM_CAMERA_M = (0.3, -0.25, -0.3)
 """Where the simulated LiDAR sits in the left camera's frame (metres; right, up, behind)."""
@@ -20,16 +26,16 @@ RANGE_SIGMA_M = 0.02
 
 
 def lidar_scan(
-    scene,
-    camera,
-    T_world_cam,
+    scene: Scene3D,
+    camera: StereoCamera,
+    T_world_cam: npt.ArrayLike,
     *,
-    T_cam_lidar=None,
-    beams=BEAMS,
-    columns_per_pixel=1.5,
-    range_sigma_m=RANGE_SIGMA_M,
-    rng=None,
-):
+    T_cam_lidar: npt.ArrayLike | None = None,
+    beams: int = BEAMS,
+    columns_per_pixel: float = 1.5,
+    range_sigma_m: float = RANGE_SIGMA_M,
+    rng: np.random.Generator | int | None = None,
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
     """A LiDAR scan covering the camera's view, in the LiDAR's frame.
 
     The beams are the rows of a pinhole view from the LiDAR's origin with the camera's orientation, 15 %
@@ -84,7 +90,14 @@ def lidar_scan(
     return points, T_cam_lidar
 
 
-def lidar_disparity(scene, frame, *, T_cam_lidar=None, rng=None, **options):
+def lidar_disparity(
+    scene: Scene3D,
+    frame: StereoFrame,
+    *,
+    T_cam_lidar: npt.ArrayLike | None = None,
+    rng: np.random.Generator | int | None = None,
+    **options: Any,
+) -> npt.NDArray[np.float32]:
     """The sparse ground-truth disparity a LiDAR beside the camera gives ``frame`` (occlusions handled).
 
     Parameters

@@ -1,12 +1,17 @@
 """Camera poses in worlds with z up: OpenCV camera axes (x right, y down, z forward)."""
 
+from __future__ import annotations
+
 import numpy as np
+import numpy.typing as npt
 
 from prismap._validate import as_float_array
 from prismap.errors import PrismapInputError
 
 
-def pose_from_heading(position_m, heading_rad, *, pitch_rad=0.0):
+def pose_from_heading(
+    position_m: npt.ArrayLike, heading_rad: float, *, pitch_rad: float = 0.0
+) -> npt.NDArray[np.float64]:
     """``T_world_cam`` of a camera at ``position_m`` looking along ``heading_rad`` in the world x-y plane.
 
     The heading is measured from world +x towards +y; a positive ``pitch_rad`` tilts the view down. With
@@ -38,7 +43,7 @@ def pose_from_heading(position_m, heading_rad, *, pitch_rad=0.0):
     return pose
 
 
-def poses_from_se2(poses_se2):
+def poses_from_se2(poses_se2: npt.ArrayLike) -> npt.NDArray[np.float64]:
     """``T_world_cam`` (N, 4, 4) of planar poses ``(x, y, heading)`` (N, 3) (metres, radians) at z = 0."""
     se2 = as_float_array(poses_se2, "poses_se2", shape=(None, 3), allow_nan=False)
     return np.array([pose_from_heading(p[:2], p[2]) for p in se2]).reshape(-1, 4, 4)

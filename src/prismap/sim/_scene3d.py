@@ -4,13 +4,19 @@ World frame: metres, z up. Cameras use OpenCV axes (x right, y down, z forward) 
 the right camera sits ``baseline_m`` along the left camera's x axis, as in a rectified rig.
 """
 
+from __future__ import annotations
+
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 
 from prismap._validate import as_float_array, check_integer
+from prismap.camera import StereoCamera
 from prismap.errors import PrismapInputError
 from prismap.io._frame import StereoFrame
+from prismap.io._sequence import GroundTruthOccupancy
 from prismap.sim._kernels import cast_view, shade_view
 from prismap.sim._poses import pose_from_heading
 from prismap.sim._textures import FIRST_OTHER, PHOTOGRAPHS, texture_bank
@@ -66,14 +72,22 @@ class Scene3D:
             object.__setattr__(self, name, value)
 
     @classmethod
-    def from_boxes(cls, box_lo, box_hi, *, texture="gravel", texel_m=0.01, name=""):
+    def from_boxes(
+        cls,
+        box_lo: npt.ArrayLike,
+        box_hi: npt.ArrayLike,
+        *,
+        texture: str | int = "gravel",
+        texel_m: float = 0.01,
+        name: str = "",
+    ) -> Scene3D:
         """A scene whose boxes all wear one texture (a name of ``PHOTOGRAPHS`` or an index), untinted."""
         lo = np.atleast_2d(np.asarray(box_lo, dtype=np.float64))
         index = PHOTOGRAPHS.index(texture) if isinstance(texture, str) else int(texture)
         n = len(lo)
         return cls(lo, box_hi, np.full(n, index), np.full(n, float(texel_m)), np.ones((n, 3)), name=name)
 
-    def cast(self, camera, T_world_cam, *, right=False):
+    def cast(self, camera: StereoCamera, T_world_cam: npt.ArrayLike, *, right: bool = False) -> npt.NDArray[np.float64]:
         """Exact depth (H, W) float64, metres of camera z, inf where nothing is hit, of the left (or right) view."""
         return self._cast(camera, T_world_cam, right)[0][0]
 
@@ -96,7 +110,15 @@ class Scene3D:
             image += np.float32(noise_sigma) * rng.standard_normal(image.shape, dtype=np.float32)
         return np.clip(np.rint(image), 0, 255).astype(np.uint8), depth
 
-    def render(self, camera, T_world_cam, *, noise_sigma=2.0, rng=None, name=""):
+    def render(
+        self,
+        camera: StereoCamera,
+        T_world_cam: npt.ArrayLike,
+        *,
+        noise_sigma: float = 2.0,
+        rng: np.random.Generator | int | None = None,
+        name: str = "",
+    ) -> StereoFrame:
         """Render a rectified stereo pair with its exact left disparity.
 
         Parameters
@@ -127,14 +149,18 @@ class Scene3D:
         pose = np.array(T_world_cam, dtype=np.float64)
         return StereoFrame(left, right, camera, disparity, pose, name=name, extras={"depth_m": depth})
 
-    def frames(self, camera, poses, *, noise_sigma=2.0, seed=0):
+    def frames(
+        self, camera: StereoCamera, poses: npt.ArrayLike, *, noise_sigma: float = 2.0, seed: int = 0
+    ) -> Iterator[StereoFrame]:
         """Yield :meth:`render` of every pose in ``poses`` (N, 4, 4); one generator seeded with ``seed``."""
         poses = as_float_array(poses, "poses", shape=(None, 4, 4), allow_nan=False)
         rng = np.random.default_rng(seed)
         for index, pose in enumerate(poses):
             yield self.render(camera, pose, noise_sigma=noise_sigma, rng=rng, name=f"{self.name}/{index:06d}")
 
-    def ground_truth(self, frames, voxel_size_m, *, max_depth_m=np.inf):
+    def ground_truth(
+        self, frames: Iterable[StereoFrame], voxel_size_m: float, *, max_depth_m: float = np.inf
+    ) -> GroundTruthOccupancy:
         """:class:`~prismap.io.GroundTruthOccupancy` of the scene seen by ``frames`` (e.g. rendered ones).
 
         Occupied: every voxel holding a point of a box -- boxes are solid, so voxels inside furniture are
@@ -145,8 +171,15 @@ class Scene3D:
         return ground_truth(self.box_lo, self.box_hi, frames, voxel_size_m, max_depth_m=max_depth_m)
 
     def pass_through_ratio(
-        self, frames, voxel_size_m, *, max_depth_m=np.inf, subsample=1, ray_classes=None, n_classes=None
-    ):
+        self,
+        frames: Iterable[StereoFrame],
+        voxel_size_m: float,
+        *,
+        max_depth_m: float = np.inf,
+        subsample: int = 1,
+        ray_classes: Sequence[np.ndarray] | None = None,
+        n_classes: int | None = None,
+    ) -> float | npt.NDArray[np.float64]:
         """How often a ray crosses an occupied voxel without meeting its surface there, seen by ``frames``
         (see ``prismap.sim._truth.pass_through_ratio``): PRISM's ``pass_through`` for this world, or with
         ``ray_classes`` one per pixel class (``class_pass_through``)."""
@@ -161,7 +194,15 @@ class Scene3D:
             n_classes=n_classes,
         )
 
-    def solid_depth(self, frames, voxel_size_m, *, max_depth_m=np.inf, subsample=1, quantile=SOLID_DEPTH_QUANTILE):
+    def solid_depth(
+        self,
+        frames: Iterable[StereoFrame],
+        voxel_size_m: float,
+        *,
+        max_depth_m: float = np.inf,
+        subsample: int = 1,
+        quantile: float = SOLID_DEPTH_QUANTILE,
+    ) -> float:
         """Depth of solid behind all but ``quantile`` of the noise-free hits of ``frames`` (metres along the
         ray; see ``prismap.sim._truth.solid_depth``): PRISM's ``solid_depth_m`` for this world."""
         return solid_depth(
@@ -178,7 +219,7 @@ class Scene3D:
 ROOM_M = (14.0, 9.0, 3.0)  # interior of the indoor scene: x, y, z extents from the origin
 
 
-def indoor_scene(*, seed=0):
+def indoor_scene(*, seed: int = 0) -> Scene3D:
     """A 14 m x 9 m x 3 m room: textured walls, floor and ceiling, shelves, cabinets, a table with objects,
     a pillar, pictures, and ``seed``-placed boxes along the walls. Objects lie 1-15 m from the trajectory
     of :func:`indoor_trajectory`, which never comes closer than 0.5 m to a box.
@@ -225,7 +266,7 @@ MAX_INDOOR_FRAMES = 360
 """Most frames of :func:`indoor_trajectory`: one per degree of the loop (more are near-duplicates)."""
 
 
-def indoor_trajectory(n_frames=40, *, seed=0):
+def indoor_trajectory(n_frames: int = 40, *, seed: int = 0) -> npt.NDArray[np.float64]:
     """A smooth closed loop through :func:`indoor_scene`'s room, panning and tilting to look at its content.
 
     The camera circles the room centre (7, 4.5) on a seeded, wobbling ellipse of radii about 3.8 x 2.0 m at

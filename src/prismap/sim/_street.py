@@ -7,7 +7,10 @@ the indoor room. The road, pavements and façades lie at round coordinates; to k
 faces, shift scene and poses by half a voxel as the experiments do (``run_street3d(grid_offset=0.5)``).
 """
 
+from __future__ import annotations
+
 import numpy as np
+import numpy.typing as npt
 
 from prismap._validate import check_integer, check_real
 from prismap.errors import PrismapInputError
@@ -38,7 +41,7 @@ DRIVE_START_M = 4.0
 """x of the first camera position."""
 
 
-def street_scene(*, seed=0):
+def street_scene(*, seed: int = 0) -> Scene3D:
     """A straight street, 84 m long between façades 8-9.5 m either side of its centre line.
 
     Contents: the road slab and two pavements, a row of buildings of seeded length (8-20 m), height
@@ -129,7 +132,9 @@ def street_scene(*, seed=0):
     return Scene3D(lo, hi, texture, texel, tint, name=f"street-{seed}")
 
 
-def street_trajectory(n_frames=12, *, step_m=1.0, seed=0, start_m=DRIVE_START_M):
+def street_trajectory(
+    n_frames: int = 12, *, step_m: float = 1.0, seed: int = 0, start_m: float = DRIVE_START_M
+) -> npt.NDArray[np.float64]:
     """A drive along :func:`street_scene`'s right-hand lane, forward ``step_m`` per frame, weaving a little.
 
     The left camera is 1.65 m above the road, starts at x = ``start_m`` and moves ``step_m`` along +x per frame
@@ -178,7 +183,9 @@ def street_trajectory(n_frames=12, *, step_m=1.0, seed=0, start_m=DRIVE_START_M)
     )
 
 
-def street_trajectory_between(n_frames, n_between, *, step_m=1.0, seed=0):
+def street_trajectory_between(
+    n_frames: int, n_between: int, *, step_m: float = 1.0, seed: int = 0
+) -> npt.NDArray[np.float64]:
     """``n_between`` poses spread evenly over the stretch of ``street_trajectory(n_frames, step_m=step_m)``.
 
     The same path (weave, yaw and pitch follow x), ``n_between`` positions ``n_frames * step_m / n_between``

@@ -1,9 +1,12 @@
 """Texture bank of the 3-D scenes: scikit-image's bundled photographs plus seeded procedural noise."""
 
+from __future__ import annotations
+
 import functools
 
 import cv2
 import numpy as np
+import numpy.typing as npt
 
 TEXTURE_SIZE = 256
 PHOTOGRAPHS = ("astronaut", "camera", "coffee", "chelsea", "rocket", "brick", "grass", "gravel")
@@ -27,7 +30,7 @@ FIRST_OTHER = len(PHOTOGRAPHS) + N_NOISE
 
 
 @functools.lru_cache(maxsize=1)
-def texture_bank():
+def texture_bank() -> npt.NDArray[np.float32]:
     """(T, 256, 256, 3) float32 in [0, 1], read-only: the photographs of ``PHOTOGRAPHS`` in order (grey ones
     as three equal channels, contrast-stretched), then ``N_NOISE`` multi-octave value-noise textures (fixed seed),
     then the photographs of ``OTHER_PHOTOGRAPHS``.

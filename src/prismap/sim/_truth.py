@@ -1,6 +1,9 @@
 """Exact ground-truth occupancy of box worlds: solid voxels, and the voxels a perfect sensor observes."""
 
+from __future__ import annotations
+
 import numpy as np
+import numpy.typing as npt
 
 from prismap._validate import as_float_array, check_integer, check_positive
 from prismap.camera import frame_overhang_m
@@ -221,7 +224,15 @@ SOLID_DEPTH_CAP_VOXELS = 8.0
 """Longest solid depth measured (voxels; the overhang's cap): beyond it a ray's solid no longer matters."""
 
 
-def solid_depth_along_rays(box_lo, box_hi, origins_w, directions_w, hit_m, *, cap_m):
+def solid_depth_along_rays(
+    box_lo: npt.ArrayLike,
+    box_hi: npt.ArrayLike,
+    origins_w: npt.ArrayLike,
+    directions_w: npt.ArrayLike,
+    hit_m: npt.ArrayLike,
+    *,
+    cap_m: float,
+) -> npt.NDArray[np.float64]:
     """Distance behind each ray's hit over which the ray stays inside the union of closed boxes.
 
     From 1 mm behind the hit point (a depth from float32 disparities misses the face) the ray is followed

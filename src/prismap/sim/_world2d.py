@@ -8,14 +8,19 @@ OpenCV-axes pose (:func:`prismap.sim.pose_from_heading`) and the 3-D grid engine
 layer of voxels (z key 0).
 """
 
+from __future__ import annotations
+
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
+import numpy.typing as npt
 
 from prismap._validate import as_float_array, check_positive
 from prismap.camera import StereoCamera
 from prismap.errors import PrismapInputError
 from prismap.gmm import GaussianMixture
+from prismap.io._sequence import GroundTruthOccupancy
 from prismap.sim._kernels import cast_view
 from prismap.sim._poses import poses_from_se2
 from prismap.sim._truth import ground_truth, solid_key_ranges
@@ -61,14 +66,14 @@ class World2D:
             object.__setattr__(self, name, value)
 
     @property
-    def boxes(self):
+    def boxes(self) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
         """``(lo, hi)``, (N, 3) float64 each, metres: the rectangles as boxes spanning z in [-1, 1] m."""
         n = len(self.rectangles)
         lo = np.column_stack([self.rectangles[:, :2], np.full(n, -_HALF_HEIGHT_M)])
         hi = np.column_stack([self.rectangles[:, 2:], np.full(n, _HALF_HEIGHT_M)])
         return lo, hi
 
-    def occupancy(self, cell_size_m):
+    def occupancy(self, cell_size_m: float) -> npt.NDArray[np.bool_]:
         """Exact occupancy raster: ``grid[iy, ix]`` is True if cell key ``(ix, iy)`` holds a point of a solid.
 
         The key of a point is ``floor(p / cell_size_m)`` (the map's convention), cell ``(ix, iy)`` is the
@@ -88,7 +93,9 @@ class World2D:
             grid[y0 : y1 + 1, x0 : x1 + 1] = True
         return grid
 
-    def ground_truth(self, frames, cell_size_m, *, max_depth_m=np.inf):
+    def ground_truth(
+        self, frames: Iterable[DisparityFrame], cell_size_m: float, *, max_depth_m: float = np.inf
+    ) -> GroundTruthOccupancy:
         """:class:`~prismap.io.GroundTruthOccupancy` of this world seen by ``frames`` (keys with z = 0).
 
         Occupied keys are those of :meth:`occupancy`; observed keys are the cells whose centre the sensor
@@ -98,7 +105,7 @@ class World2D:
         return ground_truth(lo, hi, frames, cell_size_m, planar=True, max_depth_m=max_depth_m)
 
 
-def simple_world():
+def simple_world() -> World2D:
     """The simple 20 m x 20 m world: outer walls, two long inner walls and four blocks."""
     rects = _outer_walls(20.0, 20.0) + [
         (6.0, 0.0, 6.2, 12.0),  # inner wall from the south
@@ -112,7 +119,7 @@ def simple_world():
     return World2D(np.array(rects), np.array([20.0, 20.0]), np.array(waypoints), name="simple")
 
 
-def office_world():
+def office_world() -> World2D:
     """The 30 m x 20 m office: a corridor (y 9-11 m) between four rooms south and three north, 1 m doors.
 
     Walls are 0.2 m thick; every room has furniture (desks and cabinets).
@@ -182,7 +189,9 @@ def _wall_with_doors(x0, x1, y0, y1, door_centres, door_width=1.0):
     return [(a, y0, b, y1) for a, b in zip(edges[::2], edges[1::2])]
 
 
-def waypoint_path(waypoints_m, *, step_m=0.25, turn_step_deg=10.0):
+def waypoint_path(
+    waypoints_m: npt.ArrayLike, *, step_m: float = 0.25, turn_step_deg: float = 10.0
+) -> npt.NDArray[np.float64]:
     """Planar poses along a polyline: heading along each segment, turning in place at the corners.
 
     Parameters
@@ -267,7 +276,15 @@ class StereoScanner2D:
         None: noise-free measurements.
     """
 
-    def __init__(self, *, n_rays=360, fov_deg=90.0, baseline_m=0.1, max_depth_m=15.0, error_model=None):
+    def __init__(
+        self,
+        *,
+        n_rays: int = 360,
+        fov_deg: float = 90.0,
+        baseline_m: float = 0.1,
+        max_depth_m: float = 15.0,
+        error_model: GaussianMixture | None = None,
+    ) -> None:
         if int(n_rays) != n_rays or n_rays < 1:
             raise PrismapInputError(f"`n_rays` must be a positive integer; got {n_rays!r}")
         fov = float(fov_deg)
@@ -283,11 +300,18 @@ class StereoScanner2D:
         self.camera = StereoCamera(focal, (n_rays - 1) / 2, 0.0, baseline_m, width=int(n_rays), height=1)
 
     @property
-    def ray_directions_cam(self):
+    def ray_directions_cam(self) -> npt.NDArray[np.float64]:
         """(W, 3) float64, camera frame: the ray of each column, scaled so that its z is 1 (unit depth)."""
         return self.camera.pixel_rays()[0]
 
-    def scan(self, world, T_world_cam, *, rng=None, name=""):
+    def scan(
+        self,
+        world: World2D,
+        T_world_cam: npt.ArrayLike,
+        *,
+        rng: np.random.Generator | int | None = None,
+        name: str = "",
+    ) -> DisparityFrame:
         """One :class:`DisparityFrame` of ``world`` from the pose ``T_world_cam`` (4, 4), errors drawn with ``rng``."""
         pose = as_float_array(T_world_cam, "T_world_cam", shape=(4, 4), allow_nan=False)
         if abs(pose[2, 3]) > 0 or abs(pose[2, 2]) > 1e-12 or abs(pose[2, 0]) > 1e-12:
@@ -317,7 +341,7 @@ class StereoScanner2D:
         range_m = depth * np.linalg.norm(self.ray_directions_cam, axis=1)
         return DisparityFrame(measured.astype(np.float32), cam, pose.copy(), truth, range_m, name=name)
 
-    def frames(self, world, poses, *, seed=0):
+    def frames(self, world: World2D, poses: npt.ArrayLike, *, seed: int = 0) -> Iterator[DisparityFrame]:
         """Yield one :class:`DisparityFrame` per pose; ``poses`` is (N, 4, 4) T_world_cam or (N, 3) (x, y, heading).
 
         One generator seeded with ``seed`` draws all the errors, so a run is reproducible.

@@ -1,10 +1,15 @@
 """The interface every stereo matcher implements, the left-right check, and the name -> matcher registry."""
 
+from __future__ import annotations
+
 import importlib
 from abc import ABC, abstractmethod
+from collections.abc import Mapping
+from typing import Any
 
 import cv2
 import numpy as np
+import numpy.typing as npt
 
 from prismap.errors import PrismapInputError
 
@@ -20,10 +25,12 @@ class StereoMatcher(ABC):
     name = "base"
 
     @abstractmethod
-    def compute(self, left, right):
+    def compute(self, left: np.ndarray, right: np.ndarray) -> npt.NDArray[np.float32]:
         """Disparity of ``left`` against ``right``: (H, W) float32, pixels, NaN = invalid."""
 
-    def compute_with_confidence(self, left, right):
+    def compute_with_confidence(
+        self, left: np.ndarray, right: np.ndarray
+    ) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32] | None]:
         """Disparity of ``left`` and the left-right disagreement behind it, when the matcher checks it.
 
         Returns
@@ -37,15 +44,15 @@ class StereoMatcher(ABC):
         return self.compute(left, right), None
 
     @abstractmethod
-    def params(self):
+    def params(self) -> dict[str, Any]:
         """The matcher's parameters as a JSON-serialisable dict."""
 
-    def search_range_px(self):
+    def search_range_px(self) -> tuple[float, float] | None:
         """``(lo, hi)``, pixels: the disparity search interval (:func:`search_range` of :meth:`params`)."""
         return search_range(self.params())
 
 
-def search_range(params):
+def search_range(params: Mapping[str, Any]) -> tuple[float, float] | None:
     """The disparity search interval ``(lo, hi)`` (pixels) a matcher's parameters set, or None if they set none.
 
     OpenCV's matchers search ``[min_disparity, min_disparity + num_disparities)``; the variational matcher
@@ -67,12 +74,12 @@ _MATCHERS = {
 }
 
 
-def matcher_names():
+def matcher_names() -> tuple[str, ...]:
     """Names accepted by :func:`make_matcher`."""
     return tuple(_MATCHERS)
 
 
-def make_matcher(name, **params):
+def make_matcher(name: str, **params: Any) -> StereoMatcher:
     """Build the matcher called ``name`` (``bm``, ``sgbm``, ``variational``) with keyword ``params``."""
     try:
         module_name, class_name = _MATCHERS[name].split(":")
@@ -81,7 +88,7 @@ def make_matcher(name, **params):
     return getattr(importlib.import_module(module_name), class_name)(**params)
 
 
-def left_right_disagreement(disparity_left, disparity_right):
+def left_right_disagreement(disparity_left: npt.ArrayLike, disparity_right: npt.ArrayLike) -> npt.NDArray[np.float32]:
     """How far each left pixel's match is from mapping back (dual matching, thesis sec. 3.2.2).
 
     A left pixel ``(v, u)`` with disparity ``d`` looks up the right image's disparity at
@@ -113,7 +120,9 @@ def left_right_disagreement(disparity_left, disparity_right):
     return np.abs(back - left)
 
 
-def left_right_check(disparity_left, disparity_right, *, max_difference_px=1.0):
+def left_right_check(
+    disparity_left: npt.ArrayLike, disparity_right: npt.ArrayLike, *, max_difference_px: float = 1.0
+) -> npt.NDArray[np.float32]:
     """Invalidate pixels whose match does not map back within ``max_difference_px`` (occlusions fail it).
 
     Parameters

@@ -1,6 +1,10 @@
 """The ``models compare`` workflow: every sensor model against PRISM for one error model, as files."""
 
+from __future__ import annotations
+
 import json
+import os
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -10,6 +14,7 @@ from prismap._files import write_text_atomic
 from prismap._progress import progress
 from prismap._validate import check_positive, check_probability
 from prismap.camera import StereoCamera
+from prismap.characterise import ErrorModel
 from prismap.errors import PrismapInputError
 from prismap.sensor_models import PrismModel, failure_floor
 from prismap.study._ray_models import CAMERAS, RaySetup, compare_models, influence_distances, prism_sweeps
@@ -76,15 +81,15 @@ class ModelsCompareRun:
 
 
 def run_models_compare(
-    error_model,
-    out_dir,
+    error_model: ErrorModel,
+    out_dir: str | os.PathLike[str],
     *,
-    camera="middlebury-motorcycle",
-    voxel_size_m=0.1,
-    p0=0.05,
-    distances_m=(2.0, 5.0, 10.0, 20.0),
-    source="",
-):
+    camera: str | StereoCamera = "middlebury-motorcycle",
+    voxel_size_m: float = 0.1,
+    p0: float = 0.05,
+    distances_m: Sequence[float] = (2.0, 5.0, 10.0, 20.0),
+    source: str = "",
+) -> ModelsCompareRun:
     """Profiles, PRISM sweeps, influence distances and divergences of every model, written to ``out_dir``.
 
     Parameters

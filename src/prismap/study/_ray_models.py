@@ -11,10 +11,15 @@ the mapping pipeline configures them, and the failure floor of the mixture's mat
 (:func:`prismap.sensor_models.failure_floor`) when it has one. PRISM takes the whole mixture.
 """
 
+from __future__ import annotations
+
 import dataclasses
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 from scipy.special import rel_entr
 
 from prismap._depth import depth_from_disparity
@@ -22,7 +27,7 @@ from prismap._validate import check_positive, check_probability
 from prismap.camera import KITTI_CAMERA, MOTORCYCLE_CAMERA, TSUKUBA_CAMERA
 from prismap.errors import PrismapInputError
 from prismap.gmm import GaussianMixture
-from prismap.sensor_models import failure_floor, make_sensor_model, model_names
+from prismap.sensor_models import InverseSensorModel, failure_floor, make_sensor_model, model_names
 
 
 def _rig(camera):
@@ -75,13 +80,13 @@ class RaySetup:
             raise PrismapInputError(f"`doffs_px` must be finite; got {self.doffs_px!r}")
         object.__setattr__(self, "doffs_px", float(self.doffs_px))
 
-    def with_cell_size(self, cell_m):
+    def with_cell_size(self, cell_m: float) -> RaySetup:
         """The same environment with cells of ``cell_m``: ``p0' = 1 - (1 - p0)^(cell_m / D)`` keeps PRISM's rate."""
         cell = check_positive(cell_m, "cell_m")
         p0 = -np.expm1(np.log1p(-self.p0) * cell / self.voxel_size_m)
         return dataclasses.replace(self, voxel_size_m=cell, p0=float(p0))
 
-    def disparity_at(self, distance_m):
+    def disparity_at(self, distance_m: float) -> float:
         """Disparity (pixels, 1/16 px steps) a matcher reports for a surface at ``distance_m`` on a ray of norm 1."""
         distance = check_positive(distance_m, "distance_m")
         disparity = np.round((self.focal_baseline / distance - self.doffs_px) / DISPARITY_STEP_PX) * DISPARITY_STEP_PX
@@ -89,17 +94,19 @@ class RaySetup:
             raise PrismapInputError(f"distance {distance} m is beyond the disparity resolution of this camera")
         return float(disparity)
 
-    def distance_of(self, disparity_px):
+    def distance_of(self, disparity_px: float) -> float:
         """Measured distance (metres) of a disparity on a ray of norm 1 (+inf where ``d + doffs <= 0``)."""
         return float(depth_from_disparity(disparity_px, self.focal_baseline, self.doffs_px, invalid=np.inf))
 
 
-def single_noise_sigma(mixture):
+def single_noise_sigma(mixture: GaussianMixture) -> float:
     """Sigma (pixels) of the mixture's largest-weight component: the noise of single-Gaussian models."""
     return float(mixture.sigmas[int(np.argmax(mixture.weights))])
 
 
-def study_models(mixture, *, setup, names=None, prism_method="direct"):
+def study_models(
+    mixture: GaussianMixture, *, setup: RaySetup, names: Sequence[str] | None = None, prism_method: str = "direct"
+) -> dict[str, InverseSensorModel]:
     """Build the models to compare, all with the setup's camera, cell size and prior.
 
     Parameters
@@ -172,7 +179,9 @@ class RayProfile:
     influence_m: dict
 
 
-def ray_profile(models, disparity_px, *, setup, end_m=None):
+def ray_profile(
+    models: Mapping[str, InverseSensorModel], disparity_px: float, *, setup: RaySetup, end_m: float | None = None
+) -> RayProfile:
     """Every model's posterior on the cells of one ray, from ``near_m`` to ``end_m``.
 
     ``end_m`` defaults to one cell past the largest influence depth of the models (capped at 1000 cells
@@ -196,7 +205,7 @@ def ray_profile(models, disparity_px, *, setup, end_m=None):
     return RayProfile(float(disparity[0]), float(measured), setup.p0, edges, posterior, increment, influence)
 
 
-def divergence(profile, name, *, reference="prism"):
+def divergence(profile: RayProfile, name: str, *, reference: str = "prism") -> dict[str, float | int]:
     """How far model ``name`` is from ``reference`` on one ray.
 
     Over the cells that either model updates (cell start below the larger of their influence depths):
@@ -249,7 +258,7 @@ class ModelComparison:
     divergences: dict
     noise_sigma_px: float
 
-    def to_dict(self):
+    def to_dict(self) -> dict[str, Any]:
         """JSON-ready form: setup, distances, divergences and PRISM's influence depths."""
         return {
             "setup": dataclasses.asdict(self.setup),
@@ -265,7 +274,7 @@ class ModelComparison:
             },
         }
 
-    def to_markdown(self):
+    def to_markdown(self) -> str:
         """Markdown table: one row per model and distance with MAD, KL and cleared occupancy."""
         lines = [
             "| model | distance (m) | mean abs. diff. of P | mean KL(PRISM \\|\\| model) (nats) | "
@@ -288,7 +297,9 @@ def _distances(distances_m):
     return distances
 
 
-def compare_models(mixture, distances_m, *, setup, names=None):
+def compare_models(
+    mixture: GaussianMixture, distances_m: npt.ArrayLike, *, setup: RaySetup, names: Sequence[str] | None = None
+) -> ModelComparison:
     """Profiles of every model (PRISM direct as the reference) at each distance, and their divergences.
 
     Parameters
@@ -319,7 +330,9 @@ def compare_models(mixture, distances_m, *, setup, names=None):
     return ModelComparison(setup, distances, profiles, divergences, single_noise_sigma(mixture))
 
 
-def influence_distances(mixture, distances_m, *, setup):
+def influence_distances(
+    mixture: GaussianMixture, distances_m: npt.ArrayLike, *, setup: RaySetup
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], npt.NDArray[np.float64]]:
     """PRISM's reach behind the measurement, per measured distance.
 
     Returns
@@ -344,15 +357,15 @@ def influence_distances(mixture, distances_m, *, setup):
 
 
 def prism_sweeps(
-    mixture,
+    mixture: GaussianMixture,
     *,
-    setup,
-    distances_m=(2.0, 5.0, 10.0, 20.0),
-    reference_m=10.0,
-    noise_scales=(0.5, 1.0, 2.0, 4.0),
-    cell_sizes_m=(0.05, 0.1, 0.2, 0.4),
-    mixtures_by_components=None,
-):
+    setup: RaySetup,
+    distances_m: Sequence[float] = (2.0, 5.0, 10.0, 20.0),
+    reference_m: float = 10.0,
+    noise_scales: Sequence[float] = (0.5, 1.0, 2.0, 4.0),
+    cell_sizes_m: Sequence[float] = (0.05, 0.1, 0.2, 0.4),
+    mixtures_by_components: Mapping[int, GaussianMixture] | None = None,
+) -> dict[str, list[tuple[str, RayProfile]]]:
     """PRISM's profile as one thing changes at a time (thesis figs 5.11-5.15).
 
     Parameters

@@ -1,14 +1,21 @@
 """The interactive 3-D map viewer: a viser server (its own web client) showing an occupancy map's voxels
 coloured by P(occupied), with controls, the camera trajectory and the ground truth beside the map."""
 
+from __future__ import annotations
+
+import os
 import socket
 import threading
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from prismap.errors import PrismapInputError
+from prismap.grid import OccupancyMap
+from prismap.io import GroundTruthOccupancy
 from prismap.viewer._voxels import (
     AGREEMENT,
     AGREEMENT_COLORS,
@@ -35,7 +42,7 @@ AGREEMENT_SHOWN = (2, 3, 4)
 correct free voxels would hide them)."""
 
 
-def load_trajectory(path):
+def load_trajectory(path: str | os.PathLike[str]) -> npt.NDArray[np.float64]:
     """Camera poses for the viewer: a sequence folder (:func:`prismap.io.read_sequence`) or a pose text
     file of 3x4 row-major ``T_world_cam`` rows (KITTI's and prismap's ``poses.txt``).
 
@@ -116,8 +123,16 @@ class MapViewer:
     """
 
     def __init__(
-        self, grid, *, truth=None, poses_w=None, host="127.0.0.1", port=8080, budget=POINT_BUDGET, agreement=False
-    ):
+        self,
+        grid: OccupancyMap,
+        *,
+        truth: GroundTruthOccupancy | None = None,
+        poses_w: npt.ArrayLike | None = None,
+        host: str = "127.0.0.1",
+        port: int = 8080,
+        budget: int = POINT_BUDGET,
+        agreement: bool = False,
+    ) -> None:
         try:
             import viser
         except ImportError:
@@ -219,7 +234,7 @@ class MapViewer:
         self.stats = self.refresh()
         self.stats["build_s"] = time.perf_counter() - start
 
-    def refresh(self):
+    def refresh(self) -> dict[str, Any]:
         """Redraw the layers for the current controls.
 
         Returns
@@ -339,7 +354,7 @@ class MapViewer:
                 position=tuple(centres[index]),
             )
 
-    def stop(self):
+    def stop(self) -> None:
         """Stop the server."""
         self.server.stop()
 

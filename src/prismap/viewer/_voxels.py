@@ -1,13 +1,18 @@
 """What the viewer draws, as plain arrays: a level-of-detail pyramid of voxels, the selection a viewer's
 controls ask for, and the colours of probabilities. No server or browser here, so it is tested alone."""
 
+from __future__ import annotations
+
 import functools
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 
 from prismap.errors import PrismapInputError
 from prismap.grid import key_to_center
+from prismap.io import GroundTruthOccupancy
 
 COLORMAP = "viridis"
 """Matplotlib colormap of P(occupied): 0 = dark violet (free), 0.5 = teal, 1 = yellow (occupied)."""
@@ -20,7 +25,7 @@ CLASSES = ("free", "unknown", "occupied")
 unknown between them (observed but undecided; unobserved space is drawn as its own grey layer)."""
 
 
-def probability_colors(probability):
+def probability_colors(probability: npt.ArrayLike) -> npt.NDArray[np.uint8]:
     """(N, 3) uint8 RGB of :data:`COLORMAP` at each probability (256 levels, clipped to [0, 1])."""
     p = np.clip(np.nan_to_num(np.asarray(probability, dtype=np.float32), nan=0.5), 0.0, 1.0)
     return _colormap_table()[np.round(p * 255).astype(np.intp)]
@@ -54,12 +59,12 @@ class VoxelLevel:
     probability: np.ndarray
 
     @property
-    def centers_w(self):
+    def centers_w(self) -> npt.NDArray[np.float32]:
         """(N, 3) float32 voxel centres, metres, world frame."""
         return key_to_center(self.keys, self.size_m).astype(np.float32)
 
 
-def coarsen(level):
+def coarsen(level: VoxelLevel) -> VoxelLevel:
     """The next level: keys halved (floor), each parent holding the largest probability of its children."""
     keys, probability = _group_max(level.keys >> 1, level.probability)
     return VoxelLevel(level.level + 1, 2.0 * level.size_m, keys, probability)
@@ -77,7 +82,9 @@ def _group_max(keys, probability):
     return keys[order][starts], np.maximum.reduceat(probability[order], starts)
 
 
-def voxel_pyramid(keys, probability, voxel_size_m, *, min_voxels=4096):
+def voxel_pyramid(
+    keys: npt.ArrayLike, probability: npt.ArrayLike, voxel_size_m: float, *, min_voxels: int = 4096
+) -> VoxelPyramid:
     """Levels 0, 1, ... of a voxel set, each coarser level half the resolution, until one has at most
     ``min_voxels`` voxels or stops shrinking.
 
@@ -108,7 +115,7 @@ def voxel_pyramid(keys, probability, voxel_size_m, *, min_voxels=4096):
 class VoxelPyramid:
     """The levels of :func:`voxel_pyramid`, computed lazily; iterate (finest first) or index them."""
 
-    def __init__(self, base, min_voxels):
+    def __init__(self, base: VoxelLevel, min_voxels: int) -> None:
         self._levels = [base]
         self._min_voxels = min_voxels
         self._complete = False
@@ -146,7 +153,7 @@ class VoxelPyramid:
         return len(self._levels)
 
 
-def voxel_classes(probability, free_threshold, occupied_threshold):
+def voxel_classes(probability: npt.ArrayLike, free_threshold: float, occupied_threshold: float) -> npt.NDArray[np.int8]:
     """(N,) int8 index into :data:`CLASSES` of each probability by the map's thresholds."""
     p = np.asarray(probability)
     out = np.ones(p.shape, dtype=np.int8)
@@ -156,15 +163,15 @@ def voxel_classes(probability, free_threshold, occupied_threshold):
 
 
 def select(
-    levels,
+    levels: Iterable[VoxelLevel],
     *,
-    threshold=0.0,
-    classes=("occupied",),
-    z_range_m=(-np.inf, np.inf),
-    free_threshold=0.5,
-    occupied_threshold=0.5,
-    budget=2_000_000,
-):
+    threshold: float = 0.0,
+    classes: Iterable[str] = ("occupied",),
+    z_range_m: tuple[float, float] = (-np.inf, np.inf),
+    free_threshold: float = 0.5,
+    occupied_threshold: float = 0.5,
+    budget: int = 2_000_000,
+) -> tuple[VoxelLevel, npt.NDArray[np.bool_]]:
     """The voxels a viewer shows: P >= ``threshold``, class in ``classes``, centre height within
     ``z_range_m``, at the finest level of ``levels`` that shows at most ``budget`` of them.
 
@@ -186,7 +193,7 @@ def select(
     return level, mask
 
 
-def unobserved_cells(base, *, budget=2_000_000):
+def unobserved_cells(base: VoxelLevel, *, budget: int = 2_000_000) -> VoxelLevel:
     """Cells inside the box of ``base``'s voxels that hold none of them, at the finest ``2**k`` coarsening
     whose box has at most ``budget`` cells (unobserved space is dense: it is drawn coarse).
 
@@ -231,7 +238,14 @@ AGREEMENT_COLORS = np.array(
 """RGB of each :data:`AGREEMENT` code: grey, blue, green, orange, red."""
 
 
-def agreement_codes(keys, probability, truth, *, free_threshold=0.5, occupied_threshold=0.5):
+def agreement_codes(
+    keys: npt.ArrayLike,
+    probability: npt.ArrayLike,
+    truth: GroundTruthOccupancy,
+    *,
+    free_threshold: float = 0.5,
+    occupied_threshold: float = 0.5,
+) -> npt.NDArray[np.int8]:
     """(N,) int8 :data:`AGREEMENT` code of each map voxel against ``truth``.
 
     Parameters
@@ -257,7 +271,13 @@ def agreement_codes(keys, probability, truth, *, free_threshold=0.5, occupied_th
     return code
 
 
-def select_codes(levels, *, shown, z_range_m=(-np.inf, np.inf), budget=2_000_000):
+def select_codes(
+    levels: Iterable[VoxelLevel],
+    *,
+    shown: Iterable[int],
+    z_range_m: tuple[float, float] = (-np.inf, np.inf),
+    budget: int = 2_000_000,
+) -> tuple[VoxelLevel, npt.NDArray[np.bool_]]:
     """The voxels of a code pyramid (``probability`` holding :data:`AGREEMENT` codes) whose code is in
     ``shown`` (codes) and whose centre height is within ``z_range_m``, at the finest level within ``budget``.
 
