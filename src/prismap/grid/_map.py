@@ -1,5 +1,7 @@
 """The occupancy map: an unbounded sparse grid of hashed voxel blocks holding log-odds and counts."""
 
+from copy import deepcopy
+
 import numpy as np
 from scipy.special import expit
 
@@ -332,19 +334,17 @@ class OccupancyMap:
         )
 
     def copy(self):
-        """An independent copy of the map."""
-        twin = OccupancyMap(
-            self.voxel_size_m,
-            p0=self.p0,
-            ndim=self.ndim,
-            clamp=self.clamp,
-            occupied_threshold=self.occupied_threshold,
-            free_threshold=self.free_threshold,
-            fusion=self.fusion,
-        )
-        twin.merge(self)
-        twin.policies, twin.n_frames = self.policies, self.n_frames
-        return twin
+        """An independent copy of the map (through its pickled state, :meth:`__getstate__`)."""
+        return deepcopy(self)
+
+    def __getstate__(self):
+        """Everything but the frame accumulator, one frame's scratch space (made anew on unpickling): a map
+        pickles (to and from Dask workers) as its own fixed-point blocks, int64 log-odds sums and uint16 counts,
+        without spare capacity (:class:`~prismap.grid._storage.BlockTable`), and unpickles bit for bit."""
+        return {**self.__dict__, "_accumulator": None}
+
+    def __setstate__(self, state):
+        self.__dict__.update(state, _accumulator=_accumulator.new_accumulator(state["_store"].bits))
 
     # --------------------------------------------------------------------------------------- queries
     @property
