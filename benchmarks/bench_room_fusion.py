@@ -51,8 +51,9 @@ def main(run_dir, matcher="sgbm", models="prism_conditioned,convolution", counts
             mode=settings["mode"],
         )
         grid, done, start = new_map(config), 0, time.perf_counter()
+        sensor_model = config.sensor_model(sequence.camera)  # one model, its PRISM tables kept, for every stop
         for stop in stops:
-            integrate_frames(grid, sequence, config, range(done, stop))
+            integrate_frames(grid, sequence, config, range(done, stop), model=sensor_model)
             done = stop
             keys = grid.known_voxels()[0]
             p, occupied = align_to_ground_truth(

@@ -1,6 +1,8 @@
 """Whole frames through the map: ray versus projective mode, merge equals sequential integration,
 queries, 2-D maps, pose uncertainty and hostile input."""
 
+import pickle
+
 import numpy as np
 import pytest
 
@@ -90,6 +92,40 @@ def test_merge_of_any_split_equals_sequential_integration():
         np.testing.assert_array_equal(got_log, log)
         np.testing.assert_array_equal(got_count, count)
         assert merged.n_known == whole.n_known and merged.n_frames == 4
+
+
+@pytest.mark.parametrize("read_only", [False, True])
+def test_a_pickled_map_is_its_fixed_point_blocks_and_keeps_integrating_like_the_original(read_only):
+    """What a Dask chunk map goes through: the int64 sums, counts, frames, policies and settings come back bit for
+    bit, without the frame accumulator or spare capacity; the copy (even from read-only buffers, as a Dask message
+    gives them) then integrates and merges exactly as the original."""
+    camera, pose, disparity = small_frame()
+    model = HitMissModel(camera.focal_baseline)
+    grid = OccupancyMap(0.1, p0=0.5, clamp=OCTOMAP_CLAMP, occupied_threshold=0.6, free_threshold=0.3)
+    integrate_disparity(grid, disparity, camera, pose, model, max_range_m=12.0)
+    integrate_disparity(grid, disparity, camera, pose, model, max_range_m=12.0, policy="max-abs")
+    buffers = []
+    data = pickle.dumps(grid, protocol=5, buffer_callback=buffers.append)
+    if read_only:
+        buffers = [memoryview(bytes(b.raw())) for b in buffers]
+    twin = pickle.loads(data, buffers=buffers)
+    stored = grid._store
+    used = len(stored) * (stored.bytes_per_block() - 16)  # the blocks' payload and packed keys, no hash table
+    assert len(data) + sum(memoryview(b).nbytes for b in buffers) < used + 4096  # no accumulator (16 B a voxel)
+    assert len(twin._accumulator) == 0 and twin.nbytes() <= grid.nbytes()
+    for mine, theirs in zip(grid.known_voxels(), twin.known_voxels()):
+        assert mine.dtype == theirs.dtype and np.array_equal(mine, theirs)
+    for attr in ("voxel_size_m", "p0", "ndim", "clamp", "fusion", "prior_q", "policies", "n_frames", "free_threshold"):
+        assert getattr(twin, attr) == getattr(grid, attr), attr
+    moved = pose.copy()
+    moved[:3, 3] += [0.3, -0.2, 0.5]  # new blocks and old ones
+    before = grid.copy()
+    for g in (grid, twin):
+        integrate_disparity(g, disparity, camera, moved, model, max_range_m=12.0)
+        g.merge(before)
+    assert twin.n_frames == grid.n_frames == 5
+    for mine, theirs in zip(grid.known_voxels(), twin.known_voxels()):
+        np.testing.assert_array_equal(mine, theirs)
 
 
 def test_clamping_keeps_log_odds_inside_octomap_bounds():

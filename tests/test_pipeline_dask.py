@@ -5,8 +5,9 @@ import numpy as np
 import pytest
 
 from prismap.errors import PrismapInputError
-from prismap.io import load_map
+from prismap.io import load_map, read_sequence
 from prismap.pipeline import characterise_sequence, map_sequence
+from prismap.pipeline._run import map_chunk, new_map
 from support import conditioned_error_model, config, synthetic_sequence
 
 distributed = pytest.importorskip("distributed")
@@ -171,3 +172,23 @@ def test_dask_map_keeps_the_persistent_failure_reading(sequence_dir, client):
     assert chunked.fusion == sequential.fusion == error_model.persistent_failure
     keys = sequential.known_voxels()[0]
     np.testing.assert_array_equal(chunked.probability_at_keys(keys), sequential.probability_at_keys(keys))
+
+
+def test_each_worker_builds_the_prism_tables_once_for_all_its_chunks(sequence_dir, client):
+    """The model ``map_sequence`` scatters is one object on a worker: the tables a chunk builds serve the next, so a
+    worker mapping frames one per chunk builds what one model mapping them all in one go builds."""
+    cfg = config(model="prism")
+    camera = read_sequence(sequence_dir).camera
+    alone = cfg.sensor_model(camera)
+    whole = map_chunk(str(sequence_dir), cfg, alone, 0, 7)
+    assert alone._cache.hits > 0  # the frames share tables
+    worker = sorted(client.scheduler_info()["workers"])[0]
+    model = client.scatter(cfg.sensor_model(camera), broadcast=True, hash=False)
+    merged = new_map(cfg)
+    for frame in range(7):  # one after the other: the same order of table builds as the single model's
+        merged.merge(
+            client.submit(map_chunk, str(sequence_dir), cfg, model, frame, frame + 1, workers=[worker]).result()
+        )
+    builds = client.run(lambda dask_worker: dask_worker.data[model.key]._cache.builds, workers=[worker])
+    assert builds == {worker: alone._cache.builds}
+    assert_identical_maps(merged, whole)

@@ -1,6 +1,7 @@
 """PRISM: discrete reference against brute force, continuous against discrete, table against direct, shape."""
 
 import itertools
+import pickle
 
 import numpy as np
 import pytest
@@ -570,6 +571,23 @@ def test_table_cache_evicts_least_recently_used_beyond_its_budget():
     assert len(model._cache) == 4
     with pytest.raises(PrismapInputError, match="table_memory_mb"):
         PrismModel(error_model=MIXTURE, focal_baseline=FB, table_memory_mb=0.0)
+
+
+def test_a_pickled_model_arrives_with_its_budget_and_an_empty_cache_and_builds_the_same_tables():
+    """What a Dask worker receives (``map_sequence`` scatters the run's model): its tables are rebuilt there, once."""
+    model = PrismModel(error_model=MIXTURE, focal_baseline=FB, table_memory_mb=0.5)
+    model._cache.floor_bytes = 1234  # as conditioned_sensor_model splits the floor among its class models
+    edges = np.linspace(0.5, 12.0, 60)
+    args = (_on_grid([2.0, 5.0]), [1.0, 1.1], np.repeat([0, 1], 59), np.tile(edges[:-1], 2), np.tile(edges[1:], 2))
+    want = model.cell_posteriors(*args)
+    assert len(model._cache) == 2
+    twin = pickle.loads(pickle.dumps(model))
+    assert repr(twin) == repr(model) and len(twin._cache) == 0 and twin._cache is not model._cache
+    assert (twin._cache.budget_bytes, twin._cache.floor_bytes) == (model._cache.budget_bytes, 1234)
+    for _ in range(2):
+        for mine, theirs in zip(want, twin.cell_posteriors(*args)):
+            np.testing.assert_array_equal(mine, theirs)
+    assert (twin._cache.builds, twin._cache.hits) == (2, 2)
 
 
 def test_calls_from_two_threads_under_a_thrashing_cache_equal_serial_calls():

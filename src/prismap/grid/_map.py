@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from copy import deepcopy
+
 import numpy as np
 import numpy.typing as npt
 from scipy.special import expit
@@ -353,19 +355,17 @@ class OccupancyMap:
         )
 
     def copy(self) -> OccupancyMap:
-        """An independent copy of the map."""
-        twin = OccupancyMap(
-            self.voxel_size_m,
-            p0=self.p0,
-            ndim=self.ndim,
-            clamp=self.clamp,
-            occupied_threshold=self.occupied_threshold,
-            free_threshold=self.free_threshold,
-            fusion=self.fusion,
-        )
-        twin.merge(self)
-        twin.policies, twin.n_frames = self.policies, self.n_frames
-        return twin
+        """An independent copy of the map (through its pickled state, :meth:`__getstate__`)."""
+        return deepcopy(self)
+
+    def __getstate__(self) -> dict:
+        """Everything but the frame accumulator, one frame's scratch space (made anew on unpickling): a map
+        pickles (to and from Dask workers) as its own fixed-point blocks, int64 log-odds sums and uint16 counts,
+        without spare capacity (:class:`~prismap.grid._storage.BlockTable`), and unpickles bit for bit."""
+        return {**self.__dict__, "_accumulator": None}
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state, _accumulator=_accumulator.new_accumulator(state["_store"].bits))
 
     # --------------------------------------------------------------------------------------- queries
     @property

@@ -50,7 +50,24 @@ class BlockTable:
             self.block_keys = _grown(self.block_keys, capacity, n)
             self.payload = {name: _grown(array, capacity, n) for name, array in self.payload.items()}
         if 2 * need > self.table.size:
-            self.table = _kernels_hash.rehash(self.block_keys, n, 1 << int(np.ceil(np.log2(2 * need))))
+            self.table = _kernels_hash.rehash(self.block_keys, n, _table_size(need))
+
+    def __getstate__(self):
+        """The used blocks only: no spare capacity and no hash table (:meth:`__setstate__` rebuilds it)."""
+        n = len(self)
+        return {
+            "bits": self.bits,
+            "block_keys": self.block_keys[:n],
+            "payload": {name: array[:n] for name, array in self.payload.items()},
+        }
+
+    def __setstate__(self, state):
+        self.__init__(state["bits"], {})
+        writable = ("C", "W")  # arrays unpickled from a read-only buffer (a Dask message) are copied
+        self.block_keys = np.require(state["block_keys"], requirements=writable)
+        self.payload = {name: np.require(array, requirements=writable) for name, array in state["payload"].items()}
+        self.n_blocks[0] = self.block_keys.size
+        self.table = _kernels_hash.rehash(self.block_keys, len(self), _table_size(len(self)))
 
     def count_absent(self, packed_keys, n):
         """How many of the distinct packed block keys ``packed_keys[:n]`` this table lacks."""
@@ -72,6 +89,12 @@ class BlockTable:
         """Bytes held by the table and the block arrays (allocated capacity, not just the used part)."""
         arrays = [self.block_keys, self.table, *self.payload.values()]
         return int(sum(a.nbytes for a in arrays))
+
+
+def _table_size(blocks):
+    """Hash table entries for ``blocks`` blocks: the smallest power of two >= ``2 * blocks`` (at most half full),
+    at least 16."""
+    return 1 << max(4, (2 * int(blocks) - 1).bit_length())
 
 
 def _grown(array, capacity, used):

@@ -20,12 +20,8 @@ from prismap.io import BagSequence, Sequence, read_kitti_disparity, read_sequenc
 from prismap.pipeline._checkpoint import open_checkpoint, run_fingerprint, save_checkpoint
 from prismap.pipeline._config import DISPARITY_FROM_MATCHER, DISPARITY_FROM_SEQUENCE, MappingConfig
 from prismap.pipeline._prefetch import Prefetch
-from prismap.sensor_models import ConditionedModel
+from prismap.sensor_models import ConditionedModel, InverseSensorModel
 from prismap.stereo import make_matcher
-
-_MODEL_CACHE = {}
-"""The last sensor model built in this process, keyed by (config fingerprint, camera): a Dask worker
-maps many chunks with one model, and PRISM's tables are built once per model."""
 
 
 def open_sequence(sequence):
@@ -38,15 +34,6 @@ def new_map(config, ndim=3):
     return OccupancyMap(config.voxel_size_m, p0=config.p0, ndim=ndim, fusion=config.persistent_failure)
 
 
-def sensor_model_for(config, camera):
-    """``config.sensor_model(camera)``, reused while the config and camera stay the same."""
-    key = (config.fingerprint(), camera.focal_baseline, camera.doffs_px)
-    if key not in _MODEL_CACHE:
-        _MODEL_CACHE.clear()
-        _MODEL_CACHE[key] = config.sensor_model(camera)
-    return _MODEL_CACHE[key]
-
-
 class DisparitySource:
     """The disparity image of each frame of a sequence, as ``config.disparity_source`` says, and its pixels' classes.
 
@@ -54,6 +41,9 @@ class DisparitySource:
     ----------
     sequence : Sequence
     config : MappingConfig
+    model : InverseSensorModel or None
+        The run's sensor model, ``config.sensor_model(sequence.camera)`` (None builds it): a conditioned one
+        (:class:`~prismap.sensor_models.ConditionedModel`) needs each pixel's error class.
 
     Raises
     ------
@@ -64,7 +54,9 @@ class DisparitySource:
         disparities, which have none).
     """
 
-    def __init__(self, sequence: Sequence | BagSequence, config: MappingConfig) -> None:
+    def __init__(
+        self, sequence: Sequence | BagSequence, config: MappingConfig, *, model: InverseSensorModel | None = None
+    ) -> None:
         self.sequence = sequence
         self.kind = config.disparity_source
         self.matcher = None
@@ -78,7 +70,9 @@ class DisparitySource:
         elif self.kind != DISPARITY_FROM_SEQUENCE and not Path(self.kind).is_dir():
             raise PrismapInputError(f"disparity directory {self.kind}: not found")
         self.error_model = None
-        if isinstance(sensor_model_for(config, sequence.camera), ConditionedModel):
+        if model is None:
+            model = config.sensor_model(sequence.camera)
+        if isinstance(model, ConditionedModel):
             self.error_model = config.error_model
             self.error_model.check_usable(
                 config.matcher, left_right_check=bool(getattr(self.matcher, "left_right_check", False))
@@ -138,6 +132,7 @@ def integrate_frames(
     config: MappingConfig,
     indices: Iterable[int],
     *,
+    model: InverseSensorModel | None = None,
     on_frame: Callable[[OccupancyMap], object] | None = None,
 ) -> OccupancyMap:
     """Integrate frames ``indices`` of ``sequence`` into ``grid`` (in place), in order.
@@ -148,6 +143,9 @@ def integrate_frames(
     sequence : Sequence
     config : MappingConfig
     indices : iterable of int
+    model : InverseSensorModel or None
+        ``config.sensor_model(sequence.camera)``, built once per run and passed to every call (PRISM's tables,
+        built as frames need them, then serve every later frame); None builds it.
     on_frame : callable or None
         Called with ``grid`` after each frame (progress bars, checkpoints).
 
@@ -158,8 +156,9 @@ def integrate_frames(
     the frames one after the other, and an error of frame k's disparity is raised after frame k - 1 is
     integrated and ``on_frame`` called, as without the look-ahead.
     """
-    model = sensor_model_for(config, sequence.camera)
-    source = DisparitySource(sequence, config)
+    if model is None:
+        model = config.sensor_model(sequence.camera)
+    source = DisparitySource(sequence, config, model=model)
     with Prefetch(source, indices) as frames:
         for _, (disparity, pose, ray_class) in frames:
             integrate_disparity(
@@ -179,17 +178,17 @@ def integrate_frames(
     return grid
 
 
-def check_key_reach(sequence, config, indices):
+def check_key_reach(sequence, config, indices, model):
     """Refuse, before any work, a voxel size whose key range cannot hold the rays of ``sequence``.
 
     The rays reach at most the farthest camera position plus the longest depth: ``config.max_range_m``,
-    else the model's ``far_depth_m`` (PRISM), else the depth of a 1 px disparity (``f b``).
+    else ``model``'s ``far_depth_m`` (PRISM), else the depth of a 1 px disparity (``f b``).
     """
     if sequence.poses is None:
         return
     depth = config.max_range_m
     if math.isinf(depth):
-        depth = getattr(sensor_model_for(config, sequence.camera), "far_depth_m", sequence.camera.focal_baseline)
+        depth = getattr(model, "far_depth_m", sequence.camera.focal_baseline)
     positions = np.abs(sequence.poses[list(indices)][:, :3, 3]).max()
     reach_m = float(positions + depth)
     if reach_m >= key_limit_m(config.voxel_size_m):
@@ -200,24 +199,16 @@ def check_key_reach(sequence, config, indices):
         )
 
 
-def map_chunk(sequence_path, config, start, stop):
+def map_chunk(sequence_path, config, model, start, stop):
     """Map frames ``start <= i < stop`` into a fresh map (what a Dask worker runs).
 
-    The worker opens the sequence itself, so no image crosses the network; it returns the chunk's map
-    as arrays: ``(keys (N, 3) int32, log_odds (N,) float64, counts (N,) uint16, n_frames, policies)``; the
-    log-odds are the map's fixed-point sums as exact multiples of ``2**-20``, so the chunk map rebuilt from them
-    (:meth:`OccupancyMap.set_voxels`) holds the same integers.
+    The worker opens the sequence itself, so no image crosses the network. ``model`` is the run's sensor model,
+    scattered to every worker once (:func:`map_sequence`): a worker holds one copy for all its chunks, and the
+    PRISM tables one chunk builds serve the next. The chunk's :class:`~prismap.grid.OccupancyMap` travels back
+    pickled as its own fixed-point blocks (int64 log-odds sums, counts, ``n_frames``, ``policies``: no float
+    in between), ready to :meth:`~prismap.grid.OccupancyMap.merge`.
     """
-    grid = integrate_frames(new_map(config), read_sequence(sequence_path), config, range(start, stop))
-    return (*grid.known_voxels(), grid.n_frames, grid.policies)
-
-
-def _chunk_map(config, result):
-    keys, log, counts, n_frames, policies = result
-    chunk = new_map(config)
-    chunk.set_voxels(keys, log, counts)
-    chunk.n_frames, chunk.policies = n_frames, tuple(policies)
-    return chunk
+    return integrate_frames(new_map(config), read_sequence(sequence_path), config, range(start, stop), model=model)
 
 
 def map_sequence(
@@ -260,8 +251,9 @@ def map_sequence(
 
     Notes
     -----
-    On Dask, each task maps a contiguous chunk of frames into its own map (the worker reads the frames
-    from ``sequence``'s path, which every worker must see) and returns it as arrays; chunk maps are
+    The sensor model is built once per run. On Dask, it is sent to every worker once, and each task maps a
+    contiguous chunk of frames into its own map (the worker reads the frames from ``sequence``'s path, which
+    every worker must see) and returns that map in its fixed-point storage (:func:`map_chunk`); chunk maps are
     merged in frame order, at most two per worker in flight, so memory stays bounded by the chunks.
     Without clamping, a merged map equals the sequential one bit for bit: the map sums fixed-point log-odds,
     which add in any order (:meth:`OccupancyMap.merge`, ``prismap.grid._logodds``). A sequential run resumed from a checkpoint equals an
@@ -276,9 +268,10 @@ def map_sequence(
     )
     sequence = open_sequence(sequence)
     indices = config.frame_indices(len(sequence))
-    check_key_reach(sequence, config, indices)
-    DisparitySource(sequence, config)  # refuses a bad matcher, disparity directory or error model before any work
-    map_prior = sensor_model_for(config, sequence.camera).takes_map_prior
+    model = config.sensor_model(sequence.camera)
+    check_key_reach(sequence, config, indices, model)
+    DisparitySource(sequence, config, model=model)  # refuses a bad matcher, disparity directory or error model first
+    map_prior = model.takes_map_prior
     if client is not None and map_prior:
         raise PrismapInputError(
             f"sensor model {config.model!r} with the map as prior (prior='map') weighs each frame against the map "
@@ -290,12 +283,14 @@ def map_sequence(
             f"mode 'ray', not {config.mode!r}"
         )
     if checkpoint is None:
-        return _map_frames(sequence, config, indices, progress, None, checkpoint_every, client, chunk_frames)
+        return _map_frames(sequence, config, model, indices, progress, None, checkpoint_every, client, chunk_frames)
     with exclusive_lock(checkpoint, "checkpoint"):
-        return _map_frames(sequence, config, indices, progress, checkpoint, checkpoint_every, client, chunk_frames)
+        return _map_frames(
+            sequence, config, model, indices, progress, checkpoint, checkpoint_every, client, chunk_frames
+        )
 
 
-def _map_frames(sequence, config, indices, progress, checkpoint, checkpoint_every, client, chunk_frames):
+def _map_frames(sequence, config, model, indices, progress, checkpoint, checkpoint_every, client, chunk_frames):
     """:func:`map_sequence` after its checks, with the checkpoint (if any) locked."""
     grid = None
     fingerprint = None
@@ -323,16 +318,17 @@ def _map_frames(sequence, config, indices, progress, checkpoint, checkpoint_ever
 
     try:
         if client is None:
-            integrate_frames(grid, sequence, config, todo, on_frame=after)
+            integrate_frames(grid, sequence, config, todo, model=model, on_frame=after)
         else:
-            _map_on_dask(grid, sequence, config, todo, client, chunk_frames, checkpoint_every, after)
+            _map_on_dask(grid, sequence, config, model, todo, client, chunk_frames, checkpoint_every, after)
     finally:
         bar.close()
     return grid
 
 
-def _map_on_dask(grid, sequence, config, todo, client, chunk_frames, checkpoint_every, after):
-    """Merge chunk maps computed by ``client``'s workers into ``grid`` in frame order."""
+def _map_on_dask(grid, sequence, config, model, todo, client, chunk_frames, checkpoint_every, after):
+    """Merge chunk maps computed by ``client``'s workers into ``grid`` in frame order; ``model`` goes to every
+    worker once, before the first chunk."""
     n_workers = max(1, sum(client.nthreads().values()))
     if chunk_frames is None:
         chunk_frames = max(1, math.ceil(len(todo) / (2 * n_workers)))
@@ -346,17 +342,21 @@ def _map_on_dask(grid, sequence, config, todo, client, chunk_frames, checkpoint_
         (todo[i], todo[min(i + int(chunk_frames), len(todo)) - 1] + 1) for i in range(0, len(todo), int(chunk_frames))
     ]
     path = os.path.abspath(sequence.path)  # symbolic links kept: a KITTI tree is recognised by its path
+    model_future = client.scatter(model, broadcast=True, hash=False)
     pending = []
-    for start, stop in chunks:
-        pending.append(client.submit(map_chunk, path, config, start, stop, pure=False))
-        if len(pending) >= 2 * n_workers:
-            _merge_next(grid, config, pending, after)
-    while pending:
-        _merge_next(grid, config, pending, after)
+    try:
+        for start, stop in chunks:
+            pending.append(client.submit(map_chunk, path, config, model_future, start, stop, pure=False))
+            if len(pending) >= 2 * n_workers:
+                _merge_next(grid, pending, after)
+        while pending:
+            _merge_next(grid, pending, after)
+    finally:
+        model_future.release()
 
 
-def _merge_next(grid, config, pending, after):
+def _merge_next(grid, pending, after):
     future = pending.pop(0)
-    grid.merge(_chunk_map(config, future.result()))
+    grid.merge(future.result())
     future.release()
     after(grid)

@@ -42,6 +42,15 @@ class TableCache:
         self.builds = 0
         self.lock = threading.Lock()
 
+    def __getstate__(self):
+        """The budget only: a model pickled to another process (a Dask worker) arrives with an empty cache and
+        builds its tables there, once, as it meets them (they are a function of the model; shipping them would
+        only cost bandwidth), and a lock does not pickle."""
+        return {"budget_bytes": self.budget_bytes, "floor_bytes": self.floor_bytes}
+
+    def __setstate__(self, state):
+        self.__init__(state["budget_bytes"], state["floor_bytes"])
+
     @property
     def nbytes(self):
         """Bytes held by the nodes and metadata."""
