@@ -31,6 +31,7 @@ import numpy as np
 
 from prismap.errors import PrismapInputError
 from prismap.grid import _accumulator, _kernels_project, _kernels_traverse
+from prismap.grid._kernel_args import Projection
 from prismap.grid._projectors import ImageProjection
 
 RAYS_PER_CHUNK = 4096
@@ -441,7 +442,7 @@ class ProjectiveIntegrator(Integrator):
         box = float(np.prod(shape.astype(np.float64)))
         self._check_work(box, f"the frustum's key box of {shape[0]} x {shape[1]} x {shape[2]} voxels")
         stops = _kernels_project.stop_image(image.ray_index, t_stop)
-        geometry = (
+        projection = Projection(
             key_min,
             shape,
             origin,
@@ -458,7 +459,7 @@ class ProjectiveIntegrator(Integrator):
             voxel,
         )
         if all(model.hit_miss_increments() is not None for model, _ in groups):
-            _project_hit_miss(accumulator, geometry, t_stop, exclusive, groups[0][0])
+            _project_hit_miss(accumulator, projection, t_stop, exclusive, groups[0][0])
             return
         capacity = 1.05 * _frustum_voxels(t_stop, image.focal_px, image.subsample, voxel) + 4096
         _accumulator.expect(accumulator, capacity / (BLOCK_FILL * accumulator.block_voxels))
@@ -469,7 +470,7 @@ class ProjectiveIntegrator(Integrator):
 
         def part(start, stop):
             keys, ray_of_cell, t_in, t_out, m = _kernels_project.project_part(
-                *geometry, start, stop, part_capacity, max_cells
+                projection, start, stop, part_capacity, max_cells
             )
             if m > keys.shape[0]:  # over the bound: counted only
                 return keys, None, m
@@ -519,7 +520,7 @@ class ProjectiveIntegrator(Integrator):
         return increment
 
 
-def _project_hit_miss(accumulator, geometry, t_stop, exclusive, model):
+def _project_hit_miss(accumulator, projection, t_stop, exclusive, model):
     """Projective mode for a model with ``hit_miss_increments``: added while projecting, no cell arrays (rays
     cut at max range end in misses, as in ray mode)."""
     l_hit, l_miss = model.hit_miss_increments()
@@ -534,7 +535,7 @@ def _project_hit_miss(accumulator, geometry, t_stop, exclusive, model):
             table.payload["acc"],
             table.payload["links"],
             table.bits,
-            *geometry,
+            projection,
             z_hit,
             l_hit,
             l_miss,
