@@ -342,8 +342,31 @@ def prism_table_combine(lo, hi, l_a, l_c, e_a, e_c, side, lam_len, post, ratio, 
     vectorises) does every cell so; a second one redoes the few it marked (``ratio`` -1): skipped cells
     (``ratio = 1``, the posterior the prior's) and cells near underflow (a log below -600 or
     ``lam_len > 40``), which go through :func:`combine_small`: ``ratio = 1``, listed in ``fix_index``
-    (offset from ``lo``) and ``fix_value``. Returns how many. ``pass_through``: the chance that a ray passes an
-    occupied cell, ``ratio -> m + (1 - m) ratio`` (:func:`pass_through_log`; 0: never, bit for bit).
+    (offset from ``lo``) and ``fix_value``. Returns how many.
+
+    Parameters
+    ----------
+    lo, hi : int
+        The cells of this call.
+    l_a, l_c : (hi - lo,) float64, log
+        :func:`prism_table_lookup`'s smaller of ``log(C/Z)``, ``log(D/Z)`` at each cell's start and end.
+    e_a, e_c : (hi - lo,) float64
+        Their exps.
+    side : (hi - lo,) int8
+        :func:`prism_table_lookup`'s flags: bit 0 ``l_a`` is D's, bit 1 ``l_c`` is D's, or :data:`_SKIP`.
+    lam_len : (hi - lo,) float64
+        Each cell's prior rate times its length (dimensionless).
+    post : (C,) float64
+        Written at ``lo:hi``: the posterior occupancy of each cell.
+    ratio : (hi - lo,) float64
+        Written: the increment's exp, 1 for the cells listed in ``fix_index``.
+    fix_index : (hi - lo,) int64
+        Written: the cells (offset from ``lo``) whose increment is ``fix_value`` instead.
+    fix_value : (hi - lo,) float64, log-odds
+        Written: their increments.
+    pass_through : float in [0, 1)
+        The chance ``m`` that a ray passes an occupied cell, ``ratio -> m + (1 - m) ratio``
+        (:func:`pass_through_log`; 0: never, bit for bit).
     """
     for j in range(hi - lo):
         s = side[j]
