@@ -383,13 +383,8 @@ def _cast_hit_miss(accumulator, origin, rays, t_stop, exclusive, model, voxel_si
     z_hit = np.where(exclusive, np.inf, t_stop)  # a ray cut at max range ends in misses
     done = 0
     while done < rays.shape[0]:
-        table = accumulator
         n, blocks = _kernels_traverse.cast_hit_miss(
-            table.table,
-            table.block_keys,
-            table.n_blocks,
-            table.payload["acc"],
-            table.payload["links"],
+            _accumulator.kernel_arrays(accumulator),
             origin,
             rays[done:],
             t_stop[done:],
@@ -398,7 +393,6 @@ def _cast_hit_miss(accumulator, origin, rays, t_stop, exclusive, model, voxel_si
             l_hit,
             l_miss,
             voxel_size,
-            table.bits,
         )
         done += n
         if done < rays.shape[0]:
@@ -527,19 +521,8 @@ def _project_hit_miss(accumulator, projection, t_stop, exclusive, model):
     z_hit = np.where(exclusive, np.inf, t_stop)
     line = 0
     while True:
-        table = accumulator
         line = _kernels_project.project_hit_miss(
-            table.table,
-            table.block_keys,
-            table.n_blocks,
-            table.payload["acc"],
-            table.payload["links"],
-            table.bits,
-            projection,
-            z_hit,
-            l_hit,
-            l_miss,
-            line,
+            _accumulator.kernel_arrays(accumulator), projection, z_hit, l_hit, l_miss, line
         )
         if line < 0:
             return

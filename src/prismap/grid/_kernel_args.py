@@ -1,11 +1,39 @@
-"""Argument bundle of the grid's projective kernels: what the walk over a frame's key box needs of the voxels, the
-camera and the frame's rays. Built once per frame by the projective integrator and passed down unchanged; numba
-compiles a ``NamedTuple`` of scalars and arrays like separate arguments.
+"""Argument bundles of the grid's kernels: the frame accumulator's arrays, and what the projective walk over a
+frame's key box needs of the voxels, the camera and the frame's rays. Each is built in one place (the accumulator's
+by :func:`prismap.grid._accumulator.kernel_arrays`, the walk's by the projective integrator) and passed down
+unchanged; numba compiles a ``NamedTuple`` of scalars and arrays like separate arguments.
 """
 
 from typing import NamedTuple
 
 import numpy as np
+
+
+class AccumulatorArrays(NamedTuple):
+    """The frame accumulator's arrays (``_accumulator.new_accumulator``), which the kernels fill in place.
+
+    Attributes
+    ----------
+    table : (T,) int64
+        Open-addressing hash table of block slots, -1 = empty (``_kernels_hash``).
+    block_keys : (B,) int64
+        Packed key of the block in each slot.
+    n_blocks : (1,) int64
+        Blocks in use; the kernels add blocks up to the room reserved.
+    acc : (B, V, 4) float32, log-odds
+        Per voxel of each block: ``(sum, count, max, min)`` of the frame's increments.
+    links : (B, 6) int32
+        Slots of each block's six face neighbours (order of ``_kernels_accumulate.face``), -1 = not yet known.
+    bits : tuple of 3 int
+        Key bits per axis inside a block (``V = 2**sum(bits)`` voxels, :mod:`prismap.grid._keys`).
+    """
+
+    table: np.ndarray
+    block_keys: np.ndarray
+    n_blocks: np.ndarray
+    acc: np.ndarray
+    links: np.ndarray
+    bits: tuple
 
 
 class Projection(NamedTuple):

@@ -214,7 +214,7 @@ def project_part(projection, start, stop, capacity, max_cells):
 
 
 @numba.njit(cache=True, nogil=True)
-def project_hit_miss(table, block_keys, n_blocks, acc, links, bits, projection, z_hit, l_hit, l_miss, start):
+def project_hit_miss(accumulator, projection, z_hit, l_hit, l_miss, start):
     """:func:`project_part` for a hit/miss model: each kept voxel of interval ``[t_in, t_out)`` on ray ``i``
     gets ``l_hit`` if it holds ``z_hit[i]``, ``l_miss`` if it ends at or before it, 0 beyond (the rule of
     ``sensor_models._kernels.hitmiss_cells``), added to its accumulator row as ``_kernels_accumulate.scatter``
@@ -223,8 +223,8 @@ def project_hit_miss(table, block_keys, n_blocks, acc, links, bits, projection, 
 
     Parameters
     ----------
-    table, block_keys, n_blocks, acc, links, bits
-        The frame accumulator's arrays (``_kernels_accumulate.register_run``).
+    accumulator : AccumulatorArrays
+        The frame accumulator (:class:`~prismap.grid._kernel_args.AccumulatorArrays`), changed in place.
     projection : Projection
         The frame (:class:`~prismap.grid._kernel_args.Projection`).
     z_hit : (R,) float64, metres of depth
@@ -237,15 +237,14 @@ def project_hit_miss(table, block_keys, n_blocks, acc, links, bits, projection, 
     walk, n_lines = _walk_setup(projection)
     line_keys, line_ray, line_t0, line_t1, line_rows = walk[9], walk[10], walk[11], walk[12], walk[13]
     hit, miss, zero = np.float32(l_hit), np.float32(l_miss), np.float32(0.0)
+    acc = accumulator.acc
     rows = acc.reshape((acc.shape[0] * acc.shape[1], acc.shape[2]))
     last_block, last_slot = EMPTY, np.int64(-1)
     for line in range(start, n_lines):
         c = _line_cells(line, walk, projection)
         if c == 0:
             continue
-        done, last_block, last_slot = register_run(
-            table, block_keys, n_blocks, acc, links, line_keys, 0, c, bits, line_rows, last_block, last_slot
-        )
+        done, last_block, last_slot = register_run(accumulator, line_keys, 0, c, line_rows, last_block, last_slot)
         if done < c:
             return line
         for j in range(c):
