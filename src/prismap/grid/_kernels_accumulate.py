@@ -197,6 +197,28 @@ def apply_frame(table, block_keys, n_blocks, log, count, frame_keys, n_frame, ac
     bounded to ``+-STEP_MAX``), clamped to ``[clamp_lo, clamp_hi]`` (int64 units), ``count += 1``.
 
     The map must have room for ``n_frame`` new blocks. Counts saturate at 65535.
+
+    Parameters
+    ----------
+    table, block_keys, n_blocks : (T,) int64, (B,) int64, (1,) int64
+        The map's hash table of block slots, the packed key of each slot's block, and the blocks in use
+        (``_kernels_hash``).
+    log : (B, V) int64, units of ``LOG_ODDS_STEP``
+        The map's fixed-point log-odds per voxel of each block, changed in place.
+    count : (B, V) uint16
+        Observations per voxel, changed in place.
+    frame_keys : (F,) int64
+        Packed key of each frame accumulator block.
+    n_frame : int
+        Accumulator blocks in use.
+    acc : (F, V, 4) float32, log-odds
+        The frame accumulator's ``(sum, count, max, min)`` per voxel.
+    policy : int
+        The per-frame policy, its index in ``_policies.POLICIES``.
+    clamp_lo, clamp_hi : int64, units of ``LOG_ODDS_STEP``
+        Clamping bounds.
+    prior_q : int64, units of ``LOG_ODDS_STEP``
+        The prior's log-odds, of a new block's voxels.
     """
     for s in range(n_frame):
         slot = _map_block(table, block_keys, n_blocks, log, count, frame_keys[s], prior_q)
@@ -215,7 +237,26 @@ def apply_frame(table, block_keys, n_blocks, log, count, frame_keys, n_frame, ac
 def merge_blocks(
     table, block_keys, n_blocks, log, count, other_keys, n_other, other_log, other_count, clamp_lo, clamp_hi, prior_q
 ):
-    """Add another map's blocks: known in both -> ``q1 + q2 - q0`` (clamped); counts add (saturating)."""
+    """Add another map's blocks: known in both -> ``q1 + q2 - q0`` (clamped); counts add (saturating).
+
+    Parameters
+    ----------
+    table, block_keys, n_blocks : (T,) int64, (B,) int64, (1,) int64
+        The map's hash table of block slots, the packed key of each slot's block, and the blocks in use
+        (``_kernels_hash``).
+    log : (B, V) int64, units of ``LOG_ODDS_STEP``
+        The map's fixed-point log-odds per voxel of each block, changed in place.
+    count : (B, V) uint16
+        Observations per voxel, changed in place.
+    other_keys : (K,) int64
+        Packed key of each of the other map's blocks.
+    n_other : int
+        The other map's blocks in use.
+    other_log : (K, V) int64, other_count : (K, V) uint16
+        The other map's log-odds and counts.
+    clamp_lo, clamp_hi, prior_q : int64, units of ``LOG_ODDS_STEP``
+        Clamping bounds, and the prior's log-odds (``q0``).
+    """
     for s in range(n_other):
         slot = _map_block(table, block_keys, n_blocks, log, count, other_keys[s], prior_q)
         for v in range(other_log.shape[1]):
@@ -234,7 +275,28 @@ def merge_blocks(
 
 @numba.njit(cache=True, nogil=True)
 def set_voxels(table, block_keys, n_blocks, log, count, keys, values, counts, bits, prior_q):
-    """Overwrite the fixed-point log-odds and count of each key, creating blocks as needed (room reserved)."""
+    """Overwrite the fixed-point log-odds and count of each key, creating blocks as needed (room reserved).
+
+    Parameters
+    ----------
+    table, block_keys, n_blocks : (T,) int64, (B,) int64, (1,) int64
+        The map's hash table of block slots, the packed key of each slot's block, and the blocks in use
+        (``_kernels_hash``).
+    log : (B, V) int64, units of ``LOG_ODDS_STEP``
+        The map's fixed-point log-odds per voxel of each block, changed in place.
+    count : (B, V) uint16
+        Observations per voxel, changed in place.
+    keys : (N, 3) int, voxel keys
+        The voxels.
+    values : (N,) int64, units of ``LOG_ODDS_STEP``
+        Their log-odds.
+    counts : (N,) uint16
+        Their counts.
+    bits : tuple of 3 int
+        Key bits per axis inside a block (:mod:`prismap.grid._keys`).
+    prior_q : int64, units of ``LOG_ODDS_STEP``
+        The prior's log-odds, of a new block's other voxels.
+    """
     for i in range(keys.shape[0]):
         block, local = split_key(np.int64(keys[i, 0]), np.int64(keys[i, 1]), np.int64(keys[i, 2]), bits)
         slot = _map_block(table, block_keys, n_blocks, log, count, block, prior_q)

@@ -55,6 +55,25 @@ def _walk(origin, ray, stop, exclusive, voxel_size, limit, keys, t_in_out, t_out
 
     The rule of :func:`cast_rays`; ``limit`` (from :func:`cell_limits`) bounds the steps. The state is
     kept in scalars (one per axis) so that it stays in registers.
+
+    Parameters
+    ----------
+    origin : (3,) float64, metres, world frame
+        Where the ray starts.
+    ray : (3,) float64, world frame
+        Its direction, scaled to unit depth.
+    stop : float, metres of depth
+        Its stop depth.
+    exclusive : bool
+        Exclude the voxel that holds the stop point (else include it).
+    voxel_size : float, metres
+        Voxel edge.
+    limit : int
+        Most steps.
+    keys : (M, 3) int32, t_in_out, t_out_out : (M,) float64, metres of depth
+        Written from row ``m``: each kept voxel's key and depth interval.
+    m : int
+        First row to write.
     """
     kx, sx, tx, dx = _axis_setup(origin[0], ray[0], voxel_size)
     ky, sy, ty, dy = _axis_setup(origin[1], ray[1], voxel_size)

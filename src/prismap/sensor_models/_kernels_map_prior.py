@@ -42,6 +42,17 @@ def log_mean_g(u_lo, u_hi, shift, log_w, means, sigmas):
 
     A sum of normal-CDF differences over ``u_hi - u_lo``; a component for which the interval is narrower
     than :data:`_NARROW_SIGMAS` sigmas takes its density at the midpoint (the difference would cancel).
+
+    Parameters
+    ----------
+    u_lo, u_hi : float, pixels
+        The true disparities (without ``doffs``).
+    shift : float, pixels
+        The ray's measured disparity plus ``doffs``.
+    log_w : (J,) float64, log
+        The mixture's log weights.
+    means, sigmas : (J,) float64, pixels
+        Its component means and standard deviations.
     """
     best = -np.inf
     total = 0.0
@@ -62,7 +73,21 @@ def log_mean_g(u_lo, u_hi, shift, log_w, means, sigmas):
 @nb.njit(cache=True, nogil=True)
 def _log_hit(log_survive, hazard, a, c, fb, shift, log_w, means, sigmas):
     """Log evidence of "the first surface lies in ``[a, c]``": survival to ``a``, the stretch's occupancy
-    ``1 - e^-hazard`` and ``g`` averaged over its disparities; -inf for an empty stretch."""
+    ``1 - e^-hazard`` and ``g`` averaged over its disparities; -inf for an empty stretch.
+
+    Parameters
+    ----------
+    log_survive : float, log
+        Log probability that no surface lies before ``a``.
+    hazard : float
+        The stretch's integrated surface rate (dimensionless).
+    a, c : float, metres of depth
+        The stretch.
+    fb : float, pixel metres
+        Focal length times baseline.
+    shift, log_w, means, sigmas
+        As :func:`log_mean_g`'s.
+    """
     if c <= a or hazard <= 0.0:
         return -np.inf
     return log_survive + log1mexp(-hazard) + log_mean_g(fb / c, fb / a, shift, log_w, means, sigmas)
