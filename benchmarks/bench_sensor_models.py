@@ -79,7 +79,7 @@ def table_stages(prism, batch, repeat=5):
     disparity, norm, rays, start, end = (np.ascontiguousarray(a) for a in batch)
     n = start.size
     table, delta, meta, nodes = prism._tables_for(disparity, norm)
-    log_wn, means, sigmas = prism._mixture_arrays()
+    geometry, mixture = prism._geometry(), prism._mixture()
     lam = prism.rate_per_m * norm
     stretch = np.zeros(norm.size)
     l_a, l_c, e_a, e_c, lam_len, ratio, fix_value, inc = (np.empty(n) for _ in range(8))
@@ -95,22 +95,17 @@ def table_stages(prism, batch, repeat=5):
                 lam,
                 table,
                 delta,
+                stretch,
                 rays,
                 start,
                 end,
-                stretch,
                 lo,
                 hi,
-                prism.near_m,
-                prism.far_depth_m,
-                prism.focal_baseline,
-                prism._ku(),
-                _prism._QUAD_STEP,
                 meta,
                 nodes,
-                log_wn,
-                means,
-                sigmas,
+                _prism._QUAD_STEP,
+                geometry,
+                mixture,
                 l_a[lo:hi],
                 l_c[lo:hi],
                 side[lo:hi],

@@ -317,10 +317,11 @@ def _project(
     room for ``capacity`` cells, registered in order in an accumulator (by default empty, so grown many times):
     ``(ray, key, t_in, t_out)`` with keys read back through the accumulator's blocks."""
     from prismap.grid import _accumulator, _kernels_project
+    from prismap.grid._kernel_args import Projection
 
     acc = _accumulator.new_accumulator(bits) if acc is None else acc
     stops = _kernels_project.stop_image(ray_index, t_stop)
-    geometry = (
+    projection = Projection(
         key_min,
         shape,
         origin,
@@ -339,7 +340,7 @@ def _project(
     cuts = np.linspace(0, _kernels_project.walk_lines(R_cam_world, shape), parts + 1).astype(np.int64)
     max_cells = _accumulator.frame_budget_bytes() // 32
     walked = [
-        _kernels_project.project_part(*geometry, start, stop, capacity, max_cells)
+        _kernels_project.project_part(projection, start, stop, capacity, max_cells)
         for start, stop in zip(cuts[:-1], cuts[1:])
     ]
     keys, ray, t_in, t_out = (np.concatenate([part[k][: part[4]] for part in walked]) for k in range(4))

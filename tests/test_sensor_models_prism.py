@@ -24,6 +24,7 @@ from prismap.sensor_models import (
     prior_from_ground_truth,
     prism_discrete_posteriors,
 )
+from prismap.sensor_models._kernel_args import Geometry, Mixture
 from prismap.sensor_models._prism import TABLE_TOLERANCE
 
 FB = 61.5  # New Tsukuba: 615 px * 0.10 m
@@ -647,20 +648,19 @@ def test_rate_derivatives_of_the_evidence_match_finite_differences(depth, max_ra
 
     model = PrismModel(error_model=MIXTURE, focal_baseline=FB, far_depth_m=max_range)
     shift = _on_grid([depth])[0]
-    log_wn, means, sigmas = model._mixture_arrays()
+    mixture = model._mixture()
+    geometry = Geometry(model.near_m, max_range, FB, model._ku())
     log_far = float(model._log_far(shift))
 
     def march(lam):
-        return _kernels_march.prism_march(
-            shift, lam, model.near_m, max_range, FB, model._ku(), 0.25, log_far, -7.0, 0.0, 4, log_wn, means, sigmas
-        )
+        return _kernels_march.prism_march(shift, lam, log_far, 0.25, -7.0, 0.0, 4, geometry, mixture)
 
     lam, eps = 0.8, 1e-3
     _, log_c, log_d, log_z, log_far_w, _ = march(lam)
     if max_range == 20.0:
         assert log_far_w - log_z > -12  # the far term matters here
     total = np.logaddexp(log_c[-1], log_d[-1])
-    first, second = _kernels_march._rate_derivatives(total, log_far_w, lam, max_range - model.near_m)
+    first, second = _kernels_table._rate_derivatives(total, log_far_w, lam, max_range - model.near_m)
     lo, mid, hi = (march(lam * np.exp(k * eps))[3] for k in (-1, 0, 1))
     assert first == pytest.approx((hi - lo) / (2 * eps), rel=1e-5, abs=1e-6)
     assert second == pytest.approx((hi - 2 * mid + lo) / eps**2, rel=1e-3, abs=1e-3)
@@ -688,22 +688,20 @@ def test_endpoint_asymptotic_of_the_evidence_matches_fine_quadrature_where_steep
     """The coarse front of a table uses C = q g / (q g)'; check it against quadrature with fine panels."""
 
     model = PrismModel(error_model=MIXTURE, focal_baseline=FB)
-    log_wn, means, sigmas = model._mixture_arrays()
+    mixture = model._mixture()
+    geometry = Geometry(0.1, model.far_depth_m, FB, model._ku())
     shift, lam = _on_grid([3.0])[0], model.rate_per_m
     for depth in (0.3, 0.8, 1.5):  # measured at 3 m
-        slope = _kernels_table._log_qg_slope(depth, lam, 0.1, FB, shift, log_wn, means, sigmas)[1]
+        slope = _kernels_table._log_qg_slope(depth, lam, shift, geometry, mixture)[1]
         hi, lo = (
-            _kernels_table._log_qg_slope(depth * (1 + e), lam, 0.1, FB, shift, log_wn, means, sigmas)[0]
-            for e in (1e-5, -1e-5)
+            _kernels_table._log_qg_slope(depth * (1 + e), lam, shift, geometry, mixture)[0] for e in (1e-5, -1e-5)
         )
         assert (hi - lo) / (2e-5 * depth) == pytest.approx(slope, rel=1e-6)  # the slope is d phi / dz
-        asymptotic = _kernels_table._log_c_asymptotic(depth, lam, 0.1, FB, shift, log_wn, means, sigmas)
-        quadrature = _kernels_march.log_integral(
-            0.1, depth, lam, model._ku(), 0.01, 0.1, FB, shift, log_wn, means, sigmas
-        )
+        asymptotic = _kernels_table._log_c_asymptotic(depth, lam, shift, geometry, mixture)
+        quadrature = _kernels_march.log_integral(0.1, depth, lam, shift, 0.01, geometry, mixture)
         curvature = (
-            _kernels_table._log_qg_slope(depth * (1 + 1e-5), lam, 0.1, FB, shift, log_wn, means, sigmas)[1]
-            - _kernels_table._log_qg_slope(depth * (1 - 1e-5), lam, 0.1, FB, shift, log_wn, means, sigmas)[1]
+            _kernels_table._log_qg_slope(depth * (1 + 1e-5), lam, shift, geometry, mixture)[1]
+            - _kernels_table._log_qg_slope(depth * (1 - 1e-5), lam, shift, geometry, mixture)[1]
         ) / (2e-5 * depth)
         correction = abs(curvature) / slope**2  # the first neglected term, relative
         assert asymptotic < -40 and abs(asymptotic - quadrature) < 2 * correction + 1e-4
@@ -837,7 +835,9 @@ def test_log_sums_skip_underflowing_exps_without_changing_a_bit():
         v = log_wn - 0.5 * t * t
         best = v.max()
         plain = best + np.log(np.sum(np.exp(v - best)))
-        np.testing.assert_allclose(_kernels_march.log_likelihood(u, 1.0, log_wn, means, sigmas), plain, rtol=1e-15)
+        np.testing.assert_allclose(
+            _kernels_march.log_likelihood(u, 1.0, Mixture(log_wn, means, sigmas)), plain, rtol=1e-15
+        )
 
 
 def test_march_blocks_match_the_one_panel_rule_and_the_tail_bound():
@@ -846,8 +846,10 @@ def test_march_blocks_match_the_one_panel_rule_and_the_tail_bound():
     model = make_sensor_model(
         "prism", focal_baseline=KITTI_FB, error_model=STREET, voxel_size_m=0.2, p0=0.05, near_m=1.5
     )
-    log_wn, means, sigmas = model._mixture_arrays()
+    mixture = model._mixture()
+    means, sigmas = mixture.means, mixture.sigmas
     lam, ku, shift = model.rate_per_m * 1.1, model._ku(), KITTI_FB / 12.0
+    geometry = Geometry(1.5, 80.0, KITTI_FB, ku)
     for width in (0.5, 8.0):
         z = np.array(
             [_kernels_march.z_of_x(x, lam, ku) for x in _kernels_march.x_of_z(1.5, lam, ku) + width * np.arange(40)]
@@ -857,20 +859,13 @@ def test_march_blocks_match_the_one_panel_rule_and_the_tail_bound():
         scratch = np.empty((means.size + 5, _kernels_march._MARCH_GL * _kernels_march._MARCH_BLOCK))
         for first in range(1, z.size, _kernels_march._MARCH_BLOCK):
             count = min(_kernels_march._MARCH_BLOCK, z.size - first)
-            _kernels_march._log_panel_block(
-                z, first, count, lam, 1.5, KITTI_FB, shift, log_wn, means, 1 / sigmas, out, scratch
-            )
-            _kernels_march._log_sup_tail_block(
-                z, first, count, 80.0, KITTI_FB, shift, log_wn, means, 1 / sigmas, sup, scratch
-            )
+            _kernels_march._log_panel_block(z, first, count, lam, shift, geometry, mixture, 1 / sigmas, out, scratch)
+            _kernels_march._log_sup_tail_block(z, first, count, shift, geometry, mixture, 1 / sigmas, sup, scratch)
         ref = np.array(
-            [
-                _kernels_march._log_panel_moments(a, b, lam, 1.5, KITTI_FB, shift, log_wn, means, sigmas)
-                for a, b in zip(z[:-1], z[1:])
-            ]
+            [_kernels_march._log_panel_moments(a, b, lam, shift, geometry, mixture) for a, b in zip(z[:-1], z[1:])]
         )
         np.testing.assert_allclose(out[1:], ref, rtol=0, atol=1e-8 if width < 1 else 1e-6)
-        sup_ref = [_kernels_march._log_sup_tail(v, 80.0, KITTI_FB, shift, log_wn, means, sigmas) for v in z[1:]]
+        sup_ref = [_kernels_march._log_sup_tail(v, shift, geometry, mixture) for v in z[1:]]
         np.testing.assert_allclose(sup[1:], sup_ref, rtol=1e-13, atol=1e-12)
 
 

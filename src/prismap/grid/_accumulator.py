@@ -10,6 +10,7 @@ import numpy as np
 from prismap._memory import address_space_room_bytes, physical_memory_bytes
 from prismap.errors import PrismapInputError
 from prismap.grid import _kernels_accumulate, _kernels_traverse
+from prismap.grid._kernel_args import AccumulatorArrays
 from prismap.grid._storage import BlockTable
 
 MAX_FRAME_BYTES = 2 << 30
@@ -36,6 +37,20 @@ def new_accumulator(bits):
     ``(sum, count, max, min)`` of its increments, float32, and per block the slots of its six face
     neighbours (``links``, see ``_kernels_traverse.cast_hit_miss``)."""
     return BlockTable(bits, {"acc": ((1 << sum(bits), 4), np.float32), "links": ((6,), np.int32)})
+
+
+def kernel_arrays(accumulator):
+    """The accumulator's arrays as the kernels take them (:class:`~prismap.grid._kernel_args.AccumulatorArrays`);
+    :func:`grow` replaces them, so take them again after it."""
+    payload = accumulator.payload
+    return AccumulatorArrays(
+        accumulator.table,
+        accumulator.block_keys,
+        accumulator.n_blocks,
+        payload["acc"],
+        payload["links"],
+        accumulator.bits,
+    )
 
 
 def grow(accumulator, blocks):
@@ -71,19 +86,8 @@ def cast_into(accumulator, origin, rays, t_stop, exclusive, voxel_size):
     """
     parts, done = [], 0
     while True:
-        table = accumulator
         *cells, n = _kernels_traverse.cast_rays_into(
-            table.table,
-            table.block_keys,
-            table.n_blocks,
-            table.payload["acc"],
-            table.payload["links"],
-            origin,
-            rays[done:],
-            t_stop[done:],
-            exclusive[done:],
-            voxel_size,
-            table.bits,
+            kernel_arrays(accumulator), origin, rays[done:], t_stop[done:], exclusive[done:], voxel_size
         )
         if done:
             cells[0] += done
@@ -109,18 +113,7 @@ def scatter_keys(accumulator, keys, increment):
     use them meanwhile."""
     done = 0
     while True:
-        table = accumulator
-        done = _kernels_accumulate.scatter_keys(
-            table.table,
-            table.block_keys,
-            table.n_blocks,
-            table.payload["acc"],
-            table.payload["links"],
-            table.bits,
-            keys,
-            increment,
-            done,
-        )
+        done = _kernels_accumulate.scatter_keys(kernel_arrays(accumulator), keys, increment, done)
         if done >= keys.shape[0]:
             return
         grow(accumulator, 0)

@@ -35,6 +35,7 @@ import numpy as np
 
 from prismap.errors import PrismapInputError
 from prismap.grid import _accumulator, _kernels_project, _kernels_traverse
+from prismap.grid._kernel_args import Projection
 from prismap.grid._projectors import ImageProjection
 from prismap.grid._sensor_model import SensorModel
 from prismap.grid._storage import BlockTable
@@ -404,13 +405,8 @@ def _cast_hit_miss(accumulator, origin, rays, t_stop, exclusive, model, voxel_si
     z_hit = np.where(exclusive, np.inf, t_stop)  # a ray cut at max range ends in misses
     done = 0
     while done < rays.shape[0]:
-        table = accumulator
         n, blocks = _kernels_traverse.cast_hit_miss(
-            table.table,
-            table.block_keys,
-            table.n_blocks,
-            table.payload["acc"],
-            table.payload["links"],
+            _accumulator.kernel_arrays(accumulator),
             origin,
             rays[done:],
             t_stop[done:],
@@ -419,7 +415,6 @@ def _cast_hit_miss(accumulator, origin, rays, t_stop, exclusive, model, voxel_si
             l_hit,
             l_miss,
             voxel_size,
-            table.bits,
         )
         done += n
         if done < rays.shape[0]:
@@ -463,7 +458,7 @@ class ProjectiveIntegrator(Integrator):
         box = float(np.prod(shape.astype(np.float64)))
         self._check_work(box, f"the frustum's key box of {shape[0]} x {shape[1]} x {shape[2]} voxels")
         stops = _kernels_project.stop_image(image.ray_index, t_stop)
-        geometry = (
+        projection = Projection(
             key_min,
             shape,
             origin,
@@ -480,7 +475,7 @@ class ProjectiveIntegrator(Integrator):
             voxel,
         )
         if all(model.hit_miss_increments() is not None for model, _ in groups):
-            _project_hit_miss(accumulator, geometry, t_stop, exclusive, groups[0][0])
+            _project_hit_miss(accumulator, projection, t_stop, exclusive, groups[0][0])
             return
         capacity = 1.05 * _frustum_voxels(t_stop, image.focal_px, image.subsample, voxel) + 4096
         _accumulator.expect(accumulator, capacity / (BLOCK_FILL * accumulator.block_voxels))
@@ -491,7 +486,7 @@ class ProjectiveIntegrator(Integrator):
 
         def part(start, stop):
             keys, ray_of_cell, t_in, t_out, m = _kernels_project.project_part(
-                *geometry, start, stop, part_capacity, max_cells
+                projection, start, stop, part_capacity, max_cells
             )
             if m > keys.shape[0]:  # over the bound: counted only
                 return keys, None, m
@@ -541,26 +536,15 @@ class ProjectiveIntegrator(Integrator):
         return increment
 
 
-def _project_hit_miss(accumulator, geometry, t_stop, exclusive, model):
+def _project_hit_miss(accumulator, projection, t_stop, exclusive, model):
     """Projective mode for a model with ``hit_miss_increments``: added while projecting, no cell arrays (rays
     cut at max range end in misses, as in ray mode)."""
     l_hit, l_miss = model.hit_miss_increments()
     z_hit = np.where(exclusive, np.inf, t_stop)
     line = 0
     while True:
-        table = accumulator
         line = _kernels_project.project_hit_miss(
-            table.table,
-            table.block_keys,
-            table.n_blocks,
-            table.payload["acc"],
-            table.payload["links"],
-            table.bits,
-            *geometry,
-            z_hit,
-            l_hit,
-            l_miss,
-            line,
+            _accumulator.kernel_arrays(accumulator), projection, z_hit, l_hit, l_miss, line
         )
         if line < 0:
             return

@@ -40,16 +40,31 @@ def face(step):
 
 
 @numba.njit(cache=True, nogil=True)
-def link_block(table, block_keys, n_blocks, acc, links, block, side, last_slot, capacity):
+def link_block(accumulator, block, side, last_slot, capacity):
     """Slot of accumulator block ``block`` by hashing (adding it when absent), linked to ``last_slot`` on
     face ``side`` (if >= 0); -1 when absent and the accumulator holds ``capacity`` blocks. The slow path
     of a block change: the caller first tries ``links[last_slot, side]`` (inline: a call per block
-    change costs ~3x the whole cast)."""
-    slot = find_block(table, block_keys, block)
+    change costs ~3x the whole cast).
+
+    Parameters
+    ----------
+    accumulator : AccumulatorArrays
+        The frame accumulator (:class:`~prismap.grid._kernel_args.AccumulatorArrays`), changed in place.
+    block : int64
+        Packed block key.
+    side : int
+        Face of ``last_slot``'s block that leads to ``block`` (:func:`face`), -1 = not a face neighbour.
+    last_slot : int64
+        Slot of the previous block.
+    capacity : int, blocks
+        Most blocks the accumulator may hold.
+    """
+    links = accumulator.links
+    slot = find_block(accumulator.table, accumulator.block_keys, block)
     if slot < 0:
-        if n_blocks[0] >= capacity:
+        if accumulator.n_blocks[0] >= capacity:
             return np.int64(-1)
-        slot = accumulator_block(table, block_keys, n_blocks, acc, links, block)
+        slot = accumulator_block(accumulator, block)
     if side >= 0:
         links[last_slot, side] = slot
         links[slot, side ^ 1] = last_slot
@@ -57,9 +72,10 @@ def link_block(table, block_keys, n_blocks, acc, links, block, side, last_slot, 
 
 
 @numba.njit(cache=True, nogil=True)
-def accumulator_block(table, block_keys, n_blocks, acc, links, block):
-    """Slot of accumulator block ``block``, added with neutral rows ``(0, 0, -inf, +inf)`` and no links
-    when absent (room reserved)."""
+def accumulator_block(accumulator, block):
+    """Slot of accumulator block ``block`` (packed key, int64), added with neutral rows ``(0, 0, -inf, +inf)`` and
+    no links when absent (room reserved) to ``accumulator`` (:class:`~prismap.grid._kernel_args.AccumulatorArrays`)."""
+    table, block_keys, n_blocks, acc, links, _ = accumulator
     slot, new = insert_block(table, block_keys, n_blocks, block)
     if new:
         links[slot, :] = -1
@@ -72,23 +88,39 @@ def accumulator_block(table, block_keys, n_blocks, acc, links, block):
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def register_run(table, block_keys, n_blocks, acc, links, keys, start, stop, bits, out, last_block, last_slot):
+def register_run(accumulator, keys, start, stop, out, last_block, last_slot):
     """Accumulator row (``slot * V + local``) of ``keys[start:stop]`` into ``out[0:]``, adding blocks.
 
     A new block's rows start neutral: ``(0, 0, -inf, +inf)``. ``(last_block, last_slot)`` caches the
     block of the previous key across calls. Returns ``(index of the first key not registered, last_block,
     last_slot)``; the index is ``stop`` unless a new block would exceed the accumulator's room (the
     table at most half full).
+
+    Parameters
+    ----------
+    accumulator : AccumulatorArrays
+        The frame accumulator (:class:`~prismap.grid._kernel_args.AccumulatorArrays`), changed in place.
+    keys : (C, 3) int32, voxel keys
+        The voxels.
+    start, stop : int
+        The keys of this call.
+    out : (stop - start,) int64 or longer
+        Written: each key's accumulator row.
+    last_block : int64
+        Packed key of the previous key's block (``_kernels_hash.EMPTY`` at first).
+    last_slot : int64
+        Its slot (-1 at first).
     """
-    capacity = min(block_keys.size, table.size // 2)
-    voxels = acc.shape[1]
+    links, bits = accumulator.links, accumulator.bits
+    capacity = min(accumulator.block_keys.size, accumulator.table.size // 2)
+    voxels = accumulator.acc.shape[1]
     for i in range(start, stop):
         block, local = split_key(np.int64(keys[i, 0]), np.int64(keys[i, 1]), np.int64(keys[i, 2]), bits)
         if block != last_block:
             side = face(block - last_block)
             slot = np.int64(links[last_slot, side]) if side >= 0 else np.int64(-1)
             if slot < 0:
-                slot = link_block(table, block_keys, n_blocks, acc, links, block, side, last_slot, capacity)
+                slot = link_block(accumulator, block, side, last_slot, capacity)
                 if slot < 0:
                     return i, last_block, last_slot
             last_block = block
@@ -112,19 +144,19 @@ SCATTER_RUN = 1024
 
 
 @numba.njit(cache=True, nogil=True)
-def scatter_keys(table, block_keys, n_blocks, acc, links, bits, keys, increment, start):
+def scatter_keys(accumulator, keys, increment, start):
     """Register voxels ``keys[start:]`` ((C, 3) int32) in the accumulator in order (:func:`register_run`) and
-    add each one's increment (:func:`add_increment`). Returns the index of the first key not done: ``C``, or
-    less when a new block found the accumulator full (grow it and call again from there)."""
+    add each one's increment ((C,) float64, log-odds; :func:`add_increment`). Returns the index of the first key
+    not done: ``C``, or less when a new block found the accumulator full (grow it and call again from there).
+    ``accumulator``: :class:`~prismap.grid._kernel_args.AccumulatorArrays`, changed in place."""
+    acc = accumulator.acc
     rows = acc.reshape((acc.shape[0] * acc.shape[1], acc.shape[2]))
     scratch = np.empty(SCATTER_RUN, dtype=np.int64)
     last_block, last_slot = EMPTY, np.int64(-1)
     n = keys.shape[0]
     for lo in range(start, n, SCATTER_RUN):
         hi = min(lo + SCATTER_RUN, n)
-        done, last_block, last_slot = register_run(
-            table, block_keys, n_blocks, acc, links, keys, lo, hi, bits, scratch, last_block, last_slot
-        )
+        done, last_block, last_slot = register_run(accumulator, keys, lo, hi, scratch, last_block, last_slot)
         for i in range(lo, done):
             add_increment(rows, scratch[i - lo], np.float32(increment[i]))
         if done < hi:
@@ -165,6 +197,28 @@ def apply_frame(table, block_keys, n_blocks, log, count, frame_keys, n_frame, ac
     bounded to ``+-STEP_MAX``), clamped to ``[clamp_lo, clamp_hi]`` (int64 units), ``count += 1``.
 
     The map must have room for ``n_frame`` new blocks. Counts saturate at 65535.
+
+    Parameters
+    ----------
+    table, block_keys, n_blocks : (T,) int64, (B,) int64, (1,) int64
+        The map's hash table of block slots, the packed key of each slot's block, and the blocks in use
+        (``_kernels_hash``).
+    log : (B, V) int64, units of ``LOG_ODDS_STEP``
+        The map's fixed-point log-odds per voxel of each block, changed in place.
+    count : (B, V) uint16
+        Observations per voxel, changed in place.
+    frame_keys : (F,) int64
+        Packed key of each frame accumulator block.
+    n_frame : int
+        Accumulator blocks in use.
+    acc : (F, V, 4) float32, log-odds
+        The frame accumulator's ``(sum, count, max, min)`` per voxel.
+    policy : int
+        The per-frame policy, its index in ``_policies.POLICIES``.
+    clamp_lo, clamp_hi : int64, units of ``LOG_ODDS_STEP``
+        Clamping bounds.
+    prior_q : int64, units of ``LOG_ODDS_STEP``
+        The prior's log-odds, of a new block's voxels.
     """
     for s in range(n_frame):
         slot = _map_block(table, block_keys, n_blocks, log, count, frame_keys[s], prior_q)
@@ -183,7 +237,26 @@ def apply_frame(table, block_keys, n_blocks, log, count, frame_keys, n_frame, ac
 def merge_blocks(
     table, block_keys, n_blocks, log, count, other_keys, n_other, other_log, other_count, clamp_lo, clamp_hi, prior_q
 ):
-    """Add another map's blocks: known in both -> ``q1 + q2 - q0`` (clamped); counts add (saturating)."""
+    """Add another map's blocks: known in both -> ``q1 + q2 - q0`` (clamped); counts add (saturating).
+
+    Parameters
+    ----------
+    table, block_keys, n_blocks : (T,) int64, (B,) int64, (1,) int64
+        The map's hash table of block slots, the packed key of each slot's block, and the blocks in use
+        (``_kernels_hash``).
+    log : (B, V) int64, units of ``LOG_ODDS_STEP``
+        The map's fixed-point log-odds per voxel of each block, changed in place.
+    count : (B, V) uint16
+        Observations per voxel, changed in place.
+    other_keys : (K,) int64
+        Packed key of each of the other map's blocks.
+    n_other : int
+        The other map's blocks in use.
+    other_log : (K, V) int64, other_count : (K, V) uint16
+        The other map's log-odds and counts.
+    clamp_lo, clamp_hi, prior_q : int64, units of ``LOG_ODDS_STEP``
+        Clamping bounds, and the prior's log-odds (``q0``).
+    """
     for s in range(n_other):
         slot = _map_block(table, block_keys, n_blocks, log, count, other_keys[s], prior_q)
         for v in range(other_log.shape[1]):
@@ -202,7 +275,28 @@ def merge_blocks(
 
 @numba.njit(cache=True, nogil=True)
 def set_voxels(table, block_keys, n_blocks, log, count, keys, values, counts, bits, prior_q):
-    """Overwrite the fixed-point log-odds and count of each key, creating blocks as needed (room reserved)."""
+    """Overwrite the fixed-point log-odds and count of each key, creating blocks as needed (room reserved).
+
+    Parameters
+    ----------
+    table, block_keys, n_blocks : (T,) int64, (B,) int64, (1,) int64
+        The map's hash table of block slots, the packed key of each slot's block, and the blocks in use
+        (``_kernels_hash``).
+    log : (B, V) int64, units of ``LOG_ODDS_STEP``
+        The map's fixed-point log-odds per voxel of each block, changed in place.
+    count : (B, V) uint16
+        Observations per voxel, changed in place.
+    keys : (N, 3) int, voxel keys
+        The voxels.
+    values : (N,) int64, units of ``LOG_ODDS_STEP``
+        Their log-odds.
+    counts : (N,) uint16
+        Their counts.
+    bits : tuple of 3 int
+        Key bits per axis inside a block (:mod:`prismap.grid._keys`).
+    prior_q : int64, units of ``LOG_ODDS_STEP``
+        The prior's log-odds, of a new block's other voxels.
+    """
     for i in range(keys.shape[0]):
         block, local = split_key(np.int64(keys[i, 0]), np.int64(keys[i, 1]), np.int64(keys[i, 2]), bits)
         slot = _map_block(table, block_keys, n_blocks, log, count, block, prior_q)

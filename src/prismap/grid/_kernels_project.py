@@ -14,22 +14,7 @@ from prismap.grid._kernels_traverse import write_cell
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _line_cells(
-    line,
-    walk,
-    key_min,
-    shape,
-    origin,
-    R_cam_world,
-    focal,
-    subsample,
-    ray_index,
-    rays,
-    exclusive,
-    stops,
-    tile_stop,
-    voxel_size,
-):
+def _line_cells(line, walk, projection):
     """The kept voxels of line ``line`` of the key box (``i0 * n1 + i1``: the voxels along the walk's line
     axis, :func:`_walk_setup`), written to the walk's line scratch in order along the line; returns how many.
 
@@ -42,7 +27,32 @@ def _line_cells(
     project to are skipped without visiting each voxel (:func:`_run_beyond_stops`): on a street most of
     the frustum's key box lies behind the first surfaces. A visited voxel reads its pixel's stop depth
     (``stops``, -inf = no ray) before anything of its ray.
+
+    Parameters
+    ----------
+    line : int
+        The line, ``i0 * n1 + i1``.
+    walk : tuple
+        The walk's state and line scratch (:func:`_walk_setup`); the scratch is written.
+    projection : Projection
+        The frame (:class:`~prismap.grid._kernel_args.Projection`).
     """
+    (
+        key_min,
+        shape,
+        origin,
+        R_cam_world,
+        focal,
+        _,
+        _,
+        subsample,
+        ray_index,
+        rays,
+        exclusive,
+        stops,
+        tile_stop,
+        voxel_size,
+    ) = projection
     a0, a1, a2, step, k, w, col_offset, row_offset, scale_px, line_keys, line_ray, line_t0, line_t1, _ = walk
     n1 = shape[a1]
     k[a0] = key_min[a0] + line // n1
@@ -119,11 +129,18 @@ def _line_cells(
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _walk_setup(R_cam_world, shape, focal, cx, cy, subsample, voxel_size):
-    """State of a walk over the key box: its loop axes (:func:`_loop_axes`), the camera-frame step of one voxel
-    along the line axis, the key and centre (relative to the origin) of the current voxel, the image offsets
-    and scale, and scratch for one line: keys (n2, 3) int32, ray (n2,) int64, t_in, t_out (n2,) float64,
-    accumulator rows (n2,) int64. Returns it and the number of lines."""
+def _walk_setup(projection):
+    """State of a walk over the key box of ``projection`` (:class:`~prismap.grid._kernel_args.Projection`): its
+    loop axes (:func:`_loop_axes`), the camera-frame step of one voxel along the line axis, the key and centre
+    (relative to the origin) of the current voxel, the image offsets and scale, and scratch for one line: keys
+    (n2, 3) int32, ray (n2,) int64, t_in, t_out (n2,) float64, accumulator rows (n2,) int64. Returns it and the
+    number of lines."""
+    R_cam_world, shape, voxel_size, subsample = (
+        projection.R_cam_world,
+        projection.shape,
+        projection.voxel_size,
+        projection.subsample,
+    )
     a0, a1, a2 = _loop_axes(R_cam_world)
     step = np.empty(3)
     for r in range(3):
@@ -136,9 +153,9 @@ def _walk_setup(R_cam_world, shape, focal, cx, cy, subsample, voxel_size):
         step,
         np.empty(3, dtype=np.int64),
         np.empty(3),
-        cx / subsample + 0.5,
-        cy / subsample + 0.5,
-        focal / subsample,
+        projection.cx / subsample + 0.5,
+        projection.cy / subsample + 0.5,
+        projection.focal / subsample,
         np.empty((n2, 3), dtype=np.int32),
         np.empty(n2, dtype=np.int64),
         np.empty(n2),
@@ -149,26 +166,7 @@ def _walk_setup(R_cam_world, shape, focal, cx, cy, subsample, voxel_size):
 
 
 @numba.njit(cache=True, nogil=True)
-def project_part(
-    key_min,
-    shape,
-    origin,
-    R_cam_world,
-    focal,
-    cx,
-    cy,
-    subsample,
-    ray_index,
-    rays,
-    exclusive,
-    stops,
-    tile_stop,
-    voxel_size,
-    start,
-    stop,
-    capacity,
-    max_cells,
-):
+def project_part(projection, start, stop, capacity, max_cells):
     """Voxels of a key box seen by a pixel ray (:func:`_line_cells`) on lines ``start`` to ``stop - 1``, in the
     walk's order; the accumulator is not touched, so parts of the lines may be walked in several threads.
 
@@ -178,30 +176,26 @@ def project_part(
     the arrays start with room for ``capacity`` cells and grow by half when full, up to ``max_cells``; beyond
     it voxels are only counted (``m`` exceeds the arrays' length; the caller refuses the frame).
     :func:`walk_lines` gives the number of lines.
+
+    Parameters
+    ----------
+    projection : Projection
+        The frame (:class:`~prismap.grid._kernel_args.Projection`).
+    start, stop : int
+        The lines of this part.
+    capacity : int, cells
+        Room the cell arrays start with.
+    max_cells : int, cells
+        Most cells the arrays may hold.
     """
-    walk, _ = _walk_setup(R_cam_world, shape, focal, cx, cy, subsample, voxel_size)
+    walk, _ = _walk_setup(projection)
     line_keys, line_ray, line_t0, line_t1 = walk[9], walk[10], walk[11], walk[12]
     size = max(min(capacity, max_cells), 16)
     keys, ray_of_cell = np.empty((size, 3), dtype=np.int32), np.empty(size, dtype=np.int64)
     t_in, t_out = np.empty(size), np.empty(size)
     m = 0
     for line in range(start, stop):
-        c = _line_cells(
-            line,
-            walk,
-            key_min,
-            shape,
-            origin,
-            R_cam_world,
-            focal,
-            subsample,
-            ray_index,
-            rays,
-            exclusive,
-            stops,
-            tile_stop,
-            voxel_size,
-        )
+        c = _line_cells(line, walk, projection)
         if c == 0:
             continue
         if m + c > ray_of_cell.size:
@@ -220,64 +214,37 @@ def project_part(
 
 
 @numba.njit(cache=True, nogil=True)
-def project_hit_miss(
-    table,
-    block_keys,
-    n_blocks,
-    acc,
-    links,
-    bits,
-    key_min,
-    shape,
-    origin,
-    R_cam_world,
-    focal,
-    cx,
-    cy,
-    subsample,
-    ray_index,
-    rays,
-    exclusive,
-    stops,
-    tile_stop,
-    voxel_size,
-    z_hit,
-    l_hit,
-    l_miss,
-    start,
-):
+def project_hit_miss(accumulator, projection, z_hit, l_hit, l_miss, start):
     """:func:`project_part` for a hit/miss model: each kept voxel of interval ``[t_in, t_out)`` on ray ``i``
     gets ``l_hit`` if it holds ``z_hit[i]``, ``l_miss`` if it ends at or before it, 0 beyond (the rule of
     ``sensor_models._kernels.hitmiss_cells``), added to its accumulator row as ``_kernels_accumulate.scatter``
     adds; no cell arrays. Returns the first line not done, -1 when all are: a new block found the accumulator full (grow it and call
-    again from that line)."""
-    walk, n_lines = _walk_setup(R_cam_world, shape, focal, cx, cy, subsample, voxel_size)
+    again from that line).
+
+    Parameters
+    ----------
+    accumulator : AccumulatorArrays
+        The frame accumulator (:class:`~prismap.grid._kernel_args.AccumulatorArrays`), changed in place.
+    projection : Projection
+        The frame (:class:`~prismap.grid._kernel_args.Projection`).
+    z_hit : (R,) float64, metres of depth
+        Each ray's hit depth, inf = none (cut at max range).
+    l_hit, l_miss : float, log-odds
+        The model's increments.
+    start : int
+        The first line to walk.
+    """
+    walk, n_lines = _walk_setup(projection)
     line_keys, line_ray, line_t0, line_t1, line_rows = walk[9], walk[10], walk[11], walk[12], walk[13]
     hit, miss, zero = np.float32(l_hit), np.float32(l_miss), np.float32(0.0)
+    acc = accumulator.acc
     rows = acc.reshape((acc.shape[0] * acc.shape[1], acc.shape[2]))
     last_block, last_slot = EMPTY, np.int64(-1)
     for line in range(start, n_lines):
-        c = _line_cells(
-            line,
-            walk,
-            key_min,
-            shape,
-            origin,
-            R_cam_world,
-            focal,
-            subsample,
-            ray_index,
-            rays,
-            exclusive,
-            stops,
-            tile_stop,
-            voxel_size,
-        )
+        c = _line_cells(line, walk, projection)
         if c == 0:
             continue
-        done, last_block, last_slot = register_run(
-            table, block_keys, n_blocks, acc, links, line_keys, 0, c, bits, line_rows, last_block, last_slot
-        )
+        done, last_block, last_slot = register_run(accumulator, line_keys, 0, c, line_rows, last_block, last_slot)
         if done < c:
             return line
         for j in range(c):

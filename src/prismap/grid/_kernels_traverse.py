@@ -55,6 +55,25 @@ def _walk(origin, ray, stop, exclusive, voxel_size, limit, keys, t_in_out, t_out
 
     The rule of :func:`cast_rays`; ``limit`` (from :func:`cell_limits`) bounds the steps. The state is
     kept in scalars (one per axis) so that it stays in registers.
+
+    Parameters
+    ----------
+    origin : (3,) float64, metres, world frame
+        Where the ray starts.
+    ray : (3,) float64, world frame
+        Its direction, scaled to unit depth.
+    stop : float, metres of depth
+        Its stop depth.
+    exclusive : bool
+        Exclude the voxel that holds the stop point (else include it).
+    voxel_size : float, metres
+        Voxel edge.
+    limit : int
+        Most steps.
+    keys : (M, 3) int32, t_in_out, t_out_out : (M,) float64, metres of depth
+        Written from row ``m``: each kept voxel's key and depth interval.
+    m : int
+        First row to write.
     """
     kx, sx, tx, dx = _axis_setup(origin[0], ray[0], voxel_size)
     ky, sy, ty, dy = _axis_setup(origin[1], ray[1], voxel_size)
@@ -134,8 +153,10 @@ def cast_rays(origin, rays, t_stop, exclusive, voxel_size):
 
 
 @numba.njit(cache=True, nogil=True)
-def cast_rays_into(table, block_keys, n_blocks, acc, links, origin, rays, t_stop, exclusive, voxel_size, bits):
-    """:func:`cast_rays` fused with ``register_run``: each crossed voxel's accumulator row, no keys.
+def cast_rays_into(accumulator, origin, rays, t_stop, exclusive, voxel_size):
+    """:func:`cast_rays` fused with ``register_run``: each crossed voxel's accumulator row, no keys. Parameters
+    as :func:`cast_rays`'s, and ``accumulator`` (:class:`~prismap.grid._kernel_args.AccumulatorArrays`, changed
+    in place).
 
     Returns ``ray_of_cell (C,) int64, cell_index (C,) int64, t_in (C,), t_out (C,) float64`` and the
     number of rays done: fewer than ``len(rays)`` when a new block found the accumulator full (that
@@ -154,9 +175,7 @@ def cast_rays_into(table, block_keys, n_blocks, acc, links, origin, rays, t_stop
         if limits[i] == 0:
             continue
         n = _walk(origin, rays[i], t_stop[i], exclusive[i], voxel_size, limits[i], scratch, t_in[m:], t_out[m:], 0)
-        done, last_block, last_slot = register_run(
-            table, block_keys, n_blocks, acc, links, scratch, 0, n, bits, cell_index[m:], last_block, last_slot
-        )
+        done, last_block, last_slot = register_run(accumulator, scratch, 0, n, cell_index[m:], last_block, last_slot)
         if done < n:
             return ray_of_cell[:m], cell_index[:m], t_in[:m], t_out[:m], i
         ray_of_cell[m : m + n] = i
@@ -165,9 +184,7 @@ def cast_rays_into(table, block_keys, n_blocks, acc, links, origin, rays, t_stop
 
 
 @numba.njit(cache=True, nogil=True)
-def cast_hit_miss(
-    table, block_keys, n_blocks, acc, links, origin, rays, t_stop, exclusive, z_hit, l_hit, l_miss, voxel_size, bits
-):
+def cast_hit_miss(accumulator, origin, rays, t_stop, exclusive, z_hit, l_hit, l_miss, voxel_size):
     """Cast rays and add hit/miss increments straight into the accumulator (no per-cell arrays).
 
     Voxels as :func:`cast_rays` keeps them; one of interval ``[t_in, t_out)`` on ray ``i`` gets ``l_hit``
@@ -178,9 +195,21 @@ def cast_hit_miss(
 
     ``links[slot]`` caches the slots of a block's six face neighbours (order of :func:`face`; -1 = not
     yet known): a ray entering the next block reads it instead of hashing (:func:`link_block`).
+
+    Parameters
+    ----------
+    accumulator : AccumulatorArrays
+        The frame accumulator (:class:`~prismap.grid._kernel_args.AccumulatorArrays`), changed in place.
+    origin, rays, t_stop, exclusive, voxel_size
+        As :func:`cast_rays`'s.
+    z_hit : (R,) float64, metres of depth
+        Each ray's hit depth, inf = none (cut at max range).
+    l_hit, l_miss : float, log-odds
+        The model's increments.
     """
+    n_blocks, acc, links, bits = accumulator.n_blocks, accumulator.acc, accumulator.links, accumulator.bits
     limits = cell_limits(origin, rays, t_stop, voxel_size)
-    capacity = min(block_keys.size, table.size // 2)
+    capacity = min(accumulator.block_keys.size, accumulator.table.size // 2)
     hit = np.float32(l_hit)
     miss = np.float32(l_miss)
     zero = np.float32(0.0)
@@ -210,7 +239,7 @@ def cast_hit_miss(
                     side = face(block - last_block)
                     slot = np.int64(links[last_slot, side]) if side >= 0 else np.int64(-1)
                     if slot < 0:
-                        slot = link_block(table, block_keys, n_blocks, acc, links, block, side, last_slot, capacity)
+                        slot = link_block(accumulator, block, side, last_slot, capacity)
                     last_block, last_slot = block, slot
                 x = miss if t_out <= z else (hit if t_in <= z else zero)
                 acc[last_slot, local, 0] += x

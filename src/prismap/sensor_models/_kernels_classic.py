@@ -13,7 +13,30 @@ from prismap.sensor_models._kernels_math import _logit, _sigmoid, normal_cdf
 
 @nb.njit(cache=True, nogil=True)
 def ideal_cells(depth_hat, ray_norm, ray_of_cell, start, end, half_alpha, p_free, p_occ, p0):
-    """Thrun's ideal model at the cell centre; distances along the ray."""
+    """Thrun's ideal model at the cell centre; distances along the ray.
+
+    Parameters
+    ----------
+    depth_hat : (R,) float64, metres of depth
+        Each ray's measured depth.
+    ray_norm : (R,) float64
+        ``|r|``: metres along the ray per metre of depth.
+    ray_of_cell : (C,) int64
+        Each cell's ray.
+    start, end : (C,) float64, metres of depth
+        The cell ``[start[i], end[i]]`` on its ray.
+    half_alpha : float, metres along the ray
+        Half the width of the occupied band around the measurement.
+    p_free, p_occ, p0 : float in (0, 1)
+        Posterior before the band, in it, and the prior (beyond it).
+
+    Returns
+    -------
+    post : (C,) float64
+        Posterior occupancy of each cell.
+    inc : (C,) float64, log-odds
+        ``logit(post) - logit(p0)``.
+    """
     n = start.size
     post = np.empty(n)
     inc = np.empty(n)
@@ -34,7 +57,28 @@ def ideal_cells(depth_hat, ray_norm, ray_of_cell, start, end, half_alpha, p_free
 
 @nb.njit(cache=True, nogil=True)
 def hitmiss_cells(depth_hat, ray_of_cell, start, end, l_hit, l_miss, p0):
-    """OctoMap: hit at the cell whose interval holds the measured depth, miss before, nothing after."""
+    """OctoMap: hit at the cell whose interval holds the measured depth, miss before, nothing after.
+
+    Parameters
+    ----------
+    depth_hat : (R,) float64, metres of depth
+        Each ray's measured depth.
+    ray_of_cell : (C,) int64
+        Each cell's ray.
+    start, end : (C,) float64, metres of depth
+        The cell ``[start[i], end[i]]`` on its ray.
+    l_hit, l_miss : float, log-odds
+        Increments of the hit cell and of the cells before it.
+    p0 : float in (0, 1)
+        Prior occupancy.
+
+    Returns
+    -------
+    post : (C,) float64
+        Posterior occupancy of each cell.
+    inc : (C,) float64, log-odds
+        ``logit(post) - logit(p0)``.
+    """
     n = start.size
     post = np.empty(n)
     inc = np.empty(n)
@@ -53,7 +97,32 @@ def hitmiss_cells(depth_hat, ray_of_cell, start, end, l_hit, l_miss, p0):
 
 @nb.njit(cache=True, nogil=True)
 def convolution_cells(depth_hat, sigma_depth, ray_norm, ray_of_cell, start, end, half_alpha, p_free, p_occ, p0):
-    """Ideal profile convolved with N(0, sigma_s^2) along the ray, at the cell centre."""
+    """Ideal profile convolved with N(0, sigma_s^2) along the ray, at the cell centre.
+
+    Parameters
+    ----------
+    depth_hat : (R,) float64, metres of depth
+        Each ray's measured depth.
+    sigma_depth : (R,) float64, metres of depth
+        Each ray's depth standard deviation.
+    ray_norm : (R,) float64
+        ``|r|``: metres along the ray per metre of depth.
+    ray_of_cell : (C,) int64
+        Each cell's ray.
+    start, end : (C,) float64, metres of depth
+        The cell ``[start[i], end[i]]`` on its ray.
+    half_alpha : float, metres along the ray
+        Half the width of the ideal model's occupied band.
+    p_free, p_occ, p0 : float in (0, 1)
+        The ideal model's posterior before the band, in it, and the prior (beyond it).
+
+    Returns
+    -------
+    post : (C,) float64
+        Posterior occupancy of each cell.
+    inc : (C,) float64, log-odds
+        ``logit(post) - logit(p0)``.
+    """
     n = start.size
     post = np.empty(n)
     inc = np.empty(n)
@@ -73,7 +142,34 @@ def convolution_cells(depth_hat, sigma_depth, ray_norm, ray_of_cell, start, end,
 
 @nb.njit(cache=True, nogil=True)
 def andert_cells(depth_hat, sigma_depth, ray_norm, ray_of_cell, start, end, eta, p_min, p_max, p0):
-    """Andert's profile evaluated at ``clip(s^, a, c)``; increments on the even-odds scale."""
+    """Andert's profile evaluated at ``clip(s^, a, c)``; increments on the even-odds scale.
+
+    Parameters
+    ----------
+    depth_hat : (R,) float64, metres of depth
+        Each ray's measured depth.
+    sigma_depth : (R,) float64, metres of depth
+        Each ray's depth standard deviation.
+    ray_norm : (R,) float64
+        ``|r|``: metres along the ray per metre of depth.
+    ray_of_cell : (C,) int64
+        Each cell's ray.
+    start, end : (C,) float64, metres of depth
+        The cell ``[start[i], end[i]]`` on its ray.
+    eta : float, metres along the ray
+        Scale of the peak: ``0.5 + eta / (sqrt(2 pi) sigma)``, capped at ``p_max``.
+    p_min, p_max : float in (0, 1)
+        Profile before the measurement, and the peak's cap.
+    p0 : float in (0, 1)
+        Prior occupancy (of ``post``; ``inc`` is ``logit`` of the profile, on the even-odds scale).
+
+    Returns
+    -------
+    post : (C,) float64
+        Posterior occupancy of each cell.
+    inc : (C,) float64, log-odds
+        ``logit`` of the profile (even odds as the reference).
+    """
     n = start.size
     post = np.empty(n)
     inc = np.empty(n)

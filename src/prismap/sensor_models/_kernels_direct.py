@@ -41,9 +41,33 @@ def pass_through_log(inc, lam_len, m):
 
 
 @nb.njit(cache=True, nogil=True)
-def log_tail(z, log_c_z, lam, ku, hq, z0, z_max, fb, shift, log_far, log_wn, means, sigmas, log_rest=-40.0):
+def log_tail(z, log_c_z, lam, shift, log_far, hq, geometry, mixture, log_rest=-40.0):
     """``log D(z)``: evidence beyond ``z`` (far measurement included), marched until the rest is below
-    ``e^log_rest`` of ``C(z)`` plus the march so far."""
+    ``e^log_rest`` of ``C(z)`` plus the march so far.
+
+    Parameters
+    ----------
+    z : float, metres of depth
+        Start of the tail.
+    log_c_z : float, log
+        ``log C(z)``, on the scale of the panels (not normalised).
+    lam : float, per metre of depth
+        Surface rate of the prior.
+    shift : float, pixels
+        The ray's measured disparity plus ``doffs``.
+    log_far : float, log(1/pixel)
+        Log density of the far measurement.
+    hq : float, x units
+        Panel width (:func:`~prismap.sensor_models._kernels_march.x_of_z`).
+    geometry : Geometry
+        Depth range and disparity scales (:class:`~prismap.sensor_models._kernel_args.Geometry`); its ``z0`` is
+        where the prior's survival starts.
+    mixture : Mixture
+        The error mixture (:class:`~prismap.sensor_models._kernel_args.Mixture`).
+    log_rest : float, log, default -40
+        Stop where the rest is below this share of the evidence so far.
+    """
+    z0, z_max, _, ku = geometry
     tail = -np.inf
     acc = log_c_z
     x_start = x_of_z(z, lam, ku)
@@ -53,27 +77,52 @@ def log_tail(z, log_c_z, lam, ku, hq, z0, z_max, fb, shift, log_far, log_wn, mea
     while za < z_max:
         zb = z_of_x(x_start + k * hq, lam, ku) if x_start + k * hq < x_end else z_max
         zb = min(zb, z_max)
-        p = _log_panel(za, zb, lam, z0, fb, shift, log_wn, means, sigmas)
+        p = _log_panel(za, zb, lam, shift, geometry, mixture)
         tail = logaddexp(tail, p)
         acc = logaddexp(acc, p)
         za = zb
         k += 1
-        bound = -lam * (za - z0) + max(_log_sup_tail(za, z_max, fb, shift, log_wn, means, sigmas), log_far)
+        bound = -lam * (za - z0) + max(_log_sup_tail(za, shift, geometry, mixture), log_far)
         if za < z_max and bound - acc < log_rest:
             return logaddexp(tail, bound)
     return logaddexp(tail, -lam * (z_max - z0) + log_far)
 
 
 @nb.njit(cache=True, nogil=True)
-def prism_direct_cells(
-    shift, lam, order, ray_start, start, end, z0, z_max, fb, ku, hq, log_far, log_wn, means, sigmas, pass_through
-):
+def prism_direct_cells(shift, lam, log_far, order, ray_start, start, end, hq, pass_through, geometry, mixture):
     """Continuous PRISM by quadrature, ray by ray: exact C and D at every distinct cell boundary.
 
-    ``pass_through``: the chance that a ray passes an occupied cell (:func:`pass_through_log`; 0: never).
+    Parameters
+    ----------
+    shift : (R,) float64, pixels
+        Each ray's measured disparity plus ``doffs``.
+    lam : (R,) float64, per metre of depth
+        Each ray's surface rate.
+    log_far : (R,) float64, log(1/pixel)
+        Each ray's far-measurement log density.
+    order : (C,) int64
+        Sorts the cells by ray: the cells of ray ``r`` are ``order[ray_start[r]:ray_start[r + 1]]``.
+    ray_start : (R + 1,) int64
+        Each ray's first position in ``order``.
+    start, end : (C,) float64, metres of depth
+        Cell ``[start[i], end[i]]``, clipped to ``[z0, z_max]``.
+    hq : float, x units
+        Panel width (:func:`~prismap.sensor_models._kernels_march.x_of_z`).
+    pass_through : float in [0, 1)
+        The chance that a ray passes an occupied cell (:func:`pass_through_log`; 0: never).
+    geometry : Geometry
+        Depth range and disparity scales.
+    mixture : Mixture
+        The error mixture.
 
-    ``order`` sorts cells by ray; the cells of ray ``r`` are ``order[ray_start[r]:ray_start[r + 1]]``.
+    Returns
+    -------
+    post : (C,) float64
+        Posterior occupancy of each cell.
+    inc : (C,) float64, log-odds
+        ``logit(post) - logit(prior)``.
     """
+    z0, z_max = geometry.z0, geometry.z_max
     n = start.size
     post = np.empty(n)
     inc = np.empty(n)
@@ -91,14 +140,12 @@ def prism_direct_cells(
         nb_ = bounds.size
         log_c = np.empty(nb_)
         panels = np.empty(nb_)
-        log_c[0] = log_integral(z0, bounds[0], lam[r], ku, hq, z0, fb, shift[r], log_wn, means, sigmas)
+        log_c[0] = log_integral(z0, bounds[0], lam[r], shift[r], hq, geometry, mixture)
         panels[0] = -np.inf
         for k in range(1, nb_):
-            panels[k] = log_integral(bounds[k - 1], bounds[k], lam[r], ku, hq, z0, fb, shift[r], log_wn, means, sigmas)
+            panels[k] = log_integral(bounds[k - 1], bounds[k], lam[r], shift[r], hq, geometry, mixture)
             log_c[k] = logaddexp(log_c[k - 1], panels[k])
-        tail = log_tail(
-            bounds[nb_ - 1], log_c[nb_ - 1], lam[r], ku, hq, z0, z_max, fb, shift[r], log_far[r], log_wn, means, sigmas
-        )
+        tail = log_tail(bounds[nb_ - 1], log_c[nb_ - 1], lam[r], shift[r], log_far[r], hq, geometry, mixture)
         log_d = np.empty(nb_)
         log_d[nb_ - 1] = tail
         for k in range(nb_ - 1, 0, -1):
@@ -121,9 +168,15 @@ def prism_direct_cells(
 
 
 @nb.njit(cache=True, nogil=True)
-def prism_log_evidence(shift, lam, z0, z_max, fb, ku, hq, log_far, log_wn, means, sigmas):
-    """``log Z`` (the marginal density of each measured disparity, 1/pixel) for every ray."""
+def prism_log_evidence(shift, lam, log_far, hq, geometry, mixture):
+    """``log Z`` (the marginal density of each measured disparity, 1/pixel) for every ray: (R,) float64.
+
+    Parameters
+    ----------
+    shift, lam, log_far, hq, geometry, mixture
+        As :func:`prism_direct_cells`'s.
+    """
     out = np.empty(shift.size)
     for r in range(shift.size):
-        out[r] = prism_march(shift[r], lam[r], z0, z_max, fb, ku, hq, log_far[r], 0.0, 0.0, 0, log_wn, means, sigmas)[3]
+        out[r] = prism_march(shift[r], lam[r], log_far[r], hq, 0.0, 0.0, 0, geometry, mixture)[3]
     return out

@@ -117,15 +117,34 @@ def combine_small(l_a, l_c, a_is_d, c_is_d, lam_len):
 
 
 @nb.njit(cache=True, nogil=True)
-def _log_c_first(z, steep, lam, ku, h, z0, fb, shift, log_wn, means, sigmas):
+def _log_c_first(z, steep, lam, shift, h, geometry, mixture):
     """``log C(z)`` in a table's first interval (``z0 < z``, x-width ``h``): one Gauss-Legendre panel, as
     the table's march integrated that interval (8 points here, :data:`_MARCH_GL` there: they agree to about
     1e-10), or where ``q g`` rises steeply (``steep``: the interval
     is in the coarse front) the endpoint asymptotic with the start's cut, ``C = q g / phi' (1 -
-    e^{-phi' (z - z0)})``, exact for an exponential ``q g``."""
+    e^{-phi' (z - z0)})``, exact for an exponential ``q g``.
+
+    Parameters
+    ----------
+    z : float, metres of depth
+        Where, in the table's first interval.
+    steep : bool
+        The table has a coarse front.
+    lam : float, per metre of depth
+        The ray's surface rate.
+    shift : float, pixels
+        The ray's measured disparity plus ``doffs``.
+    h : float, x units
+        x-width of the table's first interval.
+    geometry : Geometry
+        Depth range and disparity scales (:class:`~prismap.sensor_models._kernel_args.Geometry`).
+    mixture : Mixture
+        The error mixture (:class:`~prismap.sensor_models._kernel_args.Mixture`).
+    """
+    z0 = geometry.z0
     if not steep:
-        return log_integral(z0, z, lam, ku, h, z0, fb, shift, log_wn, means, sigmas)
-    phi, phi_z = _log_qg_slope(z, lam, z0, fb, shift, log_wn, means, sigmas)
+        return log_integral(z0, z, lam, shift, h, geometry, mixture)
+    phi, phi_z = _log_qg_slope(z, lam, shift, geometry, mixture)
     return phi - math.log(phi_z) + log1mexp(-phi_z * (z - z0))
 
 
@@ -140,22 +159,17 @@ def prism_table_lookup(
     lam,
     table,
     delta,
+    stretch,
     ray_of_cell,
     start,
     end,
-    stretch,
     lo,
     hi,
-    z0,
-    z_max,
-    fb,
-    ku,
-    hq,
     meta,
     nodes,
-    log_wn,
-    means,
-    sigmas,
+    hq,
+    geometry,
+    mixture,
     l_a,
     l_c,
     side,
@@ -181,7 +195,41 @@ def prism_table_lookup(
     evidence is below e^-40 of C), ``D(c)`` is integrated on the spot, and so is ``C`` in the table's first
     interval: both at the ray's own rate, over the ray's ``Z`` (the table's by the nodes' Taylor term, from
     the meta columns ``log_z_1``, ``log_z_2``), not the table's rate and ``Z``.
+
+    Parameters
+    ----------
+    lam : (R,) float64, per metre of depth
+        Each ray's surface rate.
+    table : (R,) int64
+        Each ray's row of ``meta``.
+    delta : (R,) float64, log
+        ``log(lam[r] / lam_table)``: the ray's rate against its table's.
+    stretch : (R,) float64, metres of depth
+        Added to the end of each of the ray's cells.
+    ray_of_cell : (C,) int64
+        Each cell's ray; a ray's cells are consecutive, nearest first.
+    start, end : (C,) float64, metres of depth
+        The cells ``[start[i], end[i] + stretch[r]]``.
+    lo, hi : int
+        The cells of this call.
+    meta : (K, len(META_COLUMNS)) float64
+        The tables' metadata (``_kernels_table.META_COLUMNS``).
+    nodes : (N, TABLE_COLUMNS) float32
+        The tables' rows, back to back.
+    hq : float, x units
+        Panel width of the tail marched beyond a table (:func:`log_tail`).
+    geometry : Geometry
+        Depth range and disparity scales (:class:`~prismap.sensor_models._kernel_args.Geometry`).
+    mixture : Mixture
+        The error mixture (:class:`~prismap.sensor_models._kernel_args.Mixture`).
+    l_a, l_c : (hi - lo,) float64, log
+        Written: the smaller of ``log(C/Z)``, ``log(D/Z)`` at each cell's start and end.
+    side : (hi - lo,) int8
+        Written: which of the two each is, or :data:`_SKIP`.
+    lam_len : (hi - lo,) float64
+        Written: each cell's prior rate times its length (dimensionless).
     """
+    z0, z_max, _, ku = geometry
     r_prev = -1
     c_prev = -1.0
     lcc = 0.0
@@ -246,9 +294,7 @@ def prism_table_lookup(
                 if k == 0:  # first interval: log C is -inf at z0
                     lca = -np.inf
                     if a > z0:
-                        lca = (
-                            _log_c_first(a, steep, lam_r, ku, seg_h[s_a], z0, fb, shift, log_wn, means, sigmas) - log_z
-                        )
+                        lca = _log_c_first(a, steep, lam_r, shift, seg_h[s_a], geometry, mixture) - log_z
                 else:
                     lca = _interpolate(nodes, o, f, seg_h[s_a], 0, dl)
                 if lca < _LOG_HALF:
@@ -258,7 +304,7 @@ def prism_table_lookup(
                     l_a[j] = _interpolate(nodes, o, f, seg_h[s_a], _D_COLUMN, dl)
                     z_half = min(z_half, a)
         if c > z_end:
-            lcc = log_tail(c, log_z, lam_r, ku, hq, z0, z_max, fb, shift, log_far, log_wn, means, sigmas) - log_z
+            lcc = log_tail(c, log_z, lam_r, shift, log_far, hq, geometry, mixture) - log_z
             c_is_d = 1
         else:
             k, f, s_c = _locate(lam_t * c - ku / c, s_c, seg_x, seg_row, seg_inv, n_seg)
@@ -268,7 +314,7 @@ def prism_table_lookup(
                 lcc = _interpolate(nodes, o, f, seg_h[s_c], _D_COLUMN, dl)
             else:
                 if k == 0:
-                    lcc = _log_c_first(c, steep, lam_r, ku, seg_h[s_c], z0, fb, shift, log_wn, means, sigmas) - log_z
+                    lcc = _log_c_first(c, steep, lam_r, shift, seg_h[s_c], geometry, mixture) - log_z
                 else:
                     lcc = _interpolate(nodes, o, f, seg_h[s_c], 0, dl)
                 if lcc < _LOG_HALF:
@@ -296,8 +342,31 @@ def prism_table_combine(lo, hi, l_a, l_c, e_a, e_c, side, lam_len, post, ratio, 
     vectorises) does every cell so; a second one redoes the few it marked (``ratio`` -1): skipped cells
     (``ratio = 1``, the posterior the prior's) and cells near underflow (a log below -600 or
     ``lam_len > 40``), which go through :func:`combine_small`: ``ratio = 1``, listed in ``fix_index``
-    (offset from ``lo``) and ``fix_value``. Returns how many. ``pass_through``: the chance that a ray passes an
-    occupied cell, ``ratio -> m + (1 - m) ratio`` (:func:`pass_through_log`; 0: never, bit for bit).
+    (offset from ``lo``) and ``fix_value``. Returns how many.
+
+    Parameters
+    ----------
+    lo, hi : int
+        The cells of this call.
+    l_a, l_c : (hi - lo,) float64, log
+        :func:`prism_table_lookup`'s smaller of ``log(C/Z)``, ``log(D/Z)`` at each cell's start and end.
+    e_a, e_c : (hi - lo,) float64
+        Their exps.
+    side : (hi - lo,) int8
+        :func:`prism_table_lookup`'s flags: bit 0 ``l_a`` is D's, bit 1 ``l_c`` is D's, or :data:`_SKIP`.
+    lam_len : (hi - lo,) float64
+        Each cell's prior rate times its length (dimensionless).
+    post : (C,) float64
+        Written at ``lo:hi``: the posterior occupancy of each cell.
+    ratio : (hi - lo,) float64
+        Written: the increment's exp, 1 for the cells listed in ``fix_index``.
+    fix_index : (hi - lo,) int64
+        Written: the cells (offset from ``lo``) whose increment is ``fix_value`` instead.
+    fix_value : (hi - lo,) float64, log-odds
+        Written: their increments.
+    pass_through : float in [0, 1)
+        The chance ``m`` that a ray passes an occupied cell, ``ratio -> m + (1 - m) ratio``
+        (:func:`pass_through_log`; 0: never, bit for bit).
     """
     for j in range(hi - lo):
         s = side[j]
@@ -339,31 +408,29 @@ def prism_table_combine(lo, hi, l_a, l_c, e_a, e_c, side, lam_len, post, ratio, 
 
 @nb.njit(cache=True, nogil=True)
 def prism_table_cells(
-    lam,
-    table,
-    delta,
-    ray_of_cell,
-    start,
-    end,
-    stretch,
-    block,
-    z0,
-    z_max,
-    fb,
-    ku,
-    hq,
-    meta,
-    nodes,
-    log_wn,
-    means,
-    sigmas,
-    pass_through,
+    lam, table, delta, stretch, ray_of_cell, start, end, meta, nodes, hq, block, pass_through, geometry, mixture
 ):
     """Tabulated PRISM on every cell ``[start[i], end[i] + stretch[r]]``: posterior and increment, (C,) each.
 
     Blocks of ``block`` cells go through :func:`prism_table_lookup`, :func:`exp_into` (both ends),
     :func:`prism_table_combine` and :func:`log_into`; the scratch arrays of a block stay in the core's
-    cache and the GIL stays released for the whole call. ``pass_through``: see :func:`prism_table_combine`.
+    cache and the GIL stays released for the whole call.
+
+    Parameters
+    ----------
+    lam, table, delta, stretch, ray_of_cell, start, end, meta, nodes, hq, geometry, mixture
+        As :func:`prism_table_lookup`'s, for all the cells.
+    block : int
+        Cells per round (their scratch arrays stay in the core's cache).
+    pass_through : float in [0, 1)
+        See :func:`prism_table_combine`.
+
+    Returns
+    -------
+    post : (C,) float64
+        Posterior occupancy of each cell.
+    inc : (C,) float64, log-odds
+        ``logit(post) - logit(prior)``.
     """
     n = start.size
     post = np.empty(n)
@@ -380,22 +447,17 @@ def prism_table_cells(
             lam,
             table,
             delta,
+            stretch,
             ray_of_cell,
             start,
             end,
-            stretch,
             lo,
             hi,
-            z0,
-            z_max,
-            fb,
-            ku,
-            hq,
             meta,
             nodes,
-            log_wn,
-            means,
-            sigmas,
+            hq,
+            geometry,
+            mixture,
             l_a,
             l_c,
             side,

@@ -5,6 +5,7 @@ import math
 import numba as nb
 import numpy as np
 
+from prismap.sensor_models._kernel_args import Geometry
 from prismap.sensor_models._kernels_direct import log_tail, pass_through_log
 from prismap.sensor_models._kernels_march import _log_sum_exp_add
 from prismap.sensor_models._kernels_math import _SQRT_HALF, _sigmoid, log1mexp, logaddexp
@@ -41,6 +42,17 @@ def log_mean_g(u_lo, u_hi, shift, log_w, means, sigmas):
 
     A sum of normal-CDF differences over ``u_hi - u_lo``; a component for which the interval is narrower
     than :data:`_NARROW_SIGMAS` sigmas takes its density at the midpoint (the difference would cancel).
+
+    Parameters
+    ----------
+    u_lo, u_hi : float, pixels
+        The true disparities (without ``doffs``).
+    shift : float, pixels
+        The ray's measured disparity plus ``doffs``.
+    log_w : (J,) float64, log
+        The mixture's log weights.
+    means, sigmas : (J,) float64, pixels
+        Its component means and standard deviations.
     """
     best = -np.inf
     total = 0.0
@@ -61,7 +73,21 @@ def log_mean_g(u_lo, u_hi, shift, log_w, means, sigmas):
 @nb.njit(cache=True, nogil=True)
 def _log_hit(log_survive, hazard, a, c, fb, shift, log_w, means, sigmas):
     """Log evidence of "the first surface lies in ``[a, c]``": survival to ``a``, the stretch's occupancy
-    ``1 - e^-hazard`` and ``g`` averaged over its disparities; -inf for an empty stretch."""
+    ``1 - e^-hazard`` and ``g`` averaged over its disparities; -inf for an empty stretch.
+
+    Parameters
+    ----------
+    log_survive : float, log
+        Log probability that no surface lies before ``a``.
+    hazard : float
+        The stretch's integrated surface rate (dimensionless).
+    a, c : float, metres of depth
+        The stretch.
+    fb : float, pixel metres
+        Focal length times baseline.
+    shift, log_w, means, sigmas
+        As :func:`log_mean_g`'s.
+    """
     if c <= a or hazard <= 0.0:
         return -np.inf
     return log_survive + log1mexp(-hazard) + log_mean_g(fb / c, fb / a, shift, log_w, means, sigmas)
@@ -71,24 +97,19 @@ def _log_hit(log_survive, hazard, a, c, fb, shift, log_w, means, sigmas):
 def prism_map_prior_cells(
     shift,
     lam,
+    log_far,
     order,
     ray_start,
     start,
     end,
     stretch,
     cell_rate,
-    z0,
-    z_max,
-    fb,
-    ku,
     hq,
     log_rest,
-    log_far,
-    log_wn,
-    log_w,
-    means,
-    sigmas,
     pass_through,
+    log_w,
+    geometry,
+    mixture,
 ):
     """PRISM with per-cell priors on rays of consecutive cells: exact posterior and increment of every cell.
 
@@ -105,7 +126,47 @@ def prism_map_prior_cells(
     ``[a_i, c_i + stretch]``" (cut at the ray's last cell): its hazard, hit and after-evidence then span
     the following cells, the one the stretch ends in split at its end. Increment ``logit(P) - logit(p_i)``,
     then ``pass_through`` (:func:`pass_through_log`). All in log space.
+
+    Parameters
+    ----------
+    shift : (R,) float64, pixels
+        Each ray's measured disparity plus ``doffs``.
+    lam : (R,) float64, per metre of depth
+        Each ray's prior surface rate, beyond its last cell.
+    log_far : (R,) float64, log(1/pixel)
+        Each ray's far-measurement log density.
+    order : (C,) int64
+        Sorts the cells by ray, then by start.
+    ray_start : (R + 1,) int64
+        Each ray's first position in ``order``.
+    start, end : (C,) float64, metres of depth
+        The cells, clipped to ``[z0, z_max]``.
+    stretch : (R,) float64, metres of depth
+        Each ray's voxel overhang share.
+    cell_rate : (C,) float64, per metre of depth
+        Each cell's surface rate (from its voxel's probability).
+    hq : float, x units
+        Panel width of the tail beyond the last cell.
+    log_rest : float, log
+        The tail's march stops where the rest is below this share of the evidence before.
+    pass_through : float in [0, 1)
+        The chance that a ray passes an occupied cell (0: never).
+    log_w : (J,) float64, log
+        The mixture's log weights (:func:`log_mean_g`).
+    geometry : Geometry
+        Depth range and disparity scales (:class:`~prismap.sensor_models._kernel_args.Geometry`).
+    mixture : Mixture
+        The error mixture (:class:`~prismap.sensor_models._kernel_args.Mixture`).
+
+    Returns
+    -------
+    post : (C,) float64
+        Posterior occupancy of each cell.
+    inc : (C,) float64, log-odds
+        ``logit(post) - logit(p_i)``.
     """
+    z0, z_max, fb, ku = geometry
+    means, sigmas = mixture.means, mixture.sigmas
     n = start.size
     post = np.empty(n)
     inc = np.empty(n)
@@ -137,16 +198,11 @@ def prism_map_prior_cells(
                 c[m - 1],
                 before[m] - log_s[m],
                 lam[r],
-                ku,
-                hq,
-                c[m - 1],
-                z_max,
-                fb,
                 shift[r],
                 log_far[r],
-                log_wn,
-                means,
-                sigmas,
+                hq,
+                Geometry(c[m - 1], z_max, fb, ku),  # the prior's survival restarts past the last cell
+                mixture,
                 log_rest,
             )
         else:

@@ -30,8 +30,23 @@ def _log_sum_exp_add(best, total, v):
 
 
 @nb.njit(cache=True, nogil=True)
-def log_likelihood(u, shift, log_wn, means, sigmas):
-    """``log g``: the mixture density of the error ``u - shift`` (``u`` = true disparity + 0, pixels)."""
+def log_likelihood(u, shift, mixture):
+    """``log g``: the mixture density of the error ``u - shift``.
+
+    Parameters
+    ----------
+    u : float, pixels
+        True disparity ``fb / z``, without ``doffs``.
+    shift : float, pixels
+        The ray's measured disparity plus ``doffs``.
+    mixture : Mixture
+        The error mixture (:class:`~prismap.sensor_models._kernel_args.Mixture`).
+
+    Returns
+    -------
+    float, log(1/pixel)
+    """
+    log_wn, means, sigmas = mixture
     best = -np.inf
     total = 0.0
     for j in range(means.size):
@@ -41,10 +56,23 @@ def log_likelihood(u, shift, log_wn, means, sigmas):
 
 
 @nb.njit(cache=True, nogil=True)
-def _log_sup_tail(z, z_max, fb, shift, log_wn, means, sigmas):
-    """Log of an upper bound of ``g`` on true depths ``[z, z_max]`` (sum of per-component maxima)."""
-    u_hi = fb / z
-    u_lo = fb / z_max
+def _log_sup_tail(z, shift, geometry, mixture):
+    """Log of an upper bound of ``g`` on true depths ``[z, z_max]`` (sum of per-component maxima).
+
+    Parameters
+    ----------
+    z : float, metres of depth
+        Start of the tail.
+    shift : float, pixels
+        The ray's measured disparity plus ``doffs``.
+    geometry : Geometry
+        ``z_max`` and ``fb`` are read (:class:`~prismap.sensor_models._kernel_args.Geometry`).
+    mixture : Mixture
+        The error mixture.
+    """
+    log_wn, means, sigmas = mixture
+    u_hi = geometry.fb / z
+    u_lo = geometry.fb / geometry.z_max
     best = -np.inf
     total = 0.0
     for j in range(means.size):
@@ -56,11 +84,14 @@ def _log_sup_tail(z, z_max, fb, shift, log_wn, means, sigmas):
 
 @nb.njit(cache=True, nogil=True)
 def x_of_z(z, lam, ku):
+    """The integration coordinate ``x = lam z - ku / z`` (x units) of depth ``z`` (metres), for a surface rate
+    ``lam`` (per metre of depth) and ``ku`` (pixel metres, :class:`~prismap.sensor_models._kernel_args.Geometry`)."""
     return lam * z - ku / z
 
 
 @nb.njit(cache=True, nogil=True)
 def z_of_x(x, lam, ku):
+    """The depth (metres) of ``x``: the inverse of :func:`x_of_z`, in the form that does not cancel."""
     root = math.sqrt(x * x + 4.0 * lam * ku)
     if x >= 0.0:
         return (x + root) / (2.0 * lam)
@@ -68,8 +99,23 @@ def z_of_x(x, lam, ku):
 
 
 @nb.njit(cache=True, nogil=True)
-def _log_panel_moments(z1, z2, lam, z0, fb, shift, log_wn, means, sigmas):
-    """Logs of ``int_{z1}^{z2} (z - z0)^k q g dz``, k = 0, 1, 2, by 8-point Gauss-Legendre (one panel)."""
+def _log_panel_moments(z1, z2, lam, shift, geometry, mixture):
+    """Logs of ``int_{z1}^{z2} (z - z0)^k q g dz``, k = 0, 1, 2, by 8-point Gauss-Legendre (one panel).
+
+    Parameters
+    ----------
+    z1, z2 : float, metres of depth
+        The panel; -inf each when ``z2 <= z1``.
+    lam : float, per metre of depth
+        Surface rate of the prior ``q(z) = lam e^{-lam (z - z0)}``.
+    shift : float, pixels
+        The ray's measured disparity plus ``doffs``.
+    geometry : Geometry
+        ``z0`` and ``fb`` are read.
+    mixture : Mixture
+        The error mixture.
+    """
+    z0, fb = geometry.z0, geometry.fb
     half = 0.5 * (z2 - z1)
     if half <= 0.0:
         return -np.inf, -np.inf, -np.inf
@@ -80,7 +126,7 @@ def _log_panel_moments(z1, z2, lam, z0, fb, shift, log_wn, means, sigmas):
     for i in range(8):
         z = mid + half * _GL_X[i]
         s = z - z0
-        v = _GL_LOG_W[i] + log_lam - lam * s + log_likelihood(fb / z, shift, log_wn, means, sigmas)
+        v = _GL_LOG_W[i] + log_lam - lam * s + log_likelihood(fb / z, shift, mixture)
         if v > best:
             scale = math.exp(best - v)
             m0 *= scale
@@ -98,16 +144,34 @@ def _log_panel_moments(z1, z2, lam, z0, fb, shift, log_wn, means, sigmas):
 
 
 @nb.njit(cache=True, nogil=True)
-def _log_panel(z1, z2, lam, z0, fb, shift, log_wn, means, sigmas):
-    """Log of ``int_{z1}^{z2} q g dz`` by 8-point Gauss-Legendre (one panel)."""
-    return _log_panel_moments(z1, z2, lam, z0, fb, shift, log_wn, means, sigmas)[0]
+def _log_panel(z1, z2, lam, shift, geometry, mixture):
+    """Log of ``int_{z1}^{z2} q g dz`` by 8-point Gauss-Legendre (one panel); parameters as
+    :func:`_log_panel_moments`'s."""
+    return _log_panel_moments(z1, z2, lam, shift, geometry, mixture)[0]
 
 
 @nb.njit(cache=True, nogil=True)
-def log_integral(z1, z2, lam, ku, hq, z0, fb, shift, log_wn, means, sigmas):
-    """Log of ``int_{z1}^{z2} q g dz`` with panels of x-width at most ``hq``."""
+def log_integral(z1, z2, lam, shift, hq, geometry, mixture):
+    """Log of ``int_{z1}^{z2} q g dz`` with panels of x-width at most ``hq``.
+
+    Parameters
+    ----------
+    z1, z2 : float, metres of depth
+        The interval; -inf when ``z2 <= z1``.
+    lam : float, per metre of depth
+        Surface rate of the prior.
+    shift : float, pixels
+        The ray's measured disparity plus ``doffs``.
+    hq : float, x units
+        Widest panel, in the coordinate of :func:`x_of_z`.
+    geometry : Geometry
+        ``z0``, ``fb`` and ``ku`` are read.
+    mixture : Mixture
+        The error mixture.
+    """
     if z2 <= z1:
         return -np.inf
+    ku = geometry.ku
     x1 = x_of_z(z1, lam, ku)
     x2 = x_of_z(z2, lam, ku)
     n = max(1, int(math.ceil((x2 - x1) / hq)))
@@ -115,50 +179,87 @@ def log_integral(z1, z2, lam, ku, hq, z0, fb, shift, log_wn, means, sigmas):
     za = z1
     for k in range(1, n + 1):
         zb = z2 if k == n else z_of_x(x1 + (x2 - x1) * k / n, lam, ku)
-        out = logaddexp(out, _log_panel(za, zb, lam, z0, fb, shift, log_wn, means, sigmas))
+        out = logaddexp(out, _log_panel(za, zb, lam, shift, geometry, mixture))
         za = zb
     return out
 
 
 @nb.njit(cache=True, nogil=True)
-def prism_march(shift, lam, z0, z_max, fb, ku, hq, log_far, log_eps_bound, lam_slack, i_min, log_wn, means, sigmas):
+def prism_march(shift, lam, log_far, hq, log_eps_bound, lam_slack, i_min, geometry, mixture):
     """Cumulative evidence of one (d^, lam) on the x-grid of spacing ``hq`` from ``z0``.
 
-    Returns ``z`` (nodes); ``log_c`` (n, 3): logs of ``C`` and of its moments ``int_{z0}^{z} (t - z0)^k q g dt``
-    (k = 1, 2) at the nodes, not normalised; ``log_d`` (n, 3): the same beyond ``z`` (the far measurement
-    counted as a mass at ``z_max``); ``log Z``; the log of the far term ``e^{-lam (z_max - z0)} g_far``
-    (-inf when the march stopped early); and the index of the first node from which every later cell's
-    increment is bounded by epsilon (``log_eps_bound`` = ``log(expm1(epsilon))``) for every rate within a
-    factor ``1 +- lam_slack`` of ``lam``. The march stops (not before node ``i_min``) once the remaining
-    evidence is below e^-40 of ``C``.
+    Parameters
+    ----------
+    shift : float, pixels
+        The measured disparity plus ``doffs``.
+    lam : float, per metre of depth
+        Surface rate of the prior.
+    log_far : float, log(1/pixel)
+        Log density of the far measurement: ``g`` averaged over true disparities below ``fb / z_max``.
+    hq : float, x units
+        Panel width in the coordinate of :func:`x_of_z`.
+    log_eps_bound : float, log
+        ``log(expm1(epsilon))`` for the influence node's increment bound ``epsilon`` (log-odds).
+    lam_slack : float, dimensionless
+        The influence node holds for every rate within a factor ``1 +- lam_slack`` of ``lam``.
+    i_min : int
+        The march does not stop before this node.
+    geometry : Geometry
+        Depth range and disparity scales (:class:`~prismap.sensor_models._kernel_args.Geometry`).
+    mixture : Mixture
+        The error mixture.
+
+    Returns
+    -------
+    z : (n,) float64, metres of depth
+        The nodes.
+    log_c : (n, 3) float64, log
+        Logs of ``C`` and of its moments ``int_{z0}^{z} (t - z0)^k q g dt`` (k = 1, 2) at the nodes, not
+        normalised.
+    log_d : (n, 3) float64, log
+        The same beyond ``z`` (the far measurement counted as a mass at ``z_max``).
+    log_z : float, log(1/pixel)
+        ``log Z``.
+    log_far_w : float, log(1/pixel)
+        The far term ``e^{-lam (z_max - z0)} g_far`` (-inf when the march stopped early).
+    i_infl : int
+        The first node from which every later cell's increment is bounded by epsilon. The march stops (not
+        before node ``i_min``) once the remaining evidence is below e^-40 of ``C``.
     """
     return _march(
         shift,
         lam,
-        z0,
-        z0,
+        log_far,
+        geometry.z0,
         np.full(3, -np.inf),
         np.zeros(3, dtype=np.int64),
         hq,
-        z_max,
-        fb,
-        ku,
         hq,
-        log_far,
         log_eps_bound,
         lam_slack,
         i_min,
         1,
-        log_wn,
-        means,
-        sigmas,
+        geometry,
+        mixture,
     )[:6]
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
 def _march_x(i, x0, counts, h_wide, h):
     """x of node ``i`` of a march from ``x0`` whose panels are ``counts[0]`` of ``h_wide``, ``counts[1]`` of
-    ``h``, ``counts[2]`` of ``h_wide``, then ``h``."""
+    ``h``, ``counts[2]`` of ``h_wide``, then ``h``.
+
+    Parameters
+    ----------
+    i : int
+        Node index from the march's start.
+    x0 : float, x units
+        x of node 0.
+    counts : (3,) int64
+        Panels of the three leading runs.
+    h_wide, h : float, x units
+        Broad and fine panel widths.
+    """
     widths = (h_wide, h, h_wide)
     x = x0
     for r in range(3):
@@ -191,11 +292,34 @@ def _exp_term(x):
 
 
 @nb.njit(cache=True, nogil=True, error_model="numpy")
-def _log_panel_block(z, first, count, lam, z0, fb, shift, log_wn, means, inv_sigmas, out, scratch):
+def _log_panel_block(z, first, count, lam, shift, geometry, mixture, inv_sigmas, out, scratch):
     """Logs of ``int_{z[i-1]}^{z[i]} (t - z0)^k q g dt`` (k = 0, 1, 2) into ``out[i]`` for ``count`` panels from
     ``i = first``, by :data:`_MARCH_GL`-point Gauss-Legendre, each panel's terms scaled by its largest one, in
-    loops over all the block's points that LLVM vectorises (exps by :func:`_exp_term`). ``scratch``:
-    (J + 5, _MARCH_GL _MARCH_BLOCK) float64, J = ``means.size``."""
+    loops over all the block's points that LLVM vectorises (exps by :func:`_exp_term`).
+
+    Parameters
+    ----------
+    z : (n,) float64, metres of depth
+        The march's nodes; panel ``i`` is ``[z[i - 1], z[i]]``.
+    first, count : int
+        The block's first panel and its number of panels (at most :data:`_MARCH_BLOCK`).
+    lam : float, per metre of depth
+        Surface rate of the prior.
+    shift : float, pixels
+        The ray's measured disparity plus ``doffs``.
+    geometry : Geometry
+        ``z0`` and ``fb`` are read.
+    mixture : Mixture
+        The error mixture; its ``sigmas`` are read as ``inv_sigmas``.
+    inv_sigmas : (J,) float64, 1/pixel
+        ``1 / mixture.sigmas``.
+    out : (n, 3) float64, log
+        Written at rows ``first:first + count``.
+    scratch : (J + 5, _MARCH_GL _MARCH_BLOCK) float64
+        Work space, overwritten.
+    """
+    z0, fb = geometry.z0, geometry.fb
+    log_wn, means = mixture.log_wn, mixture.means
     n_gl = _MARCH_GL
     n_pts = n_gl * count
     n_comp = means.size
@@ -249,11 +373,14 @@ def _log_panel_block(z, first, count, lam, z0, fb, shift, log_wn, means, inv_sig
 
 
 @nb.njit(cache=True, nogil=True, error_model="numpy")
-def _log_sup_tail_block(z, first, count, z_max, fb, shift, log_wn, means, inv_sigmas, out, scratch):
-    """:func:`_log_sup_tail` at ``z[first:first + count]`` into ``out[first:...]``, in vectorised loops (exps by
-    :func:`_exp_term`); ``scratch`` as :func:`_log_panel_block`'s."""
+def _log_sup_tail_block(z, first, count, shift, geometry, mixture, inv_sigmas, out, scratch):
+    """:func:`_log_sup_tail` at ``z[first:first + count]`` into ``out[first:...]`` ((n,) float64, log), in
+    vectorised loops (exps by :func:`_exp_term`); the other parameters as :func:`_log_panel_block`'s (``z_max``
+    and ``fb`` of ``geometry`` are read)."""
+    fb = geometry.fb
+    log_wn, means = mixture.log_wn, mixture.means
     n_comp = means.size
-    u_lo = fb / z_max
+    u_lo = fb / geometry.z_max
     top = scratch[n_comp]
     total = scratch[n_comp + 1]
     for q in range(count):
@@ -280,7 +407,21 @@ def _log_cumsum_block(terms, out, first, count, step, scratch):
     first + step, ...`` (``step`` +1 or -1; ``i' = i`` forward, ``i + 1`` backward: a cumulative log-sum-exp
     either way): in linear space against each column's largest value, exps and logs in vectorised loops, where
     no finite value of the block lies more than e^690 below that largest (nothing underflows), else by
-    :func:`logaddexp` row by row. ``scratch``: (3 count,) float64 or longer."""
+    :func:`logaddexp` row by row.
+
+    Parameters
+    ----------
+    terms : (n, 3) float64, log
+        The terms to add (a march's panels).
+    out : (n, 3) float64, log
+        The running sums; row ``first - step`` is read, rows ``first, first + step, ...`` written.
+    first, count : int
+        First row and number of rows.
+    step : int, +1 or -1
+        Direction.
+    scratch : (3 count,) float64 or longer
+        Work space, overwritten.
+    """
     shift_in = 0 if step > 0 else 1
     top = np.empty(3)
     for k in range(3):
@@ -324,23 +465,18 @@ def _log_cumsum_block(terms, out, first, count, step, scratch):
 def _march(
     shift,
     lam,
-    z0,
+    log_far,
     z_start,
     log_c_start,
     counts,
     h_wide,
-    z_max,
-    fb,
-    ku,
     hq,
-    log_far,
     log_eps_bound,
     lam_slack,
     i_min,
     far_ratio,
-    log_wn,
-    means,
-    sigmas,
+    geometry,
+    mixture,
 ):
     """:func:`prism_march` from ``z_start``, where the moments of C are ``log_c_start`` (3,), on panels of
     x-width ``h_wide`` (``counts[0]``: a table's broad front), ``hq`` (``counts[1]``), ``h_wide``
@@ -351,7 +487,33 @@ def _march(
     so ``D``'s relative error there (below about 2e-3 on panels of x-width 2 a narrow component 5 sigmas
     away, far less elsewhere) moves a cell's increment by a thousandth of it. Panels and tail bounds are
     evaluated :data:`_MARCH_BLOCK` at a time (:func:`_log_panel_block`, :func:`_log_sup_tail_block`), the
-    running sums and the stop node by node. Returns :func:`prism_march`'s values, then ``i_far`` and ``h_far``."""
+    running sums and the stop node by node.
+
+    Parameters
+    ----------
+    shift, lam, log_far, log_eps_bound, lam_slack, i_min, geometry, mixture
+        As :func:`prism_march`'s.
+    z_start : float, metres of depth
+        First node, at or after ``z0``.
+    log_c_start : (3,) float64, log
+        Logs of ``C`` and its two moments at ``z_start``.
+    counts : (3,) int64
+        Panels of the broad front, the fine run and the broad back (:func:`_march_x`).
+    h_wide, hq : float, x units
+        Broad and fine panel widths.
+    far_ratio : int
+        Far panels about this many times ``hq`` wide; 1: none.
+
+    Returns
+    -------
+    z, log_c, log_d, log_z, log_far_w, i_infl
+        As :func:`prism_march`'s.
+    i_far : int
+        First node of the far panels, -1 if none.
+    h_far : float, x units
+        Their width.
+    """
+    z0, z_max, fb, ku = geometry
     x0 = x_of_z(z_start, lam, ku)
     x_end = x_of_z(z_max, lam, ku)
     last = counts[0] + counts[1] + counts[2]
@@ -362,8 +524,8 @@ def _march(
     log_c[0] = log_c_start
     panel = np.full((n_max + 1, 3), -np.inf)
     sup = np.empty(n_max + 1)
-    inv_sigmas = 1.0 / sigmas
-    scratch = np.empty((means.size + 5, _MARCH_GL * _MARCH_BLOCK))
+    inv_sigmas = 1.0 / mixture.sigmas
+    scratch = np.empty((mixture.means.size + 5, _MARCH_GL * _MARCH_BLOCK))
     z[0] = z_start
     i_infl = -1
     i_far = -1
@@ -382,8 +544,8 @@ def _march(
                 z[i] = z_of_x(x_far + (i - i_far) * h_far, lam, ku)
             else:
                 z[i] = z_of_x(_march_x(i, x0, counts, h_wide, hq), lam, ku)
-        _log_panel_block(z, first, count, lam, z0, fb, shift, log_wn, means, inv_sigmas, panel, scratch)
-        _log_sup_tail_block(z, first, count, z_max, fb, shift, log_wn, means, inv_sigmas, sup, scratch)
+        _log_panel_block(z, first, count, lam, shift, geometry, mixture, inv_sigmas, panel, scratch)
+        _log_sup_tail_block(z, first, count, shift, geometry, mixture, inv_sigmas, sup, scratch)
         _log_cumsum_block(panel, log_c, first, count, 1, scratch[0])
         following = first + count
         for i in range(first, first + count):
@@ -419,39 +581,3 @@ def _march(
         _log_cumsum_block(panel, log_d, last_row, min(_MARCH_BLOCK, last_row + 1), -1, scratch[0])
     log_z = logaddexp(log_c[n, 0], tail)
     return z[: n + 1], log_c[: n + 1], log_d, log_z, log_far_w, i_infl, i_far, h_far
-
-
-@nb.njit(cache=True, nogil=True)
-def _rate_derivatives(log_m, log_far, lam, z_far):
-    """First and second derivatives of ``log Q`` in ``log lam`` from the logs of Q's moments (``log_m`` (3,)).
-
-    ``Q = J + F``: ``J = int lam e^{-lam s} g`` has moments ``M_k``; the far term ``F = e^{-lam L} g_far``
-    (``L = z_far``, log -inf when absent) carries no factor ``lam``. For one mass at ``s``,
-    ``J' = J (1 - lam s)`` and ``J'' = J (1 - 3 lam s + lam^2 s^2)``; ``F' = -lam L F``,
-    ``F'' = (lam^2 L^2 - lam L) F``.
-    """
-    far = math.exp(log_far - log_m[0])
-    m1 = lam * math.exp(log_m[1] - log_m[0])
-    m2 = lam * lam * math.exp(log_m[2] - log_m[0])
-    lam_l = lam * z_far
-    j = 1.0 - far
-    m1 -= far * lam_l
-    m2 -= far * lam_l * lam_l
-    first = j - m1 - far * lam_l
-    second = j - 3.0 * m1 + m2 + far * (lam_l * lam_l - lam_l)
-    return first, second - first * first
-
-
-@nb.njit(cache=True, nogil=True)
-def _rate_columns(slope, first, second, z_1, z_2, lam_s):
-    """A node's three rate columns for ``log(Q/Z)`` (Q is C or D): its first log(lam)-derivative, that one's
-    x-derivative, and its second log(lam)-derivative.
-
-    ``first``, ``second`` are Q's own (:func:`_rate_derivatives`), ``z_1``, ``z_2`` Z's, ``slope`` is
-    ``d log Q/dx`` and ``lam_s = lam (z - z0)``. As ``dQ/dz = +-q g`` and ``d log(q g)/d log lam = 1 - lam s``
-    at fixed z, ``d first/dx = slope (1 - lam s - first)`` (Z's derivatives do not depend on z): the exact
-    slope, so that the first-order term is cubic Hermite in x like the value, and a short cell's share
-    ``C(c) - C(a)`` follows the rate where ``log C`` grows slowly (in front of the measurement), where the
-    secant slope of a linear interpolation is off by up to 25 % of it.
-    """
-    return first - z_1, slope * (1.0 - lam_s - first), second - z_2

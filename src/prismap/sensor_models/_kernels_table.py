@@ -1,5 +1,5 @@
 """numba kernels that build PRISM's tables: one node grid per (measured disparity, surface rate), packed
-back to back with a metadata row each (:data:`META_COLUMNS`)."""
+back to back with a metadata row each (:data:`META_COLUMNS`), with the nodes' derivatives in the rate."""
 
 import math
 
@@ -9,8 +9,6 @@ import numpy as np
 from prismap.sensor_models._kernels_march import (
     _march,
     _march_x,
-    _rate_columns,
-    _rate_derivatives,
     log_likelihood,
     x_of_z,
     z_of_x,
@@ -29,8 +27,24 @@ _D_COLUMN = TABLE_COLUMNS // 2
 
 
 @nb.njit(cache=True, nogil=True)
-def _log_qg_slope(z, lam, z0, fb, shift, log_wn, means, sigmas):
-    """``log(q g)`` at depth ``z`` and its derivative in z (1/metre)."""
+def _log_qg_slope(z, lam, shift, geometry, mixture):
+    """``log(q g)`` at depth ``z`` and its derivative in z (1/metre).
+
+    Parameters
+    ----------
+    z : float, metres of depth
+        Where, after ``z0``.
+    lam : float, per metre of depth
+        Surface rate of the prior ``q(z) = lam e^{-lam (z - z0)}``.
+    shift : float, pixels
+        The ray's measured disparity plus ``doffs``.
+    geometry : Geometry
+        ``z0`` and ``fb`` are read (:class:`~prismap.sensor_models._kernel_args.Geometry`).
+    mixture : Mixture
+        The error mixture (:class:`~prismap.sensor_models._kernel_args.Mixture`).
+    """
+    z0, fb = geometry.z0, geometry.fb
+    log_wn, means, sigmas = mixture
     u = fb / z
     best = -np.inf
     total = 0.0
@@ -52,10 +66,47 @@ def _log_qg_slope(z, lam, z0, fb, shift, log_wn, means, sigmas):
 
 
 @nb.njit(cache=True, nogil=True)
-def _log_c_asymptotic(z, lam, z0, fb, shift, log_wn, means, sigmas):
-    """``log C(z)`` where ``q g`` rises steeply: ``C = q g / (d log(q g)/dz) (1 + O(phi''/phi'^2))``."""
-    phi, phi_z = _log_qg_slope(z, lam, z0, fb, shift, log_wn, means, sigmas)
+def _log_c_asymptotic(z, lam, shift, geometry, mixture):
+    """``log C(z)`` where ``q g`` rises steeply: ``C = q g / (d log(q g)/dz) (1 + O(phi''/phi'^2))``; parameters
+    as :func:`_log_qg_slope`'s."""
+    phi, phi_z = _log_qg_slope(z, lam, shift, geometry, mixture)
     return phi - math.log(phi_z)
+
+
+@nb.njit(cache=True, nogil=True)
+def _rate_derivatives(log_m, log_far, lam, z_far):
+    """First and second derivatives of ``log Q`` in ``log lam`` from the logs of Q's moments (``log_m`` (3,)).
+
+    ``Q = J + F``: ``J = int lam e^{-lam s} g`` has moments ``M_k``; the far term ``F = e^{-lam L} g_far``
+    (``L = z_far``, log -inf when absent) carries no factor ``lam``. For one mass at ``s``,
+    ``J' = J (1 - lam s)`` and ``J'' = J (1 - 3 lam s + lam^2 s^2)``; ``F' = -lam L F``,
+    ``F'' = (lam^2 L^2 - lam L) F``.
+    """
+    far = math.exp(log_far - log_m[0])
+    m1 = lam * math.exp(log_m[1] - log_m[0])
+    m2 = lam * lam * math.exp(log_m[2] - log_m[0])
+    lam_l = lam * z_far
+    j = 1.0 - far
+    m1 -= far * lam_l
+    m2 -= far * lam_l * lam_l
+    first = j - m1 - far * lam_l
+    second = j - 3.0 * m1 + m2 + far * (lam_l * lam_l - lam_l)
+    return first, second - first * first
+
+
+@nb.njit(cache=True, nogil=True)
+def _rate_columns(slope, first, second, z_1, z_2, lam_s):
+    """A node's three rate columns for ``log(Q/Z)`` (Q is C or D): its first log(lam)-derivative, that one's
+    x-derivative, and its second log(lam)-derivative.
+
+    ``first``, ``second`` are Q's own (:func:`_rate_derivatives`), ``z_1``, ``z_2`` Z's, ``slope`` is
+    ``d log Q/dx`` and ``lam_s = lam (z - z0)``. As ``dQ/dz = +-q g`` and ``d log(q g)/d log lam = 1 - lam s``
+    at fixed z, ``d first/dx = slope (1 - lam s - first)`` (Z's derivatives do not depend on z): the exact
+    slope, so that the first-order term is cubic Hermite in x like the value, and a short cell's share
+    ``C(c) - C(a)`` follows the rate where ``log C`` grows slowly (in front of the measurement), where the
+    secant slope of a linear interpolation is off by up to 25 % of it.
+    """
+    return first - z_1, slope * (1.0 - lam_s - first), second - z_2
 
 
 _FAR_RATIO = 4
@@ -66,27 +117,7 @@ N_SEGMENTS = 6
 
 
 @nb.njit(cache=True, nogil=True)
-def prism_table(
-    shift,
-    lam,
-    z0,
-    z_max,
-    fb,
-    ku,
-    h,
-    log_far,
-    log_eps_bound,
-    lam_slack,
-    coarse_ratio,
-    coarse_below,
-    e_front,
-    e_back,
-    wide_ratio,
-    wide_efolds,
-    log_wn,
-    means,
-    sigmas,
-):
+def prism_table(shift, lam, log_far, geometry, spec, mixture):
     """The table of one (d^, lam): a node per march panel, every ``coarse_ratio``-th one where C/Z is tiny.
 
     Node columns (see :data:`TABLE_COLUMNS`): ``log(C/Z)``, ``d log(C/Z)/dx``, the first and second
@@ -106,14 +137,32 @@ def prism_table(
     ``C/Z < e^coarse_below``: there ``C`` is its endpoint (Laplace) asymptotic ``q g / (q g)'`` (relative
     error about ``phi''/phi'^2``), all its mass at ``z``; quadrature starts at ``x_split``.
 
+    Parameters
+    ----------
+    shift : float, pixels
+        The table's measured disparity plus ``doffs``.
+    lam : float, per metre of depth
+        The table's surface rate.
+    log_far : float, log(1/pixel)
+        Log density of the far measurement: ``g`` averaged over true disparities below ``fb / z_max``.
+    geometry : Geometry
+        Depth range and disparity scales (:class:`~prismap.sensor_models._kernel_args.Geometry`).
+    spec : TableSpec
+        Node spacing and the influence cut (:class:`~prismap.sensor_models._kernel_args.TableSpec`): the names
+        above (``h``, ``coarse_ratio``, ...) are its fields.
+    mixture : Mixture
+        The error mixture (:class:`~prismap.sensor_models._kernel_args.Mixture`).
+
     Returns
     -------
-    nodes : (N, TABLE_COLUMNS) float64
+    nodes : (N, TABLE_COLUMNS) float64, log and its derivatives in x and log lam
     meta : (3 N_SEGMENTS + 5,) float64
         Per segment its first x, its first row and its spacing; then ``z_end`` (last node), ``z_infl``,
         ``log Z`` and its first and second derivatives in ``log lam`` (a ray's ``log Z`` by the Taylor
         term of the nodes, for the look-ups that integrate on the spot at the ray's own rate).
     """
+    z0, z_max, fb, ku = geometry
+    h, log_eps_bound, lam_slack, coarse_ratio, coarse_below, e_front, e_back, wide_ratio, wide_efolds = spec
     h_coarse = coarse_ratio * h
     h_wide = wide_ratio * h
     x0 = x_of_z(z0, lam, ku)
@@ -138,10 +187,10 @@ def prism_table(
     n_steep = 0  # coarse nodes after z0 where q g is steep
     while x0 + (n_steep + 2) * h_coarse < x_end:
         z = z_of_x(x0 + (n_steep + 1) * h_coarse, lam, ku)
-        slope = _log_qg_slope(z, lam, z0, fb, shift, log_wn, means, sigmas)[1]
+        slope = _log_qg_slope(z, lam, shift, geometry, mixture)[1]
         curvature = (
-            _log_qg_slope(z * (1.0 + 1e-5), lam, z0, fb, shift, log_wn, means, sigmas)[1]
-            - _log_qg_slope(z * (1.0 - 1e-5), lam, z0, fb, shift, log_wn, means, sigmas)[1]
+            _log_qg_slope(z * (1.0 + 1e-5), lam, shift, geometry, mixture)[1]
+            - _log_qg_slope(z * (1.0 - 1e-5), lam, shift, geometry, mixture)[1]
         ) / (2e-5 * z)
         if not slope > 0.0 or abs(curvature) > _STEEP * slope * slope:
             break
@@ -154,7 +203,7 @@ def prism_table(
         x_split = x0 + n_coarse * h_coarse
         z_split = z_of_x(x_split, lam, ku) if n_coarse > 0 else z0
         if n_coarse > 0:
-            log_c = _log_c_asymptotic(z_split, lam, z0, fb, shift, log_wn, means, sigmas)
+            log_c = _log_c_asymptotic(z_split, lam, shift, geometry, mixture)
             log_s = math.log(z_split - z0)
             for k in range(3):
                 log_c_start[k] = log_c + k * log_s
@@ -166,29 +215,23 @@ def prism_table(
         z, log_c, log_d, log_z, log_far_w, i_infl, i_far, h_far = _march(
             shift,
             lam,
-            z0,
+            log_far,
             z_split,
             log_c_start,
             counts,
             h_wide,
-            z_max,
-            fb,
-            ku,
             h,
-            log_far,
             log_eps_bound,
             lam_slack,
             counts[0] + 2,
             _FAR_RATIO,
-            log_wn,
-            means,
-            sigmas,
+            geometry,
+            mixture,
         )
         fit = n_coarse
         while (
             fit > 0
-            and _log_c_asymptotic(z_of_x(x0 + fit * h_coarse, lam, ku), lam, z0, fb, shift, log_wn, means, sigmas)
-            - log_z
+            and _log_c_asymptotic(z_of_x(x0 + fit * h_coarse, lam, ku), lam, shift, geometry, mixture) - log_z
             >= coarse_below
         ):
             fit -= 1
@@ -229,14 +272,14 @@ def prism_table(
         xi = x0 + row * h_coarse
         if 0 < row <= n_coarse:  # the slope of the asymptotic, also at x_split (the end of a coarse interval)
             slope_c = (
-                _log_c_asymptotic(z_of_x(xi + 0.25 * h, lam, ku), lam, z0, fb, shift, log_wn, means, sigmas)
-                - _log_c_asymptotic(z_of_x(xi - 0.25 * h, lam, ku), lam, z0, fb, shift, log_wn, means, sigmas)
+                _log_c_asymptotic(z_of_x(xi + 0.25 * h, lam, ku), lam, shift, geometry, mixture)
+                - _log_c_asymptotic(z_of_x(xi - 0.25 * h, lam, ku), lam, shift, geometry, mixture)
             ) / (0.5 * h)
         if row < n_coarse:
             zi = z_of_x(xi, lam, ku) if row > 0 else z0
             row_c[:] = -np.inf
             if row > 0:
-                log_c_z = _log_c_asymptotic(zi, lam, z0, fb, shift, log_wn, means, sigmas)
+                log_c_z = _log_c_asymptotic(zi, lam, shift, geometry, mixture)
                 log_s = math.log(zi - z0)
                 for k in range(3):
                     row_c[k] = log_c_z + k * log_s
@@ -247,7 +290,7 @@ def prism_table(
             zi = z[i]
             row_c[:] = log_c[i]
             row_d[:] = log_d[i]
-        log_qg = math.log(lam) - lam * (zi - z0) + log_likelihood(fb / zi, shift, log_wn, means, sigmas)
+        log_qg = math.log(lam) - lam * (zi - z0) + log_likelihood(fb / zi, shift, mixture)
         dx_dz = lam + ku / (zi * zi)
         lam_s = lam * (zi - z0)
         nodes[row, 0] = row_c[0] - log_z
@@ -307,27 +350,7 @@ _Z_END, _Z_INFL, _LOG_Z, _LOG_Z_1, _LOG_Z_2, _SHIFT, _LOG_FAR, _OFFSET, _LENGTH 
 
 
 @nb.njit(cache=True, nogil=True)
-def prism_tables(
-    shifts,
-    lams,
-    log_fars,
-    z0,
-    z_max,
-    fb,
-    ku,
-    h,
-    log_eps_bound,
-    lam_slack,
-    coarse_ratio,
-    coarse_below,
-    e_front,
-    e_back,
-    wide_ratio,
-    wide_efolds,
-    log_wn,
-    means,
-    sigmas,
-):
+def prism_tables(shifts, lams, log_fars, geometry, spec, mixture):
     """:func:`prism_table` of every ``(shifts[k], lams[k], log_fars[k])``, packed for the table cache.
 
     Returns ``nodes`` (N, :data:`TABLE_COLUMNS`) float32, every table's rows back to back (their rounding is
@@ -336,33 +359,24 @@ def prism_tables(
     table packed as soon as it is built (its float64 rows reuse the memory of the one before: holding a whole
     batch in float64 first doubles its memory and page faults), into room for :data:`_PACK_ROWS` rows a table
     that grows by half when full; ``nodes`` may be a view of that room.
+
+    Parameters
+    ----------
+    shifts : (K,) float64, pixels
+        Each table's measured disparity plus ``doffs``.
+    lams : (K,) float64, per metre of depth
+        Each table's surface rate.
+    log_fars : (K,) float64, log(1/pixel)
+        Each table's far-measurement log density.
+    geometry, spec, mixture
+        As :func:`prism_table`'s, shared by all the tables.
     """
     n_tables = shifts.size
     meta = np.empty((n_tables, _LENGTH + 1))
     packed = np.empty((_PACK_ROWS * n_tables, TABLE_COLUMNS), dtype=np.float32)
     total = 0
     for k in range(n_tables):
-        nodes, table_meta = prism_table(
-            shifts[k],
-            lams[k],
-            z0,
-            z_max,
-            fb,
-            ku,
-            h,
-            log_fars[k],
-            log_eps_bound,
-            lam_slack,
-            coarse_ratio,
-            coarse_below,
-            e_front,
-            e_back,
-            wide_ratio,
-            wide_efolds,
-            log_wn,
-            means,
-            sigmas,
-        )
+        nodes, table_meta = prism_table(shifts[k], lams[k], log_fars[k], geometry, spec, mixture)
         rows = nodes.shape[0]
         if total + rows > packed.shape[0]:
             grown = np.empty(

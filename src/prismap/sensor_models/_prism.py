@@ -27,6 +27,7 @@ from prismap.gmm import GaussianMixture
 from prismap.sensor_models import _kernels_direct, _kernels_lookup, _kernels_map_prior, _kernels_table
 from prismap.sensor_models._base import register_model
 from prismap.sensor_models._failure import blend_increments, log_failure_posterior
+from prismap.sensor_models._kernel_args import Geometry, Mixture, TableSpec
 from prismap.sensor_models._params import RayModel
 from prismap.sensor_models._prism_cache import _LENGTH, _OFFSET, TableCache
 from prismap.sensor_models._prism_discrete import log_mean_likelihood
@@ -248,13 +249,18 @@ class PrismModel(RayModel):
         """``lambda``: surfaces per metre of ray, from ``p0`` and ``voxel_size_m``."""
         return -np.log1p(-self.p0) / self.voxel_size_m
 
-    def _mixture_arrays(self):
+    def _mixture(self):
+        """The error mixture as the kernels take it."""
         m = self.error_model
         log_wn = np.log(m.weights) - np.log(m.sigmas) - 0.5 * np.log(2 * np.pi)
-        return log_wn, np.ascontiguousarray(m.means), np.ascontiguousarray(m.sigmas)
+        return Mixture(log_wn, np.ascontiguousarray(m.means), np.ascontiguousarray(m.sigmas))
 
     def _ku(self):
         return self.focal_baseline / float(self.error_model.sigmas.min())
+
+    def _geometry(self):
+        """The depth range and disparity scales as the kernels take them."""
+        return Geometry(self.near_m, self.far_depth_m, self.focal_baseline, self._ku())
 
     def _log_far(self, disparity):
         u_max = self.focal_baseline / self.far_depth_m
@@ -311,18 +317,15 @@ class PrismModel(RayModel):
             result = _kernels_direct.prism_direct_cells(
                 disparity + self.doffs_px,
                 lam,
+                self._log_far(disparity),
                 order,
                 ray_start,
                 start,
                 end + stretch[rays],
-                self.near_m,
-                self.far_depth_m,
-                self.focal_baseline,
-                self._ku(),
                 _QUAD_STEP,
-                self._log_far(disparity),
-                *self._mixture_arrays(),
                 self.pass_through,
+                self._geometry(),
+                self._mixture(),
             )
         elif method == "table":
             result = self._table_cells(lam, disparity, norm, rays, start, end, stretch)
@@ -343,15 +346,7 @@ class PrismModel(RayModel):
             log_z = meta[table, _LOG_Z] + delta * (meta[table, _LOG_Z_1] + 0.5 * delta * meta[table, _LOG_Z_2])
         else:
             log_z = _kernels_direct.prism_log_evidence(
-                disparity + self.doffs_px,
-                lam,
-                self.near_m,
-                self.far_depth_m,
-                self.focal_baseline,
-                self._ku(),
-                _QUAD_STEP,
-                self._log_far(disparity),
-                *self._mixture_arrays(),
+                disparity + self.doffs_px, lam, self._log_far(disparity), _QUAD_STEP, self._geometry(), self._mixture()
             )
         log_fail, log_ok = log_failure_posterior(self.error_model, log_z)
         length = np.clip(end, self.near_m, self.far_depth_m) - np.clip(start, self.near_m, self.far_depth_m)
@@ -400,29 +395,22 @@ class PrismModel(RayModel):
         ray_start = np.searchsorted(rays[order], np.arange(disparity.size + 1))
         _check_tiling(rays[order], start[order], end[order], ray_start, self.near_m)
         cell_rate = np.logaddexp(0.0, log_odds) / self.voxel_size_m * norm[rays]  # per metre of depth
-        log_w = np.log(self.error_model.weights)
-        log_wn, means, sigmas = self._mixture_arrays()
         return _kernels_map_prior.prism_map_prior_cells(
             disparity + self.doffs_px,
             lam,
+            self._log_far(disparity),
             order,
             ray_start,
             start,
             end,
             stretch,
             cell_rate,
-            self.near_m,
-            self.far_depth_m,
-            self.focal_baseline,
-            self._ku(),
             _TAIL_STEP,
             _TAIL_REST,
-            self._log_far(disparity),
-            log_wn,
-            log_w,
-            means,
-            sigmas,
             self.pass_through,
+            np.log(self.error_model.weights),
+            self._geometry(),
+            self._mixture(),
         )
 
     # ------------------------------------------------------------------ tables
@@ -430,27 +418,21 @@ class PrismModel(RayModel):
         """Tabulated posteriors and increments of the cells ``[start, end + stretch[rays]]``
         (``_kernels_lookup.prism_table_cells``: table look-ups, vectorised exp, combination, vectorised log)."""
         table, delta, meta, nodes = self._tables_for(disparity, norm)
-        log_wn, means, sigmas = self._mixture_arrays()
         return _kernels_lookup.prism_table_cells(
             lam,
             table,
             delta,
+            stretch,
             rays,
             start,
             end,
-            stretch,
-            _CHUNK_CELLS,
-            self.near_m,
-            self.far_depth_m,
-            self.focal_baseline,
-            self._ku(),
-            _QUAD_STEP,
             meta,
             nodes,
-            log_wn,
-            means,
-            sigmas,
+            _QUAD_STEP,
+            _CHUNK_CELLS,
             self.pass_through,
+            self._geometry(),
+            self._mixture(),
         )
 
     def _tables_for(self, disparity, norm):
@@ -477,34 +459,22 @@ class PrismModel(RayModel):
         lam = self.rate_per_m * np.exp(key_l * _LAMBDA_STEP)
         log_far = self._log_far(disparity)
         shift = disparity + self.doffs_px
-        log_wn, means, sigmas = self._mixture_arrays()
-        log_eps_bound = float(np.log(np.expm1(self.influence_epsilon)))
-        ku = self._ku()
+        geometry, mixture = self._geometry(), self._mixture()
         e_front, e_back, wide_ratio = broad_errors(self.error_model)
-        coarse = coarse_ratio(self.error_model)
+        spec = TableSpec(
+            h=_TABLE_STEP,
+            log_eps_bound=float(np.log(np.expm1(self.influence_epsilon))),
+            lam_slack=_LAMBDA_SLACK,
+            coarse_ratio=coarse_ratio(self.error_model),
+            coarse_below=_COARSE_BELOW,
+            e_front=e_front,
+            e_back=e_back,
+            wide_ratio=wide_ratio,
+            wide_efolds=_WIDE_EFOLDS,
+        )
 
         def build(share):
-            return _kernels_table.prism_tables(
-                shift[share],
-                lam[share],
-                log_far[share],
-                self.near_m,
-                self.far_depth_m,
-                self.focal_baseline,
-                ku,
-                _TABLE_STEP,
-                log_eps_bound,
-                _LAMBDA_SLACK,
-                coarse,
-                _COARSE_BELOW,
-                e_front,
-                e_back,
-                wide_ratio,
-                _WIDE_EFOLDS,
-                log_wn,
-                means,
-                sigmas,
-            )
+            return _kernels_table.prism_tables(shift[share], lam[share], log_far[share], geometry, spec, mixture)
 
         n = shift.size
         if n < 2 * _BUILD_THREADS:

@@ -91,23 +91,11 @@ def estimate_prior_from_likelihood(
     )
     shift = disparity + model.doffs_px
     log_far = model._log_far(disparity)
-    log_wn, means, sigmas = model._mixture_arrays()
+    geometry, mixture = model._geometry(), model._mixture()
 
     def negative_log_likelihood(log_p0):
         lam = -np.log1p(-np.exp(log_p0)) / model.voxel_size_m * norm
-        log_z = _kernels_direct.prism_log_evidence(
-            shift,
-            lam,
-            model.near_m,
-            model.far_depth_m,
-            model.focal_baseline,
-            model._ku(),
-            _QUAD_STEP,
-            log_far,
-            log_wn,
-            means,
-            sigmas,
-        )
+        log_z = _kernels_direct.prism_log_evidence(shift, lam, log_far, _QUAD_STEP, geometry, mixture)
         return -with_floor(log_z, error_model).sum()
 
     result = minimize_scalar(

@@ -1,0 +1,87 @@
+"""Argument bundles of PRISM's numba kernels: the error mixture, the depth range with its disparity scales, and
+the node spacing of a table. Each is built once by :class:`~prismap.sensor_models.PrismModel` and passed down
+unchanged; numba compiles a ``NamedTuple`` of scalars or of arrays like separate arguments.
+"""
+
+from typing import NamedTuple
+
+import numpy as np
+
+
+class Mixture(NamedTuple):
+    """The disparity error mixture ``g(e) = sum_j w_j N(e; mu_j, sigma_j)`` in the form the kernels evaluate.
+
+    Attributes
+    ----------
+    log_wn : (J,) float64, log(1/pixel)
+        ``log(w_j / (sigma_j sqrt(2 pi)))``: each component's log density at its mean.
+    means : (J,) float64, pixels, C-contiguous
+        ``mu_j``, component means of the error ``e = d_true - d_computed``.
+    sigmas : (J,) float64, pixels, C-contiguous
+        ``sigma_j > 0``, component standard deviations.
+    """
+
+    log_wn: np.ndarray
+    means: np.ndarray
+    sigmas: np.ndarray
+
+
+class Geometry(NamedTuple):
+    """Where PRISM places surfaces along a ray, and how depth maps to disparity there.
+
+    Attributes
+    ----------
+    z0 : float, metres of depth
+        ``near_m``: no surface before this depth; the prior's survival starts here.
+    z_max : float, metres of depth
+        ``far_depth_m``: nothing before it gives the far measurement.
+    fb : float, pixel metres
+        Focal length times baseline: a surface at depth ``z`` has true disparity ``fb / z`` (plus ``doffs``, which
+        the kernels carry in each ray's ``shift``).
+    ku : float, pixel metres
+        ``fb / sigma_min`` (narrowest component's sigma): the likelihood term of the integration coordinate
+        ``x(z) = lam z - ku / z``, which grows by one unit per prior e-fold and per narrowest sigma of disparity.
+    """
+
+    z0: float
+    z_max: float
+    fb: float
+    ku: float
+
+
+class TableSpec(NamedTuple):
+    """How a PRISM table spaces its nodes in ``x`` and where it cuts its march (``_kernels_table.prism_table``).
+
+    Attributes
+    ----------
+    h : float, x units
+        Fine node spacing, also the x-width of the march's fine panels (``_prism_spacing._TABLE_STEP``).
+    log_eps_bound : float, log
+        ``log(expm1(influence_epsilon))``: the influence node is the first past which every cell's increment is
+        below ``influence_epsilon`` (log-odds).
+    lam_slack : float, dimensionless
+        Relative rate gap ``s`` the influence node covers: it holds for every rate in ``[lam (1 - s), lam (1 + s)]``
+        (the rays that share the table).
+    coarse_ratio : int, fine nodes per coarse node
+        Spacing of the coarse front, ``coarse_ratio h`` (``_prism_spacing.coarse_ratio``).
+    coarse_below : float, log
+        ``log(C/Z)`` below which the coarse front's endpoint asymptotic of ``C`` is used.
+    e_front, e_back : float, pixels
+        Errors beyond which only the wide error components matter: the broad front holds true disparities above
+        ``shift + e_front``, the broad back those below ``shift + e_back`` (``_prism_spacing.broad_errors``;
+        ``inf``, ``-inf``: none).
+    wide_ratio : int, fine nodes per broad node
+        Spacing of the broad segments, ``wide_ratio h`` (1: no broad segments).
+    wide_efolds : float, prior e-folds
+        Most e-folds of the prior one broad interval may span.
+    """
+
+    h: float
+    log_eps_bound: float
+    lam_slack: float
+    coarse_ratio: int
+    coarse_below: float
+    e_front: float
+    e_back: float
+    wide_ratio: int
+    wide_efolds: float
