@@ -20,6 +20,17 @@ def test_confident_and_wrong_rates_by_hand():
     assert only_free.free_confident_occupied == 0.5 and np.isnan(only_free.occupied_confident_free)
 
 
+def test_calibration_at_the_extremes_by_hand():
+    p = np.array([0.995, 0.99, 0.999, 0.5, 0.001, 0.01, 0.0, 0.005, 0.2])
+    y = np.array([False, True, True, False, False, True, False, False, True])
+    s = score_map(p, y)
+    assert s.free_share_at_high_p == pytest.approx(1 / 3)  # 0.995 of 0.995, 0.99, 0.999
+    assert s.occupied_share_at_low_p == pytest.approx(1 / 4)  # 0.01 of 0.001, 0.01, 0.0, 0.005
+    timid = score_map(np.array([0.2, 0.8]), np.array([False, True]))
+    assert np.isnan(timid.free_share_at_high_p) and np.isnan(timid.occupied_share_at_low_p)
+    assert timid.free_confident_occupied == 0.0  # never sure, so never "confident and wrong"
+
+
 def test_logit_bins_reach_the_extremes():
     assert LOGIT_BIN_EDGES[0] == 0.0 and LOGIT_BIN_EDGES[-1] == 1.0
     assert LOGIT_BIN_EDGES[1] < 2e-4 and LOGIT_BIN_EDGES[-2] > 1 - 2e-4
@@ -64,6 +75,7 @@ def test_scores_round_trip_with_the_new_fields():
         np.testing.assert_array_equal(getattr(back, name), getattr(s, name))
         assert getattr(back, name).dtype == np.int64
     assert back.free_confident_occupied == s.free_confident_occupied
+    assert back.occupied_share_at_low_p == s.occupied_share_at_low_p
 
 
 @pytest.fixture(scope="module")

@@ -163,9 +163,10 @@ def test_the_results_compare_fusions_fitted_on_the_characterisation_frames(stree
         for f in ("independent", "persistent failure", "clamped at one view")
     }
     cells = {c["model"]: c["scores"] for c in document["cells"]}
-    for row in rows:  # the independent reading is the cell's own score
-        if row["fusion"] == "independent":
+    for row in rows:  # the maps take prismap map's default reading, the clamp: its row is the cell's own score
+        if row["fusion"] == "clamped at one view":
             assert row["log_loss"] == pytest.approx(cells[row["model"]]["log_loss"], rel=1e-12)
+    assert block == json.loads((out / "sgbm" / "characterisation" / "error_model.json").read_text())["fusion"]
     sequence = read_sequence(out / "sequence")
     assert "## Fusion of repeated failures" in (out / "results.md").read_text()
     # refitting on the mapping frames gives another block: the run fits on the characterisation frames only

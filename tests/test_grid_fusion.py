@@ -8,7 +8,7 @@ from scipy.special import expit, logit
 from scipy.stats import binom
 
 from prismap.errors import PrismapInputError
-from prismap.grid._fusion import MAX_VIEWS, PersistentFailure
+from prismap.grid._fusion import MAX_VIEWS, FailureClamp, PersistentFailure
 
 
 def _pattern_probability(pattern, rate, persistence):
@@ -110,7 +110,7 @@ def test_the_map_reads_its_sums_with_its_fusion_and_keeps_it_in_files_and_merges
     assert fused.copy().fusion == failure
     with pytest.raises(PrismapInputError, match="different grids or readings: fusion"):
         fused.merge(plain)
-    with pytest.raises(PrismapInputError, match="`fusion` must be a PersistentFailure"):
+    with pytest.raises(PrismapInputError, match="`fusion` must be a MapReading or None"):
         OccupancyMap(0.2, p0=0.1, fusion=(0.05, 0.5))
 
 
@@ -122,3 +122,55 @@ def test_the_reading_stays_a_probability_at_saturated_sums():
     log_odds = np.tile([2048.0, -2048.0, 700.0], 64)
     p = fusion.probability(log_odds, counts, 0.05)
     assert np.all((p >= 0.0) & (p <= 1.0)) and p[0] > 0.5 > p[1]
+
+
+def test_the_clamp_is_the_one_view_bound_of_the_persistent_state():
+    """FailureClamp keeps the independent sum inside PersistentFailure's one-view bound, for any count."""
+    clamp = FailureClamp(0.04)
+    p0 = 0.1
+    assert clamp.bounds(p0) == pytest.approx(PersistentFailure(0.04, 0.5).bounds(p0, 1))
+    assert clamp.bounds(p0, 30) == clamp.bounds(p0)  # more views earn no more certainty than one
+    log = logit(p0) + np.array([-2048.0, -40.0, -1.0, 0.0, 0.7, 9.0, 2048.0])
+    counts = np.array([1, 7, 2, 0, 3, 5, 64])
+    low, high = 0.04 * p0, 1 - 0.04 * (1 - p0)
+    np.testing.assert_allclose(clamp.probability(log, counts, p0), np.clip(expit(log), low, high))
+    assert clamp.probability(log, counts, p0)[[0, -1]] == pytest.approx([low, high])
+    np.testing.assert_array_equal(FailureClamp(0.0).probability(log, counts, p0), expit(log))  # r = 0: independent
+    with pytest.raises(PrismapInputError, match="`rate` must lie in"):
+        FailureClamp(1.0)
+    with pytest.raises(PrismapInputError, match="1-D of one shape"):
+        clamp.probability(log, counts[:3], p0)
+
+
+@pytest.mark.parametrize("reading", [None, PersistentFailure(0.05, 0.6), FailureClamp(0.03)])
+def test_map_files_keep_every_reading(reading, tmp_path):
+    from prismap.grid import OccupancyMap
+    from prismap.io import load_map, save_map
+
+    grid = OccupancyMap(0.2, p0=0.1, fusion=reading)
+    keys = np.array([[0, 0, 0], [1, 0, 0]], dtype=np.int64)
+    grid.set_voxels(keys, logit(0.1) + np.array([-30.0, 30.0]), np.array([2, 4]))
+    save_map(grid, tmp_path / "m.npz")
+    back = load_map(tmp_path / "m.npz")
+    assert back.fusion == reading
+    np.testing.assert_array_equal(back.probability_at_keys(keys), grid.probability_at_keys(keys))
+
+
+def test_version_3_files_read_their_fusion_as_persistent_failure(tmp_path):
+    from prismap.grid import OccupancyMap
+    from prismap.io import load_map, save_map
+
+    grid = OccupancyMap(0.2, p0=0.1, fusion=PersistentFailure(0.05, 0.6))
+    grid.set_voxels(np.zeros((1, 3), np.int64), np.array([3.0]), np.array([2]))
+    for reading, fusion in ((PersistentFailure(0.05, 0.6), (0.05, 0.6)), (None, (np.nan, np.nan))):
+        save_map(grid, tmp_path / "m.npz")
+        with np.load(tmp_path / "m.npz") as data:
+            fields = dict(data)
+        del fields["fusion_model"]
+        fields.update(format_version=np.array(3), fusion=np.array(fusion))
+        np.savez(tmp_path / "m.npz", **fields)
+        assert load_map(tmp_path / "m.npz").fusion == reading
+    fields.update(format_version=np.array(4), fusion_model=np.array("clamped"))
+    np.savez(tmp_path / "m.npz", **fields)
+    with pytest.raises(PrismapInputError, match=r"m.npz: `fusion_model` must be one of \['independent'"):
+        load_map(tmp_path / "m.npz")

@@ -58,7 +58,7 @@ def write_fields(path, **changes):
     [
         (lambda p: p.write_bytes(b"not a zip file at all"), "not a readable .npz"),
         (lambda p: (save_map(small_map(), p), p.write_bytes(p.read_bytes()[:200])), "truncated or corrupt"),
-        (lambda p: write_fields(p, format_version=np.array(4)), "version 4 is not supported"),
+        (lambda p: write_fields(p, format_version=np.array(5)), "version 5 is not supported"),
         (lambda p: write_fields(p, counts=None), r"lacks field\(s\) \['counts'\]"),
         (lambda p: write_fields(p, format=np.array("something-else")), "not a prismap map file"),
         (lambda p: np.save(open(p, "wb"), np.zeros(3)), "not a readable .npz"),

@@ -1,5 +1,5 @@
-"""prismap map with the persistent-failure reading: the same stored sums as the independent run, read through
-the error model's fusion block, kept by checkpoints, and one option away from today's independent sum."""
+"""prismap map's readings of the error model's fusion block: the clamp at the one-view bound by default, the
+persistent failure state, and the independent sum one option away; the same stored sums, kept by checkpoints."""
 
 import numpy as np
 import pytest
@@ -7,7 +7,7 @@ import pytest
 from prismap.characterise import ErrorModel
 from prismap.errors import PrismapInputError
 from prismap.gmm import MixtureFit
-from prismap.grid import PersistentFailure
+from prismap.grid import FailureClamp, PersistentFailure
 from prismap.io import load_map
 from prismap.pipeline import map_sequence
 from support import MIXTURE, config, synthetic_sequence
@@ -27,7 +27,7 @@ def _error_model(fusion=BLOCK):
 
 
 def test_persistent_failure_reads_the_independent_sums(sequence_dir, tmp_path):
-    independent = map_sequence(sequence_dir, config(error_model=_error_model()), progress=False)
+    independent = map_sequence(sequence_dir, config(error_model=_error_model(), fusion="independent"), progress=False)
     fused = map_sequence(sequence_dir, config(error_model=_error_model(), fusion="persistent-failure"), progress=False)
     keys, log, counts = independent.known_voxels()
     keys_f, log_f, counts_f = fused.known_voxels()
@@ -53,6 +53,28 @@ def test_the_fusion_option_is_checked():
         config(error_model=_error_model(None), fusion="persistent-failure")
     with pytest.raises(PrismapInputError, match="`fusion` must be one of"):
         config(error_model=_error_model(), fusion="clamped")
-    plain, fused = config(error_model=_error_model()), config(error_model=_error_model(), fusion="persistent-failure")
-    assert "fusion" not in plain.to_dict() and fused.to_dict()["fusion"] == BLOCK
-    assert plain.fingerprint() != fused.fingerprint()  # a checkpoint of one is not resumed as the other
+    plain = config(error_model=_error_model(), fusion="independent")
+    fused = config(error_model=_error_model(), fusion="persistent-failure")
+    assert "fusion" not in plain.to_dict()
+    assert fused.to_dict()["fusion"] == {"reading": "persistent-failure", **BLOCK}
+    clamped = config(error_model=_error_model())
+    assert clamped.to_dict()["fusion"] == {"reading": "failure-clamp", **BLOCK}
+    assert len({plain.fingerprint(), fused.fingerprint(), clamped.fingerprint()}) == 3  # no resuming one as another
+
+
+def test_the_default_reading_is_the_clamp_when_the_error_model_has_a_block(sequence_dir):
+    """The clamp for models that take the error model and a block; the independent sum otherwise."""
+    assert config(error_model=_error_model()).fusion == "failure-clamp"
+    assert config(error_model=_error_model()).map_reading == FailureClamp(0.05)
+    assert config(error_model=_error_model(None)).fusion == "independent"
+    assert config(error_model=_error_model(), model="hitmiss").fusion == "independent"  # takes no error model
+    clamped = map_sequence(sequence_dir, config(model="prism", error_model=_error_model()), progress=False)
+    cfg = config(model="prism", error_model=_error_model(), fusion="independent")
+    independent = map_sequence(sequence_dir, cfg, progress=False)
+    keys, log, counts = independent.known_voxels()
+    np.testing.assert_array_equal(clamped.known_voxels()[1], log)  # the stored sums do not change
+    low, high = FailureClamp(0.05).bounds(clamped.p0)
+    p = clamped.probability_at_keys(keys)
+    np.testing.assert_allclose(p, np.clip(independent.probability_at_keys(keys), low, high))
+    assert independent.probability_at_keys(keys).min() < low  # PRISM's free evidence passes the lower bound
+    assert p.min() == pytest.approx(low) and p.max() <= high

@@ -10,7 +10,13 @@ from prismap.characterise._features import (
     discontinuity_mask,
     disparity_gradient,
 )
-from prismap.characterise._fusion import FUSION_MODELS, fit_fusion, fusion_block, fusion_from_block
+from prismap.characterise._fusion import (
+    FUSION_MODELS,
+    fit_fusion,
+    fusion_block,
+    fusion_from_block,
+    map_reading,
+)
 from prismap.characterise._histogram import ErrorHistogram
 from prismap.characterise._model import ErrorModel, load_error_model, write_error_model
 from prismap.characterise._model_table import format_table
@@ -51,6 +57,7 @@ __all__ = [
     "frame_error_correlation",
     "fusion_block",
     "fusion_from_block",
+    "map_reading",
     "load_error_model",
     "rig_differences",
     "self_characterise",

@@ -22,7 +22,7 @@ import numpy.typing as npt
 from prismap.camera import StereoCamera
 from prismap.characterise._correlation import frame_error_correlation
 from prismap.errors import PrismapInputError
-from prismap.grid import PersistentFailure
+from prismap.grid import MAP_READINGS, FailureClamp, MapReading, PersistentFailure
 from prismap.io._frame import StereoFrame
 
 FUSION_MODELS = ("independent", "persistent-failure")
@@ -139,3 +139,18 @@ def fusion_block(fusion: PersistentFailure | None, **fit: Any) -> dict[str, Any]
     if fusion is None:
         return {"model": "independent"}
     return {"model": "persistent-failure", **fusion.to_dict(), **fit}
+
+
+def map_reading(block: dict[str, Any] | None, reading: str) -> MapReading | None:
+    """The map reading named ``reading`` (one of :data:`MAP_READINGS`) of a fusion block; None = independent.
+
+    ``"persistent-failure"`` is the block's :class:`~prismap.grid.PersistentFailure`, ``"failure-clamp"`` the
+    independent sum clamped to its one-view bound (:class:`~prismap.grid.FailureClamp` of its rate). A block
+    that says "independent", or none, reads every way as the independent sum.
+    """
+    if reading not in MAP_READINGS:
+        raise PrismapInputError(f"`fusion` must be one of {list(MAP_READINGS)}; got {reading!r}")
+    failure = fusion_from_block(block)
+    if failure is None or reading == "independent":
+        return None
+    return failure if reading == "persistent-failure" else FailureClamp(failure.rate)

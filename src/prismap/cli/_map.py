@@ -8,6 +8,7 @@ import math
 import os
 import shlex
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 from prismap._files import write_text_atomic
@@ -19,7 +20,7 @@ from prismap.errors import PrismapInputError
 
 def register(subparsers):
     """Add the ``map`` parser."""
-    from prismap.grid import POLICIES
+    from prismap.grid import MAP_READINGS, POLICIES
     from prismap.sensor_models import model_names
     from prismap.stereo import matcher_names
 
@@ -76,11 +77,12 @@ def register(subparsers):
     )
     parser.add_argument(
         "--fusion",
-        choices=("independent", "persistent-failure"),
-        default="independent",
-        help="how the map reads its sums: independent frames (default), or under the matcher's "
-        "failure state that persists across views, from the error model's fusion block "
-        "(docs/SENSOR_MODELS.md section 9)",
+        choices=MAP_READINGS,
+        help="how the map reads its sums, from the error model's fusion block (the matcher's failure rate r "
+        "and persistence q across views; docs/SENSOR_MODELS.md section 9): failure-clamp (the default when "
+        "the block is there) keeps every voxel within what one view can prove, [r p0, 1 - r (1 - p0)]; "
+        "persistent-failure reads the sums under the failure state; independent (the default without a "
+        "block) is the plain sum of the frames' evidence",
     )
     parser.add_argument(
         "--strict-rig",
@@ -220,6 +222,8 @@ def map_command(config, *, inputs, error_model, out):
     argv += ["--subsample", str(config.subsample)]
     if config.disparity_source not in ("matcher", "sequence"):
         argv += ["--disparity-dir", config.disparity_source]
+    if config.fusion != replace(config, fusion=None).fusion:
+        argv += ["--fusion", config.fusion]
     start, stop = config.frames
     argv += ["--frames", f"{start}:{'' if stop is None else stop}", "--out", str(out)]
     return argv

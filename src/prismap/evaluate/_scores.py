@@ -84,6 +84,11 @@ class MapScores:
     occupied_confident_free : float
         "Confident and wrong" about obstacles: fraction of truly occupied voxels with ``P <= 0.01``; NaN without
         any.
+    free_share_at_high_p : float
+        Calibration at the top of the scale: of the voxels at ``P >= 0.99``, the fraction truly free. A
+        calibrated map keeps it at most 1 %; NaN when no voxel is that sure (a timid map is never wrong here).
+    occupied_share_at_low_p : float
+        Of the voxels at ``P <= 0.01``, the fraction truly occupied (calibrated: at most 1 %); NaN without any.
     bin_edges : (B + 1,) float64
         Edges of the equal-width reliability bins on ``[0, 1]``.
     bin_counts : (B,) int64
@@ -128,6 +133,8 @@ class MapScores:
     hist_occupied: np.ndarray
     free_confident_occupied: float = float("nan")
     occupied_confident_free: float = float("nan")
+    free_share_at_high_p: float = float("nan")
+    occupied_share_at_low_p: float = float("nan")
     logit_bin_edges: np.ndarray = field(default_factory=lambda: LOGIT_BIN_EDGES.copy())
     logit_bin_counts: np.ndarray = field(default_factory=lambda: np.zeros(len(LOGIT_BIN_EDGES) - 1, np.int64))
     logit_bin_mean_probability: np.ndarray = field(default_factory=lambda: np.full(len(LOGIT_BIN_EDGES) - 1, np.nan))
@@ -145,6 +152,11 @@ class MapScores:
             else:
                 out[name] = _plain(value)
         return out
+
+
+def _share(truth, selected):
+    """Fraction of the ``selected`` voxels where ``truth`` holds; NaN when none is selected."""
+    return float(np.mean(truth[selected])) if selected.any() else float("nan")
 
 
 def _plain(value):
@@ -234,6 +246,8 @@ def score_map(
         safety_threshold=threshold,
         free_confident_occupied=float(np.mean(p[~y] >= CONFIDENT)) if n_free else float("nan"),
         occupied_confident_free=float(np.mean(p[y] <= 1.0 - CONFIDENT)) if n_occupied else float("nan"),
+        free_share_at_high_p=_share(~y, p >= CONFIDENT),
+        occupied_share_at_low_p=_share(y, p <= 1.0 - CONFIDENT),
         bin_edges=bin_edges,
         bin_counts=bin_counts.astype(np.int64),
         bin_mean_probability=bin_mean,

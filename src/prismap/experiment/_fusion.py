@@ -1,5 +1,6 @@
 """The fusion comparison of the 3-D experiments: each error-model map read under independent fusion, the
-persistent-failure model fitted on the characterisation frames, and clamping at that model's one-view bound.
+persistent-failure model fitted on the characterisation frames, and clamping at that model's one-view bound
+(``prismap map``'s default reading, which the run's maps take).
 
 Every reading is a function of the stored sums (log-odds, count), so one map serves all three and the comparison
 costs no mapping (docs/SENSOR_MODELS.md, "Fusion when a matcher's failures repeat").
@@ -12,6 +13,7 @@ import numpy as np
 from scipy.special import expit, logit
 
 from prismap.evaluate import align_to_ground_truth, score_map
+from prismap.grid import FailureClamp
 
 FUSIONS = ("independent", "persistent failure", "clamped at one view")
 """The readings compared, in table order."""
@@ -24,6 +26,8 @@ FUSION_COLUMNS = (
     ("at 90 % free", "safety_occupied_called_free", "{:.4f}"),
     ("free at P >= 0.99", "free_confident_occupied", "{:.3%}"),
     ("occupied at P <= 0.01", "occupied_confident_free", "{:.3%}"),
+    ("of P >= 0.99: free", "free_share_at_high_p", "{:.2%}"),
+    ("of P <= 0.01: occupied", "occupied_share_at_low_p", "{:.2%}"),
 )
 """(label, MapScores field, format) of the section's columns."""
 
@@ -51,30 +55,31 @@ FUSED_MODELS = ("andert", "prism")
 """Models whose maps the comparison reads (those that use the error model), plain and conditioned."""
 
 
-def compare_run_fusions(out_dir, char_frames, matcher, camera, maps, truth):
-    """One matcher's part of a 3-D run's fusion comparison.
+def fit_run_fusion(out_dir, char_frames, matcher, camera, error_model):
+    """Fit a matcher's fusion block on the run's characterisation frames, before any map is made.
+
+    The block joins the matcher's error model (``out_dir/characterisation/error_model.json``), so the maps take
+    ``prismap map``'s default reading of it, as a user's run would.
 
     Parameters
     ----------
     out_dir : Path
-        The matcher's disparities of ``char_frames`` go to ``out_dir/fusion_disparity/`` (reused on resume).
+        The matcher's folder; its disparities of ``char_frames`` go to ``out_dir/fusion_disparity/`` (reused
+        on resume).
     char_frames : sequence of StereoFrame
         The run's characterisation frames, with truth and poses.
     matcher : prismap.stereo.StereoMatcher
     camera : StereoCamera
-    maps : dict of str -> OccupancyMap
-        The matcher's map of each cell model (:func:`~prismap.experiment._cells.run_cells`).
-    truth : GroundTruthOccupancy
+    error_model : ErrorModel
+        The matcher's characterised error model.
 
     Returns
     -------
-    block : dict or None
-        The fitted fusion block (:func:`prismap.characterise.fit_fusion`), also stored in the matcher's error
-        model file (``out_dir/characterisation/error_model.json``); None when the frames cannot fit one (too few
-        surface points seen from consecutive positions), and then no rows.
-    rows : list of FusionRow
+    ErrorModel
+        ``error_model`` with the fitted block (:func:`prismap.characterise.fit_fusion`), or unchanged when the
+        frames cannot fit one (too few surface points seen from consecutive positions).
     """
-    from prismap.characterise import fit_fusion, fusion_from_block, load_error_model, write_error_model
+    from prismap.characterise import fit_fusion, write_error_model
     from prismap.errors import PrismapInputError
     from prismap.experiment._steps3d import match_frames, read_disparities
 
@@ -82,12 +87,34 @@ def compare_run_fusions(out_dir, char_frames, matcher, camera, maps, truth):
     try:
         block = fit_fusion(char_frames, list(read_disparities(disparity_dir, len(char_frames))), camera)
     except PrismapInputError:
-        return None, []
-    model_path = Path(out_dir) / "characterisation" / "error_model.json"
-    write_error_model(replace(load_error_model(model_path), fusion=block), model_path)
-    failure = fusion_from_block(block)
-    fused = {(matcher.name, model): grid for model, grid in maps.items() if model.startswith(FUSED_MODELS)}
-    return block, compare_fusions(fused, truth, {matcher.name: failure})
+        return error_model
+    fused = replace(error_model, fusion=block)
+    write_error_model(fused, Path(out_dir) / "characterisation" / "error_model.json")
+    return fused
+
+
+def compare_run_fusions(matcher_name, error_model, maps, truth):
+    """One matcher's part of a 3-D run's fusion comparison: its error-model maps under every reading.
+
+    Parameters
+    ----------
+    matcher_name : str
+    error_model : ErrorModel
+        The matcher's error model after :func:`fit_run_fusion`.
+    maps : dict of str -> OccupancyMap
+        The matcher's map of each cell model (:func:`~prismap.experiment._cells.run_cells`).
+    truth : GroundTruthOccupancy
+
+    Returns
+    -------
+    list of FusionRow
+        Empty when the error model has no fusion block.
+    """
+    failure = error_model.persistent_failure
+    if failure is None:
+        return []
+    fused = {(matcher_name, model): grid for model, grid in maps.items() if model.startswith(FUSED_MODELS)}
+    return compare_fusions(fused, truth, {matcher_name: failure})
 
 
 def fused_probabilities(log_odds, counts, p0, failure):
@@ -104,12 +131,10 @@ def fused_probabilities(log_odds, counts, p0, failure):
     -------
     dict of str -> (N,) float64
     """
-    independent = expit(np.asarray(log_odds, dtype=np.float64))
-    low, high = failure.bounds(p0)
     return {
-        "independent": independent,
+        "independent": expit(np.asarray(log_odds, dtype=np.float64)),
         "persistent failure": failure.probability(log_odds, counts, p0),
-        "clamped at one view": np.clip(independent, low, high),
+        "clamped at one view": FailureClamp(failure.rate).probability(log_odds, counts, p0),
     }
 
 
@@ -158,9 +183,14 @@ def format_fusion_section(rows, failures):
         "|---|---|---|" + "---|" * len(FUSION_COLUMNS),
     ]
     for row in rows:
-        values = [fmt.format(getattr(row.scores, name)) for _, name, fmt in FUSION_COLUMNS]
+        values = [_cell(fmt, getattr(row.scores, name)) for _, name, fmt in FUSION_COLUMNS]
         lines.append(f"| {row.matcher} | {row.model} | {row.fusion} | " + " | ".join(values) + " |")
     return "\n".join(lines + [""])
+
+
+def _cell(fmt, value):
+    """``value`` in ``fmt``; a dash for NaN (no voxel at that extreme)."""
+    return "-" if np.isnan(value) else fmt.format(value)
 
 
 def _plain(value):

@@ -4,6 +4,7 @@ so the HTML file stands alone; other links are relative, so the output folder ca
 
 import base64
 import html
+import math
 import os
 import re
 from dataclasses import dataclass, field
@@ -258,22 +259,41 @@ def _confident_and_wrong(report):
                     _model_html(cell.model, names),
                     f"{scores.free_confident_occupied:.3%}",
                     f"{scores.occupied_confident_free:.3%}",
+                    _share_html(scores.free_share_at_high_p),
+                    _share_html(scores.occupied_share_at_low_p),
                 ]
             )
     if not rows:
         return []
     header = "".join(
-        f"<th>{h}</th>" for h in ("world", "matcher", "model", "free at P &ge; 0.99", "occupied at P &le; 0.01")
+        f"<th>{h}</th>"
+        for h in (
+            "world",
+            "matcher",
+            "model",
+            "free at P &ge; 0.99",
+            "occupied at P &le; 0.01",
+            "of P &ge; 0.99: free",
+            "of P &le; 0.01: occupied",
+        )
     )
     body = "".join("<tr>" + "".join(f"<td>{c}</td>" for c in row) + "</tr>" for row in rows)
     return [
         '<section id="extremes"><h2>Confident and wrong</h2>',
         "<p>Truly free voxels a map puts at P &ge; 0.99 and truly occupied voxels at P &le; 0.01: where a "
-        "planner trusts the map most, lower is better. The reliability diagrams on log-odds axes and the "
-        "per-frame evidence histograms (Details) show where they come from.</p>",
+        "planner trusts the map most, lower is better. A map that is never that sure scores 0 there, so the last "
+        "two columns ask the calibrated question: of the voxels a map puts at P &ge; 0.99 (P &le; 0.01), how many "
+        "are free (occupied)? A calibrated map keeps both at or below 1 %; &ndash; where it is never that sure. "
+        "The reliability diagrams on log-odds axes and the per-frame evidence histograms (Details) show where "
+        "they come from.</p>",
         f"<details><summary>Every map</summary><table><thead><tr>{header}</tr></thead><tbody>{body}</tbody>"
         "</table></details></section>",
     ]
+
+
+def _share_html(value):
+    """A share as a percentage, or an en dash when the map put no voxel there (NaN)."""
+    return "&ndash;" if math.isnan(value) else f"{value:.2%}"
 
 
 REPORT_PARTS = (_summary, _prism_vs_octomap, _confident_and_wrong, _maps_at_a_glance, _details)

@@ -13,7 +13,7 @@ import numpy as np
 from prismap.characterise import fusion_from_block
 from prismap.errors import PrismapInputError
 from prismap.experiment._cells import ExperimentResult, claim_out_dir, draw_figures, run_cells
-from prismap.experiment._fusion import compare_run_fusions, format_fusion_section
+from prismap.experiment._fusion import compare_run_fusions, fit_run_fusion, format_fusion_section
 from prismap.experiment._report3d import (
     format_error_correlation,
     mapped_error_correlation,
@@ -89,10 +89,11 @@ def run_rendered_world(
     perfect sensor observed from the mapping frames within ``max_range_m``; ``p0`` is their occupancy ratio.
     The targets include the log-likelihood of the mapping frames' errors under each error model
     (:func:`mapped_log_likelihood`), the test of a characterisation on errors it never saw; a section
-    measures how each matcher's errors repeat in consecutive mapping frames (:func:`mapped_error_correlation`),
-    which the maps' fusion assumes they do not, and a last one reads each error-model map under independent
-    fusion, the persistent-failure state fitted on the characterisation frames and clamping at its one-view
-    bound (:func:`~prismap.experiment._fusion.compare_run_fusions`).
+    measures how each matcher's errors repeat in consecutive mapping frames (:func:`mapped_error_correlation`).
+    Each matcher's failure rate and persistence are fitted on the characterisation frames before mapping
+    (:func:`~prismap.experiment._fusion.fit_run_fusion`), so the error-model maps take ``prismap map``'s default
+    reading, the clamp at the one-view bound; a last section reads them also under independent fusion and the
+    persistent-failure state (:func:`~prismap.experiment._fusion.compare_run_fusions`).
 
     Parameters
     ----------
@@ -180,7 +181,9 @@ def run_rendered_world(
             matcher,
             f"{scene.name} frames {char_index.tolist()}" + (f" and {n_between} between" if n_between else ""),
         )
+        error_model = fit_run_fusion(out / matcher_name, char_frames, matcher, camera, error_model)
         error_models[matcher_name] = error_model
+        fusion_blocks[matcher_name] = error_model.fusion
         disparity_dir = match_frames(out / matcher_name / "disparity", map_frames, matcher)
         mapped_likelihoods[matcher_name] = mapped_log_likelihood(error_model, map_frames, disparity_dir)
         correlations[matcher_name] = mapped_error_correlation(sequence, disparity_dir, sequence.camera)
@@ -208,10 +211,7 @@ def run_rendered_world(
             out, matcher_name, models, build_map, truth, dict(cell_settings, derived_model_params=matcher_params)
         )
         results += cells
-        fusion_blocks[matcher_name], rows = compare_run_fusions(
-            out / matcher_name, char_frames, matcher, camera, maps, truth
-        )
-        fusion_rows += rows
+        fusion_rows += compare_run_fusions(matcher_name, error_model, maps, truth)
         artifacts += char_artifacts
         artifacts += draw_figures(
             out, matcher_name, cells, maps, truth, layer=layer, where=f"z = {spec.slice_height_m} m"

@@ -6,8 +6,11 @@ identical. Independent fusion reads ``P = sigmoid(l)``. :class:`PersistentFailur
 under a per-voxel hidden "the matcher fails here" state that persists from view to view (a stationary
 two-state Markov chain of rate ``r`` and persistence ``q``; docs/SENSOR_MODELS.md, "Fusion when failures
 repeat"): a view in the failure state carries no evidence, and the probability is the average over the
-number ``k`` of failed views of ``sigmoid(logit(p0) + (1 - k / n) S)``. The update stays one integer
-addition per voxel and frame; the read costs ``O(min(n, MAX_VIEWS))`` per voxel.
+number ``k`` of failed views of ``sigmoid(logit(p0) + (1 - k / n) S)``. :class:`FailureClamp` reads the
+independent sum clamped to the probabilities one view can reach under that state, ``[r p0, 1 - r (1 - p0)]``:
+no number of views is more certain than one, because a failure that stays is indistinguishable from repeated
+true evidence. The update stays one integer addition per voxel and frame; the read costs
+``O(min(n, MAX_VIEWS))`` per voxel (:class:`PersistentFailure`) or ``O(1)`` (:class:`FailureClamp`).
 """
 
 from __future__ import annotations
@@ -25,6 +28,10 @@ from prismap.grid._logodds import logit
 
 MAX_VIEWS = 64
 """Counts above this read with the failure share distribution of ``MAX_VIEWS`` views (it has converged)."""
+
+MAP_READINGS = ("failure-clamp", "persistent-failure", "independent")
+"""Names of the ways a map can read its sums given a matcher's failure state (``prismap map --fusion``):
+:class:`FailureClamp`, :class:`PersistentFailure` and the independent sum. The first is the default."""
 
 _CHUNK = 65536
 """Voxels read at once (bounds the ``(chunk, n + 1)`` temporary)."""
@@ -112,6 +119,63 @@ class PersistentFailure:
     def to_dict(self) -> dict[str, float]:
         """JSON form."""
         return {"rate": self.rate, "persistence": self.persistence}
+
+
+@dataclass(frozen=True)
+class FailureClamp:
+    """The independent sum clamped to the one-view bound of a matcher that fails at rate ``r``.
+
+    ``P = clip(sigmoid(l), r p0, 1 - r (1 - p0))`` for observed voxels: the bound :class:`PersistentFailure`
+    gives one view, held for any number of views (docs/SENSOR_MODELS.md section 9, "Against clamping").
+    ``rate = 0`` is the independent sum.
+
+    Attributes
+    ----------
+    rate : float in [0, 1)
+        ``r``: the matcher's gross error rate at a voxel's pixels.
+    """
+
+    rate: float
+
+    def __post_init__(self):
+        rate = check_probability(self.rate, "rate", open_interval=False)
+        if rate == 1.0:
+            raise PrismapInputError("`rate` must lie in [0, 1): a matcher that always fails carries no evidence")
+        object.__setattr__(self, "rate", rate)
+
+    def probability(self, log_odds: npt.ArrayLike, count: npt.ArrayLike, p0: float) -> npt.NDArray[np.float64]:
+        """``P(occupied)`` of voxels with stored log-odds ``log_odds`` observed by ``count`` frames.
+
+        Parameters
+        ----------
+        log_odds : (N,) float
+        count : (N,) int, >= 0 (0 = unknown: the prior's log-odds read as ``p0``, inside the bound)
+        p0 : float in (0, 1)
+
+        Returns
+        -------
+        (N,) float64 in ``[r p0, 1 - r (1 - p0)]``
+        """
+        log = np.asarray(log_odds, dtype=np.float64)
+        if log.shape != np.shape(count) or log.ndim != 1:
+            raise PrismapInputError(
+                f"`log_odds` and `count` must be 1-D of one shape; got {log.shape} and {np.shape(count)}"
+            )
+        low, high = self.bounds(p0)
+        return np.clip(expit(log), low, high)
+
+    def bounds(self, p0: float, n_views: int = 1) -> tuple[float, float]:
+        """The probabilities ``(P_min, P_max)``: ``(r p0, 1 - r (1 - p0))`` for any ``n_views``."""
+        p0 = check_probability(p0, "p0")
+        return self.rate * p0, 1.0 - self.rate * (1.0 - p0)
+
+    def to_dict(self) -> dict[str, float]:
+        """JSON form."""
+        return {"rate": self.rate}
+
+
+MapReading = PersistentFailure | FailureClamp
+"""How a map reads its stored sums other than as the independent sum (None)."""
 
 
 @lru_cache(maxsize=256)

@@ -11,7 +11,7 @@ from scipy.special import expit
 from prismap._validate import as_float_array, check_classes, check_positive, check_probability
 from prismap.errors import PrismapInputError
 from prismap.grid import _accumulator, _kernels_accumulate, _kernels_hash
-from prismap.grid._fusion import PersistentFailure
+from prismap.grid._fusion import FailureClamp, MapReading, PersistentFailure
 from prismap.grid._integrators import MEASUREMENT_KINDS, RayBatch, make_integrator
 from prismap.grid._keys import BLOCK_BITS, KEY_LIMIT, check_keys, key_range_text, key_to_center, point_to_key
 from prismap.grid._logodds import LOG_ODDS_STEP, Q_DTYPE, Q_MAX, Q_MIN, from_fixed, logit, to_fixed
@@ -58,11 +58,11 @@ class OccupancyMap:
     occupied_threshold, free_threshold : float in (0, 1)
         A known voxel is occupied if ``P >= occupied_threshold``, free if ``P < free_threshold``,
         unknown in between. Both default to 0.5 (OctoMap's rule).
-    fusion : PersistentFailure or None
+    fusion : PersistentFailure, FailureClamp or None
         How a voxel's stored log-odds and count read as a probability (every query of ``P``): None is the
         independent sum, ``sigmoid(l)``; a :class:`~prismap.grid.PersistentFailure` reads them under a matcher
-        failure state that persists across views (docs/SENSOR_MODELS.md section 9). The stored sums, merges
-        and map files do not depend on it.
+        failure state that persists across views, a :class:`~prismap.grid.FailureClamp` clamps the sum to that
+        state's one-view bound (docs/SENSOR_MODELS.md section 9). Stored sums and merges do not depend on it.
     """
 
     def __init__(
@@ -74,7 +74,7 @@ class OccupancyMap:
         clamp: tuple[float, float] | None = None,
         occupied_threshold: float = 0.5,
         free_threshold: float = 0.5,
-        fusion: PersistentFailure | None = None,
+        fusion: MapReading | None = None,
     ) -> None:
         self.voxel_size_m = check_positive(voxel_size_m, "voxel_size_m")
         self.p0 = check_probability(p0, "p0")
@@ -87,8 +87,8 @@ class OccupancyMap:
                 raise PrismapInputError(f"`clamp` must satisfy p_min < p0 < p_max; got {clamp!r} with p0={self.p0}")
             clamp = (lo, hi)
         self.clamp = clamp
-        if fusion is not None and not isinstance(fusion, PersistentFailure):
-            raise PrismapInputError(f"`fusion` must be a PersistentFailure or None; got {type(fusion).__name__}")
+        if fusion is not None and not isinstance(fusion, PersistentFailure | FailureClamp):
+            raise PrismapInputError(f"`fusion` must be a MapReading or None; got {type(fusion).__name__}")
         self.fusion = fusion
         self.occupied_threshold = check_probability(occupied_threshold, "occupied_threshold")
         self.free_threshold = check_probability(free_threshold, "free_threshold")

@@ -4,10 +4,12 @@ Fields: ``format`` ("prismap-map"), ``format_version`` (2), ``voxel_size_m``, ``
 ``policy`` (the per-frame policies used, "+"-joined), ``clamp`` ((2,) probabilities, NaN = off),
 ``occupied_threshold``, ``free_threshold``, ``n_frames``, ``keys`` ((N, 3) int32 voxel keys,
 ``floor(x / voxel_size)``), ``log_odds`` ((N,) float64, multiples of ``2**-20``: the map's fixed-point
-log-odds, exact) and ``counts`` ((N,) uint16, frames that observed each voxel), ``fusion`` ((2,) the
-persistent-failure reading's rate and persistence, NaN = independent; docs/SENSOR_MODELS.md section 9). Only
-observed voxels are stored. Version 1 files (float32 log-odds) are still read; their values are rounded to the
-fixed point. Version 1 and 2 files have no ``fusion`` and read as independent.
+log-odds, exact) and ``counts`` ((N,) uint16, frames that observed each voxel), ``fusion_model``
+("independent", "persistent-failure" or "failure-clamp": how the map reads its sums, docs/SENSOR_MODELS.md
+section 9) and ``fusion`` ((2,) that reading's rate and persistence, NaN where it has none). Only observed
+voxels are stored. Version 1 files (float32 log-odds) are still read; their values are rounded to the fixed
+point. Version 1 and 2 files have no ``fusion`` and read as independent; version 3 files have no
+``fusion_model`` and read their ``fusion`` as persistent failure (NaN = independent).
 """
 
 from __future__ import annotations
@@ -19,16 +21,19 @@ import numpy as np
 
 from prismap._files import atomic_path
 from prismap.errors import PrismapInputError
-from prismap.grid import OccupancyMap, PersistentFailure
+from prismap.grid import FailureClamp, OccupancyMap, PersistentFailure
 from prismap.grid._keys import check_voxel_size
 from prismap.io._npz import INTEGER, REAL, TEXT, array_field, read_npz
 
 FORMAT = "prismap-map"
-FORMAT_VERSION = 3
-READABLE_VERSIONS = (1, 2, 3)
+FORMAT_VERSION = 4
+READABLE_VERSIONS = (1, 2, 3, 4)
 """Version 1 held float32 log-odds; version 2 the map's fixed-point log-odds as exact float64; version 3 adds
-``fusion``."""
+``fusion``; version 4 ``fusion_model``."""
 _FUSION_SPEC = {"fusion": array_field((2,), "float")}
+_FUSION_MODEL_SPEC = {"fusion_model": TEXT}
+_READINGS = {"persistent-failure": PersistentFailure, "failure-clamp": FailureClamp}
+"""The map file's ``fusion_model`` names of the readings other than "independent"."""
 _SPEC = {
     "format": TEXT,
     "format_version": INTEGER,
@@ -62,7 +67,10 @@ def save_map(grid: OccupancyMap, path: str | os.PathLike[str]) -> None:
         raise PrismapInputError(f"`grid` must be an OccupancyMap; got {type(grid).__name__}")
     keys, log, counts = grid.known_voxels()
     clamp = np.array(grid.clamp if grid.clamp is not None else (np.nan, np.nan))
-    fusion = np.array((np.nan, np.nan) if grid.fusion is None else (grid.fusion.rate, grid.fusion.persistence))
+    reading = grid.fusion
+    parameters = () if reading is None else tuple(reading.to_dict().values())
+    fusion = np.array(parameters + (np.nan,) * (2 - len(parameters)))
+    fusion_model = "independent" if reading is None else next(k for k, v in _READINGS.items() if type(reading) is v)
     with atomic_path(path) as tmp, open(tmp, "wb") as handle:
         np.savez_compressed(
             handle,
@@ -80,6 +88,7 @@ def save_map(grid: OccupancyMap, path: str | os.PathLike[str]) -> None:
             log_odds=log,
             counts=counts,
             fusion=fusion,
+            fusion_model=np.array(fusion_model),
         )
 
 
@@ -118,8 +127,8 @@ def load_map(path: str | os.PathLike[str]) -> OccupancyMap:
     if len(np.unique(keys, axis=0)) != len(keys):
         raise PrismapInputError(f"{path}: `keys` holds {len(keys) - len(np.unique(keys, axis=0))} duplicate voxel keys")
     clamp = fields["clamp"]
-    fusion = read_npz(path, "map file", _FUSION_SPEC)["fusion"] if fields["format_version"] >= 3 else (np.nan,) * 2
     try:
+        reading = _reading(path, fields["format_version"])
         grid = OccupancyMap(
             fields["voxel_size_m"],
             p0=fields["p0"],
@@ -127,7 +136,7 @@ def load_map(path: str | os.PathLike[str]) -> OccupancyMap:
             clamp=None if np.isnan(clamp).any() else tuple(float(c) for c in clamp),
             occupied_threshold=fields["occupied_threshold"],
             free_threshold=fields["free_threshold"],
-            fusion=None if np.isnan(fusion).any() else PersistentFailure(float(fusion[0]), float(fusion[1])),
+            fusion=reading,
         )
         grid.set_voxels(keys, fields["log_odds"], fields["counts"])
     except PrismapInputError as exc:
@@ -135,3 +144,17 @@ def load_map(path: str | os.PathLike[str]) -> OccupancyMap:
     grid.policies = tuple(fields["policy"].split("+")) if fields["policy"] else ()
     grid.n_frames = fields["n_frames"]
     return grid
+
+
+def _reading(path, version):
+    """The map's :class:`~prismap.grid.MapReading` from its ``fusion`` fields, or None (independent)."""
+    if version < 3:
+        return None
+    fusion = read_npz(path, "map file", _FUSION_SPEC)["fusion"]
+    name = read_npz(path, "map file", _FUSION_MODEL_SPEC)["fusion_model"] if version >= 4 else "persistent-failure"
+    if name == "independent" or (version == 3 and np.isnan(fusion).any()):
+        return None
+    if name not in _READINGS:
+        raise PrismapInputError(f"`fusion_model` must be one of {['independent', *_READINGS]}; got {name!r}")
+    cls = _READINGS[name]
+    return cls(*(float(v) for v in fusion[: len(cls.__dataclass_fields__)]))

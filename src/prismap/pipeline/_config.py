@@ -13,10 +13,10 @@ import numpy as np
 
 from prismap._validate import check_integer, check_positive, check_probability
 from prismap.camera import StereoCamera
-from prismap.characterise import FUSION_MODELS, ErrorModel
+from prismap.characterise import ErrorModel, map_reading
 from prismap.errors import PrismapInputError
 from prismap.gmm import GaussianMixture
-from prismap.grid import POLICIES, PersistentFailure
+from prismap.grid import MAP_READINGS, POLICIES, MapReading
 from prismap.sensor_models import (
     InverseSensorModel,
     conditioned_sensor_model,
@@ -184,10 +184,12 @@ class MappingConfig:
     frames : (int, int or None)
         ``(start, stop)``: the frames ``start <= i < stop`` of the sequence (stop None or beyond the
         sequence = to its end).
-    fusion : {"independent", "persistent-failure"}
-        How the map reads its stored sums: the independent sum of the frames' evidence, or under the matcher's
-        persistent failure state, whose rate and persistence the error model's ``fusion`` block holds
-        (:func:`prismap.characterise.fit_fusion`; docs/SENSOR_MODELS.md section 9). The stored map is the same.
+    fusion : {"failure-clamp", "persistent-failure", "independent"} or None
+        How the map reads its stored sums (:func:`prismap.characterise.map_reading`; docs/SENSOR_MODELS.md
+        section 9): clamped to the one-view bound of the matcher's failure rate, under its persistent failure
+        state, or as the independent sum of the frames' evidence. The first two need the error model's ``fusion``
+        block (:func:`prismap.characterise.fit_fusion`). None (the default) is ``"failure-clamp"`` when the model
+        takes the error model and that has a fusion block, else ``"independent"``. The stored map is the same.
 
     Notes
     -----
@@ -210,7 +212,7 @@ class MappingConfig:
     max_range_m: float = math.inf
     subsample: int = 1
     frames: tuple = (0, None)
-    fusion: str = "independent"
+    fusion: str | None = None
 
     def __post_init__(self):
         def set_(name, value):
@@ -242,18 +244,22 @@ class MappingConfig:
             check_integer(self.subsample, "subsample", expected="an integer >= 1", condition=lambda n: n >= 1),
         )
         set_("frames", _check_frames(self.frames))
-        if self.fusion not in FUSION_MODELS:
-            raise PrismapInputError(f"`fusion` must be one of {list(FUSION_MODELS)}; got {self.fusion!r}")
-        if self.fusion != "independent" and getattr(self.error_model, "fusion", None) is None:
+        block = getattr(self.error_model, "fusion", None)
+        if self.fusion is None:
+            takes_it = block is not None and error_model_use(self.model) is not None
+            set_("fusion", MAP_READINGS[0] if takes_it else "independent")
+        if self.fusion not in MAP_READINGS:
+            raise PrismapInputError(f"`fusion` must be one of {list(MAP_READINGS)}; got {self.fusion!r}")
+        if self.fusion != "independent" and block is None:
             raise PrismapInputError(
                 f"`fusion` {self.fusion!r} needs an error model with a fusion block (characterised "
                 "on frames with poses; see prismap.characterise.fit_fusion)"
             )
 
     @property
-    def persistent_failure(self) -> PersistentFailure | None:
-        """The map's :class:`~prismap.grid.PersistentFailure` reading, or None (independent fusion)."""
-        return None if self.fusion == "independent" else self.error_model.persistent_failure
+    def map_reading(self) -> MapReading | None:
+        """How the map reads its sums (:class:`~prismap.grid.MapReading`), or None (the independent sum)."""
+        return map_reading(getattr(self.error_model, "fusion", None), self.fusion)
 
     @property
     def model_options(self) -> dict[str, Any]:
@@ -347,7 +353,7 @@ class MappingConfig:
             "max_range_m": None if math.isinf(self.max_range_m) else self.max_range_m,
             "subsample": self.subsample,
             "frames": list(self.frames),
-            **({} if self.fusion == "independent" else {"fusion": self.error_model.fusion}),
+            **({} if self.fusion == "independent" else {"fusion": {"reading": self.fusion, **self.error_model.fusion}}),
         }
 
     def fingerprint(self) -> str:

@@ -31,7 +31,7 @@ def open_sequence(sequence):
 
 def new_map(config, ndim=3):
     """An empty map on the config's grid (voxel size, prior) and fusion; no clamping, so chunks merge exactly."""
-    return OccupancyMap(config.voxel_size_m, p0=config.p0, ndim=ndim, fusion=config.persistent_failure)
+    return OccupancyMap(config.voxel_size_m, p0=config.p0, ndim=ndim, fusion=config.map_reading)
 
 
 class DisparitySource:
