@@ -127,3 +127,15 @@ def test_the_report_lists_every_maps_confident_and_wrong_rates():
     assert "<td><strong>prism (conditioned)</strong></td><td>33.333%</td><td>100.000%</td>" in html
     assert "<td>andert</td><td>0.000%</td><td>0.000%</td>" in html
     assert _confident_and_wrong(SimpleNamespace(experiments={})) == []
+
+
+def test_prismap_evaluate_prints_the_extremes():
+    from prismap.cli._evaluate import format_scores
+
+    p = np.array([0.995, 0.999, 0.5, 0.001, 0.2, 0.005])
+    y = np.array([False, True, False, False, True, True])
+    lines = format_scores(score_map(p, y), title="t").splitlines()
+    assert "| free at P >= 0.99 | 33.333% |" in lines and "| occupied at P <= 0.01 | 33.333% |" in lines
+    assert "| of P >= 0.99: free | 50.00% |" in lines and "| of P <= 0.01: occupied | 50.00% |" in lines
+    timid = format_scores(score_map(np.array([0.3, 0.7]), np.array([False, True])), title="t")
+    assert "| of P >= 0.99: free | n/a |" in timid.splitlines()

@@ -13,6 +13,13 @@ _COUNT_ROWS = (
     ("truly occupied", "n_occupied", "{:d}"),
     ("truly free", "n_free", "{:d}"),
 )
+_EXTREME_ROWS = (
+    ("free at P >= 0.99", "free_confident_occupied", "{:.3%}"),
+    ("occupied at P <= 0.01", "occupied_confident_free", "{:.3%}"),
+    ("of P >= 0.99: free", "free_share_at_high_p", "{:.2%}"),
+    ("of P <= 0.01: occupied", "occupied_share_at_low_p", "{:.2%}"),
+)
+"""The printed rows of the scale's extremes: "confident and wrong" rates and calibration there."""
 
 
 def register(subparsers):
@@ -28,7 +35,8 @@ def register(subparsers):
             "with reliability diagrams (--out/reliability.png, reliability_logit.png: logit-spaced bins reaching the "
             "extremes) and the per-frame evidence histogram (--out/evidence.png), or beside the map as "
             'MAP.scores.json. The scores include the "confident and wrong" rates: truly free voxels at P >= 0.99 '
-            "and truly occupied voxels at P <= 0.01."
+            "and truly occupied voxels at P <= 0.01, and calibration at the extremes: of the voxels at P >= 0.99 "
+            "(P <= 0.01) the share truly free (occupied), at most 1 % for a calibrated map."
         ),
     )
     parser.add_argument("--map", required=True, type=Path, metavar="MAP.npz", help="map file")
@@ -93,7 +101,7 @@ def format_scores(scores, *, title):
     from prismap.evaluate import SCORE_COLUMNS
 
     lines = [f"{title}", "", "| score | value |", "|---|---|"]
-    for label, name, fmt, *_ in (*_COUNT_ROWS, *SCORE_COLUMNS):
+    for label, name, fmt, *_ in (*_COUNT_ROWS, *SCORE_COLUMNS, *_EXTREME_ROWS):
         value = getattr(scores, name)
         text = "n/a" if isinstance(value, float) and np.isnan(value) else fmt.format(value)
         lines.append(f"| {label} | {text} |")
