@@ -42,18 +42,12 @@ class AccumulatorArrays(NamedTuple):
 
     Attributes
     ----------
-    table : (T,) int32
-        Open-addressing hash table of block slots, -1 = empty (``_kernels_hash``).
-    block_keys : (B,) int64
-        Packed key of the block in each slot.
-    n_blocks : (1,) int64
-        Blocks in use; the kernels add blocks up to the room reserved.
+    table, block_keys, n_blocks, bits
+        The accumulator's block table, as :class:`MapStore`'s (the same types and meaning).
     acc : (B, V, 4) float32, log-odds
         Per voxel of each block: ``(sum, count, max, min)`` of the frame's increments.
     links : (B, 6) int32
         Slots of each block's six face neighbours (order of ``_kernels_accumulate.face``), -1 = not yet known.
-    bits : tuple of 3 int
-        Key bits per axis inside a block (``V = 2**sum(bits)`` voxels, :mod:`prismap.grid._keys`).
     """
 
     table: np.ndarray
