@@ -277,11 +277,15 @@ def set_voxels(store, keys, values, counts, prior_q):
     prior_q : int64, units of ``LOG_ODDS_STEP``
         The prior's log-odds, of a new block's other voxels.
     """
+    log, count, bits = store.log, store.count, store.bits
+    last_block, slot = EMPTY, np.int64(-1)
     for i in range(keys.shape[0]):
-        block, local = split_key(np.int64(keys[i, 0]), np.int64(keys[i, 1]), np.int64(keys[i, 2]), store.bits)
-        slot = _map_block(store, block, prior_q)
-        store.log[slot, local] = values[i]
-        store.count[slot, local] = counts[i]
+        block, local = split_key(np.int64(keys[i, 0]), np.int64(keys[i, 1]), np.int64(keys[i, 2]), bits)
+        if block != last_block:  # keys of one block in a row (a map's own order) share one look-up
+            last_block = block
+            slot = _map_block(store, block, prior_q)
+        log[slot, local] = values[i]
+        count[slot, local] = counts[i]
 
 
 @numba.njit(cache=True, nogil=True)
