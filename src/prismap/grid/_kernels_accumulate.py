@@ -243,9 +243,9 @@ def merge_blocks(store, other, clamp_lo, clamp_hi, prior_q):
     clamp_lo, clamp_hi, prior_q : int64, units of ``LOG_ODDS_STEP``
         Clamping bounds, and the prior's log-odds (``q0``).
     """
-    log, count, other_log, other_count = store.log, store.count, other.log, other.count
+    log, count, other_keys, other_log, other_count = store.log, store.count, other.block_keys, other.log, other.count
     for s in range(other.n_blocks[0]):
-        slot = _map_block(store, other.block_keys[s], prior_q)
+        slot = _map_block(store, other_keys[s], prior_q)
         for v in range(other_log.shape[1]):
             c = np.int64(other_count[s, v])
             if c == 0:
@@ -319,6 +319,7 @@ def map_log_of_rows(store, accumulator, rows, prior_q):
     look-up.
     """
     table, block_keys, log, bits = store.table, store.block_keys, store.log, store.bits
+    acc_block_keys = accumulator.block_keys
     out = np.empty(rows.size, dtype=np.int64)
     voxel_bits = bits[0] + bits[1] + bits[2]
     mask = (1 << voxel_bits) - 1
@@ -328,6 +329,6 @@ def map_log_of_rows(store, accumulator, rows, prior_q):
         block = rows[i] >> voxel_bits
         if block != last_block:
             last_block = block
-            slot = find_block(table, block_keys, accumulator.block_keys[block])
+            slot = find_block(table, block_keys, acc_block_keys[block])
         out[i] = prior_q if slot < 0 else log[slot, rows[i] & mask]
     return out
