@@ -8,7 +8,10 @@ and Andert take sigma 0.5 px), 0.1 m voxels, 8 m max range. PRISM (the default) 
 default: SGBM is characterised on the sequence's first :data:`CHARACTERISE_FRAMES` frames
 (:func:`prismap.characterise.characterise_matcher`, conditioned, the class count it picks), the model's own
 parameters are its defaults, and the stages are timed twice per mode: conditioned (each pixel's class from its
-features, the default) and plain (the whole-image mixture), with their ratio.
+features, the default) and plain (the whole-image mixture), with their ratio. ``--error-model FILE`` reads PRISM's
+error model from an error-model JSON file (:func:`prismap.characterise.load_error_model`, any readable
+``format_version``) instead of characterising SGBM: one fixed model, so that runs of different versions of the
+library map with the same error model (a version-2 file, without a failure component, maps as it did when written).
 
 Stages (default): :func:`prismap.pipeline.map_sequence`, sequential, in ray and projective mode, with the
 library's calls wrapped here to time them: matching (the matcher's ``compute_with_confidence``), model (the sensor model's
@@ -33,7 +36,7 @@ running cluster whose workers have mapped the sequence once (imports and numba c
 against the sequential run of the same kind.
 
 Run: ``.venv/bin/python benchmarks/bench_pipeline.py [--frames N] [--width W] [--model NAME] [--modes ray projective]
-[--cv-threads N] [--dask]``. On a 2-core
+[--error-model FILE] [--cv-threads N] [--dask]``. On a 2-core
 machine 2 workers can at best double the throughput; the merge of chunk maps runs in the client.
 """
 
@@ -54,7 +57,7 @@ import prismap.grid._kernels_project
 import prismap.pipeline._run
 from prismap import sim
 from prismap.camera import StereoCamera
-from prismap.characterise import characterise_matcher
+from prismap.characterise import characterise_matcher, load_error_model
 from prismap.cli import main as prismap_main
 from prismap.io import read_sequence, write_sequence
 from prismap.pipeline import MappingConfig, map_sequence
@@ -234,6 +237,7 @@ def main():
     parser.add_argument("--model", default="prism")
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--modes", nargs="+", default=["ray", "projective"], choices=["ray", "projective"])
+    parser.add_argument("--error-model", help="PRISM's error model from this JSON file instead of characterising SGBM")
     parser.add_argument("--cv-threads", type=int, default=None, help="cv2.setNumThreads before any run")
     parser.add_argument("--dask", action="store_true", help="the Dask comparison instead of the stages")
     args = parser.parse_args()
@@ -257,16 +261,21 @@ def main():
         write_sequence(frames, sequence)
         error_model, variants = None, [(None, "")]
         if args.model == "prism":
-            error_model = characterise_matcher(
-                frames[:CHARACTERISE_FRAMES], make_matcher("sgbm", **MATCHER_PARAMS), progress=False
-            ).model
+            error_model = (
+                load_error_model(args.error_model)
+                if args.error_model
+                else characterise_matcher(
+                    frames[:CHARACTERISE_FRAMES], make_matcher("sgbm", **MATCHER_PARAMS), progress=False
+                ).model
+            )
             variants = [(True, "conditioned"), (False, "plain")] if error_model.conditioned else [(False, "plain")]
         del frames
         print(
             f"scene: indoor_scene(seed=0), {args.frames} frames of {camera.width}x{camera.height} px "
             f"(f {camera.focal_px:.1f} px, b 0.10 m); sgbm 64 disparities, {args.model} {model_params}"
             + (
-                f" with SGBM's error model from {CHARACTERISE_FRAMES} frames ({error_model.n_classes} classes)"
+                f" with SGBM's error model from {args.error_model or f'{CHARACTERISE_FRAMES} frames'} "
+                f"({error_model.n_classes} classes)"
                 if error_model is not None
                 else ""
             )

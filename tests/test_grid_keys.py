@@ -71,8 +71,10 @@ def test_numba_split_equals_the_numpy_block_split(ndim):
     )
 
 
-def test_keys_round_trip_across_block_sign_and_limit_boundaries():
-    """A brute-force dict against the map: every key reads back its own value, none aliases another."""
+@pytest.mark.parametrize("order", ["sorted", "shuffled"])
+def test_keys_round_trip_across_block_sign_and_limit_boundaries(order):
+    """A brute-force dict against the map: every key reads back its own value, none aliases another, whether the
+    keys of one block come in a row (sorted) or return to blocks seen before (shuffled)."""
     rng = np.random.default_rng(2)
     axis = np.unique(
         np.concatenate(
@@ -81,6 +83,8 @@ def test_keys_round_trip_across_block_sign_and_limit_boundaries():
     )
     keys = rng.choice(axis, size=(5000, 3))
     keys = np.unique(keys, axis=0)
+    if order == "shuffled":
+        keys = rng.permutation(keys)
     values = rng.uniform(-5, 5, keys.shape[0])
     counts = rng.integers(1, 65536, keys.shape[0])
     grid = OccupancyMap(0.1, p0=0.5)

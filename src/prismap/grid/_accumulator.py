@@ -42,15 +42,7 @@ def new_accumulator(bits):
 def kernel_arrays(accumulator):
     """The accumulator's arrays as the kernels take them (:class:`~prismap.grid._kernel_args.AccumulatorArrays`);
     :func:`grow` replaces them, so take them again after it."""
-    payload = accumulator.payload
-    return AccumulatorArrays(
-        accumulator.table,
-        accumulator.block_keys,
-        accumulator.n_blocks,
-        payload["acc"],
-        payload["links"],
-        accumulator.bits,
-    )
+    return accumulator.arrays(AccumulatorArrays)
 
 
 def grow(accumulator, blocks):

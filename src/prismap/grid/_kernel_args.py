@@ -1,7 +1,8 @@
-"""Argument bundles of the grid's kernels: the frame accumulator's arrays, and what the projective walk over a
-frame's key box needs of the voxels, the camera and the frame's rays. Each is built in one place (the accumulator's
-by :func:`prismap.grid._accumulator.kernel_arrays`, the walk's by the projective integrator) and passed down
-unchanged; numba compiles a ``NamedTuple`` of scalars and arrays like separate arguments.
+"""Argument bundles of the grid's kernels: the map's storage, the frame accumulator's arrays, and what the
+projective walk over a frame's key box needs of the voxels, the camera and the frame's rays. Each is built in one
+place (the map's and the accumulator's by :meth:`prismap.grid._storage.BlockTable.arrays`, the walk's by the
+projective integrator) and passed down unchanged; numba compiles a ``NamedTuple`` of scalars and arrays like
+separate arguments.
 """
 
 from typing import NamedTuple
@@ -9,23 +10,44 @@ from typing import NamedTuple
 import numpy as np
 
 
+class MapStore(NamedTuple):
+    """The map's storage (``OccupancyMap``'s block table), which the accumulation kernels read and change in place.
+
+    Attributes
+    ----------
+    table : (T,) int32
+        Open-addressing hash table of block slots, -1 = empty (``_kernels_hash``).
+    block_keys : (B,) int64
+        Packed key of the block in each slot.
+    n_blocks : (1,) int64
+        Blocks in use; the kernels add blocks up to the room the caller reserved.
+    log : (B, V) int64, units of ``_logodds.LOG_ODDS_STEP``
+        Fixed-point log-odds of each voxel of each block.
+    count : (B, V) uint16
+        Observations of each voxel of each block, saturating at 65535.
+    bits : tuple of 3 int
+        Key bits per axis inside a block (``V = 2**sum(bits)`` voxels, :mod:`prismap.grid._keys`).
+    """
+
+    table: np.ndarray
+    block_keys: np.ndarray
+    n_blocks: np.ndarray
+    log: np.ndarray
+    count: np.ndarray
+    bits: tuple
+
+
 class AccumulatorArrays(NamedTuple):
     """The frame accumulator's arrays (``_accumulator.new_accumulator``), which the kernels fill in place.
 
     Attributes
     ----------
-    table : (T,) int64
-        Open-addressing hash table of block slots, -1 = empty (``_kernels_hash``).
-    block_keys : (B,) int64
-        Packed key of the block in each slot.
-    n_blocks : (1,) int64
-        Blocks in use; the kernels add blocks up to the room reserved.
+    table, block_keys, n_blocks, bits
+        The accumulator's block table, as :class:`MapStore`'s (the same types and meaning).
     acc : (B, V, 4) float32, log-odds
         Per voxel of each block: ``(sum, count, max, min)`` of the frame's increments.
     links : (B, 6) int32
         Slots of each block's six face neighbours (order of ``_kernels_accumulate.face``), -1 = not yet known.
-    bits : tuple of 3 int
-        Key bits per axis inside a block (``V = 2**sum(bits)`` voxels, :mod:`prismap.grid._keys`).
     """
 
     table: np.ndarray

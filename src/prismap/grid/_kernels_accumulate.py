@@ -176,12 +176,14 @@ def add_increment(acc, row, x):
 
 
 @numba.njit(cache=True, nogil=True)
-def _map_block(table, block_keys, n_blocks, log, count, key, prior_q):
-    """Slot of map block ``key``, created with every voxel at the prior and count 0 when absent."""
-    slot, new = insert_block(table, block_keys, n_blocks, key)
+def _map_block(store, key, prior_q):
+    """Slot of block ``key`` (packed, int64) in ``store`` (:class:`~prismap.grid._kernel_args.MapStore`), created
+    with every voxel at the prior ``prior_q`` (int64, units of ``LOG_ODDS_STEP``) and count 0 when absent (room
+    reserved)."""
+    slot, new = insert_block(store.table, store.block_keys, store.n_blocks, key)
     if new:
-        log[slot, :] = prior_q
-        count[slot, :] = 0
+        store.log[slot, :] = prior_q
+        store.count[slot, :] = 0
     return slot
 
 
@@ -192,27 +194,19 @@ def _bounded(q, lo, hi):
 
 
 @numba.njit(cache=True, nogil=True)
-def apply_frame(table, block_keys, n_blocks, log, count, frame_keys, n_frame, acc, policy, clamp_lo, clamp_hi, prior_q):
+def apply_frame(store, accumulator, policy, clamp_lo, clamp_hi, prior_q):
     """One update per voxel the frame touched: ``q += round(policy(increments) / LOG_ODDS_STEP)`` (the step
     bounded to ``+-STEP_MAX``), clamped to ``[clamp_lo, clamp_hi]`` (int64 units), ``count += 1``.
 
-    The map must have room for ``n_frame`` new blocks. Counts saturate at 65535.
+    The map must have room for the accumulator's blocks that it lacks. Counts saturate at 65535.
 
     Parameters
     ----------
-    table, block_keys, n_blocks : (T,) int64, (B,) int64, (1,) int64
-        The map's hash table of block slots, the packed key of each slot's block, and the blocks in use
-        (``_kernels_hash``).
-    log : (B, V) int64, units of ``LOG_ODDS_STEP``
-        The map's fixed-point log-odds per voxel of each block, changed in place.
-    count : (B, V) uint16
-        Observations per voxel, changed in place.
-    frame_keys : (F,) int64
-        Packed key of each frame accumulator block.
-    n_frame : int
-        Accumulator blocks in use.
-    acc : (F, V, 4) float32, log-odds
-        The frame accumulator's ``(sum, count, max, min)`` per voxel.
+    store : MapStore
+        The map's storage (:class:`~prismap.grid._kernel_args.MapStore`), changed in place.
+    accumulator : AccumulatorArrays
+        The frame's accumulator (:class:`~prismap.grid._kernel_args.AccumulatorArrays`): its blocks' packed keys
+        and each voxel's ``(sum, count, max, min)`` of increments.
     policy : int
         The per-frame policy, its index in ``_policies.POLICIES``.
     clamp_lo, clamp_hi : int64, units of ``LOG_ODDS_STEP``
@@ -220,8 +214,9 @@ def apply_frame(table, block_keys, n_blocks, log, count, frame_keys, n_frame, ac
     prior_q : int64, units of ``LOG_ODDS_STEP``
         The prior's log-odds, of a new block's voxels.
     """
-    for s in range(n_frame):
-        slot = _map_block(table, block_keys, n_blocks, log, count, frame_keys[s], prior_q)
+    log, count, acc, frame_keys = store.log, store.count, accumulator.acc, accumulator.block_keys
+    for s in range(accumulator.n_blocks[0]):
+        slot = _map_block(store, frame_keys[s], prior_q)
         for v in range(acc.shape[1]):
             n = acc[s, v, 1]
             if n == 0.0:
@@ -234,31 +229,23 @@ def apply_frame(table, block_keys, n_blocks, log, count, frame_keys, n_frame, ac
 
 
 @numba.njit(cache=True, nogil=True)
-def merge_blocks(
-    table, block_keys, n_blocks, log, count, other_keys, n_other, other_log, other_count, clamp_lo, clamp_hi, prior_q
-):
+def merge_blocks(store, other, clamp_lo, clamp_hi, prior_q):
     """Add another map's blocks: known in both -> ``q1 + q2 - q0`` (clamped); counts add (saturating).
+
+    The map must have room for the other map's blocks that it lacks.
 
     Parameters
     ----------
-    table, block_keys, n_blocks : (T,) int64, (B,) int64, (1,) int64
-        The map's hash table of block slots, the packed key of each slot's block, and the blocks in use
-        (``_kernels_hash``).
-    log : (B, V) int64, units of ``LOG_ODDS_STEP``
-        The map's fixed-point log-odds per voxel of each block, changed in place.
-    count : (B, V) uint16
-        Observations per voxel, changed in place.
-    other_keys : (K,) int64
-        Packed key of each of the other map's blocks.
-    n_other : int
-        The other map's blocks in use.
-    other_log : (K, V) int64, other_count : (K, V) uint16
-        The other map's log-odds and counts.
+    store : MapStore
+        The map's storage (:class:`~prismap.grid._kernel_args.MapStore`), changed in place.
+    other : MapStore
+        The other map's storage, read only.
     clamp_lo, clamp_hi, prior_q : int64, units of ``LOG_ODDS_STEP``
         Clamping bounds, and the prior's log-odds (``q0``).
     """
-    for s in range(n_other):
-        slot = _map_block(table, block_keys, n_blocks, log, count, other_keys[s], prior_q)
+    log, count, other_keys, other_log, other_count = store.log, store.count, other.block_keys, other.log, other.count
+    for s in range(other.n_blocks[0]):
+        slot = _map_block(store, other_keys[s], prior_q)
         for v in range(other_log.shape[1]):
             c = np.int64(other_count[s, v])
             if c == 0:
@@ -274,39 +261,38 @@ def merge_blocks(
 
 
 @numba.njit(cache=True, nogil=True)
-def set_voxels(table, block_keys, n_blocks, log, count, keys, values, counts, bits, prior_q):
+def set_voxels(store, keys, values, counts, prior_q):
     """Overwrite the fixed-point log-odds and count of each key, creating blocks as needed (room reserved).
 
     Parameters
     ----------
-    table, block_keys, n_blocks : (T,) int64, (B,) int64, (1,) int64
-        The map's hash table of block slots, the packed key of each slot's block, and the blocks in use
-        (``_kernels_hash``).
-    log : (B, V) int64, units of ``LOG_ODDS_STEP``
-        The map's fixed-point log-odds per voxel of each block, changed in place.
-    count : (B, V) uint16
-        Observations per voxel, changed in place.
+    store : MapStore
+        The map's storage (:class:`~prismap.grid._kernel_args.MapStore`), changed in place.
     keys : (N, 3) int, voxel keys
         The voxels.
     values : (N,) int64, units of ``LOG_ODDS_STEP``
         Their log-odds.
     counts : (N,) uint16
         Their counts.
-    bits : tuple of 3 int
-        Key bits per axis inside a block (:mod:`prismap.grid._keys`).
     prior_q : int64, units of ``LOG_ODDS_STEP``
         The prior's log-odds, of a new block's other voxels.
     """
+    log, count, bits = store.log, store.count, store.bits
+    last_block, slot = EMPTY, np.int64(-1)
     for i in range(keys.shape[0]):
         block, local = split_key(np.int64(keys[i, 0]), np.int64(keys[i, 1]), np.int64(keys[i, 2]), bits)
-        slot = _map_block(table, block_keys, n_blocks, log, count, block, prior_q)
+        if block != last_block:  # keys of one block in a row (a map's own order) share one look-up
+            last_block = block
+            slot = _map_block(store, block, prior_q)
         log[slot, local] = values[i]
         count[slot, local] = counts[i]
 
 
 @numba.njit(cache=True, nogil=True)
-def lookup(table, block_keys, log, count, keys, bits, prior_q):
-    """Fixed-point log-odds (int64) and observation count at each key; ``(prior_q, 0)`` for voxels never stored."""
+def lookup(store, keys, prior_q):
+    """Fixed-point log-odds (int64) and observation count (uint16) at each of ``keys`` ((N, 3) int, voxel keys) in
+    ``store`` (:class:`~prismap.grid._kernel_args.MapStore`); ``(prior_q, 0)`` for voxels never stored."""
+    table, block_keys, log, count, bits = store.table, store.block_keys, store.log, store.count, store.bits
     n = keys.shape[0]
     out_log = np.empty(n, dtype=np.int64)
     out_count = np.empty(n, dtype=np.uint16)
@@ -323,14 +309,19 @@ def lookup(table, block_keys, log, count, keys, bits, prior_q):
 
 
 @numba.njit(cache=True, nogil=True)
-def map_log_of_rows(table, block_keys, log, acc_block_keys, rows, voxel_bits, prior_q):
-    """The map's fixed-point log-odds (int64) of the voxels of frame accumulator rows ``rows``.
+def map_log_of_rows(store, accumulator, rows, prior_q):
+    """The fixed-point log-odds (int64) in ``store`` (:class:`~prismap.grid._kernel_args.MapStore`) of the voxels
+    of rows ``rows`` ((N,) int64) of the frame's ``accumulator`` (:class:`~prismap.grid._kernel_args.AccumulatorArrays`,
+    blocks of the map's shape).
 
-    A row is ``slot * V + voxel`` in the accumulator (``V = 2**voxel_bits``), the voxel's index in its block the
-    same in the map; ``prior_q`` where the map has no such block. Consecutive rows of one block (a ray's cells)
-    share one hash look-up.
+    A row is ``slot * V + voxel`` in the accumulator, the voxel's index in its block the same in the map;
+    ``prior_q`` where the map has no such block. Consecutive rows of one block (a ray's cells) share one hash
+    look-up.
     """
+    table, block_keys, log, bits = store.table, store.block_keys, store.log, store.bits
+    acc_block_keys = accumulator.block_keys
     out = np.empty(rows.size, dtype=np.int64)
+    voxel_bits = bits[0] + bits[1] + bits[2]
     mask = (1 << voxel_bits) - 1
     last_block = -1
     slot = -1

@@ -13,6 +13,7 @@ from prismap.errors import PrismapInputError
 from prismap.grid import _accumulator, _kernels_accumulate, _kernels_hash
 from prismap.grid._fusion import FailureClamp, MapReading, PersistentFailure
 from prismap.grid._integrators import MEASUREMENT_KINDS, RayBatch, make_integrator
+from prismap.grid._kernel_args import MapStore
 from prismap.grid._keys import BLOCK_BITS, KEY_LIMIT, check_keys, key_range_text, key_to_center, point_to_key
 from prismap.grid._logodds import LOG_ODDS_STEP, Q_DTYPE, Q_MAX, Q_MIN, from_fixed, logit, to_fixed
 from prismap.grid._policies import policy_code, policy_name
@@ -266,14 +267,10 @@ class OccupancyMap:
 
     def _map_log_odds(self, rows):
         """Log-odds (float64) of the voxels of frame accumulator rows ``rows``; ``logit(p0)`` where the map has none."""
-        store, acc = self._store, self._accumulator
         q = _kernels_accumulate.map_log_of_rows(
-            store.table,
-            store.block_keys,
-            store.payload["log"],
-            acc.block_keys,
+            self._kernel_store(),
+            _accumulator.kernel_arrays(self._accumulator),
             np.ascontiguousarray(rows, dtype=np.int64),
-            sum(store.bits),
             np.int64(self.prior_q),
         )
         return from_fixed(q)
@@ -297,20 +294,7 @@ class OccupancyMap:
         store, theirs = self._store, other._store
         store.reserve(store.count_absent(theirs.block_keys, len(theirs)))
         lo, hi = self._clamp_q()
-        _kernels_accumulate.merge_blocks(
-            store.table,
-            store.block_keys,
-            store.n_blocks,
-            store.payload["log"],
-            store.payload["count"],
-            theirs.block_keys,
-            len(theirs),
-            theirs.payload["log"],
-            theirs.payload["count"],
-            lo,
-            hi,
-            self.prior_q,
-        )
+        _kernels_accumulate.merge_blocks(self._kernel_store(), other._kernel_store(), lo, hi, self.prior_q)
         self.policies = (*self.policies, *(p for p in other.policies if p not in self.policies))
         self.n_frames += other.n_frames
         return self
@@ -341,18 +325,7 @@ class OccupancyMap:
             )
         store = self._store
         store.reserve(_kernels_hash.count_new_blocks(store.table, store.block_keys, keys, store.bits))
-        _kernels_accumulate.set_voxels(
-            store.table,
-            store.block_keys,
-            store.n_blocks,
-            store.payload["log"],
-            store.payload["count"],
-            keys,
-            to_fixed(log),
-            count.astype(np.uint16),
-            store.bits,
-            self.prior_q,
-        )
+        _kernels_accumulate.set_voxels(self._kernel_store(), keys, to_fixed(log), count.astype(np.uint16), self.prior_q)
 
     def copy(self) -> OccupancyMap:
         """An independent copy of the map (through its pickled state, :meth:`__getstate__`)."""
@@ -390,16 +363,7 @@ class OccupancyMap:
         counts : (N,) uint16, 0 = unknown
         """
         keys = self._keys(keys)
-        store = self._store
-        q, count = _kernels_accumulate.lookup(
-            store.table,
-            store.block_keys,
-            store.payload["log"],
-            store.payload["count"],
-            keys,
-            store.bits,
-            np.int64(self.prior_q),
-        )
+        q, count = _kernels_accumulate.lookup(self._kernel_store(), keys, np.int64(self.prior_q))
         return from_fixed(q), count
 
     def probability_at_keys(self, keys: npt.ArrayLike) -> npt.NDArray[np.float64]:
@@ -557,23 +521,17 @@ class OccupancyMap:
             return Q_MIN, Q_MAX
         return int(to_fixed(logit(self.clamp[0]))), int(to_fixed(logit(self.clamp[1])))
 
+    def _kernel_store(self):
+        """The map's storage as the kernels take it (:class:`~prismap.grid._kernel_args.MapStore`); reserving room
+        replaces its arrays, so take it again after that."""
+        return self._store.arrays(MapStore)
+
     def _apply_accumulator(self, code):
         acc, store = self._accumulator, self._store
         store.reserve(store.count_absent(acc.block_keys, len(acc)))
         lo, hi = self._clamp_q()
         _kernels_accumulate.apply_frame(
-            store.table,
-            store.block_keys,
-            store.n_blocks,
-            store.payload["log"],
-            store.payload["count"],
-            acc.block_keys,
-            len(acc),
-            acc.payload["acc"],
-            code,
-            lo,
-            hi,
-            self.prior_q,
+            self._kernel_store(), _accumulator.kernel_arrays(acc), code, lo, hi, self.prior_q
         )
 
     def _points(self, value, name, *, single=False, as_direction=False):

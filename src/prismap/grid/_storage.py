@@ -69,6 +69,14 @@ class BlockTable:
         self.n_blocks[0] = self.block_keys.size
         self.table = _kernels_hash.rehash(self.block_keys, len(self), _table_size(len(self)))
 
+    def arrays(self, bundle):
+        """The table's arrays as the kernels take them: ``bundle`` (a ``NamedTuple`` of
+        :mod:`prismap.grid._kernel_args` whose fields are ``table``, ``block_keys``, ``n_blocks``, ``bits`` and the
+        payload's names) holding them. :meth:`reserve` replaces arrays, so take them again after it."""
+        return bundle(
+            table=self.table, block_keys=self.block_keys, n_blocks=self.n_blocks, bits=self.bits, **self.payload
+        )
+
     def count_absent(self, packed_keys, n):
         """How many of the distinct packed block keys ``packed_keys[:n]`` this table lacks."""
         return _kernels_hash.count_absent_blocks(self.table, self.block_keys, packed_keys, n)
