@@ -153,4 +153,4 @@ def map_reading(block: dict[str, Any] | None, reading: str) -> MapReading | None
     failure = fusion_from_block(block)
     if failure is None or reading == "independent":
         return None
-    return failure if reading == "persistent-failure" else FailureClamp(failure.rate)
+    return failure if reading == failure.name else FailureClamp(failure.rate)

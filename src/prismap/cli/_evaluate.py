@@ -13,13 +13,6 @@ _COUNT_ROWS = (
     ("truly occupied", "n_occupied", "{:d}"),
     ("truly free", "n_free", "{:d}"),
 )
-_EXTREME_ROWS = (
-    ("free at P >= 0.99", "free_confident_occupied", "{:.3%}"),
-    ("occupied at P <= 0.01", "occupied_confident_free", "{:.3%}"),
-    ("of P >= 0.99: free", "free_share_at_high_p", "{:.2%}"),
-    ("of P <= 0.01: occupied", "occupied_share_at_low_p", "{:.2%}"),
-)
-"""The printed rows of the scale's extremes: "confident and wrong" rates and calibration there."""
 
 
 def register(subparsers):
@@ -98,10 +91,10 @@ def run(args):
 
 def format_scores(scores, *, title):
     """The scores as a two-column Markdown table."""
-    from prismap.evaluate import SCORE_COLUMNS
+    from prismap.evaluate import EXTREME_COLUMNS, SCORE_COLUMNS
 
     lines = [f"{title}", "", "| score | value |", "|---|---|"]
-    for label, name, fmt, *_ in (*_COUNT_ROWS, *SCORE_COLUMNS, *_EXTREME_ROWS):
+    for label, name, fmt, *_ in (*_COUNT_ROWS, *SCORE_COLUMNS, *EXTREME_COLUMNS):
         value = getattr(scores, name)
         text = "n/a" if isinstance(value, float) and np.isnan(value) else fmt.format(value)
         lines.append(f"| {label} | {text} |")

@@ -8,7 +8,6 @@ import math
 import os
 import shlex
 import sys
-from dataclasses import replace
 from pathlib import Path
 
 from prismap._files import write_text_atomic
@@ -206,6 +205,8 @@ def map_command(config, *, inputs, error_model, out):
     list of str
         ``argv``, starting ``["prismap", "map"]``; :func:`shlex.join` makes it a shell line.
     """
+    from prismap.pipeline._config import default_fusion
+
     argv = ["prismap", "map", *inputs, "--matcher", config.matcher]
     argv += [f"--matcher-param={k}={v!r}" for k, v in config.matcher_params]
     argv += ["--model", config.model]
@@ -222,7 +223,7 @@ def map_command(config, *, inputs, error_model, out):
     argv += ["--subsample", str(config.subsample)]
     if config.disparity_source not in ("matcher", "sequence"):
         argv += ["--disparity-dir", config.disparity_source]
-    if config.fusion != replace(config, fusion=None).fusion:
+    if config.fusion != default_fusion(config.model, config.error_model):
         argv += ["--fusion", config.fusion]
     start, stop = config.frames
     argv += ["--frames", f"{start}:{'' if stop is None else stop}", "--out", str(out)]

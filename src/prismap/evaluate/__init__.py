@@ -5,6 +5,7 @@ from prismap.evaluate._grid import score_grid
 from prismap.evaluate._scores import (
     CONFIDENT,
     EVIDENCE_EDGES,
+    EXTREME_COLUMNS,
     LOG_LOSS_EPS,
     LOGIT_BIN_EDGES,
     SAFETY_FREE_SHARE,
@@ -22,6 +23,7 @@ __all__ = [
     "LOG_LOSS_EPS",
     "LOGIT_BIN_EDGES",
     "SAFETY_FREE_SHARE",
+    "EXTREME_COLUMNS",
     "SCORE_COLUMNS",
     "MapScores",
     "align_to_ground_truth",

@@ -48,6 +48,15 @@ SCORE_COLUMNS = (
 """(label, :class:`MapScores` attribute, format, which is better: "lower", "higher" or None for a value
 that is not a score) of every column the tables show, in order."""
 
+EXTREME_COLUMNS = (
+    ("free at P >= 0.99", "free_confident_occupied", "{:.3%}"),
+    ("occupied at P <= 0.01", "occupied_confident_free", "{:.3%}"),
+    ("of P >= 0.99: free", "free_share_at_high_p", "{:.2%}"),
+    ("of P <= 0.01: occupied", "occupied_share_at_low_p", "{:.2%}"),
+)
+"""(label, :class:`MapScores` attribute, format) of the scale's extremes: the "confident and wrong" rates and
+calibration there (lower is better; NaN where a map puts no voxel)."""
+
 
 @dataclass(frozen=True)
 class MapScores:

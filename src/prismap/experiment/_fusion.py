@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 from scipy.special import expit, logit
 
-from prismap.evaluate import align_to_ground_truth, score_map
+from prismap.evaluate import EXTREME_COLUMNS, align_to_ground_truth, score_map
 from prismap.grid import FailureClamp
 
 FUSIONS = ("independent", "persistent failure", "clamped at one view")
@@ -24,10 +24,7 @@ FUSION_COLUMNS = (
     ("ECE", "ece", "{:.4f}"),
     ("ROC AUC", "roc_auc", "{:.4f}"),
     ("at 90 % free", "safety_occupied_called_free", "{:.4f}"),
-    ("free at P >= 0.99", "free_confident_occupied", "{:.3%}"),
-    ("occupied at P <= 0.01", "occupied_confident_free", "{:.3%}"),
-    ("of P >= 0.99: free", "free_share_at_high_p", "{:.2%}"),
-    ("of P <= 0.01: occupied", "occupied_share_at_low_p", "{:.2%}"),
+    *EXTREME_COLUMNS,
 )
 """(label, MapScores field, format) of the section's columns."""
 

@@ -10,7 +10,7 @@ import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from prismap.evaluate import SCORE_COLUMNS
+from prismap.evaluate import EXTREME_COLUMNS, SCORE_COLUMNS
 from prismap.experiment._results import CONDITIONED_SUFFIX, best_models, cell_path, model_label
 
 IMAGE_SUFFIXES = (".png", ".svg", ".jpg")
@@ -257,26 +257,13 @@ def _confident_and_wrong(report):
                     html.escape(world),
                     html.escape(cell.matcher),
                     _model_html(cell.model, names),
-                    f"{scores.free_confident_occupied:.3%}",
-                    f"{scores.occupied_confident_free:.3%}",
-                    _share_html(scores.free_share_at_high_p),
-                    _share_html(scores.occupied_share_at_low_p),
+                    *(_value_html(fmt, getattr(scores, name)) for _, name, fmt in EXTREME_COLUMNS),
                 ]
             )
     if not rows:
         return []
-    header = "".join(
-        f"<th>{h}</th>"
-        for h in (
-            "world",
-            "matcher",
-            "model",
-            "free at P &ge; 0.99",
-            "occupied at P &le; 0.01",
-            "of P &ge; 0.99: free",
-            "of P &le; 0.01: occupied",
-        )
-    )
+    labels = ("world", "matcher", "model", *(label for label, *_ in EXTREME_COLUMNS))
+    header = "".join(f"<th>{html.escape(h)}</th>" for h in labels)
     body = "".join("<tr>" + "".join(f"<td>{c}</td>" for c in row) + "</tr>" for row in rows)
     return [
         '<section id="extremes"><h2>Confident and wrong</h2>',
@@ -291,9 +278,9 @@ def _confident_and_wrong(report):
     ]
 
 
-def _share_html(value):
-    """A share as a percentage, or an en dash when the map put no voxel there (NaN)."""
-    return "&ndash;" if math.isnan(value) else f"{value:.2%}"
+def _value_html(fmt, value):
+    """``value`` in ``fmt``, or an en dash when the map put no voxel there (NaN)."""
+    return "&ndash;" if math.isnan(value) else fmt.format(value)
 
 
 REPORT_PARTS = (_summary, _prism_vs_octomap, _confident_and_wrong, _maps_at_a_glance, _details)

@@ -21,7 +21,7 @@ Design notes (one owner per concept):
   called only by the wrappers of this package.
 """
 
-from prismap.grid._fusion import MAP_READINGS, FailureClamp, MapReading, PersistentFailure
+from prismap.grid._fusion import MAP_READINGS, READINGS, FailureClamp, MapReading, PersistentFailure
 from prismap.grid._integrators import (
     INTEGRATOR_NAMES,
     MEASUREMENT_KINDS,
@@ -53,6 +53,7 @@ __all__ = [
     "MEASUREMENT_KINDS",
     "OCCUPIED",
     "OCTOMAP_CLAMP",
+    "READINGS",
     "PACK_OFFSET",
     "POLICIES",
     "PROJECTOR_NAMES",

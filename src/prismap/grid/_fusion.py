@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import lru_cache
+from typing import ClassVar
 
 import numpy as np
 import numpy.typing as npt
@@ -28,10 +29,6 @@ from prismap.grid._logodds import logit
 
 MAX_VIEWS = 64
 """Counts above this read with the failure share distribution of ``MAX_VIEWS`` views (it has converged)."""
-
-MAP_READINGS = ("failure-clamp", "persistent-failure", "independent")
-"""Names of the ways a map can read its sums given a matcher's failure state (``prismap map --fusion``):
-:class:`FailureClamp`, :class:`PersistentFailure` and the independent sum. The first is the default."""
 
 _CHUNK = 65536
 """Voxels read at once (bounds the ``(chunk, n + 1)`` temporary)."""
@@ -51,14 +48,13 @@ class PersistentFailure:
         ``q -> 1`` is a failure that, once there, stays for every view.
     """
 
+    name: ClassVar[str] = "persistent-failure"
     rate: float
     persistence: float
 
     def __post_init__(self):
-        rate = check_probability(self.rate, "rate", open_interval=False)
+        rate = _check_rate(self.rate)
         persistence = check_probability(self.persistence, "persistence", open_interval=False)
-        if rate == 1.0:
-            raise PrismapInputError("`rate` must lie in [0, 1): a matcher that always fails carries no evidence")
         if persistence < rate:
             raise PrismapInputError(
                 f"`persistence` {persistence!r} must be >= `rate` {rate!r} (a failure cannot "
@@ -90,12 +86,7 @@ class PersistentFailure:
         -------
         (N,) float64 in [0, 1]
         """
-        log = np.asarray(log_odds, dtype=np.float64)
-        count = np.asarray(count)
-        if log.shape != count.shape or log.ndim != 1:
-            raise PrismapInputError(
-                f"`log_odds` and `count` must be 1-D of one shape; got {log.shape} and {count.shape}"
-            )
+        log, count = _check_sums(log_odds, count)
         prior = float(logit(check_probability(p0, "p0")))
         evidence = log - prior
         out = expit(log)
@@ -135,13 +126,11 @@ class FailureClamp:
         ``r``: the matcher's gross error rate at a voxel's pixels.
     """
 
+    name: ClassVar[str] = "failure-clamp"
     rate: float
 
     def __post_init__(self):
-        rate = check_probability(self.rate, "rate", open_interval=False)
-        if rate == 1.0:
-            raise PrismapInputError("`rate` must lie in [0, 1): a matcher that always fails carries no evidence")
-        object.__setattr__(self, "rate", rate)
+        object.__setattr__(self, "rate", _check_rate(self.rate))
 
     def probability(self, log_odds: npt.ArrayLike, count: npt.ArrayLike, p0: float) -> npt.NDArray[np.float64]:
         """``P(occupied)`` of voxels with stored log-odds ``log_odds`` observed by ``count`` frames.
@@ -156,11 +145,7 @@ class FailureClamp:
         -------
         (N,) float64 in ``[r p0, 1 - r (1 - p0)]``
         """
-        log = np.asarray(log_odds, dtype=np.float64)
-        if log.shape != np.shape(count) or log.ndim != 1:
-            raise PrismapInputError(
-                f"`log_odds` and `count` must be 1-D of one shape; got {log.shape} and {np.shape(count)}"
-            )
+        log, _ = _check_sums(log_odds, count)
         low, high = self.bounds(p0)
         return np.clip(expit(log), low, high)
 
@@ -176,6 +161,29 @@ class FailureClamp:
 
 MapReading = PersistentFailure | FailureClamp
 """How a map reads its stored sums other than as the independent sum (None)."""
+
+READINGS = {reading.name: reading for reading in (FailureClamp, PersistentFailure)}
+"""The :data:`MapReading` classes by their ``name`` (``prismap map --fusion``, the map file's ``fusion_model``)."""
+
+MAP_READINGS = (*READINGS, "independent")
+"""Names of the ways a map can read its sums given a matcher's failure state: :class:`FailureClamp`,
+:class:`PersistentFailure` and the independent sum. The first is the default."""
+
+
+def _check_rate(rate):
+    """``rate`` as a float in [0, 1) (a matcher that always fails carries no evidence)."""
+    rate = check_probability(rate, "rate", open_interval=False)
+    if rate == 1.0:
+        raise PrismapInputError("`rate` must lie in [0, 1): a matcher that always fails carries no evidence")
+    return rate
+
+
+def _check_sums(log_odds, count):
+    """A map's stored sums as arrays: ``(N,)`` float64 log-odds and ``(N,)`` counts of one shape."""
+    log, count = np.asarray(log_odds, dtype=np.float64), np.asarray(count)
+    if log.shape != count.shape or log.ndim != 1:
+        raise PrismapInputError(f"`log_odds` and `count` must be 1-D of one shape; got {log.shape} and {count.shape}")
+    return log, count
 
 
 @lru_cache(maxsize=256)

@@ -11,7 +11,7 @@ from scipy.special import expit
 from prismap._validate import as_float_array, check_classes, check_positive, check_probability
 from prismap.errors import PrismapInputError
 from prismap.grid import _accumulator, _kernels_accumulate, _kernels_hash
-from prismap.grid._fusion import FailureClamp, MapReading, PersistentFailure
+from prismap.grid._fusion import MapReading
 from prismap.grid._integrators import MEASUREMENT_KINDS, RayBatch, make_integrator
 from prismap.grid._kernel_args import MapStore
 from prismap.grid._keys import BLOCK_BITS, KEY_LIMIT, check_keys, key_range_text, key_to_center, point_to_key
@@ -88,7 +88,7 @@ class OccupancyMap:
                 raise PrismapInputError(f"`clamp` must satisfy p_min < p0 < p_max; got {clamp!r} with p0={self.p0}")
             clamp = (lo, hi)
         self.clamp = clamp
-        if fusion is not None and not isinstance(fusion, PersistentFailure | FailureClamp):
+        if fusion is not None and not isinstance(fusion, MapReading):
             raise PrismapInputError(f"`fusion` must be a MapReading or None; got {type(fusion).__name__}")
         self.fusion = fusion
         self.occupied_threshold = check_probability(occupied_threshold, "occupied_threshold")

@@ -15,13 +15,14 @@ point. Version 1 and 2 files have no ``fusion`` and read as independent; version
 from __future__ import annotations
 
 import os
+from dataclasses import fields as dataclass_fields
 from pathlib import Path
 
 import numpy as np
 
 from prismap._files import atomic_path
 from prismap.errors import PrismapInputError
-from prismap.grid import FailureClamp, OccupancyMap, PersistentFailure
+from prismap.grid import READINGS, OccupancyMap
 from prismap.grid._keys import check_voxel_size
 from prismap.io._npz import INTEGER, REAL, TEXT, array_field, read_npz
 
@@ -32,8 +33,6 @@ READABLE_VERSIONS = (1, 2, 3, 4)
 ``fusion``; version 4 ``fusion_model``."""
 _FUSION_SPEC = {"fusion": array_field((2,), "float")}
 _FUSION_MODEL_SPEC = {"fusion_model": TEXT}
-_READINGS = {"persistent-failure": PersistentFailure, "failure-clamp": FailureClamp}
-"""The map file's ``fusion_model`` names of the readings other than "independent"."""
 _SPEC = {
     "format": TEXT,
     "format_version": INTEGER,
@@ -68,9 +67,9 @@ def save_map(grid: OccupancyMap, path: str | os.PathLike[str]) -> None:
     keys, log, counts = grid.known_voxels()
     clamp = np.array(grid.clamp if grid.clamp is not None else (np.nan, np.nan))
     reading = grid.fusion
-    parameters = () if reading is None else tuple(reading.to_dict().values())
+    parameters = () if reading is None else tuple(getattr(reading, field.name) for field in dataclass_fields(reading))
     fusion = np.array(parameters + (np.nan,) * (2 - len(parameters)))
-    fusion_model = "independent" if reading is None else next(k for k, v in _READINGS.items() if type(reading) is v)
+    fusion_model = "independent" if reading is None else reading.name
     with atomic_path(path) as tmp, open(tmp, "wb") as handle:
         np.savez_compressed(
             handle,
@@ -154,7 +153,7 @@ def _reading(path, version):
     name = read_npz(path, "map file", _FUSION_MODEL_SPEC)["fusion_model"] if version >= 4 else "persistent-failure"
     if name == "independent" or (version == 3 and np.isnan(fusion).any()):
         return None
-    if name not in _READINGS:
-        raise PrismapInputError(f"`fusion_model` must be one of {['independent', *_READINGS]}; got {name!r}")
-    cls = _READINGS[name]
-    return cls(*(float(v) for v in fusion[: len(cls.__dataclass_fields__)]))
+    if name not in READINGS:
+        raise PrismapInputError(f"`fusion_model` must be one of {['independent', *READINGS]}; got {name!r}")
+    reading = READINGS[name]
+    return reading(**{field.name: float(v) for field, v in zip(dataclass_fields(reading), fusion)})

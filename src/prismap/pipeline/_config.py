@@ -144,6 +144,13 @@ def _frozen_params(value, name):
     return pairs
 
 
+def default_fusion(model: str, error_model: ErrorModel | GaussianMixture | None) -> str:
+    """``MappingConfig.fusion``'s default: ``"failure-clamp"`` when ``model`` takes the error model and that has a
+    fusion block (the matcher's failure rate), else ``"independent"``."""
+    takes_it = getattr(error_model, "fusion", None) is not None and error_model_use(model) is not None
+    return MAP_READINGS[0] if takes_it else "independent"
+
+
 @dataclass(frozen=True, eq=False)
 class MappingConfig:
     """Everything that decides a map, apart from the input sequence.
@@ -246,8 +253,7 @@ class MappingConfig:
         set_("frames", _check_frames(self.frames))
         block = getattr(self.error_model, "fusion", None)
         if self.fusion is None:
-            takes_it = block is not None and error_model_use(self.model) is not None
-            set_("fusion", MAP_READINGS[0] if takes_it else "independent")
+            set_("fusion", default_fusion(self.model, self.error_model))
         if self.fusion not in MAP_READINGS:
             raise PrismapInputError(f"`fusion` must be one of {list(MAP_READINGS)}; got {self.fusion!r}")
         if self.fusion != "independent" and block is None:
