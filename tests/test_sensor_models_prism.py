@@ -289,6 +289,33 @@ def test_table_with_a_needle_component_agrees_with_direct_within_stated_bound():
     assert np.all(meta[:, column("row_1")] > 10)  # a coarse front, and the cells in it agree
 
 
+PINHEAD = GaussianMixture(
+    [0.7983, 0.1903, 0.0061, 0.0053],
+    [-0.021, 0.113, -0.359, -0.422],
+    [0.1316, 0.2500, 0.0090, 0.0090],
+    failure_weight=6.1e-5,
+    search_range_px=(0.0, 64.0),
+)
+"""A characterised class's mixture (SGBM on the half-resolution street, 24 classes): 0.009 px components and no
+wide one, so ``coarse_ratio`` keeps 64 and the front from near_m = 0.1 m would hold thousands of nodes."""
+
+
+def test_coarse_front_is_capped_and_agrees_with_direct_within_stated_bound():
+    rng = np.random.default_rng(8)
+    fb = KITTI_FB / 2
+    depths = np.exp(rng.uniform(np.log(3.0), np.log(60.0), 12))
+    model = make_sensor_model("prism", focal_baseline=fb, error_model=PINHEAD, voxel_size_m=0.2, p0=0.05)
+    disparity = np.round(fb / depths * 16) / 16
+    _assert_table_within_tolerance(
+        model, disparity, rng.uniform(1.0, 1.1, depths.size), _random_cells(rng, depths), large_min=0
+    )
+    meta = model._cache.meta
+    column = _kernels_table.META_COLUMNS.index
+    uncapped = _prism_spacing.coarse_ratio(PINHEAD) * _prism_spacing._TABLE_STEP
+    assert np.all(meta[:, column("h_0")] > 4 * uncapped)  # the cap widened every front
+    assert np.all(meta[:, column("row_1")] <= _kernels_table.MAX_COARSE)
+
+
 FRAME_MIXTURE = GaussianMixture([0.9, 0.1], [0.0, 0.0], [0.3, 3.0])
 
 

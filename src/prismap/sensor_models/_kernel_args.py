@@ -63,7 +63,8 @@ class TableSpec(NamedTuple):
         Relative rate gap ``s`` the influence node covers: it holds for every rate in ``[lam (1 - s), lam (1 + s)]``
         (the rays that share the table).
     coarse_ratio : int, fine nodes per coarse node
-        Spacing of the coarse front, ``coarse_ratio h`` (``_prism_spacing.coarse_ratio``).
+        Spacing of the coarse front, at least ``coarse_ratio h`` (``_prism_spacing.coarse_ratio``; wider for
+        fronts of more than ``_kernels_table.MAX_COARSE`` nodes).
     coarse_below : float, log
         ``log(C/Z)`` below which the coarse front's endpoint asymptotic of ``C`` is used.
     e_front, e_back : float, pixels

@@ -15,6 +15,11 @@ from prismap.sensor_models._kernels_march import (
 )
 from prismap.sensor_models._kernels_math import log1mexp, logaddexp
 
+MAX_COARSE = 128
+"""Most nodes of a table's coarse front (up to the measured depth): its spacing widens beyond ``coarse_ratio h``
+rather than exceed them. There ``log(C/Z) < coarse_below``, near-quadratic in x, and cubic Hermite interpolation
+with the asymptotic's slopes stays within the tables' tolerance at any spacing the cap gives (tests)."""
+
 _STEEP = 0.02
 """Bound on ``|phi''| / phi'^2`` (``phi = log(q g)``), the relative error of the endpoint asymptotic of C that
 a table's coarse front uses."""
@@ -124,7 +129,8 @@ def prism_table(shift, lam, log_far, geometry, spec, mixture):
     derivatives of ``log(C/Z)`` in ``log lam`` (from the moments, :func:`_rate_derivatives`), the first one
     followed by its x-derivative (:func:`_rate_columns`), and the same five for ``D = Z - C``. Nodes are uniform
     in x on each of :data:`N_SEGMENTS` segments: spacing
-    ``H = coarse_ratio h`` up to ``x_split``; ``H_wide = wide_ratio h`` over the broad front (true
+    ``H = coarse_ratio h`` (wider where that would put more than :data:`MAX_COARSE` nodes before the
+    measured depth) up to ``x_split``; ``H_wide = wide_ratio h`` over the broad front (true
     disparities above ``shift + e_front``); ``h``; ``H_wide`` over the broad back (below ``shift + e_back``),
     both only where an interval spans at most ``wide_efolds`` prior e-folds; ``h``; then, from a node past
     the influence depth (beyond which only the cells that straddle it look up), four equal intervals to
@@ -163,10 +169,13 @@ def prism_table(shift, lam, log_far, geometry, spec, mixture):
     """
     z0, z_max, fb, ku = geometry
     h, log_eps_bound, lam_slack, coarse_ratio, coarse_below, e_front, e_back, wide_ratio, wide_efolds = spec
-    h_coarse = coarse_ratio * h
     h_wide = wide_ratio * h
     x0 = x_of_z(z0, lam, ku)
     x_end = x_of_z(z_max, lam, ku)
+    # The coarse front ends before the measured depth; at most MAX_COARSE nodes up to there (a class with a
+    # 0.01 px component puts the measurement hundreds of thousands of x units after near_m).
+    x_measured = x_of_z(min(z_max, fb / shift), lam, ku) if shift > 0.0 else x_end
+    h_coarse = max(coarse_ratio * h, (x_measured - x0) / MAX_COARSE)
     x_front = x0  # broad front: [x_split, x_front); broad back: [x_back_wide, x_lam)
     x_back_wide = x_lam = x_end
     if wide_ratio > 1:
