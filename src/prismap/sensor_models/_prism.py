@@ -481,9 +481,9 @@ class PrismModel(RayModel):
             nodes, meta = build(slice(None))
         else:
             # One share of the keys a thread (prism_tables releases the GIL), interleaved: neighbouring keys
-            # cost about the same.
-            with ThreadPoolExecutor(_BUILD_THREADS) as pool:
-                shares = list(pool.map(build, [slice(t, None, _BUILD_THREADS) for t in range(_BUILD_THREADS)]))
+            # cost about the same. The calling thread builds the first share.
+            others = [_build_pool().submit(build, slice(t, None, _BUILD_THREADS)) for t in range(1, _BUILD_THREADS)]
+            shares = [build(slice(0, None, _BUILD_THREADS))] + [share.result() for share in others]
             meta = np.empty((n, shares[0][1].shape[1]))
             first = 0
             for t, (share_nodes, share_meta) in enumerate(shares):
@@ -496,6 +496,19 @@ class PrismModel(RayModel):
                 f"prism: near_m={self.near_m} to far_depth_m={self.far_depth_m} is too short to tabulate"
             )
         return nodes, meta
+
+
+_POOL: dict[int, ThreadPoolExecutor] = {}
+
+
+def _build_pool():
+    """The process's threads that build tables beside the calling thread (one pool per process id: a forked
+    worker makes its own), kept for the process's life so that a call per class and frame starts no thread."""
+    pid = os.getpid()
+    if pid not in _POOL:
+        _POOL.clear()
+        _POOL[pid] = ThreadPoolExecutor(_BUILD_THREADS - 1, thread_name_prefix="prismap-tables")
+    return _POOL[pid]
 
 
 def _check_tiling(rays, start, end, ray_start, near_m):
