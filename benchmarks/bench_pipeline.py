@@ -154,7 +154,6 @@ def timed_run(sequence, config, *, look_ahead=True):
     clock.replace(prismap.pipeline._run, "integrate_disparity", timed_integrate)
     clock.wrap(prismap.grid._accumulator, "cast_into", "casting")
     clock.wrap(prismap.grid._kernels_project, "project_part", "casting")
-    clock.wrap(prismap.grid._kernels_project, "project_hit_miss", "casting")
     clock.wrap(prismap.grid._kernels_accumulate, "apply_frame", "merge")
     source_call = prismap.pipeline._run.DisparitySource.__call__
     disparity_cpu = [0.0]

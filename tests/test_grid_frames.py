@@ -36,8 +36,9 @@ def test_projective_and_ray_modes_agree_on_a_frame():
 
 
 @pytest.mark.parametrize("policy", ["occupied-wins", "mean"])
-def test_projective_hit_miss_added_while_projecting_gives_the_map_of_the_cell_path(policy):
-    """A model with hit_miss_increments is added while projecting; hiding them takes the cell path (cells ->
+def test_projective_hit_miss_without_a_model_call_gives_the_map_of_the_cell_path(policy):
+    """A model with hit_miss_increments gets its increments in the walking threads; hiding them takes the cell
+    path (cells ->
     sort by ray -> cell_posteriors -> scatter): the same voxels, counts and log-odds, with rays cut at max
     range, pose-noise groups, subsampled pixels and fresh accumulators grown from empty."""
     from prismap.sensor_models import HitMissModel as LibraryHitMiss

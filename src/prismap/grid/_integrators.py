@@ -12,7 +12,7 @@ The grid never knows which sensor model it runs: it hands the model flat arrays 
 a disparity or a range as the batch's ``kind`` says, and ``|r|``, per cell the ray index and the cell's depth
 interval on that ray) and gets back
 per-cell log-odds increments (SENSOR_MODELS.md section 3). A model that states hit/miss increments
-(``hit_miss_increments``) is applied while casting, without cell arrays. A per-ray class
+(``hit_miss_increments``) is applied without a model call (in ray mode while casting). A per-ray class
 (``RayBatch.ray_class``) reaches the model as the keyword ``ray_class`` only when the batch has one, a
 per-ray voxel overhang (``RayBatch.voxel_overhang_m``) as ``voxel_overhang_m`` only when the batch has
 one and the model ``takes_voxel_overhang``, and each cell's map log-odds before the frame as ``map_log_odds``
@@ -431,8 +431,8 @@ class ProjectiveIntegrator(Integrator):
     and run each part's cells, grouped by ray, through the model. This thread registers every part's voxels
     in the accumulator and adds their increments, in part order (``_accumulator.scatter_keys``): the
     accumulator has one writer and its blocks the order of a walk in one thread. A voxel is visited once per
-    frame, so the map depends neither on the parts nor on the threads. Hit/miss models are added while
-    walking (``project_hit_miss``: no cell arrays)."""
+    frame, so the map depends neither on the parts nor on the threads. A hit/miss model's increments are
+    computed in the walking threads from the cells' intervals, without grouping by ray or a model call."""
 
     name = "projective"
 
@@ -474,9 +474,10 @@ class ProjectiveIntegrator(Integrator):
             _kernels_project.tile_stops(stops),
             voxel,
         )
-        if all(model.hit_miss_increments() is not None for model, _ in groups):
-            _project_hit_miss(accumulator, projection, t_stop, exclusive, groups[0][0])
-            return
+        hit_miss = groups[0][0].hit_miss_increments()
+        if any(model.hit_miss_increments() is None for model, _ in groups):
+            hit_miss = None
+        z_hit = np.where(exclusive, np.inf, t_stop)  # hit/miss: a ray cut at max range ends in misses
         capacity = 1.05 * _frustum_voxels(t_stop, image.focal_px, image.subsample, voxel) + 4096
         _accumulator.expect(accumulator, capacity / (BLOCK_FILL * accumulator.block_voxels))
         n_lines = int(_kernels_project.walk_lines(image.R_cam_world, shape))
@@ -491,6 +492,8 @@ class ProjectiveIntegrator(Integrator):
             if m > keys.shape[0]:  # over the bound: counted only
                 return keys, None, m
             cells = (ray_of_cell[:m], t_in[:m], t_out[:m])
+            if hit_miss is not None:
+                return keys[:m], _hit_miss_increments(*cells, z_hit, *hit_miss), m
             return keys[:m], self._part_increments(batch, groups, group_of_ray, *cells), m
 
         with ThreadPoolExecutor(max_workers=PROJECTIVE_THREADS) as threads:
@@ -536,19 +539,12 @@ class ProjectiveIntegrator(Integrator):
         return increment
 
 
-def _project_hit_miss(accumulator, projection, t_stop, exclusive, model):
-    """Projective mode for a model with ``hit_miss_increments``: added while projecting, no cell arrays (rays
-    cut at max range end in misses, as in ray mode)."""
-    l_hit, l_miss = model.hit_miss_increments()
-    z_hit = np.where(exclusive, np.inf, t_stop)
-    line = 0
-    while True:
-        line = _kernels_project.project_hit_miss(
-            _accumulator.kernel_arrays(accumulator), projection, z_hit, l_hit, l_miss, line
-        )
-        if line < 0:
-            return
-        _accumulator.grow(accumulator, 0)
+def _hit_miss_increments(ray_of_cell, t_in, t_out, z_hit, l_hit, l_miss):
+    """Hit/miss increments ((C,) float64) of cells ``[t_in, t_out)`` on rays ``ray_of_cell``: ``l_hit`` where the
+    cell holds its ray's ``z_hit``, ``l_miss`` where it ends at or before it, 0 beyond (the rule of
+    ``sensor_models._kernels_classic.hitmiss_cells``), without grouping the cells by ray."""
+    z = z_hit[ray_of_cell]
+    return np.where(t_out <= z, l_miss, np.where(t_in <= z, l_hit, 0.0))
 
 
 def _frustum_voxels(t_stop, focal_px, subsample, voxel_size):

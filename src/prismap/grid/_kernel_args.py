@@ -59,7 +59,7 @@ class AccumulatorArrays(NamedTuple):
 
 
 class Projection(NamedTuple):
-    """One frame's projective walk (``_kernels_project.project_part``, ``project_hit_miss``).
+    """One frame's projective walk (``_kernels_project.project_part``).
 
     Attributes
     ----------

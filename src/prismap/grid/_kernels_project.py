@@ -1,15 +1,13 @@
 """numba kernels of projective integration: voxels of a key box projected into the image, frustum bounds.
 
 Called only by the grid's wrappers, which check and convert first. :func:`project_part` only finds the cells
-(the integrator registers them in the frame accumulator in the walk's order, ``_kernels_accumulate.scatter_keys``);
-:func:`project_hit_miss` registers and adds as it goes. Every kernel releases the GIL.
+(the integrator registers them in the frame accumulator in the walk's order, ``_kernels_accumulate.scatter_keys``).
+Every kernel releases the GIL.
 """
 
 import numba
 import numpy as np
 
-from prismap.grid._kernels_accumulate import add_increment, register_run
-from prismap.grid._kernels_hash import EMPTY
 from prismap.grid._kernels_traverse import write_cell
 
 
@@ -53,7 +51,7 @@ def _line_cells(line, walk, projection):
         tile_stop,
         voxel_size,
     ) = projection
-    a0, a1, a2, step, k, w, col_offset, row_offset, scale_px, line_keys, line_ray, line_t0, line_t1, _ = walk
+    a0, a1, a2, step, k, w, col_offset, row_offset, scale_px, line_keys, line_ray, line_t0, line_t1 = walk
     n1 = shape[a1]
     k[a0] = key_min[a0] + line // n1
     k[a1] = key_min[a1] + line % n1
@@ -133,8 +131,7 @@ def _walk_setup(projection):
     """State of a walk over the key box of ``projection`` (:class:`~prismap.grid._kernel_args.Projection`): its
     loop axes (:func:`_loop_axes`), the camera-frame step of one voxel along the line axis, the key and centre
     (relative to the origin) of the current voxel, the image offsets and scale, and scratch for one line: keys
-    (n2, 3) int32, ray (n2,) int64, t_in, t_out (n2,) float64, accumulator rows (n2,) int64. Returns it and the
-    number of lines."""
+    (n2, 3) int32, ray (n2,) int64, t_in, t_out (n2,) float64. Returns it and the number of lines."""
     R_cam_world, shape, voxel_size, subsample = (
         projection.R_cam_world,
         projection.shape,
@@ -160,7 +157,6 @@ def _walk_setup(projection):
         np.empty(n2, dtype=np.int64),
         np.empty(n2),
         np.empty(n2),
-        np.empty(n2, dtype=np.int64),
     )
     return walk, shape[a0] * shape[a1]
 
@@ -211,46 +207,6 @@ def project_part(projection, start, stop, capacity, max_cells):
         t_out[m : m + c] = line_t1[:c]
         m += c
     return keys, ray_of_cell, t_in, t_out, m
-
-
-@numba.njit(cache=True, nogil=True)
-def project_hit_miss(accumulator, projection, z_hit, l_hit, l_miss, start):
-    """:func:`project_part` for a hit/miss model: each kept voxel of interval ``[t_in, t_out)`` on ray ``i``
-    gets ``l_hit`` if it holds ``z_hit[i]``, ``l_miss`` if it ends at or before it, 0 beyond (the rule of
-    ``sensor_models._kernels.hitmiss_cells``), added to its accumulator row as ``_kernels_accumulate.scatter``
-    adds; no cell arrays. Returns the first line not done, -1 when all are: a new block found the accumulator full (grow it and call
-    again from that line).
-
-    Parameters
-    ----------
-    accumulator : AccumulatorArrays
-        The frame accumulator (:class:`~prismap.grid._kernel_args.AccumulatorArrays`), changed in place.
-    projection : Projection
-        The frame (:class:`~prismap.grid._kernel_args.Projection`).
-    z_hit : (R,) float64, metres of depth
-        Each ray's hit depth, inf = none (cut at max range).
-    l_hit, l_miss : float, log-odds
-        The model's increments.
-    start : int
-        The first line to walk.
-    """
-    walk, n_lines = _walk_setup(projection)
-    line_keys, line_ray, line_t0, line_t1, line_rows = walk[9], walk[10], walk[11], walk[12], walk[13]
-    hit, miss, zero = np.float32(l_hit), np.float32(l_miss), np.float32(0.0)
-    acc = accumulator.acc
-    rows = acc.reshape((acc.shape[0] * acc.shape[1], acc.shape[2]))
-    last_block, last_slot = EMPTY, np.int64(-1)
-    for line in range(start, n_lines):
-        c = _line_cells(line, walk, projection)
-        if c == 0:
-            continue
-        done, last_block, last_slot = register_run(accumulator, line_keys, 0, c, line_rows, last_block, last_slot)
-        if done < c:
-            return line
-        for j in range(c):
-            z = z_hit[line_ray[j]]
-            add_increment(rows, line_rows[j], miss if line_t1[j] <= z else (hit if line_t0[j] <= z else zero))
-    return -1
 
 
 SPAN = 8
