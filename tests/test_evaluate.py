@@ -238,3 +238,33 @@ def test_safety_score_empty_classes_and_exact_counts():
         safety_score([0.1], [False], free_share=0.0)
     with pytest.raises(PrismapInputError, match="must have the shape"):
         safety_score([0.1, 0.2], [False])
+
+
+def test_log_loss_sources_by_hand_add_up_to_the_log_loss():
+    """Observed: a 4 x 3 block of layer 0 (12 voxels), truly occupied: its x = 3 column. The map knows four of them:
+    (0, 0) free at P 0.1 (with evidence), (1, 0) free at P 0.26 (near the prior 0.25), (3, 0) occupied at 0.9 and
+    (3, 1) occupied at 0.2 (near the prior: |logit 0.2 - logit 0.25| = 0.288); the other eight are never observed."""
+    from prismap.evaluate import NEAR_PRIOR_LOG_ODDS, log_loss_sources, score_grid
+    from prismap.grid import OccupancyMap
+    from prismap.io import GroundTruthOccupancy
+
+    observed = np.array([(x, y, 0) for x in range(4) for y in range(3)])
+    truth = GroundTruthOccupancy(0.5, np.array([(3, y, 0) for y in range(3)]), observed)
+    grid = OccupancyMap(0.5, p0=0.25)
+    p = np.array([0.1, 0.26, 0.9, 0.2])
+    grid.set_voxels(np.array([(0, 0, 0), (1, 0, 0), (3, 0, 0), (3, 1, 0)]), np.log(p / (1 - p)), np.ones(4, np.int64))
+    assert abs(np.log(0.2 / 0.8) - np.log(0.25 / 0.75)) < NEAR_PRIOR_LOG_ODDS < abs(np.log(0.1 / 0.9 * 3))
+    got = log_loss_sources(grid, truth)
+    n = 12
+    want = {
+        "never observed": {"occupied": (1, -np.log(0.25) / n), "free": (7, -7 * np.log(0.75) / n)},
+        "near the prior": {"occupied": (1, -np.log(0.2) / n), "free": (1, -np.log(0.74) / n)},
+        "with evidence": {"occupied": (1, -np.log(0.9) / n), "free": (1, -np.log(0.9) / n)},
+    }
+    assert list(got) == list(want)
+    for level, parts in want.items():
+        for state, (voxels, loss) in parts.items():
+            assert got[level][state]["voxels"] == voxels
+            assert got[level][state]["log_loss"] == pytest.approx(loss, rel=1e-6)  # fixed-point log-odds
+    total = sum(part["log_loss"] for parts in got.values() for part in parts.values())
+    assert total == pytest.approx(score_grid(grid, truth).log_loss, rel=1e-12)

@@ -29,7 +29,9 @@ def register(subparsers):
             "extremes) and the per-frame evidence histogram (--out/evidence.png), or beside the map as "
             'MAP.scores.json. The scores include the "confident and wrong" rates: truly free voxels at P >= 0.99 '
             "and truly occupied voxels at P <= 0.01, and calibration at the extremes: of the voxels at P >= 0.99 "
-            "(P <= 0.01) the share truly free (occupied), at most 1 % for a calibrated map."
+            "(P <= 0.01) the share truly free (occupied), at most 1 % for a calibrated map. A second table says where the "
+            "log-loss comes from: voxels the map never observed (scored at p0), observed ones left near the prior, "
+            "and those with evidence, each truly occupied or free."
         ),
     )
     parser.add_argument("--map", required=True, type=Path, metavar="MAP.npz", help="map file")
@@ -41,7 +43,7 @@ def register(subparsers):
 def run(args):
     """Score the map and write the results; return the exit status."""
     from prismap._files import write_text_atomic
-    from prismap.evaluate import score_grid
+    from prismap.evaluate import log_loss_sources, score_grid
     from prismap.io import load_map, read_ground_truth
 
     grid = load_map(args.map)
@@ -55,7 +57,10 @@ def run(args):
     if truth.observed_keys.shape[0] == 0:
         raise PrismapInputError(f"--gt {args.gt}: the ground truth observes no voxel: nothing to score")
     scores = score_grid(grid, truth)
+    sources = log_loss_sources(grid, truth)
     print(format_scores(scores, title=f"{args.map} against {args.gt}"))
+    print()
+    print(format_sources(sources))
     result = {
         "map": str(args.map),
         "ground_truth": str(args.gt),
@@ -64,6 +69,7 @@ def run(args):
         "policy": "+".join(grid.policies),
         "n_frames": grid.n_frames,
         "scores": scores.to_dict(),
+        "log_loss_sources": sources,
     }
     if args.out is None:
         json_path = args.map.with_name(args.map.name.removesuffix(".npz") + ".scores.json")
@@ -98,6 +104,25 @@ def format_scores(scores, *, title):
         value = getattr(scores, name)
         text = "n/a" if isinstance(value, float) and np.isnan(value) else fmt.format(value)
         lines.append(f"| {label} | {text} |")
+    return "\n".join(lines)
+
+
+def format_sources(sources):
+    """:func:`prismap.evaluate.log_loss_sources` as a Markdown table: voxels and log-loss per group."""
+    from prismap.evaluate import NEAR_PRIOR_LOG_ODDS
+
+    lines = [
+        "Where the log-loss comes from (nats per scored voxel; the six parts add up to the log-loss; near the prior: "
+        f"|logit P - logit p0| < {NEAR_PRIOR_LOG_ODDS:g})",
+        "",
+        "| voxels | truly occupied: voxels | log-loss | truly free: voxels | log-loss |",
+        "|---|---|---|---|---|",
+    ]
+    for level, parts in sources.items():
+        occupied, free = parts["occupied"], parts["free"]
+        lines.append(
+            f"| {level} | {occupied['voxels']} | {occupied['log_loss']:.4f} | {free['voxels']} | {free['log_loss']:.4f} |"
+        )
     return "\n".join(lines)
 
 

@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
+import numpy as np
 from scipy.special import logit
 
 from prismap.evaluate._align import align_to_ground_truth
-from prismap.evaluate._scores import MapScores, score_map
+from prismap.evaluate._scores import LOG_LOSS_EPS, MapScores, score_map
 from prismap.grid import OccupancyMap
 from prismap.io import GroundTruthOccupancy
 
@@ -29,3 +30,47 @@ def score_grid(grid: OccupancyMap, truth: GroundTruthOccupancy) -> MapScores:
         keys, probability, truth.occupied_keys, truth.observed_keys, p0=grid.p0
     )
     return score_map(probability, occupied, evidence=(log - logit(grid.p0), counts))
+
+
+NEAR_PRIOR_LOG_ODDS = 0.5
+"""An observed voxel whose log-odds lie within this of ``logit(p0)`` counts as "near the prior" in
+:func:`log_loss_sources`: its frames left it about where it started."""
+
+EVIDENCE_LEVELS = ("never observed", "near the prior", "with evidence")
+"""The voxel groups of :func:`log_loss_sources`, by what the map learnt about them."""
+
+
+def log_loss_sources(grid: OccupancyMap, truth: GroundTruthOccupancy) -> dict[str, dict[str, dict[str, float]]]:
+    """Where ``grid``'s log-loss against ``truth`` comes from: its scored voxels split by what the map learnt
+    (:data:`EVIDENCE_LEVELS`: never observed, so scored at ``p0``; observed but within
+    :data:`NEAR_PRIOR_LOG_ODDS` of the prior's log-odds; observed with evidence) and by their true state.
+
+    The loss no inverse sensor model can lower lives in the first two groups (pixels without a disparity,
+    occluded voxels); a sensor model is judged by the third.
+
+    Returns
+    -------
+    dict
+        ``{level: {"occupied" | "free": {"voxels": n, "log_loss": nats}}}``; ``log_loss`` is the group's summed
+        loss divided by every scored voxel, so the six add up to :func:`score_grid`'s ``log_loss``.
+    """
+    keys, probability, _, _ = grid.known_probabilities()
+    probability, occupied = align_to_ground_truth(
+        keys, probability, truth.occupied_keys, truth.observed_keys, p0=grid.p0
+    )
+    marker, _ = align_to_ground_truth(  # 1 where the map knows the voxel, 0.5 (the fill) where it does not
+        keys, np.ones(len(keys)), truth.occupied_keys, truth.observed_keys, p0=0.5
+    )
+    clipped = np.clip(probability, LOG_LOSS_EPS, 1.0 - LOG_LOSS_EPS)
+    loss = -np.where(occupied, np.log(clipped), np.log1p(-clipped))
+    known = marker == 1.0
+    near = np.abs(logit(clipped) - logit(grid.p0)) < NEAR_PRIOR_LOG_ODDS
+    groups = dict(zip(EVIDENCE_LEVELS, (~known, known & near, known & ~near)))
+    n = max(loss.size, 1)
+    return {
+        level: {
+            state: {"voxels": int(np.sum(member & truly)), "log_loss": float(loss[member & truly].sum() / n)}
+            for state, truly in (("occupied", occupied), ("free", ~occupied))
+        }
+        for level, member in groups.items()
+    }
