@@ -669,6 +669,26 @@ def test_auto_table_budget_keeps_a_frame_asked_for_in_chunks(budget_tables, rebu
         assert sorted(cache.keys) == list(range(10, 30)) and cache.nbytes <= cache.limit_bytes
 
 
+def test_an_eviction_keeps_room_so_the_next_tables_are_not_copied_again():
+    node_bytes = _prism_cache.TableCache(None, 0).nodes.itemsize
+    table_bytes = 100 * _kernels_table.TABLE_COLUMNS * node_bytes + len(_kernels_table.META_COLUMNS) * 8
+    cache = _prism_cache.TableCache(6 * table_bytes, floor_bytes=0)
+    cache.rows(np.arange(6, dtype=np.int64), _fake_tables)
+    cache.rows(np.arange(6, 9, dtype=np.int64), _fake_tables)  # over budget: the three oldest go
+    assert sorted(cache.keys) == list(range(3, 9))
+    room = cache._node_room
+    assert room.shape[0] >= 1.5 * cache.nodes.shape[0] and np.shares_memory(room, cache.nodes)
+    before = cache.nodes
+    rows = cache.rows(np.arange(9, 11, dtype=np.int64), _fake_tables)  # evicts two more, then fits in new room
+    assert np.array_equal(cache.nodes[cache.meta[rows, _prism._OFFSET].astype(np.int64), 0], [9, 10])
+    for key in cache.keys:  # every kept table's nodes moved with it
+        row = int(np.flatnonzero(cache.keys == key)[0])
+        start, length = (int(v) for v in cache.meta[row, [_prism._OFFSET, _prism._LENGTH]])
+        assert np.all(cache.nodes[start : start + length] == key)
+    assert before.base is room  # the reader's earlier view still holds its tables
+    assert np.all(before[:100] == 3)
+
+
 @pytest.mark.parametrize(("depth", "max_range"), [(3.0, 200.0), (15.0, 20.0)])
 def test_rate_derivatives_of_the_evidence_match_finite_differences(depth, max_range):
     """The tables' Taylor terms in log(lambda) come from moments; check them on log Z, far term included."""

@@ -124,7 +124,9 @@ class TableCache:
         return np.where(self.sorted_keys[at] == keys, self.order[at], -1)
 
     def _evict(self, rows):
-        """Drop the least recently used tables (never those of ``rows``) until within budget; new rows."""
+        """Drop the least recently used tables (never those of ``rows``) until within budget; new rows. The kept
+        tables go into a new array with room behind them, as :meth:`_append_nodes` keeps, so that the next call's
+        new tables do not copy them again."""
         size = self._table_bytes()
         order = np.argsort(self.last_used, kind="stable")
         order = order[self.last_used[order] < self.clock]
@@ -133,7 +135,11 @@ class TableCache:
         keep = np.setdiff1d(np.arange(self.keys.size), drop)
         starts = self.meta[keep, _OFFSET].astype(np.int64)
         lengths = self.meta[keep, _LENGTH].astype(np.int64)
-        self.nodes = self._node_room = np.concatenate([self.nodes[s : s + n] for s, n in zip(starts, lengths)])
+        total, kept = int(lengths.sum()), self.nodes
+        self._node_room = np.empty((total + total // 2, _kernels_table.TABLE_COLUMNS), dtype=np.float32)
+        self.nodes = self._node_room[:total]
+        if keep.size:
+            np.concatenate([kept[s : s + n] for s, n in zip(starts, lengths)], out=self.nodes)
         self.meta = self.meta[keep]
         self.meta[:, _OFFSET] = np.concatenate(([0], np.cumsum(lengths)[:-1]))
         self.keys = self.keys[keep]
