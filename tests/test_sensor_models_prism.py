@@ -275,16 +275,22 @@ def test_coarse_front_spacing_follows_the_widest_sigma_only_for_a_wide_span():
     assert 33.54 * _prism_spacing._COARSE_WIDE_SIGMAS - 0.01 < spacing_px <= 33.54 * _prism_spacing._COARSE_WIDE_SIGMAS
 
 
-def test_table_with_a_needle_component_agrees_with_direct_within_stated_bound():
-    rng = np.random.default_rng(6)
+def _street_class_tables(mixture, seed, far_m):
+    """The tables of a characterised class's ``mixture`` on the half-resolution street rig (12 rays at 3 m to
+    ``far_m``, 1/16 px disparities), their cells checked against ``method="direct"``: the tables' metadata."""
+    rng = np.random.default_rng(seed)
     fb = KITTI_FB / 2
-    depths = np.exp(rng.uniform(np.log(3.0), np.log(80.0), 12))
-    model = make_sensor_model("prism", focal_baseline=fb, error_model=NEEDLE, voxel_size_m=0.2, p0=0.05)
+    depths = np.exp(rng.uniform(np.log(3.0), np.log(far_m), 12))
+    model = make_sensor_model("prism", focal_baseline=fb, error_model=mixture, voxel_size_m=0.2, p0=0.05)
     disparity = np.round(fb / depths * 16) / 16
     _assert_table_within_tolerance(
         model, disparity, rng.uniform(1.0, 1.1, depths.size), _random_cells(rng, depths), large_min=0
     )
-    meta = model._cache.meta
+    return model._cache.meta
+
+
+def test_table_with_a_needle_component_agrees_with_direct_within_stated_bound():
+    meta = _street_class_tables(NEEDLE, 6, 80.0)
     column = _kernels_table.META_COLUMNS.index
     assert np.all(meta[:, column("row_1")] > 10)  # a coarse front, and the cells in it agree
 
@@ -301,15 +307,7 @@ wide one, so ``coarse_ratio`` keeps 64 and the front from near_m = 0.1 m would h
 
 
 def test_coarse_front_is_capped_and_agrees_with_direct_within_stated_bound():
-    rng = np.random.default_rng(8)
-    fb = KITTI_FB / 2
-    depths = np.exp(rng.uniform(np.log(3.0), np.log(60.0), 12))
-    model = make_sensor_model("prism", focal_baseline=fb, error_model=PINHEAD, voxel_size_m=0.2, p0=0.05)
-    disparity = np.round(fb / depths * 16) / 16
-    _assert_table_within_tolerance(
-        model, disparity, rng.uniform(1.0, 1.1, depths.size), _random_cells(rng, depths), large_min=0
-    )
-    meta = model._cache.meta
+    meta = _street_class_tables(PINHEAD, 8, 60.0)
     column = _kernels_table.META_COLUMNS.index
     uncapped = _prism_spacing.coarse_ratio(PINHEAD) * _prism_spacing._TABLE_STEP
     assert np.all(meta[:, column("h_0")] > 4 * uncapped)  # the cap widened every front
