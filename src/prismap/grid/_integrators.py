@@ -477,7 +477,8 @@ class ProjectiveIntegrator(Integrator):
         hit_miss = groups[0][0].hit_miss_increments()
         if any(model.hit_miss_increments() is None for model, _ in groups):
             hit_miss = None
-        z_hit = np.where(exclusive, np.inf, t_stop)  # hit/miss: a ray cut at max range ends in misses
+        if hit_miss is not None:
+            z_hit = np.where(exclusive, np.inf, t_stop)  # a ray cut at max range ends in misses
         capacity = 1.05 * _frustum_voxels(t_stop, image.focal_px, image.subsample, voxel) + 4096
         _accumulator.expect(accumulator, capacity / (BLOCK_FILL * accumulator.block_voxels))
         n_lines = int(_kernels_project.walk_lines(image.R_cam_world, shape))
