@@ -54,6 +54,13 @@ def align_to_ground_truth(
     smallest key on each axis, 21 bits per axis), then matched with ``np.searchsorted`` and ``np.isin``: O((N + M + K) log) and
     independent of the grid's storage.
     """
+    aligned, occupied, _ = align_with_known(keys, probability, occupied_keys, region_keys, p0=p0)
+    return aligned, occupied
+
+
+def align_with_known(keys, probability, occupied_keys, region_keys, *, p0):
+    """:func:`align_to_ground_truth` and, third, ``known`` ((K,) bool): whether the map holds each region voxel
+    (the others took ``p0``)."""
     p0 = check_probability(p0, "p0")
     keys = _as_keys(keys, "keys")
     dims = keys.shape[1]
@@ -72,11 +79,12 @@ def align_to_ground_truth(
     _check_unique(np.sort(packed_region), "region_keys")
 
     aligned = np.full(packed_region.size, p0)
+    found = np.zeros(packed_region.size, dtype=bool)
     if packed.size:
         slot = np.minimum(np.searchsorted(sorted_keys, packed_region), packed.size - 1)
         found = sorted_keys[slot] == packed_region
         aligned[found] = p[order[slot[found]]]
-    return aligned, np.isin(packed_region, packed_occupied)
+    return aligned, np.isin(packed_region, packed_occupied), found
 
 
 def _as_keys(value, name, dims=None):

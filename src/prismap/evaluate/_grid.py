@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.special import logit
 
-from prismap.evaluate._align import align_to_ground_truth
-from prismap.evaluate._scores import LOG_LOSS_EPS, MapScores, score_map
+from prismap.evaluate._align import align_with_known
+from prismap.evaluate._scores import LOG_LOSS_EPS, MapScores, log_loss_per_voxel, score_map
 from prismap.grid import OccupancyMap
 from prismap.io import GroundTruthOccupancy
 
@@ -25,11 +25,18 @@ def score_grid(grid: OccupancyMap, truth: GroundTruthOccupancy) -> MapScores:
     MapScores
         With the per-frame evidence histograms of every voxel the map observed.
     """
+    probability, occupied, _, log, counts = _scored_voxels(grid, truth)
+    return score_map(probability, occupied, evidence=(log - logit(grid.p0), counts))
+
+
+def _scored_voxels(grid, truth):
+    """``P`` and true state of every voxel ``truth`` observed (unknown ones at ``grid.p0``), whether the map holds
+    each, and the stored log-odds and counts of every voxel the map holds."""
     keys, probability, log, counts = grid.known_probabilities()
-    probability, occupied = align_to_ground_truth(
+    probability, occupied, known = align_with_known(
         keys, probability, truth.occupied_keys, truth.observed_keys, p0=grid.p0
     )
-    return score_map(probability, occupied, evidence=(log - logit(grid.p0), counts))
+    return probability, occupied, known, log, counts
 
 
 NEAR_PRIOR_LOG_ODDS = 0.5
@@ -54,17 +61,9 @@ def log_loss_sources(grid: OccupancyMap, truth: GroundTruthOccupancy) -> dict[st
         ``{level: {"occupied" | "free": {"voxels": n, "log_loss": nats}}}``; ``log_loss`` is the group's summed
         loss divided by every scored voxel, so the six add up to :func:`score_grid`'s ``log_loss``.
     """
-    keys, probability, _, _ = grid.known_probabilities()
-    probability, occupied = align_to_ground_truth(
-        keys, probability, truth.occupied_keys, truth.observed_keys, p0=grid.p0
-    )
-    marker, _ = align_to_ground_truth(  # 1 where the map knows the voxel, 0.5 (the fill) where it does not
-        keys, np.ones(len(keys)), truth.occupied_keys, truth.observed_keys, p0=0.5
-    )
-    clipped = np.clip(probability, LOG_LOSS_EPS, 1.0 - LOG_LOSS_EPS)
-    loss = -np.where(occupied, np.log(clipped), np.log1p(-clipped))
-    known = marker == 1.0
-    near = np.abs(logit(clipped) - logit(grid.p0)) < NEAR_PRIOR_LOG_ODDS
+    probability, occupied, known, _, _ = _scored_voxels(grid, truth)
+    loss = log_loss_per_voxel(probability, occupied)
+    near = np.abs(logit(np.clip(probability, LOG_LOSS_EPS, 1.0 - LOG_LOSS_EPS)) - logit(grid.p0)) < NEAR_PRIOR_LOG_ODDS
     groups = dict(zip(EVIDENCE_LEVELS, (~known, known & near, known & ~near)))
     n = max(loss.size, 1)
     return {

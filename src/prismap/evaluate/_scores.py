@@ -223,8 +223,7 @@ def score_map(
 
     n_occupied = int(y.sum())
     n_free = int(p.size - n_occupied)
-    clipped = np.clip(p, LOG_LOSS_EPS, 1.0 - LOG_LOSS_EPS)
-    log_loss = -np.mean(np.where(y, np.log(clipped), np.log1p(-clipped)))
+    log_loss = np.mean(log_loss_per_voxel(p, y))
 
     bin_edges = np.linspace(0.0, 1.0, n_bins + 1)
     bin_counts, bin_mean, bin_fraction = _reliability(
@@ -272,6 +271,13 @@ def score_map(
         evidence_one_view=one_view,
         evidence_per_view=per_view,
     )
+
+
+def log_loss_per_voxel(p, y):
+    """Each voxel's log-loss (nats): ``-log P`` where occupied, ``-log(1 - P)`` where free, ``P`` clipped to
+    ``[LOG_LOSS_EPS, 1 - LOG_LOSS_EPS]``; :func:`score_map`'s ``log_loss`` is their mean."""
+    clipped = np.clip(p, LOG_LOSS_EPS, 1.0 - LOG_LOSS_EPS)
+    return -np.where(y, np.log(clipped), np.log1p(-clipped))
 
 
 def _reliability(p, y, index, n_bins):

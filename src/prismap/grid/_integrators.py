@@ -328,7 +328,7 @@ class RayIntegrator(Integrator):
                 "(one near 0 px reaches very far)"
             )
         self._check_work(sum(int(lim.sum()) for lim in limits), "the sum over rays of the voxels each crosses")
-        if all(model.hit_miss_increments() is not None for model, _ in groups):
+        if _hit_miss_rule(groups) is not None:
             for model, members, t_stop, exclusive in stops:
                 _cast_hit_miss(
                     accumulator,
@@ -402,7 +402,7 @@ def _cast_hit_miss(accumulator, origin, rays, t_stop, exclusive, model, voxel_si
     """Ray mode for a model with ``hit_miss_increments``: the increments are added while casting, one kernel
     call per accumulator size (it stops when the accumulator needs to grow). Per-ray classes do not apply."""
     l_hit, l_miss = model.hit_miss_increments()
-    z_hit = np.where(exclusive, np.inf, t_stop)  # a ray cut at max range ends in misses
+    z_hit = _hit_depths(t_stop, exclusive)
     done = 0
     while done < rays.shape[0]:
         n, blocks = _kernels_traverse.cast_hit_miss(
@@ -474,11 +474,9 @@ class ProjectiveIntegrator(Integrator):
             _kernels_project.tile_stops(stops),
             voxel,
         )
-        hit_miss = groups[0][0].hit_miss_increments()
-        if any(model.hit_miss_increments() is None for model, _ in groups):
-            hit_miss = None
+        hit_miss = _hit_miss_rule(groups)
         if hit_miss is not None:
-            z_hit = np.where(exclusive, np.inf, t_stop)  # a ray cut at max range ends in misses
+            z_hit = _hit_depths(t_stop, exclusive)
         capacity = 1.05 * _frustum_voxels(t_stop, image.focal_px, image.subsample, voxel) + 4096
         _accumulator.expect(accumulator, capacity / (BLOCK_FILL * accumulator.block_voxels))
         n_lines = int(_kernels_project.walk_lines(image.R_cam_world, shape))
@@ -538,6 +536,20 @@ class ProjectiveIntegrator(Integrator):
                     model, batch, used[in_group], rank[local[mine]], t_in[mine], t_out[mine]
                 )
         return increment
+
+
+def _hit_miss_rule(groups):
+    """``(l_hit, l_miss)`` when every group's model states hit/miss increments (applied without a model call),
+    else None (the cell path)."""
+    if all(model.hit_miss_increments() is not None for model, _ in groups):
+        return groups[0][0].hit_miss_increments()
+    return None
+
+
+def _hit_depths(t_stop, exclusive):
+    """Each ray's hit depth for the hit/miss rule: its stop depth, inf for a ray cut at max range (it ends in
+    misses)."""
+    return np.where(exclusive, np.inf, t_stop)
 
 
 def _hit_miss_increments(ray_of_cell, t_in, t_out, z_hit, l_hit, l_miss):

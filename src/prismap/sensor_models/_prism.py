@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import threading
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
@@ -499,16 +500,18 @@ class PrismModel(RayModel):
 
 
 _POOL: dict[int, ThreadPoolExecutor] = {}
+_POOL_LOCK = threading.Lock()
 
 
 def _build_pool():
     """The process's threads that build tables beside the calling thread (one pool per process id: a forked
     worker makes its own), kept for the process's life so that a call per class and frame starts no thread."""
     pid = os.getpid()
-    if pid not in _POOL:
-        _POOL.clear()
-        _POOL[pid] = ThreadPoolExecutor(_BUILD_THREADS - 1, thread_name_prefix="prismap-tables")
-    return _POOL[pid]
+    with _POOL_LOCK:  # two walking threads may ask first at once
+        if pid not in _POOL:
+            _POOL.clear()
+            _POOL[pid] = ThreadPoolExecutor(_BUILD_THREADS - 1, thread_name_prefix="prismap-tables")
+        return _POOL[pid]
 
 
 def _check_tiling(rays, start, end, ray_start, near_m):

@@ -100,11 +100,11 @@ class TableCache:
 
     def _append_nodes(self, parts):
         """Append the rows of the arrays ``parts``, one after another, to ``nodes``: into the room behind them (rows
-        no reader indexes yet), else into a new array half as large again as needed, so that a sequence copies its
+        no reader indexes yet), else into a new array with room (:func:`_room_for`), so that a sequence copies its
         tables a few times, not every call."""
         n, m = self.nodes.shape[0], sum(part.shape[0] for part in parts)
         if n + m > self._node_room.shape[0]:
-            room = np.empty((n + m + (n + m) // 2, _kernels_table.TABLE_COLUMNS), dtype=np.float32)
+            room = _room_for(n + m)
             room[:n] = self.nodes
             self._node_room = room
         for part in parts:
@@ -125,8 +125,8 @@ class TableCache:
 
     def _evict(self, rows):
         """Drop the least recently used tables (never those of ``rows``) until within budget; new rows. The kept
-        tables go into a new array with room behind them, as :meth:`_append_nodes` keeps, so that the next call's
-        new tables do not copy them again."""
+        tables go into a new array with room behind them (:func:`_room_for`), so that the next call's new tables
+        do not copy them again."""
         size = self._table_bytes()
         order = np.argsort(self.last_used, kind="stable")
         order = order[self.last_used[order] < self.clock]
@@ -136,7 +136,7 @@ class TableCache:
         starts = self.meta[keep, _OFFSET].astype(np.int64)
         lengths = self.meta[keep, _LENGTH].astype(np.int64)
         total, kept = int(lengths.sum()), self.nodes
-        self._node_room = np.empty((total + total // 2, _kernels_table.TABLE_COLUMNS), dtype=np.float32)
+        self._node_room = _room_for(total)
         self.nodes = self._node_room[:total]
         if keep.size:
             np.concatenate([kept[s : s + n] for s, n in zip(starts, lengths)], out=self.nodes)
@@ -148,3 +148,8 @@ class TableCache:
         new_row = np.full(len(keep) + len(drop), -1, dtype=np.int64)
         new_row[keep] = np.arange(keep.size)
         return new_row[rows]
+
+
+def _room_for(n_nodes):
+    """A node array for ``n_nodes`` rows and half as many again behind them, for the tables to come."""
+    return np.empty((n_nodes + n_nodes // 2, _kernels_table.TABLE_COLUMNS), dtype=np.float32)
