@@ -13,6 +13,7 @@ from prismap.sensor_models import (
     AndertModel,
     ConvolutionModel,
     PrismModel,
+    _kernels_failure,
     blend_increments,
     evidence_bound,
     failure_floor,
@@ -104,6 +105,32 @@ def test_blend_increments_matches_the_probability_form():
         [-np.log1p((1 - 1e-4) / (1e-4 * (1 - expit(-3.0)))), np.log1p((1 - 1e-4) / (1e-4 * expit(-3.0)))],
         rtol=1e-9,
     )
+
+
+def test_the_ray_cell_blend_takes_each_cells_prior_from_its_clipped_length():
+    rng = np.random.default_rng(1)
+    n_rays, n_cells = 7, 5000
+    rays = np.sort(rng.integers(0, n_rays, n_cells))
+    start = rng.uniform(-1.0, 30.0, n_cells)
+    end = start + rng.choice([0.0, 1e-7, 1e-4, 0.2, 50.0], n_cells)  # empty, series-sized, ordinary and clipped
+    rate = rng.uniform(0.01, 2.0, n_rays)[rays]
+    inc = rng.normal(0, 1, n_cells) * 10.0 ** rng.uniform(-3, 3, n_cells)
+    log_fail = np.log(rng.uniform(1e-9, 0.5, n_rays))
+    log_ok = np.log1p(-np.exp(log_fail))
+    near, far = 0.5, 40.0
+    posterior, blended = _kernels_failure.blend_ray_cells(inc, rays, start, end, rate, near, far, log_fail, log_ok)
+    length = np.clip(end, near, far) - np.clip(start, near, far)
+    with np.errstate(divide="ignore"):
+        prior = np.log(np.expm1(rate * length))  # -inf for empty cells: the blend keeps P = 0
+    expected_posterior, expected = blend_increments(inc, prior, log_fail[rays], log_ok[rays])
+    np.testing.assert_allclose(blended, expected, rtol=1e-8, atol=1e-9)
+    np.testing.assert_allclose(posterior, expected_posterior, rtol=1e-8, atol=1e-300)
+    assert np.all(posterior[length <= 0] == 0.0)
+    rho = np.exp(log_ok[rays])
+    with np.errstate(over="ignore"):
+        by_probability = rho * expit(prior + inc) + (1 - rho) * expit(prior)
+    ordinary = (length > 0) & (np.abs(inc) < 30)
+    np.testing.assert_allclose(posterior[ordinary], by_probability[ordinary], rtol=1e-9)
 
 
 def test_failure_posterior_never_drops_below_the_floor():

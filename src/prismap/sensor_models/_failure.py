@@ -21,6 +21,7 @@ import numpy.typing as npt
 from prismap._validate import as_float_array
 from prismap.errors import PrismapInputError
 from prismap.gmm import GaussianMixture
+from prismap.sensor_models import _kernels_failure
 
 
 def failure_floor(mixture: GaussianMixture) -> float:
@@ -123,9 +124,8 @@ def blend_increments(
     posterior : (C,) float64
     increment : (C,) float64, log-odds
     """
-    inc = np.asarray(increment, dtype=np.float64)
-    prior = np.asarray(prior_log_odds, dtype=np.float64)
-    log_pc, log_qc = -np.logaddexp(0.0, -prior), -np.logaddexp(0.0, prior)  # log p_c, log(1 - p_c)
-    log_a = np.logaddexp(log_qc, log_pc + inc)
-    blended = np.logaddexp(log_ok + inc, log_fail + log_a) - np.logaddexp(log_ok, log_fail + log_a)
-    return 1.0 / (1.0 + np.exp(-(prior + blended))), blended
+    arrays = np.broadcast_arrays(
+        *(np.asarray(a, dtype=np.float64) for a in (increment, prior_log_odds, log_fail, log_ok))
+    )
+    posterior, blended = _kernels_failure.blend_cells(*(np.ascontiguousarray(a).ravel() for a in arrays))
+    return posterior.reshape(arrays[0].shape), blended.reshape(arrays[0].shape)

@@ -25,9 +25,15 @@ import numpy.typing as npt
 from prismap._validate import as_float_array, check_positive, check_real
 from prismap.errors import PrismapInputError
 from prismap.gmm import GaussianMixture
-from prismap.sensor_models import _kernels_direct, _kernels_lookup, _kernels_map_prior, _kernels_table
+from prismap.sensor_models import (
+    _kernels_direct,
+    _kernels_failure,
+    _kernels_lookup,
+    _kernels_map_prior,
+    _kernels_table,
+)
 from prismap.sensor_models._base import register_model
-from prismap.sensor_models._failure import blend_increments, log_failure_posterior
+from prismap.sensor_models._failure import log_failure_posterior
 from prismap.sensor_models._kernel_args import Geometry, Mixture, TableSpec
 from prismap.sensor_models._params import RayModel
 from prismap.sensor_models._prism_cache import _LENGTH, _OFFSET, TableCache
@@ -350,10 +356,9 @@ class PrismModel(RayModel):
                 disparity + self.doffs_px, lam, self._log_far(disparity), _QUAD_STEP, self._geometry(), self._mixture()
             )
         log_fail, log_ok = log_failure_posterior(self.error_model, log_z)
-        length = np.clip(end, self.near_m, self.far_depth_m) - np.clip(start, self.near_m, self.far_depth_m)
-        with np.errstate(divide="ignore"):
-            prior_log_odds = np.log(np.expm1(cell_rate * np.maximum(length, 0.0)))
-        return blend_increments(result[1], prior_log_odds, log_fail[rays], log_ok[rays])
+        return _kernels_failure.blend_ray_cells(
+            result[1], rays, start, end, cell_rate, self.near_m, self.far_depth_m, log_fail, log_ok
+        )
 
     def influence_depth(self, disparity_px: npt.ArrayLike, ray_norm: npt.ArrayLike) -> npt.NDArray[np.float64]:
         """Depth beyond which every cell's ``|logit(P) - logit(p_c)| < influence_epsilon`` (metres), per ray.

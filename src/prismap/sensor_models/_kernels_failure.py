@@ -1,0 +1,73 @@
+"""numba kernels of the matcher-failure blend (:mod:`prismap.sensor_models._failure`): a cell's failure-free
+increment blended with its prior by its ray's failure posterior, in one pass over the cells.
+
+The maths is :func:`prismap.sensor_models.blend_increments`' (docs/SENSOR_MODELS.md, "Matcher failures"), as
+odds of positive terms: no difference cancels, and it stays exact however far the failure-free posterior is
+from the prior. Its exp and log are the
+vectorisable :func:`~prismap.sensor_models._kernels_math.fast_exp` and
+:func:`~prismap.sensor_models._kernels_math.fast_log`, written with selects so that the loops vectorise: the
+blend is on every cell of a ray-mode frame, and as numpy expressions it cost more than PRISM's table look-ups.
+"""
+
+import numba as nb
+import numpy as np
+
+from prismap.sensor_models._kernels_math import fast_exp, fast_log
+
+_SERIES_BELOW = 1e-3  # below: 1 - exp(-x) by its series, which 1 - fast_exp(-x) would cancel away
+_BLOCK = 2048  # cells a block of blend_ray_cells
+_EXP_BOUND = 700.0  # increments beyond +-700 nats blend as +-700 would, to float64 precision: exp stays finite
+
+
+@nb.njit(cache=True, nogil=True, inline="always", error_model="numpy")
+def _blend(increment, p, q, ok, fail):
+    """``(posterior, increment)`` of ``rho P_G + (1 - rho) p_c`` for a cell of prior ``p = p_c`` (``q = 1 - p_c``,
+    each given so that neither is a difference near 1), failure-free increment ``increment`` and failure
+    posterior ``fail = 1 - rho`` (``ok = rho``). With ``R = exp(increment)`` and ``A = q + p R`` the blend's odds
+    are ``p (rho R + fail A) / (q (rho + fail A))``."""
+    ratio = fast_exp(min(max(increment, -_EXP_BOUND), _EXP_BOUND))
+    a = q + p * ratio
+    numerator = ok * ratio + fail * a
+    denominator = ok + fail * a
+    occupied = p * numerator
+    return occupied / (occupied + q * denominator), fast_log(numerator) - fast_log(denominator)
+
+
+@nb.njit(cache=True, nogil=True, error_model="numpy")
+def blend_cells(increment, prior_log_odds, log_fail, log_ok):
+    """:func:`_blend` of every cell (all (C,) float64): ``(posterior, increment)``."""
+    n = increment.size
+    posterior, blended = np.empty(n), np.empty(n)
+    for i in range(n):
+        p = 1.0 / (1.0 + fast_exp(-prior_log_odds[i]))
+        q = 1.0 / (1.0 + fast_exp(prior_log_odds[i]))
+        posterior[i], blended[i] = _blend(increment[i], p, q, fast_exp(log_ok[i]), fast_exp(log_fail[i]))
+    return posterior, blended
+
+
+@nb.njit(cache=True, nogil=True, error_model="numpy")
+def blend_ray_cells(increment, rays, start, end, cell_rate, near, far, log_fail, log_ok):
+    """:func:`_blend` of every cell ``[start, end]`` (metres of depth, clipped to ``[near, far]``) of ray
+    ``rays`` ((C,) int64), its prior ``1 - exp(-cell_rate * length)`` (``cell_rate`` (C,), 1/metre of depth);
+    ``log_fail``, ``log_ok``: (R,) per ray. Returns ``(posterior, increment)``, (C,) float64 each.
+
+    The rays' failure posteriors are gathered a block of :data:`_BLOCK` cells at a time into buffers, so
+    that the loop doing the maths reads only contiguous arrays and vectorises (a gather in it stops that)."""
+    ok, fail = np.exp(log_ok), np.exp(log_fail)
+    n = increment.size
+    posterior, blended = np.empty(n), np.empty(n)
+    ok_cell, fail_cell = np.empty(_BLOCK), np.empty(_BLOCK)
+    for first in range(0, n, _BLOCK):
+        size = min(_BLOCK, n - first)
+        for j in range(size):
+            ray = rays[first + j]
+            ok_cell[j] = ok[ray]
+            fail_cell[j] = fail[ray]
+        for j in range(size):
+            i = first + j
+            length = min(max(end[i], near), far) - min(max(start[i], near), far)
+            x = cell_rate[i] * max(length, 0.0)
+            q = fast_exp(-x)
+            p = x * (1.0 - x * (0.5 - x / 6.0)) if x < _SERIES_BELOW else 1.0 - q
+            posterior[i], blended[i] = _blend(increment[i], p, q, ok_cell[j], fail_cell[j])
+    return posterior, blended
