@@ -244,7 +244,7 @@ def test_log_loss_sources_by_hand_add_up_to_the_log_loss():
     """Observed: a 4 x 3 block of layer 0 (12 voxels), truly occupied: its x = 3 column. The map knows four of them:
     (0, 0) free at P 0.1 (with evidence), (1, 0) free at P 0.26 (near the prior 0.25), (3, 0) occupied at 0.9 and
     (3, 1) occupied at 0.2 (near the prior: |logit 0.2 - logit 0.25| = 0.288); the other eight are never observed."""
-    from prismap.evaluate import NEAR_PRIOR_LOG_ODDS, log_loss_sources, score_grid
+    from prismap.evaluate import NEAR_PRIOR_LOG_ODDS, log_loss_sources, score_grid, score_grid_with_sources
     from prismap.grid import OccupancyMap
     from prismap.io import GroundTruthOccupancy
 
@@ -268,3 +268,5 @@ def test_log_loss_sources_by_hand_add_up_to_the_log_loss():
             assert got[level][state]["log_loss"] == pytest.approx(loss, rel=1e-6)  # fixed-point log-odds
     total = sum(part["log_loss"] for parts in got.values() for part in parts.values())
     assert total == pytest.approx(score_grid(grid, truth).log_loss, rel=1e-12)
+    scores, sources = score_grid_with_sources(grid, truth)  # prismap evaluate's one alignment
+    assert sources == got and scores.to_dict() == score_grid(grid, truth).to_dict()

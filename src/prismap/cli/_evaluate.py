@@ -43,7 +43,7 @@ def register(subparsers):
 def run(args):
     """Score the map and write the results; return the exit status."""
     from prismap._files import write_text_atomic
-    from prismap.evaluate import log_loss_sources, score_grid
+    from prismap.evaluate import score_grid_with_sources
     from prismap.io import load_map, read_ground_truth
 
     grid = load_map(args.map)
@@ -56,8 +56,7 @@ def run(args):
         raise PrismapInputError(f"--map {args.map}: a 2-D map; evaluate scores 3-D maps against 3-D ground truth")
     if truth.observed_keys.shape[0] == 0:
         raise PrismapInputError(f"--gt {args.gt}: the ground truth observes no voxel: nothing to score")
-    scores = score_grid(grid, truth)
-    sources = log_loss_sources(grid, truth)
+    scores, sources = score_grid_with_sources(grid, truth)
     print(format_scores(scores, title=f"{args.map} against {args.gt}"))
     print()
     print(format_sources(sources))

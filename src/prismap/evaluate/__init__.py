@@ -1,7 +1,13 @@
 """Scores of an occupancy map against ground-truth occupancy (SENSOR_MODELS.md section 6)."""
 
 from prismap.evaluate._align import align_to_ground_truth
-from prismap.evaluate._grid import EVIDENCE_LEVELS, NEAR_PRIOR_LOG_ODDS, log_loss_sources, score_grid
+from prismap.evaluate._grid import (
+    EVIDENCE_LEVELS,
+    NEAR_PRIOR_LOG_ODDS,
+    log_loss_sources,
+    score_grid,
+    score_grid_with_sources,
+)
 from prismap.evaluate._scores import (
     CONFIDENT,
     EVIDENCE_EDGES,
@@ -34,5 +40,6 @@ __all__ = [
     "roc_auc",
     "safety_score",
     "score_grid",
+    "score_grid_with_sources",
     "score_map",
 ]

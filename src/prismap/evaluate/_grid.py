@@ -25,8 +25,19 @@ def score_grid(grid: OccupancyMap, truth: GroundTruthOccupancy) -> MapScores:
     MapScores
         With the per-frame evidence histograms of every voxel the map observed.
     """
-    probability, occupied, _, log, counts = _scored_voxels(grid, truth)
-    return score_map(probability, occupied, evidence=(log - logit(grid.p0), counts))
+    return _scores(*_scored_voxels(grid, truth), grid.p0)
+
+
+def score_grid_with_sources(
+    grid: OccupancyMap, truth: GroundTruthOccupancy
+) -> tuple[MapScores, dict[str, dict[str, dict[str, float]]]]:
+    """:func:`score_grid` and :func:`log_loss_sources` of ``grid`` against ``truth``, aligning the two once."""
+    scored = _scored_voxels(grid, truth)
+    return _scores(*scored, grid.p0), _sources(*scored[:3], grid.p0)
+
+
+def _scores(probability, occupied, known, log, counts, p0):
+    return score_map(probability, occupied, evidence=(log - logit(p0), counts))
 
 
 def _scored_voxels(grid, truth):
@@ -61,9 +72,12 @@ def log_loss_sources(grid: OccupancyMap, truth: GroundTruthOccupancy) -> dict[st
         ``{level: {"occupied" | "free": {"voxels": n, "log_loss": nats}}}``; ``log_loss`` is the group's summed
         loss divided by every scored voxel, so the six add up to :func:`score_grid`'s ``log_loss``.
     """
-    probability, occupied, known, _, _ = _scored_voxels(grid, truth)
+    return _sources(*_scored_voxels(grid, truth)[:3], grid.p0)
+
+
+def _sources(probability, occupied, known, p0):
     loss = log_loss_per_voxel(probability, occupied)
-    near = np.abs(logit(np.clip(probability, LOG_LOSS_EPS, 1.0 - LOG_LOSS_EPS)) - logit(grid.p0)) < NEAR_PRIOR_LOG_ODDS
+    near = np.abs(logit(np.clip(probability, LOG_LOSS_EPS, 1.0 - LOG_LOSS_EPS)) - logit(p0)) < NEAR_PRIOR_LOG_ODDS
     groups = dict(zip(EVIDENCE_LEVELS, (~known, known & near, known & ~near)))
     n = max(loss.size, 1)
     return {
