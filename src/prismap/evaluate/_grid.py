@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 from scipy.special import logit
 
@@ -25,7 +27,7 @@ def score_grid(grid: OccupancyMap, truth: GroundTruthOccupancy) -> MapScores:
     MapScores
         With the per-frame evidence histograms of every voxel the map observed.
     """
-    return _scores(*_scored_voxels(grid, truth), grid.p0)
+    return _scores(_scored_voxels(grid, truth), grid.p0)
 
 
 def score_grid_with_sources(
@@ -33,21 +35,31 @@ def score_grid_with_sources(
 ) -> tuple[MapScores, dict[str, dict[str, dict[str, float]]]]:
     """:func:`score_grid` and :func:`log_loss_sources` of ``grid`` against ``truth``, aligning the two once."""
     scored = _scored_voxels(grid, truth)
-    return _scores(*scored, grid.p0), _sources(*scored[:3], grid.p0)
+    return _scores(scored, grid.p0), _sources(scored, grid.p0)
 
 
-def _scores(probability, occupied, known, log, counts, p0):
-    return score_map(probability, occupied, evidence=(log - logit(p0), counts))
+class _ScoredVoxels(NamedTuple):
+    """``P`` and true state of every voxel the truth observed (unknown ones at the map's ``p0``), whether the map
+    holds each, and the stored log-odds and counts of every voxel the map holds."""
+
+    probability: np.ndarray
+    occupied: np.ndarray
+    known: np.ndarray
+    log_odds: np.ndarray
+    counts: np.ndarray
+
+
+def _scores(scored, p0):
+    return score_map(scored.probability, scored.occupied, evidence=(scored.log_odds - logit(p0), scored.counts))
 
 
 def _scored_voxels(grid, truth):
-    """``P`` and true state of every voxel ``truth`` observed (unknown ones at ``grid.p0``), whether the map holds
-    each, and the stored log-odds and counts of every voxel the map holds."""
+    """``grid`` aligned with ``truth`` once, for the scores and the log-loss sources."""
     keys, probability, log, counts = grid.known_probabilities()
     probability, occupied, known = align_with_known(
         keys, probability, truth.occupied_keys, truth.observed_keys, p0=grid.p0
     )
-    return probability, occupied, known, log, counts
+    return _ScoredVoxels(probability, occupied, known, log, counts)
 
 
 NEAR_PRIOR_LOG_ODDS = 0.5
@@ -72,10 +84,11 @@ def log_loss_sources(grid: OccupancyMap, truth: GroundTruthOccupancy) -> dict[st
         ``{level: {"occupied" | "free": {"voxels": n, "log_loss": nats}}}``; ``log_loss`` is the group's summed
         loss divided by every scored voxel, so the six add up to :func:`score_grid`'s ``log_loss``.
     """
-    return _sources(*_scored_voxels(grid, truth)[:3], grid.p0)
+    return _sources(_scored_voxels(grid, truth), grid.p0)
 
 
-def _sources(probability, occupied, known, p0):
+def _sources(scored, p0):
+    probability, occupied, known = scored.probability, scored.occupied, scored.known
     loss = log_loss_per_voxel(probability, occupied)
     near = np.abs(logit(np.clip(probability, LOG_LOSS_EPS, 1.0 - LOG_LOSS_EPS)) - logit(p0)) < NEAR_PRIOR_LOG_ODDS
     groups = dict(zip(EVIDENCE_LEVELS, (~known, known & near, known & ~near)))

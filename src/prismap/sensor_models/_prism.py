@@ -294,6 +294,7 @@ class PrismModel(RayModel):
         ``p0``): the cells' priors when ``prior == "map"``; refused otherwise.
         """
         method = self.method if method is None else method
+        tables = None  # the rays' tables, once looked up
         disparity, norm, rays, start, end, _ = self._prepare(
             disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m
         )
@@ -335,21 +336,25 @@ class PrismModel(RayModel):
                 self._mixture(),
             )
         elif method == "table":
-            result = self._table_cells(lam, disparity, norm, rays, start, end, stretch)
+            tables = self._tables_for(disparity, norm)
+            result = self._table_cells(lam, rays, start, end, stretch, tables)
         else:
             raise PrismapInputError(f"prism: `method` must be 'table' or 'direct'; got {method!r}")
         if self.error_model.failure_weight == 0:
             return result
-        return self._with_failures(result, method, lam, disparity, norm, rays, start, end + stretch[rays], cell_rate)
+        return self._with_failures(
+            result, method, tables, lam, disparity, norm, rays, start, end + stretch[rays], cell_rate
+        )
 
-    def _with_failures(self, result, method, lam, disparity, norm, rays, start, end, cell_rate):
+    def _with_failures(self, result, method, tables, lam, disparity, norm, rays, start, end, cell_rate):
         """The cells' ``(posterior, increment)`` of ``result`` (the Gaussians' PRISM) blended with their priors by
         each ray's failure posterior (:func:`prismap.sensor_models.blend_increments`; docs/SENSOR_MODELS.md,
         "Matcher failures"). The ray's ``Z`` is the table's (``method="table"``, also for ``prior="map"``, where
-        it is the marginal under ``p0``) or marched (``"direct"``); ``cell_rate`` (per metre of depth) gives each
+        it is the marginal under ``p0``; ``tables``: the rays' :meth:`_tables_for`, looked up here when None) or
+        marched (``"direct"``); ``cell_rate`` (per metre of depth) gives each
         cell's prior over ``[start, end]`` clipped to ``[near_m, far_depth_m]``."""
         if method == "table":
-            table, delta, meta, _ = self._tables_for(disparity, norm)
+            table, delta, meta, _ = self._tables_for(disparity, norm) if tables is None else tables
             log_z = meta[table, _LOG_Z] + delta * (meta[table, _LOG_Z_1] + 0.5 * delta * meta[table, _LOG_Z_2])
         else:
             log_z = _kernels_direct.prism_log_evidence(
@@ -420,10 +425,11 @@ class PrismModel(RayModel):
         )
 
     # ------------------------------------------------------------------ tables
-    def _table_cells(self, lam, disparity, norm, rays, start, end, stretch):
-        """Tabulated posteriors and increments of the cells ``[start, end + stretch[rays]]``
-        (``_kernels_lookup.prism_table_cells``: table look-ups, vectorised exp, combination, vectorised log)."""
-        table, delta, meta, nodes = self._tables_for(disparity, norm)
+    def _table_cells(self, lam, rays, start, end, stretch, tables):
+        """Tabulated posteriors and increments of the cells ``[start, end + stretch[rays]]`` from the rays'
+        ``tables`` (:meth:`_tables_for`; ``_kernels_lookup.prism_table_cells``: table look-ups, vectorised exp,
+        combination, vectorised log)."""
+        table, delta, meta, nodes = tables
         return _kernels_lookup.prism_table_cells(
             lam,
             table,
