@@ -11,8 +11,8 @@ import pytest
 
 from prismap.camera import integrate_disparity
 from prismap.errors import PrismapInputError
-from prismap.grid import INTEGRATOR_NAMES, OccupancyMap, RayBatch, make_integrator
-from prismap.grid._integrators import ProjectiveIntegrator, RayIntegrator
+from prismap.grid import INTEGRATOR_NAMES, OccupancyMap, RayBatch, _integrators, make_integrator
+from prismap.grid._integrators import ProjectiveIntegrator, RayIntegrator, _class_chunks
 from prismap.sensor_models import InverseSensorModel, make_sensor_model
 from support import FB, planes_frame
 
@@ -114,6 +114,52 @@ def test_ray_class_reaches_the_model_in_ray_mode_as_a_map_built_class_by_class()
     assert grid.n_known > 2000 and _log_by_key(grid) == _log_by_key(by_hand)
     # without classes the model is called exactly as before (no ray_class keyword)
     OccupancyMap(0.1, p0=0.5).integrate_rays(origin, rays, disparity, ClassModel(classes_given=False))
+
+
+def test_ray_chunks_hold_one_class_each_in_image_order_within_the_chunk_bounds(monkeypatch):
+    monkeypatch.setattr(_integrators, "RAYS_PER_CHUNK", 5)
+    monkeypatch.setattr(_integrators, "CELLS_PER_CHUNK", 40)
+    rng = np.random.default_rng(3)
+    ray_class = rng.integers(-1, 3, 60).astype(np.int32)
+    limits = rng.integers(1, 30, 60)
+    limits[7] = 55  # a ray beyond the cell bound is a chunk of its own
+    order, parts = _class_chunks(ray_class, limits)
+    np.testing.assert_array_equal(np.sort(order), np.arange(60))
+    np.testing.assert_array_equal(np.concatenate([order[part] for part in parts]), order)  # the chunks tile it
+    for part in parts:
+        chunk = order[part]
+        assert np.unique(ray_class[chunk]).size == 1 and np.all(np.diff(chunk) > 0)
+        assert chunk.size <= 5 and (limits[chunk].sum() <= 40 or chunk.size == 1)
+    assert len(parts) > np.unique(ray_class).size  # the bounds split the classes' runs too
+    no_classes = _class_chunks(None, limits)
+    assert no_classes[0] == slice(None) and no_classes[1] == _integrators._chunks(limits)
+
+
+def test_ray_mode_calls_the_model_with_one_class_a_chunk(monkeypatch):
+    monkeypatch.setattr(_integrators, "RAYS_PER_CHUNK", 64)
+    calls = []
+
+    class Recording(ClassModel):
+        def cell_posteriors(self, disparity_px, *args, ray_class=None):
+            calls.append((np.unique(ray_class), len(disparity_px)))
+            return super().cell_posteriors(disparity_px, *args, ray_class=ray_class)
+
+    rng = np.random.default_rng(4)
+    n = 500
+    rays = np.column_stack([rng.uniform(-0.6, 0.6, (n, 2)), np.ones(n)])
+    disparity = FB / rng.uniform(1.0, 4.0, n)
+    classes = rng.integers(-1, 2, n)
+    grid = OccupancyMap(0.1, p0=0.5)
+    grid.integrate_rays(np.zeros(3), rays, disparity, Recording(), ray_class=classes)
+    assert all(seen.size == 1 for seen, _ in calls)
+    for cls in (-1, 0, 1):  # each class in ceil(n_k / 64) calls
+        sizes = [size for seen, size in calls if seen[0] == cls]
+        assert sum(sizes) == np.sum(classes == cls) and len(sizes) == -(-sum(sizes) // 64)
+    by_hand = OccupancyMap(0.1, p0=0.5)
+    for cls in (-1, 0, 1):
+        mine = classes == cls
+        by_hand.integrate_rays(np.zeros(3), rays[mine], disparity[mine], FixedClassModel(cls))
+    assert _log_by_key(grid) == _log_by_key(by_hand)
 
 
 @pytest.mark.parametrize("pose_covariance", [None, np.diag([1e-4, 1e-4, 1e-4])])

@@ -79,6 +79,11 @@ def test_conditioned_model_equals_each_sub_model_on_its_rays(name):
         np.testing.assert_array_equal(posterior[cells], p)
         np.testing.assert_array_equal(increment[cells], inc)
         np.testing.assert_array_equal(depth[mine], by_hand.influence_depth(disparity[mine], norm[mine]))
+        one_class = model.cell_posteriors(
+            disparity[mine], norm[mine], local[rays[cells]], start[cells], end[cells], ray_class=ray_class[mine]
+        )  # a call of one class (a ray-mode chunk) goes to that class's model whole
+        np.testing.assert_array_equal(one_class[0], p)
+        np.testing.assert_array_equal(one_class[1], inc)
     # The classes differ: the model is not the plain one in disguise.
     plain_p, _ = model.cell_posteriors(disparity, norm, rays, start, end)
     assert np.abs(plain_p - posterior).max() > 1e-3

@@ -299,7 +299,8 @@ class RayIntegrator(Integrator):
     ``min(model.influence_depth, max range)``, including the voxel that contains the stop depth.
 
     Hit/miss models go through ``cast_hit_miss`` (increments added while casting). For the others, rays go
-    in chunks (:data:`RAYS_PER_CHUNK`, :data:`CELLS_PER_CHUNK`) through a pipeline: this thread casts chunk
+    in chunks (:data:`RAYS_PER_CHUNK`, :data:`CELLS_PER_CHUNK`; with per-ray classes, one class a chunk) through a
+    pipeline: this thread casts chunk
     k + 1 (the kernel releases the GIL) while :data:`MODEL_THREADS` threads run the model on chunks k - 1 and
     k (the model costs several times the cast); this thread then adds the increments of finished chunks in
     chunk order, so only it writes the accumulator. A model that ``takes_map_prior`` gets each chunk's cells'
@@ -343,7 +344,9 @@ class RayIntegrator(Integrator):
         chunks = []
         for (model, members, t_stop, exclusive), limit in zip(stops, limits):
             idx = np.arange(len(batch)) if members is None else members
-            for part in _chunks(limit):
+            by_class, parts = _class_chunks(batch.class_kwargs(idx, model).get("ray_class"), limit)
+            idx, t_stop, exclusive = idx[by_class], t_stop[by_class], exclusive[by_class]
+            for part in parts:
                 chunk = idx[part]
                 chunks.append(
                     (
@@ -381,12 +384,27 @@ def _scatter_next(accumulator, pending):
     _accumulator.scatter(accumulator, cell_index, increments.result())
 
 
+def _class_chunks(ray_class, limits):
+    """Order of the rays (positions in ``limits``) and the slices of that order a chunk each (:func:`_chunks`):
+    with per-ray classes (``ray_class`` (R,) int, or None), the rays by class (stable: image order within a
+    class) and no chunk across two classes, so that a conditioned model runs each chunk with one class's model
+    and tables."""
+    if ray_class is None:
+        return slice(None), _chunks(limits)
+    order = np.argsort(ray_class, kind="stable")
+    bounds = np.flatnonzero(np.diff(ray_class[order])) + 1
+    parts = []
+    for lo, hi in zip(np.concatenate(([0], bounds)), np.concatenate((bounds, [order.size]))):
+        parts += [slice(lo + part.start, lo + part.stop) for part in _chunks(limits[order[lo:hi]])]
+    return order, parts
+
+
 def _chunks(limits):
     """Slices of consecutive rays of at most :data:`RAYS_PER_CHUNK` rays and :data:`CELLS_PER_CHUNK` voxel
     visits (a ray of more visits is a chunk of its own)."""
     n = limits.size
     if n and int(limits.sum()) <= CELLS_PER_CHUNK:  # the common case: split by ray count only
-        return [slice(b, b + RAYS_PER_CHUNK) for b in range(0, n, RAYS_PER_CHUNK)]
+        return [slice(b, min(b + RAYS_PER_CHUNK, n)) for b in range(0, n, RAYS_PER_CHUNK)]
     total = np.cumsum(limits)
     parts, begin = [], 0
     while begin < n:

@@ -181,19 +181,14 @@ class ConditionedModel(InverseSensorModel):
             prior_log = np.asarray(map_log_odds, dtype=np.float64)
             if prior_log.shape != start.shape:
                 raise PrismapInputError(f"`map_log_odds` must have shape {start.shape}; got {prior_log.shape}")
-        cell_class = classes[rays]
         posterior = np.empty(start.size)
         increment = np.empty(start.size)
-        local = np.empty(disparity.size, dtype=np.int64)
-        for k in np.unique(classes):
-            ray_index = np.flatnonzero(classes == k)
-            cells = np.flatnonzero(cell_class == k)
-            local[ray_index] = np.arange(ray_index.size)
+        for k, ray_index, cells, cell_ray in _split_by_class(classes, rays):
             extra = {} if overhang_m is None else {"voxel_overhang_m": overhang_m[ray_index]}
             if prior_log is not None:
                 extra["map_log_odds"] = prior_log[cells]
-            posterior[cells], increment[cells] = self._model(int(k)).cell_posteriors(
-                disparity[ray_index], norm[ray_index], local[rays[cells]], start[cells], end[cells], **extra
+            posterior[cells], increment[cells] = self._model(k).cell_posteriors(
+                disparity[ray_index], norm[ray_index], cell_ray, start[cells], end[cells], **extra
             )
         return posterior, increment
 
@@ -222,6 +217,21 @@ class ConditionedModel(InverseSensorModel):
             self.plain.with_extra_noise(sigma_px),
             tuple(model.with_extra_noise(sigma_px) for model in self.class_models),
         )
+
+
+def _split_by_class(ray_class, ray_of_cell):
+    """For each class present: ``(class, its rays, its cells, each of those cells' ray among the class's rays)``;
+    slices (no copies) when every ray has one class, as a ray-mode chunk has (the integrator chunks by class)."""
+    if ray_class.size and ray_class.min() == ray_class.max():
+        yield int(ray_class[0]), slice(None), slice(None), ray_of_cell
+        return
+    cell_class = ray_class[ray_of_cell]
+    local = np.empty(ray_class.size, dtype=np.int64)
+    for k in np.unique(ray_class):
+        rays = np.flatnonzero(ray_class == k)
+        cells = np.flatnonzero(cell_class == k)
+        local[rays] = np.arange(rays.size)
+        yield int(k), rays, cells, local[ray_of_cell[cells]]
 
 
 def share_table_floor(models):
