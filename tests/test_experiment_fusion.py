@@ -1,4 +1,4 @@
-"""The experiments' fusion comparison: one stored map read three ways, scored against truth."""
+"""The experiments' fusion comparison: one stored map read four ways, scored against truth."""
 
 import numpy as np
 import pytest
@@ -20,6 +20,7 @@ def test_readings_of_the_same_sums():
     np.testing.assert_allclose(got["independent"], expit(log))
     low, high = FAILURE.bounds(P0)
     np.testing.assert_allclose(got["clamped at one view"], np.clip(expit(log), low, high))
+    np.testing.assert_allclose(got["failure for good"], FAILURE.rate * P0 + (1 - FAILURE.rate) * expit(log))
     np.testing.assert_allclose(got["persistent failure"], FAILURE.probability(log, counts, P0))
     assert got["persistent failure"][0] == pytest.approx(low) and got["persistent failure"][-1] == pytest.approx(high)
 

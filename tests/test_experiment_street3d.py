@@ -160,11 +160,11 @@ def test_the_results_compare_fusions_fitted_on_the_characterisation_frames(stree
     assert {(r["model"], r["fusion"]) for r in rows} == {
         (m, f)
         for m in ("prism", "prism_conditioned")
-        for f in ("independent", "persistent failure", "clamped at one view")
+        for f in ("independent", "persistent failure", "failure for good", "clamped at one view")
     }
     cells = {c["model"]: c["scores"] for c in document["cells"]}
-    for row in rows:  # the maps take prismap map's default reading, the clamp: its row is the cell's own score
-        if row["fusion"] == "clamped at one view":
+    for row in rows:  # the maps take prismap map's default reading, a failure for good: its row is the cell's score
+        if row["fusion"] == "failure for good":
             assert row["log_loss"] == pytest.approx(cells[row["model"]]["log_loss"], rel=1e-12)
     assert block == json.loads((out / "sgbm" / "characterisation" / "error_model.json").read_text())["fusion"]
     sequence = read_sequence(out / "sequence")

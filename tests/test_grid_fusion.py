@@ -8,7 +8,7 @@ from scipy.special import expit, logit
 from scipy.stats import binom
 
 from prismap.errors import PrismapInputError
-from prismap.grid._fusion import MAX_VIEWS, FailureClamp, PersistentFailure
+from prismap.grid._fusion import MAX_VIEWS, FailureClamp, FailureMixture, PersistentFailure
 
 
 def _pattern_probability(pattern, rate, persistence):
@@ -142,7 +142,29 @@ def test_the_clamp_is_the_one_view_bound_of_the_persistent_state():
         clamp.probability(log, counts[:3], p0)
 
 
-@pytest.mark.parametrize("reading", [None, PersistentFailure(0.05, 0.6), FailureClamp(0.03)])
+def test_the_mixture_is_the_persistent_state_that_never_recovers_and_keeps_the_evidence_order():
+    """FailureMixture equals PersistentFailure with persistence 1 (a failure stays for every view), hand-derived
+    as r p0 + (1 - r) sigmoid(l); its range is the clamp's one-view bound, and unlike the clamp it ties no voxels."""
+    rate, p0 = 0.04, 0.1
+    mixture = FailureMixture(rate)
+    log = logit(p0) + np.array([-2048.0, -30.0, -25.0, -1.0, 0.0, 0.7, 9.0, 25.0, 2048.0])
+    counts = np.array([1, 2, 7, 2, 0, 3, 5, 64, 1])
+    p = mixture.probability(log, counts, p0)
+    np.testing.assert_allclose(p, rate * p0 + (1 - rate) * expit(log), rtol=1e-15)
+    np.testing.assert_allclose(p, PersistentFailure(rate, 1.0).probability(log, counts, p0), rtol=1e-12)
+    assert p[4] == pytest.approx(p0)  # an unknown voxel (count 0, the prior's log-odds) keeps p0
+    assert mixture.bounds(p0) == FailureClamp(rate).bounds(p0) == mixture.bounds(p0, 30)
+    low, high = mixture.bounds(p0)
+    assert np.all((p >= low) & (p <= high)) and p[0] == pytest.approx(low) and p[-1] == pytest.approx(high)
+    clamped = FailureClamp(rate).probability(log, counts, p0)
+    assert np.unique(clamped).size == 5  # the clamp ties -2048, -30 and -25 at its floor, 25 and 2048 at its top
+    assert np.all(np.diff(p) > 0)  # strictly increasing in the evidence, to the float's resolution
+    np.testing.assert_array_equal(FailureMixture(0.0).probability(log, counts, p0), expit(log))  # r = 0
+    with pytest.raises(PrismapInputError, match="`rate` must lie in"):
+        FailureMixture(1.0)
+
+
+@pytest.mark.parametrize("reading", [None, PersistentFailure(0.05, 0.6), FailureMixture(0.02), FailureClamp(0.03)])
 def test_map_files_keep_every_reading(reading, tmp_path):
     from prismap.grid import OccupancyMap
     from prismap.io import load_map, save_map

@@ -22,7 +22,7 @@ import numpy.typing as npt
 from prismap.camera import StereoCamera
 from prismap.characterise._correlation import frame_error_correlation
 from prismap.errors import PrismapInputError
-from prismap.grid import MAP_READINGS, FailureClamp, MapReading, PersistentFailure
+from prismap.grid import MAP_READINGS, READINGS, MapReading, PersistentFailure
 from prismap.io._frame import StereoFrame
 
 FUSION_MODELS = ("independent", "persistent-failure")
@@ -144,13 +144,14 @@ def fusion_block(fusion: PersistentFailure | None, **fit: Any) -> dict[str, Any]
 def map_reading(block: dict[str, Any] | None, reading: str) -> MapReading | None:
     """The map reading named ``reading`` (one of :data:`MAP_READINGS`) of a fusion block; None = independent.
 
-    ``"persistent-failure"`` is the block's :class:`~prismap.grid.PersistentFailure`, ``"failure-clamp"`` the
-    independent sum clamped to its one-view bound (:class:`~prismap.grid.FailureClamp` of its rate). A block
-    that says "independent", or none, reads every way as the independent sum.
+    ``"persistent-failure"`` is the block's :class:`~prismap.grid.PersistentFailure`; ``"failure-mixture"`` and
+    ``"failure-clamp"`` hold the independent sum within its one-view bound (:class:`~prismap.grid.FailureMixture`,
+    :class:`~prismap.grid.FailureClamp` of its rate). A block that says "independent", or none, reads every way
+    as the independent sum.
     """
     if reading not in MAP_READINGS:
         raise PrismapInputError(f"`fusion` must be one of {list(MAP_READINGS)}; got {reading!r}")
     failure = fusion_from_block(block)
     if failure is None or reading == "independent":
         return None
-    return failure if reading == failure.name else FailureClamp(failure.rate)
+    return failure if reading == failure.name else READINGS[reading](failure.rate)

@@ -78,10 +78,12 @@ def register(subparsers):
         "--fusion",
         choices=MAP_READINGS,
         help="how the map reads its sums, from the error model's fusion block (the matcher's failure rate r "
-        "and persistence q across views; docs/SENSOR_MODELS.md section 9): failure-clamp (the default when "
-        "the block is there) keeps every voxel within what one view can prove, [r p0, 1 - r (1 - p0)]; "
-        "persistent-failure reads the sums under the failure state; independent (the default without a "
-        "block) is the plain sum of the frames' evidence",
+        "and persistence q across views; docs/SENSOR_MODELS.md section 9): failure-mixture (the default when "
+        "the block is there) reads r p0 + (1 - r) sigmoid(l), a failure that stays for every view, so every "
+        "voxel stays within what one view can prove, [r p0, 1 - r (1 - p0)], in the order its evidence gives; "
+        "failure-clamp clamps the sum to that range; persistent-failure reads the sums under the failure state "
+        "of the fitted persistence; independent (the default without a block) is the plain sum of the frames' "
+        "evidence",
     )
     parser.add_argument(
         "--strict-rig",

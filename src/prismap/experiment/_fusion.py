@@ -1,8 +1,8 @@
 """The fusion comparison of the 3-D experiments: each error-model map read under independent fusion, the
-persistent-failure model fitted on the characterisation frames, and clamping at that model's one-view bound
-(``prismap map``'s default reading, which the run's maps take).
+persistent-failure model fitted on the characterisation frames, its limit of a failure that stays for every view
+(``prismap map``'s default reading, which the run's maps take) and clamping at that model's one-view bound.
 
-Every reading is a function of the stored sums (log-odds, count), so one map serves all three and the comparison
+Every reading is a function of the stored sums (log-odds, count), so one map serves all four and the comparison
 costs no mapping (docs/SENSOR_MODELS.md, "Fusion when a matcher's failures repeat").
 """
 
@@ -13,9 +13,9 @@ import numpy as np
 from scipy.special import expit, logit
 
 from prismap.evaluate import EXTREME_COLUMNS, align_to_ground_truth, score_map
-from prismap.grid import FailureClamp
+from prismap.grid import FailureClamp, FailureMixture
 
-FUSIONS = ("independent", "persistent failure", "clamped at one view")
+FUSIONS = ("independent", "persistent failure", "failure for good", "clamped at one view")
 """The readings compared, in table order."""
 
 FUSION_COLUMNS = (
@@ -131,6 +131,7 @@ def fused_probabilities(log_odds, counts, p0, failure):
     return {
         "independent": expit(np.asarray(log_odds, dtype=np.float64)),
         "persistent failure": failure.probability(log_odds, counts, p0),
+        "failure for good": FailureMixture(failure.rate).probability(log_odds, counts, p0),
         "clamped at one view": FailureClamp(failure.rate).probability(log_odds, counts, p0),
     }
 
@@ -164,10 +165,10 @@ def format_fusion_section(rows, failures):
     lines = [
         "## Fusion of repeated failures",
         "",
-        "Each error-model map read three ways from the same stored sums: the independent sum; the persistent "
+        "Each error-model map read four ways from the same stored sums: the independent sum; the persistent "
         "failure state (rate r and persistence q fitted on the characterisation frames, errors beyond "
-        "3 px; docs/SENSOR_MODELS.md); the independent sum clamped to that model's one-view bound "
-        "[r p0, 1 - r (1 - p0)]. "
+        "3 px; docs/SENSOR_MODELS.md); its limit q -> 1, a failure for good, r p0 + (1 - r) sigmoid(l) (the "
+        "default); the independent sum clamped to that model's one-view bound [r p0, 1 - r (1 - p0)]. "
         + "; ".join(
             f"{name}: r = {f.rate:.4f}, q = {f.persistence:.3f}"
             if f is not None

@@ -13,7 +13,7 @@ Design notes (one owner per concept):
   noise, class and voxel overhang) in, ``make_integrator("ray" | "projective")`` out; the per-frame bounds on
   work and memory (docs/errors.md). The map knows nothing of cameras: ``prismap.camera`` turns a disparity
   image and a pose into a batch.
-- ``_fusion``: :class:`PersistentFailure` and :class:`FailureClamp`, how a voxel's stored sums (log-odds, count)
+- ``_fusion``: :class:`PersistentFailure`, :class:`FailureMixture` and :class:`FailureClamp`, how a voxel's stored sums (log-odds, count)
   read as a probability when a matcher's failures persist across views; the stored sums stay plain additions.
 - ``_traverse``: :func:`crossed_voxels`, the checked traversal for callers outside the integrators (the
   map's queries, the simulator's ground truth).
@@ -21,7 +21,7 @@ Design notes (one owner per concept):
   called only by the wrappers of this package.
 """
 
-from prismap.grid._fusion import MAP_READINGS, READINGS, FailureClamp, MapReading, PersistentFailure
+from prismap.grid._fusion import MAP_READINGS, READINGS, FailureClamp, FailureMixture, MapReading, PersistentFailure
 from prismap.grid._integrators import (
     INTEGRATOR_NAMES,
     MEASUREMENT_KINDS,
@@ -62,6 +62,7 @@ __all__ = [
     "Integrator",
     "OccupancyMap",
     "FailureClamp",
+    "FailureMixture",
     "MapReading",
     "PersistentFailure",
     "RayBatch",

@@ -6,11 +6,12 @@ identical. Independent fusion reads ``P = sigmoid(l)``. :class:`PersistentFailur
 under a per-voxel hidden "the matcher fails here" state that persists from view to view (a stationary
 two-state Markov chain of rate ``r`` and persistence ``q``; docs/SENSOR_MODELS.md, "Fusion when failures
 repeat"): a view in the failure state carries no evidence, and the probability is the average over the
-number ``k`` of failed views of ``sigmoid(logit(p0) + (1 - k / n) S)``. :class:`FailureClamp` reads the
-independent sum clamped to the probabilities one view can reach under that state, ``[r p0, 1 - r (1 - p0)]``:
-no number of views is more certain than one, because a failure that stays is indistinguishable from repeated
-true evidence. The update stays one integer addition per voxel and frame; the read costs
-``O(min(n, MAX_VIEWS))`` per voxel (:class:`PersistentFailure`) or ``O(1)`` (:class:`FailureClamp`).
+number ``k`` of failed views of ``sigmoid(logit(p0) + (1 - k / n) S)``. Two readings keep every voxel within
+the probabilities one view can reach under that state, ``[r p0, 1 - r (1 - p0)]``: no number of views is more
+certain than one, because a failure that stays is indistinguishable from repeated true evidence.
+:class:`FailureMixture` (the default) is the state's limit ``q -> 1``, ``r p0 + (1 - r) sigmoid(l)``;
+:class:`FailureClamp` clamps the independent sum to that range. The update stays one integer addition per voxel
+and frame; the read costs ``O(min(n, MAX_VIEWS))`` per voxel (:class:`PersistentFailure`) or ``O(1)``.
 """
 
 from __future__ import annotations
@@ -113,12 +114,9 @@ class PersistentFailure:
 
 
 @dataclass(frozen=True)
-class FailureClamp:
-    """The independent sum clamped to the one-view bound of a matcher that fails at rate ``r``.
-
-    ``P = clip(sigmoid(l), r p0, 1 - r (1 - p0))`` for observed voxels: the bound :class:`PersistentFailure`
-    gives one view, held for any number of views (docs/SENSOR_MODELS.md section 9, "Against clamping").
-    ``rate = 0`` is the independent sum.
+class _OneViewBound:
+    """A reading that holds every voxel within the probabilities one view can reach, ``[r p0, 1 - r (1 - p0)]``,
+    for a matcher that fails at rate ``r`` (the bound :class:`PersistentFailure` gives one view).
 
     Attributes
     ----------
@@ -126,7 +124,7 @@ class FailureClamp:
         ``r``: the matcher's gross error rate at a voxel's pixels.
     """
 
-    name: ClassVar[str] = "failure-clamp"
+    name: ClassVar[str]
     rate: float
 
     def __post_init__(self):
@@ -146,8 +144,7 @@ class FailureClamp:
         (N,) float64 in ``[r p0, 1 - r (1 - p0)]``
         """
         log, _ = _check_sums(log_odds, count)
-        low, high = self.bounds(p0)
-        return np.clip(expit(log), low, high)
+        return self._within_bound(expit(log), check_probability(p0, "p0"))
 
     def bounds(self, p0: float, n_views: int = 1) -> tuple[float, float]:
         """The probabilities ``(P_min, P_max)``: ``(r p0, 1 - r (1 - p0))`` for any ``n_views``."""
@@ -159,15 +156,47 @@ class FailureClamp:
         return {"rate": self.rate}
 
 
-MapReading = PersistentFailure | FailureClamp
+@dataclass(frozen=True)
+class FailureMixture(_OneViewBound):
+    """The independent sum averaged with the prior by the chance ``r`` that the voxel's views fail for good.
+
+    ``P = r p0 + (1 - r) sigmoid(l)`` for observed voxels: :class:`PersistentFailure` in the limit ``q -> 1`` (a
+    failure, once there, stays for every view, so with probability ``r`` none of them says anything about the
+    voxel; docs/SENSOR_MODELS.md section 9). Its range is :class:`FailureClamp`'s, but it is strictly increasing
+    in ``l``: voxels keep the order the evidence gives them (the independent sum's ROC AUC), where the clamp ties
+    every voxel beyond the bound. ``rate = 0`` is the independent sum.
+    """
+
+    name: ClassVar[str] = "failure-mixture"
+
+    def _within_bound(self, p, p0):
+        return self.rate * p0 + (1.0 - self.rate) * p
+
+
+@dataclass(frozen=True)
+class FailureClamp(_OneViewBound):
+    """The independent sum clamped to the one-view bound of a matcher that fails at rate ``r``.
+
+    ``P = clip(sigmoid(l), r p0, 1 - r (1 - p0))`` for observed voxels: the bound :class:`PersistentFailure`
+    gives one view, held for any number of views (docs/SENSOR_MODELS.md section 9, "Against clamping").
+    ``rate = 0`` is the independent sum.
+    """
+
+    name: ClassVar[str] = "failure-clamp"
+
+    def _within_bound(self, p, p0):
+        return np.clip(p, self.rate * p0, 1.0 - self.rate * (1.0 - p0))
+
+
+MapReading = PersistentFailure | FailureMixture | FailureClamp
 """How a map reads its stored sums other than as the independent sum (None)."""
 
-READINGS = {reading.name: reading for reading in (FailureClamp, PersistentFailure)}
+READINGS = {reading.name: reading for reading in (FailureMixture, FailureClamp, PersistentFailure)}
 """The :data:`MapReading` classes by their ``name`` (``prismap map --fusion``, the map file's ``fusion_model``)."""
 
 MAP_READINGS = (*READINGS, "independent")
-"""Names of the ways a map can read its sums given a matcher's failure state: :class:`FailureClamp`,
-:class:`PersistentFailure` and the independent sum. The first is the default."""
+"""Names of the ways a map can read its sums given a matcher's failure state: :class:`FailureMixture`,
+:class:`FailureClamp`, :class:`PersistentFailure` and the independent sum. The first is the default."""
 
 
 def _check_rate(rate):

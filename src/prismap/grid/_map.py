@@ -59,11 +59,12 @@ class OccupancyMap:
     occupied_threshold, free_threshold : float in (0, 1)
         A known voxel is occupied if ``P >= occupied_threshold``, free if ``P < free_threshold``,
         unknown in between. Both default to 0.5 (OctoMap's rule).
-    fusion : PersistentFailure, FailureClamp or None
+    fusion : PersistentFailure, FailureMixture, FailureClamp or None
         How a voxel's stored log-odds and count read as a probability (every query of ``P``): None is the
         independent sum, ``sigmoid(l)``; a :class:`~prismap.grid.PersistentFailure` reads them under a matcher
-        failure state that persists across views, a :class:`~prismap.grid.FailureClamp` clamps the sum to that
-        state's one-view bound (docs/SENSOR_MODELS.md section 9). Stored sums and merges do not depend on it.
+        failure state that persists across views; a :class:`~prismap.grid.FailureMixture` averages the sum with
+        ``p0`` by the failure rate and a :class:`~prismap.grid.FailureClamp` clamps it, each to that state's
+        one-view bound (docs/SENSOR_MODELS.md section 9). Stored sums and merges do not depend on it.
     """
 
     def __init__(

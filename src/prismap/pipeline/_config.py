@@ -145,7 +145,7 @@ def _frozen_params(value, name):
 
 
 def default_fusion(model: str, error_model: ErrorModel | GaussianMixture | None) -> str:
-    """``MappingConfig.fusion``'s default: ``"failure-clamp"`` when ``model`` takes the error model and that has a
+    """``MappingConfig.fusion``'s default: ``"failure-mixture"`` when ``model`` takes the error model and that has a
     fusion block (the matcher's failure rate), else ``"independent"``."""
     takes_it = getattr(error_model, "fusion", None) is not None and error_model_use(model) is not None
     return MAP_READINGS[0] if takes_it else "independent"
@@ -191,11 +191,12 @@ class MappingConfig:
     frames : (int, int or None)
         ``(start, stop)``: the frames ``start <= i < stop`` of the sequence (stop None or beyond the
         sequence = to its end).
-    fusion : {"failure-clamp", "persistent-failure", "independent"} or None
+    fusion : {"failure-mixture", "failure-clamp", "persistent-failure", "independent"} or None
         How the map reads its stored sums (:func:`prismap.characterise.map_reading`; docs/SENSOR_MODELS.md
-        section 9): clamped to the one-view bound of the matcher's failure rate, under its persistent failure
-        state, or as the independent sum of the frames' evidence. The first two need the error model's ``fusion``
-        block (:func:`prismap.characterise.fit_fusion`). None (the default) is ``"failure-clamp"`` when the model
+        section 9): averaged with ``p0`` by the matcher's failure rate or clamped to its one-view bound, under its
+        persistent failure state, or as the independent sum of the frames' evidence. The first three need the
+        error model's ``fusion`` block (:func:`prismap.characterise.fit_fusion`). None (the default) is
+        ``"failure-mixture"`` when the model
         takes the error model and that has a fusion block, else ``"independent"``. The stored map is the same.
 
     Notes
