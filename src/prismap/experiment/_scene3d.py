@@ -92,8 +92,9 @@ def run_rendered_world(
     measures how each matcher's errors repeat in consecutive mapping frames (:func:`mapped_error_correlation`).
     Each matcher's failure rate and persistence are fitted on the characterisation frames before mapping
     (:func:`~prismap.experiment._fusion.fit_run_fusion`), so the error-model maps take ``prismap map``'s default
-    reading, the clamp at the one-view bound; a last section reads them also under independent fusion and the
-    persistent-failure state (:func:`~prismap.experiment._fusion.compare_run_fusions`).
+    reading, a failure for good (:class:`~prismap.grid.FailureMixture`); a last section reads them also under
+    independent fusion, the persistent-failure state and the clamp at the one-view bound
+    (:func:`~prismap.experiment._fusion.compare_run_fusions`).
 
     Parameters
     ----------
