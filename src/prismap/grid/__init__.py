@@ -13,8 +13,9 @@ Design notes (one owner per concept):
   noise, class and voxel overhang) in, ``make_integrator("ray" | "projective")`` out; the per-frame bounds on
   work and memory (docs/errors.md). The map knows nothing of cameras: ``prismap.camera`` turns a disparity
   image and a pose into a batch.
-- ``_fusion``: :class:`PersistentFailure`, :class:`FailureMixture` and :class:`FailureClamp`, how a voxel's stored sums (log-odds, count)
-  read as a probability when a matcher's failures persist across views; the stored sums stay plain additions.
+- ``_fusion``: :class:`PersistentFailure`, :class:`FailureMixture` and :class:`FailureClamp`, how a voxel's
+  stored sums (log-odds, count) read as a probability when a matcher's failures persist across views; the
+  stored sums stay plain additions.
 - ``_traverse``: :func:`crossed_voxels`, the checked traversal for callers outside the integrators (the
   map's queries, the simulator's ground truth).
 - ``_kernels_hash``, ``_kernels_traverse``, ``_kernels_project``, ``_kernels_accumulate``: numba kernels,

@@ -162,7 +162,7 @@ class FailureMixture(_OneViewBound):
 
     ``P = r p0 + (1 - r) sigmoid(l)`` for observed voxels: :class:`PersistentFailure` in the limit ``q -> 1`` (a
     failure, once there, stays for every view, so with probability ``r`` none of them says anything about the
-    voxel; docs/SENSOR_MODELS.md section 9). Its range is :class:`FailureClamp`'s, but it is strictly increasing
+    voxel; docs/SENSOR_MODELS.md (9.1)). Its range is :class:`FailureClamp`'s, but it is strictly increasing
     in ``l``: voxels keep the order the evidence gives them (the independent sum's ROC AUC), where the clamp ties
     every voxel beyond the bound. ``rate = 0`` is the independent sum.
     """
@@ -178,14 +178,14 @@ class FailureClamp(_OneViewBound):
     """The independent sum clamped to the one-view bound of a matcher that fails at rate ``r``.
 
     ``P = clip(sigmoid(l), r p0, 1 - r (1 - p0))`` for observed voxels: the bound :class:`PersistentFailure`
-    gives one view, held for any number of views (docs/SENSOR_MODELS.md section 9, "Against clamping").
+    gives one view, held for any number of views (docs/SENSOR_MODELS.md (9.2)).
     ``rate = 0`` is the independent sum.
     """
 
     name: ClassVar[str] = "failure-clamp"
 
     def _within_bound(self, p, p0):
-        return np.clip(p, self.rate * p0, 1.0 - self.rate * (1.0 - p0))
+        return np.clip(p, *self.bounds(p0))
 
 
 MapReading = PersistentFailure | FailureMixture | FailureClamp
