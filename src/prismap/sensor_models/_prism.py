@@ -309,13 +309,9 @@ class PrismModel(RayModel):
             start = np.minimum(start, np.maximum(start - self.solid_depth_m / norm[rays], self.near_m))
         cell_rate = lam[rays]
         if self.prior == "map":
-            result = self._map_prior_cells(lam, disparity, norm, rays, start, end, stretch, map_log_odds)
-            if self.error_model.failure_weight > 0:
-                cell_rate = (
-                    np.logaddexp(0.0, map_log_odds) / self.voxel_size_m * norm[rays]
-                    if map_log_odds is not None
-                    else cell_rate
-                )
+            result, map_rate = self._map_prior_cells(lam, disparity, norm, rays, start, end, stretch, map_log_odds)
+            if map_log_odds is not None:  # without a map every cell is at p0: lam's rate, as above
+                cell_rate = map_rate
             method = "table"
         elif map_log_odds is not None:
             raise PrismapInputError("prism: `map_log_odds` is used only with prior='map'; this model has prior='p0'")
@@ -391,7 +387,8 @@ class PrismModel(RayModel):
         return self._widened[extra]
 
     def _map_prior_cells(self, lam, disparity, norm, rays, start, end, stretch, map_log_odds):
-        """:meth:`cell_posteriors` with the map as prior (``_kernels_map_prior.prism_map_prior_cells``).
+        """:meth:`cell_posteriors` with the map as prior (``_kernels_map_prior.prism_map_prior_cells``), and each
+        cell's prior surface rate (per metre of depth) that it took from the map.
 
         A voxel of probability ``P_v`` has surface rate ``-log(1 - P_v) / voxel_size_m`` per metre of ray
         (``log1p(e^l)``, softplus of its log-odds ``l``), so a ray's stretch of length ``s`` in it has prior
@@ -406,7 +403,7 @@ class PrismModel(RayModel):
         ray_start = np.searchsorted(rays[order], np.arange(disparity.size + 1))
         _check_tiling(rays[order], start[order], end[order], ray_start, self.near_m)
         cell_rate = np.logaddexp(0.0, log_odds) / self.voxel_size_m * norm[rays]  # per metre of depth
-        return _kernels_map_prior.prism_map_prior_cells(
+        result = _kernels_map_prior.prism_map_prior_cells(
             disparity + self.doffs_px,
             lam,
             self._log_far(disparity),
@@ -423,6 +420,7 @@ class PrismModel(RayModel):
             self._geometry(),
             self._mixture(),
         )
+        return result, cell_rate
 
     # ------------------------------------------------------------------ tables
     def _table_cells(self, lam, rays, start, end, stretch, tables):
