@@ -299,12 +299,12 @@ class RayIntegrator(Integrator):
     ``min(model.influence_depth, max range)``, including the voxel that contains the stop depth.
 
     Hit/miss models go through ``cast_hit_miss`` (increments added while casting). For the others, rays go
-    in chunks (:data:`RAYS_PER_CHUNK`, :data:`CELLS_PER_CHUNK`; with per-ray classes, one class a chunk) through a
-    pipeline: this thread casts chunk
-    k + 1 (the kernel releases the GIL) while :data:`MODEL_THREADS` threads run the model on chunks k - 1 and
-    k (the model costs several times the cast); this thread then adds the increments of finished chunks in
-    chunk order, so only it writes the accumulator. A model that ``takes_map_prior`` gets each chunk's cells'
-    map log-odds, looked up by this thread right after the chunk's cast (the map changes only after the frame).
+    in chunks (:data:`RAYS_PER_CHUNK`, :data:`CELLS_PER_CHUNK`; with per-ray classes, one class a chunk) through
+    a pipeline: this thread casts chunk k + 1 (the kernel releases the GIL) while :data:`MODEL_THREADS` threads
+    run the model on chunks k - 1 and k (the model costs several times the cast); this thread then adds the
+    increments of finished chunks in chunk order, so only it writes the accumulator. A model that
+    ``takes_map_prior`` gets each chunk's cells' map log-odds, looked up by this thread right after the chunk's
+    cast (the map changes only after the frame).
 
     References
     ----------

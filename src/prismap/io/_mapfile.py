@@ -6,10 +6,9 @@ Fields: ``format`` ("prismap-map"), ``format_version`` (2), ``voxel_size_m``, ``
 ``floor(x / voxel_size)``), ``log_odds`` ((N,) float64, multiples of ``2**-20``: the map's fixed-point
 log-odds, exact) and ``counts`` ((N,) uint16, frames that observed each voxel), ``fusion_model``
 ("independent", "persistent-failure", "failure-mixture" or "failure-clamp": how the map reads its sums,
-docs/SENSOR_MODELS.md
-section 9) and ``fusion`` ((2,) that reading's rate and persistence, NaN where it has none). Only observed
-voxels are stored. Version 1 files (float32 log-odds) are still read; their values are rounded to the fixed
-point. Version 1 and 2 files have no ``fusion`` and read as independent; version 3 files have no
+docs/SENSOR_MODELS.md section 9) and ``fusion`` ((2,) that reading's rate and persistence, NaN where it has
+none). Only observed voxels are stored. Version 1 files (float32 log-odds) are still read; their values are
+rounded to the fixed point. Version 1 and 2 files have no ``fusion`` and read as independent; version 3 files have no
 ``fusion_model`` and read their ``fusion`` as persistent failure (NaN = independent).
 """
 

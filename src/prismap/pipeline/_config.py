@@ -196,8 +196,8 @@ class MappingConfig:
         section 9): averaged with ``p0`` by the matcher's failure rate or clamped to its one-view bound, under its
         persistent failure state, or as the independent sum of the frames' evidence. The first three need the
         error model's ``fusion`` block (:func:`prismap.characterise.fit_fusion`). None (the default) is
-        ``"failure-mixture"`` when the model
-        takes the error model and that has a fusion block, else ``"independent"``. The stored map is the same.
+        ``"failure-mixture"`` when the model takes the error model and that has a fusion block, else
+        ``"independent"``. The stored map is the same.
 
     Notes
     -----
