@@ -157,6 +157,9 @@ def test_table_with_a_broad_front_agrees_with_direct_within_stated_bound(voxel):
 
 
 SGBM_LIKE = GaussianMixture([0.84, 0.10, 0.06], [0.01, -0.04, -10.4], [0.24, 0.92, 13.6])
+FAR_APART = GaussianMixture([0.912, 0.003, 0.075, 0.01], [0.0, 41.7, 0.2, 81.7], [0.139, 0.41, 0.615, 0.703])
+"""A characterised class's mixture (SGBM on the half-resolution street): narrow components 42 and 82 px in front
+of the main one and no wide component to span them."""
 
 
 @pytest.mark.parametrize(
@@ -197,45 +200,47 @@ def test_table_within_stated_bound_at_the_rate_grids_half_steps(fb, mixture, vox
     )
 
 
-def test_broad_segments_are_where_the_narrower_components_are_negligible():
-    e_front, e_back, ratio = _prism_spacing.broad_errors(STREET)
-    assert ratio == int(_prism_spacing._WIDE_SIGMAS * 10.0 / (0.3 * _prism_spacing._TABLE_STEP))
-    assert e_back < -2.0 < 0.0 < e_front
+def _profile_by_brute_force(mixture, e):
+    """The spacing ratio at errors ``e`` (pixels) by the rule ``spacing_profile`` states, point by point."""
+    log_dens = np.log(mixture.weights / mixture.sigmas) - 0.5 * ((e[:, None] - mixture.means) / mixture.sigmas) ** 2
+    within = np.abs(e[:, None] - mixture.means) <= _prism_spacing._WINDOW_SIGMAS * mixture.sigmas
+    matters = within & (log_dens >= log_dens.max(axis=1, keepdims=True) + _prism_spacing._BROAD_SHARE)
+    own = np.floor(_prism_spacing._WIDE_SIGMAS * mixture.sigmas / (mixture.sigmas.min() * _prism_spacing._TABLE_STEP))
+    own = np.clip(own, 1, _prism_spacing._COARSE_RATIO)
+    ratio = np.where(matters, own, np.inf).min(axis=1)
+    windowed = np.flatnonzero(within.any(axis=1))
+    ratio[np.isinf(ratio)] = 0
+    ratio[: windowed[0]] = ratio[windowed[0]]  # in front of every window (e descending): the first one's spacing
+    ratio[windowed[-1] + 1 :] = 1  # behind every window: fine
+    return ratio
 
-    def log_share(e):  # of the largest narrower component against the widest, errors e (pixels)
-        log_dens = np.log(STREET.weights / STREET.sigmas) - 0.5 * ((e[:, None] - STREET.means) / STREET.sigmas) ** 2
-        return log_dens[:, :2].max(axis=1) - log_dens[:, 2]
 
-    beyond = np.geomspace(1e-6, 100.0, 200)
-    assert np.all(log_share(np.concatenate([e_front + beyond, e_back - beyond])) <= _prism_spacing._BROAD_SHARE + 1e-9)
-    assert np.all(log_share(np.array([e_front - 0.05, e_back + 0.05])) > _prism_spacing._BROAD_SHARE)  # and not nearer
-    assert _prism_spacing.broad_errors(GaussianMixture.gaussian(0.5)) == (np.inf, -np.inf, 1)
-    assert _prism_spacing.broad_errors(GaussianMixture([0.5, 0.5], [0.0, 1.0], [1.0, 1.0]))[2] == 1
+@pytest.mark.parametrize("name", ["STREET", "TWO_WIDE", "FAR_APART", "SGBM_LIKE", "one Gaussian"])
+def test_spacing_profile_follows_the_components_that_matter(name):
+    """Each piece's ratio against the rule evaluated on a dense grid of errors: the narrowest component within
+    _WINDOW_SIGMAS of its sigmas and within e^_BROAD_SHARE of the largest density sets the spacing, gaps (0)
+    between windows, the first window's spacing in front and fine behind."""
+    mixture = {"one Gaussian": GaussianMixture.gaussian(0.3)}.get(name) or globals()[name]
+    edges, ratios = _prism_spacing.spacing_profile(mixture)
+    assert edges[0] == np.inf and edges[-1] == -np.inf and np.all(np.diff(edges) < 0)
+    assert ratios.size == edges.size - 1 <= _prism_spacing._MAX_PIECES + 1 and np.all(ratios[1:] != ratios[:-1])
+    spread = np.abs(mixture.means).max() + _prism_spacing._WINDOW_SIGMAS * mixture.sigmas.max()
+    e = np.linspace(spread + 5.0, -spread - 5.0, 200_001)
+    piece = np.searchsorted(-edges, -e, side="right") - 1
+    near_edge = np.abs(e[:, None] - edges[1:-1]).min(axis=1, initial=np.inf) < 1e-6 * spread
+    np.testing.assert_array_equal(ratios[piece][~near_edge], _profile_by_brute_force(mixture, e)[~near_edge])
+
+
+def test_spacing_profile_has_gaps_between_far_apart_components_and_keeps_an_outlier_component():
+    edges, ratios = _prism_spacing.spacing_profile(FAR_APART)
+    assert np.count_nonzero(ratios == 0) == 2  # between the components at 81.7, 41.7 and 0 px
+    edges, ratios = _prism_spacing.spacing_profile(STREET)  # the 10 px outliers span the others: no gap
+    assert 0 not in ratios and ratios[0] == int(_prism_spacing._WIDE_SIGMAS * 10.0 / (0.3 * _prism_spacing._TABLE_STEP))
 
 
 TWO_WIDE = GaussianMixture([0.70, 0.15, 0.02, 0.08, 0.05], [0.0, -0.4, -20.0, 38.0, 33.7], [0.3, 3.5, 0.15, 33.0, 33.5])
 """A characterised class's mixture (SGBM on the street, half resolution): its own 33 px outlier component beside
 the whole image's 33.5 px one, and a narrow component 20 px behind the measurement."""
-
-
-def test_broad_segments_keep_every_wide_component():
-    """Components at least half the widest sigma are all kept in the broad segments, spaced on the narrowest of
-    them; the narrow ones are negligible beyond the segments' bounds, as with one wide component."""
-    e_front, e_back, ratio = _prism_spacing.broad_errors(TWO_WIDE)
-    assert ratio == min(
-        int(_prism_spacing._WIDE_SIGMAS * 33.0 / (0.15 * _prism_spacing._TABLE_STEP)), _prism_spacing._COARSE_RATIO
-    )
-    assert e_back < -20.0 < 0.0 < e_front
-    m = TWO_WIDE
-
-    def log_share(e):  # of the largest narrow component against the widest
-        log_dens = np.log(m.weights / m.sigmas) - 0.5 * ((e[:, None] - m.means) / m.sigmas) ** 2
-        return log_dens[:, :3].max(axis=1) - log_dens[:, 4]
-
-    beyond = np.geomspace(1e-6, 100.0, 200)
-    assert np.all(log_share(np.concatenate([e_front + beyond, e_back - beyond])) <= _prism_spacing._BROAD_SHARE + 1e-9)
-    assert np.all(log_share(np.array([e_front - 0.05, e_back + 0.05])) > _prism_spacing._BROAD_SHARE)
-    assert _prism_spacing.broad_errors(GaussianMixture([0.5, 0.5], [0.0, 1.0], [1.0, 0.6]))[2] == 1  # both wide
 
 
 @pytest.mark.parametrize("voxel", [0.2, 0.1])
@@ -293,6 +298,17 @@ def test_table_with_a_needle_component_agrees_with_direct_within_stated_bound():
     meta = _street_class_tables(NEEDLE, 6, 80.0)
     column = _kernels_table.META_COLUMNS.index
     assert np.all(meta[:, column("row_1")] > 10)  # a coarse front, and the cells in it agree
+
+
+def test_table_with_far_apart_components_agrees_with_direct_and_spans_the_gaps_in_two_panels():
+    """Between the windows of components tens of pixels apart ``q g`` is negligible: two panels span each gap, so
+    a table holds a fraction of the nodes that fine spacing from its first window to its back would need."""
+    meta = _street_class_tables(FAR_APART, 9, 80.0)
+    column = _kernels_table.META_COLUMNS.index
+    march = meta[:, column("length")] - meta[:, column("row_1")]
+    x_span = meta[:, column(f"x_{_kernels_table.N_SEGMENTS - 1}")] - meta[:, column("x_1")]
+    fine_nodes = x_span / _prism_spacing._TABLE_STEP
+    assert np.all(march < 0.5 * fine_nodes)
 
 
 PINHEAD = GaussianMixture(

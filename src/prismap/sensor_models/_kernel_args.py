@@ -67,14 +67,13 @@ class TableSpec(NamedTuple):
         fronts of more than ``_kernels_table.MAX_COARSE`` nodes).
     coarse_below : float, log
         ``log(C/Z)`` below which the coarse front's endpoint asymptotic of ``C`` is used.
-    e_front, e_back : float, pixels
-        Errors beyond which only the wide error components matter: the broad front holds true disparities above
-        ``shift + e_front``, the broad back those below ``shift + e_back`` (``_prism_spacing.broad_errors``;
-        ``inf``, ``-inf``: none).
-    wide_ratio : int, fine nodes per broad node
-        Spacing of the broad segments, ``wide_ratio h`` (1: no broad segments).
+    edges : (M + 1,) float64, pixels
+        The spacing profile's piece boundaries in the error ``e = d_true - d^``, descending from ``inf`` to
+        ``-inf`` (``_prism_spacing.spacing_profile``).
+    ratios : (M,) int64, fine nodes per node
+        Each piece's spacing, 0 for a gap between error components (spaced ``coarse_ratio h``).
     wide_efolds : float, prior e-folds
-        Most e-folds of the prior one broad interval may span.
+        Most e-folds of the prior one interval wider than ``h`` may span (outside gaps).
     """
 
     h: float
@@ -82,7 +81,6 @@ class TableSpec(NamedTuple):
     lam_slack: float
     coarse_ratio: int
     coarse_below: float
-    e_front: float
-    e_back: float
-    wide_ratio: int
+    edges: np.ndarray
+    ratios: np.ndarray
     wide_efolds: float

@@ -232,8 +232,8 @@ def prism_march(shift, lam, log_far, hq, log_eps_bound, lam_slack, i_min, geomet
         log_far,
         geometry.z0,
         np.full(3, -np.inf),
-        np.zeros(3, dtype=np.int64),
-        hq,
+        np.zeros(1, dtype=np.int64),
+        np.full(1, hq),
         hq,
         log_eps_bound,
         lam_slack,
@@ -245,9 +245,9 @@ def prism_march(shift, lam, log_far, hq, log_eps_bound, lam_slack, i_min, geomet
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def _march_x(i, x0, counts, h_wide, h):
-    """x of node ``i`` of a march from ``x0`` whose panels are ``counts[0]`` of ``h_wide``, ``counts[1]`` of
-    ``h``, ``counts[2]`` of ``h_wide``, then ``h``.
+def _march_x(i, x0, counts, widths, h):
+    """x of node ``i`` of a march from ``x0`` whose panels are ``counts[r]`` of width ``widths[r]`` for each
+    leading run ``r`` in turn, then ``h``.
 
     Parameters
     ----------
@@ -255,14 +255,15 @@ def _march_x(i, x0, counts, h_wide, h):
         Node index from the march's start.
     x0 : float, x units
         x of node 0.
-    counts : (3,) int64
-        Panels of the three leading runs.
-    h_wide, h : float, x units
-        Broad and fine panel widths.
+    counts : (R,) int64
+        Panels of the leading runs.
+    widths : (R,) float64, x units
+        Their panel widths.
+    h : float, x units
+        Panel width after them.
     """
-    widths = (h_wide, h, h_wide)
     x = x0
-    for r in range(3):
+    for r in range(counts.size):
         if i <= counts[r]:
             return x + i * widths[r]
         x += counts[r] * widths[r]
@@ -469,7 +470,7 @@ def _march(
     z_start,
     log_c_start,
     counts,
-    h_wide,
+    widths,
     hq,
     log_eps_bound,
     lam_slack,
@@ -478,9 +479,9 @@ def _march(
     geometry,
     mixture,
 ):
-    """:func:`prism_march` from ``z_start``, where the moments of C are ``log_c_start`` (3,), on panels of
-    x-width ``h_wide`` (``counts[0]``: a table's broad front), ``hq`` (``counts[1]``), ``h_wide``
-    (``counts[2]``: its broad back), then ``hq`` (:func:`_march_x`), and with ``far_ratio > 1`` from the first
+    """:func:`prism_march` from ``z_start``, where the moments of C are ``log_c_start`` (3,), on ``counts[r]``
+    panels of x-width ``widths[r]`` for each leading run in turn (a table's spacing profile), then ``hq``
+    (:func:`_march_x`), and with ``far_ratio > 1`` from the first
     node of that last run past the influence node (``i_far``, -1 if none) panels about ``far_ratio`` times
     wider to the end, a multiple of 4 of them, all of one width ``h_far``, and the march stops only on every 4th
     of them (a table's back: 4 equal intervals from ``i_far``). Past the influence depth ``D < (e^eps - 1) C``,
@@ -497,10 +498,12 @@ def _march(
         First node, at or after ``z0``.
     log_c_start : (3,) float64, log
         Logs of ``C`` and its two moments at ``z_start``.
-    counts : (3,) int64
-        Panels of the broad front, the fine run and the broad back (:func:`_march_x`).
-    h_wide, hq : float, x units
-        Broad and fine panel widths.
+    counts : (R,) int64
+        Panels of the leading runs (:func:`_march_x`).
+    widths : (R,) float64, x units
+        Their panel widths.
+    hq : float, x units
+        Fine panel width, of the run that ends the march.
     far_ratio : int
         Far panels about this many times ``hq`` wide; 1: none.
 
@@ -516,9 +519,13 @@ def _march(
     z0, z_max, fb, ku = geometry
     x0 = x_of_z(z_start, lam, ku)
     x_end = x_of_z(z_max, lam, ku)
-    last = counts[0] + counts[1] + counts[2]
-    n_max = last + max(1, int(math.ceil((x_end - _march_x(last, x0, counts, h_wide, hq)) / hq)))
-    fine_run = last if counts[2] > 0 else counts[0]  # first node of the run of hq panels that ends the march
+    last = counts.sum()
+    n_max = last + max(1, int(math.ceil((x_end - _march_x(last, x0, counts, widths, hq)) / hq)))
+    fine_run = last  # first node of the run of hq panels that ends the march
+    for r in range(counts.size - 1, -1, -1):
+        if counts[r] > 0 and widths[r] != hq:
+            break
+        fine_run -= counts[r]
     z = np.empty(n_max + 1)
     log_c = np.full((n_max + 1, 3), -np.inf)
     log_c[0] = log_c_start
@@ -543,7 +550,7 @@ def _march(
             elif i_far >= 0:
                 z[i] = z_of_x(x_far + (i - i_far) * h_far, lam, ku)
             else:
-                z[i] = z_of_x(_march_x(i, x0, counts, h_wide, hq), lam, ku)
+                z[i] = z_of_x(_march_x(i, x0, counts, widths, hq), lam, ku)
         _log_panel_block(z, first, count, lam, shift, geometry, mixture, inv_sigmas, panel, scratch)
         _log_sup_tail_block(z, first, count, shift, geometry, mixture, inv_sigmas, sup, scratch)
         _log_cumsum_block(panel, log_c, first, count, 1, scratch[0])
@@ -558,7 +565,7 @@ def _march(
                 stopped = True
                 break
             if far_ratio > 1 and i_far < 0 and 0 <= i_infl < i and i >= fine_run:
-                x_i = _march_x(i, x0, counts, h_wide, hq)
+                x_i = _march_x(i, x0, counts, widths, hq)
                 if x_end - x_i >= 8.0 * far_ratio * hq:  # room to spare in the arrays
                     i_far = i
                     x_far = x_i

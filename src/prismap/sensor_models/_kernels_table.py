@@ -117,8 +117,71 @@ def _rate_columns(slope, first, second, z_1, z_2, lam_s):
 _FAR_RATIO = 4
 """A table's march past its influence node: panels about this many times the fine width (:func:`_march`)."""
 
-N_SEGMENTS = 6
-"""Segments of a table's node grid, each uniform in x: coarse front, broad front, fine, broad back, fine, back."""
+MAX_RUNS = 12
+"""Most leading runs of a table's march (:func:`_march_runs`); beyond, the march stays fine to its end."""
+
+N_SEGMENTS = MAX_RUNS + 3
+"""Segments of a table's node grid, each uniform in x: the coarse front, the march's leading runs, its fine run to
+the influence node, and the back (empty ones where a table has fewer runs)."""
+
+
+@nb.njit(cache=True, nogil=True)
+def _march_runs(x_split, shift, lam, geometry, spec):
+    """The leading runs of a table's march from ``x_split``: ``(counts, widths)``, each (:data:`MAX_RUNS`,), the
+    spacing profile's pieces (``spec.edges``, ``spec.ratios``: ``_prism_spacing.spacing_profile``) placed on the
+    table's x axis; fine panels follow to the end.
+
+    A piece of ratio ``r > 1`` is spaced ``r h`` where an interval spans at most ``wide_efolds`` prior e-folds,
+    and fine beyond; a gap (ratio 0) is two panels whatever the prior (``q g`` is negligible there). Runs
+    coarser than fine end at a whole panel before their piece does (and 4 panels before ``z_max``), fine ones
+    a whole panel after it (at most 2 fine steps before ``z_max``), so coarse spacing never reaches into a finer
+    piece. Parameters as
+    :func:`prism_table`'s; ``x_split`` in x units.
+    """
+    z0, z_max, fb, ku = geometry
+    h, edges, ratios, wide_efolds = spec.h, spec.edges, spec.ratios, spec.wide_efolds
+    x_end = x_of_z(z_max, lam, ku)
+    counts = np.zeros(MAX_RUNS, dtype=np.int64)
+    widths = np.full(MAX_RUNS, h)
+    n_runs = 0
+    x = x_split
+    targets = np.empty(2)
+    spacing = np.empty(2)
+    for m in range(ratios.size):
+        u = shift + edges[m + 1]  # the piece's least true disparity: its far end
+        x_piece = x_end if u <= fb / z_max else min(x_of_z(fb / u, lam, ku), x_end)
+        if x_piece <= x:
+            continue
+        n_parts = 1
+        targets[0], spacing[0] = x_piece, h
+        if ratios[m] == 0:  # two panels across the gap, if it is wider than 4 fine ones
+            targets[0] = min(x_piece, x_end - 2.0 * h)
+            spacing[0] = max(0.5 * (targets[0] - x), h)
+        elif ratios[m] > 1:
+            spacing[0] = ratios[m] * h
+            x_lam = x_end
+            if spacing[0] > wide_efolds:  # an interval spans dz = H / (lam + ku / z^2)
+                x_lam = min(x_end, x_of_z(math.sqrt(ku / (lam * (spacing[0] / wide_efolds - 1.0))), lam, ku))
+            targets[0] = min(x_piece, x_lam, x_end - 4.0 * spacing[0])
+            targets[1], spacing[1] = x_piece, h
+            n_parts = 2
+        for p in range(n_parts):
+            if spacing[p] > h:
+                k = 2 if ratios[m] == 0 and spacing[p] > 2.0 * h else int((targets[p] - x) / spacing[p])
+            else:
+                k = int(math.ceil((min(targets[p], x_end - 2.0 * h) - x) / h))
+            if k <= 0:
+                continue
+            if n_runs > 0 and widths[n_runs - 1] == spacing[p]:
+                counts[n_runs - 1] += k
+            elif n_runs < MAX_RUNS:
+                counts[n_runs] = k
+                widths[n_runs] = spacing[p]
+                n_runs += 1
+            else:
+                return counts, widths  # no room: fine from here
+            x += k * spacing[p]
+    return counts, widths
 
 
 @nb.njit(cache=True, nogil=True)
@@ -168,31 +231,13 @@ def prism_table(shift, lam, log_far, geometry, spec, mixture):
         term of the nodes, for the look-ups that integrate on the spot at the ray's own rate).
     """
     z0, z_max, fb, ku = geometry
-    h, log_eps_bound, lam_slack, coarse_ratio, coarse_below, e_front, e_back, wide_ratio, wide_efolds = spec
-    h_wide = wide_ratio * h
+    h, log_eps_bound, lam_slack, coarse_ratio, coarse_below = spec[:5]
     x0 = x_of_z(z0, lam, ku)
     x_end = x_of_z(z_max, lam, ku)
     # The coarse front ends before the measured depth; at most MAX_COARSE nodes up to there (a class with a
     # 0.01 px component puts the measurement hundreds of thousands of x units after near_m).
     x_measured = x_of_z(min(z_max, fb / shift), lam, ku) if shift > 0.0 else x_end
     h_coarse = max(coarse_ratio * h, (x_measured - x0) / MAX_COARSE)
-    x_front = x0  # broad front: [x_split, x_front); broad back: [x_back_wide, x_lam)
-    x_back_wide = x_lam = x_end
-    if wide_ratio > 1:
-        if h_wide > wide_efolds:  # an interval spans dz = h_wide / (lam + ku / z^2)
-            x_lam = min(x_end, x_of_z(math.sqrt(ku / (lam * (h_wide / wide_efolds - 1.0))), lam, ku))
-        u_front = shift + e_front
-        u_back = shift + e_back
-        if e_front == -np.inf or u_front <= fb / z_max:
-            x_front = x_end
-        elif u_front < np.inf:
-            x_front = x_of_z(fb / u_front, lam, ku)
-        if u_back == np.inf:
-            x_back_wide = x0
-        elif u_back > fb / z_max:
-            x_back_wide = x_of_z(fb / u_back, lam, ku)
-    x_front = min(x_front, x_lam, x_end - 4.0 * h_wide)  # the fine part keeps a few panels before z_max
-    x_back_wide = min(x_back_wide, x_end - 2.0 * h)
     n_steep = 0  # coarse nodes after z0 where q g is steep
     while x0 + (n_steep + 2) * h_coarse < x_end:
         z = z_of_x(x0 + (n_steep + 1) * h_coarse, lam, ku)
@@ -205,7 +250,6 @@ def prism_table(shift, lam, log_far, geometry, spec, mixture):
             break
         n_steep += 1
     log_c_start = np.full(3, -np.inf)
-    counts = np.zeros(3, dtype=np.int64)
     n_coarse = n_steep
     log_z = np.nan
     while True:  # once, or twice if the first Z shows the steep part reaching above e^coarse_below
@@ -216,11 +260,7 @@ def prism_table(shift, lam, log_far, geometry, spec, mixture):
             log_s = math.log(z_split - z0)
             for k in range(3):
                 log_c_start[k] = log_c + k * log_s
-        counts[0] = max(int((x_front - x_split) / h_wide), 0)
-        x_fine = x_split + counts[0] * h_wide
-        counts[1] = max(int(math.ceil((x_back_wide - x_fine) / h)), 1)
-        x_fine += counts[1] * h
-        counts[2] = max(int((min(x_lam, x_end - h) - x_fine) / h_wide), 0)
+        counts, widths = _march_runs(x_split, shift, lam, geometry, spec)
         z, log_c, log_d, log_z, log_far_w, i_infl, i_far, h_far = _march(
             shift,
             lam,
@@ -228,11 +268,11 @@ def prism_table(shift, lam, log_far, geometry, spec, mixture):
             z_split,
             log_c_start,
             counts,
-            h_wide,
+            widths,
             h,
             log_eps_bound,
             lam_slack,
-            counts[0] + 2,
+            (counts[0] if widths[0] != h else 0) + 2,  # not within a coarse first run
             _FAR_RATIO,
             geometry,
             mixture,
@@ -248,9 +288,10 @@ def prism_table(shift, lam, log_far, geometry, spec, mixture):
             break
         n_coarse = fit
     n = z.size - 1
-    starts = np.array([0, counts[0], counts[0] + counts[1], counts[0] + counts[1] + counts[2]])  # march regions
-    widths = np.array([h_wide, h, h_wide, h])
-    last = 3
+    starts = np.zeros(MAX_RUNS + 1, dtype=np.int64)  # first node of each leading run, then of the fine run after
+    starts[1:] = np.cumsum(counts)
+    widths = np.concatenate((widths, np.full(1, h)))
+    last = MAX_RUNS
     while starts[last] >= n:
         last -= 1
     uniform = starts[last]  # first node of the uniform run of panels that ends the march
@@ -319,12 +360,12 @@ def prism_table(shift, lam, log_far, geometry, spec, mixture):
     meta = np.empty(3 * N_SEGMENTS + 5)
     x_march = x_of_z(z[0], lam, ku)
     meta[0], meta[N_SEGMENTS], meta[2 * N_SEGMENTS] = x0, 0, h_coarse
-    for r in range(4):
+    for r in range(MAX_RUNS + 1):
         i = min(starts[r], i_back)
-        meta[1 + r] = _march_x(i, x_march, counts, h_wide, h)
+        meta[1 + r] = _march_x(i, x_march, counts, widths[:MAX_RUNS], h)
         meta[N_SEGMENTS + 1 + r] = n_coarse + i
         meta[2 * N_SEGMENTS + 1 + r] = widths[r]
-    meta[N_SEGMENTS - 1] = _march_x(i_back, x_march, counts, h_wide, h)
+    meta[N_SEGMENTS - 1] = _march_x(i_back, x_march, counts, widths[:MAX_RUNS], h)
     meta[2 * N_SEGMENTS - 1] = n_coarse + i_back
     meta[3 * N_SEGMENTS - 1] = max(back, 1) * back_width
     meta[3 * N_SEGMENTS :] = z[n], z[i_infl], log_z, z_1, z_2

@@ -41,8 +41,8 @@ from prismap.sensor_models._prism_discrete import log_mean_likelihood
 from prismap.sensor_models._prism_spacing import (
     _COARSE_BELOW,
     _TABLE_STEP,
-    broad_errors,
     coarse_ratio,
+    spacing_profile,
 )
 
 INFLUENCE_EPSILON = 1e-3
@@ -470,16 +470,15 @@ class PrismModel(RayModel):
         log_far = self._log_far(disparity)
         shift = disparity + self.doffs_px
         geometry, mixture = self._geometry(), self._mixture()
-        e_front, e_back, wide_ratio = broad_errors(self.error_model)
+        edges, ratios = spacing_profile(self.error_model)
         spec = TableSpec(
             h=_TABLE_STEP,
             log_eps_bound=float(np.log(np.expm1(self.influence_epsilon))),
             lam_slack=_LAMBDA_SLACK,
             coarse_ratio=coarse_ratio(self.error_model),
             coarse_below=_COARSE_BELOW,
-            e_front=e_front,
-            e_back=e_back,
-            wide_ratio=wide_ratio,
+            edges=edges,
+            ratios=ratios,
             wide_efolds=_WIDE_EFOLDS,
         )
 

@@ -12,7 +12,8 @@ _COARSE_WIDE_SIGMAS = 0.125  # coarse-front node spacing may reach this many wid
 _COARSE_BELOW = -40.0
 _BROAD_SHARE = -20.0  # log share of g below which a table's broad front drops the narrower error components
 _WIDE_SIGMAS = 0.25  # broad-front node spacing, at most this many sigmas of the narrowest wide component
-_WIDE_KEEP = 0.5  # wide error components: sigma at least this share of the widest (kept in a broad segment)
+_WINDOW_SIGMAS = 12.0  # a component matters within this many of its sigmas of its mean (beyond: below e^-72)
+_MAX_PIECES = 12  # most pieces of a spacing profile (spacing_profile); the tables' segments follow from it
 
 
 def coarse_ratio(mixture):
@@ -29,16 +30,18 @@ def coarse_ratio(mixture):
     return max(_COARSE_RATIO, int(_COARSE_WIDE_SIGMAS * sd.max() / (sd.min() * _TABLE_STEP)))
 
 
-def broad_errors(mixture):
-    """Where a PRISM table may drop its narrow error components, and its node spacing there.
+def spacing_profile(mixture):
+    """How a PRISM table spaces its march's nodes along the error ``e = d_true - d^`` (pixels), piece by piece.
 
-    The wide components are those whose sigma is at least :data:`_WIDE_KEEP` of the widest one's (a
-    characterised mixture often holds two: a class's own outlier component and the whole image's); the others
-    are narrow. For errors ``e >= e_front`` (pixels; true disparity above ``d^ + e_front``, in front of the
-    measurement) and ``e <= e_back`` (behind it) every narrow component's density is below ``e^_BROAD_SHARE`` of
-    the widest one's, so ``C``, ``D`` and their moments there are smooth on the narrowest wide sigma's scale:
-    nodes every ``wide_ratio`` fine nodes (at most ``_WIDE_SIGMAS`` of that sigma apart). ``wide_ratio`` 1 (a
-    one-component mixture, or one whose components are all wide): no broad segments.
+    Component ``j`` matters at ``e`` where it lies within :data:`_WINDOW_SIGMAS` of its sigmas of its mean and its
+    density is at least ``e^_BROAD_SHARE`` of the largest component density there. Where some components matter,
+    nodes are ``ratio`` fine steps apart: a quarter of the narrowest mattering sigma (:data:`_WIDE_SIGMAS`; one
+    fine step, half the narrowest sigma of the mixture, for components less than twice it), so far in front of
+    and behind the measurement, where only an outlier component produces it, nodes follow the outliers. Where
+    none matters, between two components' windows, ``C`` and ``D`` are constant far below the tables' tolerance:
+    a gap (``ratio`` 0), spaced like the coarse front. In front of every window the first window's spacing
+    holds, behind every window one fine step. At most :data:`_MAX_PIECES` pieces: beyond, the shortest is
+    merged into the finer of its neighbours.
 
     Parameters
     ----------
@@ -47,29 +50,45 @@ def broad_errors(mixture):
 
     Returns
     -------
-    e_front, e_back : float, pixels (``inf``, ``-inf``: none; ``-inf``, ``inf``: everywhere)
-    wide_ratio : int >= 1
+    edges : (M + 1,) float64, pixels
+        Piece boundaries, descending from ``inf`` to ``-inf`` (the order of a table's nodes: front to back).
+    ratios : (M,) int64
+        Each piece's node spacing in fine steps, 0 for a gap; no two neighbours equal.
     """
-    w, mu, sd = mixture.weights, mixture.means, mixture.sigmas
-    b = int(np.argmax(sd))
-    wide = sd >= _WIDE_KEEP * sd[b]
-    if wide.all():
-        return np.inf, -np.inf, 1
-    e_front, e_back = -np.inf, np.inf
-    for j in np.flatnonzero(~wide):
-        # log(w_j N_j(e)) - log(w_b N_b(e)) - _BROAD_SHARE = a e^2 + b e + c, a < 0: it is < 0 outside its roots
-        a = 0.5 / sd[b] ** 2 - 0.5 / sd[j] ** 2
-        lin = mu[j] / sd[j] ** 2 - mu[b] / sd[b] ** 2
-        c = (
-            np.log(w[j] / sd[j])
-            - np.log(w[b] / sd[b])
-            - 0.5 * (mu[j] / sd[j]) ** 2
-            + 0.5 * (mu[b] / sd[b]) ** 2
-            - _BROAD_SHARE
-        )
-        disc = lin * lin - 4.0 * a * c
-        if disc > 0:
-            e_front = max(e_front, (-lin - np.sqrt(disc)) / (2.0 * a))
-            e_back = min(e_back, (-lin + np.sqrt(disc)) / (2.0 * a))
-    wide_ratio = int(_WIDE_SIGMAS * sd[wide].min() / (sd.min() * _TABLE_STEP))
-    return float(e_front), float(e_back), max(min(wide_ratio, _COARSE_RATIO), 1)
+    log_w = np.log(mixture.weights / mixture.sigmas)
+    mu, sd = mixture.means, mixture.sigmas
+    ratio_of = np.maximum(np.minimum((_WIDE_SIGMAS * sd / (sd.min() * _TABLE_STEP)).astype(np.int64), _COARSE_RATIO), 1)
+    cuts = [mu - _WINDOW_SIGMAS * sd, mu + _WINDOW_SIGMAS * sd]
+    for i in range(mu.size):  # where two components' log densities differ by 0 or _BROAD_SHARE
+        for j in range(i + 1, mu.size):
+            a = 0.5 / sd[j] ** 2 - 0.5 / sd[i] ** 2
+            b = mu[i] / sd[i] ** 2 - mu[j] / sd[j] ** 2
+            for level in (0.0, _BROAD_SHARE, -_BROAD_SHARE):
+                c = log_w[i] - log_w[j] - 0.5 * (mu[i] / sd[i]) ** 2 + 0.5 * (mu[j] / sd[j]) ** 2 - level
+                cuts.append(np.roots([a, b, c]) if a != 0.0 else ([-c / b] if b != 0.0 else []))
+    cuts = np.concatenate([np.real(np.atleast_1d(np.asarray(c, dtype=complex))[np.isreal(c)]) for c in cuts])
+    inner = np.unique(cuts[np.isfinite(cuts)])[::-1]
+    edges = np.concatenate([[np.inf], inner, [-np.inf]])
+    probe = np.concatenate([[inner[0] + 1.0], 0.5 * (inner[:-1] + inner[1:]), [inner[-1] - 1.0]])
+    log_dens = log_w - 0.5 * ((probe[:, None] - mu) / sd) ** 2
+    matters = (np.abs(probe[:, None] - mu) <= _WINDOW_SIGMAS * sd) & (
+        log_dens >= log_dens.max(axis=1, keepdims=True) + _BROAD_SHARE
+    )
+    ratios = np.where(matters, ratio_of, _COARSE_RATIO + 1).min(axis=1)
+    ratios[ratios > _COARSE_RATIO] = 0
+    windowed = np.flatnonzero(ratios)
+    ratios[: windowed[0]] = ratios[windowed[0]]  # in front of every window: the first window's spacing
+    ratios[windowed[-1] + 1 :] = 1  # behind them: fine
+    edges, ratios = _merged(edges, ratios)
+    while ratios.size > _MAX_PIECES:
+        k = int(np.argmin(np.diff(-edges)[1:-1])) + 1  # the shortest finite piece
+        finer = min((r if r else _COARSE_RATIO + 1) for r in ratios[max(k - 1, 0) : k + 2 : 2])
+        ratios[k] = finer
+        edges, ratios = _merged(edges, ratios)
+    return edges, ratios
+
+
+def _merged(edges, ratios):
+    """``edges``, ``ratios`` without the boundaries between neighbouring pieces of equal ratio."""
+    keep = np.concatenate([[True], ratios[1:] != ratios[:-1], [True]])
+    return edges[keep], ratios[keep[:-1]]
