@@ -311,6 +311,37 @@ def test_table_with_far_apart_components_agrees_with_direct_and_spans_the_gaps_i
     assert np.all(march < 0.5 * fine_nodes)
 
 
+@pytest.mark.parametrize("mixture", [GaussianMixture.gaussian(0.25), STREET, FAR_APART, SGBM_LIKE])
+def test_coarse_front_reaches_as_far_as_its_conditions_hold(mixture):
+    """A table's coarse front ends where ``C/Z`` reaches ``e^coarse_below`` (less the refit margin) or ``q g``
+    stops rising steeply, to a thousandth of its spacing: nothing before the march is left to fine nodes (unless
+    it ends 8 fine steps before ``z_max``)."""
+    rng = np.random.default_rng(10)
+    fb = KITTI_FB / 2
+    model = make_sensor_model("prism", focal_baseline=fb, error_model=mixture, voxel_size_m=0.2, p0=0.05)
+    disparity = np.round(fb / np.exp(rng.uniform(np.log(3.0), np.log(80.0), 12)) * 16) / 16
+    model._tables_for(disparity, np.ones(disparity.size))
+    geometry, kernel_mixture = model._geometry(), model._mixture()
+    column = _kernels_table.META_COLUMNS.index
+    fronts = 0
+    for m in model._cache.meta:
+        lam, shift, log_z, h_coarse, x_split = (m[column(c)] for c in ("lam", "shift", "log_z", "h_0", "x_1"))
+        x_end = _kernels_march.x_of_z(geometry.z_max, lam, geometry.ku)
+        if m[column("row_1")] == 0 or x_split >= x_end - 8.5 * _prism_spacing._TABLE_STEP:
+            continue  # no front, or one that stopped 8 fine steps before z_max
+        fronts += 1
+
+        def log_c_over_z(x, lam=lam, shift=shift, log_z=log_z):
+            z = _kernels_march.z_of_x(x, lam, geometry.ku)
+            return _kernels_table._log_c_asymptotic(z, lam, shift, geometry, kernel_mixture) - log_z
+
+        assert log_c_over_z(x_split) < _prism_spacing._COARSE_BELOW
+        beyond = x_split + 1e-3 * h_coarse
+        steep = _kernels_table._steep(beyond, lam, shift, geometry, kernel_mixture)
+        assert not steep or log_c_over_z(beyond) > _prism_spacing._COARSE_BELOW - _kernels_table._FIT_MARGIN - 0.05
+    assert fronts >= 6
+
+
 PINHEAD = GaussianMixture(
     [0.7983, 0.1903, 0.0061, 0.0053],
     [-0.021, 0.113, -0.359, -0.422],

@@ -71,6 +71,27 @@ def _log_qg_slope(z, lam, shift, geometry, mixture):
 
 
 @nb.njit(cache=True, nogil=True)
+def _steep(x, lam, shift, geometry, mixture):
+    """Whether ``q g`` rises steeply at ``x`` (x units): ``phi' > 0`` and ``|phi''| / phi'^2 <= _STEEP``
+    (``phi = log(q g)``), where the endpoint asymptotic of ``C`` holds; parameters as :func:`_log_qg_slope`'s."""
+    z = z_of_x(x, lam, geometry.ku)
+    slope = _log_qg_slope(z, lam, shift, geometry, mixture)[1]
+    curvature = (
+        _log_qg_slope(z * (1.0 + 1e-5), lam, shift, geometry, mixture)[1]
+        - _log_qg_slope(z * (1.0 - 1e-5), lam, shift, geometry, mixture)[1]
+    ) / (2e-5 * z)
+    return slope > 0.0 and abs(curvature) <= _STEEP * slope * slope
+
+
+_BISECTIONS = 12
+"""Bisections that place a coarse front's last node where the front's condition ends (to 1/4096 of an interval)."""
+
+_FIT_MARGIN = 0.5
+"""How far below ``coarse_below`` (log) a coarse front's last node is placed once the march's Z is known, so that
+the next march's Z, equal to rounding, keeps it."""
+
+
+@nb.njit(cache=True, nogil=True)
 def _log_c_asymptotic(z, lam, shift, geometry, mixture):
     """``log C(z)`` where ``q g`` rises steeply: ``C = q g / (d log(q g)/dz) (1 + O(phi''/phi'^2))``; parameters
     as :func:`_log_qg_slope`'s."""
@@ -191,20 +212,21 @@ def prism_table(shift, lam, log_far, geometry, spec, mixture):
     Node columns (see :data:`TABLE_COLUMNS`): ``log(C/Z)``, ``d log(C/Z)/dx``, the first and second
     derivatives of ``log(C/Z)`` in ``log lam`` (from the moments, :func:`_rate_derivatives`), the first one
     followed by its x-derivative (:func:`_rate_columns`), and the same five for ``D = Z - C``. Nodes are uniform
-    in x on each of :data:`N_SEGMENTS` segments: spacing
-    ``H = coarse_ratio h`` (wider where that would put more than :data:`MAX_COARSE` nodes before the
-    measured depth) up to ``x_split``; ``H_wide = wide_ratio h`` over the broad front (true
-    disparities above ``shift + e_front``); ``h``; ``H_wide`` over the broad back (below ``shift + e_back``),
-    both only where an interval spans at most ``wide_efolds`` prior e-folds; ``h``; then, from a node past
-    the influence depth (beyond which only the cells that straddle it look up), four equal intervals to
-    the end of the march. The march's panels are the node intervals (:data:`_MARCH_GL`-point Gauss-Legendre
-    is exact far below the tolerance on half a narrowest sigma, and on a broad segment, where only the wide
-    error components are not negligible (``_prism_spacing.broad_errors``), on a quarter of the narrowest of them), and
-    past the influence node, where only the four back intervals remain, :data:`_FAR_RATIO` times wider (:func:`_march`).
+    in x on each of :data:`N_SEGMENTS` segments: the coarse front up to ``x_split``, spaced at most
+    ``coarse_ratio h`` (or wider, where that would put more than :data:`MAX_COARSE` nodes before the measured
+    depth), evenly so that its last node lies where its conditions end (to 1/4096 of an interval by
+    bisection); the march's leading runs (:func:`_march_runs`: the mixture's spacing profile); fine nodes to a
+    node past the influence depth (beyond which only the cells that straddle it look up); then four equal
+    intervals to the end of the march. The march's panels are the node intervals (:data:`_MARCH_GL`-point
+    Gauss-Legendre is exact far below the tolerance on half a narrowest sigma, and where only wider components
+    matter on a quarter of the narrowest of them), and past the influence node, where only the four back intervals
+    remain, :data:`_FAR_RATIO` times wider (:func:`_march`).
 
     Before ``x_split`` ``q g`` rises steeply (``|phi''| / phi'^2 < _STEEP``, ``phi = log(q g)``) and
     ``C/Z < e^coarse_below``: there ``C`` is its endpoint (Laplace) asymptotic ``q g / (q g)'`` (relative
-    error about ``phi''/phi'^2``), all its mass at ``z``; quadrature starts at ``x_split``.
+    error about ``phi''/phi'^2``), all its mass at ``z``; quadrature starts at ``x_split``. Where the march's
+    ``Z`` shows the front reaching above ``e^coarse_below``, the front is placed again (once, with
+    :data:`_FIT_MARGIN` to spare) and the march repeated.
 
     Parameters
     ----------
@@ -238,21 +260,28 @@ def prism_table(shift, lam, log_far, geometry, spec, mixture):
     # 0.01 px component puts the measurement hundreds of thousands of x units after near_m).
     x_measured = x_of_z(min(z_max, fb / shift), lam, ku) if shift > 0.0 else x_end
     h_coarse = max(coarse_ratio * h, (x_measured - x0) / MAX_COARSE)
+    x_room = x_end - 8.0 * h  # the march keeps a few fine panels before z_max
     n_steep = 0  # coarse nodes after z0 where q g is steep
-    while x0 + (n_steep + 2) * h_coarse < x_end:
-        z = z_of_x(x0 + (n_steep + 1) * h_coarse, lam, ku)
-        slope = _log_qg_slope(z, lam, shift, geometry, mixture)[1]
-        curvature = (
-            _log_qg_slope(z * (1.0 + 1e-5), lam, shift, geometry, mixture)[1]
-            - _log_qg_slope(z * (1.0 - 1e-5), lam, shift, geometry, mixture)[1]
-        ) / (2e-5 * z)
-        if not slope > 0.0 or abs(curvature) > _STEEP * slope * slope:
-            break
+    while x0 + (n_steep + 1) * h_coarse < x_room and _steep(
+        x0 + (n_steep + 1) * h_coarse, lam, shift, geometry, mixture
+    ):
         n_steep += 1
+    if 0 < n_steep < MAX_COARSE:  # the steep part ends within the next interval: the front, a little closer, reaches it
+        lo, hi = x0 + n_steep * h_coarse, min(x0 + (n_steep + 1) * h_coarse, x_room)
+        for _ in range(_BISECTIONS):
+            mid = 0.5 * (lo + hi)
+            if _steep(mid, lam, shift, geometry, mixture):
+                lo = mid
+            else:
+                hi = mid
+        if lo > x0 + n_steep * h_coarse:
+            n_steep += 1
+            h_coarse = (lo - x0) / n_steep
     log_c_start = np.full(3, -np.inf)
     n_coarse = n_steep
     log_z = np.nan
-    while True:  # once, or twice if the first Z shows the steep part reaching above e^coarse_below
+    refit = True
+    while True:  # once, or twice (or three times) if the first Z shows the steep part reaching above e^coarse_below
         x_split = x0 + n_coarse * h_coarse
         z_split = z_of_x(x_split, lam, ku) if n_coarse > 0 else z0
         if n_coarse > 0:
@@ -287,6 +316,19 @@ def prism_table(shift, lam, log_far, geometry, spec, mixture):
         if fit == n_coarse:
             break
         n_coarse = fit
+        if fit > 0 and refit:  # the front's last node, a little closer, where C/Z reaches e^coarse_below
+            refit = False
+            lo, hi = x0 + fit * h_coarse, x0 + (fit + 1) * h_coarse
+            for _ in range(_BISECTIONS):
+                mid = 0.5 * (lo + hi)
+                log_c = _log_c_asymptotic(z_of_x(mid, lam, ku), lam, shift, geometry, mixture)
+                if log_c - log_z < coarse_below - _FIT_MARGIN:
+                    lo = mid
+                else:
+                    hi = mid
+            if lo > x0 + fit * h_coarse:
+                n_coarse = fit + 1
+                h_coarse = (lo - x0) / n_coarse
     n = z.size - 1
     starts = np.zeros(MAX_RUNS + 1, dtype=np.int64)  # first node of each leading run, then of the fine run after
     starts[1:] = np.cumsum(counts)
