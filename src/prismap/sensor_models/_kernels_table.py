@@ -71,20 +71,27 @@ def _log_qg_slope(z, lam, shift, geometry, mixture):
 
 
 @nb.njit(cache=True, nogil=True)
-def _steep(x, lam, shift, geometry, mixture):
-    """Whether ``q g`` rises steeply at ``x`` (x units): ``phi' > 0`` and ``|phi''| / phi'^2 <= _STEEP``
-    (``phi = log(q g)``), where the endpoint asymptotic of ``C`` holds; parameters as :func:`_log_qg_slope`'s."""
+def _steep(x, lam, shift, geometry, mixture, bound):
+    """Whether ``q g`` rises steeply at ``x`` (x units): ``phi' > 0`` and ``|phi''| / phi'^2 <= bound``
+    (``phi = log(q g)``; the endpoint asymptotic of ``C`` holds to about ``bound``); other parameters as
+    :func:`_log_qg_slope`'s."""
     z = z_of_x(x, lam, geometry.ku)
     slope = _log_qg_slope(z, lam, shift, geometry, mixture)[1]
     curvature = (
         _log_qg_slope(z * (1.0 + 1e-5), lam, shift, geometry, mixture)[1]
         - _log_qg_slope(z * (1.0 - 1e-5), lam, shift, geometry, mixture)[1]
     ) / (2e-5 * z)
-    return slope > 0.0 and abs(curvature) <= _STEEP * slope * slope
+    return slope > 0.0 and abs(curvature) <= bound * slope * slope
 
+
+_STEEP_END = _STEEP / 8
+"""Steepness bound (as :data:`_STEEP`) up to which a coarse front's last interval reaches: its cubic Hermite
+interpolation over a wide interval needs ``log C`` nearer quadratic than the asymptotic's own bound gives (at
+``_STEEP`` a far measurement's front cells were 3 % off, 1.7x the tolerance)."""
 
 _BISECTIONS = 12
-"""Bisections that place a coarse front's last node where the front's condition ends (to 1/4096 of an interval)."""
+"""Bisections that place a coarse front's last node where ``C/Z`` reaches ``e^coarse_below`` (to 1/4096 of an
+interval)."""
 
 _FIT_MARGIN = 0.5
 """How far below ``coarse_below`` (log) a coarse front's last node is placed once the march's Z is known, so that
@@ -214,13 +221,14 @@ def prism_table(shift, lam, log_far, geometry, spec, mixture):
     followed by its x-derivative (:func:`_rate_columns`), and the same five for ``D = Z - C``. Nodes are uniform
     in x on each of :data:`N_SEGMENTS` segments: the coarse front up to ``x_split``, spaced at most
     ``coarse_ratio h`` (or wider, where that would put more than :data:`MAX_COARSE` nodes before the measured
-    depth), evenly so that its last node lies where its conditions end (to 1/4096 of an interval by
-    bisection); the march's leading runs (:func:`_march_runs`: the mixture's spacing profile); fine nodes to a
-    node past the influence depth (beyond which only the cells that straddle it look up); then four equal
-    intervals to the end of the march. The march's panels are the node intervals (:data:`_MARCH_GL`-point
-    Gauss-Legendre is exact far below the tolerance on half a narrowest sigma, and where only wider components
-    matter on a quarter of the narrowest of them), and past the influence node, where only the four back intervals
-    remain, :data:`_FAR_RATIO` times wider (:func:`_march`).
+    depth), evenly so that its last node lies where ``C/Z`` reaches ``e^coarse_below`` or ``q g`` stops rising
+    steeply at :data:`_STEEP_END` (to 1/4096 of an interval by bisection); the march's leading runs
+    (:func:`_march_runs`: the mixture's spacing profile); fine nodes to a node past the influence depth (beyond
+    which only the cells that straddle it look up); then four equal intervals to the end of the march. The
+    march's panels are the node intervals (:data:`_MARCH_GL`-point Gauss-Legendre is exact far below the tolerance
+    on half a narrowest sigma, and where only wider components matter on a quarter of the narrowest of them), and
+    past the influence node, where only the four back intervals remain, :data:`_FAR_RATIO` times wider
+    (:func:`_march`).
 
     Before ``x_split`` ``q g`` rises steeply (``|phi''| / phi'^2 < _STEEP``, ``phi = log(q g)``) and
     ``C/Z < e^coarse_below``: there ``C`` is its endpoint (Laplace) asymptotic ``q g / (q g)'`` (relative
@@ -260,17 +268,17 @@ def prism_table(shift, lam, log_far, geometry, spec, mixture):
     # 0.01 px component puts the measurement hundreds of thousands of x units after near_m).
     x_measured = x_of_z(min(z_max, fb / shift), lam, ku) if shift > 0.0 else x_end
     h_coarse = max(coarse_ratio * h, (x_measured - x0) / MAX_COARSE)
-    x_room = x_end - 8.0 * h  # the march keeps a few fine panels before z_max
     n_steep = 0  # coarse nodes after z0 where q g is steep
-    while x0 + (n_steep + 1) * h_coarse < x_room and _steep(
-        x0 + (n_steep + 1) * h_coarse, lam, shift, geometry, mixture
+    while x0 + (n_steep + 2) * h_coarse < x_end and _steep(
+        x0 + (n_steep + 1) * h_coarse, lam, shift, geometry, mixture, _STEEP
     ):
         n_steep += 1
-    if 0 < n_steep < MAX_COARSE:  # the steep part ends within the next interval: the front, a little closer, reaches it
-        lo, hi = x0 + n_steep * h_coarse, min(x0 + (n_steep + 1) * h_coarse, x_room)
+    if 0 < n_steep < MAX_COARSE and x0 + (n_steep + 2) * h_coarse < x_end:
+        # The steep part ends within the next interval: the front's nodes, evenly a little closer, reach it
+        lo, hi = x0 + n_steep * h_coarse, x0 + (n_steep + 1) * h_coarse
         for _ in range(_BISECTIONS):
             mid = 0.5 * (lo + hi)
-            if _steep(mid, lam, shift, geometry, mixture):
+            if _steep(mid, lam, shift, geometry, mixture, _STEEP_END):
                 lo = mid
             else:
                 hi = mid
