@@ -183,7 +183,9 @@ def test_each_worker_builds_the_prism_tables_once_for_all_its_chunks(sequence_di
     whole = map_chunk(str(sequence_dir), cfg, alone, 0, 7)
     assert alone._cache.hits > 0  # the frames share tables
     worker = sorted(client.scheduler_info()["workers"])[0]
-    model = client.scatter(cfg.sensor_model(camera), broadcast=True, hash=False)
+    # One replica, on that worker: with one on each, Dask's active memory manager may drop this worker's between
+    # tasks (ReduceReplicas) and the next task fetch a fresh copy, with an empty cache, from the other worker
+    model = client.scatter(cfg.sensor_model(camera), workers=[worker], hash=False)
     merged = new_map(cfg)
     for frame in range(7):  # one after the other: the same order of table builds as the single model's
         merged.merge(
