@@ -71,7 +71,7 @@ class TableSpec(NamedTuple):
         The spacing profile's piece boundaries in the error ``e = d_true - d^``, descending from ``inf`` to
         ``-inf`` (``_prism_spacing.spacing_profile``).
     ratios : (M,) int64, fine nodes per node
-        Each piece's spacing, 0 for a gap between error components (spaced ``coarse_ratio h``).
+        Each piece's spacing, 0 for a gap between error components (two panels span it).
     wide_efolds : float, prior e-folds
         Most e-folds of the prior one interval wider than ``h`` may span (outside gaps).
     """

@@ -163,8 +163,7 @@ def _march_runs(x_split, shift, lam, geometry, spec):
     and fine beyond; a gap (ratio 0) is two panels whatever the prior (``q g`` is negligible there). Runs
     coarser than fine end at a whole panel before their piece does (and 4 panels before ``z_max``), fine ones
     a whole panel after it (at most 2 fine steps before ``z_max``), so coarse spacing never reaches into a finer
-    piece. Parameters as
-    :func:`prism_table`'s; ``x_split`` in x units.
+    piece. Parameters as :func:`prism_table`'s; ``x_split`` in x units.
     """
     z0, z_max, fb, ku = geometry
     h, edges, ratios, wide_efolds = spec.h, spec.edges, spec.ratios, spec.wide_efolds

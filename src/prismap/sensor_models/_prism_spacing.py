@@ -10,8 +10,8 @@ _TABLE_STEP = 0.5  # table node spacing in x, also the width of its march's pane
 _COARSE_RATIO = 64  # node spacing 32 in x where log(C/Z) < _COARSE_BELOW (near-quadratic in x) and past influence
 _COARSE_WIDE_SIGMAS = 0.125  # coarse-front node spacing may reach this many widest sigmas (see coarse_ratio)
 _COARSE_BELOW = -40.0
-_BROAD_SHARE = -20.0  # log share of g below which a table's broad front drops the narrower error components
-_WIDE_SIGMAS = 0.25  # broad-front node spacing, at most this many sigmas of the narrowest wide component
+_BROAD_SHARE = -20.0  # log share of the largest component density below which a component does not matter
+_WIDE_SIGMAS = 0.25  # node spacing, this many sigmas of the narrowest component that matters (spacing_profile)
 _WINDOW_SIGMAS = 12.0  # a component matters within this many of its sigmas of its mean (beyond: below e^-72)
 _MAX_PIECES = 12  # most pieces of a spacing profile (spacing_profile); the tables' segments follow from it
 
