@@ -333,7 +333,7 @@ def test_coarse_front_reaches_as_far_as_its_conditions_hold(mixture):
 
         def log_c_over_z(x, lam=lam, shift=shift, log_z=log_z):
             z = _kernels_march.z_of_x(x, lam, geometry.ku)
-            return _kernels_table._log_c_asymptotic(z, lam, shift, geometry, kernel_mixture) - log_z
+            return _kernels_table._log_c_asymptotic(z, lam, shift, geometry, kernel_mixture)[0] - log_z
 
         assert log_c_over_z(x_split) < _prism_spacing._COARSE_BELOW
         beyond = x_split + 1e-3 * h_coarse
@@ -790,18 +790,24 @@ def test_endpoint_asymptotic_of_the_evidence_matches_fine_quadrature_where_steep
     mixture = model._mixture()
     geometry = Geometry(0.1, model.far_depth_m, FB, model._ku())
     shift, lam = _on_grid([3.0])[0], model.rate_per_m
+    derivatives = _kernels_table._log_qg_derivatives
     for depth in (0.3, 0.8, 1.5):  # measured at 3 m
-        slope = _kernels_table._log_qg_slope(depth, lam, shift, geometry, mixture)[1]
-        hi, lo = (
-            _kernels_table._log_qg_slope(depth * (1 + e), lam, shift, geometry, mixture)[0] for e in (1e-5, -1e-5)
+        _, slope, curvature = derivatives(depth, lam, shift, geometry, mixture)
+        (phi_hi, slope_hi, _), (phi_lo, slope_lo, _) = (
+            derivatives(depth * (1 + e), lam, shift, geometry, mixture) for e in (1e-5, -1e-5)
         )
-        assert (hi - lo) / (2e-5 * depth) == pytest.approx(slope, rel=1e-6)  # the slope is d phi / dz
-        asymptotic = _kernels_table._log_c_asymptotic(depth, lam, shift, geometry, mixture)
+        assert (phi_hi - phi_lo) / (2e-5 * depth) == pytest.approx(slope, rel=1e-6)  # the slope is d phi / dz
+        assert (slope_hi - slope_lo) / (2e-5 * depth) == pytest.approx(curvature, rel=1e-5)  # and d^2 phi / dz^2
+        asymptotic, asymptotic_slope = _kernels_table._log_c_asymptotic(depth, lam, shift, geometry, mixture)
+        x = _kernels_march.x_of_z(depth, lam, geometry.ku)
+        hi, lo = (
+            _kernels_table._log_c_asymptotic(
+                _kernels_march.z_of_x(x + dx, lam, geometry.ku), lam, shift, geometry, mixture
+            )[0]
+            for dx in (1e-4, -1e-4)
+        )
+        assert (hi - lo) / 2e-4 == pytest.approx(asymptotic_slope, rel=1e-5)  # its slope is d log C / dx
         quadrature = _kernels_march.log_integral(0.1, depth, lam, shift, 0.01, geometry, mixture)
-        curvature = (
-            _kernels_table._log_qg_slope(depth * (1 + 1e-5), lam, shift, geometry, mixture)[1]
-            - _kernels_table._log_qg_slope(depth * (1 - 1e-5), lam, shift, geometry, mixture)[1]
-        ) / (2e-5 * depth)
         correction = abs(curvature) / slope**2  # the first neglected term, relative
         assert asymptotic < -40 and abs(asymptotic - quadrature) < 2 * correction + 1e-4
 

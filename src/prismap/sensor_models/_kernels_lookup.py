@@ -30,7 +30,7 @@ from prismap.sensor_models._kernels_table import (
     _Z_END,
     _Z_INFL,
     N_SEGMENTS,
-    _log_qg_slope,
+    _log_qg_derivatives,
 )
 
 _FASTMATH = {"nsz", "arcp", "contract", "afn", "reassoc"}  # never nnan/ninf: NaN marks values not looked up
@@ -144,7 +144,7 @@ def _log_c_first(z, steep, lam, shift, h, geometry, mixture):
     z0 = geometry.z0
     if not steep:
         return log_integral(z0, z, lam, shift, h, geometry, mixture)
-    phi, phi_z = _log_qg_slope(z, lam, shift, geometry, mixture)
+    phi, phi_z, _ = _log_qg_derivatives(z, lam, shift, geometry, mixture)
     return phi - math.log(phi_z) + log1mexp(-phi_z * (z - z0))
 
 

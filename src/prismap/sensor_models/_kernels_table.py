@@ -32,8 +32,8 @@ _D_COLUMN = TABLE_COLUMNS // 2
 
 
 @nb.njit(cache=True, nogil=True)
-def _log_qg_slope(z, lam, shift, geometry, mixture):
-    """``log(q g)`` at depth ``z`` and its derivative in z (1/metre).
+def _log_qg_derivatives(z, lam, shift, geometry, mixture):
+    """``phi = log(q g)`` at depth ``z`` and its first and second derivatives in z (1/metre, 1/metre^2).
 
     Parameters
     ----------
@@ -53,7 +53,8 @@ def _log_qg_slope(z, lam, shift, geometry, mixture):
     u = fb / z
     best = -np.inf
     total = 0.0
-    slope = 0.0  # sum of weights times d log N_j / du
+    slope = 0.0  # sum of weights times d N_j / du / N_j
+    bend = 0.0  # sum of weights times d^2 N_j / du^2 / N_j
     for j in range(means.size):
         t = (u - shift - means[j]) / sigmas[j]
         v = log_wn[j] - 0.5 * t * t
@@ -61,26 +62,27 @@ def _log_qg_slope(z, lam, shift, geometry, mixture):
             scale = math.exp(best - v)
             total *= scale
             slope *= scale
+            bend *= scale
             best = v
             e = 1.0
         else:
             e = math.exp(v - best)
         total += e
         slope -= e * t / sigmas[j]
-    return math.log(lam) - lam * (z - z0) + best + math.log(total), -lam - slope / total * fb / (z * z)
+        bend += e * (t * t - 1.0) / (sigmas[j] * sigmas[j])
+    g_u = slope / total  # d log g / du
+    g_uu = bend / total - g_u * g_u
+    u_z = -fb / (z * z)
+    phi = math.log(lam) - lam * (z - z0) + best + math.log(total)
+    return phi, -lam + g_u * u_z, g_uu * u_z * u_z - 2.0 * g_u * u_z / z
 
 
 @nb.njit(cache=True, nogil=True)
 def _steep(x, lam, shift, geometry, mixture, bound):
     """Whether ``q g`` rises steeply at ``x`` (x units): ``phi' > 0`` and ``|phi''| / phi'^2 <= bound``
     (``phi = log(q g)``; the endpoint asymptotic of ``C`` holds to about ``bound``); other parameters as
-    :func:`_log_qg_slope`'s."""
-    z = z_of_x(x, lam, geometry.ku)
-    slope = _log_qg_slope(z, lam, shift, geometry, mixture)[1]
-    curvature = (
-        _log_qg_slope(z * (1.0 + 1e-5), lam, shift, geometry, mixture)[1]
-        - _log_qg_slope(z * (1.0 - 1e-5), lam, shift, geometry, mixture)[1]
-    ) / (2e-5 * z)
+    :func:`_log_qg_derivatives`'s."""
+    _, slope, curvature = _log_qg_derivatives(z_of_x(x, lam, geometry.ku), lam, shift, geometry, mixture)
     return slope > 0.0 and abs(curvature) <= bound * slope * slope
 
 
@@ -100,10 +102,11 @@ the next march's Z, equal to rounding, keeps it."""
 
 @nb.njit(cache=True, nogil=True)
 def _log_c_asymptotic(z, lam, shift, geometry, mixture):
-    """``log C(z)`` where ``q g`` rises steeply: ``C = q g / (d log(q g)/dz) (1 + O(phi''/phi'^2))``; parameters
-    as :func:`_log_qg_slope`'s."""
-    phi, phi_z = _log_qg_slope(z, lam, shift, geometry, mixture)
-    return phi - math.log(phi_z)
+    """``log C(z)`` where ``q g`` rises steeply, ``C = q g / (d log(q g)/dz) (1 + O(phi''/phi'^2))``, and its
+    derivative in x, ``(phi' - phi''/phi') / (dx/dz)``; parameters as :func:`_log_qg_derivatives`'s (``ku`` of
+    ``geometry`` is read too)."""
+    phi, phi_z, phi_zz = _log_qg_derivatives(z, lam, shift, geometry, mixture)
+    return phi - math.log(phi_z), (phi_z - phi_zz / phi_z) / (lam + geometry.ku / (z * z))
 
 
 @nb.njit(cache=True, nogil=True)
@@ -292,7 +295,7 @@ def prism_table(shift, lam, log_far, geometry, spec, mixture):
         x_split = x0 + n_coarse * h_coarse
         z_split = z_of_x(x_split, lam, ku) if n_coarse > 0 else z0
         if n_coarse > 0:
-            log_c = _log_c_asymptotic(z_split, lam, shift, geometry, mixture)
+            log_c = _log_c_asymptotic(z_split, lam, shift, geometry, mixture)[0]
             log_s = math.log(z_split - z0)
             for k in range(3):
                 log_c_start[k] = log_c + k * log_s
@@ -316,7 +319,7 @@ def prism_table(shift, lam, log_far, geometry, spec, mixture):
         fit = n_coarse
         while (
             fit > 0
-            and _log_c_asymptotic(z_of_x(x0 + fit * h_coarse, lam, ku), lam, shift, geometry, mixture) - log_z
+            and _log_c_asymptotic(z_of_x(x0 + fit * h_coarse, lam, ku), lam, shift, geometry, mixture)[0] - log_z
             >= coarse_below
         ):
             fit -= 1
@@ -328,7 +331,7 @@ def prism_table(shift, lam, log_far, geometry, spec, mixture):
             lo, hi = x0 + fit * h_coarse, x0 + (fit + 1) * h_coarse
             for _ in range(_BISECTIONS):
                 mid = 0.5 * (lo + hi)
-                log_c = _log_c_asymptotic(z_of_x(mid, lam, ku), lam, shift, geometry, mixture)
+                log_c = _log_c_asymptotic(z_of_x(mid, lam, ku), lam, shift, geometry, mixture)[0]
                 if log_c - log_z < coarse_below - _FIT_MARGIN:
                     lo = mid
                 else:
@@ -368,17 +371,13 @@ def prism_table(shift, lam, log_far, geometry, spec, mixture):
     row_d = np.empty(3)
     for row in range(nodes.shape[0]):
         slope_c = np.nan
-        xi = x0 + row * h_coarse
-        if 0 < row <= n_coarse:  # the slope of the asymptotic, also at x_split (the end of a coarse interval)
-            slope_c = (
-                _log_c_asymptotic(z_of_x(xi + 0.25 * h, lam, ku), lam, shift, geometry, mixture)
-                - _log_c_asymptotic(z_of_x(xi - 0.25 * h, lam, ku), lam, shift, geometry, mixture)
-            ) / (0.5 * h)
+        log_c_z = -np.inf
+        if 0 < row <= n_coarse:  # the asymptotic and its slope, also at x_split (the end of a coarse interval)
+            log_c_z, slope_c = _log_c_asymptotic(z_of_x(x0 + row * h_coarse, lam, ku), lam, shift, geometry, mixture)
         if row < n_coarse:
-            zi = z_of_x(xi, lam, ku) if row > 0 else z0
+            zi = z_of_x(x0 + row * h_coarse, lam, ku) if row > 0 else z0
             row_c[:] = -np.inf
             if row > 0:
-                log_c_z = _log_c_asymptotic(zi, lam, shift, geometry, mixture)
                 log_s = math.log(zi - z0)
                 for k in range(3):
                     row_c[k] = log_c_z + k * log_s
