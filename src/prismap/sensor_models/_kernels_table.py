@@ -153,7 +153,8 @@ MAX_RUNS = 12
 
 N_SEGMENTS = MAX_RUNS + 3
 """Segments of a table's node grid, each uniform in x: the coarse front, the march's leading runs, its fine run to
-the influence node, and the back (empty ones where a table has fewer runs)."""
+the influence node, and the back (empty ones where a table has fewer runs). The look-up kernels compile it (and
+the metadata columns) in: numba's cache does not see a change here, so clear ``__pycache__`` after one."""
 
 
 @nb.njit(cache=True, nogil=True)
