@@ -275,9 +275,9 @@ _MARCH_BLOCK = 16
 """Panels a march evaluates at once (:func:`_log_panel_block`): 288 exps in vectorised loops for a 3-component
 mixture; the march's stop wastes at most this many less one."""
 _MARCH_GL = 6
-"""Gauss-Legendre points of a march's panel: on half a narrowest sigma (or, in a broad segment, a quarter of the
-narrowest wide sigma, at most half a prior e-fold) the rule's relative error is below about 1e-10 where the integrand
-matters, and below 5e-8 ten sigmas out (the direct method's 8 points on half as wide panels are the reference)."""
+"""Gauss-Legendre points of a march's panel: on half a narrowest sigma (or, where only wider components matter, a
+quarter of the narrowest of them, at most half a prior e-fold) the rule's relative error is below about 1e-10 where
+the integrand matters, and below 5e-8 ten sigmas out (the direct method's 8 points on half as wide panels are the reference)."""
 _MARCH_GL_X, _MARCH_GL_W = np.polynomial.legendre.leggauss(_MARCH_GL)
 _MARCH_GL_LOG_W = np.log(_MARCH_GL_W)
 

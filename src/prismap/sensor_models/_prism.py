@@ -63,7 +63,7 @@ table's four back intervals or its end's tail bound (e^-40 of ``C``; ``"direct"`
 the increment (30-50) is off by up to about 7 % (``P`` is 1 in float64 either way)."""
 
 _QUAD_STEP = 0.25  # x-width of one Gauss-Legendre panel (x: one unit per prior e-fold or narrowest sigma)
-_WIDE_EFOLDS = 0.5  # broad-front node spacing, at most this many e-folds of the prior
+_WIDE_EFOLDS = 0.5  # a table interval wider than fine (outside gaps) spans at most this many e-folds of the prior
 MAX_TABLE_NODES = 1 << 20
 """Most nodes one table may need (32 MiB of float32 rows; see ``PrismModel._check_table_size``)."""
 AUTO_TABLE_FLOOR_MB = 64.0
@@ -187,6 +187,7 @@ class PrismModel(RayModel):
     solid_depth_m: float = SOLID_DEPTH_M
     _cache: "TableCache" = field(default=None, init=False, repr=False, compare=False)
     _widened: dict = field(default_factory=dict, init=False, repr=False, compare=False)
+    _table_spec: TableSpec = field(default=None, init=False, repr=False, compare=False)
 
     def __post_init__(self):
         super().__post_init__()
@@ -220,6 +221,18 @@ class PrismModel(RayModel):
             budget = int(self.table_memory_mb * 2**20)
         object.__setattr__(self, "_cache", TableCache(budget, int(AUTO_TABLE_FLOOR_MB * 2**20)))
         self._check_table_size()
+        edges, ratios = spacing_profile(self.error_model)  # how every table of this model spaces its nodes
+        spec = TableSpec(
+            h=_TABLE_STEP,
+            log_eps_bound=float(np.log(np.expm1(self.influence_epsilon))),
+            lam_slack=_LAMBDA_SLACK,
+            coarse_ratio=coarse_ratio(self.error_model),
+            coarse_below=_COARSE_BELOW,
+            edges=edges,
+            ratios=ratios,
+            wide_efolds=_WIDE_EFOLDS,
+        )
+        object.__setattr__(self, "_table_spec", spec)
 
     def _check_table_size(self):
         """Refuse, before any table is built, a model whose tables could exceed :data:`MAX_TABLE_NODES`.
@@ -469,18 +482,7 @@ class PrismModel(RayModel):
         lam = self.rate_per_m * np.exp(key_l * _LAMBDA_STEP)
         log_far = self._log_far(disparity)
         shift = disparity + self.doffs_px
-        geometry, mixture = self._geometry(), self._mixture()
-        edges, ratios = spacing_profile(self.error_model)
-        spec = TableSpec(
-            h=_TABLE_STEP,
-            log_eps_bound=float(np.log(np.expm1(self.influence_epsilon))),
-            lam_slack=_LAMBDA_SLACK,
-            coarse_ratio=coarse_ratio(self.error_model),
-            coarse_below=_COARSE_BELOW,
-            edges=edges,
-            ratios=ratios,
-            wide_efolds=_WIDE_EFOLDS,
-        )
+        geometry, mixture, spec = self._geometry(), self._mixture(), self._table_spec
 
         def build(share):
             return _kernels_table.prism_tables(shift[share], lam[share], log_far[share], geometry, spec, mixture)
