@@ -1,6 +1,7 @@
 """PRISM: discrete reference against brute force, continuous against discrete, table against direct, shape."""
 
 import itertools
+import mmap
 import pickle
 
 import numpy as np
@@ -737,8 +738,19 @@ def test_an_eviction_keeps_room_so_the_next_tables_are_not_copied_again():
         row = int(np.flatnonzero(cache.keys == key)[0])
         start, length = (int(v) for v in cache.meta[row, [_prism._OFFSET, _prism._LENGTH]])
         assert np.all(cache.nodes[start : start + length] == key)
-    assert before.base is room  # the reader's earlier view still holds its tables
+    assert np.shares_memory(before, room)  # the reader's earlier view still holds its tables
     assert np.all(before[:100] == 3)
+
+
+def test_table_room_is_writable_memory_of_its_own_behind_the_rows_asked_for():
+    room = _prism_cache._room_for(100)
+    assert room.shape == (150, _kernels_table.TABLE_COLUMNS) and room.dtype == np.float32 and room.flags.writeable
+    room[:] = 7.0
+    owner = room
+    while isinstance(owner, np.ndarray):
+        owner = owner.base
+    assert isinstance(owner.obj, mmap.mmap)  # not the heap: dropping it gives the pages back at once
+    assert _prism_cache._room_for(0).shape == (0, _kernels_table.TABLE_COLUMNS)
 
 
 @pytest.mark.parametrize(("depth", "max_range"), [(3.0, 200.0), (15.0, 20.0)])

@@ -1,6 +1,7 @@
 """PRISM's table cache: the tables of every (measured disparity, surface rate) a model has met, packed in one
 node array, least recently used ones dropped beyond a memory budget."""
 
+import mmap
 import threading
 
 import numpy as np
@@ -10,6 +11,7 @@ from prismap.sensor_models import _kernels_table
 AUTO_TABLE_CALLS = 2
 """A model with ``table_memory_mb=None`` keeps this many times the tables of its largest call."""
 _OFFSET, _LENGTH = _kernels_table.META_COLUMNS.index("offset"), _kernels_table.META_COLUMNS.index("length")
+_ROW_BYTES = 4 * _kernels_table.TABLE_COLUMNS
 
 
 class TableCache:
@@ -151,5 +153,10 @@ class TableCache:
 
 
 def _room_for(n_nodes):
-    """A node array for ``n_nodes`` rows and half as many again behind them, for the tables to come."""
-    return np.empty((n_nodes + n_nodes // 2, _kernels_table.TABLE_COLUMNS), dtype=np.float32)
+    """A node array for ``n_nodes`` rows and half as many again behind them, for the tables to come, in memory of
+    its own (an anonymous ``mmap``), given back to the system as soon as the last view of it goes."""
+    rows = n_nodes + n_nodes // 2
+    buffer = mmap.mmap(-1, max(rows, 1) * _ROW_BYTES)
+    return np.frombuffer(buffer, dtype=np.float32, count=rows * _kernels_table.TABLE_COLUMNS).reshape(
+        rows, _kernels_table.TABLE_COLUMNS
+    )
