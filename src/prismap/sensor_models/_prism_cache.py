@@ -11,7 +11,7 @@ from prismap.sensor_models import _kernels_table
 AUTO_TABLE_CALLS = 2
 """A model with ``table_memory_mb=None`` keeps this many times the tables of its largest call."""
 _OFFSET, _LENGTH = _kernels_table.META_COLUMNS.index("offset"), _kernels_table.META_COLUMNS.index("length")
-_ROW_BYTES = 4 * _kernels_table.TABLE_COLUMNS
+_ROW_BYTES = np.dtype(np.float32).itemsize * _kernels_table.TABLE_COLUMNS
 
 
 class TableCache:
