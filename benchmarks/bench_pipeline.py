@@ -14,19 +14,18 @@ error model from an error-model JSON file (:func:`prismap.characterise.load_erro
 library map with the same error model (a version-2 file, without a failure component, maps as it did when written).
 
 Stages (default): :func:`prismap.pipeline.map_sequence`, sequential, in ray and projective mode, with the
-library's calls wrapped here to time them: matching (the matcher's ``compute_with_confidence``), tables ahead
-(``OccupancyMap.prepare``: the next frame's PRISM tables, built in the look-ahead thread), model (the sensor model's
+library's calls wrapped here to time them: matching (the matcher's ``compute_with_confidence``), model (the sensor model's
 ``cell_posteriors`` and ``influence_depth``), casting (``grid._accumulator.cast_into`` in ray mode,
 ``grid._kernels_project.project_voxels`` in projective mode), merge (``grid._kernels_accumulate.apply_frame``)
 and rays and the rest (what is left of the frame). Stage seconds add up over threads: in ray mode the model runs
 in two threads while the next chunk is cast, in projective mode on one part of the walk while the next is walked,
 so the shares may add up past 100 % of the wall time (then "rays and rest" is 0). ``cold`` is the first run in
 this process (numba caches loaded, PRISM's tables built), ``warm`` the median of --repeat more runs (the
-pipeline keeps the model, so its tables, between runs of one config). The pipeline makes the next frame ready
-(disparity, rays, tables) in a background thread while it integrates this one (``pipeline._prefetch.Prefetch``), so
-matching and table building overlap the other stages; a second line gives warm runs without that look-ahead (each
-frame made ready when the loop reaches it), alternating with the runs with it, and a third the CPU per frame of the
-look-ahead thread, of the integration thread and of its workers, and the frame rate they allow on 2 idle cores (the
+pipeline keeps the model, so its tables, between runs of one config). The pipeline computes the next frame's
+disparity in a background thread while it integrates this one (``pipeline._prefetch.Prefetch``), so matching
+overlaps the other stages; a second line gives warm runs without that look-ahead (each frame's disparity computed
+when the loop reaches it), alternating with the runs with it, and a third the CPU per frame of the disparity
+thread, of the integration thread and of its workers, and the frame rate they allow on 2 idle cores (the
 busiest thread's, or the total CPU over 2 cores). The floor is SGBM's ``compute`` alone on the same frames (warm,
 median of --repeat). The load average is printed before and after (the machine is shared).
 
@@ -60,7 +59,6 @@ from prismap import sim
 from prismap.camera import StereoCamera
 from prismap.characterise import characterise_matcher, load_error_model
 from prismap.cli import main as prismap_main
-from prismap.grid import OccupancyMap
 from prismap.io import read_sequence, write_sequence
 from prismap.pipeline import MappingConfig, map_sequence
 from prismap.stereo import make_matcher
@@ -123,9 +121,11 @@ class InLine:
 
 
 def timed_run(sequence, config, *, look_ahead=True):
-    """Wall and CPU seconds of a sequential map_sequence, the seconds of each stage inside it and the CPU seconds
-    of each thread; without ``look_ahead`` each frame is made ready in line (:class:`InLine`)."""
+    """Wall and CPU seconds of a sequential map_sequence and the seconds of each stage inside it; without
+    ``look_ahead`` the frames' disparities are computed in line (:class:`InLine`)."""
     clock = StageClock()
+    if not look_ahead:
+        clock.replace(prismap.pipeline._run, "Prefetch", InLine)
     make = clock.wrap(prismap.pipeline._run, "make_matcher", "_make")
 
     def matcher(*args, **kwargs):
@@ -143,44 +143,40 @@ def timed_run(sequence, config, *, look_ahead=True):
         return m
 
     prismap.pipeline._run.make_matcher = matcher
-    integrate = OccupancyMap.integrate
+    integrate = prismap.pipeline._run.integrate_disparity
     timers = []
 
-    def timed_integrate(grid, batch, model, **options):
+    def timed_integrate(grid, disparity, camera, pose, model, **options):
         # the run's model itself reaches DisparitySource, whose test for a conditioned model a wrapper would fail
         timers.append(TimedModel(model))
-        return integrate(grid, batch, timers[-1], **options)
+        return integrate(grid, disparity, camera, pose, timers[-1], **options)
 
-    clock.replace(OccupancyMap, "integrate", timed_integrate)
-    clock.wrap(OccupancyMap, "prepare", "tables ahead")
+    clock.replace(prismap.pipeline._run, "integrate_disparity", timed_integrate)
     clock.wrap(prismap.grid._accumulator, "cast_into", "casting")
     clock.wrap(prismap.grid._kernels_project, "project_part", "casting")
     clock.wrap(prismap.grid._kernels_accumulate, "apply_frame", "merge")
-    ahead_cpu = [0.0]
-    ahead = prismap.pipeline._run.Prefetch if look_ahead else InLine
+    source_call = prismap.pipeline._run.DisparitySource.__call__
+    disparity_cpu = [0.0]
 
-    def timed_ahead(produce, items):  # CPU of the thread that makes the next frame ready
-        def timed_produce(item):
-            start = time.thread_time()
-            try:
-                return produce(item)
-            finally:
-                ahead_cpu[0] += time.thread_time() - start
+    def timed_source(self, index):  # CPU of the thread that computes the frame's disparity
+        start = time.thread_time()
+        try:
+            return source_call(self, index)
+        finally:
+            disparity_cpu[0] += time.thread_time() - start
 
-        return ahead(timed_produce, items)
-
-    clock.replace(prismap.pipeline._run, "Prefetch", timed_ahead)
+    clock.replace(prismap.pipeline._run.DisparitySource, "__call__", timed_source)
     try:
         start, cpu, main_cpu = time.perf_counter(), time.process_time(), time.thread_time()
         map_sequence(sequence, config, progress=False)
         wall, cpu, main_cpu = time.perf_counter() - start, time.process_time() - cpu, time.thread_time() - main_cpu
     finally:
         clock.restore()
-    stages = {name: clock.seconds.get(name, 0.0) for name in ("matching", "tables ahead", "casting", "merge")}
+    stages = {name: clock.seconds.get(name, 0.0) for name in ("matching", "casting", "merge")}
     stages["model"] = sum(t.seconds for t in timers)
     stages["rays and rest"] = max(wall - sum(stages.values()), 0.0)
-    main_cpu -= 0.0 if look_ahead else ahead_cpu[0]
-    threads = {"look-ahead": ahead_cpu[0], "integration": main_cpu, "workers": cpu - main_cpu - ahead_cpu[0]}
+    main_cpu -= 0.0 if look_ahead else disparity_cpu[0]
+    threads = {"disparity": disparity_cpu[0], "integration": main_cpu, "workers": cpu - main_cpu - disparity_cpu[0]}
     return wall, cpu, stages, threads
 
 
@@ -205,9 +201,9 @@ def stages(sequence, config, n_frames, repeat):
         f"ms/frame, CPU {_median_ms(inline, 1, n_frames):.0f} ms/frame): the look-ahead x{wall_inline / wall:.2f}"
     )
     threads = {name: statistics.median(run[3][name] for run in runs) / n_frames for name in runs[0][3]}
-    bound = min(1.0 / threads["look-ahead"], 1.0 / threads["integration"], 2.0 / sum(threads.values()))
+    bound = min(1.0 / threads["disparity"], 1.0 / threads["integration"], 2.0 / sum(threads.values()))
     print(
-        f"{'':<10} CPU per frame with the look-ahead: look-ahead thread {threads['look-ahead'] * 1e3:.0f} ms, integration "
+        f"{'':<10} CPU per frame with the look-ahead: disparity thread {threads['disparity'] * 1e3:.0f} ms, integration "
         f"thread {threads['integration'] * 1e3:.0f} ms, its workers {threads['workers'] * 1e3:.0f} ms: on 2 idle cores "
         f"at most {bound:.2f} fps (the busiest thread, or the total over 2 cores)"
     )

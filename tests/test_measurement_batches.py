@@ -4,7 +4,7 @@ of what a batch holds against what its sensor model takes."""
 import numpy as np
 import pytest
 
-from prismap.camera import disparity_batch, frame_batch, frame_overhang_m, integrate_disparity, pose_noise_px
+from prismap.camera import disparity_batch, frame_overhang_m, integrate_disparity, pose_noise_px
 from prismap.errors import PrismapInputError
 from prismap.gmm import GaussianMixture
 from prismap.grid import OccupancyMap, RayBatch
@@ -79,41 +79,6 @@ def test_integrate_disparity_is_the_map_of_its_batch():
         batched.integrate(batch, model, mode=mode, max_range_m=8.0)
         assert direct.n_known > 500
         assert_same_map(direct, batched)
-
-
-def _table_builds(model):
-    """Tables built by ``model`` and by its widened copies (one per noise bin)."""
-    return model._cache.builds + sum(copy._cache.builds for copy in model._widened.values())
-
-
-@pytest.mark.parametrize("mode", ["ray", "projective"])
-def test_prepare_builds_every_table_the_frame_needs_and_leaves_the_map_alone(mode):
-    camera, pose, disparity = _frame()
-
-    def prism():
-        return make_sensor_model(
-            "prism",
-            focal_baseline=camera.focal_baseline,
-            error_model=GaussianMixture.gaussian(0.3),
-            voxel_size_m=0.2,
-            p0=0.05,
-        )
-
-    model, fresh = prism(), prism()
-    cov = np.diag([0.04, 0.04, 0.04])  # 0.03-0.06 px: several noise bins, each its own widened model and tables
-    prepared_map, plain_map = OccupancyMap(0.2, p0=0.05), OccupancyMap(0.2, p0=0.05)
-    batch = frame_batch(prepared_map, disparity, camera, pose, model, mode=mode, pose_covariance=cov)
-    prepared_map.prepare(batch, model)
-    assert prepared_map.n_known == 0 and prepared_map.n_frames == 0
-    built = _table_builds(model)
-    assert len(model._widened) > 1 and all(copy._cache.builds > 0 for copy in model._widened.values())
-    prepared_map.integrate(batch, model, mode=mode, max_range_m=8.0)
-    assert _table_builds(model) == built  # the frame found every table it needed
-    integrate_disparity(plain_map, disparity, camera, pose, fresh, mode=mode, max_range_m=8.0, pose_covariance=cov)
-    assert _table_builds(fresh) == built and prepared_map.n_known > 500
-    assert_same_map(prepared_map, plain_map)
-    with pytest.raises(PrismapInputError, match="`batch` must be a RayBatch; got dict"):
-        prepared_map.prepare({}, model)
 
 
 @pytest.mark.parametrize(

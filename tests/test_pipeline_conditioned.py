@@ -1,8 +1,6 @@
 """Conditioned error models through the pipeline: each pixel's class reaches the grid, the map equals one built
 by hand class by class, plain stays one flag away, fingerprints see the classes, unusable models are refused."""
 
-import threading
-
 import numpy as np
 import pytest
 
@@ -12,8 +10,7 @@ from prismap.errors import PrismapInputError
 from prismap.grid import OccupancyMap
 from prismap.io import read_sequence
 from prismap.pipeline import DisparitySource, map_sequence, open_checkpoint, run_fingerprint
-from prismap.pipeline._prefetch import THREAD_NAME
-from prismap.sensor_models import ConditionedModel, _prism, conditioned_sensor_model
+from prismap.sensor_models import ConditionedModel, conditioned_sensor_model
 from prismap.stereo import make_matcher
 from prismap.stereo._base import to_grey
 from support import MIXTURE, assert_same_map, conditioned_error_model, config, synthetic_sequence
@@ -166,22 +163,3 @@ def test_bad_conditioned_flags_are_named():
         config(model="prism", error_model=MODEL, conditioned="yes")
     with pytest.raises(PrismapInputError, match="`error_model` must be an ErrorModel, a GaussianMixture or None"):
         config(model="prism", error_model={"weights": [1.0]})
-
-
-@pytest.mark.parametrize("mode", ["ray", "projective"])
-def test_the_look_ahead_builds_every_frames_tables_beside_the_frame_before(sequence_dir, monkeypatch, mode):
-    """Each frame's PRISM tables are built in the look-ahead thread (``OccupancyMap.prepare``), none by the
-    integration, and the map is the frame-by-frame one."""
-    threads = []
-    build = _prism.PrismModel._build_tables
-
-    def recorded(self, keys):
-        threads.append(threading.current_thread().name)
-        return build(self, keys)
-
-    monkeypatch.setattr(_prism.PrismModel, "_build_tables", recorded)
-    cfg = config(model="prism", error_model=MODEL, mode=mode)
-    mapped = map_sequence(sequence_dir, cfg, progress=False)
-    assert len(threads) >= 3 and all(name.startswith(THREAD_NAME) for name in threads), set(threads)
-    monkeypatch.setattr(_prism.PrismModel, "_build_tables", build)
-    assert_same_map(mapped, hand_map(sequence_dir, cfg, lambda f: f.disparity_gt))

@@ -1,7 +1,5 @@
 """ConditionedModel: rays by class to per-class sub-models, equal to calling those sub-models by hand."""
 
-import dataclasses
-
 import numpy as np
 import pytest
 
@@ -249,32 +247,3 @@ def test_bad_class_pass_through_is_named():
         conditioned_sensor_model(
             "prism", CAMERA, error_model=_error_model(), class_pass_through=(0.1, 1.0, 0.2), **SETTINGS
         )
-
-
-def _builds(model):
-    """Tables built so far by ``model``'s sub-models, per sub-model (the plain one first)."""
-    return [m._cache.builds for m in (model.plain, *model.class_models)]
-
-
-def test_prepare_builds_each_class_tables_so_that_the_calls_build_none_and_agree():
-    model = conditioned_sensor_model("prism", CAMERA, error_model=_error_model(), near_m=0.5, **SETTINGS)
-    fresh = conditioned_sensor_model("prism", CAMERA, error_model=_error_model(), near_m=0.5, **SETTINGS)
-    disparity, norm, ray_class, rays, start, end = _rays(seed=3)
-    model.prepare(disparity, norm, ray_class=ray_class)
-    prepared = _builds(model)
-    for k, sub in enumerate((model.plain, *model.class_models)):  # each sub-model holds the keys of its own rays
-        own = ray_class == k - 1
-        by_hand = dataclasses.replace(sub)  # same mixture, empty cache
-        by_hand.prepare(disparity[own], norm[own])
-        assert prepared[k] == by_hand._cache.builds > 0 and np.array_equal(
-            np.sort(sub._cache.keys), np.sort(by_hand._cache.keys)
-        )
-    depth = model.influence_depth(disparity, norm, ray_class=ray_class)
-    posterior, increment = model.cell_posteriors(disparity, norm, rays, start, end, ray_class=ray_class)
-    assert _builds(model) == prepared  # the calls found every table
-    assert np.array_equal(depth, fresh.influence_depth(disparity, norm, ray_class=ray_class))
-    reference = fresh.cell_posteriors(disparity, norm, rays, start, end, ray_class=ray_class)
-    assert np.array_equal(posterior, reference[0]) and np.array_equal(increment, reference[1])
-    model.plain.prepare(disparity[:0], norm[:0])  # no rays: nothing to build
-    with pytest.raises(PrismapInputError, match="ray_class"):
-        model.prepare(disparity, norm, ray_class=ray_class[:-1])

@@ -716,10 +716,12 @@ def test_auto_table_budget_keeps_a_frame_asked_for_in_chunks(budget_tables, rebu
             assert np.array_equal(cache.meta[rows, 1], keys)  # each key's own table
             assert np.array_equal(cache.nodes[cache.meta[rows, _prism._OFFSET].astype(np.int64), 0], keys)
     assert cache.builds > 10 if rebuilt else (cache.builds == 10 and cache.hits == 30)
-    if budget is None:  # a new frame of 10 other keys: the oldest 10 go, two frames' tables stay
+    if budget is None:  # two new frames of 10 other keys: over two frames' budget, the 15 oldest go (to EVICT_TO)
         cache.rows(frame + 10, _fake_tables)
+        assert sorted(cache.keys) == list(range(20))  # exactly the budget: nothing goes
         cache.rows(frame + 20, _fake_tables)
-        assert sorted(cache.keys) == list(range(10, 30)) and cache.nbytes <= cache.limit_bytes
+        assert _prism_cache.EVICT_TO == 0.75 and cache.limit_bytes == 20 * table_bytes
+        assert sorted(cache.keys) == list(range(15, 30)) and cache.nbytes <= 0.75 * cache.limit_bytes
 
 
 def test_an_eviction_keeps_room_so_the_next_tables_are_not_copied_again():
@@ -727,19 +729,20 @@ def test_an_eviction_keeps_room_so_the_next_tables_are_not_copied_again():
     table_bytes = 100 * _kernels_table.TABLE_COLUMNS * node_bytes + len(_kernels_table.META_COLUMNS) * 8
     cache = _prism_cache.TableCache(6 * table_bytes, floor_bytes=0)
     cache.rows(np.arange(6, dtype=np.int64), _fake_tables)
-    cache.rows(np.arange(6, 9, dtype=np.int64), _fake_tables)  # over budget: the three oldest go
-    assert sorted(cache.keys) == list(range(3, 9))
+    cache.rows(np.arange(6, 9, dtype=np.int64), _fake_tables)  # over budget: the five oldest go, to EVICT_TO of it
+    assert sorted(cache.keys) == list(range(5, 9))
     room = cache._node_room
     assert room.shape[0] >= 1.5 * cache.nodes.shape[0] and np.shares_memory(room, cache.nodes)
     before = cache.nodes
-    rows = cache.rows(np.arange(9, 11, dtype=np.int64), _fake_tables)  # evicts two more, then fits in new room
+    rows = cache.rows(np.arange(9, 11, dtype=np.int64), _fake_tables)  # within budget, into the room: no copy
+    assert cache._node_room is room and sorted(cache.keys) == list(range(5, 11))
     assert np.array_equal(cache.nodes[cache.meta[rows, _prism._OFFSET].astype(np.int64), 0], [9, 10])
     for key in cache.keys:  # every kept table's nodes moved with it
         row = int(np.flatnonzero(cache.keys == key)[0])
         start, length = (int(v) for v in cache.meta[row, [_prism._OFFSET, _prism._LENGTH]])
         assert np.all(cache.nodes[start : start + length] == key)
     assert np.shares_memory(before, room)  # the reader's earlier view still holds its tables
-    assert np.all(before[:100] == 3)
+    assert np.all(before[:100] == 5)
 
 
 def test_table_room_is_writable_memory_of_its_own_behind_the_rows_asked_for():

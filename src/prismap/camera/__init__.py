@@ -6,7 +6,6 @@ and each ray's voxel overhang)."""
 from prismap.camera._frame_batch import (
     OVERHANG_CAP_VOXELS,
     disparity_batch,
-    frame_batch,
     frame_overhang_m,
     integrate_disparity,
     pose_noise_px,
@@ -38,7 +37,6 @@ __all__ = [
     "StereoCamera",
     "disparity_batch",
     "fitted_disparity",
-    "frame_batch",
     "frame_overhang_m",
     "integrate_disparity",
     "plane_normals",

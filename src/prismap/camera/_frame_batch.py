@@ -242,38 +242,6 @@ def disparity_batch(
     return RayBatch(origin, rays_w, d, None, noise, classes, image, overhang)
 
 
-def frame_batch(
-    grid: OccupancyMap,
-    disparity_px: npt.ArrayLike,
-    camera: StereoCamera,
-    T_world_cam: npt.ArrayLike,
-    model: SensorModel,
-    *,
-    mode: str = "ray",
-    subsample: int = 1,
-    pose_covariance: npt.ArrayLike | None = None,
-    ray_class: npt.ArrayLike | None = None,
-) -> RayBatch:
-    """The batch :func:`integrate_disparity` hands to ``grid``: :func:`disparity_batch` with what ``model`` and
-    ``mode`` need (the voxel overhang of the map's voxels for a model that ``takes_voxel_overhang``, the image
-    geometry in projective mode). Reads ``grid`` (its voxel size), never changes it, so a look-ahead thread may
-    make the next frame's batch while this one is integrated. Parameters as :func:`integrate_disparity`'s."""
-    if grid.ndim != 3:
-        raise PrismapInputError(
-            "`integrate_disparity` needs a 3-D map; a 2-D map takes rays in the plane: `OccupancyMap.integrate_rays`"
-        )
-    return disparity_batch(
-        disparity_px,
-        camera,
-        T_world_cam,
-        subsample=subsample,
-        pose_covariance=pose_covariance,
-        ray_class=ray_class,
-        overhang_voxel_m=grid.voxel_size_m if model.takes_voxel_overhang else None,
-        projective=mode == "projective",
-    )
-
-
 def integrate_disparity(
     grid: OccupancyMap,
     disparity_px: npt.ArrayLike,
@@ -288,8 +256,11 @@ def integrate_disparity(
     pose_covariance: npt.ArrayLike | None = None,
     ray_class: npt.ArrayLike | None = None,
 ) -> None:
-    """Integrate one disparity image seen from pose ``T_world_cam`` into ``grid``: :meth:`prismap.grid.OccupancyMap.integrate`
-    of its :func:`frame_batch`.
+    """Integrate one disparity image seen from pose ``T_world_cam`` into ``grid``.
+
+    :func:`disparity_batch` with what ``model`` and ``mode`` need (the voxel overhang of the map's voxels for a
+    model that ``takes_voxel_overhang``, the image geometry in projective mode), then
+    :meth:`prismap.grid.OccupancyMap.integrate`.
 
     Parameters
     ----------
@@ -305,15 +276,19 @@ def integrate_disparity(
     policy, max_range_m
         See :meth:`prismap.grid.OccupancyMap.integrate`.
     """
-    batch = frame_batch(
-        grid,
+    if grid.ndim != 3:
+        raise PrismapInputError(
+            "`integrate_disparity` needs a 3-D map; a 2-D map takes rays in the plane: `OccupancyMap.integrate_rays`"
+        )
+    overhang = grid.voxel_size_m if model.takes_voxel_overhang else None
+    batch = disparity_batch(
         disparity_px,
         camera,
         T_world_cam,
-        model,
-        mode=mode,
         subsample=subsample,
         pose_covariance=pose_covariance,
         ray_class=ray_class,
+        overhang_voxel_m=overhang,
+        projective=mode == "projective",
     )
     grid.integrate(batch, model, mode=mode, policy=policy, max_range_m=max_range_m)

@@ -12,7 +12,7 @@ from prismap._validate import as_float_array, check_classes, check_positive, che
 from prismap.errors import PrismapInputError
 from prismap.grid import _accumulator, _kernels_accumulate, _kernels_hash
 from prismap.grid._fusion import MapReading
-from prismap.grid._integrators import MEASUREMENT_KINDS, RayBatch, make_integrator, noise_groups
+from prismap.grid._integrators import MEASUREMENT_KINDS, RayBatch, make_integrator
 from prismap.grid._kernel_args import MapStore
 from prismap.grid._keys import BLOCK_BITS, KEY_LIMIT, check_keys, key_range_text, key_to_center, point_to_key
 from prismap.grid._logodds import LOG_ODDS_STEP, Q_DTYPE, Q_MAX, Q_MIN, from_fixed, logit, to_fixed
@@ -149,25 +149,6 @@ class OccupancyMap:
         if not isinstance(batch, RayBatch):
             raise PrismapInputError(f"`batch` must be a RayBatch; got {type(batch).__name__}")
         self._integrate(self._checked(batch), model, mode, policy, max_range_m)
-
-    def prepare(self, batch: RayBatch, model: SensorModel) -> None:
-        """Build ahead what :meth:`integrate` of ``batch`` with ``model`` will need (the model's ``prepare`` on the
-        batch's valid rays: PRISM's tables), leaving the map as it is.
-
-        Safe in another thread beside :meth:`integrate`: the pipeline prepares frame k + 1 in its look-ahead
-        thread while frame k is integrated, so the tables the new frame meets are built on the core the
-        integration leaves idle, not before its rays are cast.
-        """
-        if not isinstance(batch, RayBatch):
-            raise PrismapInputError(f"`batch` must be a RayBatch; got {type(batch).__name__}")
-        checked = self._checked(batch)
-        if not len(checked):
-            return
-        for group_model, members in noise_groups(model, checked.extra_noise_px):  # as the integrators call it
-            rays = slice(None) if members is None else members
-            group_model.prepare(
-                checked.measurement[rays], checked.ray_norm[rays], **checked.class_kwargs(members, group_model)
-            )
 
     def integrate_rays(
         self,

@@ -12,7 +12,7 @@ class SensorModel(Protocol):
     """An inverse sensor model as the integrators and :class:`~prismap.grid.OccupancyMap` use it.
 
     The grid also passes the keywords ``ray_class``, ``voxel_overhang_m`` and ``map_log_odds`` to
-    :meth:`cell_posteriors` (and ``ray_class`` to :meth:`influence_depth` and :meth:`prepare`) when the frame has them and the
+    :meth:`cell_posteriors` (and ``ray_class`` to :meth:`influence_depth`) when the frame has them and the
     model's flags ask for them; it reads ``measurement``, ``p0`` and ``voxel_size_m`` where a model has them.
     """
 
@@ -34,10 +34,6 @@ class SensorModel(Protocol):
 
     def influence_depth(self, disparity_px: np.ndarray, ray_norm: np.ndarray) -> np.ndarray:
         """(R,) depth (metres) where each ray's cast stops, as ``InverseSensorModel.influence_depth``."""
-        ...
-
-    def prepare(self, disparity_px: np.ndarray, ray_norm: np.ndarray) -> None:
-        """Build ahead what calls on these rays will need, as ``InverseSensorModel.prepare``."""
         ...
 
     def with_extra_noise(self, sigma_px: float) -> SensorModel:

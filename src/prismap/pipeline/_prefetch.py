@@ -1,7 +1,7 @@
 """One frame ahead: the next frame's inputs computed in a background thread while this one is integrated.
 
-Reading a frame (PNG decoding), matching it (OpenCV's matchers), building PRISM's tables and integrating it (the
-grid's compiled kernels) all release the GIL, so the work of frame k + 1 runs beside the integration of frame k.
+Reading a frame (PNG decoding), matching it (OpenCV's matchers) and integrating it (the grid's compiled
+kernels) all release the GIL, so the matcher of frame k + 1 runs beside the integration of frame k.
 """
 
 from concurrent.futures import ThreadPoolExecutor

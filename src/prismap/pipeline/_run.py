@@ -13,7 +13,7 @@ import numpy as np
 from prismap._files import exclusive_lock
 from prismap._progress import progress as progress_bar
 from prismap._validate import check_integer
-from prismap.camera import frame_batch
+from prismap.camera import integrate_disparity
 from prismap.errors import PrismapInputError
 from prismap.grid import KEY_LIMIT, OccupancyMap, key_limit_m, key_range_text
 from prismap.io import BagSequence, Sequence, read_kitti_disparity, read_sequence
@@ -151,35 +151,28 @@ def integrate_frames(
 
     Notes
     -----
-    The next frame is made ready in a background thread while this one is integrated
-    (:class:`~prismap.pipeline._prefetch.Prefetch`): its disparity (read, match, classify:
-    :class:`DisparitySource`), its rays (:func:`~prismap.camera.frame_batch`) and what the model needs for
-    them (:meth:`~prismap.grid.OccupancyMap.prepare`: PRISM's tables). The map is that of the frames one after
-    the other, and an error of frame k is raised after frame k - 1 is integrated and ``on_frame`` called, as
-    without the look-ahead.
+    The next frame's disparity (read, match, classify: :class:`DisparitySource`) is computed in a background
+    thread while this one is integrated (:class:`~prismap.pipeline._prefetch.Prefetch`); the map is that of
+    the frames one after the other, and an error of frame k's disparity is raised after frame k - 1 is
+    integrated and ``on_frame`` called, as without the look-ahead.
     """
     if model is None:
         model = config.sensor_model(sequence.camera)
     source = DisparitySource(sequence, config, model=model)
-
-    def look_ahead(index):
-        disparity, pose, ray_class = source(index)
-        batch = frame_batch(
-            grid,
-            disparity,
-            sequence.camera,
-            pose,
-            model,
-            mode=config.mode,
-            subsample=config.subsample,
-            ray_class=ray_class,
-        )
-        grid.prepare(batch, model)
-        return batch
-
-    with Prefetch(look_ahead, indices) as frames:
-        for _, batch in frames:
-            grid.integrate(batch, model, mode=config.mode, policy=config.policy, max_range_m=config.max_range_m)
+    with Prefetch(source, indices) as frames:
+        for _, (disparity, pose, ray_class) in frames:
+            integrate_disparity(
+                grid,
+                disparity,
+                sequence.camera,
+                pose,
+                model,
+                mode=config.mode,
+                policy=config.policy,
+                max_range_m=config.max_range_m,
+                subsample=config.subsample,
+                ray_class=ray_class,
+            )
             if on_frame is not None:
                 on_frame(grid)
     return grid

@@ -85,15 +85,6 @@ class InverseSensorModel(ABC):
         Ray casting stops there (or at the map's max range, whichever is nearer).
         """
 
-    def prepare(self, disparity_px: npt.ArrayLike, ray_norm: npt.ArrayLike) -> None:
-        """Build ahead what calls on these rays will need (PRISM: its tables); the base has nothing to build.
-
-        The pipeline calls it from its look-ahead thread with the next frame's rays while this frame is
-        integrated, so that work runs beside the integration instead of before the next frame's. It changes
-        no result, and is safe beside calls in other threads.
-        """
-        return None
-
     @abstractmethod
     def with_extra_noise(self, sigma_px: float) -> InverseSensorModel:
         """A copy whose disparity noise is widened by ``N(0, sigma_px^2)`` (robot pose uncertainty)."""

@@ -198,37 +198,18 @@ class ConditionedModel(InverseSensorModel):
         """Depth (metres) beyond which a ray's measurement changes no cell, by its class's model: (R,) float64."""
         if ray_class is None:
             return self.plain.influence_depth(disparity_px, ray_norm)
-        disparity, norm, classes = self._ray_arrays(disparity_px, ray_norm, ray_class)
-        depth = np.empty(disparity.size)
-        for model, rays in self._by_class(classes):
-            depth[rays] = model.influence_depth(disparity[rays], norm[rays])
-        return depth
-
-    def prepare(
-        self, disparity_px: npt.ArrayLike, ray_norm: npt.ArrayLike, *, ray_class: npt.ArrayLike | None = None
-    ) -> None:
-        """Each class's sub-model prepared for its rays (:meth:`InverseSensorModel.prepare`)."""
-        if ray_class is None:
-            self.plain.prepare(disparity_px, ray_norm)
-            return
-        disparity, norm, classes = self._ray_arrays(disparity_px, ray_norm, ray_class)
-        for model, rays in self._by_class(classes):
-            model.prepare(disparity[rays], norm[rays])
-
-    def _ray_arrays(self, disparity_px, ray_norm, ray_class):
-        """Per-ray disparity and norm (float64) and class (int64), checked."""
         disparity = np.asarray(disparity_px, dtype=np.float64)
         norm = np.asarray(ray_norm, dtype=np.float64)
         if disparity.ndim != 1 or norm.shape != disparity.shape:
             raise PrismapInputError(
                 f"`disparity_px` and `ray_norm` must be 1-D of one length; got {disparity.shape} and {norm.shape}"
             )
-        return disparity, norm, self._check_classes(ray_class, disparity.size)
-
-    def _by_class(self, classes):
-        """``(sub-model, its rays)`` for each class present in ``classes``."""
+        classes = self._check_classes(ray_class, disparity.size)
+        depth = np.empty(disparity.size)
         for k in np.unique(classes):
-            yield self._model(int(k)), np.flatnonzero(classes == k)
+            rays = np.flatnonzero(classes == k)
+            depth[rays] = self._model(int(k)).influence_depth(disparity[rays], norm[rays])
+        return depth
 
     def with_extra_noise(self, sigma_px: float) -> ConditionedModel:
         """A copy whose every sub-model (the plain one included) is widened by ``N(0, sigma_px^2)``."""

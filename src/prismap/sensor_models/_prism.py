@@ -389,19 +389,14 @@ class PrismModel(RayModel):
             depth = np.minimum(depth + self.solid_depth_m / norm, self.far_depth_m)
         return depth
 
-    def prepare(self, disparity_px: npt.ArrayLike, ray_norm: npt.ArrayLike) -> None:
-        """Build the tables of these rays that the cache lacks (:meth:`InverseSensorModel.prepare`)."""
-        disparity = as_float_array(disparity_px, "disparity_px", ndim=1, allow_nan=False)
-        self._tables_for(disparity, as_float_array(ray_norm, "ray_norm", shape=(disparity.size,)))
-
     def with_extra_noise(self, sigma_px: float) -> PrismModel:
         """A copy whose error model is ``error_model.widened(sigma_px)``.
 
         Copies are memoised per ``sigma_px``, so their tables survive from frame to frame.
         """
         extra = check_positive(sigma_px, "sigma_px")
-        if extra not in self._widened:  # two threads may both build it: the first one stored wins
-            self._widened.setdefault(extra, dataclasses.replace(self, error_model=self.error_model.widened(extra)))
+        if extra not in self._widened:
+            self._widened[extra] = dataclasses.replace(self, error_model=self.error_model.widened(extra))
         return self._widened[extra]
 
     def _map_prior_cells(self, lam, disparity, norm, rays, start, end, stretch, map_log_odds):

@@ -10,6 +10,9 @@ from prismap.sensor_models import _kernels_table
 
 AUTO_TABLE_CALLS = 2
 """A model with ``table_memory_mb=None`` keeps this many times the tables of its largest call."""
+EVICT_TO = 0.75
+"""Share of its budget a cache holds after an eviction: the least recently used tables go until it is reached, so
+the next frames' tables fit without another eviction (each one copies every kept table into new memory)."""
 _OFFSET, _LENGTH = _kernels_table.META_COLUMNS.index("offset"), _kernels_table.META_COLUMNS.index("length")
 _ROW_BYTES = np.dtype(np.float32).itemsize * _kernels_table.TABLE_COLUMNS
 
@@ -126,13 +129,13 @@ class TableCache:
         return np.where(self.sorted_keys[at] == keys, self.order[at], -1)
 
     def _evict(self, rows):
-        """Drop the least recently used tables (never those of ``rows``) until within budget; new rows. The kept
-        tables go into a new array with room behind them (:func:`_room_for`), so that the next call's new tables
-        do not copy them again."""
+        """Drop the least recently used tables (never those of ``rows``) until within :data:`EVICT_TO` of the budget;
+        new rows. The kept tables go into a new array with room behind them (:func:`_room_for`), so that the next
+        call's new tables do not copy them again."""
         size = self._table_bytes()
         order = np.argsort(self.last_used, kind="stable")
         order = order[self.last_used[order] < self.clock]
-        excess = self.nbytes - self.limit_bytes
+        excess = self.nbytes - EVICT_TO * self.limit_bytes
         drop = order[: np.searchsorted(np.cumsum(size[order]), excess) + 1]
         keep = np.setdiff1d(np.arange(self.keys.size), drop)
         starts = self.meta[keep, _OFFSET].astype(np.int64)
