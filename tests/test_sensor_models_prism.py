@@ -774,7 +774,7 @@ def test_rate_derivatives_of_the_evidence_match_finite_differences(depth, max_ra
     if max_range == 20.0:
         assert log_far_w - log_z > -12  # the far term matters here
     total = np.logaddexp(log_c[-1], log_d[-1])
-    first, second = _kernels_table._rate_derivatives(total, log_far_w, lam, max_range - model.near_m)
+    first, second = _kernels_table._log_rate_derivatives(total, log_far_w, lam, max_range - model.near_m)
     lo, mid, hi = (march(lam * np.exp(k * eps))[3] for k in (-1, 0, 1))
     assert first == pytest.approx((hi - lo) / (2 * eps), rel=1e-5, abs=1e-6)
     assert second == pytest.approx((hi - 2 * mid + lo) / eps**2, rel=1e-3, abs=1e-3)
@@ -925,6 +925,18 @@ def test_vectorised_exp_and_log_match_numpy_over_the_whole_range():
     partial = np.full(4, -7.0)
     _kernels_math.exp_into(np.zeros(4), partial, 2)  # only the first n elements are written
     np.testing.assert_array_equal(partial, [1.0, 1.0, -7.0, -7.0])
+
+
+def test_fast_log1mexp_matches_numpy_on_both_sides_of_its_series_switch():
+    """On its domain ``t <= -ln 2``, relative error below 2e-12: the series' truncation (u^3 / 4 at u = 1e-4) below
+    the switch, the rounding of ``1 - u`` over ``u`` just above it."""
+    switch = np.log(1e-4)
+    t = np.concatenate(
+        [-np.geomspace(np.log(2.0), 800.0, 400), np.nextafter(switch, [-np.inf, np.inf]), [switch, -745.2]]
+    )
+    got = np.array([_kernels_math.fast_log1mexp(v) for v in t])
+    np.testing.assert_allclose(got, np.log1p(-np.exp(t)), rtol=2e-12, atol=0)  # exact enough for t <= -ln 2
+    assert _kernels_math.fast_log1mexp(-np.inf) == 0.0
 
 
 def test_cell_prior_matches_expm1_on_both_sides_of_its_series_switch():

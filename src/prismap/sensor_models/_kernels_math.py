@@ -158,6 +158,17 @@ def fast_log(x):
     return out
 
 
+@nb.njit(cache=True, nogil=True, inline="always", error_model="numpy")
+def fast_log1mexp(t):
+    """``log(1 - exp(t))`` for ``t <= -ln 2`` (relative error below 2e-12; use :func:`log1mexp` nearer 0, where
+    ``1 - e^t`` cancels) by :func:`fast_exp` and :func:`fast_log`, branch-free, so that a loop over it vectorises:
+    the series ``-u (1 + u (1/2 + u/3))`` (``u = e^t``) below ``u = 1e-4`` (truncation ``u^3 / 4``), where
+    ``log(1 - u)`` would lose digits, ``fast_log(1 - u)`` above."""
+    u = fast_exp(t)
+    series = -u * (1.0 + u * (0.5 + u * (1.0 / 3.0)))
+    return series if u < 1e-4 else fast_log(1.0 - u)
+
+
 @nb.njit(cache=True, nogil=True, error_model="numpy")
 def exp_into(x, out, n):
     """``out[:n] = exp(x[:n])`` by :func:`fast_exp` (a vectorised loop)."""

@@ -7,13 +7,13 @@ import numba as nb
 import numpy as np
 
 from prismap.sensor_models._kernels_march import (
+    _exp_term,
     _march,
     _march_x,
-    log_likelihood,
     x_of_z,
     z_of_x,
 )
-from prismap.sensor_models._kernels_math import log1mexp, logaddexp
+from prismap.sensor_models._kernels_math import fast_exp, fast_log, fast_log1mexp, logaddexp
 
 MAX_COARSE = 128
 """Most nodes of a table's coarse front (up to the measured depth): its spacing widens beyond ``coarse_ratio h``
@@ -70,11 +70,52 @@ def _log_qg_derivatives(z, lam, shift, geometry, mixture):
         total += e
         slope -= e * t / sigmas[j]
         bend += e * (t * t - 1.0) / (sigmas[j] * sigmas[j])
-    g_u = slope / total  # d log g / du
-    g_uu = bend / total - g_u * g_u
+    return _phi_from_sums(z, lam, math.log(lam), best, math.log(total), slope / total, bend / total, z0, fb)
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _phi_from_sums(z, lam, log_lam, best, log_total, slope, bend, z0, fb):
+    """``phi = log(q g)`` and its first two z-derivatives from ``g``'s sums at ``u = fb / z``: ``log g = best +
+    log_total``, ``slope = g_u / g`` and ``bend = g_uu / g`` (derivatives in u)."""
+    g_u = slope  # d log g / du
+    g_uu = bend - g_u * g_u
     u_z = -fb / (z * z)
-    phi = math.log(lam) - lam * (z - z0) + best + math.log(total)
+    phi = log_lam - lam * (z - z0) + best + log_total
     return phi, -lam + g_u * u_z, g_uu * u_z * u_z - 2.0 * g_u * u_z / z
+
+
+@nb.njit(cache=True, nogil=True, error_model="numpy")
+def _log_qg_rows(z, lam, shift, geometry, mixture, phi, phi_z, phi_zz):
+    """:func:`_log_qg_derivatives` at every depth of ``z`` ((N,) metres) into ``phi``, ``phi_z``, ``phi_zz``, in
+    loops over the depths that LLVM vectorises (each depth's terms against its largest; exps by
+    :func:`~prismap.sensor_models._kernels_march._exp_term`, logs by :func:`fast_log`)."""
+    z0, fb = geometry.z0, geometry.fb
+    log_wn, means, sigmas = mixture
+    n = z.size
+    terms = np.empty((means.size, n))
+    for q in range(n):
+        phi[q] = -np.inf  # the largest term, until the end
+    for j in range(means.size):
+        for q in range(n):
+            t = (fb / z[q] - shift - means[j]) / sigmas[j]
+            terms[j, q] = log_wn[j] - 0.5 * t * t
+            phi[q] = max(phi[q], terms[j, q])
+    total = np.zeros(n)
+    slope = np.zeros(n)
+    bend = np.zeros(n)
+    for j in range(means.size):
+        inv = 1.0 / sigmas[j]
+        for q in range(n):
+            t = (fb / z[q] - shift - means[j]) * inv
+            e = _exp_term(terms[j, q] - phi[q])
+            total[q] += e
+            slope[q] -= e * t * inv
+            bend[q] += e * (t * t - 1.0) * inv * inv
+    log_lam = math.log(lam)
+    for q in range(n):
+        phi[q], phi_z[q], phi_zz[q] = _phi_from_sums(
+            z[q], lam, log_lam, phi[q], fast_log(total[q]), slope[q] / total[q], bend[q] / total[q], z0, fb
+        )
 
 
 @nb.njit(cache=True, nogil=True)
@@ -109,18 +150,18 @@ def _log_c_asymptotic(z, lam, shift, geometry, mixture):
     return phi - math.log(phi_z), (phi_z - phi_zz / phi_z) / (lam + geometry.ku / (z * z))
 
 
-@nb.njit(cache=True, nogil=True)
-def _rate_derivatives(log_m, log_far, lam, z_far):
-    """First and second derivatives of ``log Q`` in ``log lam`` from the logs of Q's moments (``log_m`` (3,)).
+@nb.njit(cache=True, nogil=True, inline="always")
+def _rate_derivatives(ratio_1, ratio_2, far, lam, z_far):
+    """First and second derivatives of ``log Q`` in ``log lam`` from the ratios of Q's moments to Q, ``M_1 / Q``
+    and ``M_2 / Q`` (metres, metres^2), and ``far = F / Q``.
 
     ``Q = J + F``: ``J = int lam e^{-lam s} g`` has moments ``M_k``; the far term ``F = e^{-lam L} g_far``
-    (``L = z_far``, log -inf when absent) carries no factor ``lam``. For one mass at ``s``,
+    (``L = z_far``; 0 when absent) carries no factor ``lam``. For one mass at ``s``,
     ``J' = J (1 - lam s)`` and ``J'' = J (1 - 3 lam s + lam^2 s^2)``; ``F' = -lam L F``,
     ``F'' = (lam^2 L^2 - lam L) F``.
     """
-    far = math.exp(log_far - log_m[0])
-    m1 = lam * math.exp(log_m[1] - log_m[0])
-    m2 = lam * lam * math.exp(log_m[2] - log_m[0])
+    m1 = lam * ratio_1
+    m2 = lam * lam * ratio_2
     lam_l = lam * z_far
     j = 1.0 - far
     m1 -= far * lam_l
@@ -131,6 +172,14 @@ def _rate_derivatives(log_m, log_far, lam, z_far):
 
 
 @nb.njit(cache=True, nogil=True)
+def _log_rate_derivatives(log_m, log_far, lam, z_far):
+    """:func:`_rate_derivatives` from the logs of Q's moments ``log_m`` (3,) and of its far term ``log_far``."""
+    return _rate_derivatives(
+        math.exp(log_m[1] - log_m[0]), math.exp(log_m[2] - log_m[0]), math.exp(log_far - log_m[0]), lam, z_far
+    )
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
 def _rate_columns(slope, first, second, z_1, z_2, lam_s):
     """A node's three rate columns for ``log(Q/Z)`` (Q is C or D): its first log(lam)-derivative, that one's
     x-derivative, and its second log(lam)-derivative.
@@ -143,6 +192,55 @@ def _rate_columns(slope, first, second, z_1, z_2, lam_s):
     secant slope of a linear interpolation is off by up to 25 % of it.
     """
     return first - z_1, slope * (1.0 - lam_s - first), second - z_2
+
+
+@nb.njit(cache=True, nogil=True, error_model="numpy")
+def _node_columns(columns, z, log_c, log_d, front_slope, log_qg, log_z, z_1, z_2, log_far_w, z_far, lam, geometry):
+    """Fill ``columns`` ((:data:`TABLE_COLUMNS`, N): the nodes' columns, each contiguous, so that the loop over the
+    nodes vectorises) from the logs of ``C`` and ``D`` and their moments at the nodes ``z`` ((N,) metres of depth;
+    ``log_c``, ``log_d`` (3, N)) and ``log_qg`` ((N,), ``log(q g)``).
+
+    The x-slope of ``log C`` is ``front_slope`` where that is a number (the coarse front's asymptotic), else
+    ``q g / C`` over ``dx/dz``; a node with ``C = 0`` has 0 in C's derivative columns. ``log_z``, ``z_1``,
+    ``z_2``: ``log Z`` and its derivatives in ``log lam``; ``log_far_w``, ``z_far``: D's far term
+    (:func:`_rate_derivatives`); the other parameters as :func:`prism_table`'s.
+    """
+    z0, ku = geometry.z0, geometry.ku
+    n = z.size
+    exps = np.empty((7, n))  # the loops of exps apart from the arithmetic: each vectorises
+    for q in range(n):
+        exps[0, q] = fast_exp(log_c[1, q] - log_c[0, q])
+    for q in range(n):
+        exps[1, q] = fast_exp(log_c[2, q] - log_c[0, q])
+    for q in range(n):
+        exps[2, q] = fast_exp(log_qg[q] - log_c[0, q])
+    for q in range(n):
+        exps[3, q] = fast_exp(log_d[1, q] - log_d[0, q])
+    for q in range(n):
+        exps[4, q] = fast_exp(log_d[2, q] - log_d[0, q])
+    for q in range(n):
+        exps[5, q] = fast_exp(log_qg[q] - log_d[0, q])
+    for q in range(n):
+        exps[6, q] = fast_exp(log_far_w - log_d[0, q])
+    for q in range(n):
+        lam_s = lam * (z[q] - z0)
+        dx_dz = lam + ku / (z[q] * z[q])
+        first, second = _rate_derivatives(exps[0, q], exps[1, q], 0.0, lam, z_far)
+        slope = front_slope[q] if front_slope[q] == front_slope[q] else exps[2, q] / dx_dz
+        col_2, col_3, col_4 = _rate_columns(slope, first, second, z_1, z_2, lam_s)
+        c_on = log_c[0, q] > -np.inf
+        columns[0, q] = log_c[0, q] - log_z
+        columns[1, q] = slope if c_on else 0.0
+        columns[2, q] = col_2 if c_on else 0.0
+        columns[3, q] = col_3 if c_on else 0.0
+        columns[4, q] = col_4 if c_on else 0.0
+        first, second = _rate_derivatives(exps[3, q], exps[4, q], exps[6, q], lam, z_far)
+        slope = -exps[5, q] / dx_dz
+        columns[_D_COLUMN, q] = log_d[0, q] - log_z
+        columns[_D_COLUMN + 1, q] = slope
+        columns[_D_COLUMN + 2, q], columns[_D_COLUMN + 3, q], columns[_D_COLUMN + 4, q] = _rate_columns(
+            slope, first, second, z_1, z_2, lam_s
+        )
 
 
 _FAR_RATIO = 4
@@ -366,45 +464,41 @@ def prism_table(shift, lam, log_far, geometry, spec, mixture):
     log_total = np.empty(3)
     for k in range(3):
         log_total[k] = logaddexp(log_c[-1, k], log_d[-1, k])
-    z_1, z_2 = _rate_derivatives(log_total, log_far_w, lam, z_far)
-    nodes = np.empty((n_coarse + i_back + 1 + n_back, TABLE_COLUMNS))
-    row_c = np.empty(3)
-    row_d = np.empty(3)
-    for row in range(nodes.shape[0]):
-        slope_c = np.nan
-        log_c_z = -np.inf
-        if 0 < row <= n_coarse:  # the asymptotic and its slope, also at x_split (the end of a coarse interval)
-            log_c_z, slope_c = _log_c_asymptotic(z_of_x(x0 + row * h_coarse, lam, ku), lam, shift, geometry, mixture)
-        if row < n_coarse:
-            zi = z_of_x(x0 + row * h_coarse, lam, ku) if row > 0 else z0
-            row_c[:] = -np.inf
-            if row > 0:
-                log_s = math.log(zi - z0)
-                for k in range(3):
-                    row_c[k] = log_c_z + k * log_s
-            for k in range(3):  # D = everything minus the (tiny) C
-                row_d[k] = log_total[k] + log1mexp(row_c[k] - log_total[k])
+    z_1, z_2 = _log_rate_derivatives(log_total, log_far_w, lam, z_far)
+    n_rows = n_coarse + i_back + 1 + n_back
+    z_rows = np.empty(n_rows)
+    c_rows = np.empty((3, n_rows))  # logs of C and its moments at each node, one moment a row (vectorised loops)
+    d_rows = np.empty((3, n_rows))
+    z_rows[0] = z0
+    for row in range(1, n_rows):
+        if row <= n_coarse:
+            z_rows[row] = z_of_x(x0 + row * h_coarse, lam, ku)
         else:
+            z_rows[row] = z[row - n_coarse if row <= n_coarse + i_back else i_back + (row - n_coarse - i_back) * back]
+    log_qg = np.empty(n_rows)
+    phi_z = np.empty(n_rows)
+    phi_zz = np.empty(n_rows)
+    _log_qg_rows(z_rows, lam, shift, geometry, mixture, log_qg, phi_z, phi_zz)
+    # The coarse front (rows 1 to n_coarse): C by its endpoint asymptotic (:func:`_log_c_asymptotic`), all its mass
+    # at the node; its x-slope also at x_split, where the march takes over C.
+    front_slope = np.full(n_rows, np.nan)
+    for row in range(1, n_coarse + 1):
+        front_slope[row] = (phi_z[row] - phi_zz[row] / phi_z[row]) / (lam + ku / (z_rows[row] * z_rows[row]))
+    for k in range(3):
+        c_rows[k, 0] = -np.inf
+        for row in range(1, n_coarse):
+            c_rows[k, row] = log_qg[row] - fast_log(phi_z[row]) + k * fast_log(z_rows[row] - z0)
+        for row in range(n_coarse):  # D = everything minus the (tiny) C
+            d_rows[k, row] = log_total[k] + fast_log1mexp(c_rows[k, row] - log_total[k])
+        for row in range(n_coarse, n_rows):
             i = row - n_coarse if row <= n_coarse + i_back else i_back + (row - n_coarse - i_back) * back
-            zi = z[i]
-            row_c[:] = log_c[i]
-            row_d[:] = log_d[i]
-        log_qg = math.log(lam) - lam * (zi - z0) + log_likelihood(fb / zi, shift, mixture)
-        dx_dz = lam + ku / (zi * zi)
-        lam_s = lam * (zi - z0)
-        nodes[row, 0] = row_c[0] - log_z
-        if row_c[0] == -np.inf:
-            nodes[row, 1:_D_COLUMN] = 0.0
-        else:
-            nodes[row, 1] = slope_c if not math.isnan(slope_c) else math.exp(log_qg - row_c[0]) / dx_dz
-            c_1, c_2 = _rate_derivatives(row_c, -np.inf, lam, z_far)
-            nodes[row, 2], nodes[row, 3], nodes[row, 4] = _rate_columns(nodes[row, 1], c_1, c_2, z_1, z_2, lam_s)
-        d_1, d_2 = _rate_derivatives(row_d, log_far_w, lam, z_far)
-        nodes[row, _D_COLUMN] = row_d[0] - log_z
-        nodes[row, _D_COLUMN + 1] = -math.exp(log_qg - row_d[0]) / dx_dz
-        nodes[row, _D_COLUMN + 2], nodes[row, _D_COLUMN + 3], nodes[row, _D_COLUMN + 4] = _rate_columns(
-            nodes[row, _D_COLUMN + 1], d_1, d_2, z_1, z_2, lam_s
-        )
+            c_rows[k, row] = log_c[i, k]
+            d_rows[k, row] = log_d[i, k]
+    columns = np.empty((TABLE_COLUMNS, n_rows))
+    _node_columns(
+        columns, z_rows, c_rows, d_rows, front_slope, log_qg, log_z, z_1, z_2, log_far_w, z_far, lam, geometry
+    )
+    nodes = columns.T
     nodes[0, 2:_D_COLUMN] = nodes[1, 2:_D_COLUMN]
     meta = np.empty(3 * N_SEGMENTS + 5)
     x_march = x_of_z(z[0], lam, ku)
