@@ -173,13 +173,13 @@ of the main one and no wide component to span them."""
     ],
 )
 def test_table_within_stated_bound_at_the_rate_grids_half_steps(fb, mixture, voxel, p0, near):
-    """Rays half-way between two keys of the rate grid (``delta = +-_LAMBDA_STEP / 2``, the largest Taylor step
+    """Rays on the edges between two keys of the rate grid (``delta = +-_LAMBDA_STEP / 2``, the largest Taylor step
     in log lambda) and cells of 0.5-15 cm tiling 2-80 m, the short ones far in front of the measurement
     included (where ``C`` grows slowly, so a cell's share of it follows the derivative of the Taylor terms)."""
     rng = np.random.default_rng(13)
     disparity = np.round(fb / np.geomspace(2.0, 60.0, 7) * 16) / 16
-    half = (np.arange(4) + 0.5) * _prism._LAMBDA_STEP
-    log_norm = np.concatenate([half - 1e-6, half + 1e-6])  # either side: the tables of both neighbouring keys
+    edge = np.arange(1, 5) * _prism._LAMBDA_STEP
+    log_norm = np.concatenate([edge - 1e-6, edge + 1e-6])  # either side: the tables of both neighbouring keys
     disparity, norm = np.repeat(disparity, log_norm.size), np.tile(np.exp(log_norm), disparity.size)
     rays, starts, ends = [], [], []
     for r in range(disparity.size):
@@ -383,15 +383,15 @@ FRAME_MIXTURE = GaussianMixture([0.9, 0.1], [0.0, 0.0], [0.3, 3.0])
 def test_cells_in_a_tables_first_interval_agree_with_direct(fb, mixture, voxel, p0, near, depth, steep):
     """Cells ending between near_m and a table's first node: C from the steep front's asymptotic, or (no
     steep front) from one panel over the interval, at the ray's own rate and with the ray's Z, for rays on
-    the rate grid's keys and half-way between them (far in front of the measurement the rate term of
+    the rate grid's keys' centres and edges (far in front of the measurement the rate term of
     log(C/Z) is about 1 - lambda_z z^ per unit of log lambda_z: several nats at a half step)."""
     model = make_sensor_model("prism", focal_baseline=fb, error_model=mixture, voxel_size_m=voxel, p0=p0, near_m=near)
     step = _prism._LAMBDA_STEP
-    norm = np.exp(np.array([0.0, 0.5 * step - 1e-6, 0.5 * step + 1e-6, 1.5 * step - 1e-6]))  # a key, half steps
+    norm = np.exp(np.array([0.5 * step, step - 1e-6, step + 1e-6, 2 * step - 1e-6]))  # a key's centre, its edges
     disparity = np.repeat(np.round(fb / (depth * np.array([1.0, 2.4, 6.0, 12.0])) * 16) / 16, norm.size)
     norm = np.tile(norm, disparity.size // norm.size)
     table, delta, meta, _ = model._tables_for(disparity, norm)
-    assert np.abs(delta[norm > 1]).min() > 0.499 * step
+    assert np.abs(delta[0::4]).max() < 1e-12 and np.abs(delta.reshape(-1, 4)[:, 1:]).min() > 0.499 * step
     column = _kernels_table.META_COLUMNS.index
     assert np.all((meta[table, column("row_1")] > 0) == steep)  # a coarse front or none
     ends = []
@@ -832,11 +832,13 @@ def test_table_keys_match_numpy_unique_of_the_packed_keys():
     rng = np.random.default_rng(21)
     disparity = np.round(rng.uniform(0.5, 80.0, 5000), 1)  # repeated disparities: few distinct keys
     log_norm = np.log(rng.choice([1.0, 1.02, 1.3, 1.9], 5000))
-    unique, inverse = _kernels_lookup.table_keys(disparity, log_norm, 1 / 16, _prism._LAMBDA_STEP, _prism._KEY_L_SPAN)
-    key = np.rint(disparity * 16).astype(np.int64) * _prism._KEY_L_SPAN + np.minimum(
-        np.rint(log_norm / _prism._LAMBDA_STEP).astype(np.int64), _prism._KEY_L_SPAN - 1
-    )
+    step = _prism._LAMBDA_STEP
+    unique, inverse, delta = _kernels_lookup.table_keys(disparity, log_norm, 1 / 16, step, _prism._KEY_L_SPAN)
+    key_l = np.floor(log_norm / step).astype(np.int64)  # bins [k, k + 1) step of log|r|, tables at their centres
+    key = np.rint(disparity * 16).astype(np.int64) * _prism._KEY_L_SPAN + key_l
     np.testing.assert_array_equal(unique[inverse], key)
+    np.testing.assert_allclose(delta, log_norm - (key_l + 0.5) * step, rtol=0, atol=1e-15)
+    assert np.abs(delta).max() <= 0.5 * step
     np.testing.assert_array_equal(np.sort(unique), np.unique(key))
 
 

@@ -68,7 +68,7 @@ MAX_TABLE_NODES = 1 << 20
 """Most nodes one table may need (32 MiB of float32 rows; see ``PrismModel._check_table_size``)."""
 AUTO_TABLE_FLOOR_MB = 64.0
 """Least table cache budget (MiB) of a model with ``table_memory_mb=None``."""
-_LAMBDA_STEP = 0.1  # table grid in log(lambda_z): one table every ~10 % of ray norm, the nearest one per ray
+_LAMBDA_STEP = 0.1  # table grid in log(lambda_z): one table every ~10 % of ray norm, at its bin's centre
 _LAMBDA_SLACK = float(np.expm1(_LAMBDA_STEP / 2))  # relative rate gap a table's influence depth covers
 _KEY_L_SPAN = 1 << 16  # table key = disparity key * span + rate key
 _BUILD_THREADS = min(2, os.cpu_count() or 1)  # threads building one call's missing tables
@@ -463,14 +463,13 @@ class PrismModel(RayModel):
         the cache's ``meta`` and ``nodes`` arrays those rows index: taken under the cache's lock, so a call in
         another thread that builds or evicts (new arrays, new rows) leaves this call's view intact."""
         log_norm = np.log(np.maximum(norm, 1.0))
-        unique, inverse = _kernels_lookup.table_keys(
+        unique, inverse, delta = _kernels_lookup.table_keys(
             disparity, log_norm, self.disparity_step_px, _LAMBDA_STEP, _KEY_L_SPAN
         )
         with self._cache.lock:
             rows = self._cache.rows(unique, self._build_tables)
             meta, nodes = self._cache.meta, self._cache.nodes
-        key_l = np.minimum(np.rint(log_norm / _LAMBDA_STEP), _KEY_L_SPAN - 1)
-        return rows[inverse], log_norm - key_l * _LAMBDA_STEP, meta, nodes
+        return rows[inverse], delta, meta, nodes
 
     def _build_tables(self, keys):
         """The tables of ``keys`` ((K,) int64): ``nodes`` (N, ``_kernels_table.TABLE_COLUMNS``) float32 back to back and
@@ -479,7 +478,7 @@ class PrismModel(RayModel):
         of each thread's arrays, to be read back to back: :meth:`TableCache.rows` copies them in)."""
         key_d, key_l = np.divmod(np.asarray(keys, dtype=np.int64), _KEY_L_SPAN)
         disparity = key_d * self.disparity_step_px
-        lam = self.rate_per_m * np.exp(key_l * _LAMBDA_STEP)
+        lam = self.rate_per_m * np.exp(_kernels_lookup.rate_key_centre(key_l, _LAMBDA_STEP))
         log_far = self._log_far(disparity)
         shift = disparity + self.doffs_px
         geometry, mixture, spec = self._geometry(), self._mixture(), self._table_spec
