@@ -1,10 +1,16 @@
 """The .npz map file and the PLY export: round trips, and clear errors for bad files with nothing overwritten."""
 
+import io
+import zipfile
+import zlib
+
 import numpy as np
 import pytest
 
+from prismap._files import NPZ_LEVEL, save_npz
 from prismap.errors import PrismapInputError
 from prismap.grid import OCTOMAP_CLAMP, OccupancyMap
+from prismap.io import _mapfile
 from prismap.io._mapfile import load_map, save_map
 from prismap.io._ply import read_ply, write_ply
 from support import FB, HitMissModel
@@ -28,6 +34,37 @@ def test_map_file_round_trip(tmp_path, options):
     for a, b in zip(grid.known_voxels(), back.known_voxels()):
         order_a, order_b = np.lexsort(grid.known_voxels()[0].T), np.lexsort(back.known_voxels()[0].T)
         np.testing.assert_array_equal(a[order_a], b[order_b])
+
+
+def test_map_file_is_a_deflated_npz_that_numpy_reads(tmp_path):
+    """Every member deflated at NPZ_LEVEL, and ``np.load`` gives back each array's exact dtype and values."""
+    grid = small_map()
+    save_map(grid, tmp_path / "m.npz")
+    with zipfile.ZipFile(tmp_path / "m.npz") as archive:
+        infos = archive.infolist()
+    assert infos and all(info.compress_type == zipfile.ZIP_DEFLATED for info in infos)
+    keys = next(info for info in infos if info.filename == "keys.npy")
+    assert keys.compress_size < keys.file_size  # integer keys of a small block compress
+    with np.load(tmp_path / "m.npz") as loaded:
+        stored = grid.known_voxels()
+        for name, expected in zip(("keys", "log_odds", "counts"), stored):
+            assert loaded[name].dtype == expected.dtype
+            np.testing.assert_array_equal(loaded[name], expected)
+        assert loaded["fusion_model"].item() == "independent"
+
+
+def test_npz_writer_deflates_at_its_level(tmp_path):
+    """The archive holds the array's .npy serialisation, deflated exactly as zlib at NPZ_LEVEL does it."""
+    values = np.arange(20_000, dtype=np.int64) % 97
+    save_npz(tmp_path / "a.npz", values=values)
+    with zipfile.ZipFile(tmp_path / "a.npz") as archive:
+        raw = archive.read("values.npy")
+        size = archive.getinfo("values.npy").compress_size
+    buffer = io.BytesIO()
+    np.lib.format.write_array(buffer, values, allow_pickle=False)
+    assert raw == buffer.getvalue()
+    deflate = zlib.compressobj(NPZ_LEVEL, zlib.DEFLATED, -15)
+    assert size == len(deflate.compress(raw) + deflate.flush())
 
 
 def test_two_dimensional_map_round_trip(tmp_path):
@@ -86,7 +123,7 @@ def test_failed_write_leaves_the_old_file(tmp_path, monkeypatch):
     def broken(*args, **kwargs):
         raise OSError("disk full")
 
-    monkeypatch.setattr(np, "savez_compressed", broken)
+    monkeypatch.setattr(_mapfile, "save_npz", broken)
     with pytest.raises(PrismapInputError, match=r"m.npz: cannot write \(disk full\)"):
         save_map(small_map(), path)
     assert path.read_bytes() == before

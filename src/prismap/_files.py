@@ -12,9 +12,16 @@ import fcntl
 import os
 import stat
 import tempfile
+import zipfile
 from pathlib import Path
 
+import numpy as np
+
 from prismap.errors import PrismapInputError
+
+NPZ_LEVEL = 1
+"""zlib level of the ``.npz`` files prismap writes: ``np.savez_compressed``'s level 6 took 6x as long (0.99 against
+0.17 s for a street map of 1 M voxels) for a file 2 % smaller."""
 
 
 def umask_mode(mode=0o666):
@@ -78,6 +85,15 @@ def _os_message(exc):
     if exc.errno == errno.EFBIG:
         reason += " (the file-size limit, ulimit -f)"
     return reason
+
+
+def save_npz(file, **arrays):
+    """Write ``arrays`` to ``file`` (a path or a binary file object) as an ``.npz`` archive that ``np.load`` reads,
+    compressed at :data:`NPZ_LEVEL` (``np.savez_compressed`` has no level)."""
+    with zipfile.ZipFile(file, "w", zipfile.ZIP_DEFLATED, compresslevel=NPZ_LEVEL) as archive:
+        for name, value in arrays.items():
+            with archive.open(f"{name}.npy", "w", force_zip64=True) as member:
+                np.lib.format.write_array(member, np.asanyarray(value), allow_pickle=False)
 
 
 @contextlib.contextmanager

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from prismap._files import atomic_path
+from prismap._files import atomic_path, save_npz
 from prismap.errors import PrismapInputError
 from prismap.grid import READINGS, OccupancyMap
 from prismap.grid._keys import check_voxel_size
@@ -71,7 +71,7 @@ def save_map(grid: OccupancyMap, path: str | os.PathLike[str]) -> None:
     fusion = np.array(parameters + (np.nan,) * (2 - len(parameters)))
     fusion_model = "independent" if reading is None else reading.name
     with atomic_path(path) as tmp, open(tmp, "wb") as handle:
-        np.savez_compressed(
+        save_npz(
             handle,
             format=np.array(FORMAT),
             format_version=np.array(FORMAT_VERSION),

@@ -33,7 +33,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from prismap._files import atomic_path, umask_mode
+from prismap._files import atomic_path, save_npz, umask_mode
 from prismap._validate import check_pose, check_positive
 from prismap.errors import PrismapInputError
 from prismap.grid import PACK_OFFSET, pack_keys
@@ -130,7 +130,7 @@ def write_ground_truth(path: str | os.PathLike[str], truth: GroundTruthOccupancy
     ``observed_keys`` ((N, 3) int64).
     """
     with atomic_path(path) as tmp:
-        np.savez_compressed(
+        save_npz(
             tmp,
             format=np.array(GROUND_TRUTH_FORMAT),
             version=np.array(GROUND_TRUTH_VERSION),
