@@ -15,8 +15,9 @@ seeded errors every frame and rounded to OpenCV's 1/16 px, rays cut at 80 m, at 
 method maps the whole sequence into one map in a fresh process (so the first frame is truly cold: imports,
 numba caches, PRISM's first tables), the processes interleaved and repeated --repeat times; the table gives
 medians over the repeats of the first frame and of the median steady frame (frames 2..N), wall and CPU, their
-ratios to OctoMap's, the rise of the process's peak RSS over the sequence, the map's own bytes, and for PRISM
-the table cache's size and hit rate (distinct keys found / looked up per call).
+ratios to OctoMap's, the process's peak RSS over the sequence above its RSS before it (the peak reset after the
+world is loaded), the map's own bytes, and for PRISM the table cache's size and hit rate (distinct keys found /
+looked up per call).
 Run: .venv/bin/python benchmarks/bench_grid.py [--repeat 3] [--street [--scale 1.0] [--frames 10] [--voxels 0.2 0.1]
 [--methods OctoMap PRISM]]
 """
@@ -24,7 +25,6 @@ Run: .venv/bin/python benchmarks/bench_grid.py [--repeat 3] [--street [--scale 1
 import argparse
 import json
 import pickle
-import resource
 import statistics
 import subprocess
 import sys
@@ -229,7 +229,7 @@ def street_method(name, mode, voxel, scale, n_frames, world=None):
     """Map scene (c) with one method in this (fresh) process; per-frame wall and CPU seconds and memory."""
     camera, poses, disparities, classes, error_model = load_world(scale, n_frames, world)
     max_range = STREET_RANGE_M[1]
-    rss_before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+    rss_before = _reset_peak_rss()
     wall, cpu, out = [], [], {}
 
     def clock(insert, inputs):
@@ -283,8 +283,22 @@ def street_method(name, mode, voxel, scale, n_frames, world=None):
                 table_hits=sum(c.hits for c in caches),
                 table_builds=sum(c.builds for c in caches),
             )
-    out.update(wall=wall, cpu=cpu, rss_rise=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024 - rss_before)
+    out.update(wall=wall, cpu=cpu, rss_rise=_status_bytes("VmHWM") - rss_before)
     return out
+
+
+def _status_bytes(field):
+    """A memory figure of this process from ``/proc/self/status`` (``VmRSS``, ``VmHWM``), bytes."""
+    with open("/proc/self/status") as status:
+        return next(int(line.split()[1]) * 1024 for line in status if line.startswith(field + ":"))
+
+
+def _reset_peak_rss():
+    """This process's resident bytes, with its peak reset to them (Linux's ``clear_refs``), so that the peak read
+    after mapping is the mapping's own and not loading the world's (which can be higher: a rise of 0 then)."""
+    with open("/proc/self/clear_refs", "w") as clear:
+        clear.write("5")
+    return _status_bytes("VmRSS")
 
 
 def street(args):
