@@ -20,8 +20,8 @@ import numpy as np
 from prismap.errors import PrismapInputError
 
 NPZ_LEVEL = 1
-"""zlib level of the ``.npz`` files prismap writes: ``np.savez_compressed``'s level 6 took 6x as long (0.99 against
-0.17 s for a street map of 1 M voxels) for a file 2 % smaller."""
+"""zlib level of the ``.npz`` files prismap writes: the fastest, since a map's keys, log-odds and counts deflate
+almost as well at 1 as at ``np.savez_compressed``'s fixed 6, at a fraction of its time."""
 
 
 def umask_mode(mode=0o666):
