@@ -194,6 +194,13 @@ def _rate_columns(slope, first, second, z_1, z_2, lam_s):
     return first - z_1, slope * (1.0 - lam_s - first), second - z_2
 
 
+@nb.njit(cache=True, nogil=True, inline="always")
+def _exp_difference_into(out, log_a, log_b):
+    """``out = exp(log_a - log_b)`` ((N,) each) by :func:`fast_exp`, in one loop that vectorises."""
+    for q in range(out.size):
+        out[q] = fast_exp(log_a[q] - log_b[q])
+
+
 @nb.njit(cache=True, nogil=True, error_model="numpy")
 def _node_columns(columns, z, log_c, log_d, front_slope, log_qg, log_z, z_1, z_2, log_far_w, z_far, lam, geometry):
     """Fill ``columns`` ((:data:`TABLE_COLUMNS`, N): the nodes' columns, each contiguous, so that the loop over the
@@ -208,18 +215,12 @@ def _node_columns(columns, z, log_c, log_d, front_slope, log_qg, log_z, z_1, z_2
     z0, ku = geometry.z0, geometry.ku
     n = z.size
     exps = np.empty((7, n))  # the loops of exps apart from the arithmetic: each vectorises
-    for q in range(n):
-        exps[0, q] = fast_exp(log_c[1, q] - log_c[0, q])
-    for q in range(n):
-        exps[1, q] = fast_exp(log_c[2, q] - log_c[0, q])
-    for q in range(n):
-        exps[2, q] = fast_exp(log_qg[q] - log_c[0, q])
-    for q in range(n):
-        exps[3, q] = fast_exp(log_d[1, q] - log_d[0, q])
-    for q in range(n):
-        exps[4, q] = fast_exp(log_d[2, q] - log_d[0, q])
-    for q in range(n):
-        exps[5, q] = fast_exp(log_qg[q] - log_d[0, q])
+    _exp_difference_into(exps[0], log_c[1], log_c[0])
+    _exp_difference_into(exps[1], log_c[2], log_c[0])
+    _exp_difference_into(exps[2], log_qg, log_c[0])
+    _exp_difference_into(exps[3], log_d[1], log_d[0])
+    _exp_difference_into(exps[4], log_d[2], log_d[0])
+    _exp_difference_into(exps[5], log_qg, log_d[0])
     for q in range(n):
         exps[6, q] = fast_exp(log_far_w - log_d[0, q])
     for q in range(n):
