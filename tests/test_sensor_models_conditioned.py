@@ -9,6 +9,7 @@ from prismap.errors import PrismapInputError
 from prismap.gmm import GaussianMixture, MixtureFit
 from prismap.sensor_models import (
     ConditionedModel,
+    _conditioned,
     conditioned_sensor_model,
     make_sensor_model,
 )
@@ -88,6 +89,29 @@ def test_conditioned_model_equals_each_sub_model_on_its_rays(name):
     plain_p, _ = model.cell_posteriors(disparity, norm, rays, start, end)
     assert np.abs(plain_p - posterior).max() > 1e-3
     np.testing.assert_array_equal(plain_p, model.plain.cell_posteriors(disparity, norm, rays, start, end)[0])
+
+
+@pytest.mark.parametrize("name", ["prism", "andert"])
+def test_rays_in_class_order_give_the_same_cells_as_rays_in_any_order(name):
+    """A projective part hands rays sorted by class and cells sorted by ray (the split then takes slices, no
+    gathers): every cell's posterior and increment equal those of the same rays and cells in another order."""
+    model = conditioned_sensor_model(name, CAMERA, error_model=_error_model(), **SETTINGS)
+    disparity, norm, ray_class, rays, start, end = _rays(seed=4)
+    posterior, increment = model.cell_posteriors(disparity, norm, rays, start, end, ray_class=ray_class)
+    by_class = np.argsort(ray_class, kind="stable")  # new ray i is old ray by_class[i]
+    new_ray = np.empty_like(by_class)
+    new_ray[by_class] = np.arange(by_class.size)
+    cells = np.argsort(new_ray[rays], kind="stable")
+    sorted_rays = new_ray[rays][cells]
+    assert np.all(np.diff(ray_class[by_class]) >= 0) and np.all(np.diff(sorted_rays) >= 0)
+    p, inc = model.cell_posteriors(
+        disparity[by_class], norm[by_class], sorted_rays, start[cells], end[cells], ray_class=ray_class[by_class]
+    )
+    np.testing.assert_array_equal(p, posterior[cells])
+    np.testing.assert_array_equal(inc, increment[cells])
+    split = list(_conditioned._split_by_class(ray_class[by_class], sorted_rays))
+    assert [k for k, *_ in split] == sorted(set(ray_class.tolist()))
+    assert all(isinstance(ray_index, slice) and isinstance(mine, slice) for _, ray_index, mine, _ in split)
 
 
 @pytest.mark.parametrize("name", ["andert", "convolution"])

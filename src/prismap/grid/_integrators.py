@@ -446,7 +446,7 @@ class ProjectiveIntegrator(Integrator):
 
     The key box is walked in lines along the image rows (``_kernels_project.project_part``), in
     :data:`PROJECTIVE_PARTS` parts of the lines; :data:`PROJECTIVE_THREADS` threads take the parts in turn
-    and run each part's cells, grouped by ray, through the model. This thread registers every part's voxels
+    and run each part's cells, grouped by ray (the rays in error-class order), through the model. This thread registers every part's voxels
     in the accumulator and adds their increments, in part order (``_accumulator.scatter_keys``): the
     accumulator has one writer and its blocks the order of a walk in one thread. A voxel is visited once per
     frame, so the map depends neither on the parts nor on the threads. A hit/miss model's increments are
@@ -501,6 +501,9 @@ class ProjectiveIntegrator(Integrator):
         cuts = np.linspace(0, n_lines, min(PROJECTIVE_PARTS, n_lines) + 1).astype(np.int64)
         max_cells = _accumulator.frame_budget_bytes() // 32  # 32 bytes per kept cell
         part_capacity = int(min(box, capacity) / (cuts.size - 1)) + 4096
+        # a part's rays go to the model in class order: a conditioned model's share of each class is then a slice
+        ray_key = np.zeros(n, dtype=np.int64) if batch.ray_class is None else batch.ray_class.astype(np.int64) + 1
+        n_keys = int(ray_key.max()) + 1 if n else 1
 
         def part(start, stop):
             keys, ray_of_cell, t_in, t_out, m = _kernels_project.project_part(
@@ -511,7 +514,7 @@ class ProjectiveIntegrator(Integrator):
             cells = (ray_of_cell[:m], t_in[:m], t_out[:m])
             if hit_miss is not None:
                 return keys[:m], _hit_miss_increments(*cells, z_hit, *hit_miss), m
-            return keys[:m], self._part_increments(batch, groups, group_of_ray, *cells), m
+            return keys[:m], self._part_increments(batch, groups, group_of_ray, (ray_key, n_keys), *cells), m
 
         with ThreadPoolExecutor(max_workers=PROJECTIVE_THREADS) as threads:
             parts = [threads.submit(part, start, stop) for start, stop in zip(cuts[:-1], cuts[1:])]
@@ -532,14 +535,15 @@ class ProjectiveIntegrator(Integrator):
                 for future in parts:
                     future.cancel()
 
-    def _part_increments(self, batch, groups, group_of_ray, ray_of_cell, t_in, t_out):
+    def _part_increments(self, batch, groups, group_of_ray, ray_keys, ray_of_cell, t_in, t_out):
         """The model's increments of one part's cells ((C,) float64, in the walk's order): the cells go through
         the model grouped by ray (models keep per-ray state from cell to cell, and a ray's cells share a table's
-        nodes), one call per noise group, on the rays some voxel uses (models cost per ray too)."""
+        nodes), the rays ordered by ``ray_keys`` (``(ray_key (R,) int64, n_keys)``: class + 1), one call per
+        noise group, on the rays some voxel uses (models cost per ray too)."""
         increment = np.empty(ray_of_cell.size)
         if ray_of_cell.size == 0:  # a part that sees nothing: no model call
             return increment
-        order, t_in, t_out, used, local = _kernels_project.group_by_ray(ray_of_cell, len(batch), t_in, t_out)
+        order, t_in, t_out, used, local = _kernels_project.group_by_ray(ray_of_cell, len(batch), t_in, t_out, *ray_keys)
         if len(groups) == 1:  # no pose noise: the loop below with every used ray in the group, minus its copies
             increment[order] = self.cell_increments(groups[0][0], batch, used, local, t_in, t_out)
             return increment

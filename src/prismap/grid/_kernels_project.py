@@ -375,25 +375,42 @@ def frustum_box(origin, rays, t_stop, voxel_size):
 
 
 @numba.njit(cache=True, nogil=True)
-def group_by_ray(ray_of_cell, n_rays, t_in, t_out):
-    """Cells grouped by ray, the rays in the order of their first cell and each ray's cells in their order (a
-    counting sort over the rays that have cells: nothing of it but one fill costs per ray of the frame).
+def group_by_ray(ray_of_cell, n_rays, t_in, t_out, ray_key, n_keys):
+    """Cells grouped by ray, the rays in the order of their key and, within a key, of their first cell, and each
+    ray's cells in their order (counting sorts over the rays that have cells and over the keys: nothing of it but
+    one fill costs per ray of the frame).
 
+    ``ray_key`` (n_rays,) int64 in ``[0, n_keys)``: each ray's key (its error class + 1, so that a conditioned
+    model's rays of one class, and their cells, come contiguous; all 0 for one order by first cell).
     Returns ``order`` (C,) int64 (grouped cell ``j`` is cell ``order[j]``), the grouped ``t_in, t_out`` (C,),
     the rays that have cells ``used (U,)`` int64, and per grouped cell the index of its ray in ``used`` (C,).
     """
     n = ray_of_cell.size
     slot = np.full(n_rays, -1, dtype=np.int32)
-    used = np.empty(n, dtype=np.int64)
+    seen = np.empty(n, dtype=np.int64)
     first_local = np.empty(n, dtype=np.int64)
     u = 0
     for i in range(n):
         r = ray_of_cell[i]
         if slot[r] < 0:
             slot[r] = u
-            used[u] = r
+            seen[u] = r
             u += 1
         first_local[i] = slot[r]
+    key_start = np.zeros(n_keys + 1, dtype=np.int64)
+    for k in range(u):
+        key_start[ray_key[seen[k]] + 1] += 1
+    for key in range(n_keys):
+        key_start[key + 1] += key_start[key]
+    used = np.empty(u, dtype=np.int64)
+    rank = np.empty(u, dtype=np.int64)  # each first-seen ray's place in key order
+    for k in range(u):
+        j = key_start[ray_key[seen[k]]]
+        key_start[ray_key[seen[k]]] = j + 1
+        rank[k] = j
+        used[j] = seen[k]
+    for i in range(n):
+        first_local[i] = rank[first_local[i]]
     counts = np.zeros(u + 1, dtype=np.int64)
     for i in range(n):
         counts[first_local[i] + 1] += 1
@@ -411,4 +428,4 @@ def group_by_ray(ray_of_cell, n_rays, t_in, t_out):
         local[j] = k
         grouped_in[j] = t_in[i]
         grouped_out[j] = t_out[i]
-    return order, grouped_in, grouped_out, used[:u], local
+    return order, grouped_in, grouped_out, used, local

@@ -221,9 +221,17 @@ class ConditionedModel(InverseSensorModel):
 
 def _split_by_class(ray_class, ray_of_cell):
     """For each class present: ``(class, its rays, its cells, each of those cells' ray among the class's rays)``;
-    slices (no copies) when every ray has one class, as a ray-mode chunk has (the integrator chunks by class)."""
+    slices (no copies) when every ray has one class, as a ray-mode chunk has (the integrator chunks by class), or
+    when the rays come in class order and the cells in ray order, as a projective part's do."""
     if ray_class.size and ray_class.min() == ray_class.max():
         yield int(ray_class[0]), slice(None), slice(None), ray_of_cell
+        return
+    if _non_decreasing(ray_class) and _non_decreasing(ray_of_cell):
+        ray_bounds = np.concatenate(([0], np.flatnonzero(np.diff(ray_class)) + 1, [ray_class.size]))
+        cell_bounds = np.searchsorted(ray_of_cell, ray_bounds)
+        for r0, r1, c0, c1 in zip(ray_bounds[:-1], ray_bounds[1:], cell_bounds[:-1], cell_bounds[1:]):
+            if c1 > c0:
+                yield int(ray_class[r0]), slice(r0, r1), slice(c0, c1), ray_of_cell[c0:c1] - r0
         return
     cell_class = ray_class[ray_of_cell]
     local = np.empty(ray_class.size, dtype=np.int64)
@@ -232,6 +240,10 @@ def _split_by_class(ray_class, ray_of_cell):
         cells = np.flatnonzero(cell_class == k)
         local[rays] = np.arange(rays.size)
         yield int(k), rays, cells, local[ray_of_cell[cells]]
+
+
+def _non_decreasing(values):
+    return values.size < 2 or bool(np.all(values[1:] >= values[:-1]))
 
 
 def share_table_floor(models):
