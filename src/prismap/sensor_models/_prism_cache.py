@@ -160,7 +160,8 @@ def _room_for(n_nodes):
     its own (an anonymous ``mmap``), given back to the system as soon as the last view of it goes."""
     rows = n_nodes + n_nodes // 2
     buffer = mmap.mmap(-1, max(rows, 1) * _ROW_BYTES)
-    if hasattr(mmap, "MADV_HUGEPAGE"):  # as numpy asks for its large arrays: table look-ups jump across the nodes
+    if hasattr(mmap, "MADV_HUGEPAGE"):  # look-ups jump across the nodes; a shared mapping gets huge pages only
+        # where transparent_hugepage/shmem_enabled allows it (docs/benchmarks.md: private rooms measured no faster)
         buffer.madvise(mmap.MADV_HUGEPAGE)
     return np.frombuffer(buffer, dtype=np.float32, count=rows * _kernels_table.TABLE_COLUMNS).reshape(
         rows, _kernels_table.TABLE_COLUMNS
