@@ -256,7 +256,7 @@ def test_group_by_ray_is_a_stable_sort_by_first_appearance_with_used_rays_and_th
     rng = np.random.default_rng(11)
     ray_of_cell = rng.integers(0, 50, 400) * 2  # odd rays and some even ones have no cell
     t_in, t_out = rng.random(400), rng.random(400)
-    order, got_in, got_out, used, local = group_by_ray(ray_of_cell, 103, t_in, t_out, np.zeros(103, np.int64), 1)
+    order, got_in, got_out, used, local = group_by_ray(ray_of_cell, 103, t_in, t_out, np.zeros(103, np.int64))
     first = np.unique(ray_of_cell, return_index=True)[1]
     np.testing.assert_array_equal(used, ray_of_cell[np.sort(first)])  # rays by their first cell
     rank = np.empty(103, dtype=np.int64)
@@ -266,7 +266,7 @@ def test_group_by_ray_is_a_stable_sort_by_first_appearance_with_used_rays_and_th
     np.testing.assert_array_equal(got_out, t_out[order])
     np.testing.assert_array_equal(used[local], ray_of_cell[order])
     empty = np.empty(0)
-    assert group_by_ray(np.empty(0, dtype=np.int64), 5, empty, empty, np.zeros(5, np.int64), 1)[3].size == 0
+    assert group_by_ray(np.empty(0, dtype=np.int64), 5, empty, empty, np.zeros(5, np.int64))[3].size == 0
 
 
 def test_group_by_ray_puts_the_rays_in_key_order_then_by_first_appearance():
@@ -278,7 +278,7 @@ def test_group_by_ray_puts_the_rays_in_key_order_then_by_first_appearance():
     ray_of_cell = rng.integers(0, 80, 600)
     t_in, t_out = rng.random(600), rng.random(600)
     ray_key = rng.integers(0, 5, 90)
-    order, got_in, got_out, used, local = group_by_ray(ray_of_cell, 90, t_in, t_out, ray_key, 5)
+    order, got_in, got_out, used, local = group_by_ray(ray_of_cell, 90, t_in, t_out, ray_key)
     first = np.unique(ray_of_cell, return_index=True)[1]
     by_first = ray_of_cell[np.sort(first)]
     np.testing.assert_array_equal(used, by_first[np.argsort(ray_key[by_first], kind="stable")])

@@ -8,15 +8,15 @@ Two variants behind one base class, built by :func:`make_integrator`:
   centre into the image and takes the ray of that pixel; one visit per voxel, needs the frame's image
   geometry (:class:`ImageProjection`).
 
-The grid never knows which sensor model it runs: it hands the model flat arrays (per ray the measurement,
-a disparity or a range as the batch's ``kind`` says, and ``|r|``, per cell the ray index and the cell's depth
-interval on that ray) and gets back
-per-cell log-odds increments (SENSOR_MODELS.md section 3). A model that states hit/miss increments
-(``hit_miss_increments``) is applied without a model call (in ray mode while casting). A per-ray class
-(``RayBatch.ray_class``) reaches the model as the keyword ``ray_class`` only when the batch has one, a
-per-ray voxel overhang (``RayBatch.voxel_overhang_m``) as ``voxel_overhang_m`` only when the batch has
-one and the model ``takes_voxel_overhang``, and each cell's map log-odds before the frame as ``map_log_odds``
-when the model ``takes_map_prior`` (ray mode only: such a model needs each ray's cells from the camera on).
+The grid never knows which sensor model it runs: it hands the model flat arrays (per ray the measurement, a
+disparity or a range as the batch's ``kind`` says, and ``|r|``, per cell the ray index and the cell's depth
+interval on that ray) and gets back per-cell log-odds increments (SENSOR_MODELS.md section 3). A model that states
+hit/miss increments (``hit_miss_increments``) is applied without a model call (in ray mode while casting). A
+per-ray class (``RayBatch.ray_class``) reaches the model as the keyword ``ray_class`` only when the batch has one
+(the rays of a call in class order), a per-ray voxel overhang (``RayBatch.voxel_overhang_m``) as
+``voxel_overhang_m`` only when the batch has one and the model ``takes_voxel_overhang``, and each cell's map
+log-odds before the frame as ``map_log_odds`` when the model ``takes_map_prior`` (ray mode only: such a model
+needs each ray's cells from the camera on).
 
 Work per frame is bounded before it starts (:data:`MAX_FRAME_CELLS`, :data:`MAX_RAY_CELLS`) and the
 accumulator's memory while it runs (``_accumulator.frame_budget_bytes``); docs/errors.md lists the bounds.
@@ -440,17 +440,16 @@ def _cast_hit_miss(accumulator, origin, rays, t_stop, exclusive, model, voxel_si
 
 
 class ProjectiveIntegrator(Integrator):
-    """Projective integration: visit the voxels of the frustum (up to where the measurements stop
-    influencing), give each the ray of the pixel its centre projects to, one update each. Needs the
-    batch's :class:`ImageProjection`.
+    """Projective integration: visit the voxels of the frustum (up to where the measurements stop influencing),
+    give each the ray of the pixel its centre projects to, one update each. Needs the batch's :class:`ImageProjection`.
 
     The key box is walked in lines along the image rows (``_kernels_project.project_part``), in
-    :data:`PROJECTIVE_PARTS` parts of the lines; :data:`PROJECTIVE_THREADS` threads take the parts in turn
-    and run each part's cells, grouped by ray (the rays in error-class order), through the model. This thread registers every part's voxels
-    in the accumulator and adds their increments, in part order (``_accumulator.scatter_keys``): the
-    accumulator has one writer and its blocks the order of a walk in one thread. A voxel is visited once per
-    frame, so the map depends neither on the parts nor on the threads. A hit/miss model's increments are
-    computed in the walking threads from the cells' intervals, without grouping by ray or a model call."""
+    :data:`PROJECTIVE_PARTS` parts of the lines; :data:`PROJECTIVE_THREADS` threads take the parts in turn and run
+    each part's cells, grouped by ray (the rays in error-class order), through the model. This thread registers
+    every part's voxels in the accumulator and adds their increments, in part order (``_accumulator.scatter_keys``):
+    the accumulator has one writer and its blocks the order of a walk in one thread. A voxel is visited once per
+    frame, so the map depends neither on the parts nor on the threads. A hit/miss model's increments are computed in
+    the walking threads from the cells' intervals, without grouping by ray or a model call."""
 
     name = "projective"
 
@@ -501,9 +500,7 @@ class ProjectiveIntegrator(Integrator):
         cuts = np.linspace(0, n_lines, min(PROJECTIVE_PARTS, n_lines) + 1).astype(np.int64)
         max_cells = _accumulator.frame_budget_bytes() // 32  # 32 bytes per kept cell
         part_capacity = int(min(box, capacity) / (cuts.size - 1)) + 4096
-        # a part's rays go to the model in class order: a conditioned model's share of each class is then a slice
-        ray_key = np.zeros(n, dtype=np.int64) if batch.ray_class is None else batch.ray_class.astype(np.int64) + 1
-        n_keys = int(ray_key.max()) + 1 if n else 1
+        ray_key = np.zeros(n, np.int64) if batch.ray_class is None else batch.ray_class.astype(np.int64) + 1
 
         def part(start, stop):
             keys, ray_of_cell, t_in, t_out, m = _kernels_project.project_part(
@@ -514,7 +511,7 @@ class ProjectiveIntegrator(Integrator):
             cells = (ray_of_cell[:m], t_in[:m], t_out[:m])
             if hit_miss is not None:
                 return keys[:m], _hit_miss_increments(*cells, z_hit, *hit_miss), m
-            return keys[:m], self._part_increments(batch, groups, group_of_ray, (ray_key, n_keys), *cells), m
+            return keys[:m], self._part_increments(batch, groups, group_of_ray, ray_key, *cells), m
 
         with ThreadPoolExecutor(max_workers=PROJECTIVE_THREADS) as threads:
             parts = [threads.submit(part, start, stop) for start, stop in zip(cuts[:-1], cuts[1:])]
@@ -535,15 +532,14 @@ class ProjectiveIntegrator(Integrator):
                 for future in parts:
                     future.cancel()
 
-    def _part_increments(self, batch, groups, group_of_ray, ray_keys, ray_of_cell, t_in, t_out):
+    def _part_increments(self, batch, groups, group_of_ray, ray_key, ray_of_cell, t_in, t_out):
         """The model's increments of one part's cells ((C,) float64, in the walk's order): the cells go through
-        the model grouped by ray (models keep per-ray state from cell to cell, and a ray's cells share a table's
-        nodes), the rays ordered by ``ray_keys`` (``(ray_key (R,) int64, n_keys)``: class + 1), one call per
-        noise group, on the rays some voxel uses (models cost per ray too)."""
+        the model grouped by ray (per-ray state, a table's nodes shared), the rays by ``ray_key`` (R,) (class + 1),
+        one call per noise group, on the rays some voxel uses (models cost per ray too)."""
         increment = np.empty(ray_of_cell.size)
         if ray_of_cell.size == 0:  # a part that sees nothing: no model call
             return increment
-        order, t_in, t_out, used, local = _kernels_project.group_by_ray(ray_of_cell, len(batch), t_in, t_out, *ray_keys)
+        order, t_in, t_out, used, local = _kernels_project.group_by_ray(ray_of_cell, len(batch), t_in, t_out, ray_key)
         if len(groups) == 1:  # no pose noise: the loop below with every used ray in the group, minus its copies
             increment[order] = self.cell_increments(groups[0][0], batch, used, local, t_in, t_out)
             return increment

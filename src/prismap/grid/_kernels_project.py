@@ -375,13 +375,13 @@ def frustum_box(origin, rays, t_stop, voxel_size):
 
 
 @numba.njit(cache=True, nogil=True)
-def group_by_ray(ray_of_cell, n_rays, t_in, t_out, ray_key, n_keys):
+def group_by_ray(ray_of_cell, n_rays, t_in, t_out, ray_key):
     """Cells grouped by ray, the rays in the order of their key and, within a key, of their first cell, and each
     ray's cells in their order (counting sorts over the rays that have cells and over the keys: nothing of it but
     one fill costs per ray of the frame).
 
-    ``ray_key`` (n_rays,) int64 in ``[0, n_keys)``: each ray's key (its error class + 1, so that a conditioned
-    model's rays of one class, and their cells, come contiguous; all 0 for one order by first cell).
+    ``ray_key`` (n_rays,) int64 ``>= 0``: each ray's key (its error class + 1, so that a conditioned model's rays
+    of one class, and their cells, come contiguous; all 0 for one order by first cell).
     Returns ``order`` (C,) int64 (grouped cell ``j`` is cell ``order[j]``), the grouped ``t_in, t_out`` (C,),
     the rays that have cells ``used (U,)`` int64, and per grouped cell the index of its ray in ``used`` (C,).
     """
@@ -397,6 +397,9 @@ def group_by_ray(ray_of_cell, n_rays, t_in, t_out, ray_key, n_keys):
             seen[u] = r
             u += 1
         first_local[i] = slot[r]
+    n_keys = 1
+    for k in range(u):
+        n_keys = max(n_keys, ray_key[seen[k]] + 1)
     key_start = np.zeros(n_keys + 1, dtype=np.int64)
     for k in range(u):
         key_start[ray_key[seen[k]] + 1] += 1
