@@ -40,6 +40,7 @@ import dufomap
 import octomap
 
 from prismap import sim
+from prismap._memory import _meminfo_bytes
 from prismap.camera import StereoCamera, integrate_disparity
 from prismap.characterise import characterise_matcher, write_error_model
 from prismap.gmm import GaussianMixture
@@ -283,14 +284,8 @@ def street_method(name, mode, voxel, scale, n_frames, world=None):
                 table_hits=sum(c.hits for c in caches),
                 table_builds=sum(c.builds for c in caches),
             )
-    out.update(wall=wall, cpu=cpu, rss_rise=_status_bytes("VmHWM") - rss_before)
+    out.update(wall=wall, cpu=cpu, rss_rise=_meminfo_bytes("VmHWM", "/proc/self/status") - rss_before)
     return out
-
-
-def _status_bytes(field):
-    """A memory figure of this process from ``/proc/self/status`` (``VmRSS``, ``VmHWM``), bytes."""
-    with open("/proc/self/status") as status:
-        return next(int(line.split()[1]) * 1024 for line in status if line.startswith(field + ":"))
 
 
 def _reset_peak_rss():
@@ -298,7 +293,7 @@ def _reset_peak_rss():
     after mapping is the mapping's own and not loading the world's (which can be higher: a rise of 0 then)."""
     with open("/proc/self/clear_refs", "w") as clear:
         clear.write("5")
-    return _status_bytes("VmRSS")
+    return _meminfo_bytes("VmRSS", "/proc/self/status")
 
 
 def street(args):

@@ -147,7 +147,14 @@ def _log_c_asymptotic(z, lam, shift, geometry, mixture):
     derivative in x, ``(phi' - phi''/phi') / (dx/dz)``; parameters as :func:`_log_qg_derivatives`'s (``ku`` of
     ``geometry`` is read too)."""
     phi, phi_z, phi_zz = _log_qg_derivatives(z, lam, shift, geometry, mixture)
-    return phi - math.log(phi_z), (phi_z - phi_zz / phi_z) / (lam + geometry.ku / (z * z))
+    return phi - math.log(phi_z), _front_slope(phi_z, phi_zz, z, lam, geometry.ku)
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _front_slope(phi_z, phi_zz, z, lam, ku):
+    """The x-derivative of the asymptotic ``log C`` (:func:`_log_c_asymptotic`) from ``phi``'s z-derivatives:
+    ``(phi' - phi''/phi') / (dx/dz)``."""
+    return (phi_z - phi_zz / phi_z) / (lam + ku / (z * z))
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
@@ -470,12 +477,14 @@ def prism_table(shift, lam, log_far, geometry, spec, mixture):
     z_rows = np.empty(n_rows)
     c_rows = np.empty((3, n_rows))  # logs of C and its moments at each node, one moment a row (vectorised loops)
     d_rows = np.empty((3, n_rows))
+    march_node = np.empty(n_rows - n_coarse, dtype=np.int64)  # row n_coarse + j: the march's node march_node[j]
+    for j in range(march_node.size):
+        march_node[j] = j if j <= i_back else i_back + (j - i_back) * back
     z_rows[0] = z0
-    for row in range(1, n_rows):
-        if row <= n_coarse:
-            z_rows[row] = z_of_x(x0 + row * h_coarse, lam, ku)
-        else:
-            z_rows[row] = z[row - n_coarse if row <= n_coarse + i_back else i_back + (row - n_coarse - i_back) * back]
+    for row in range(1, n_coarse + 1):
+        z_rows[row] = z_of_x(x0 + row * h_coarse, lam, ku)
+    for j in range(1, march_node.size):
+        z_rows[n_coarse + j] = z[march_node[j]]
     log_qg = np.empty(n_rows)
     phi_z = np.empty(n_rows)
     phi_zz = np.empty(n_rows)
@@ -484,17 +493,16 @@ def prism_table(shift, lam, log_far, geometry, spec, mixture):
     # at the node; its x-slope also at x_split, where the march takes over C.
     front_slope = np.full(n_rows, np.nan)
     for row in range(1, n_coarse + 1):
-        front_slope[row] = (phi_z[row] - phi_zz[row] / phi_z[row]) / (lam + ku / (z_rows[row] * z_rows[row]))
+        front_slope[row] = _front_slope(phi_z[row], phi_zz[row], z_rows[row], lam, ku)
     for k in range(3):
         c_rows[k, 0] = -np.inf
         for row in range(1, n_coarse):
             c_rows[k, row] = log_qg[row] - fast_log(phi_z[row]) + k * fast_log(z_rows[row] - z0)
         for row in range(n_coarse):  # D = everything minus the (tiny) C
             d_rows[k, row] = log_total[k] + fast_log1mexp(c_rows[k, row] - log_total[k])
-        for row in range(n_coarse, n_rows):
-            i = row - n_coarse if row <= n_coarse + i_back else i_back + (row - n_coarse - i_back) * back
-            c_rows[k, row] = log_c[i, k]
-            d_rows[k, row] = log_d[i, k]
+        for j in range(march_node.size):
+            c_rows[k, n_coarse + j] = log_c[march_node[j], k]
+            d_rows[k, n_coarse + j] = log_d[march_node[j], k]
     columns = np.empty((TABLE_COLUMNS, n_rows))
     _node_columns(
         columns, z_rows, c_rows, d_rows, front_slope, log_qg, log_z, z_1, z_2, log_far_w, z_far, lam, geometry
