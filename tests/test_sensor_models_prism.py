@@ -3,10 +3,12 @@
 import itertools
 import mmap
 import pickle
+from pathlib import Path
 
 import numpy as np
 import pytest
 
+from prismap._memory import _meminfo_bytes
 from prismap.camera import integrate_disparity
 from prismap.errors import PrismapInputError
 from prismap.gmm import GaussianMixture
@@ -747,13 +749,24 @@ def test_an_eviction_keeps_room_so_the_next_tables_are_not_copied_again():
 
 def test_table_room_is_writable_memory_of_its_own_behind_the_rows_asked_for():
     room = _prism_cache._room_for(100)
-    assert room.shape == (150, _kernels_table.TABLE_COLUMNS) and room.dtype == np.float32 and room.flags.writeable
+    rows = _prism_cache.ROOM_GROWTH * 100
+    assert room.shape == (rows, _kernels_table.TABLE_COLUMNS) and room.dtype == np.float32 and room.flags.writeable
     room[:] = 7.0
     owner = room
     while isinstance(owner, np.ndarray):
         owner = owner.base
     assert isinstance(owner.obj, mmap.mmap)  # not the heap: dropping it gives the pages back at once
     assert _prism_cache._room_for(0).shape == (0, _kernels_table.TABLE_COLUMNS)
+
+
+@pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="reads the resident set from /proc")
+def test_table_room_rows_cost_memory_only_once_written():
+    n_rows = (256 << 20) // (_prism_cache.ROOM_GROWTH * _prism_cache._ROW_BYTES)  # a 256 MiB room
+    before = _meminfo_bytes("VmRSS", "/proc/self/status")
+    room = _prism_cache._room_for(n_rows)
+    assert _meminfo_bytes("VmRSS", "/proc/self/status") - before < 16 << 20
+    room[: n_rows // 2] = 1.0  # 32 MiB written: resident
+    assert _meminfo_bytes("VmRSS", "/proc/self/status") - before > 24 << 20
 
 
 @pytest.mark.parametrize(("depth", "max_range"), [(3.0, 200.0), (15.0, 20.0)])

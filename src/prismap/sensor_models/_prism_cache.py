@@ -13,6 +13,10 @@ AUTO_TABLE_CALLS = 2
 EVICT_TO = 0.75
 """Share of its budget a cache holds after an eviction: the least recently used tables go until it is reached, so
 the next frames' tables fit without another eviction (each one copies every kept table into new memory)."""
+ROOM_GROWTH = 4
+"""Rows a new node array reserves, in multiples of the rows it is made for: the tables to come go in behind without
+a copy of the kept ones. Rows not yet written cost address space only (a private mapping's untouched pages are
+not resident), so a sequence copies a cache's tables a few times, not once a frame."""
 _OFFSET, _LENGTH = _kernels_table.META_COLUMNS.index("offset"), _kernels_table.META_COLUMNS.index("length")
 _ROW_BYTES = np.dtype(np.float32).itemsize * _kernels_table.TABLE_COLUMNS
 
@@ -27,8 +31,8 @@ class TableCache:
     call's tables so far (:attr:`limit_bytes`). ``hits`` and ``builds`` count the distinct keys of every
     call found in the cache and built (a thrashing cache builds the same keys again and again). Callers
     hold ``lock`` around :meth:`rows` and their reads of ``meta`` and ``nodes``: a build replaces them by
-    longer ones (it writes new nodes only behind the rows an earlier ``nodes`` holds, into room kept for them:
-    at most half the nodes' bytes more than :attr:`nbytes`), an eviction by new arrays with rows renumbered.
+    longer ones (it writes new nodes only behind the rows an earlier ``nodes`` holds, into room kept for them,
+    resident only once written), an eviction by new arrays with rows renumbered.
     """
 
     def __init__(self, budget_bytes, floor_bytes):
@@ -156,12 +160,13 @@ class TableCache:
 
 
 def _room_for(n_nodes):
-    """A node array for ``n_nodes`` rows and half as many again behind them, for the tables to come, in memory of
-    its own (an anonymous ``mmap``), given back to the system as soon as the last view of it goes."""
-    rows = n_nodes + n_nodes // 2
-    buffer = mmap.mmap(-1, max(rows, 1) * _ROW_BYTES)
-    if hasattr(mmap, "MADV_HUGEPAGE"):  # look-ups jump across the nodes; a shared mapping gets huge pages only
-        # where transparent_hugepage/shmem_enabled allows it (docs/benchmarks.md: private rooms measured no faster)
+    """A node array with room for :data:`ROOM_GROWTH` times ``n_nodes`` rows, for the tables to come, in memory of
+    its own (a private anonymous ``mmap``), given back to the system as soon as the last view of it goes."""
+    rows = ROOM_GROWTH * n_nodes
+    private = {"flags": mmap.MAP_PRIVATE | mmap.MAP_ANONYMOUS} if hasattr(mmap, "MAP_PRIVATE") else {}  # not Windows
+    buffer = mmap.mmap(-1, max(rows, 1) * _ROW_BYTES, **private)
+    if hasattr(mmap, "MADV_HUGEPAGE"):  # look-ups jump across the nodes; a private mapping gets huge pages where
+        # transparent_hugepage/enabled is "madvise" or "always" (a shared one only where shmem_enabled allows)
         buffer.madvise(mmap.MADV_HUGEPAGE)
     return np.frombuffer(buffer, dtype=np.float32, count=rows * _kernels_table.TABLE_COLUMNS).reshape(
         rows, _kernels_table.TABLE_COLUMNS
