@@ -761,12 +761,15 @@ def test_table_room_is_writable_memory_of_its_own_behind_the_rows_asked_for():
 
 @pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="reads the resident set from /proc")
 def test_table_room_rows_cost_memory_only_once_written():
+    def resident():
+        return _meminfo_bytes("VmRSS", "/proc/self/status")
+
     n_rows = (256 << 20) // (_prism_cache.ROOM_GROWTH * _prism_cache._ROW_BYTES)  # a 256 MiB room
-    before = _meminfo_bytes("VmRSS", "/proc/self/status")
+    before = resident()
     room = _prism_cache._room_for(n_rows)
-    assert _meminfo_bytes("VmRSS", "/proc/self/status") - before < 16 << 20
+    assert resident() - before < 16 << 20
     room[: n_rows // 2] = 1.0  # 32 MiB written: resident
-    assert _meminfo_bytes("VmRSS", "/proc/self/status") - before > 24 << 20
+    assert resident() - before > 24 << 20
 
 
 @pytest.mark.parametrize(("depth", "max_range"), [(3.0, 200.0), (15.0, 20.0)])

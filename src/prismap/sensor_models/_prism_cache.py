@@ -19,6 +19,7 @@ a copy of the kept ones. Rows not yet written cost address space only (a private
 not resident), so a sequence copies a cache's tables a few times, not once a frame."""
 _OFFSET, _LENGTH = _kernels_table.META_COLUMNS.index("offset"), _kernels_table.META_COLUMNS.index("length")
 _ROW_BYTES = np.dtype(np.float32).itemsize * _kernels_table.TABLE_COLUMNS
+_PRIVATE_MAP = {"flags": mmap.MAP_PRIVATE | mmap.MAP_ANONYMOUS} if hasattr(mmap, "MAP_PRIVATE") else {}  # not Windows
 
 
 class TableCache:
@@ -163,8 +164,7 @@ def _room_for(n_nodes):
     """A node array with room for :data:`ROOM_GROWTH` times ``n_nodes`` rows, for the tables to come, in memory of
     its own (a private anonymous ``mmap``), given back to the system as soon as the last view of it goes."""
     rows = ROOM_GROWTH * n_nodes
-    private = {"flags": mmap.MAP_PRIVATE | mmap.MAP_ANONYMOUS} if hasattr(mmap, "MAP_PRIVATE") else {}  # not Windows
-    buffer = mmap.mmap(-1, max(rows, 1) * _ROW_BYTES, **private)
+    buffer = mmap.mmap(-1, max(rows, 1) * _ROW_BYTES, **_PRIVATE_MAP)
     if hasattr(mmap, "MADV_HUGEPAGE"):  # look-ups jump across the nodes; a private mapping gets huge pages where
         # transparent_hugepage/enabled is "madvise" or "always" (a shared one only where shmem_enabled allows)
         buffer.madvise(mmap.MADV_HUGEPAGE)
