@@ -496,6 +496,42 @@ def test_table_combination_keeps_a_tiny_d_at_either_end():
     np.testing.assert_allclose(np.log(ratio), expected, rtol=1e-9, atol=1e-9)
 
 
+@pytest.mark.parametrize("pass_through", [0.0, 0.02])
+def test_cells_far_in_front_match_the_log_space_combination(pass_through):
+    """prism_table_combine's cells far in front of the measurement (``log(C/Z)`` below -600 at both ends; gathered and
+    combined by fast exp and log) against the log-space formula by numpy (``P Z = C(c) - e^-lam_len C(a)``, ``D/Z =
+    1``), with gaps ``log(C(c)/C(a))`` from 0 (a start interpolated above its end) to 200 nats and cell priors from
+    1e-7 to 1, mixed with cells of the linear pass; then thinned by ``pass_through``."""
+    l_c = -np.array([600.5, 750.0, 4000.0, 1e5])
+    gap = np.array([-1.0, 0.0, 1e-6, 0.1, 3.0, 200.0])  # log C(c) - log C(a); below 0 is interpolation noise
+    lam_len = np.array([1e-7, 1e-3, 0.05, 2.3, 45.0, 800.0])
+    lc, g, length = (v.ravel() for v in np.meshgrid(l_c, gap, lam_len, indexing="ij"))
+    la = lc - g
+    near = np.array([-3.0, -0.2])  # two cells of the linear pass between them, C/Z and D/Z at the end
+    la, lc, length = np.r_[la, -5.0, -4.0], np.r_[lc, near], np.r_[length, 0.3, 0.3]
+    side = np.r_[np.zeros(la.size - 1, dtype=np.int8), 2].astype(np.int8)
+    n = la.size
+    post, ratio, fix_value = np.empty(n), np.empty(n), np.empty(n)
+    fix_index = np.empty(n, dtype=np.int64)
+    fixed = _kernels_lookup.prism_table_combine(
+        0, n, la, lc, np.exp(la), np.exp(lc), side, length, post, ratio, fix_index, fix_value, pass_through
+    )
+    far = np.arange(n - 2)
+    assert fixed == far.size and sorted(fix_index[:fixed]) == list(far)
+    increment = np.log(ratio)
+    increment[fix_index[:fixed]] = fix_value[:fixed]
+    log_num = lc[far] + np.log(-np.expm1(-(length[far] - np.minimum(la[far] - lc[far], 0.0))))
+    expected = log_num - length[far] - np.log(-np.expm1(-length[far]))
+    expected_post = np.exp(log_num)
+    if pass_through:
+        expected_post, expected = np.array(
+            [_kernels_direct.pass_through_log(v, ln, pass_through) for v, ln in zip(expected, length[far])]
+        ).T
+    np.testing.assert_allclose(increment[far], expected, rtol=1e-12, atol=1e-9)
+    np.testing.assert_allclose(post[far], expected_post, rtol=1e-9, atol=0)
+    assert np.all(np.isfinite(increment)) and np.all(ratio[-2:] != 1.0)  # the linear pass's cells stay its own
+
+
 @pytest.mark.parametrize("method", ["table", "direct"])
 def test_finite_and_in_unit_interval_from_10cm_to_200m_with_high_rate(method):
     rate = 50.0  # per metre: p0 = 1 - e^-5 for 0.1 m cells

@@ -13,7 +13,7 @@ import numpy as np
 
 from prismap.sensor_models._kernels_direct import combine, log_tail, pass_through_log
 from prismap.sensor_models._kernels_march import log_integral
-from prismap.sensor_models._kernels_math import exp_into, fast_exp, log1mexp, log_into
+from prismap.sensor_models._kernels_math import exp_into, fast_exp, fast_log, log1mexp, log_into
 from prismap.sensor_models._kernels_table import (
     _D_COLUMN,
     _LAM,
@@ -34,6 +34,10 @@ from prismap.sensor_models._kernels_table import (
 )
 
 _FASTMATH = {"nsz", "arcp", "contract", "afn", "reassoc"}  # never nnan/ninf: NaN marks values not looked up
+
+_FAR_IN_FRONT = -600.0
+"""``log(C/Z)`` at a cell's end below which the cell is far in front of the measurement: ``D/Z = 1`` there to far
+below float64's precision (:func:`combine_small`, :func:`_far_in_front`)."""
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
@@ -101,7 +105,7 @@ def combine_small(l_a, l_c, a_is_d, c_is_d, lam_len):
     ``D/Z = 1`` to that precision) ``P Z = C(c) - e^{-lam_len} C(a)`` and ``(1 - P) Z = D(c)``: two
     transcendentals fewer than the general case.
     """
-    if not c_is_d and l_c < -600.0 and lam_len > 0.0:
+    if not c_is_d and l_c < _FAR_IN_FRONT and lam_len > 0.0:
         l_ca = log1mexp(l_a) if a_is_d else l_a
         log_num = l_c + math.log1p(-math.exp(min(l_ca - l_c, 0.0) - lam_len))
         return math.exp(log_num), log_num - lam_len - log1mexp(-lam_len)
@@ -339,10 +343,12 @@ def prism_table_combine(lo, hi, l_a, l_c, e_a, e_c, side, lam_len, post, ratio, 
     ``C/Z`` and ``D/Z`` at both ends are at hand in linear space: ``P Z = p_c C(a) + C(c) - C(a)``,
     ``(1 - P) Z = (1 - p_c) C(a) + D(c)`` and the increment is ``log(ratio)`` with
     ``ratio = P (1 - p_c) / ((1 - P) p_c)``, ``p_c = 1 - e^-lam_len``. A first, branch-free pass (it
-    vectorises) does every cell so; a second one redoes the few it marked (``ratio`` -1): skipped cells
+    vectorises) does every cell so; a second one redoes the cells it marked (``ratio`` -1): skipped cells
     (``ratio = 1``, the posterior the prior's) and cells near underflow (a log below -600 or
-    ``lam_len > 40``), which go through :func:`combine_small`: ``ratio = 1``, listed in ``fix_index``
-    (offset from ``lo``) and ``fix_value``. Returns how many.
+    ``lam_len > 40``), which go through :func:`combine_small`, those far in front of the measurement gathered
+    into :func:`_far_in_front` (a fifth of a long outdoor ray's cells: one by one, with the C library's exp and
+    logs, they cost more than the first pass): ``ratio = 1``, listed in ``fix_index`` (offset from ``lo``) and
+    ``fix_value``. Returns how many.
 
     Parameters
     ----------
@@ -391,6 +397,8 @@ def prism_table_combine(lo, hi, l_a, l_c, e_a, e_c, side, lam_len, post, ratio, 
         post[lo + j] = num / (num + den) if pass_through == 0.0 else p_c * thinned / (p_c * thinned + q_c)
         ratio[j] = thinned if ok else -1.0
     n_fix = 0
+    far = np.empty(hi - lo, dtype=np.int64)  # cells far in front of the measurement (see below)
+    n_far = 0
     for j in range(hi - lo):
         if ratio[j] >= 0.0:
             continue
@@ -398,12 +406,46 @@ def prism_table_combine(lo, hi, l_a, l_c, e_a, e_c, side, lam_len, post, ratio, 
         if side[j] == _SKIP:
             post[lo + j] = -math.expm1(-lam_len[j])
             continue
+        if side[j] == 0 and l_c[j] < _FAR_IN_FRONT and lam_len[j] > 0.0:
+            far[n_far] = j
+            n_far += 1
+            continue
         post[lo + j], fix_value[n_fix] = combine_small(l_a[j], l_c[j], side[j] & 1, side[j] & 2, lam_len[j])
         if pass_through > 0.0:
             post[lo + j], fix_value[n_fix] = pass_through_log(fix_value[n_fix], lam_len[j], pass_through)
         fix_index[n_fix] = j
         n_fix += 1
+    if n_far:
+        _far_in_front(far[:n_far], lo, l_a, l_c, lam_len, post, fix_value[n_fix : n_fix + n_far])
+        for k in range(n_far):
+            j = far[k]
+            if pass_through > 0.0:
+                post[lo + j], fix_value[n_fix] = pass_through_log(fix_value[n_fix], lam_len[j], pass_through)
+            fix_index[n_fix] = j
+            n_fix += 1
     return n_fix
+
+
+@nb.njit(cache=True, nogil=True, error_model="numpy")
+def _far_in_front(cells, lo, l_a, l_c, lam_len, post, increment):
+    """:func:`combine_small`'s case far in front of the measurement for the cells ``cells`` (offsets from ``lo``;
+    ``log(C/Z)`` below :data:`_FAR_IN_FRONT` at the end, ``l_a``, ``l_c`` both C's), gathered so that the maths
+    vectorises: ``P Z = C(c) - e^{-lam_len} C(a)``, ``(1 - P) Z = Z``. Writes ``post[lo + cell]`` and ``increment``
+    ((len(cells),) float64, log-odds, in the order of ``cells``). ``1 - e^-x`` by :func:`_cell_prior` (its series
+    where it would cancel), exp and log by :func:`fast_exp`, :func:`fast_log`."""
+    n = cells.size
+    end, rate_len, gap = np.empty(n), np.empty(n), np.empty(n)
+    for k in range(n):
+        j = cells[k]
+        end[k] = l_c[j]
+        rate_len[k] = lam_len[j]
+        gap[k] = lam_len[j] - min(l_a[j] - l_c[j], 0.0)  # log(C(c) / (e^-lam_len C(a))) >= lam_len > 0
+    for k in range(n):
+        log_num = end[k] + fast_log(_cell_prior(gap[k])[0])
+        increment[k] = log_num - rate_len[k] - fast_log(_cell_prior(rate_len[k])[0])
+        end[k] = fast_exp(log_num)
+    for k in range(n):
+        post[lo + cells[k]] = end[k]
 
 
 @nb.njit(cache=True, nogil=True)
