@@ -133,6 +133,35 @@ def test_the_ray_cell_blend_takes_each_cells_prior_from_its_clipped_length():
     np.testing.assert_allclose(posterior[ordinary], by_probability[ordinary], rtol=1e-9)
 
 
+def test_table_cells_blend_as_the_ray_cell_blend_does():
+    """PRISM's tables blend each cell inside the look-up, from the likelihood ratio; the reference is the separate
+    pass over the unblended increments (``blend_ray_cells``) with the rays' failure posteriors from their tables'
+    ``Z``. Cells tile 0-60 m from the camera (before ``near_m`` and past the influence depth: skipped), stretched
+    by each ray's voxel overhang, on rays from near to far (cells far in front of their measurement: the look-up's
+    log-space cases)."""
+    model = PrismModel(
+        error_model=FAILING, focal_baseline=FB, voxel_size_m=0.2, p0=0.05, near_m=0.5, overhang_fraction=0.25
+    )
+    disparity = FB / np.array([1.2, 3.0, 11.0, 40.0, 150.0]) + np.array([0.0, 1 / 16, 0.3, -0.1, 0.02])
+    norm = np.array([1.0, 1.02, 1.1, 1.3, 1.04])
+    overhang = np.array([0.0, 0.1, 0.3, 0.05, 1.0])
+    edges = np.arange(0.0, 60.0 + 1e-9, 0.2)
+    rays = np.repeat(np.arange(disparity.size), edges.size - 1)
+    start, end = np.tile(edges[:-1], disparity.size), np.tile(edges[1:], disparity.size)
+    posterior, increment = model.cell_posteriors(disparity, norm, rays, start, end, voxel_overhang_m=overhang)
+    stretch = model.overhang_fraction * overhang / norm
+    lam = model.rate_per_m * norm
+    tables = model._tables_for(disparity, norm)
+    _, unblended = model._table_cells(lam, rays, start, end, stretch, tables, (np.empty(0), np.empty(0)))
+    log_fail, log_ok = model._log_failure(tables)
+    expected_posterior, expected = _kernels_failure.blend_ray_cells(
+        unblended, rays, start, end + stretch[rays], lam[rays], model.near_m, model.far_depth_m, log_fail, log_ok
+    )
+    assert np.any(unblended < -600) and np.any(unblended == 0) and np.any(np.abs(unblended) > 1)
+    np.testing.assert_allclose(increment, expected, rtol=1e-12, atol=1e-13)
+    np.testing.assert_allclose(posterior, expected_posterior, rtol=1e-12, atol=1e-300)
+
+
 def test_failure_posterior_never_drops_below_the_floor():
     eps = failure_floor(FAILING)
     expected = (0.01 / 64) / (0.99 * FAILING.peak_density() + 0.01 / 64)

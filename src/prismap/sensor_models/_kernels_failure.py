@@ -26,11 +26,29 @@ def _blend(increment, p, q, ok, fail):
     posterior ``fail = 1 - rho`` (``ok = rho``). With ``R = exp(increment)`` and ``A = q + p R`` the blend's odds
     are ``p (rho R + fail A) / (q (rho + fail A))``."""
     ratio = fast_exp(min(max(increment, -_EXP_BOUND), _EXP_BOUND))
+    posterior, numerator, denominator = _blend_terms(ratio, p, q, ok, fail)
+    return posterior, fast_log(numerator) - fast_log(denominator)
+
+
+@nb.njit(cache=True, nogil=True, inline="always", error_model="numpy")
+def _blend_terms(ratio, p, q, ok, fail):
+    """The blend's posterior and the numerator and denominator of its likelihood ratio, from the failure-free one
+    ``ratio`` (``R``); the other parameters as :func:`_blend`'s."""
     a = q + p * ratio
     numerator = ok * ratio + fail * a
     denominator = ok + fail * a
     occupied = p * numerator
-    return occupied / (occupied + q * denominator), fast_log(numerator) - fast_log(denominator)
+    return occupied / (occupied + q * denominator), numerator, denominator
+
+
+@nb.njit(cache=True, nogil=True, inline="always", error_model="numpy")
+def _clipped_prior(rate, start, end, near, far):
+    """``(p, q)``: the prior occupancy ``1 - exp(-rate * length)`` of the cell ``[start, end]`` (metres of depth)
+    clipped to ``[near, far]`` (``rate``, 1/metre of depth), and ``1 - p``, each without cancellation."""
+    length = min(max(end, near), far) - min(max(start, near), far)
+    x = rate * max(length, 0.0)
+    q = fast_exp(-x)
+    return (x * (1.0 - x * (0.5 - x / 6.0)) if x < _SERIES_BELOW else 1.0 - q), q
 
 
 @nb.njit(cache=True, nogil=True, error_model="numpy")
@@ -65,9 +83,27 @@ def blend_ray_cells(increment, rays, start, end, cell_rate, near, far, log_fail,
             fail_cell[j] = fail[ray]
         for j in range(size):
             i = first + j
-            length = min(max(end[i], near), far) - min(max(start[i], near), far)
-            x = cell_rate[i] * max(length, 0.0)
-            q = fast_exp(-x)
-            p = x * (1.0 - x * (0.5 - x / 6.0)) if x < _SERIES_BELOW else 1.0 - q
-            posterior[i], blended[i] = _blend(increment[i], p, q, ok_cell[j], fail_cell[j])
+            posterior[i], blended[i] = blend_cell(
+                increment[i], cell_rate[i], start[i], end[i], near, far, ok_cell[j], fail_cell[j]
+            )
     return posterior, blended
+
+
+@nb.njit(cache=True, nogil=True, inline="always", error_model="numpy")
+def blend_cell(increment, rate, start, end, near, far, ok, fail):
+    """:func:`_blend` of one cell of failure-free ``increment`` (log-odds) and prior :func:`_clipped_prior`:
+    ``(posterior, increment)``."""
+    p, q = _clipped_prior(rate, start, end, near, far)
+    return _blend(increment, p, q, ok, fail)
+
+
+@nb.njit(cache=True, nogil=True, error_model="numpy")
+def blend_ratios_into(posterior, ratio, rate, start, end, near, far, ok, fail, count):
+    """:func:`blend_cell` of the first ``count`` cells from their failure-free likelihood ratios ``ratio`` (``e^``
+    the increment; overwritten by the blend's) instead of increments: no exp and log per cell before the caller's
+    one log (each cell's ``rate``, ``ok`` and ``fail`` gathered beforehand, so that the loop vectorises).
+    ``posterior`` is written; all arrays (count,) float64 or longer."""
+    for j in range(count):
+        p, q = _clipped_prior(rate[j], start[j], end[j], near, far)
+        posterior[j], numerator, denominator = _blend_terms(ratio[j], p, q, ok[j], fail[j])
+        ratio[j] = numerator / denominator

@@ -12,6 +12,7 @@ import numba as nb
 import numpy as np
 
 from prismap.sensor_models._kernels_direct import combine, log_tail, pass_through_log
+from prismap.sensor_models._kernels_failure import blend_cell, blend_ratios_into
 from prismap.sensor_models._kernels_march import log_integral
 from prismap.sensor_models._kernels_math import exp_into, fast_exp, fast_log, log1mexp, log_into
 from prismap.sensor_models._kernels_table import (
@@ -448,15 +449,32 @@ def _far_in_front(cells, lo, l_a, l_c, lam_len, post, increment):
         post[lo + cells[k]] = end[k]
 
 
-@nb.njit(cache=True, nogil=True)
+@nb.njit(cache=True, nogil=True, error_model="numpy")  # the inlined blend divides
 def prism_table_cells(
-    lam, table, delta, stretch, ray_of_cell, start, end, meta, nodes, hq, block, pass_through, geometry, mixture
+    lam,
+    table,
+    delta,
+    stretch,
+    ray_of_cell,
+    start,
+    end,
+    meta,
+    nodes,
+    hq,
+    block,
+    pass_through,
+    ok,
+    fail,
+    geometry,
+    mixture,
 ):
     """Tabulated PRISM on every cell ``[start[i], end[i] + stretch[r]]``: posterior and increment, (C,) each.
 
     Blocks of ``block`` cells go through :func:`prism_table_lookup`, :func:`exp_into` (both ends),
-    :func:`prism_table_combine` and :func:`log_into`; the scratch arrays of a block stay in the core's
-    cache and the GIL stays released for the whole call.
+    :func:`prism_table_combine`, where the error model has matcher failures the blend with each cell's prior
+    (:func:`~prismap.sensor_models._kernels_failure.blend_ratios_into` on the likelihood ratios, ``blend_cell``
+    on the increments :func:`prism_table_combine` lists), and :func:`log_into`; the scratch arrays of a block stay
+    in the core's cache and the GIL stays released for the whole call.
 
     Parameters
     ----------
@@ -466,6 +484,10 @@ def prism_table_cells(
         Cells per round (their scratch arrays stay in the core's cache).
     pass_through : float in [0, 1)
         See :func:`prism_table_combine`.
+    ok, fail : (R,) float64, or (0,) each
+        Each ray's posterior of a good match, ``rho``, and of a matcher failure, ``1 - rho``
+        (:func:`~prismap.sensor_models.log_failure_posterior`, exponentiated); empty: no failures, no blend. A
+        cell's prior in the blend is that of its part in ``[z0, z_max]``.
 
     Returns
     -------
@@ -482,6 +504,10 @@ def prism_table_cells(
     lam_len, ratio, fix_value = np.empty(size), np.empty(size), np.empty(size)
     side = np.empty(size, dtype=np.int8)
     fix_index = np.empty(size, dtype=np.int64)
+    z0, z_max = geometry.z0, geometry.z_max
+    blend = ok.size > 0
+    n_blend = size if blend else 0  # each cell's ray's rate, ok and fail, and its end with the stretch
+    rate_cell, ok_cell, fail_cell, end_cell = np.empty(n_blend), np.empty(n_blend), np.empty(n_blend), np.empty(n_blend)
     for lo in range(0, n, size):
         hi = min(lo + size, n)
         m = hi - lo
@@ -510,9 +536,19 @@ def prism_table_cells(
         n_fix = prism_table_combine(
             lo, hi, l_a, l_c, e_a, e_c, side, lam_len, post, ratio, fix_index, fix_value, pass_through
         )
+        if blend:
+            for j in range(m):
+                r = ray_of_cell[lo + j]
+                rate_cell[j], ok_cell[j], fail_cell[j], end_cell[j] = lam[r], ok[r], fail[r], end[lo + j] + stretch[r]
+            blend_ratios_into(post[lo:hi], ratio, rate_cell, start[lo:hi], end_cell, z0, z_max, ok_cell, fail_cell, m)
         log_into(ratio, inc[lo:hi], m)
         for k in range(n_fix):
-            inc[lo + fix_index[k]] = fix_value[k]
+            j = fix_index[k]
+            inc[lo + j] = fix_value[k]
+            if blend:
+                post[lo + j], inc[lo + j] = blend_cell(
+                    fix_value[k], rate_cell[j], start[lo + j], end_cell[j], z0, z_max, ok_cell[j], fail_cell[j]
+                )
     return post, inc
 
 

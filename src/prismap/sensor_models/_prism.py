@@ -307,7 +307,6 @@ class PrismModel(RayModel):
         ``p0``): the cells' priors when ``prior == "map"``; refused otherwise.
         """
         method = self.method if method is None else method
-        tables = None  # the rays' tables, once looked up
         disparity, norm, rays, start, end, _ = self._prepare(
             disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m
         )
@@ -320,11 +319,10 @@ class PrismModel(RayModel):
         lam = self.rate_per_m * norm
         if self.solid_depth_m > 0:  # the stretch [a - solid / |r|, c'] (cells already before near_m stay as they are)
             start = np.minimum(start, np.maximum(start - self.solid_depth_m / norm[rays], self.near_m))
-        cell_rate = lam[rays]
         if self.prior == "map":
             result, map_rate = self._map_prior_cells(lam, disparity, norm, rays, start, end, stretch, map_log_odds)
-            if map_log_odds is not None:  # without a map every cell is at p0: lam's rate, as above
-                cell_rate = map_rate
+            # each cell's prior rate for the failure blend; without a map every cell is at p0: lam's rate
+            cell_rate = map_rate if map_log_odds is not None else lam[rays]
             method = "table"
         elif map_log_odds is not None:
             raise PrismapInputError("prism: `map_log_odds` is used only with prior='map'; this model has prior='p0'")
@@ -344,35 +342,36 @@ class PrismModel(RayModel):
                 self._geometry(),
                 self._mixture(),
             )
-        elif method == "table":
+            cell_rate = lam[rays]
+        elif method == "table":  # the failure blend, if any, inside the look-up's blocks
             tables = self._tables_for(disparity, norm)
-            result = self._table_cells(lam, rays, start, end, stretch, tables)
+            return self._table_cells(lam, rays, start, end, stretch, tables, self._log_failure(tables))
         else:
             raise PrismapInputError(f"prism: `method` must be 'table' or 'direct'; got {method!r}")
         if self.error_model.failure_weight == 0:
             return result
-        return self._with_failures(
-            result, method, tables, lam, disparity, norm, rays, start, end + stretch[rays], cell_rate
-        )
-
-    def _with_failures(self, result, method, tables, lam, disparity, norm, rays, start, end, cell_rate):
-        """The cells' ``(posterior, increment)`` of ``result`` (the Gaussians' PRISM) blended with their priors by
-        each ray's failure posterior (:func:`prismap.sensor_models.blend_increments`; docs/SENSOR_MODELS.md,
-        "Matcher failures"). The ray's ``Z`` is the table's (``method="table"``, also for ``prior="map"``, where
-        it is the marginal under ``p0``; ``tables``: the rays' :meth:`_tables_for`, looked up here when None) or
-        marched (``"direct"``); ``cell_rate`` (per metre of depth) gives each
-        cell's prior over ``[start, end]`` clipped to ``[near_m, far_depth_m]``."""
-        if method == "table":
-            table, delta, meta, _ = self._tables_for(disparity, norm) if tables is None else tables
-            log_z = meta[table, _LOG_Z] + delta * (meta[table, _LOG_Z_1] + 0.5 * delta * meta[table, _LOG_Z_2])
+        if method == "table":  # prior="map": Z is the tables' marginal under p0
+            log_fail, log_ok = self._log_failure(self._tables_for(disparity, norm))
         else:
             log_z = _kernels_direct.prism_log_evidence(
                 disparity + self.doffs_px, lam, self._log_far(disparity), _QUAD_STEP, self._geometry(), self._mixture()
             )
-        log_fail, log_ok = log_failure_posterior(self.error_model, log_z)
+            log_fail, log_ok = log_failure_posterior(self.error_model, log_z)
         return _kernels_failure.blend_ray_cells(
-            result[1], rays, start, end, cell_rate, self.near_m, self.far_depth_m, log_fail, log_ok
+            result[1], rays, start, end + stretch[rays], cell_rate, self.near_m, self.far_depth_m, log_fail, log_ok
         )
+
+    def _log_failure(self, tables):
+        """``log(1 - rho)`` and ``log(rho)`` of each ray, its failure posterior given its tables' ``Z``
+        (:meth:`_tables_for`; :func:`~prismap.sensor_models.log_failure_posterior`), or two empty arrays when the
+        error model has no failures. A cell's ``(posterior, increment)`` is then the Gaussians' PRISM blended with
+        its prior by its ray's (:func:`prismap.sensor_models.blend_increments`; docs/SENSOR_MODELS.md, "Matcher
+        failures")."""
+        if self.error_model.failure_weight == 0:
+            return np.empty(0), np.empty(0)
+        table, delta, meta, _ = tables
+        log_z = meta[table, _LOG_Z] + delta * (meta[table, _LOG_Z_1] + 0.5 * delta * meta[table, _LOG_Z_2])
+        return log_failure_posterior(self.error_model, log_z)
 
     def influence_depth(self, disparity_px: npt.ArrayLike, ray_norm: npt.ArrayLike) -> npt.NDArray[np.float64]:
         """Depth beyond which every cell's ``|logit(P) - logit(p_c)| < influence_epsilon`` (metres), per ray.
@@ -436,11 +435,12 @@ class PrismModel(RayModel):
         return result, cell_rate
 
     # ------------------------------------------------------------------ tables
-    def _table_cells(self, lam, rays, start, end, stretch, tables):
+    def _table_cells(self, lam, rays, start, end, stretch, tables, log_failure):
         """Tabulated posteriors and increments of the cells ``[start, end + stretch[rays]]`` from the rays'
         ``tables`` (:meth:`_tables_for`; ``_kernels_lookup.prism_table_cells``: table look-ups, vectorised exp,
-        combination, vectorised log)."""
+        combination, vectorised log), blended by the rays' failure posteriors ``log_failure`` (:meth:`_log_failure`)."""
         table, delta, meta, nodes = tables
+        log_fail, log_ok = log_failure
         return _kernels_lookup.prism_table_cells(
             lam,
             table,
@@ -454,6 +454,8 @@ class PrismModel(RayModel):
             _QUAD_STEP,
             _CHUNK_CELLS,
             self.pass_through,
+            np.exp(log_ok),
+            np.exp(log_fail),
             self._geometry(),
             self._mixture(),
         )
