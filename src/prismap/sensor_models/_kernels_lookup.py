@@ -435,7 +435,7 @@ def _far_in_front(cells, lo, l_a, l_c, lam_len, post, increment):
     ((len(cells),) float64, log-odds, in the order of ``cells``). ``1 - e^-x`` by :func:`_cell_prior` (its series
     where it would cancel), exp and log by :func:`fast_exp`, :func:`fast_log`."""
     n = cells.size
-    end, rate_len, gap = np.empty(n), np.empty(n), np.empty(n)
+    end, rate_len, gap, posterior = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
     for k in range(n):
         j = cells[k]
         end[k] = l_c[j]
@@ -444,9 +444,9 @@ def _far_in_front(cells, lo, l_a, l_c, lam_len, post, increment):
     for k in range(n):
         log_num = end[k] + fast_log(_cell_prior(gap[k])[0])
         increment[k] = log_num - rate_len[k] - fast_log(_cell_prior(rate_len[k])[0])
-        end[k] = fast_exp(log_num)
+        posterior[k] = fast_exp(log_num)
     for k in range(n):
-        post[lo + cells[k]] = end[k]
+        post[lo + cells[k]] = posterior[k]
 
 
 @nb.njit(cache=True, nogil=True, error_model="numpy")  # the inlined blend divides
