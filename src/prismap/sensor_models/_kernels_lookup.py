@@ -38,7 +38,7 @@ _FASTMATH = {"nsz", "arcp", "contract", "afn", "reassoc"}  # never nnan/ninf: Na
 
 _FAR_IN_FRONT = -600.0
 """``log(C/Z)`` at a cell's end below which the cell is far in front of the measurement: ``D/Z = 1`` there to far
-below float64's precision (:func:`combine_small`, :func:`_far_in_front`)."""
+below float64's precision (:func:`_far_in_front`)."""
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
@@ -102,14 +102,9 @@ def _cell_prior(x):
 def combine_small(l_a, l_c, a_is_d, c_is_d, lam_len):
     """:func:`combine` from the log of the smaller of ``C/Z``, ``D/Z`` at each end (``*_is_d``: it is D's).
 
-    The other one is ``log(1 - e^small)``. Far in front of the measurement (``C(c)/Z < e^-600``, so
-    ``D/Z = 1`` to that precision) ``P Z = C(c) - e^{-lam_len} C(a)`` and ``(1 - P) Z = D(c)``: two
-    transcendentals fewer than the general case.
+    The other one is ``log(1 - e^small)``. Cells far in front of the measurement go through
+    :func:`_far_in_front` instead.
     """
-    if not c_is_d and l_c < _FAR_IN_FRONT and lam_len > 0.0:
-        l_ca = log1mexp(l_a) if a_is_d else l_a
-        log_num = l_c + math.log1p(-math.exp(min(l_ca - l_c, 0.0) - lam_len))
-        return math.exp(log_num), log_num - lam_len - log1mexp(-lam_len)
     other_a = log1mexp(l_a)
     other_c = log1mexp(l_c)
     return combine(
@@ -407,7 +402,7 @@ def prism_table_combine(lo, hi, l_a, l_c, e_a, e_c, side, lam_len, post, ratio, 
         if side[j] == _SKIP:
             post[lo + j] = -math.expm1(-lam_len[j])
             continue
-        if side[j] == 0 and l_c[j] < _FAR_IN_FRONT and lam_len[j] > 0.0:
+        if not side[j] & 2 and l_c[j] < _FAR_IN_FRONT and lam_len[j] > 0.0:
             far[n_far] = j
             n_far += 1
             continue
@@ -417,7 +412,7 @@ def prism_table_combine(lo, hi, l_a, l_c, e_a, e_c, side, lam_len, post, ratio, 
         fix_index[n_fix] = j
         n_fix += 1
     if n_far:
-        _far_in_front(far[:n_far], lo, l_a, l_c, lam_len, post, fix_value[n_fix : n_fix + n_far])
+        _far_in_front(far[:n_far], lo, l_a, l_c, side, lam_len, post, fix_value[n_fix : n_fix + n_far])
         for k in range(n_far):
             j = far[k]
             if pass_through > 0.0:
@@ -428,10 +423,11 @@ def prism_table_combine(lo, hi, l_a, l_c, e_a, e_c, side, lam_len, post, ratio, 
 
 
 @nb.njit(cache=True, nogil=True, error_model="numpy")
-def _far_in_front(cells, lo, l_a, l_c, lam_len, post, increment):
-    """:func:`combine_small`'s case far in front of the measurement for the cells ``cells`` (offsets from ``lo``;
-    ``log(C/Z)`` below :data:`_FAR_IN_FRONT` at the end, ``l_a``, ``l_c`` both C's), gathered so that the maths
-    vectorises: ``P Z = C(c) - e^{-lam_len} C(a)``, ``(1 - P) Z = Z``. Writes ``post[lo + cell]`` and ``increment``
+def _far_in_front(cells, lo, l_a, l_c, side, lam_len, post, increment):
+    """The cells ``cells`` (offsets from ``lo``) far in front of the measurement: ``log(C/Z)`` below
+    :data:`_FAR_IN_FRONT` at the end (``l_c`` C's; ``l_a`` C's or, where ``side`` bit 0 says so, D's), so ``D/Z = 1``
+    to float64's precision and ``P Z = C(c) - e^{-lam_len} C(a)``, ``(1 - P) Z = Z``: two transcendentals fewer than
+    :func:`combine_small`, in a loop that vectorises over the gathered cells. Writes ``post[lo + cell]`` and ``increment``
     ((len(cells),) float64, log-odds, in the order of ``cells``). ``1 - e^-x`` by :func:`_cell_prior` (its series
     where it would cancel), exp and log by :func:`fast_exp`, :func:`fast_log`."""
     n = cells.size
@@ -440,7 +436,8 @@ def _far_in_front(cells, lo, l_a, l_c, lam_len, post, increment):
         j = cells[k]
         end[k] = l_c[j]
         rate_len[k] = lam_len[j]
-        gap[k] = lam_len[j] - min(l_a[j] - l_c[j], 0.0)  # log(C(c) / (e^-lam_len C(a))) >= lam_len > 0
+        l_ca = log1mexp(l_a[j]) if side[j] & 1 else l_a[j]
+        gap[k] = lam_len[j] - min(l_ca - l_c[j], 0.0)  # log(C(c) / (e^-lam_len C(a))) >= lam_len > 0
     for k in range(n):
         log_num = end[k] + fast_log(_cell_prior(gap[k])[0])
         increment[k] = log_num - rate_len[k] - fast_log(_cell_prior(rate_len[k])[0])
@@ -544,11 +541,12 @@ def prism_table_cells(
         log_into(ratio, inc[lo:hi], m)
         for k in range(n_fix):
             j = fix_index[k]
-            inc[lo + j] = fix_value[k]
             if blend:
                 post[lo + j], inc[lo + j] = blend_cell(
                     fix_value[k], rate_cell[j], start[lo + j], end_cell[j], z0, z_max, ok_cell[j], fail_cell[j]
                 )
+            else:
+                inc[lo + j] = fix_value[k]
     return post, inc
 
 
