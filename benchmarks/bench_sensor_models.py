@@ -74,11 +74,12 @@ def table_stages(prism, batch, repeat=5):
     """Nanoseconds per cell of each stage of tabulated PRISM's cell update on ``batch`` (tables warm): the two
     table look-ups per cell (``_kernels_lookup.prism_table_lookup``), the two vectorised exps, the combination and
     the vectorised log, each run alone over the whole batch in blocks as ``prism_table_cells`` runs them."""
-    from prismap.sensor_models import _kernels_lookup, _kernels_math, _prism
+    from prismap.sensor_models import _kernel_args, _kernels_lookup, _kernels_math, _prism
 
     disparity, norm, rays, start, end = (np.ascontiguousarray(a) for a in batch)
     n = start.size
-    table, delta, meta, nodes = prism._tables_for(disparity, norm)
+    tables = prism._tables_for(disparity, norm)
+    cells = _kernel_args.Cells(rays, start, end)
     geometry, mixture = prism._geometry(), prism._mixture()
     lam = prism.rate_per_m * norm
     stretch = np.zeros(norm.size)
@@ -93,16 +94,11 @@ def table_stages(prism, batch, repeat=5):
         for lo, hi in blocks:
             _kernels_lookup.prism_table_lookup(
                 lam,
-                table,
-                delta,
                 stretch,
-                rays,
-                start,
-                end,
+                tables,
+                cells,
                 lo,
                 hi,
-                meta,
-                nodes,
                 _prism._QUAD_STEP,
                 geometry,
                 mixture,

@@ -84,3 +84,40 @@ class TableSpec(NamedTuple):
     edges: np.ndarray
     ratios: np.ndarray
     wide_efolds: float
+
+
+class RayTables(NamedTuple):
+    """Each ray's PRISM table and the cache arrays it indexes (``PrismModel._tables_for``).
+
+    Attributes
+    ----------
+    table : (R,) int64
+        Each ray's row of ``meta``.
+    delta : (R,) float64, log
+        ``log(lam_ray / lam_table)``: the ray's rate against its table's.
+    meta : (K, len(_kernels_table.META_COLUMNS)) float64
+        The tables' metadata, one row per table.
+    nodes : (N, _kernels_table.TABLE_COLUMNS) float32
+        The tables' rows, back to back.
+    """
+
+    table: np.ndarray
+    delta: np.ndarray
+    meta: np.ndarray
+    nodes: np.ndarray
+
+
+class Cells(NamedTuple):
+    """Cells of rays: stretches of depth, a ray's cells consecutive and nearest first.
+
+    Attributes
+    ----------
+    ray_of_cell : (C,) int64
+        Each cell's ray.
+    start, end : (C,) float64, metres of depth
+        Each cell's first and last depth.
+    """
+
+    ray_of_cell: np.ndarray
+    start: np.ndarray
+    end: np.ndarray

@@ -155,26 +155,7 @@ _SKIP = 4
 
 
 @nb.njit(cache=True, nogil=True, fastmath=_FASTMATH)
-def prism_table_lookup(
-    lam,
-    table,
-    delta,
-    stretch,
-    ray_of_cell,
-    start,
-    end,
-    lo,
-    hi,
-    meta,
-    nodes,
-    hq,
-    geometry,
-    mixture,
-    l_a,
-    l_c,
-    side,
-    lam_len,
-):
+def prism_table_lookup(lam, stretch, tables, cells, lo, hi, hq, geometry, mixture, l_a, l_c, side, lam_len):
     """First stage of tabulated PRISM on cells ``lo:hi``: per cell end, the log of the smaller of C/Z, D/Z.
 
     A cell is ``[start[i], end[i] + stretch[r]]`` (``stretch``: the ray's voxel overhang share, depth metres).
@@ -200,22 +181,14 @@ def prism_table_lookup(
     ----------
     lam : (R,) float64, per metre of depth
         Each ray's surface rate.
-    table : (R,) int64
-        Each ray's row of ``meta``.
-    delta : (R,) float64, log
-        ``log(lam[r] / lam_table)``: the ray's rate against its table's.
     stretch : (R,) float64, metres of depth
         Added to the end of each of the ray's cells.
-    ray_of_cell : (C,) int64
-        Each cell's ray; a ray's cells are consecutive, nearest first.
-    start, end : (C,) float64, metres of depth
-        The cells ``[start[i], end[i] + stretch[r]]``.
+    tables : RayTables
+        Each ray's table (:class:`~prismap.sensor_models._kernel_args.RayTables`).
+    cells : Cells
+        The cells ``[start[i], end[i] + stretch[r]]`` (:class:`~prismap.sensor_models._kernel_args.Cells`).
     lo, hi : int
         The cells of this call.
-    meta : (K, len(META_COLUMNS)) float64
-        The tables' metadata (``_kernels_table.META_COLUMNS``).
-    nodes : (N, TABLE_COLUMNS) float32
-        The tables' rows, back to back.
     hq : float, x units
         Panel width of the tail marched beyond a table (:func:`log_tail`).
     geometry : Geometry
@@ -230,6 +203,8 @@ def prism_table_lookup(
         Written: each cell's prior rate times its length (dimensionless).
     """
     z0, z_max, _, ku = geometry
+    table, delta, meta, nodes = tables
+    ray_of_cell, start, end = cells
     r_prev = -1
     c_prev = -1.0
     lcc = 0.0
@@ -447,24 +422,7 @@ def _far_in_front(cells, lo, l_a, l_c, side, lam_len, post, increment):
 
 
 @nb.njit(cache=True, nogil=True, error_model="numpy")  # the inlined blend divides
-def prism_table_cells(
-    lam,
-    table,
-    delta,
-    stretch,
-    ray_of_cell,
-    start,
-    end,
-    meta,
-    nodes,
-    hq,
-    block,
-    pass_through,
-    ok,
-    fail,
-    geometry,
-    mixture,
-):
+def prism_table_cells(lam, stretch, tables, cells, hq, block, pass_through, ok, fail, geometry, mixture):
     """Tabulated PRISM on every cell ``[start[i], end[i] + stretch[r]]``: posterior and increment, (C,) each.
 
     Blocks of ``block`` cells go through :func:`prism_table_lookup`, :func:`exp_into` (both ends),
@@ -475,7 +433,7 @@ def prism_table_cells(
 
     Parameters
     ----------
-    lam, table, delta, stretch, ray_of_cell, start, end, meta, nodes, hq, geometry, mixture
+    lam, stretch, tables, cells, hq, geometry, mixture
         As :func:`prism_table_lookup`'s, for all the cells.
     block : int
         Cells per round (their scratch arrays stay in the core's cache).
@@ -493,6 +451,7 @@ def prism_table_cells(
     inc : (C,) float64, log-odds
         ``logit(post) - logit(prior)``.
     """
+    ray_of_cell, start, end = cells
     n = start.size
     post = np.empty(n)
     inc = np.empty(n)
@@ -508,26 +467,7 @@ def prism_table_cells(
     for lo in range(0, n, size):
         hi = min(lo + size, n)
         m = hi - lo
-        prism_table_lookup(
-            lam,
-            table,
-            delta,
-            stretch,
-            ray_of_cell,
-            start,
-            end,
-            lo,
-            hi,
-            meta,
-            nodes,
-            hq,
-            geometry,
-            mixture,
-            l_a,
-            l_c,
-            side,
-            lam_len,
-        )
+        prism_table_lookup(lam, stretch, tables, cells, lo, hi, hq, geometry, mixture, l_a, l_c, side, lam_len)
         exp_into(l_a, e_a, m)
         exp_into(l_c, e_c, m)
         n_fix = prism_table_combine(

@@ -34,7 +34,7 @@ from prismap.sensor_models import (
 )
 from prismap.sensor_models._base import register_model
 from prismap.sensor_models._failure import log_failure_posterior
-from prismap.sensor_models._kernel_args import Geometry, Mixture, TableSpec
+from prismap.sensor_models._kernel_args import Cells, Geometry, Mixture, RayTables, TableSpec
 from prismap.sensor_models._params import RayModel
 from prismap.sensor_models._prism_cache import _LENGTH, _OFFSET, TableCache
 from prismap.sensor_models._prism_discrete import log_mean_likelihood
@@ -439,18 +439,12 @@ class PrismModel(RayModel):
         """Tabulated posteriors and increments of the cells ``[start, end + stretch[rays]]`` from the rays'
         ``tables`` (:meth:`_tables_for`; ``_kernels_lookup.prism_table_cells``: table look-ups, vectorised exp,
         combination, vectorised log), blended by the rays' failure posteriors ``log_failure`` (:meth:`_log_failure`)."""
-        table, delta, meta, nodes = tables
         log_fail, log_ok = log_failure
         return _kernels_lookup.prism_table_cells(
             lam,
-            table,
-            delta,
             stretch,
-            rays,
-            start,
-            end,
-            meta,
-            nodes,
+            tables,
+            Cells(rays, start, end),
             _QUAD_STEP,
             _CHUNK_CELLS,
             self.pass_through,
@@ -461,9 +455,10 @@ class PrismModel(RayModel):
         )
 
     def _tables_for(self, disparity, norm):
-        """Table row and ``delta = log(lambda_ray / lambda_table)`` of every ray, building missing tables, and
-        the cache's ``meta`` and ``nodes`` arrays those rows index: taken under the cache's lock, so a call in
-        another thread that builds or evicts (new arrays, new rows) leaves this call's view intact."""
+        """:class:`~prismap.sensor_models._kernel_args.RayTables` of the rays: each one's table row and
+        ``delta = log(lambda_ray / lambda_table)``, building missing tables, and the cache's ``meta`` and ``nodes``
+        arrays those rows index: taken under the cache's lock, so a call in another thread that builds or evicts
+        (new arrays, new rows) leaves this call's view intact."""
         log_norm = np.log(np.maximum(norm, 1.0))
         unique, inverse, delta = _kernels_lookup.table_keys(
             disparity, log_norm, self.disparity_step_px, _LAMBDA_STEP, _KEY_L_SPAN
@@ -471,7 +466,7 @@ class PrismModel(RayModel):
         with self._cache.lock:
             rows = self._cache.rows(unique, self._build_tables)
             meta, nodes = self._cache.meta, self._cache.nodes
-        return rows[inverse], delta, meta, nodes
+        return RayTables(rows[inverse], delta, meta, nodes)
 
     def _build_tables(self, keys):
         """The tables of ``keys`` ((K,) int64): ``nodes`` (N, ``_kernels_table.TABLE_COLUMNS``) float32 back to back and
