@@ -314,6 +314,50 @@ def test_table_with_far_apart_components_agrees_with_direct_and_spans_the_gaps_i
     assert np.all(march < 0.5 * fine_nodes)
 
 
+@pytest.mark.parametrize("mixture", [GaussianMixture.gaussian(1.0), STREET, FAR_APART, SGBM_LIKE, NEEDLE])
+def test_packed_tables_keep_each_side_wherever_a_look_up_may_read_it(mixture):
+    """A packed table keeps C only to ``c_end`` and D only from ``d_first`` (``_kernels_table._side_rows``): at
+    every interval from ``c_end`` on, the look-up's interpolated ``log(C/Z)`` is at least ``log(1/2)`` (it reads
+    D there), and before ``d_first`` below ``log(1/4)`` (it never reads D), at every fraction and rate offset of
+    the rays that share the table; the packed tables hold little more than one side's rows."""
+    rng = np.random.default_rng(11)
+    fb = KITTI_FB / 2
+    model = make_sensor_model("prism", focal_baseline=fb, error_model=mixture, voxel_size_m=0.2, p0=0.05)
+    disparity = np.round(fb / np.exp(rng.uniform(np.log(3.0), np.log(80.0), 6)) * 16) / 16
+    delta_max = np.log1p(model._table_spec.lam_slack)
+    fraction = np.linspace(0.0, 1.0, 65)
+    offsets = np.linspace(-delta_max, delta_max, 5)
+    stored = length = 0
+    for d in disparity:
+        lam = model.rate_per_m * np.exp(_kernels_lookup.rate_key_centre(0, _prism._LAMBDA_STEP))
+        log_far = model._log_far(np.array([d]))[0]
+        args = (d + model.doffs_px, lam, log_far, model._geometry(), model._table_spec, model._mixture())
+        nodes, table_meta = _kernels_table.prism_table(*args)
+        c_end, d_first = _kernels_table._side_rows(nodes, table_meta, delta_max)
+        spacing = np.repeat(
+            table_meta[2 * _kernels_table.N_SEGMENTS : 3 * _kernels_table.N_SEGMENTS],
+            np.diff(
+                np.append(table_meta[_kernels_table.N_SEGMENTS : 2 * _kernels_table.N_SEGMENTS], nodes.shape[0])
+            ).astype(np.int64),
+        )  # each row's interval width in x
+        for k in range(1, nodes.shape[0] - 1):
+            if d_first <= k < c_end:
+                continue
+            values = [
+                _kernels_lookup._interpolate(nodes, k, f, spacing[k], 0, delta) for f in fraction for delta in offsets
+            ]
+            if k >= c_end:
+                assert min(values) >= np.log(0.5), (d, k, c_end)
+            else:
+                assert max(values) < np.log(0.25), (d, k, d_first)
+        packed, meta = _kernels_table.prism_tables(np.array(args[0:1]), np.array([lam]), np.array([log_far]), *args[3:])
+        assert meta[0, _prism_cache._STORED] == packed.shape[0] == c_end + 1 + nodes.shape[0] - d_first
+        np.testing.assert_array_equal(packed[: c_end + 1], nodes[: c_end + 1, :5].astype(np.float32))
+        np.testing.assert_array_equal(packed[c_end + 1 :], nodes[d_first:, 5:].astype(np.float32))
+        stored, length = stored + packed.shape[0], length + nodes.shape[0]
+    assert stored < 1.15 * length
+
+
 @pytest.mark.parametrize("mixture", [GaussianMixture.gaussian(1.0), STREET, FAR_APART, SGBM_LIKE])
 def test_coarse_front_reaches_as_far_as_its_conditions_hold(mixture):
     """A table's coarse front ends where ``C/Z`` reaches ``e^coarse_below`` (less the refit margin) or ``q g``
@@ -730,14 +774,14 @@ def test_calls_from_two_threads_under_a_thrashing_cache_equal_serial_calls():
 
 
 def _fake_tables(keys):
-    """Tables of 100 nodes whose only content is their key (the cache never looks inside but for the offsets
-    and lengths)."""
+    """Tables of 100 packed rows whose only content is their key (the cache never looks inside but for the
+    offsets and packed row counts)."""
     nodes = np.repeat(np.asarray(keys, dtype=np.float32), 100)[:, None] * np.ones(
         _kernels_table.TABLE_COLUMNS, np.float32
     )
     meta = np.repeat(np.asarray(keys, dtype=np.float64)[:, None], len(_kernels_table.META_COLUMNS), axis=1)
     meta[:, _prism._OFFSET] = 100.0 * np.arange(len(keys))
-    meta[:, _prism._LENGTH] = 100.0
+    meta[:, _prism_cache._STORED] = 100.0
     return nodes, meta
 
 
@@ -777,7 +821,7 @@ def test_an_eviction_keeps_room_so_the_next_tables_are_not_copied_again():
     assert np.array_equal(cache.nodes[cache.meta[rows, _prism._OFFSET].astype(np.int64), 0], [9, 10])
     for key in cache.keys:  # every kept table's nodes moved with it
         row = int(np.flatnonzero(cache.keys == key)[0])
-        start, length = (int(v) for v in cache.meta[row, [_prism._OFFSET, _prism._LENGTH]])
+        start, length = (int(v) for v in cache.meta[row, [_prism._OFFSET, _prism_cache._STORED]])
         assert np.all(cache.nodes[start : start + length] == key)
     assert np.shares_memory(before, room)  # the reader's earlier view still holds its tables
     assert np.all(before[:100] == 5)

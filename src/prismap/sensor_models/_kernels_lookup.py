@@ -16,10 +16,13 @@ from prismap.sensor_models._kernels_failure import blend_cell, blend_ratios_into
 from prismap.sensor_models._kernels_march import log_integral
 from prismap.sensor_models._kernels_math import exp_into, fast_exp, fast_log, log1mexp, log_into
 from prismap.sensor_models._kernels_table import (
-    _D_COLUMN,
+    _C_END,
+    _D_SHIFT,
     _LAM,
     _LENGTH,
     _LOG_FAR,
+    _LOG_HALF,
+    _LOG_QUARTER,
     _LOG_Z,
     _LOG_Z_1,
     _LOG_Z_2,
@@ -148,8 +151,6 @@ def _log_c_first(z, steep, lam, shift, h, geometry, mixture):
     return phi - math.log(phi_z) + log1mexp(-phi_z * (z - z0))
 
 
-_LOG_HALF = -0.6931471805599453
-_LOG_QUARTER = 2.0 * _LOG_HALF
 _SKIP = 4
 """``side`` flag of a cell the measurement does not change (empty, or beyond the influence depth)."""
 
@@ -215,7 +216,7 @@ def prism_table_lookup(lam, stretch, tables, cells, lo, hi, hq, geometry, mixtur
     seg_row = np.empty(N_SEGMENTS + 1, dtype=np.int64)
     lam_t = lam_r = z_end = z_infl = dl = shift = log_z = log_far = stretch_r = 0.0
     z_half = np.inf
-    off = n_seg = s_a = s_c = 0
+    off = off_d = c_end = n_seg = s_a = s_c = 0
     steep = False
     for i in range(lo, hi):
         j = i - lo
@@ -245,7 +246,9 @@ def prism_table_lookup(lam, stretch, tables, cells, lo, hi, hq, geometry, mixtur
             lam_r = lam[r]
             log_z = meta[t, _LOG_Z] + dl * (meta[t, _LOG_Z_1] + 0.5 * dl * meta[t, _LOG_Z_2])  # the ray's
             log_far = meta[t, _LOG_FAR]
-            off = int(meta[t, _OFFSET])
+            off = int(meta[t, _OFFSET])  # node k's C at row off + k (k <= c_end), D at off_d + k
+            off_d = off + int(meta[t, _D_SHIFT])
+            c_end = int(meta[t, _C_END])
             stretch_r = stretch[r]
         a = max(start[i], z0)
         c = min(end[i] + stretch_r, z_max)
@@ -261,45 +264,46 @@ def prism_table_lookup(lam, stretch, tables, cells, lo, hi, hq, geometry, mixtur
             a_is_d = c_is_d
         else:
             k, f, s_a = _locate(lam_t * a - ku / a, s_a, seg_x, seg_row, seg_inv, n_seg)
-            o = off + k
             a_is_d = 1
-            if a >= z_half and k > 0:  # C is increasing: past a depth with C/Z >= 1/2, D is the smaller
-                l_a[j] = _interpolate(nodes, o, f, seg_h[s_a], _D_COLUMN, dl)
+            if k >= c_end or (a >= z_half and k > 0):  # C is increasing: past a depth with C/Z >= 1/2, D is
+                # the smaller; from c_end on it is for every rate of the table, and only D is kept
+                l_a[j] = _interpolate(nodes, off_d + k, f, seg_h[s_a], 0, dl)
+                z_half = min(z_half, a)
             else:
                 if k == 0:  # first interval: log C is -inf at z0
                     lca = -np.inf
                     if a > z0:
                         lca = _log_c_first(a, steep, lam_r, shift, seg_h[s_a], geometry, mixture) - log_z
                 else:
-                    lca = _interpolate(nodes, o, f, seg_h[s_a], 0, dl)
+                    lca = _interpolate(nodes, off + k, f, seg_h[s_a], 0, dl)
                 if lca < _LOG_HALF:
                     a_is_d = 0
                     l_a[j] = lca
                 else:
-                    l_a[j] = _interpolate(nodes, o, f, seg_h[s_a], _D_COLUMN, dl)
+                    l_a[j] = _interpolate(nodes, off_d + k, f, seg_h[s_a], 0, dl)
                     z_half = min(z_half, a)
         if c > z_end:
             lcc = log_tail(c, log_z, lam_r, shift, log_far, hq, geometry, mixture) - log_z
             c_is_d = 1
         else:
             k, f, s_c = _locate(lam_t * c - ku / c, s_c, seg_x, seg_row, seg_inv, n_seg)
-            o = off + k
             c_is_d = 1
-            if c >= z_half and k > 0:
-                lcc = _interpolate(nodes, o, f, seg_h[s_c], _D_COLUMN, dl)
+            if k >= c_end or (c >= z_half and k > 0):
+                lcc = _interpolate(nodes, off_d + k, f, seg_h[s_c], 0, dl)
+                z_half = min(z_half, c)
             else:
                 if k == 0:
                     lcc = _log_c_first(c, steep, lam_r, shift, seg_h[s_c], geometry, mixture) - log_z
                 else:
-                    lcc = _interpolate(nodes, o, f, seg_h[s_c], 0, dl)
+                    lcc = _interpolate(nodes, off + k, f, seg_h[s_c], 0, dl)
                 if lcc < _LOG_HALF:
                     c_is_d = 0
                 else:
-                    lcc = _interpolate(nodes, o, f, seg_h[s_c], _D_COLUMN, dl)
+                    lcc = _interpolate(nodes, off_d + k, f, seg_h[s_c], 0, dl)
                     z_half = min(z_half, c)
         if c_is_d and not a_is_d and l_a[j] >= _LOG_QUARTER:  # across C/Z = 1/2: see the docstring
             k, f, s_a = _locate(lam_t * a - ku / a, s_a, seg_x, seg_row, seg_inv, n_seg)
-            l_a[j] = _interpolate(nodes, off + k, f, seg_h[s_a], _D_COLUMN, dl)
+            l_a[j] = _interpolate(nodes, off_d + k, f, seg_h[s_a], 0, dl)
             a_is_d = 1
         l_c[j] = lcc
         side[j] = a_is_d + 2 * c_is_d

@@ -24,11 +24,22 @@ _STEEP = 0.02
 """Bound on ``|phi''| / phi'^2`` (``phi = log(q g)``), the relative error of the endpoint asymptotic of C that
 a table's coarse front uses."""
 
-TABLE_COLUMNS = 10
-"""Columns of a PRISM table node: log(C/Z), its x-derivative, its first log(lambda)-derivative and that one's
-x-derivative, its second log(lambda)-derivative; then the same five for ``D = Z - C`` (from column
-:data:`_D_COLUMN`). 40 bytes in float32."""
-_D_COLUMN = TABLE_COLUMNS // 2
+NODE_COLUMNS = 10
+"""Columns of a PRISM table node as :func:`prism_table` builds it: log(C/Z), its x-derivative, its first
+log(lambda)-derivative and that one's x-derivative, its second log(lambda)-derivative; then the same five for
+``D = Z - C`` (from column :data:`_D_COLUMN`)."""
+_D_COLUMN = NODE_COLUMNS // 2
+TABLE_COLUMNS = _D_COLUMN
+"""Columns of a row of the table cache: one side's five (C's or D's), 20 bytes in float32. A look-up reads ``C``
+where ``C/Z`` may be below 1/2 and ``D`` where it may be above 1/4 (``_kernels_lookup.prism_table_lookup``), so a
+packed table (:func:`prism_tables`) keeps C's rows up to the first interval past which ``C/Z >= 1/2`` for every
+rate that shares the table, and D's from the last interval before which ``C/Z < 1/4`` for all of them: a band of
+a few rows has both."""
+_LOG_HALF = -0.6931471805599453
+_LOG_QUARTER = 2.0 * _LOG_HALF
+_SIDE_MARGIN = 0.05
+"""Log units added to both ends of the band where a packed table keeps both sides (:func:`_side_rows`), beyond
+the bound on the interpolated ``log(C/Z)``: float32 rounding and the look-up's first interval's exact C."""
 
 
 @nb.njit(cache=True, nogil=True)
@@ -210,7 +221,7 @@ def _exp_difference_into(out, log_a, log_b):
 
 @nb.njit(cache=True, nogil=True, error_model="numpy")
 def _node_columns(columns, z, log_c, log_d, front_slope, log_qg, log_z, z_1, z_2, log_far_w, z_far, lam, geometry):
-    """Fill ``columns`` ((:data:`TABLE_COLUMNS`, N): the nodes' columns, each contiguous, so that the loop over the
+    """Fill ``columns`` ((:data:`NODE_COLUMNS`, N): the nodes' columns, each contiguous, so that the loop over the
     nodes vectorises) from the logs of ``C`` and ``D`` and their moments at the nodes ``z`` ((N,) metres of depth;
     ``log_c``, ``log_d`` (3, N)) and ``log_qg`` ((N,), ``log(q g)``).
 
@@ -325,7 +336,7 @@ def _march_runs(x_split, shift, lam, geometry, spec):
 def prism_table(shift, lam, log_far, geometry, spec, mixture):
     """The table of one (d^, lam): a node per march panel, every ``coarse_ratio``-th one where C/Z is tiny.
 
-    Node columns (see :data:`TABLE_COLUMNS`): ``log(C/Z)``, ``d log(C/Z)/dx``, the first and second
+    Node columns (see :data:`NODE_COLUMNS`): ``log(C/Z)``, ``d log(C/Z)/dx``, the first and second
     derivatives of ``log(C/Z)`` in ``log lam`` (from the moments, :func:`_rate_derivatives`), the first one
     followed by its x-derivative (:func:`_rate_columns`), and the same five for ``D = Z - C``. Nodes are uniform
     in x on each of :data:`N_SEGMENTS` segments: the coarse front up to ``x_split``, spaced at most
@@ -363,7 +374,7 @@ def prism_table(shift, lam, log_far, geometry, spec, mixture):
 
     Returns
     -------
-    nodes : (N, TABLE_COLUMNS) float64, log and its derivatives in x and log lam
+    nodes : (N, NODE_COLUMNS) float64, log and its derivatives in x and log lam
     meta : (3 N_SEGMENTS + 5,) float64
         Per segment its first x, its first row and its spacing; then ``z_end`` (last node), ``z_infl``,
         ``log Z`` and its first and second derivatives in ``log lam`` (a ray's ``log Z`` by the Taylor
@@ -503,7 +514,7 @@ def prism_table(shift, lam, log_far, geometry, spec, mixture):
         for j in range(march_node.size):
             c_rows[k, n_coarse + j] = log_c[march_node[j], k]
             d_rows[k, n_coarse + j] = log_d[march_node[j], k]
-    columns = np.empty((TABLE_COLUMNS, n_rows))
+    columns = np.empty((NODE_COLUMNS, n_rows))
     _node_columns(
         columns, z_rows, c_rows, d_rows, front_slope, log_qg, log_z, z_1, z_2, log_far_w, z_far, lam, geometry
     )
@@ -541,23 +552,91 @@ META_COLUMNS = (
     "log_far",
     "offset",
     "length",
+    "c_end",
+    "d_shift",
+    "stored",
 )
 """Columns of the per-table metadata matrix that :func:`prism_table_lookup` reads (one row per table): the
 rate, :func:`prism_table`'s meta (per segment its first x, first row and spacing, then ``z_end``, ``z_infl``,
-``log Z`` and its two derivatives in ``log lam``), then the shift, far term, first row and row count of its nodes."""
+``log Z`` and its two derivatives in ``log lam``), then the shift, far term, the first row of its packed rows in
+the cache's ``nodes``, its node count, the first interval where only D is kept (C's rows ``0..c_end`` come
+first), the place of D's rows (node ``k``'s at ``offset + d_shift + k``) and the rows it packs
+(:data:`TABLE_COLUMNS`)."""
 _LAM, _X, _ROW, _SPACING = 0, 1, 1 + N_SEGMENTS, 1 + 2 * N_SEGMENTS
-_Z_END, _Z_INFL, _LOG_Z, _LOG_Z_1, _LOG_Z_2, _SHIFT, _LOG_FAR, _OFFSET, _LENGTH = range(
-    1 + 3 * N_SEGMENTS, 10 + 3 * N_SEGMENTS
+_Z_END, _Z_INFL, _LOG_Z, _LOG_Z_1, _LOG_Z_2, _SHIFT, _LOG_FAR, _OFFSET, _LENGTH, _C_END, _D_SHIFT, _STORED = range(
+    1 + 3 * N_SEGMENTS, 13 + 3 * N_SEGMENTS
 )
+
+
+_SIDE_PIECES = 8
+"""Pieces of an interval on which :func:`_side_rows` bounds the interpolated ``log(C/Z)``."""
+
+
+@nb.njit(cache=True, nogil=True)
+def _side_rows(nodes, table_meta, delta_max):
+    """``(c_end, d_first)`` of a table (:func:`prism_table`'s ``nodes``, ``meta``): the first interval from which
+    every interpolated ``log(C/Z)`` is at least ``log(1/2)``, and the first at which one may reach ``log(1/4)``,
+    for every rate offset ``|delta| <= delta_max`` (``_kernels_lookup._interpolate``), :data:`_SIDE_MARGIN` to
+    spare. The first interval is C's own integral, bounded above by node 1; a bound that is not a number keeps
+    both sides.
+
+    On an interval of x-width ``h`` the cubic Hermite form is its chord ``y_0 + f dy`` plus
+    ``f (1 - f)^2 (h s_0 - dy) - f^2 (1 - f) (h s_1 - dy)``; on each of :data:`_SIDE_PIECES` pieces of ``f`` the
+    chord's and the two factors' largest values bound it. Each value and slope is widened by its Taylor term in
+    ``delta``, and the second-order term adds ``delta^2 / 2`` times the larger of its two nodes.
+    """
+    n = nodes.shape[0]
+    m = _SIDE_PIECES
+    rise = np.empty(m)  # per piece: largest f (1 - f)^2 (at most 4/27, at f = 1/3) and f^2 (1 - f) (at f = 2/3)
+    fall = np.empty(m)
+    for p in range(m):
+        f_a, f_b = p / m, (p + 1) / m
+        rise[p] = max(f_a * (1.0 - f_a) ** 2, f_b * (1.0 - f_b) ** 2, 4.0 / 27.0 if f_a <= 1.0 / 3.0 <= f_b else 0.0)
+        fall[p] = max(f_a * f_a * (1.0 - f_a), f_b * f_b * (1.0 - f_b), 4.0 / 27.0 if f_a <= 2.0 / 3.0 <= f_b else 0.0)
+    low = np.empty(n - 1)
+    high = np.empty(n - 1)
+    second = 0.5 * delta_max * delta_max
+    segment = 0
+    for k in range(n - 1):
+        while segment + 1 < N_SEGMENTS and table_meta[N_SEGMENTS + segment + 1] <= k:
+            segment += 1
+        h = table_meta[2 * N_SEGMENTS + segment]
+        y_0, y_1 = nodes[k, 0], nodes[k + 1, 0]
+        dy = y_1 - y_0
+        wobble = delta_max * (abs(nodes[k + 1, 2] - nodes[k, 2]) + h * max(abs(nodes[k, 3]), abs(nodes[k + 1, 3])))
+        bend_0 = abs(h * nodes[k, 1] - dy) + wobble
+        bend_1 = abs(h * nodes[k + 1, 1] - dy) + wobble
+        spread = (
+            delta_max * max(abs(nodes[k, 2]), abs(nodes[k + 1, 2]))
+            + second * max(abs(nodes[k, 4]), abs(nodes[k + 1, 4]))
+            + _SIDE_MARGIN
+        )
+        low[k] = np.inf
+        high[k] = -np.inf
+        for p in range(m):
+            chord_a, chord_b = y_0 + dy * (p / m), y_0 + dy * ((p + 1) / m)
+            bend = rise[p] * bend_0 + fall[p] * bend_1
+            low[k] = min(low[k], min(chord_a, chord_b) - bend - spread)
+            high[k] = max(high[k], max(chord_a, chord_b) + bend + spread)
+    if n > 1:
+        high[0] = nodes[1, 0] + delta_max * abs(nodes[1, 2]) + second * abs(nodes[1, 4]) + _SIDE_MARGIN
+    c_end = n - 1
+    while c_end > 1 and low[c_end - 1] >= _LOG_HALF:  # NaN: not shown to be above, C kept
+        c_end -= 1
+    d_first = 0
+    while d_first < n - 1 and high[d_first] < _LOG_QUARTER:  # NaN: not shown to be below, D kept
+        d_first += 1
+    return c_end, min(d_first, c_end)
 
 
 @nb.njit(cache=True, nogil=True)
 def prism_tables(shifts, lams, log_fars, geometry, spec, mixture):
     """:func:`prism_table` of every ``(shifts[k], lams[k], log_fars[k])``, packed for the table cache.
 
-    Returns ``nodes`` (N, :data:`TABLE_COLUMNS`) float32, every table's rows back to back (their rounding is
-    far below ``TABLE_TOLERANCE``), and ``meta`` (K, ``len(META_COLUMNS)``) float64, one row per table
-    (``offset``: its first row in ``nodes``). One call builds a batch without a Python step per table, each
+    Returns ``nodes`` (N, :data:`TABLE_COLUMNS`) float32, every table's packed rows back to back (its C rows to
+    ``c_end``, then its D rows from ``d_first``, :func:`_side_rows`; their rounding is far below
+    ``TABLE_TOLERANCE``), and ``meta`` (K, ``len(META_COLUMNS)``) float64, one row per table (``offset``: its
+    first row in ``nodes``). One call builds a batch without a Python step per table, each
     table packed as soon as it is built (its float64 rows reuse the memory of the one before: holding a whole
     batch in float64 first doubles its memory and page faults), into room for :data:`_PACK_ROWS` rows a table
     that grows by half when full; ``nodes`` may be a view of that room.
@@ -574,24 +653,31 @@ def prism_tables(shifts, lams, log_fars, geometry, spec, mixture):
         As :func:`prism_table`'s, shared by all the tables.
     """
     n_tables = shifts.size
-    meta = np.empty((n_tables, _LENGTH + 1))
+    meta = np.empty((n_tables, _STORED + 1))
     packed = np.empty((_PACK_ROWS * n_tables, TABLE_COLUMNS), dtype=np.float32)
+    delta_max = math.log1p(spec.lam_slack)  # the rays sharing a table: rates within e^(+-lambda_step / 2) of it
     total = 0
     for k in range(n_tables):
         nodes, table_meta = prism_table(shifts[k], lams[k], log_fars[k], geometry, spec, mixture)
-        rows = nodes.shape[0]
+        n = nodes.shape[0]
+        c_end, d_first = _side_rows(nodes, table_meta, delta_max)
+        rows = c_end + 1 + n - d_first
         if total + rows > packed.shape[0]:
             grown = np.empty(
                 (max(total + rows, packed.shape[0] + packed.shape[0] // 2), TABLE_COLUMNS), dtype=np.float32
             )
             grown[:total] = packed[:total]
             packed = grown
-        packed[total : total + rows] = nodes
+        packed[total : total + c_end + 1] = nodes[: c_end + 1, :_D_COLUMN]
+        packed[total + c_end + 1 : total + rows] = nodes[d_first:, _D_COLUMN:]
         meta[k, _LAM] = lams[k]
         meta[k, _X:_SHIFT] = table_meta
         meta[k, _SHIFT] = shifts[k]
         meta[k, _LOG_FAR] = log_fars[k]
         meta[k, _OFFSET] = total
-        meta[k, _LENGTH] = rows
+        meta[k, _LENGTH] = n
+        meta[k, _C_END] = c_end
+        meta[k, _D_SHIFT] = c_end + 1 - d_first
+        meta[k, _STORED] = rows
         total += rows
     return packed[:total], meta

@@ -18,6 +18,7 @@ ROOM_GROWTH = 4
 a copy of the kept ones. Rows not yet written cost address space only (a private mapping's untouched pages are
 not resident), so a sequence copies a cache's tables a few times, not once a frame."""
 _OFFSET, _LENGTH = _kernels_table.META_COLUMNS.index("offset"), _kernels_table.META_COLUMNS.index("length")
+_STORED = _kernels_table.META_COLUMNS.index("stored")
 _ROW_BYTES = np.dtype(np.float32).itemsize * _kernels_table.TABLE_COLUMNS
 _PRIVATE_MAP = {"flags": mmap.MAP_PRIVATE | mmap.MAP_ANONYMOUS} if hasattr(mmap, "MAP_PRIVATE") else {}  # not Windows
 
@@ -26,7 +27,8 @@ class TableCache:
     """PRISM tables packed in one node array, least recently used ones evicted beyond a memory budget.
 
     ``meta`` has one row per table (``_kernels_table.META_COLUMNS``, float64: the grid's positions), ``nodes`` the
-    rows of every table back to back (float32: values and slopes, rounded far below ``TABLE_TOLERANCE``).
+    packed rows of every table back to back (``stored`` of them from ``offset``; float32: values and slopes,
+    rounded far below ``TABLE_TOLERANCE``).
     Tables used by the current call are never evicted, so one call may exceed the budget. A budget of
     ``None`` is the larger of ``floor_bytes`` and :data:`AUTO_TABLE_CALLS` times the bytes of the largest
     call's tables so far (:attr:`limit_bytes`). ``hits`` and ``builds`` count the distinct keys of every
@@ -79,7 +81,7 @@ class TableCache:
     def _table_bytes(self):
         """Bytes of each table (its nodes and metadata row)."""
         return (
-            self.meta[:, _LENGTH] * (self.nodes.itemsize * _kernels_table.TABLE_COLUMNS)
+            self.meta[:, _STORED] * (self.nodes.itemsize * _kernels_table.TABLE_COLUMNS)
             + self.meta.itemsize * self.meta.shape[1]
         )
 
@@ -144,7 +146,7 @@ class TableCache:
         drop = order[: np.searchsorted(np.cumsum(size[order]), excess) + 1]
         keep = np.setdiff1d(np.arange(self.keys.size), drop)
         starts = self.meta[keep, _OFFSET].astype(np.int64)
-        lengths = self.meta[keep, _LENGTH].astype(np.int64)
+        lengths = self.meta[keep, _STORED].astype(np.int64)
         total, kept = int(lengths.sum()), self.nodes
         self._node_room = _room_for(total)
         self.nodes = self._node_room[:total]
