@@ -16,8 +16,9 @@ method maps the whole sequence into one map in a fresh process (so the first fra
 numba caches, PRISM's first tables), the processes interleaved and repeated --repeat times; the table gives
 medians over the repeats of the first frame and of the median steady frame (frames 2..N), wall and CPU, their
 ratios to OctoMap's, the process's peak RSS over the sequence above its RSS before it (the peak reset after the
-world is loaded), the map's own bytes, and for PRISM the table cache's size and hit rate (distinct keys found /
-looked up per call).
+world is loaded), the map's own bytes, for the models with calls the cells they evaluate in a steady frame and their
+CPU per cell (the calling threads' CPU: the floor of ray mode, which evaluates every cell of every ray), and for PRISM
+the table cache's size and hit rate (distinct keys found / looked up per call).
 Run: .venv/bin/python benchmarks/bench_grid.py [--repeat 3] [--street [--scale 1.0] [--frames 10] [--voxels 0.2 0.1]
 [--methods OctoMap PRISM]]
 """
@@ -29,6 +30,7 @@ import statistics
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -89,23 +91,33 @@ def timed(fn, repeat):
 
 
 class TimedModel:
-    """Wraps a sensor model and adds up the wall time of its ``cell_posteriors`` and ``influence_depth``."""
+    """Wraps a sensor model and adds up the wall time of its ``cell_posteriors`` and ``influence_depth``
+    (``seconds``), and of ``cell_posteriors`` the cells (``cells``) and the calling threads' CPU (``cpu``; the
+    integrators call it from several threads at once)."""
 
     def __init__(self, model):
-        self.model, self.seconds = model, 0.0
+        self.model, self.seconds, self.cells, self.cpu = model, 0.0, 0, 0.0
+        self._lock = threading.Lock()
 
     def __getattr__(self, name):
         return getattr(self.model, name)
 
-    def _timed(self, method, *args, **kwargs):
-        start = time.perf_counter()
+    def _timed(self, method, *args, cells=0, **kwargs):
+        start, start_cpu = time.perf_counter(), time.thread_time()
         try:
             return method(*args, **kwargs)
         finally:
-            self.seconds += time.perf_counter() - start
+            wall, cpu = time.perf_counter() - start, time.thread_time() - start_cpu
+            with self._lock:
+                self.seconds += wall
+                if cells:
+                    self.cells += cells
+                    self.cpu += cpu
 
-    def cell_posteriors(self, *args, **kwargs):
-        return self._timed(self.model.cell_posteriors, *args, **kwargs)
+    def cell_posteriors(self, disparity_px, ray_norm, ray_of_cell, *args, **kwargs):
+        return self._timed(
+            self.model.cell_posteriors, disparity_px, ray_norm, ray_of_cell, *args, cells=len(ray_of_cell), **kwargs
+        )
 
     def influence_depth(self, *args, **kwargs):
         return self._timed(self.model.influence_depth, *args, **kwargs)
@@ -265,13 +277,19 @@ def street_method(name, mode, voxel, scale, n_frames, world=None):
         grid = OccupancyMap(voxel, p0=getattr(model, "plain", model).p0)
         if not isinstance(model, ConditionedModel):
             classes = [None] * len(poses)
-        clock(
-            lambda disparity, pose, ray_class: integrate_disparity(
-                grid, disparity, camera, pose, model, mode=mode, max_range_m=max_range, ray_class=ray_class
-            ),
-            zip(disparities, poses, classes),
-        )
+        timer, model_frames = TimedModel(model), []
+
+        def insert(disparity, pose, ray_class):
+            integrate_disparity(
+                grid, disparity, camera, pose, timer, mode=mode, max_range_m=max_range, ray_class=ray_class
+            )
+            model_frames.append((timer.cells, timer.cpu))
+
+        clock(insert, zip(disparities, poses, classes))
         out["map_bytes"] = grid.nbytes()
+        if len(model_frames) > 1 and model_frames[-1][0] > model_frames[0][0]:  # frames 2-N (hit/miss: no calls)
+            cells, model_cpu = (end - first for end, first in zip(model_frames[-1], model_frames[0]))
+            out.update(model_cells=cells / (len(model_frames) - 1), model_ns=model_cpu / cells * 1e9)
         caches = [
             m._cache
             for m in getattr(model, "class_models", ()) + (getattr(model, "plain", model),)
@@ -363,14 +381,16 @@ def _street_table(runs, worst):
     )
     print(
         f"{'method':<30} {'cold s':>7} {'CPU':>6} {'steady s':>8} {'CPU':>6} {'x Octo':>6} {'x CPU':>6} {'x UFO':>6} "
-        f"{'cold/st':>7} {'RSS MB':>7} {'map MB':>7}  tables"
+        f"{'cold/st':>7} {'RSS MB':>7} {'map MB':>7}  model calls and tables"
     )
     for label, row in summary.items():
         last = runs[label][-1]
         tables = ""
+        if "model_cells" in last:
+            tables = f"{last['model_cells'] / 1e6:.1f} M cells a frame, {last['model_ns']:.0f} ns a cell; "
         if "tables" in last:
             hit_rate = last["table_hits"] / max(last["table_hits"] + last["table_builds"], 1)
-            tables = (
+            tables += (
                 f"{last['tables']} tables, {last['table_bytes'] / 2**20:.1f} MB, {last['table_builds']} built, "
                 f"hit rate {hit_rate:.3f}"
             )
