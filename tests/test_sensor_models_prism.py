@@ -18,6 +18,7 @@ from prismap.sensor_models import (
     _kernels_lookup,
     _kernels_march,
     _kernels_math,
+    _kernels_pack,
     _kernels_table,
     _prism,
     _prism_cache,
@@ -154,7 +155,7 @@ def test_table_with_a_broad_front_agrees_with_direct_within_stated_bound(voxel):
     disparity = np.round(KITTI_FB / depths * 16) / 16
     _assert_table_within_tolerance(model, disparity, rng.uniform(1.0, 1.3, depths.size), _random_cells(rng, depths))
     meta = model._cache.meta
-    rows = [meta[:, _kernels_table.META_COLUMNS.index(f"row_{k}")] for k in range(_kernels_table.N_SEGMENTS)]
+    rows = [meta[:, _kernels_pack.META_COLUMNS.index(f"row_{k}")] for k in range(_kernels_table.N_SEGMENTS)]
     assert np.all(rows[2] - rows[1] > 10)  # a broad front, and the cells above crossed it
     assert np.sum(rows[4] - rows[3] > 10) >= 3  # the near measurements' tables have a broad back
 
@@ -258,7 +259,7 @@ def test_table_with_two_wide_components_agrees_with_direct_within_stated_bound(v
         model, disparity, rng.uniform(1.0, 1.1, depths.size), _random_cells(rng, depths), large_min=0
     )
     meta = model._cache.meta
-    rows = [meta[:, _kernels_table.META_COLUMNS.index(f"row_{k}")] for k in range(_kernels_table.N_SEGMENTS)]
+    rows = [meta[:, _kernels_pack.META_COLUMNS.index(f"row_{k}")] for k in range(_kernels_table.N_SEGMENTS)]
     assert np.all(rows[1] - rows[0] > 10)  # a broad front on every table
 
 
@@ -299,7 +300,7 @@ def _street_class_tables(mixture, seed, far_m):
 
 def test_table_with_a_needle_component_agrees_with_direct_within_stated_bound():
     meta = _street_class_tables(NEEDLE, 6, 80.0)
-    column = _kernels_table.META_COLUMNS.index
+    column = _kernels_pack.META_COLUMNS.index
     assert np.all(meta[:, column("row_1")] > 10)  # a coarse front, and the cells in it agree
 
 
@@ -307,7 +308,7 @@ def test_table_with_far_apart_components_agrees_with_direct_and_spans_the_gaps_i
     """Between the windows of components tens of pixels apart ``q g`` is negligible: two panels span each gap, so
     a table holds a fraction of the nodes that fine spacing from its first window to its back would need."""
     meta = _street_class_tables(FAR_APART, 9, 80.0)
-    column = _kernels_table.META_COLUMNS.index
+    column = _kernels_pack.META_COLUMNS.index
     march = meta[:, column("length")] - meta[:, column("row_1")]
     x_span = meta[:, column(f"x_{_kernels_table.N_SEGMENTS - 1}")] - meta[:, column("x_1")]
     fine_nodes = x_span / _prism_spacing._TABLE_STEP
@@ -316,7 +317,7 @@ def test_table_with_far_apart_components_agrees_with_direct_and_spans_the_gaps_i
 
 @pytest.mark.parametrize("mixture", [GaussianMixture.gaussian(1.0), STREET, FAR_APART, SGBM_LIKE, NEEDLE])
 def test_packed_tables_keep_each_side_wherever_a_look_up_may_read_it(mixture):
-    """A packed table keeps C only to ``c_end`` and D only from ``d_first`` (``_kernels_table._side_rows``): at
+    """A packed table keeps C only to ``c_end`` and D only from ``d_first`` (``_kernels_pack._side_rows``): at
     every interval from ``c_end`` on, the look-up's interpolated ``log(C/Z)`` is at least ``log(1/2)`` (it reads
     D there), and before ``d_first`` below ``log(1/4)`` (it never reads D), at every fraction and rate offset of
     the rays that share the table; the packed tables hold little more than one side's rows."""
@@ -333,7 +334,7 @@ def test_packed_tables_keep_each_side_wherever_a_look_up_may_read_it(mixture):
         log_far = model._log_far(np.array([d]))[0]
         args = (d + model.doffs_px, lam, log_far, model._geometry(), model._table_spec, model._mixture())
         nodes, table_meta = _kernels_table.prism_table(*args)
-        c_end, d_first = _kernels_table._side_rows(nodes, table_meta, delta_max)
+        c_end, d_first = _kernels_pack._side_rows(nodes, table_meta, delta_max)
         spacing = np.repeat(
             table_meta[2 * _kernels_table.N_SEGMENTS : 3 * _kernels_table.N_SEGMENTS],
             np.diff(
@@ -350,7 +351,7 @@ def test_packed_tables_keep_each_side_wherever_a_look_up_may_read_it(mixture):
                 assert min(values) >= np.log(0.5), (d, k, c_end)
             else:
                 assert max(values) < np.log(0.25), (d, k, d_first)
-        packed, meta = _kernels_table.prism_tables(np.array(args[0:1]), np.array([lam]), np.array([log_far]), *args[3:])
+        packed, meta = _kernels_pack.prism_tables(np.array(args[0:1]), np.array([lam]), np.array([log_far]), *args[3:])
         assert meta[0, _prism_cache._STORED] == packed.shape[0] == c_end + 1 + nodes.shape[0] - d_first
         np.testing.assert_array_equal(packed[: c_end + 1], nodes[: c_end + 1, :5].astype(np.float32))
         np.testing.assert_array_equal(packed[c_end + 1 :], nodes[d_first:, 5:].astype(np.float32))
@@ -369,7 +370,7 @@ def test_coarse_front_reaches_as_far_as_its_conditions_hold(mixture):
     disparity = np.round(fb / np.exp(rng.uniform(np.log(3.0), np.log(80.0), 12)) * 16) / 16
     model._tables_for(disparity, np.ones(disparity.size))
     geometry, kernel_mixture = model._geometry(), model._mixture()
-    column = _kernels_table.META_COLUMNS.index
+    column = _kernels_pack.META_COLUMNS.index
     fronts = 0
     for m in model._cache.meta:
         lam, shift, log_z, h_coarse, x_split = (m[column(c)] for c in ("lam", "shift", "log_z", "h_0", "x_1"))
@@ -393,7 +394,7 @@ def test_table_of_one_gaussian_on_the_street_rig_agrees_with_direct_within_state
     """Far measurements (3-80 m) whose coarse fronts reach far: a front whose last interval reached where ``q g``
     is barely steep (``_STEEP``) interpolated its cells 3 % off (1.7x the bound)."""
     meta = _street_class_tables(GaussianMixture.gaussian(0.25), 0, 80.0)
-    assert np.all(meta[:, _kernels_table.META_COLUMNS.index("row_1")] > 10)  # every table has a coarse front
+    assert np.all(meta[:, _kernels_pack.META_COLUMNS.index("row_1")] > 10)  # every table has a coarse front
 
 
 PINHEAD = GaussianMixture(
@@ -409,7 +410,7 @@ wide one, so ``coarse_ratio`` keeps 64 and the front from near_m = 0.1 m would h
 
 def test_coarse_front_is_capped_and_agrees_with_direct_within_stated_bound():
     meta = _street_class_tables(PINHEAD, 8, 60.0)
-    column = _kernels_table.META_COLUMNS.index
+    column = _kernels_pack.META_COLUMNS.index
     uncapped = _prism_spacing.coarse_ratio(PINHEAD) * _prism_spacing._TABLE_STEP
     assert np.all(meta[:, column("h_0")] > 4 * uncapped)  # the cap widened every front
     assert np.all(meta[:, column("row_1")] <= _kernels_table.MAX_COARSE)
@@ -438,7 +439,7 @@ def test_cells_in_a_tables_first_interval_agree_with_direct(fb, mixture, voxel, 
     norm = np.tile(norm, disparity.size // norm.size)
     table, delta, meta, _ = model._tables_for(disparity, norm)
     assert np.abs(delta[0::4]).max() < 1e-12 and np.abs(delta.reshape(-1, 4)[:, 1:]).min() > 0.499 * step
-    column = _kernels_table.META_COLUMNS.index
+    column = _kernels_pack.META_COLUMNS.index
     assert np.all((meta[table, column("row_1")] > 0) == steep)  # a coarse front or none
     ends = []
     for m in meta[table]:
@@ -777,9 +778,9 @@ def _fake_tables(keys):
     """Tables of 100 packed rows whose only content is their key (the cache never looks inside but for the
     offsets and packed row counts)."""
     nodes = np.repeat(np.asarray(keys, dtype=np.float32), 100)[:, None] * np.ones(
-        _kernels_table.TABLE_COLUMNS, np.float32
+        _kernels_pack.TABLE_COLUMNS, np.float32
     )
-    meta = np.repeat(np.asarray(keys, dtype=np.float64)[:, None], len(_kernels_table.META_COLUMNS), axis=1)
+    meta = np.repeat(np.asarray(keys, dtype=np.float64)[:, None], len(_kernels_pack.META_COLUMNS), axis=1)
     meta[:, _prism._OFFSET] = 100.0 * np.arange(len(keys))
     meta[:, _prism_cache._STORED] = 100.0
     return nodes, meta
@@ -788,7 +789,7 @@ def _fake_tables(keys):
 @pytest.mark.parametrize(("budget_tables", "rebuilt"), [(None, False), (6, True)])
 def test_auto_table_budget_keeps_a_frame_asked_for_in_chunks(budget_tables, rebuilt):
     node_bytes = _prism_cache.TableCache(None, 0).nodes.itemsize
-    table_bytes = 100 * _kernels_table.TABLE_COLUMNS * node_bytes + len(_kernels_table.META_COLUMNS) * 8
+    table_bytes = 100 * _kernels_pack.TABLE_COLUMNS * node_bytes + len(_kernels_pack.META_COLUMNS) * 8
     budget = None if budget_tables is None else budget_tables * table_bytes
     cache = _prism_cache.TableCache(budget, floor_bytes=table_bytes)
     frame = np.arange(10, dtype=np.int64)
@@ -808,7 +809,7 @@ def test_auto_table_budget_keeps_a_frame_asked_for_in_chunks(budget_tables, rebu
 
 def test_an_eviction_keeps_room_so_the_next_tables_are_not_copied_again():
     node_bytes = _prism_cache.TableCache(None, 0).nodes.itemsize
-    table_bytes = 100 * _kernels_table.TABLE_COLUMNS * node_bytes + len(_kernels_table.META_COLUMNS) * 8
+    table_bytes = 100 * _kernels_pack.TABLE_COLUMNS * node_bytes + len(_kernels_pack.META_COLUMNS) * 8
     cache = _prism_cache.TableCache(6 * table_bytes, floor_bytes=0)
     cache.rows(np.arange(6, dtype=np.int64), _fake_tables)
     cache.rows(np.arange(6, 9, dtype=np.int64), _fake_tables)  # over budget: the five oldest go, to EVICT_TO of it
@@ -830,13 +831,13 @@ def test_an_eviction_keeps_room_so_the_next_tables_are_not_copied_again():
 def test_table_room_is_writable_memory_of_its_own_behind_the_rows_asked_for():
     room = _prism_cache._room_for(100)
     rows = _prism_cache.ROOM_GROWTH * 100
-    assert room.shape == (rows, _kernels_table.TABLE_COLUMNS) and room.dtype == np.float32 and room.flags.writeable
+    assert room.shape == (rows, _kernels_pack.TABLE_COLUMNS) and room.dtype == np.float32 and room.flags.writeable
     room[:] = 7.0
     owner = room
     while isinstance(owner, np.ndarray):
         owner = owner.base
     assert isinstance(owner.obj, mmap.mmap)  # not the heap: dropping it gives the pages back at once
-    assert _prism_cache._room_for(0).shape == (0, _kernels_table.TABLE_COLUMNS)
+    assert _prism_cache._room_for(0).shape == (0, _kernels_pack.TABLE_COLUMNS)
 
 
 @pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="reads the resident set from /proc")

@@ -95,9 +95,9 @@ class RayTables(NamedTuple):
         Each ray's row of ``meta``.
     delta : (R,) float64, log
         ``log(lam_ray / lam_table)``: the ray's rate against its table's.
-    meta : (K, len(_kernels_table.META_COLUMNS)) float64
+    meta : (K, len(_kernels_pack.META_COLUMNS)) float64
         The tables' metadata, one row per table.
-    nodes : (N, _kernels_table.TABLE_COLUMNS) float32
+    nodes : (N, _kernels_pack.TABLE_COLUMNS) float32
         The tables' rows, back to back.
     """
 

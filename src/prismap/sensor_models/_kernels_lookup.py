@@ -15,7 +15,7 @@ from prismap.sensor_models._kernels_direct import combine, log_tail, pass_throug
 from prismap.sensor_models._kernels_failure import blend_cell, blend_ratios_into
 from prismap.sensor_models._kernels_march import log_integral
 from prismap.sensor_models._kernels_math import exp_into, fast_exp, fast_log, log1mexp, log_into
-from prismap.sensor_models._kernels_table import (
+from prismap.sensor_models._kernels_pack import (
     _C_END,
     _D_SHIFT,
     _LAM,
@@ -33,9 +33,8 @@ from prismap.sensor_models._kernels_table import (
     _X,
     _Z_END,
     _Z_INFL,
-    N_SEGMENTS,
-    _log_qg_derivatives,
 )
+from prismap.sensor_models._kernels_table import N_SEGMENTS, _log_qg_derivatives
 
 _FASTMATH = {"nsz", "arcp", "contract", "afn", "reassoc"}  # never nnan/ninf: NaN marks values not looked up
 

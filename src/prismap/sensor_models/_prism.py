@@ -30,7 +30,7 @@ from prismap.sensor_models import (
     _kernels_failure,
     _kernels_lookup,
     _kernels_map_prior,
-    _kernels_table,
+    _kernels_pack,
 )
 from prismap.sensor_models._base import register_model
 from prismap.sensor_models._failure import log_failure_posterior
@@ -75,7 +75,7 @@ _BUILD_THREADS = min(2, os.cpu_count() or 1)  # threads building one call's miss
 _TAIL_STEP = 1.0  # prior="map": x-width of the panels of a ray's tail beyond its last cell
 _TAIL_REST = -20.0  # prior="map": the tail's march stops where the rest is below e^-20 of the evidence before
 _CHUNK_CELLS = 4096  # cells per look-up/exp/combine/log round: its 8 scratch arrays (228 KiB) stay in L2
-_LOG_Z, _LOG_Z_1, _LOG_Z_2 = (_kernels_table.META_COLUMNS.index(name) for name in ("log_z", "log_z_1", "log_z_2"))
+_LOG_Z, _LOG_Z_1, _LOG_Z_2 = (_kernels_pack.META_COLUMNS.index(name) for name in ("log_z", "log_z_1", "log_z_2"))
 
 PRIORS = ("p0", "map")
 """Values of PRISM's ``prior``: every cell at ``p0``, or each cell at the map's current probability."""
@@ -383,7 +383,7 @@ class PrismModel(RayModel):
         disparity = as_float_array(disparity_px, "disparity_px", ndim=1, allow_nan=False)
         norm = as_float_array(ray_norm, "ray_norm", shape=(disparity.size,))
         table, _, meta, _ = self._tables_for(disparity, norm)
-        depth = meta[table, _kernels_table.META_COLUMNS.index("z_infl")]
+        depth = meta[table, _kernels_pack.META_COLUMNS.index("z_infl")]
         if self.solid_depth_m > 0:
             depth = np.minimum(depth + self.solid_depth_m / norm, self.far_depth_m)
         return depth
@@ -469,9 +469,9 @@ class PrismModel(RayModel):
         return RayTables(rows[inverse], delta, meta, nodes)
 
     def _build_tables(self, keys):
-        """The tables of ``keys`` ((K,) int64): ``nodes`` (N, ``_kernels_table.TABLE_COLUMNS``) float32 back to back and
-        their ``meta`` rows (K, ``len(_kernels_table.META_COLUMNS)``), ``offset`` from the first row of ``nodes``
-        (``_kernels_table.prism_tables``), in :data:`_BUILD_THREADS` threads for a large batch (``nodes`` then a list
+        """The tables of ``keys`` ((K,) int64): ``nodes`` (N, ``_kernels_pack.TABLE_COLUMNS``) float32 back to back and
+        their ``meta`` rows (K, ``len(_kernels_pack.META_COLUMNS)``), ``offset`` from the first row of ``nodes``
+        (``_kernels_pack.prism_tables``), in :data:`_BUILD_THREADS` threads for a large batch (``nodes`` then a list
         of each thread's arrays, to be read back to back: :meth:`TableCache.rows` copies them in)."""
         key_d, key_l = np.divmod(np.asarray(keys, dtype=np.int64), _KEY_L_SPAN)
         disparity = key_d * self.disparity_step_px
@@ -481,7 +481,7 @@ class PrismModel(RayModel):
         geometry, mixture, spec = self._geometry(), self._mixture(), self._table_spec
 
         def build(share):
-            return _kernels_table.prism_tables(shift[share], lam[share], log_far[share], geometry, spec, mixture)
+            return _kernels_pack.prism_tables(shift[share], lam[share], log_far[share], geometry, spec, mixture)
 
         n = shift.size
         if n < 2 * _BUILD_THREADS:

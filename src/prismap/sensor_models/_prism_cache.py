@@ -6,7 +6,7 @@ import threading
 
 import numpy as np
 
-from prismap.sensor_models import _kernels_table
+from prismap.sensor_models import _kernels_pack
 
 AUTO_TABLE_CALLS = 2
 """A model with ``table_memory_mb=None`` keeps this many times the tables of its largest call."""
@@ -17,16 +17,16 @@ ROOM_GROWTH = 4
 """Rows a new node array reserves, in multiples of the rows it is made for: the tables to come go in behind without
 a copy of the kept ones. Rows not yet written cost address space only (a private mapping's untouched pages are
 not resident), so a sequence copies a cache's tables a few times, not once a frame."""
-_OFFSET, _LENGTH = _kernels_table.META_COLUMNS.index("offset"), _kernels_table.META_COLUMNS.index("length")
-_STORED = _kernels_table.META_COLUMNS.index("stored")
-_ROW_BYTES = np.dtype(np.float32).itemsize * _kernels_table.TABLE_COLUMNS
+_OFFSET, _LENGTH = _kernels_pack.META_COLUMNS.index("offset"), _kernels_pack.META_COLUMNS.index("length")
+_STORED = _kernels_pack.META_COLUMNS.index("stored")
+_ROW_BYTES = np.dtype(np.float32).itemsize * _kernels_pack.TABLE_COLUMNS
 _PRIVATE_MAP = {"flags": mmap.MAP_PRIVATE | mmap.MAP_ANONYMOUS} if hasattr(mmap, "MAP_PRIVATE") else {}  # not Windows
 
 
 class TableCache:
     """PRISM tables packed in one node array, least recently used ones evicted beyond a memory budget.
 
-    ``meta`` has one row per table (``_kernels_table.META_COLUMNS``, float64: the grid's positions), ``nodes`` the
+    ``meta`` has one row per table (``_kernels_pack.META_COLUMNS``, float64: the grid's positions), ``nodes`` the
     packed rows of every table back to back (``stored`` of them from ``offset``; float32: values and slopes,
     rounded far below ``TABLE_TOLERANCE``).
     Tables used by the current call are never evicted, so one call may exceed the budget. A budget of
@@ -45,8 +45,8 @@ class TableCache:
         self.keys = np.empty(0, dtype=np.int64)
         self.order = np.empty(0, dtype=np.int64)  # rows by increasing key and those keys: binary search
         self.sorted_keys = self.keys
-        self.meta = np.empty((0, len(_kernels_table.META_COLUMNS)))
-        self.nodes = np.empty((0, _kernels_table.TABLE_COLUMNS), dtype=np.float32)
+        self.meta = np.empty((0, len(_kernels_pack.META_COLUMNS)))
+        self.nodes = np.empty((0, _kernels_pack.TABLE_COLUMNS), dtype=np.float32)
         self._node_room = self.nodes  # self.nodes is its head; new tables go in behind
         self.last_used = np.empty(0, dtype=np.int64)
         self.clock = 0
@@ -81,7 +81,7 @@ class TableCache:
     def _table_bytes(self):
         """Bytes of each table (its nodes and metadata row)."""
         return (
-            self.meta[:, _STORED] * (self.nodes.itemsize * _kernels_table.TABLE_COLUMNS)
+            self.meta[:, _STORED] * (self.nodes.itemsize * _kernels_pack.TABLE_COLUMNS)
             + self.meta.itemsize * self.meta.shape[1]
         )
 
@@ -170,6 +170,6 @@ def _room_for(n_nodes):
     if hasattr(mmap, "MADV_HUGEPAGE"):  # look-ups jump across the nodes; a private mapping gets huge pages where
         # transparent_hugepage/enabled is "madvise" or "always" (a shared one only where shmem_enabled allows)
         buffer.madvise(mmap.MADV_HUGEPAGE)
-    return np.frombuffer(buffer, dtype=np.float32, count=rows * _kernels_table.TABLE_COLUMNS).reshape(
-        rows, _kernels_table.TABLE_COLUMNS
+    return np.frombuffer(buffer, dtype=np.float32, count=rows * _kernels_pack.TABLE_COLUMNS).reshape(
+        rows, _kernels_pack.TABLE_COLUMNS
     )
