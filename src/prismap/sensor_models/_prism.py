@@ -35,8 +35,9 @@ from prismap.sensor_models import (
 from prismap.sensor_models._base import register_model
 from prismap.sensor_models._failure import log_failure_posterior
 from prismap.sensor_models._kernel_args import Cells, Geometry, Mixture, RayTables, TableSpec
+from prismap.sensor_models._kernels_pack import _LENGTH, _LOG_Z, _LOG_Z_1, _LOG_Z_2, _OFFSET, _Z_INFL
 from prismap.sensor_models._params import RayModel
-from prismap.sensor_models._prism_cache import _LENGTH, _OFFSET, TableCache
+from prismap.sensor_models._prism_cache import TableCache
 from prismap.sensor_models._prism_discrete import log_mean_likelihood
 from prismap.sensor_models._prism_spacing import (
     _COARSE_BELOW,
@@ -75,7 +76,6 @@ _BUILD_THREADS = min(2, os.cpu_count() or 1)  # threads building one call's miss
 _TAIL_STEP = 1.0  # prior="map": x-width of the panels of a ray's tail beyond its last cell
 _TAIL_REST = -20.0  # prior="map": the tail's march stops where the rest is below e^-20 of the evidence before
 _CHUNK_CELLS = 4096  # cells per look-up/exp/combine/log round: its 8 scratch arrays (228 KiB) stay in L2
-_LOG_Z, _LOG_Z_1, _LOG_Z_2 = (_kernels_pack.META_COLUMNS.index(name) for name in ("log_z", "log_z_1", "log_z_2"))
 
 PRIORS = ("p0", "map")
 """Values of PRISM's ``prior``: every cell at ``p0``, or each cell at the map's current probability."""
@@ -383,7 +383,7 @@ class PrismModel(RayModel):
         disparity = as_float_array(disparity_px, "disparity_px", ndim=1, allow_nan=False)
         norm = as_float_array(ray_norm, "ray_norm", shape=(disparity.size,))
         table, _, meta, _ = self._tables_for(disparity, norm)
-        depth = meta[table, _kernels_pack.META_COLUMNS.index("z_infl")]
+        depth = meta[table, _Z_INFL]
         if self.solid_depth_m > 0:
             depth = np.minimum(depth + self.solid_depth_m / norm, self.far_depth_m)
         return depth

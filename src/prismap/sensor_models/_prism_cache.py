@@ -7,6 +7,7 @@ import threading
 import numpy as np
 
 from prismap.sensor_models import _kernels_pack
+from prismap.sensor_models._kernels_pack import _OFFSET, _STORED
 
 AUTO_TABLE_CALLS = 2
 """A model with ``table_memory_mb=None`` keeps this many times the tables of its largest call."""
@@ -17,8 +18,6 @@ ROOM_GROWTH = 4
 """Rows a new node array reserves, in multiples of the rows it is made for: the tables to come go in behind without
 a copy of the kept ones. Rows not yet written cost address space only (a private mapping's untouched pages are
 not resident), so a sequence copies a cache's tables a few times, not once a frame."""
-_OFFSET, _LENGTH = _kernels_pack.META_COLUMNS.index("offset"), _kernels_pack.META_COLUMNS.index("length")
-_STORED = _kernels_pack.META_COLUMNS.index("stored")
 _ROW_BYTES = np.dtype(np.float32).itemsize * _kernels_pack.TABLE_COLUMNS
 _PRIVATE_MAP = {"flags": mmap.MAP_PRIVATE | mmap.MAP_ANONYMOUS} if hasattr(mmap, "MAP_PRIVATE") else {}  # not Windows
 
