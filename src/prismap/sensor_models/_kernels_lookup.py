@@ -120,16 +120,18 @@ def combine_small(l_a, l_c, a_is_d, c_is_d, lam_len):
 
 @nb.njit(cache=True, nogil=True)
 def _log_c_first(z, steep, lam, shift, h, geometry, mixture):
-    """``log C(z)`` in a table's first interval (``z0 < z``, x-width ``h``): one Gauss-Legendre panel, as
-    the table's march integrated that interval (8 points here, :data:`_MARCH_GL` there: they agree to about
-    1e-10), or where ``q g`` rises steeply (``steep``: the interval
-    is in the coarse front) the endpoint asymptotic with the start's cut, ``C = q g / phi' (1 -
-    e^{-phi' (z - z0)})``, exact for an exponential ``q g``.
+    """``log C(z)`` in a table's first interval, or its first two without a steep front (``z0 < z``): Gauss-Legendre
+    panels of x-width at most ``h``, the first interval's, as the table's march integrated them (8 points here,
+    :data:`_MARCH_GL` there: they agree to about 1e-10), or where ``q g`` rises steeply (``steep``: the
+    interval is in the coarse front) the endpoint asymptotic with the start's cut, ``C = q g / phi' (1 -
+    e^{-phi' (z - z0)})``, exact for an exponential ``q g``. Without a steep front ``q g`` is not negligible at
+    ``z0``, ``C`` grows like ``z - z0`` and ``log C`` like ``log(z - z0)``: a cubic is up to 0.016 nats off
+    over the second interval too.
 
     Parameters
     ----------
     z : float, metres of depth
-        Where, in the table's first interval.
+        Where, in the table's first interval (or second, without a steep front).
     steep : bool
         The table has a coarse front.
     lam : float, per metre of depth
@@ -137,7 +139,7 @@ def _log_c_first(z, steep, lam, shift, h, geometry, mixture):
     shift : float, pixels
         The ray's measured disparity plus ``doffs``.
     h : float, x units
-        x-width of the table's first interval.
+        x-width of the table's first interval: the widest panel.
     geometry : Geometry
         Depth range and disparity scales (:class:`~prismap.sensor_models._kernel_args.Geometry`).
     mixture : Mixture
@@ -174,8 +176,9 @@ def prism_table_lookup(lam, stretch, tables, cells, lo, hi, hq, geometry, mixtur
     near 0): that cell's share is above 1/4, and the miss is small against it. Cells starting
     beyond the influence depth are skipped; for a cell ending beyond the table (where the remaining
     evidence is below e^-40 of C), ``D(c)`` is integrated on the spot, and so is ``C`` in the table's first
-    interval: both at the ray's own rate, over the ray's ``Z`` (the table's by the nodes' Taylor term, from
-    the meta columns ``log_z_1``, ``log_z_2``), not the table's rate and ``Z``.
+    interval (first two without a steep front, :func:`_log_c_first`): both at the ray's own rate, over the
+    ray's ``Z`` (the table's by the nodes' Taylor term, from the meta columns ``log_z_1``, ``log_z_2``), not the
+    table's rate and ``Z``.
 
     Parameters
     ----------
@@ -215,7 +218,8 @@ def prism_table_lookup(lam, stretch, tables, cells, lo, hi, hq, geometry, mixtur
     seg_row = np.empty(N_SEGMENTS + 1, dtype=np.int64)
     lam_t = lam_r = z_end = z_infl = dl = shift = log_z = log_far = stretch_r = 0.0
     z_half = np.inf
-    off = off_d = c_end = n_seg = s_a = s_c = 0
+    off = off_d = c_end = n_seg = s_a = s_c = n_first = 0
+    h_first = 0.0
     steep = False
     for i in range(lo, hi):
         j = i - lo
@@ -237,6 +241,8 @@ def prism_table_lookup(lam, stretch, tables, cells, lo, hi, hq, geometry, mixtur
                     n_seg += 1
             seg_row[n_seg] = int(meta[t, _LENGTH]) - 1
             steep = int(meta[t, _ROW + 1]) > 0  # a coarse front: C from its endpoint asymptotic there
+            n_first = 1 if steep else 2  # intervals whose C is integrated on the spot
+            h_first = seg_h[0]
             s_a = s_c = 0
             z_half = np.inf  # least depth of the ray known to have C/Z >= 1/2
             z_end = meta[t, _Z_END]
@@ -269,10 +275,10 @@ def prism_table_lookup(lam, stretch, tables, cells, lo, hi, hq, geometry, mixtur
                 l_a[j] = _interpolate(nodes, off_d + k, f, seg_h[s_a], 0, dl)
                 z_half = min(z_half, a)
             else:
-                if k == 0:  # first interval: log C is -inf at z0
+                if k < n_first:  # log C is -inf at z0: integrated on the spot (_log_c_first)
                     lca = -np.inf
                     if a > z0:
-                        lca = _log_c_first(a, steep, lam_r, shift, seg_h[s_a], geometry, mixture) - log_z
+                        lca = _log_c_first(a, steep, lam_r, shift, h_first, geometry, mixture) - log_z
                 else:
                     lca = _interpolate(nodes, off + k, f, seg_h[s_a], 0, dl)
                 if lca < _LOG_HALF:
@@ -291,8 +297,8 @@ def prism_table_lookup(lam, stretch, tables, cells, lo, hi, hq, geometry, mixtur
                 lcc = _interpolate(nodes, off_d + k, f, seg_h[s_c], 0, dl)
                 z_half = min(z_half, c)
             else:
-                if k == 0:
-                    lcc = _log_c_first(c, steep, lam_r, shift, seg_h[s_c], geometry, mixture) - log_z
+                if k < n_first:
+                    lcc = _log_c_first(c, steep, lam_r, shift, h_first, geometry, mixture) - log_z
                 else:
                     lcc = _interpolate(nodes, off + k, f, seg_h[s_c], 0, dl)
                 if lcc < _LOG_HALF:

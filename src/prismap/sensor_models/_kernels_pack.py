@@ -19,7 +19,7 @@ _LOG_HALF = -0.6931471805599453
 _LOG_QUARTER = 2.0 * _LOG_HALF
 _SIDE_MARGIN = 0.05
 """Log units added to both ends of the band where a packed table keeps both sides (:func:`_side_rows`), beyond
-the bound on the interpolated ``log(C/Z)``: float32 rounding and the look-up's first interval's exact C."""
+the bound on the interpolated ``log(C/Z)``: float32 rounding and the look-up's exact C in a table's first interval or two."""
 
 
 _PACK_ROWS = 192

@@ -57,7 +57,7 @@ posterior``. It includes the cut at the influence depth (``influence_epsilon``) 
 ``lambda_z`` up to half a ``_LAMBDA_STEP`` from its table's in log). A map voxel's increment from one frame (policy
 ``mean`` or ``max-abs``) is then within the bound at the largest direct increment of its cells. Checked by
 ``tests/test_sensor_models_prism.py``, rays half-way between rate keys included (where the worst cells use under
-half of each term), cells in a table's first interval, and whole frames in ray and projective mode. Not covered:
+half of each term), cells in a table's first two intervals, and whole frames in ray and projective mode. Not covered:
 a cell whose ``1 - P`` is below about e^-30 because it spans the whole likelihood peak and ends past the influence
 depth (a narrow one-Gaussian error at short range, or a cell tens of metres long): its ``D(c)`` then comes from the
 table's four back intervals or its end's tail bound (e^-40 of ``C``; ``"direct"`` cuts its tail there too), and
