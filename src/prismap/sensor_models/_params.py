@@ -53,8 +53,8 @@ class RayModel(InverseSensorModel):
         object.__setattr__(self, "voxel_size_m", check_positive(self.voxel_size_m, "voxel_size_m"))
         object.__setattr__(self, "p0", check_probability(self.p0, "p0"))
 
-    def _prepare(self, disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m):
-        """Validated arrays plus the measured depth of each ray (+inf when ``d + doffs <= 0``)."""
+    def _validated(self, disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m):
+        """The arguments of :meth:`cell_posteriors` validated and converted: disparity, norm, rays, start, end."""
         disparity, norm, rays, start, end = check_cell_arrays(
             disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m
         )
@@ -62,6 +62,13 @@ class RayModel(InverseSensorModel):
             raise PrismapInputError(f"{self.name}: `disparity_px` must be finite (drop invalid pixels first)")
         if norm.size and not np.all(norm >= 1.0 - 1e-12):
             raise PrismapInputError(f"{self.name}: `ray_norm` must be >= 1; got minimum {norm.min()!r}")
+        return disparity, norm, rays, start, end
+
+    def _prepare(self, disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m):
+        """:meth:`_validated` arrays plus the measured depth of each ray (+inf when ``d + doffs <= 0``)."""
+        disparity, norm, rays, start, end = self._validated(
+            disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m
+        )
         return disparity, norm, rays, start, end, self._depth_hat(disparity, norm)
 
     def _depth_hat(self, measurement, ray_norm):

@@ -188,6 +188,7 @@ class PrismModel(RayModel):
     _cache: "TableCache" = field(default=None, init=False, repr=False, compare=False)
     _widened: dict = field(default_factory=dict, init=False, repr=False, compare=False)
     _table_spec: TableSpec = field(default=None, init=False, repr=False, compare=False)
+    _kernel_args: tuple = field(default=None, init=False, repr=False, compare=False)
 
     def __post_init__(self):
         super().__post_init__()
@@ -233,6 +234,12 @@ class PrismModel(RayModel):
             wide_efolds=_WIDE_EFOLDS,
         )
         object.__setattr__(self, "_table_spec", spec)
+        m = self.error_model
+        log_wn = np.log(m.weights) - np.log(m.sigmas) - 0.5 * np.log(2 * np.pi)
+        mixture = Mixture(log_wn, np.ascontiguousarray(m.means), np.ascontiguousarray(m.sigmas))
+        object.__setattr__(
+            self, "_kernel_args", (Geometry(self.near_m, self.far_depth_m, self.focal_baseline, self._ku()), mixture)
+        )
 
     def _check_table_size(self):
         """Refuse, before any table is built, a model whose tables could exceed :data:`MAX_TABLE_NODES`.
@@ -270,17 +277,15 @@ class PrismModel(RayModel):
         return -np.log1p(-self.p0) / self.voxel_size_m
 
     def _mixture(self):
-        """The error mixture as the kernels take it."""
-        m = self.error_model
-        log_wn = np.log(m.weights) - np.log(m.sigmas) - 0.5 * np.log(2 * np.pi)
-        return Mixture(log_wn, np.ascontiguousarray(m.means), np.ascontiguousarray(m.sigmas))
+        """The error mixture as the kernels take it (made once, on construction)."""
+        return self._kernel_args[1]
 
     def _ku(self):
         return self.focal_baseline / float(self.error_model.sigmas.min())
 
     def _geometry(self):
-        """The depth range and disparity scales as the kernels take them."""
-        return Geometry(self.near_m, self.far_depth_m, self.focal_baseline, self._ku())
+        """The depth range and disparity scales as the kernels take them (made once, on construction)."""
+        return self._kernel_args[0]
 
     def _log_far(self, disparity):
         u_max = self.focal_baseline / self.far_depth_m
@@ -307,7 +312,7 @@ class PrismModel(RayModel):
         ``p0``): the cells' priors when ``prior == "map"``; refused otherwise.
         """
         method = self.method if method is None else method
-        disparity, norm, rays, start, end, _ = self._prepare(
+        disparity, norm, rays, start, end = self._validated(
             disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m
         )
         stretch = np.zeros(disparity.size)  # depth metres added to the end of each ray's cells

@@ -77,10 +77,10 @@ class TableCache:
             return self.budget_bytes
         return max(self.floor_bytes, AUTO_TABLE_CALLS * self.largest_call_bytes)
 
-    def _table_bytes(self):
-        """Bytes of each table (its nodes and metadata row)."""
+    def _table_bytes(self, rows=slice(None)):
+        """Bytes of each table of ``rows`` (default: all), its nodes and metadata row."""
         return (
-            self.meta[:, _STORED] * (self.nodes.itemsize * _kernels_pack.TABLE_COLUMNS)
+            self.meta[rows, _STORED] * (self.nodes.itemsize * _kernels_pack.TABLE_COLUMNS)
             + self.meta.itemsize * self.meta.shape[1]
         )
 
@@ -104,7 +104,7 @@ class TableCache:
             rows[rows < 0] = first + np.arange(missing.size)
         self.clock += 1
         self.last_used[rows] = self.clock
-        self.largest_call_bytes = max(self.largest_call_bytes, int(self._table_bytes()[rows].sum()))
+        self.largest_call_bytes = max(self.largest_call_bytes, int(self._table_bytes(rows).sum()))
         if self.nbytes > self.limit_bytes:
             rows = self._evict(rows)
         return rows
