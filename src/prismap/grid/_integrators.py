@@ -47,10 +47,7 @@ MODEL_THREADS = 2
 """Threads running the model on ray-mode chunks beside the casting thread."""
 
 CELLS_PER_CHUNK = 1 << 17
-"""Voxel visits per ray-mode chunk: bounds the memory of the chunks in flight (about 90 bytes a cell in the cast's
-and the model's arrays, :data:`MODEL_THREADS` + 1 chunks: about 35 MiB), a few hundred to a thousand street rays.
-Fewer visits a chunk cost more calls; at 2^17 the half- and full-resolution street frames map in the time of 2^22
-with a third less peak memory."""
+"""Voxel visits per ray-mode chunk (~950 street rays): its arrays, about 90 bytes a cell, stay small (12 MiB)."""
 
 MAX_FRAME_CELLS = 1 << 30
 """Voxel visits one frame may ask for: the sum over rays of the voxels between the origin and the stop depth
