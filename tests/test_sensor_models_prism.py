@@ -40,6 +40,12 @@ def _on_grid(depth):
     return np.round(FB / np.asarray(depth, dtype=np.float64) * 16) / 16
 
 
+def _tiling(edges_of_rays):
+    """Cells tiling each ray between its ascending ``edges_of_rays[r]`` (metres): ``(rays, starts, ends)``."""
+    rays = np.concatenate([np.full(edges.size - 1, r) for r, edges in enumerate(edges_of_rays)])
+    return rays, np.concatenate([e[:-1] for e in edges_of_rays]), np.concatenate([e[1:] for e in edges_of_rays])
+
+
 def _one_ray_cells(edges):
     n = edges.size - 1
     return np.zeros(n, np.int64), edges[:-1], edges[1:]
@@ -184,24 +190,12 @@ def test_table_within_stated_bound_at_the_rate_grids_half_steps(fb, mixture, vox
     edge = np.arange(1, 5) * _prism._LAMBDA_STEP
     log_norm = np.concatenate([edge - 1e-6, edge + 1e-6])  # either side: the tables of both neighbouring keys
     disparity, norm = np.repeat(disparity, log_norm.size), np.tile(np.exp(log_norm), disparity.size)
-    rays, starts, ends = [], [], []
-    for r in range(disparity.size):
-        edges = 2.0 + np.concatenate([[0.0], np.cumsum(rng.uniform(0.005, 0.15, 1100))])
-        edges = edges[edges <= 80.0]
-        rays.append(np.full(edges.size - 1, r))
-        starts.append(edges[:-1])
-        ends.append(edges[1:])
+    edges = [2.0 + np.concatenate([[0.0], np.cumsum(rng.uniform(0.005, 0.15, 1100))]) for _ in disparity]
     model = make_sensor_model("prism", focal_baseline=fb, error_model=mixture, voxel_size_m=voxel, p0=p0, near_m=near)
     _, delta, _, _ = model._tables_for(disparity, norm)
     assert np.abs(delta).min() > 0.499 * _prism._LAMBDA_STEP
-    _assert_table_within_tolerance(
-        model,
-        disparity,
-        norm,
-        (np.concatenate(rays), np.concatenate(starts), np.concatenate(ends)),
-        moderate_min=40_000,
-        large_min=0,
-    )
+    cells = _tiling([e[e <= 80.0] for e in edges])
+    _assert_table_within_tolerance(model, disparity, norm, cells, moderate_min=40_000, large_min=0)
 
 
 def _profile_by_brute_force(mixture, e):
@@ -475,24 +469,14 @@ def test_cells_in_a_tables_second_interval_agree_with_direct(mixture, depths):
     table, _, meta, _ = model._tables_for(disparity, norm)
     column = _kernels_pack.META_COLUMNS.index
     assert np.all(meta[table, column("row_1")] == 0)  # no steep front
-    rays, starts, ends = [], [], []
-    for r, m in enumerate(meta[table]):
+    edges = []
+    for m in meta[table]:
         segment = next(k for k in range(_kernels_table.N_SEGMENTS) if m[column(f"row_{k + 1}")] > 0)
         fourth = _kernels_march.z_of_x(
             m[column(f"x_{segment}")] + 4 * m[column(f"h_{segment}")], m[column("lam")], model._ku()
         )
-        edges = np.linspace(near, fourth, 41)
-        rays.append(np.full(40, r))
-        starts.append(edges[:-1])
-        ends.append(edges[1:])
-    _assert_table_within_tolerance(
-        model,
-        disparity,
-        norm,
-        (np.concatenate(rays), np.concatenate(starts), np.concatenate(ends)),
-        moderate_min=200,
-        large_min=0,
-    )
+        edges.append(np.linspace(near, fourth, 41))
+    _assert_table_within_tolerance(model, disparity, norm, _tiling(edges), moderate_min=200, large_min=0)
 
 
 def _table_bound(inc_direct):
