@@ -413,6 +413,14 @@ def test_coarse_front_is_capped_and_agrees_with_direct_within_stated_bound():
 FRAME_MIXTURE = GaussianMixture([0.9, 0.1], [0.0, 0.0], [0.3, 3.0])
 
 
+def _first_intervals_end(model, table_meta, n):
+    """Depth (metres) ``n`` widths of its first interval after a table's first node (``table_meta``: its meta row)."""
+    column = _kernels_pack.META_COLUMNS.index
+    segment = next(k for k in range(_kernels_table.N_SEGMENTS) if table_meta[column(f"row_{k + 1}")] > 0)  # row 0's
+    x = table_meta[column(f"x_{segment}")] + n * table_meta[column(f"h_{segment}")]
+    return _kernels_march.z_of_x(x, table_meta[column("lam")], model._ku())
+
+
 @pytest.mark.parametrize(
     ("fb", "mixture", "voxel", "p0", "near", "depth", "steep"),
     [
@@ -435,13 +443,7 @@ def test_cells_in_a_tables_first_interval_agree_with_direct(fb, mixture, voxel, 
     assert np.abs(delta[0::4]).max() < 1e-12 and np.abs(delta.reshape(-1, 4)[:, 1:]).min() > 0.499 * step
     column = _kernels_pack.META_COLUMNS.index
     assert np.all((meta[table, column("row_1")] > 0) == steep)  # a coarse front or none
-    ends = []
-    for m in meta[table]:
-        segment = next(k for k in range(_kernels_table.N_SEGMENTS) if m[column(f"row_{k + 1}")] > 0)  # holds row 0
-        first = _kernels_march.z_of_x(
-            m[column(f"x_{segment}")] + m[column(f"h_{segment}")], m[column("lam")], model._ku()
-        )
-        ends.append(np.geomspace(near + 1e-4, first, 12))
+    ends = [np.geomspace(near + 1e-4, _first_intervals_end(model, m, 1), 12) for m in meta[table]]
     rays = np.repeat(np.arange(disparity.size), 12)
     _assert_table_within_tolerance(
         model,
@@ -460,7 +462,7 @@ def test_cells_in_a_tables_first_interval_agree_with_direct(fb, mixture, voxel, 
 def test_cells_in_a_tables_second_interval_agree_with_direct(mixture, depths):
     """Without a steep front ``q g`` is not negligible at ``near_m``: ``C`` grows like ``z - z0`` there and ``log C``
     like ``log(z - z0)``, too curved for a cubic over the table's second interval (up to 0.016 nats off; the
-    look-up integrates it on the spot, like the first). Short cells tile each ray from near_m to its fourth node,
+    look-up integrates it on the spot, like the first). Short cells tile each ray from near_m to four first-interval widths,
     on the half-resolution street rig with measurements a metre or two behind near_m."""
     fb, near = KITTI_FB / 2, 1.5
     model = make_sensor_model("prism", focal_baseline=fb, error_model=mixture, voxel_size_m=0.2, p0=0.05, near_m=near)
@@ -469,13 +471,7 @@ def test_cells_in_a_tables_second_interval_agree_with_direct(mixture, depths):
     table, _, meta, _ = model._tables_for(disparity, norm)
     column = _kernels_pack.META_COLUMNS.index
     assert np.all(meta[table, column("row_1")] == 0)  # no steep front
-    edges = []
-    for m in meta[table]:
-        segment = next(k for k in range(_kernels_table.N_SEGMENTS) if m[column(f"row_{k + 1}")] > 0)
-        fourth = _kernels_march.z_of_x(
-            m[column(f"x_{segment}")] + 4 * m[column(f"h_{segment}")], m[column("lam")], model._ku()
-        )
-        edges.append(np.linspace(near, fourth, 41))
+    edges = [np.linspace(near, _first_intervals_end(model, m, 4), 41) for m in meta[table]]
     _assert_table_within_tolerance(model, disparity, norm, _tiling(edges), moderate_min=200, large_min=0)
 
 

@@ -403,7 +403,7 @@ def _chunks(limits):
     """Slices of consecutive rays of at most :data:`RAYS_PER_CHUNK` rays and :data:`CELLS_PER_CHUNK` voxel
     visits (a ray of more visits is a chunk of its own)."""
     n = limits.size
-    if n and int(limits.sum()) <= CELLS_PER_CHUNK:  # the common case: split by ray count only
+    if n and int(limits.sum()) <= CELLS_PER_CHUNK:  # few visits in all: split by ray count only
         return [slice(b, min(b + RAYS_PER_CHUNK, n)) for b in range(0, n, RAYS_PER_CHUNK)]
     total = np.cumsum(limits)
     parts, begin = [], 0

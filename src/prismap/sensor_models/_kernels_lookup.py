@@ -125,8 +125,8 @@ def _log_c_first(z, steep, lam, shift, h, geometry, mixture):
     :data:`_MARCH_GL` there: they agree to about 1e-10), or where ``q g`` rises steeply (``steep``: the
     interval is in the coarse front) the endpoint asymptotic with the start's cut, ``C = q g / phi' (1 -
     e^{-phi' (z - z0)})``, exact for an exponential ``q g``. Without a steep front ``q g`` is not negligible at
-    ``z0``, ``C`` grows like ``z - z0`` and ``log C`` like ``log(z - z0)``: a cubic is up to 0.016 nats off
-    over the second interval too.
+    ``z0``, ``C`` grows like ``z - z0`` and ``log C`` like ``log(z - z0)``, which a cubic over the second interval
+    misses by up to 0.016 nats.
 
     Parameters
     ----------

@@ -188,7 +188,8 @@ class PrismModel(RayModel):
     _cache: "TableCache" = field(default=None, init=False, repr=False, compare=False)
     _widened: dict = field(default_factory=dict, init=False, repr=False, compare=False)
     _table_spec: TableSpec = field(default=None, init=False, repr=False, compare=False)
-    _kernel_args: tuple = field(default=None, init=False, repr=False, compare=False)
+    _kernel_geometry: Geometry = field(default=None, init=False, repr=False, compare=False)
+    _kernel_mixture: Mixture = field(default=None, init=False, repr=False, compare=False)
 
     def __post_init__(self):
         super().__post_init__()
@@ -234,11 +235,13 @@ class PrismModel(RayModel):
             wide_efolds=_WIDE_EFOLDS,
         )
         object.__setattr__(self, "_table_spec", spec)
-        m = self.error_model
+        m = self.error_model  # the kernels' arguments, made once: a conditioned frame makes hundreds of calls
         log_wn = np.log(m.weights) - np.log(m.sigmas) - 0.5 * np.log(2 * np.pi)
-        mixture = Mixture(log_wn, np.ascontiguousarray(m.means), np.ascontiguousarray(m.sigmas))
         object.__setattr__(
-            self, "_kernel_args", (Geometry(self.near_m, self.far_depth_m, self.focal_baseline, self._ku()), mixture)
+            self, "_kernel_mixture", Mixture(log_wn, np.ascontiguousarray(m.means), np.ascontiguousarray(m.sigmas))
+        )
+        object.__setattr__(
+            self, "_kernel_geometry", Geometry(self.near_m, self.far_depth_m, self.focal_baseline, self._ku())
         )
 
     def _check_table_size(self):
@@ -277,15 +280,15 @@ class PrismModel(RayModel):
         return -np.log1p(-self.p0) / self.voxel_size_m
 
     def _mixture(self):
-        """The error mixture as the kernels take it (made once, on construction)."""
-        return self._kernel_args[1]
+        """The error mixture as the kernels take it (made on construction)."""
+        return self._kernel_mixture
 
     def _ku(self):
         return self.focal_baseline / float(self.error_model.sigmas.min())
 
     def _geometry(self):
-        """The depth range and disparity scales as the kernels take them (made once, on construction)."""
-        return self._kernel_args[0]
+        """The depth range and disparity scales as the kernels take them (made on construction)."""
+        return self._kernel_geometry
 
     def _log_far(self, disparity):
         u_max = self.focal_baseline / self.far_depth_m
