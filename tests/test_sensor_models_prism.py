@@ -475,6 +475,41 @@ def test_cells_in_a_tables_second_interval_agree_with_direct(mixture, depths):
     _assert_table_within_tolerance(model, disparity, norm, _tiling(edges), moderate_min=200, large_min=0)
 
 
+BUMP_BEFORE = GaussianMixture(
+    [0.7564, 0.1930, 0.0460, 0.0046], [0.047, 0.032, 6.56, 25.26], [0.204, 0.764, 5.90, 0.415]
+)
+"""A characterised SGBM class of the quarter-size street: a 5.9 px component centred 6.6 px in front."""
+
+
+def test_table_of_a_measurement_just_behind_a_bump_of_g_agrees_with_direct():
+    """Measured 0.2 m behind near_m (quarter-size street rig, ``BUMP_BEFORE``), ``q g`` rises from near_m over the
+    wide component's bump, falls, then rises steeply to the measurement: steep at the coarse front's first node but
+    not between, so the front is dropped (its asymptotic ``C`` is not a number there, and above ``e^coarse_below``
+    at the next node) and the march starts at near_m from ``C = 0``, not from the dropped front's ``C``."""
+    fb, near = KITTI_FB / 4, 1.5
+    model = make_sensor_model(
+        "prism", focal_baseline=fb, error_model=BUMP_BEFORE, voxel_size_m=0.4, p0=0.0836, near_m=near
+    )
+    disparity = np.repeat(np.arange(56.375, 56.76, 1 / 16), 3)  # 1.71-1.72 m
+    norm = np.tile([1.0, 1.12, 1.25], disparity.size // 3)
+    table, delta, meta, _ = model._tables_for(disparity, norm)
+    column = _kernels_pack.META_COLUMNS.index
+    log_z = meta[table, column("log_z")] + delta * (
+        meta[table, column("log_z_1")] + 0.5 * delta * meta[table, column("log_z_2")]
+    )
+    direct = _kernels_direct.prism_log_evidence(
+        disparity,
+        model.rate_per_m * norm,
+        model._log_far(disparity),
+        _prism._QUAD_STEP,
+        model._geometry(),
+        model._mixture(),
+    )
+    np.testing.assert_allclose(log_z, direct, rtol=0, atol=1e-3)  # Z: C from 0 at near_m
+    edges = [np.linspace(near, 6.0, 121)] * disparity.size
+    _assert_table_within_tolerance(model, disparity, norm, _tiling(edges), moderate_min=500, large_min=0)
+
+
 def _table_bound(inc_direct):
     """:data:`TABLE_TOLERANCE`'s bound on ``|inc_table - inc_direct|`` (log-odds) at each direct increment."""
     size = np.abs(inc_direct)

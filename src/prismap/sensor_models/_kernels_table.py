@@ -394,13 +394,14 @@ def prism_table(shift, lam, log_far, geometry, spec, mixture):
         if lo > x0 + n_steep * h_coarse:
             n_steep += 1
             h_coarse = (lo - x0) / n_steep
-    log_c_start = np.full(3, -np.inf)
+    log_c_start = np.empty(3)
     n_coarse = n_steep
     log_z = np.nan
     refit = True
     while True:  # once, or twice (or three times) if the first Z shows the steep part reaching above e^coarse_below
         x_split = x0 + n_coarse * h_coarse
         z_split = z_of_x(x_split, lam, ku) if n_coarse > 0 else z0
+        log_c_start[:] = -np.inf  # no front: C starts at 0 in z0 (a refit may drop the whole front)
         if n_coarse > 0:
             log_c = _log_c_asymptotic(z_split, lam, shift, geometry, mixture)[0]
             log_s = math.log(z_split - z0)
@@ -424,10 +425,9 @@ def prism_table(shift, lam, log_far, geometry, spec, mixture):
             mixture,
         )
         fit = n_coarse
-        while (
-            fit > 0
-            and _log_c_asymptotic(z_of_x(x0 + fit * h_coarse, lam, ku), lam, shift, geometry, mixture)[0] - log_z
-            >= coarse_below
+        while fit > 0 and not (  # NaN: q g falls there (a bump of g before the front's end), no asymptotic
+            _log_c_asymptotic(z_of_x(x0 + fit * h_coarse, lam, ku), lam, shift, geometry, mixture)[0] - log_z
+            < coarse_below
         ):
             fit -= 1
         if fit == n_coarse:
