@@ -102,6 +102,7 @@ def table_stages(prism, batch, repeat=5):
                 _prism._QUAD_STEP,
                 geometry,
                 mixture,
+                np.empty(0),  # no failure floor: the model's cells without a blend
                 l_a[lo:hi],
                 l_c[lo:hi],
                 side[lo:hi],

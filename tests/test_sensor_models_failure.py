@@ -262,3 +262,80 @@ def test_one_frame_moves_no_voxel_beyond_the_bound_through_the_map_update(gross)
     assert change.min() >= low - quantum and change.max() <= high + quantum
     assert change.min() < 0.5 * low  # not vacuous: a frame reaches a good part of it
     assert plain.min() < 2 * low  # the Gaussians alone let the same frame claim far more
+
+
+_BLEND_EXACT = 54 * np.log(2.0) + np.log(2.0)  # R <= 2^-54 fail q leaves the blend that of R = 0; the bound's 2
+
+
+@pytest.mark.parametrize(
+    "mixture",
+    [
+        GAUSSIANS,
+        GaussianMixture([0.9, 0.1], [0.1, -0.5], [0.3, 10.0]),  # a wide outlier component, as real matchers have
+        GaussianMixture([0.5, 0.3, 0.2], [0.0, 42.0, 82.0], [0.4, 0.7, 0.4]),  # components far in front
+    ],
+)
+def test_floor_depth_bounds_the_likelihood_before_it(mixture):
+    """``floor_depth`` by brute force: on a dense grid of depths from ``near_m`` up to it, the largest likelihood
+    ``g`` so far over ``Z`` stays below ``e^log_floor`` by what the blend's exactness needs (2^-54, and the bound's
+    factor 2), and at the depth itself one component reaches its share of ``FLOOR_EFOLDS`` exactly (the bound
+    is as near as a component-wise one gets)."""
+    mix = PrismModel(error_model=mixture, focal_baseline=FB, voxel_size_m=0.2, p0=0.05, near_m=0.5)._mixture()
+    log_wn, means, sigmas = mix
+    z0 = 0.5
+    floors = 0
+    for shift, log_z, log_floor in itertools.product([0.7, 3.1, 20.0], [-9.0, -2.0, 0.5], [np.log(0.4), -20.0]):
+        depth = _kernels_failure.floor_depth(shift, log_z, log_floor, FB, z0, mix)
+        assert depth >= z0
+        if depth == z0:  # no cell at the floor (cells end after near_m)
+            continue
+        floors += 1
+        z = np.linspace(z0, depth, 20_001)[1:] if np.isfinite(depth) else np.geomspace(z0, 1e6, 20_001)
+        t = (FB / z[:, None] - shift - means) / sigmas
+        log_g = np.logaddexp.reduce(log_wn - 0.5 * t * t, axis=1)
+        assert np.max(log_g) - log_z <= log_floor - _BLEND_EXACT, (shift, log_z, log_floor)
+        if z0 < depth < np.inf:
+            share = log_z + log_floor - _kernels_failure.FLOOR_EFOLDS - np.log(means.size)
+            assert np.max(log_wn - 0.5 * t[-1] ** 2) == pytest.approx(share, abs=1e-9)
+    assert floors >= 12
+    assert _kernels_failure.floor_depth(3.1, -2.0, -np.inf, FB, z0, mix) == z0  # no failures, no floor
+
+
+def test_cells_before_the_floor_depth_skip_the_look_up_and_blend_as_a_zero_ratio():
+    """Cells of long street rays before their failure floor depth are not looked up (``side`` flag ``_FLOOR``); each one's
+    failure-free ratio from the tables is below what the blend's exactness needs, and its blended increment is
+    ``log(fail q / (ok + fail q))``, that of a ratio of 0. The bound finds nearly all the cells the tables' own ratios
+    put there (with this mixture's 2.5 px component, a sixth of the rays' cells)."""
+    from prismap.sensor_models import _kernels_lookup
+    from prismap.sensor_models._kernel_args import Cells
+    from prismap.sensor_models._prism import _QUAD_STEP
+
+    fb = 194.4  # the half-size street rig's 360 px times 0.54 m
+    model = PrismModel(error_model=FAILING, focal_baseline=fb, voxel_size_m=0.2, p0=0.05, near_m=0.5)
+    disparity = np.round(fb / np.array([8.0, 20.0, 45.0]) * 16) / 16
+    norm = np.array([1.0, 1.1, 1.3])
+    edges = np.arange(0.0, 60.0 + 1e-9, 0.2)
+    rays = np.repeat(np.arange(disparity.size), edges.size - 1)
+    start, end = np.tile(edges[:-1], disparity.size), np.tile(edges[1:], disparity.size)
+    lam, stretch = model.rate_per_m * norm, np.zeros(disparity.size)
+    tables = model._tables_for(disparity, norm)
+    log_fail, log_ok = model._log_failure(tables)
+    n = start.size
+    l_a, l_c, lam_len, side = np.empty(n), np.empty(n), np.empty(n), np.empty(n, dtype=np.int8)
+    _kernels_lookup.prism_table_lookup(
+        lam, stretch, tables, Cells(rays, start, end), 0, n, _QUAD_STEP, model._geometry(), model._mixture(),
+        log_fail, l_a, l_c, side, lam_len,
+    )  # fmt: skip
+    floor = side == _kernels_lookup._FLOOR
+    _, unblended = model._table_cells(lam, rays, start, end, stretch, tables, (np.empty(0), np.empty(0)))
+    _, increment = model.cell_posteriors(disparity, norm, rays, start, end)
+    q, fail, ok = np.exp(-lam_len), np.exp(log_fail[rays]), np.exp(log_ok[rays])
+    exact = (side != _kernels_lookup._SKIP) & (unblended <= np.log(q * fail) - 54 * np.log(2.0))
+    assert np.all(exact[floor])  # every floor cell's ratio is small enough
+    assert floor.sum() >= 0.9 * exact.sum()  # and the bound finds nearly all such cells
+    np.testing.assert_allclose(increment[floor], np.log(fail * q / (ok + fail * q))[floor], rtol=1e-14)
+    for ray_floor, ray_live in zip(
+        floor.reshape(disparity.size, -1), (side != _kernels_lookup._SKIP).reshape(disparity.size, -1)
+    ):
+        run = ray_floor[ray_live]  # the ray's first cells after near_m, then none
+        assert run[0] and np.all(np.diff(run.astype(int)) <= 0)

@@ -9,6 +9,8 @@ vectorisable :func:`~prismap.sensor_models._kernels_math.fast_exp` and
 blend is on every cell of a ray-mode frame, and as numpy expressions it cost more than PRISM's table look-ups.
 """
 
+import math
+
 import numba as nb
 import numpy as np
 
@@ -17,6 +19,11 @@ from prismap.sensor_models._kernels_math import fast_exp, fast_log
 _SERIES_BELOW = 1e-3  # below: 1 - exp(-x) by its series, which 1 - fast_exp(-x) would cancel away
 _BLOCK = 2048  # cells a block of blend_ray_cells
 _EXP_BOUND = 700.0  # increments beyond +-700 nats blend as +-700 would, to float64 precision: exp stays finite
+
+FLOOR_EFOLDS = 40.0
+"""Nats by which :func:`floor_depth`'s bound on a cell's ``R / q`` stays below its ray's ``log_floor``: the blend of
+``R`` equals that of ``R = 0`` to float64 precision once ``R <= 2^-54 fail q`` (e^-37.4) and the bound's factor 2
+costs 0.7 more; the rest spares the tables' error in ``log Z``."""
 
 
 @nb.njit(cache=True, nogil=True, inline="always", error_model="numpy")
@@ -49,6 +56,50 @@ def _clipped_prior(rate, start, end, near, far):
     x = rate * max(length, 0.0)
     q = fast_exp(-x)
     return (x * (1.0 - x * (0.5 - x / 6.0)) if x < _SERIES_BELOW else 1.0 - q), q
+
+
+@nb.njit(cache=True, nogil=True, inline="always", error_model="numpy")
+def floor_depth(shift, log_z, log_floor, fb, z0, mixture):
+    """Depth (metres) up to which a ray's cells are at the failure floor: their blended increment is that of a
+    failure-free likelihood ratio ``R = 0`` (certainly free, blended), to float64 precision.
+
+    A cell ``[a, c]`` of prior ``p_c`` has ``P Z = p_c C(a) + int_a^c q g`` with ``C(z) = int_z0^z q g`` and ``q(z) =
+    lam e^{-lam (z - z0)}``, so both terms are at most ``p_c G`` with ``G`` the largest ``g`` on ``[z0, c]``, and
+    ``R <= 2 q_c G / Z`` (``P`` tiny), whatever the cell's length. :func:`_blend_terms` of such an ``R`` is that of 0
+    when ``R <= 2^-54 fail q`` (``fail q`` is the numerator's other term, ``q`` the denominator's ``a``); with a
+    pass-through chance ``m > 0`` the thinned ratio ``m + (1 - m) R`` is ``m`` when ``R <= 2^-54 m``. So the cells
+    ending before the depth where ``G / Z`` first reaches ``e^(log_floor - FLOOR_EFOLDS)``, ``log_floor`` the log
+    of ``fail`` (or of ``m``), are at the floor. ``G`` is bounded component by component: component ``j`` of the
+    mixture (:class:`~prismap.sensor_models._kernel_args.Mixture`) is below its share ``1 / J`` of that bound at
+    disparities ``u = fb / z`` more than ``s_j`` of its sigmas above its mean (``u = shift + mu_j``), where it only
+    falls towards the camera.
+
+    Parameters
+    ----------
+    shift : float, pixels
+        The ray's measured disparity plus ``doffs``.
+    log_z : float, log
+        The ray's ``Z``.
+    log_floor : float, log
+        ``log(fail)`` of the ray (or ``log(m)``); ``-inf``: no floor.
+    fb, z0 : float
+        Focal length times baseline (pixel metres) and ``near_m`` (metres).
+    mixture : Mixture
+        The error mixture.
+    """
+    if log_floor == -np.inf:
+        return z0
+    log_wn, means, sigmas = mixture
+    log_share = log_z + log_floor - FLOOR_EFOLDS - math.log(means.size)
+    depth = np.inf
+    for j in range(means.size):
+        excess = log_wn[j] - log_share
+        if excess <= 0.0:  # below its share at its peak: no bound
+            continue
+        u = shift + means[j] + sigmas[j] * math.sqrt(2.0 * excess)
+        if u > 0.0:
+            depth = min(depth, fb / u)
+    return max(depth, z0)
 
 
 @nb.njit(cache=True, nogil=True, error_model="numpy")

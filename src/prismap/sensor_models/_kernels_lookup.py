@@ -12,7 +12,7 @@ import numba as nb
 import numpy as np
 
 from prismap.sensor_models._kernels_direct import combine, log_tail, pass_through_log
-from prismap.sensor_models._kernels_failure import blend_cell, blend_ratios_into
+from prismap.sensor_models._kernels_failure import blend_cell, blend_ratios_into, floor_depth
 from prismap.sensor_models._kernels_march import log_integral
 from prismap.sensor_models._kernels_math import exp_into, fast_exp, fast_log, log1mexp, log_into
 from prismap.sensor_models._kernels_pack import (
@@ -155,9 +155,13 @@ def _log_c_first(z, steep, lam, shift, h, geometry, mixture):
 _SKIP = 4
 """``side`` flag of a cell the measurement does not change (empty, or beyond the influence depth)."""
 
+_FLOOR = 8
+"""``side`` flag of a cell at its ray's failure floor (:func:`~prismap.sensor_models._kernels_failure.floor_depth`):
+not looked up, its failure-free likelihood ratio taken as 0 (thinned: the pass-through chance)."""
+
 
 @nb.njit(cache=True, nogil=True, fastmath=_FASTMATH)
-def prism_table_lookup(lam, stretch, tables, cells, lo, hi, hq, geometry, mixture, l_a, l_c, side, lam_len):
+def prism_table_lookup(lam, stretch, tables, cells, lo, hi, hq, geometry, mixture, log_floor, l_a, l_c, side, lam_len):
     """First stage of tabulated PRISM on cells ``lo:hi``: per cell end, the log of the smaller of C/Z, D/Z.
 
     A cell is ``[start[i], end[i] + stretch[r]]`` (``stretch``: the ray's voxel overhang share, depth metres).
@@ -174,7 +178,8 @@ def prism_table_lookup(lam, stretch, tables, cells, lo, hi, hq, geometry, mixtur
     before the measurement, the table's ``C/Z + D/Z`` misses 1 by up to 1e-3, as much as a short cell's share
     there. A start with ``C/Z < 1/4`` keeps its ``C`` (accurate relative to itself, which a ``1 - D/Z`` is not
     near 0): that cell's share is above 1/4, and the miss is small against it. Cells starting
-    beyond the influence depth are skipped; for a cell ending beyond the table (where the remaining
+    beyond the influence depth are skipped, cells ending before the ray's failure floor depth (``log_floor``) are
+    flagged :data:`_FLOOR` without a look-up; for a cell ending beyond the table (where the remaining
     evidence is below e^-40 of C), ``D(c)`` is integrated on the spot, and so is ``C`` in the table's first
     interval (first two without a steep front, :func:`_log_c_first`): both at the ray's own rate, over the
     ray's ``Z`` (the table's by the nodes' Taylor term, from the meta columns ``log_z_1``, ``log_z_2``), not the
@@ -198,14 +203,17 @@ def prism_table_lookup(lam, stretch, tables, cells, lo, hi, hq, geometry, mixtur
         Depth range and disparity scales (:class:`~prismap.sensor_models._kernel_args.Geometry`).
     mixture : Mixture
         The error mixture (:class:`~prismap.sensor_models._kernel_args.Mixture`).
+    log_floor : (R,) float64, log, or (0,)
+        Each ray's ``log(fail)`` (or ``log`` of the pass-through chance) for
+        :func:`~prismap.sensor_models._kernels_failure.floor_depth`; empty: no failure blend, no floor.
     l_a, l_c : (hi - lo,) float64, log
         Written: the smaller of ``log(C/Z)``, ``log(D/Z)`` at each cell's start and end.
     side : (hi - lo,) int8
-        Written: which of the two each is, or :data:`_SKIP`.
+        Written: which of the two each is, or :data:`_SKIP`, :data:`_FLOOR`.
     lam_len : (hi - lo,) float64
         Written: each cell's prior rate times its length (dimensionless).
     """
-    z0, z_max, _, ku = geometry
+    z0, z_max, fb, ku = geometry
     table, delta, meta, nodes = tables
     ray_of_cell, start, end = cells
     r_prev = -1
@@ -216,7 +224,8 @@ def prism_table_lookup(lam, stretch, tables, cells, lo, hi, hq, geometry, mixtur
     seg_h = np.empty(N_SEGMENTS)
     seg_inv = np.empty(N_SEGMENTS)
     seg_row = np.empty(N_SEGMENTS + 1, dtype=np.int64)
-    lam_t = lam_r = z_end = z_infl = dl = shift = log_z = log_far = stretch_r = 0.0
+    lam_t = lam_r = z_end = z_infl = dl = shift = log_z = log_far = stretch_r = z_floor = 0.0
+    floors = log_floor.size > 0
     z_half = np.inf
     off = off_d = c_end = n_seg = s_a = s_c = n_first = 0
     h_first = 0.0
@@ -255,6 +264,7 @@ def prism_table_lookup(lam, stretch, tables, cells, lo, hi, hq, geometry, mixtur
             off_d = off + int(meta[t, _D_SHIFT])
             c_end = int(meta[t, _C_END])
             stretch_r = stretch[r]
+            z_floor = floor_depth(shift, log_z, log_floor[r], fb, z0, mixture) if floors else z0
         a = max(start[i], z0)
         c = min(end[i] + stretch_r, z_max)
         if c <= a or a >= z_infl:
@@ -264,6 +274,11 @@ def prism_table_lookup(lam, stretch, tables, cells, lo, hi, hq, geometry, mixtur
             c_prev = -1.0
             continue
         lam_len[j] = lam[r] * (c - a)
+        if c <= z_floor:
+            side[j] = _FLOOR
+            l_a[j] = l_c[j] = 0.0
+            c_prev = -1.0
+            continue
         if a == c_prev:
             l_a[j] = lcc
             a_is_d = c_is_d
@@ -322,7 +337,8 @@ def prism_table_combine(lo, hi, l_a, l_c, e_a, e_c, side, lam_len, post, ratio, 
     ``e_a``, ``e_c`` are ``exp(l_a)``, ``exp(l_c)`` of :func:`prism_table_lookup` (:func:`exp_into`), so
     ``C/Z`` and ``D/Z`` at both ends are at hand in linear space: ``P Z = p_c C(a) + C(c) - C(a)``,
     ``(1 - P) Z = (1 - p_c) C(a) + D(c)`` and the increment is ``log(ratio)`` with
-    ``ratio = P (1 - p_c) / ((1 - P) p_c)``, ``p_c = 1 - e^-lam_len``. A first, branch-free pass (it
+    ``ratio = P (1 - p_c) / ((1 - P) p_c)``, ``p_c = 1 - e^-lam_len``; a :data:`_FLOOR` cell's ``ratio`` is 0,
+    thinned by ``pass_through``. A first, branch-free pass (it
     vectorises) does every cell so; a second one redoes the cells it marked (``ratio`` -1): skipped cells
     (``ratio = 1``, the posterior the prior's) and cells near underflow (a log below -600 or
     ``lam_len > 40``), which go through :func:`combine_small`, those far in front of the measurement gathered
@@ -339,7 +355,7 @@ def prism_table_combine(lo, hi, l_a, l_c, e_a, e_c, side, lam_len, post, ratio, 
     e_a, e_c : (hi - lo,) float64
         Their exps.
     side : (hi - lo,) int8
-        :func:`prism_table_lookup`'s flags: bit 0 ``l_a`` is D's, bit 1 ``l_c`` is D's, or :data:`_SKIP`.
+        :func:`prism_table_lookup`'s flags: bit 0 ``l_a`` is D's, bit 1 ``l_c`` is D's, or :data:`_SKIP`, :data:`_FLOOR`.
     lam_len : (hi - lo,) float64
         Each cell's prior rate times its length (dimensionless).
     post : (C,) float64
@@ -375,7 +391,7 @@ def prism_table_combine(lo, hi, l_a, l_c, e_a, e_c, side, lam_len, post, ratio, 
         )
         thinned = pass_through + (1.0 - pass_through) * ((num * q_c) / (den * p_c))  # = the ratio when m = 0
         post[lo + j] = num / (num + den) if pass_through == 0.0 else p_c * thinned / (p_c * thinned + q_c)
-        ratio[j] = thinned if ok else -1.0
+        ratio[j] = pass_through if s == _FLOOR else (thinned if ok else -1.0)
     n_fix = 0
     far = np.empty(hi - lo, dtype=np.int64)  # cells far in front of the measurement (see below)
     n_far = 0
@@ -438,7 +454,9 @@ def prism_table_cells(lam, stretch, tables, cells, hq, block, pass_through, ok, 
     :func:`prism_table_combine`, where the error model has matcher failures the blend with each cell's prior
     (:func:`~prismap.sensor_models._kernels_failure.blend_ratios_into` on the likelihood ratios, ``blend_cell``
     on the increments :func:`prism_table_combine` lists), and :func:`log_into`; the scratch arrays of a block stay
-    in the core's cache and the GIL stays released for the whole call.
+    in the core's cache and the GIL stays released for the whole call. With failures, the cells before a ray's
+    failure floor depth (``floor_depth``, from ``fail`` or a pass-through chance) skip the look-up: their blend is
+    that of a failure-free ratio of 0 (a long outdoor ray's first two fifths).
 
     Parameters
     ----------
@@ -472,11 +490,14 @@ def prism_table_cells(lam, stretch, tables, cells, hq, block, pass_through, ok, 
     z0, z_max = geometry.z0, geometry.z_max
     blend = ok.size > 0
     n_blend = size if blend else 0  # each cell's ray's rate, ok and fail, and its end with the stretch
+    log_floor = np.log(fail) if pass_through == 0.0 else np.full(fail.size, math.log(pass_through))
     rate_cell, ok_cell, fail_cell, end_cell = np.empty(n_blend), np.empty(n_blend), np.empty(n_blend), np.empty(n_blend)
     for lo in range(0, n, size):
         hi = min(lo + size, n)
         m = hi - lo
-        prism_table_lookup(lam, stretch, tables, cells, lo, hi, hq, geometry, mixture, l_a, l_c, side, lam_len)
+        prism_table_lookup(
+            lam, stretch, tables, cells, lo, hi, hq, geometry, mixture, log_floor, l_a, l_c, side, lam_len
+        )
         exp_into(l_a, e_a, m)
         exp_into(l_c, e_c, m)
         n_fix = prism_table_combine(
