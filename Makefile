@@ -7,7 +7,7 @@ STAMP  := $(VENV)/.prismap-installed
 DOCS_STAMP := $(VENV)/.prismap-docs-installed
 OUT    ?= outputs
 
-.PHONY: install demo test docs dist bench clean
+.PHONY: install demo test docs dist bench clean-numba clean
 
 $(PY):
 	$(PYTHON) -m venv $(VENV)
@@ -41,6 +41,9 @@ dist: $(DOCS_STAMP)
 
 bench: $(STAMP)
 	for f in benchmarks/bench_*.py; do $(PY) $$f || exit 1; done
+
+clean-numba:
+	find src -name '*.nbi' -delete -o -name '*.nbc' -delete
 
 clean:
 	rm -rf $(VENV) $(OUT) build dist src/*.egg-info .pytest_cache docs/_build docs/_generated docs/auto_examples
