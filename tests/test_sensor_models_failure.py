@@ -299,6 +299,8 @@ def test_floor_depth_bounds_the_likelihood_before_it(mixture):
             assert np.max(log_wn - 0.5 * t[-1] ** 2) == pytest.approx(share, abs=1e-9)
     assert floors >= 12
     assert _kernels_failure.floor_depth(3.1, -2.0, -np.inf, FB, z0, mix) == z0  # no failures, no floor
+    assert _kernels_failure.floor_depth(3.1, np.nan, -1.0, FB, z0, mix) == z0  # a Z that is not a number: none
+    assert _kernels_failure.floor_depth(3.1, -2.0, np.nan, FB, z0, mix) == z0
 
 
 def test_cells_before_the_floor_depth_skip_the_look_up_and_blend_as_a_zero_ratio():

@@ -81,13 +81,13 @@ def floor_depth(shift, log_z, log_floor, fb, z0, mixture):
     log_z : float, log
         The ray's ``Z``.
     log_floor : float, log
-        ``log(fail)`` of the ray (or ``log(m)``); ``-inf``: no floor.
+        ``log(fail)`` of the ray (or ``log(m)``); ``-inf`` (or NaN, like a ``log_z`` that is not finite): no floor.
     fb, z0 : float
         Focal length times baseline (pixel metres) and ``near_m`` (metres).
     mixture : Mixture
         The error mixture.
     """
-    if log_floor == -np.inf:
+    if not (log_floor > -np.inf and math.isfinite(log_z)):  # no failures, or no number: no floor
         return z0
     log_wn, means, sigmas = mixture
     log_share = log_z + log_floor - FLOOR_EFOLDS - math.log(means.size)
