@@ -341,3 +341,48 @@ def test_cells_before_the_floor_depth_skip_the_look_up_and_blend_as_a_zero_ratio
     ):
         run = ray_floor[ray_live]  # the ray's first cells after near_m, then none
         assert run[0] and np.all(np.diff(run.astype(int)) <= 0)
+
+
+def test_with_pass_through_the_floor_blends_the_pass_through_chance():
+    """With a pass-through chance ``m`` the thinned ratio ``m + (1 - m) R`` of a cell at the floor is ``m``: the floor
+    depth comes from ``log m`` instead of the failure posterior, the tables' thinned ratio there is ``m`` to float64
+    precision, those cells' blended increments are the blend of ``m``, and every cell agrees with the direct method
+    within the tables' tolerance."""
+    from prismap.sensor_models._prism import TABLE_TOLERANCE as tolerance
+
+    fb, m = 194.4, 0.02
+    model = PrismModel(error_model=FAILING, focal_baseline=fb, voxel_size_m=0.2, p0=0.05, near_m=0.5, pass_through=m)
+    disparity = np.round(fb / np.array([8.0, 20.0, 45.0]) * 16) / 16
+    norm = np.array([1.0, 1.1, 1.3])
+    edges = np.arange(0.5, 60.0 + 1e-9, 0.2)
+    rays = np.repeat(np.arange(disparity.size), edges.size - 1)
+    start, end = np.tile(edges[:-1], disparity.size), np.tile(edges[1:], disparity.size)
+    lam = model.rate_per_m * norm
+    tables = model._tables_for(disparity, norm)
+    log_fail, log_ok = model._log_failure(tables)
+    depth = [
+        _kernels_failure.floor_depth(d, lz, np.log(m), fb, model.near_m, model._mixture())
+        for d, lz in zip(disparity, _ray_log_z(tables))
+    ]
+    floor = end <= np.array(depth)[rays]
+    assert np.all(floor.reshape(disparity.size, -1)[:, 0]) and floor.sum() > 0.05 * floor.size
+    _, increment = model.cell_posteriors(disparity, norm, rays, start, end)
+    _, unblended = model._table_cells(lam, rays, start, end, np.zeros(3), tables, (np.empty(0), np.empty(0)))
+    assert np.all(np.exp(unblended[floor]) <= m * (1 + 2.0**-52))  # thinned to m, to float64's precision
+    q = np.exp(-lam[rays] * (end - start))
+    fail, ok = np.exp(log_fail[rays]), np.exp(log_ok[rays])
+    a = q + (1 - q) * m
+    np.testing.assert_allclose(increment[floor], np.log((ok * m + fail * a) / (ok + fail * a))[floor], rtol=1e-14)
+    _, direct = model.cell_posteriors(disparity, norm, rays, start, end, method="direct")
+    assert np.all(np.abs(increment - direct) <= tolerance["abs"] + tolerance["rel"] * np.abs(direct))
+
+
+def _ray_log_z(tables):
+    """Each ray's ``log Z`` from its table (the table's by the rate's Taylor term)."""
+    from prismap.sensor_models._kernels_pack import META_COLUMNS
+
+    table, delta, meta, _ = tables
+    column = META_COLUMNS.index
+    return meta[table, column("log_z")] + delta * (
+        meta[table, column("log_z_1")] + 0.5 * delta * meta[table, column("log_z_2")]
+    )
