@@ -22,6 +22,7 @@ from prismap.sensor_models import (
     prism_discrete_posteriors,
 )
 from prismap.sensor_models._prism import TABLE_TOLERANCE
+from support import ray_log_z
 
 FB = 61.5
 SEARCH = (0.0, 64.0)
@@ -362,7 +363,7 @@ def test_with_pass_through_the_floor_blends_the_pass_through_chance():
     log_fail, log_ok = model._log_failure(tables)
     depth = [
         _kernels_failure.floor_depth(d, lz, np.log(m), fb, model.near_m, model._mixture())
-        for d, lz in zip(disparity, _ray_log_z(tables))
+        for d, lz in zip(disparity, ray_log_z(tables))
     ]
     floor = end <= np.array(depth)[rays]
     assert np.all(floor.reshape(disparity.size, -1)[:, 0]) and floor.sum() > 0.05 * floor.size
@@ -375,14 +376,3 @@ def test_with_pass_through_the_floor_blends_the_pass_through_chance():
     np.testing.assert_allclose(increment[floor], np.log((ok * m + fail * a) / (ok + fail * a))[floor], rtol=1e-14)
     _, direct = model.cell_posteriors(disparity, norm, rays, start, end, method="direct")
     assert np.all(np.abs(increment - direct) <= tolerance["abs"] + tolerance["rel"] * np.abs(direct))
-
-
-def _ray_log_z(tables):
-    """Each ray's ``log Z`` from its table (the table's by the rate's Taylor term)."""
-    from prismap.sensor_models._kernels_pack import META_COLUMNS
-
-    table, delta, meta, _ = tables
-    column = META_COLUMNS.index
-    return meta[table, column("log_z")] + delta * (
-        meta[table, column("log_z_1")] + 0.5 * delta * meta[table, column("log_z_2")]
-    )
