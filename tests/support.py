@@ -209,15 +209,3 @@ def conditioned_error_model(matcher="sgbm", feature="edge_distance_px", edges=(2
         class_models=class_models,
         feature_settings={"edge_threshold_px": 1.0, "texture_window_px": 7},
     )
-
-
-def ray_log_z(tables):
-    """Each ray's ``log Z`` from its PRISM table (:class:`~prismap.sensor_models._kernel_args.RayTables`): the
-    table's, moved to the ray's rate by the Taylor term, as the look-up and the failure posterior take it."""
-    from prismap.sensor_models._kernels_pack import META_COLUMNS
-
-    table, delta, meta, _ = tables
-    column = META_COLUMNS.index
-    return meta[table, column("log_z")] + delta * (
-        meta[table, column("log_z_1")] + 0.5 * delta * meta[table, column("log_z_2")]
-    )

@@ -22,7 +22,6 @@ from prismap.sensor_models import (
     prism_discrete_posteriors,
 )
 from prismap.sensor_models._prism import TABLE_TOLERANCE
-from support import ray_log_z
 
 FB = 61.5
 SEARCH = (0.0, 64.0)
@@ -265,7 +264,19 @@ def test_one_frame_moves_no_voxel_beyond_the_bound_through_the_map_update(gross)
     assert plain.min() < 2 * low  # the Gaussians alone let the same frame claim far more
 
 
-_BLEND_EXACT = 54 * np.log(2.0) + np.log(2.0)  # R <= 2^-54 fail q leaves the blend that of R = 0; the bound's 2
+_EXACT = 54 * np.log(2.0)  # R <= 2^-54 fail q leaves the blend that of R = 0
+_BLEND_EXACT = _EXACT + np.log(2.0)  # and floor_depth's bound has a factor 2
+STREET_FB = 194.4  # the half-size street rig's 360 px times 0.54 m
+
+
+def _street_rays(first_edge):
+    """Three street rays (measured at 8, 20 and 45 m, three ray norms) and cells of 0.2 m tiling each from
+    ``first_edge`` to 60 m: ``(disparity, norm, rays, start, end)``."""
+    disparity = np.round(STREET_FB / np.array([8.0, 20.0, 45.0]) * 16) / 16
+    edges = np.arange(first_edge, 60.0 + 1e-9, 0.2)
+    rays = np.repeat(np.arange(disparity.size), edges.size - 1)
+    start, end = np.tile(edges[:-1], disparity.size), np.tile(edges[1:], disparity.size)
+    return disparity, np.array([1.0, 1.1, 1.3]), rays, start, end
 
 
 @pytest.mark.parametrize(
@@ -313,13 +324,8 @@ def test_cells_before_the_floor_depth_skip_the_look_up_and_blend_as_a_zero_ratio
     from prismap.sensor_models._kernel_args import Cells
     from prismap.sensor_models._prism import _QUAD_STEP
 
-    fb = 194.4  # the half-size street rig's 360 px times 0.54 m
-    model = PrismModel(error_model=FAILING, focal_baseline=fb, voxel_size_m=0.2, p0=0.05, near_m=0.5)
-    disparity = np.round(fb / np.array([8.0, 20.0, 45.0]) * 16) / 16
-    norm = np.array([1.0, 1.1, 1.3])
-    edges = np.arange(0.0, 60.0 + 1e-9, 0.2)
-    rays = np.repeat(np.arange(disparity.size), edges.size - 1)
-    start, end = np.tile(edges[:-1], disparity.size), np.tile(edges[1:], disparity.size)
+    model = PrismModel(error_model=FAILING, focal_baseline=STREET_FB, voxel_size_m=0.2, p0=0.05, near_m=0.5)
+    disparity, norm, rays, start, end = _street_rays(0.0)
     lam, stretch = model.rate_per_m * norm, np.zeros(disparity.size)
     tables = model._tables_for(disparity, norm)
     log_fail, log_ok = model._log_failure(tables)
@@ -333,7 +339,7 @@ def test_cells_before_the_floor_depth_skip_the_look_up_and_blend_as_a_zero_ratio
     _, unblended = model._table_cells(lam, rays, start, end, stretch, tables, (np.empty(0), np.empty(0)))
     _, increment = model.cell_posteriors(disparity, norm, rays, start, end)
     q, fail, ok = np.exp(-lam_len), np.exp(log_fail[rays]), np.exp(log_ok[rays])
-    exact = (side != _kernels_lookup._SKIP) & (unblended <= np.log(q * fail) - 54 * np.log(2.0))
+    exact = (side != _kernels_lookup._SKIP) & (unblended <= np.log(q * fail) - _EXACT)
     assert np.all(exact[floor])  # every floor cell's ratio is small enough
     assert floor.sum() >= 0.9 * exact.sum()  # and the bound finds nearly all such cells
     np.testing.assert_allclose(increment[floor], np.log(fail * q / (ok + fail * q))[floor], rtol=1e-14)
@@ -349,21 +355,17 @@ def test_with_pass_through_the_floor_blends_the_pass_through_chance():
     depth comes from ``log m`` instead of the failure posterior, the tables' thinned ratio there is ``m`` to float64
     precision, those cells' blended increments are the blend of ``m``, and every cell agrees with the direct method
     within the tables' tolerance."""
-    from prismap.sensor_models._prism import TABLE_TOLERANCE as tolerance
-
-    fb, m = 194.4, 0.02
-    model = PrismModel(error_model=FAILING, focal_baseline=fb, voxel_size_m=0.2, p0=0.05, near_m=0.5, pass_through=m)
-    disparity = np.round(fb / np.array([8.0, 20.0, 45.0]) * 16) / 16
-    norm = np.array([1.0, 1.1, 1.3])
-    edges = np.arange(0.5, 60.0 + 1e-9, 0.2)
-    rays = np.repeat(np.arange(disparity.size), edges.size - 1)
-    start, end = np.tile(edges[:-1], disparity.size), np.tile(edges[1:], disparity.size)
+    m = 0.02
+    model = PrismModel(
+        error_model=FAILING, focal_baseline=STREET_FB, voxel_size_m=0.2, p0=0.05, near_m=0.5, pass_through=m
+    )
+    disparity, norm, rays, start, end = _street_rays(0.5)
     lam = model.rate_per_m * norm
     tables = model._tables_for(disparity, norm)
     log_fail, log_ok = model._log_failure(tables)
     depth = [
-        _kernels_failure.floor_depth(d, lz, np.log(m), fb, model.near_m, model._mixture())
-        for d, lz in zip(disparity, ray_log_z(tables))
+        _kernels_failure.floor_depth(d, lz, np.log(m), STREET_FB, model.near_m, model._mixture())
+        for d, lz in zip(disparity, model._ray_log_z(tables))
     ]
     floor = end <= np.array(depth)[rays]
     assert np.all(floor.reshape(disparity.size, -1)[:, 0]) and floor.sum() > 0.05 * floor.size
@@ -375,4 +377,4 @@ def test_with_pass_through_the_floor_blends_the_pass_through_chance():
     a = q + (1 - q) * m
     np.testing.assert_allclose(increment[floor], np.log((ok * m + fail * a) / (ok + fail * a))[floor], rtol=1e-14)
     _, direct = model.cell_posteriors(disparity, norm, rays, start, end, method="direct")
-    assert np.all(np.abs(increment - direct) <= tolerance["abs"] + tolerance["rel"] * np.abs(direct))
+    assert np.all(np.abs(increment - direct) <= TABLE_TOLERANCE["abs"] + TABLE_TOLERANCE["rel"] * np.abs(direct))

@@ -30,7 +30,6 @@ from prismap.sensor_models import (
 )
 from prismap.sensor_models._kernel_args import Geometry, Mixture
 from prismap.sensor_models._prism import TABLE_TOLERANCE
-from support import ray_log_z
 
 FB = 61.5  # New Tsukuba: 615 px * 0.10 m
 MIXTURE = GaussianMixture([0.85, 0.15], [0.05, -0.3], [0.4, 2.5])
@@ -494,7 +493,7 @@ def test_table_of_a_measurement_just_behind_a_bump_of_g_agrees_with_direct():
     disparity = np.repeat(np.arange(56.375, 56.76, 1 / 16), 3)  # 1.71-1.72 m
     norm = np.tile([1.0, 1.12, 1.25], disparity.size // 3)
     tables = model._tables_for(disparity, norm)
-    log_z = ray_log_z(tables)
+    log_z = model._ray_log_z(tables)
     direct = _kernels_direct.prism_log_evidence(
         disparity,
         model.rate_per_m * norm,

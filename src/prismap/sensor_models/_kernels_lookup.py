@@ -447,7 +447,7 @@ def _far_in_front(cells, lo, l_a, l_c, side, lam_len, post, increment):
 
 
 @nb.njit(cache=True, nogil=True, error_model="numpy")  # the inlined blend divides
-def prism_table_cells(lam, stretch, tables, cells, hq, block, pass_through, ok, fail, geometry, mixture):
+def prism_table_cells(lam, stretch, tables, cells, hq, block, pass_through, ok, fail, log_floor, geometry, mixture):
     """Tabulated PRISM on every cell ``[start[i], end[i] + stretch[r]]``: posterior and increment, (C,) each.
 
     Blocks of ``block`` cells go through :func:`prism_table_lookup`, :func:`exp_into` (both ends),
@@ -455,8 +455,8 @@ def prism_table_cells(lam, stretch, tables, cells, hq, block, pass_through, ok, 
     (:func:`~prismap.sensor_models._kernels_failure.blend_ratios_into` on the likelihood ratios, ``blend_cell``
     on the increments :func:`prism_table_combine` lists), and :func:`log_into`; the scratch arrays of a block stay
     in the core's cache and the GIL stays released for the whole call. With failures, the cells before a ray's
-    failure floor depth (``floor_depth``, from ``fail`` or a pass-through chance) skip the look-up: their blend is
-    that of a failure-free ratio of 0 (a long outdoor ray's first two fifths).
+    failure floor depth (``floor_depth`` from ``log_floor``) skip the look-up: their blend is that of a failure-free
+    ratio of 0 (a long outdoor ray's first two fifths).
 
     Parameters
     ----------
@@ -470,6 +470,9 @@ def prism_table_cells(lam, stretch, tables, cells, hq, block, pass_through, ok, 
         Each ray's posterior of a good match, ``rho``, and of a matcher failure, ``1 - rho``
         (:func:`~prismap.sensor_models.log_failure_posterior`, exponentiated); empty: no failures, no blend. A
         cell's prior in the blend is that of its part in ``[z0, z_max]``.
+    log_floor : (R,) float64, log, or (0,)
+        Each ray's floor level for :func:`prism_table_lookup`: ``log(1 - rho)``, or ``log`` of the pass-through chance
+        where there is one (the thinned ratio at the floor); empty with ``ok`` and ``fail``.
 
     Returns
     -------
@@ -490,7 +493,6 @@ def prism_table_cells(lam, stretch, tables, cells, hq, block, pass_through, ok, 
     z0, z_max = geometry.z0, geometry.z_max
     blend = ok.size > 0
     n_blend = size if blend else 0  # each cell's ray's rate, ok and fail, and its end with the stretch
-    log_floor = np.log(fail) if pass_through == 0.0 else np.full(fail.size, math.log(pass_through))
     rate_cell, ok_cell, fail_cell, end_cell = np.empty(n_blend), np.empty(n_blend), np.empty(n_blend), np.empty(n_blend)
     for lo in range(0, n, size):
         hi = min(lo + size, n)

@@ -377,9 +377,14 @@ class PrismModel(RayModel):
         failures")."""
         if self.error_model.failure_weight == 0:
             return np.empty(0), np.empty(0)
+        return log_failure_posterior(self.error_model, self._ray_log_z(tables))
+
+    @staticmethod
+    def _ray_log_z(tables):
+        """Each ray's ``log Z`` ((R,) float64) from its table (:meth:`_tables_for`): the table's, moved to the ray's
+        rate by the nodes' Taylor term (meta columns ``log_z_1``, ``log_z_2``), as the look-up takes it."""
         table, delta, meta, _ = tables
-        log_z = meta[table, _LOG_Z] + delta * (meta[table, _LOG_Z_1] + 0.5 * delta * meta[table, _LOG_Z_2])
-        return log_failure_posterior(self.error_model, log_z)
+        return meta[table, _LOG_Z] + delta * (meta[table, _LOG_Z_1] + 0.5 * delta * meta[table, _LOG_Z_2])
 
     def influence_depth(self, disparity_px: npt.ArrayLike, ray_norm: npt.ArrayLike) -> npt.NDArray[np.float64]:
         """Depth beyond which every cell's ``|logit(P) - logit(p_c)| < influence_epsilon`` (metres), per ray.
@@ -446,8 +451,11 @@ class PrismModel(RayModel):
     def _table_cells(self, lam, rays, start, end, stretch, tables, log_failure):
         """Tabulated posteriors and increments of the cells ``[start, end + stretch[rays]]`` from the rays'
         ``tables`` (:meth:`_tables_for`; ``_kernels_lookup.prism_table_cells``: table look-ups, vectorised exp,
-        combination, vectorised log), blended by the rays' failure posteriors ``log_failure`` (:meth:`_log_failure`)."""
+        combination, vectorised log), blended by the rays' failure posteriors ``log_failure`` (:meth:`_log_failure`).
+        A cell's thinned ratio at the floor (``_kernels_failure.floor_depth``) is the pass-through chance ``m`` where
+        there is one, so ``log m`` sets the floor's depth then, ``log(1 - rho)`` otherwise."""
         log_fail, log_ok = log_failure
+        log_floor = log_fail if self.pass_through == 0 else np.full(log_fail.size, np.log(self.pass_through))
         return _kernels_lookup.prism_table_cells(
             lam,
             stretch,
@@ -458,6 +466,7 @@ class PrismModel(RayModel):
             self.pass_through,
             np.exp(log_ok),
             np.exp(log_fail),
+            log_floor,
             self._geometry(),
             self._mixture(),
         )
