@@ -378,3 +378,77 @@ def test_with_pass_through_the_floor_blends_the_pass_through_chance():
     np.testing.assert_allclose(increment[floor], np.log((ok * m + fail * a) / (ok + fail * a))[floor], rtol=1e-14)
     _, direct = model.cell_posteriors(disparity, norm, rays, start, end, method="direct")
     assert np.all(np.abs(increment - direct) <= TABLE_TOLERANCE["abs"] + TABLE_TOLERANCE["rel"] * np.abs(direct))
+
+
+OUTLIERS = GaussianMixture([0.9, 0.1], [0.1, -0.5], [0.3, 10.0]).with_failure(0.01, SEARCH)
+"""A wide outlier component, as real matchers have, and failures."""
+
+
+@pytest.mark.parametrize("mixture", [FAILING, OUTLIERS])
+def test_evidence_lower_bound_holds_over_the_rates_of_a_table_and_is_near(mixture):
+    """``log_evidence_lower_bound`` of a rate range against the quadrature's ``log Z`` (``prism_log_evidence``) at
+    both ends and inside: never above it, and within 2.5 nats (a bound that loose moves the table's start by a
+    fraction of a sigma)."""
+    from prismap.sensor_models import _kernels_direct
+    from prismap.sensor_models._prism import _QUAD_STEP
+
+    model = PrismModel(error_model=mixture, focal_baseline=STREET_FB, voxel_size_m=0.2, p0=0.05, near_m=0.5)
+    geometry, mix = model._geometry(), model._mixture()
+    gaps = []
+    for depth, norm in itertools.product([0.8, 3.0, 12.0, 45.0, 75.0, 400.0], [1.0, 1.3]):
+        disparity = STREET_FB / depth
+        lam = model.rate_per_m * norm
+        log_far = float(model._log_far(np.array([disparity]))[0])
+        bound = _kernels_failure.log_evidence_lower_bound(disparity, lam * 0.95, lam * 1.05, log_far, geometry, mix)
+        rates = lam * np.array([0.95, 0.98, 1.0, 1.02, 1.05])
+        log_z = _kernels_direct.prism_log_evidence(
+            np.full(rates.size, disparity), rates, np.full(rates.size, log_far), _QUAD_STEP, geometry, mix
+        )
+        assert np.all(bound <= log_z), (depth, norm)
+        gaps.append(log_z.min() - bound)
+    assert max(gaps) < 2.5, gaps
+
+
+def test_tables_start_at_the_least_failure_floor_and_keep_every_cell_after_it():
+    """With matcher failures a table starts at ``z_start`` (``table_start``) instead of near_m: every cell ending
+    before it blends, by the direct method, to the increment of a likelihood ratio of 0 with the ray's own
+    failure posterior; cells across it and after it agree with the direct method within the tables'
+    tolerance; the tables hold fewer rows than those of the same Gaussians without failures, which start at
+    near_m (here with a short coarse front before the floor: 69 %)."""
+    from prismap.sensor_models._kernels_pack import META_COLUMNS
+
+    column = META_COLUMNS.index
+    model = PrismModel(error_model=FAILING, focal_baseline=STREET_FB, voxel_size_m=0.2, p0=0.05, near_m=0.5)
+    disparity, norm, rays, start, end = _street_rays(0.5)
+    tables = model._tables_for(disparity, norm)
+    z_start = tables.meta[tables.table, column("z_start")]
+    assert np.all(z_start > 2 * model.near_m), z_start
+    _, direct = model.cell_posteriors(disparity, norm, rays, start, end, method="direct")
+    log_fail, log_ok = log_failure_posterior(FAILING, _direct_log_z(model, disparity, norm))
+    before = end <= z_start[rays]
+    assert before.sum() > 0.05 * before.size
+    q, fail, ok = np.exp(-model.rate_per_m * norm[rays] * (end - start)), np.exp(log_fail[rays]), np.exp(log_ok[rays])
+    np.testing.assert_allclose(direct[before], np.log(fail * q / (ok + fail * q))[before], rtol=1e-13)
+    rng = np.random.default_rng(11)  # cells across each ray's start: from before it to after it
+    across_start = np.concatenate([z_start * f for f in rng.uniform(0.3, 1.0, (8, 1))])
+    across_end = np.concatenate([z_start * f for f in rng.uniform(1.0, 2.5, (8, 1))])
+    across_rays = np.tile(np.arange(disparity.size), 8)
+    for cells in [(rays, start, end), (across_rays, across_start, across_end)]:
+        _, table = model.cell_posteriors(disparity, norm, *cells)
+        _, exact = model.cell_posteriors(disparity, norm, *cells, method="direct")
+        assert np.all(np.abs(table - exact) <= TABLE_TOLERANCE["abs"] + TABLE_TOLERANCE["rel"] * np.abs(exact))
+    plain = PrismModel(error_model=GAUSSIANS, focal_baseline=STREET_FB, voxel_size_m=0.2, p0=0.05, near_m=0.5)
+    plain_tables = plain._tables_for(disparity, norm)
+    assert np.all(plain_tables.meta[:, column("z_start")] == plain.near_m)
+    assert tables.meta[:, column("stored")].sum() < 0.8 * plain_tables.meta[:, column("stored")].sum()
+
+
+def _direct_log_z(model, disparity, norm):
+    """Each ray's ``log Z`` by the direct method's quadrature."""
+    from prismap.sensor_models import _kernels_direct
+    from prismap.sensor_models._prism import _QUAD_STEP
+
+    return _kernels_direct.prism_log_evidence(
+        disparity + model.doffs_px, model.rate_per_m * norm, model._log_far(disparity), _QUAD_STEP,
+        model._geometry(), model._mixture(),
+    )  # fmt: skip

@@ -74,6 +74,10 @@ class TableSpec(NamedTuple):
         Each piece's spacing, 0 for a gap between error components (two panels span it).
     wide_efolds : float, prior e-folds
         Most e-folds of the prior one interval wider than ``h`` may span (outside gaps).
+    log_floor : float, log
+        The least floor level of the model's rays (``log(eps)``, :func:`~prismap.sensor_models.failure_floor`, or
+        ``log`` of the pass-through chance), ``-inf`` without matcher failures: a table starts where every cell
+        before is at its ray's failure floor (``_kernels_failure.table_start``).
     """
 
     h: float
@@ -84,6 +88,7 @@ class TableSpec(NamedTuple):
     edges: np.ndarray
     ratios: np.ndarray
     wide_efolds: float
+    log_floor: float
 
 
 class RayTables(NamedTuple):

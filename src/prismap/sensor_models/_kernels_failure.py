@@ -14,7 +14,8 @@ import math
 import numba as nb
 import numpy as np
 
-from prismap.sensor_models._kernels_math import fast_exp, fast_log
+from prismap.sensor_models._kernels_march import x_of_z, z_of_x
+from prismap.sensor_models._kernels_math import fast_exp, fast_log, log1mexp
 
 _SERIES_BELOW = 1e-3  # below: 1 - exp(-x) by its series, which 1 - fast_exp(-x) would cancel away
 _BLOCK = 2048  # cells a block of blend_ray_cells
@@ -100,6 +101,72 @@ def floor_depth(shift, log_z, log_floor, fb, z0, mixture):
         if u > 0.0:
             depth = min(depth, fb / u)
     return max(depth, z0)
+
+
+_BOUND_WINDOWS = 10
+"""Half-sigma windows of true disparity per component, from one sigma behind its mean to four in front, over which
+:func:`log_evidence_lower_bound` bounds ``Z`` (in front, nearer depths, the prior is larger)."""
+
+
+@nb.njit(cache=True, nogil=True)
+def log_evidence_lower_bound(shift, slow, fast, log_far, geometry, mixture):
+    """A lower bound on ``log Z`` of every ray of rate ``slow`` to ``fast`` (per metre of depth), without a quadrature.
+
+    Over a window of true disparities ``[u_lo, u_hi]`` within ``[fb / z_max, fb / z0]``, component ``j`` of ``g`` is
+    at least its density at the window's end farther from its mean ``u_j = shift + mu_j`` (a Gaussian has no
+    minimum inside), and the prior's mass over its depths ``[z_a, z_b] = [fb / u_hi, fb / u_lo]`` is ``e^{-lam
+    (z_a - z0)} (1 - e^{-lam (z_b - z_a)})``, which has no minimum inside a range of rates: the lesser of the two
+    ends bounds it. The windows are :data:`_BOUND_WINDOWS` half sigmas around each component's mean and half a
+    sigma at each end of the range; the far term ``e^{-lam (z_max - z0)} e^log_far``, least at ``fast``, is one more
+    bound. Returns the largest. ``shift``, ``mixture`` as :func:`floor_depth`'s; ``geometry``
+    (:class:`~prismap.sensor_models._kernel_args.Geometry`) gives ``z0``, ``z_max`` and ``fb``.
+    """
+    z0, z_max, fb, _ = geometry
+    log_wn, means, sigmas = mixture
+    u_min, u_max = fb / z_max, fb / z0
+    best = log_far - fast * (z_max - z0)
+    for j in range(means.size):
+        u_j, half = shift + means[j], 0.5 * sigmas[j]
+        for m in range(_BOUND_WINDOWS + 2):
+            if m < _BOUND_WINDOWS:
+                u_lo = u_j + (m - 2) * half
+            else:
+                u_lo = u_max - half if m == _BOUND_WINDOWS else u_min
+            u_lo = max(u_lo, u_min)
+            u_hi = min(u_lo + half, u_max)
+            if u_hi <= u_lo or u_hi <= 0.0:
+                continue
+            t = max(abs(u_lo - u_j), abs(u_hi - u_j)) / sigmas[j]
+            z_a, z_b = fb / u_hi, fb / u_lo if u_lo > 0.0 else z_max
+            mass = min(
+                -slow * (z_a - z0) + log1mexp(-slow * (z_b - z_a)), -fast * (z_a - z0) + log1mexp(-fast * (z_b - z_a))
+            )
+            best = max(best, log_wn[j] - 0.5 * t * t + mass)
+    return best
+
+
+_START_PANELS = 16.0
+"""Fine node spacings a table keeps at least between its start (:func:`table_start`) and ``z_max``."""
+
+
+@nb.njit(cache=True, nogil=True)
+def table_start(shift, lam, log_far, geometry, spec, mixture):
+    """Depth (metres) where a table of ``(shift, lam)`` starts: every cell of a ray sharing it that ends before is
+    at the ray's failure floor (:func:`floor_depth`), so the table needs no node there.
+
+    The floor of the model's least level ``spec.log_floor`` (:class:`~prismap.sensor_models._kernel_args.TableSpec`;
+    ``-inf``: none, ``z0``) and of :func:`log_evidence_lower_bound`'s ``Z`` over the rates that share the table,
+    ``lam (1 +- spec.lam_slack)``, lies before every ray's own floor. It stays :data:`_START_PANELS` fine spacings
+    (``spec.h``) before ``z_max``. ``shift``, ``log_far`` and ``mixture`` as :func:`log_evidence_lower_bound`'s.
+    """
+    z0, z_max, fb, ku = geometry
+    if not spec.log_floor > -np.inf:
+        return z0
+    log_z = log_evidence_lower_bound(
+        shift, lam * (1.0 - spec.lam_slack), lam * (1.0 + spec.lam_slack), log_far, geometry, mixture
+    )
+    start = floor_depth(shift, log_z, spec.log_floor, fb, z0, mixture)
+    return max(min(start, z_of_x(x_of_z(z_max, lam, ku) - _START_PANELS * spec.h, lam, ku)), z0)
 
 
 @nb.njit(cache=True, nogil=True, error_model="numpy")

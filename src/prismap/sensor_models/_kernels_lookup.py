@@ -33,6 +33,7 @@ from prismap.sensor_models._kernels_pack import (
     _X,
     _Z_END,
     _Z_INFL,
+    _Z_START,
 )
 from prismap.sensor_models._kernels_table import N_SEGMENTS, _log_qg_derivatives
 
@@ -119,14 +120,15 @@ def combine_small(l_a, l_c, a_is_d, c_is_d, lam_len):
 
 
 @nb.njit(cache=True, nogil=True)
-def _log_c_first(z, steep, lam, shift, h, geometry, mixture):
-    """``log C(z)`` in a table's first interval, or its first two without a steep front (``z0 < z``): Gauss-Legendre
+def _log_c_first(z, steep, lam, shift, h, z_start, geometry, mixture):
+    """``log C(z)`` in a table's first interval, or its first two without a steep front (``z_start < z``), from the
+    table's start ``z_start`` (``C``'s part before it is below the ray's floor): Gauss-Legendre
     panels of x-width at most ``h``, the first interval's, as the table's march integrated them (8 points here,
     :data:`_MARCH_GL` there: they agree to about 1e-10), or where ``q g`` rises steeply (``steep``: the
     interval is in the coarse front) the endpoint asymptotic with the start's cut, ``C = q g / phi' (1 -
-    e^{-phi' (z - z0)})``, exact for an exponential ``q g``. Without a steep front ``q g`` is not negligible at
-    ``z0``, ``C`` grows like ``z - z0`` and ``log C`` like ``log(z - z0)``, which a cubic over the second interval
-    misses by up to 0.016 nats.
+    e^{-phi' (z - z_start)})``, exact for an exponential ``q g``. Without a steep front ``q g`` is not negligible
+    at ``z_start``, ``C`` grows like ``z - z_start`` and ``log C`` like ``log(z - z_start)``, which a cubic over the
+    second interval misses by up to 0.016 nats.
 
     Parameters
     ----------
@@ -145,11 +147,10 @@ def _log_c_first(z, steep, lam, shift, h, geometry, mixture):
     mixture : Mixture
         The error mixture (:class:`~prismap.sensor_models._kernel_args.Mixture`).
     """
-    z0 = geometry.z0
     if not steep:
-        return log_integral(z0, z, lam, shift, h, geometry, mixture)
+        return log_integral(z_start, z, lam, shift, h, geometry, mixture)
     phi, phi_z, _ = _log_qg_derivatives(z, lam, shift, geometry, mixture)
-    return phi - math.log(phi_z) + log1mexp(-phi_z * (z - z0))
+    return phi - math.log(phi_z) + log1mexp(-phi_z * (z - z_start))
 
 
 _SKIP = 4
@@ -224,7 +225,7 @@ def prism_table_lookup(lam, stretch, tables, cells, lo, hi, hq, geometry, mixtur
     seg_h = np.empty(N_SEGMENTS)
     seg_inv = np.empty(N_SEGMENTS)
     seg_row = np.empty(N_SEGMENTS + 1, dtype=np.int64)
-    lam_t = lam_r = z_end = z_infl = dl = shift = log_z = log_far = stretch_r = z_floor = 0.0
+    lam_t = lam_r = z_end = z_infl = z_start = dl = shift = log_z = log_far = stretch_r = z_floor = 0.0
     floors = log_floor.size > 0
     z_half = np.inf
     off = off_d = c_end = n_seg = s_a = s_c = n_first = 0
@@ -264,7 +265,8 @@ def prism_table_lookup(lam, stretch, tables, cells, lo, hi, hq, geometry, mixtur
             off_d = off + int(meta[t, _D_SHIFT])
             c_end = int(meta[t, _C_END])
             stretch_r = stretch[r]
-            z_floor = floor_depth(shift, log_z, log_floor[r], fb, z0, mixture) if floors else z0
+            z_start = meta[t, _Z_START]  # cells ending before it are at the floor (the table has no nodes there)
+            z_floor = max(floor_depth(shift, log_z, log_floor[r], fb, z0, mixture) if floors else z0, z_start)
         a = max(start[i], z0)
         c = min(end[i] + stretch_r, z_max)
         if c <= a or a >= z_infl:
@@ -290,10 +292,10 @@ def prism_table_lookup(lam, stretch, tables, cells, lo, hi, hq, geometry, mixtur
                 l_a[j] = _interpolate(nodes, off_d + k, f, seg_h[s_a], 0, dl)
                 z_half = min(z_half, a)
             else:
-                if k < n_first:  # log C is -inf at z0: integrated on the spot (_log_c_first)
+                if k < n_first:  # log C is -inf at the table's start: integrated on the spot (_log_c_first)
                     lca = -np.inf
-                    if a > z0:
-                        lca = _log_c_first(a, steep, lam_r, shift, h_first, geometry, mixture) - log_z
+                    if a > z_start:
+                        lca = _log_c_first(a, steep, lam_r, shift, h_first, z_start, geometry, mixture) - log_z
                 else:
                     lca = _interpolate(nodes, off + k, f, seg_h[s_a], 0, dl)
                 if lca < _LOG_HALF:
@@ -313,7 +315,7 @@ def prism_table_lookup(lam, stretch, tables, cells, lo, hi, hq, geometry, mixtur
                 z_half = min(z_half, c)
             else:
                 if k < n_first:
-                    lcc = _log_c_first(c, steep, lam_r, shift, h_first, geometry, mixture) - log_z
+                    lcc = _log_c_first(c, steep, lam_r, shift, h_first, z_start, geometry, mixture) - log_z
                 else:
                     lcc = _interpolate(nodes, off + k, f, seg_h[s_c], 0, dl)
                 if lcc < _LOG_HALF:

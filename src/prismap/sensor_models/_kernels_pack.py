@@ -35,6 +35,7 @@ META_COLUMNS = (
     "log_z",
     "log_z_1",
     "log_z_2",
+    "z_start",
     "shift",
     "log_far",
     "offset",
@@ -45,14 +46,26 @@ META_COLUMNS = (
 )
 """Columns of the per-table metadata matrix that :func:`prism_table_lookup` reads (one row per table): the
 rate, :func:`prism_table`'s meta (per segment its first x, first row and spacing, then ``z_end``, ``z_infl``,
-``log Z`` and its two derivatives in ``log lam``), then the shift, far term, the first row of its packed rows in
-the cache's ``nodes``, its node count, the first interval where only D is kept (C's rows ``0..c_end`` come
-first), the place of D's rows (node ``k``'s at ``offset + d_shift + k``) and the rows it packs
+``log Z`` and its two derivatives in ``log lam``, ``z_start``), then the shift, far term, the first row of its
+packed rows in the cache's ``nodes``, its node count, the first interval where only D is kept (C's rows
+``0..c_end`` come first), the place of D's rows (node ``k``'s at ``offset + d_shift + k``) and the rows it packs
 (:data:`TABLE_COLUMNS`)."""
 _LAM, _X, _ROW, _SPACING = 0, 1, 1 + N_SEGMENTS, 1 + 2 * N_SEGMENTS
-_Z_END, _Z_INFL, _LOG_Z, _LOG_Z_1, _LOG_Z_2, _SHIFT, _LOG_FAR, _OFFSET, _LENGTH, _C_END, _D_SHIFT, _STORED = range(
-    1 + 3 * N_SEGMENTS, 13 + 3 * N_SEGMENTS
-)
+(
+    _Z_END,
+    _Z_INFL,
+    _LOG_Z,
+    _LOG_Z_1,
+    _LOG_Z_2,
+    _Z_START,
+    _SHIFT,
+    _LOG_FAR,
+    _OFFSET,
+    _LENGTH,
+    _C_END,
+    _D_SHIFT,
+    _STORED,
+) = range(1 + 3 * N_SEGMENTS, 14 + 3 * N_SEGMENTS)
 
 
 _SIDE_PIECES = 8

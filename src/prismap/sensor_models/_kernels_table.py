@@ -6,6 +6,8 @@ import math
 import numba as nb
 import numpy as np
 
+from prismap.sensor_models._kernel_args import Geometry
+from prismap.sensor_models._kernels_failure import table_start
 from prismap.sensor_models._kernels_march import (
     _exp_term,
     _march,
@@ -364,12 +366,22 @@ def prism_table(shift, lam, log_far, geometry, spec, mixture):
     Returns
     -------
     nodes : (N, NODE_COLUMNS) float64, log and its derivatives in x and log lam
-    meta : (3 N_SEGMENTS + 5,) float64
+    meta : (3 N_SEGMENTS + 6,) float64
         Per segment its first x, its first row and its spacing; then ``z_end`` (last node), ``z_infl``,
         ``log Z`` and its first and second derivatives in ``log lam`` (a ray's ``log Z`` by the Taylor
-        term of the nodes, for the look-ups that integrate on the spot at the ray's own rate).
+        term of the nodes, for the look-ups that integrate on the spot at the ray's own rate), and ``z_start``.
+
+    A table starts at ``z_start`` (:func:`~prismap.sensor_models._kernels_failure.table_start`), ``z0`` for a model
+    without matcher failures: cells ending before are at their ray's failure floor and never looked up, and the
+    nodes are those of a prior whose survival starts there, ``C(z) = int_z_start^z q g`` up to the constant
+    ``e^{lam (z_start - z0)}`` that ``Z`` shares, so ``C/Z`` and its derivatives are the model's to far below the
+    tolerance (the part of ``C`` before ``z_start`` is below ``e^-40`` of ``Z``); ``log Z`` and its derivatives
+    are the model's, from ``z0``.
     """
-    z0, z_max, fb, ku = geometry
+    z_near = geometry.z0
+    z0 = table_start(shift, lam, log_far, geometry, spec, mixture)
+    z_max, fb, ku = geometry.z_max, geometry.fb, geometry.ku
+    geometry = Geometry(z0, z_max, fb, ku)  # the prior's survival from the table's start (see Returns)
     h, log_eps_bound, lam_slack, coarse_ratio, coarse_below = spec[:5]
     x0 = x_of_z(z0, lam, ku)
     x_end = x_of_z(z_max, lam, ku)
@@ -509,7 +521,7 @@ def prism_table(shift, lam, log_far, geometry, spec, mixture):
     )
     nodes = columns.T
     nodes[0, 2:_D_COLUMN] = nodes[1, 2:_D_COLUMN]
-    meta = np.empty(3 * N_SEGMENTS + 5)
+    meta = np.empty(3 * N_SEGMENTS + 6)
     x_march = x_of_z(z[0], lam, ku)
     meta[0], meta[N_SEGMENTS], meta[2 * N_SEGMENTS] = x0, 0, h_coarse
     for r in range(MAX_RUNS + 1):
@@ -520,5 +532,6 @@ def prism_table(shift, lam, log_far, geometry, spec, mixture):
     meta[N_SEGMENTS - 1] = _march_x(i_back, x_march, counts, widths[:MAX_RUNS], h)
     meta[2 * N_SEGMENTS - 1] = n_coarse + i_back
     meta[3 * N_SEGMENTS - 1] = max(back, 1) * back_width
-    meta[3 * N_SEGMENTS :] = z[n], z[i_infl], log_z, z_1, z_2
+    cut = lam * (z0 - z_near)  # Z from z_near: e^-cut times the table's (C(z0) is below its floor)
+    meta[3 * N_SEGMENTS :] = z[n], z[i_infl], log_z - cut, z_1 - cut, z_2 - cut, z0
     return nodes, meta

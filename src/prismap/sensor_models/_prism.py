@@ -33,7 +33,7 @@ from prismap.sensor_models import (
     _kernels_pack,
 )
 from prismap.sensor_models._base import register_model
-from prismap.sensor_models._failure import log_failure_posterior
+from prismap.sensor_models._failure import failure_floor, log_failure_posterior
 from prismap.sensor_models._kernel_args import Cells, Geometry, Mixture, RayTables, TableSpec
 from prismap.sensor_models._kernels_pack import _LENGTH, _LOG_Z, _LOG_Z_1, _LOG_Z_2, _OFFSET, _Z_INFL
 from prismap.sensor_models._params import RayModel
@@ -233,6 +233,7 @@ class PrismModel(RayModel):
             edges=edges,
             ratios=ratios,
             wide_efolds=_WIDE_EFOLDS,
+            log_floor=self._least_floor_level(),
         )
         object.__setattr__(self, "_table_spec", spec)
         m = self.error_model  # the kernels' arguments, made once: a conditioned frame makes hundreds of calls
@@ -262,6 +263,15 @@ class PrismModel(RayModel):
                 f"{self.focal_baseline:.4g} px*m allows tables of up to {max_nodes:.3g} nodes, more than "
                 f"MAX_TABLE_NODES = {MAX_TABLE_NODES}; sigmas must be >= {smallest:.3g} px here (or raise near_m)"
             )
+
+    def _least_floor_level(self):
+        """The least of the rays' floor levels (:meth:`_table_cells`): ``log(eps)`` (:func:`failure_floor`, the least
+        failure posterior) or, with a pass-through chance ``m``, ``log m``; ``-inf`` without matcher failures (no
+        floor, and tables start at ``near_m``)."""
+        level = self.pass_through if self.pass_through > 0 else failure_floor(self.error_model)
+        if self.error_model.failure_weight == 0 or level <= 0:
+            return -np.inf
+        return float(np.log(level))
 
     # ------------------------------------------------------------------ derived constants
     @property
