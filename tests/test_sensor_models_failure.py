@@ -410,12 +410,14 @@ def test_evidence_lower_bound_holds_over_the_rates_of_a_table_and_is_near(mixtur
 
 
 def test_tables_start_at_the_least_failure_floor_and_keep_every_cell_after_it():
-    """With matcher failures a table starts at ``z_start`` (``table_start``) instead of near_m: every cell ending
-    before it blends, by the direct method, to the increment of a likelihood ratio of 0 with the ray's own
+    """With matcher failures a table starts before its failure floor (``table_start``) instead of at near_m, far
+    enough that the intervals a look-up integrates on the spot end before the floor: every cell ending before
+    the start blends, by the direct method, to the increment of a likelihood ratio of 0 with the ray's own
     failure posterior; cells across it and after it agree with the direct method within the tables'
     tolerance; the tables hold fewer rows than those of the same Gaussians without failures, which start at
     near_m (here with a short coarse front before the floor: 69 %)."""
     from prismap.sensor_models._kernels_pack import META_COLUMNS
+    from prismap.sensor_models._kernels_table import N_SEGMENTS
 
     column = META_COLUMNS.index
     model = PrismModel(error_model=FAILING, focal_baseline=STREET_FB, voxel_size_m=0.2, p0=0.05, near_m=0.5)
@@ -437,6 +439,16 @@ def test_tables_start_at_the_least_failure_floor_and_keep_every_cell_after_it():
         _, table = model.cell_posteriors(disparity, norm, *cells)
         _, exact = model.cell_posteriors(disparity, norm, *cells, method="direct")
         assert np.all(np.abs(table - exact) <= TABLE_TOLERANCE["abs"] + TABLE_TOLERANCE["rel"] * np.abs(exact))
+    for row in tables.meta:  # the intervals a look-up integrates on the spot end before the floor
+        floor = _kernels_failure.table_start(
+            row[column("shift")], row[column("lam")], row[column("log_far")], model._geometry(), model._table_spec,
+            model._mixture(),
+        )  # fmt: skip
+        segment = next(k for k in range(N_SEGMENTS) if row[column(f"row_{k + 1}")] > 0)
+        n_first = 1 if row[column("row_1")] > 0 else 2
+        x_first = row[column(f"x_{segment}")] + n_first * row[column(f"h_{segment}")]
+        assert x_first <= row[column("lam")] * floor - model._ku() / floor + 1e-9
+        assert row[column("z_start")] < floor
     plain = PrismModel(error_model=GAUSSIANS, focal_baseline=STREET_FB, voxel_size_m=0.2, p0=0.05, near_m=0.5)
     plain_tables = plain._tables_for(disparity, norm)
     assert np.all(plain_tables.meta[:, column("z_start")] == plain.near_m)

@@ -323,6 +323,37 @@ def _march_runs(x_split, shift, lam, geometry, spec):
     return counts, widths
 
 
+_START_TRIES = 3
+"""Placements :func:`_first_x` tries for a table's start before the failure floor."""
+
+
+@nb.njit(cache=True, nogil=True)
+def _first_x(z_floor, x_measured, shift, lam, geometry, spec, mixture):
+    """x (x units) of a table's first node: far enough before ``z_floor`` (:func:`table_start`, metres) that the
+    intervals a look-up integrates on the spot (``_kernels_lookup._log_c_first``: the coarse front's first, or the
+    march's first two without one) end at or before it, where every ray's cells are at their floor, and after
+    ``near_m`` (``geometry.z0``); ``near_m`` itself when the floor is there. Each try places the start that far
+    before the floor for the intervals a start there has, up to :data:`_START_TRIES` times; parameters as
+    :func:`prism_table`'s, ``x_measured`` its coarse front's end."""
+    z_near, _, _, ku = geometry
+    x_near = x_of_z(z_near, lam, ku)
+    x_floor = x_of_z(z_floor, lam, ku)
+    x0 = x_floor
+    if z_floor <= z_near:
+        return x_near
+    for _ in range(_START_TRIES):
+        h_coarse = max(spec.coarse_ratio * spec.h, (x_measured - x0) / MAX_COARSE)
+        if _steep(x0 + h_coarse, lam, shift, geometry, mixture, _STEEP):  # a coarse front (phi' needs no z0)
+            reach = h_coarse
+        else:
+            counts, widths = _march_runs(x0, shift, lam, geometry, spec)
+            reach = 2.0 * (widths[0] if counts[0] > 0 else spec.h)
+        if x0 + reach <= x_floor or x0 == x_near:
+            break
+        x0 = max(x_floor - reach, x_near)
+    return x0
+
+
 @nb.njit(cache=True, nogil=True)
 def prism_table(shift, lam, log_far, geometry, spec, mixture):
     """The table of one (d^, lam): a node per march panel, every ``coarse_ratio``-th one where C/Z is tiny.
@@ -378,16 +409,17 @@ def prism_table(shift, lam, log_far, geometry, spec, mixture):
     tolerance (the part of ``C`` before ``z_start`` is below ``e^-40`` of ``Z``); ``log Z`` and its derivatives
     are the model's, from ``z0``.
     """
-    z_near = geometry.z0
-    z0 = table_start(shift, lam, log_far, geometry, spec, mixture)
-    z_max, fb, ku = geometry.z_max, geometry.fb, geometry.ku
-    geometry = Geometry(z0, z_max, fb, ku)  # the prior's survival from the table's start (see Returns)
+    z_near, z_max, fb, ku = geometry
     h, log_eps_bound, lam_slack, coarse_ratio, coarse_below = spec[:5]
-    x0 = x_of_z(z0, lam, ku)
     x_end = x_of_z(z_max, lam, ku)
     # The coarse front ends before the measured depth; at most MAX_COARSE nodes up to there (a class with a
     # 0.01 px component puts the measurement hundreds of thousands of x units after near_m).
     x_measured = x_of_z(min(z_max, fb / shift), lam, ku) if shift > 0.0 else x_end
+    x0 = _first_x(
+        table_start(shift, lam, log_far, geometry, spec, mixture), x_measured, shift, lam, geometry, spec, mixture
+    )
+    z0 = z_of_x(x0, lam, ku)
+    geometry = Geometry(z0, z_max, fb, ku)  # the prior's survival from the table's start (see Returns)
     h_coarse = max(coarse_ratio * h, (x_measured - x0) / MAX_COARSE)
     n_steep = 0  # coarse nodes after z0 where q g is steep
     while x0 + (n_steep + 2) * h_coarse < x_end and _steep(
