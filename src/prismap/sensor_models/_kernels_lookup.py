@@ -184,7 +184,9 @@ def prism_table_lookup(lam, stretch, tables, cells, lo, hi, hq, geometry, mixtur
     evidence is below e^-40 of C), ``D(c)`` is integrated on the spot, and so is ``C`` in the table's first
     interval (first two without a steep front, :func:`_log_c_first`): both at the ray's own rate, over the
     ray's ``Z`` (the table's by the nodes' Taylor term, from the meta columns ``log_z_1``, ``log_z_2``), not the
-    table's rate and ``Z``.
+    table's rate and ``Z``. A cell across its ray's floor takes ``C(a) = 0`` in those intervals (without failures the
+    floor is the table's start, where it is): that moves its ratio by at most ``q_c^2 C(a) / (Z p_c)``, and ``C(a) <=
+    e^(log_floor - 40) Z`` there, so its blended increment by at most ``e^-40 / p_c``.
 
     Parameters
     ----------
@@ -292,9 +294,10 @@ def prism_table_lookup(lam, stretch, tables, cells, lo, hi, hq, geometry, mixtur
                 l_a[j] = _interpolate(nodes, off_d + k, f, seg_h[s_a], 0, dl)
                 z_half = min(z_half, a)
             else:
-                if k < n_first:  # log C is -inf at the table's start: integrated on the spot (_log_c_first)
+                if k < n_first:  # log C is -inf at the table's start: integrated on the spot (_log_c_first),
+                    # but 0 before the ray's floor (see the docstring)
                     lca = -np.inf
-                    if a > z_start:
+                    if a > z_floor:
                         lca = _log_c_first(a, steep, lam_r, shift, h_first, z_start, geometry, mixture) - log_z
                 else:
                     lca = _interpolate(nodes, off + k, f, seg_h[s_a], 0, dl)

@@ -23,7 +23,7 @@ the bound on the interpolated ``log(C/Z)``: float32 rounding and the look-up's e
 
 
 _PACK_ROWS = 192
-"""Rows a table :func:`prism_tables` makes room for at first (a street table has about 170)."""
+"""Rows a table :func:`prism_tables` makes room for at first (a street table has 100 to 170)."""
 
 META_COLUMNS = (
     "lam",
