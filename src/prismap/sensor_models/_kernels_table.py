@@ -323,6 +323,13 @@ def _march_runs(x_split, shift, lam, geometry, spec):
     return counts, widths
 
 
+@nb.njit(cache=True, nogil=True, inline="always")
+def _coarse_spacing(x0, x_measured, spec):
+    """x-spacing of a coarse front from ``x0`` (x units): ``coarse_ratio h``, or wider where that would put more than
+    :data:`MAX_COARSE` nodes before the measured depth's ``x_measured``."""
+    return max(spec.coarse_ratio * spec.h, (x_measured - x0) / MAX_COARSE)
+
+
 _START_TRIES = 3
 """Placements :func:`_first_x` tries for a table's start before the failure floor."""
 
@@ -342,7 +349,7 @@ def _first_x(z_floor, x_measured, shift, lam, geometry, spec, mixture):
     if z_floor <= z_near:
         return x_near
     for _ in range(_START_TRIES):
-        h_coarse = max(spec.coarse_ratio * spec.h, (x_measured - x0) / MAX_COARSE)
+        h_coarse = _coarse_spacing(x0, x_measured, spec)
         if _steep(x0 + h_coarse, lam, shift, geometry, mixture, _STEEP):  # a coarse front (phi' needs no z0)
             reach = h_coarse
         else:
@@ -420,7 +427,7 @@ def prism_table(shift, lam, log_far, geometry, spec, mixture):
     )
     z0 = z_of_x(x0, lam, ku)
     geometry = Geometry(z0, z_max, fb, ku)  # the prior's survival from the table's start (see Returns)
-    h_coarse = max(coarse_ratio * h, (x_measured - x0) / MAX_COARSE)
+    h_coarse = _coarse_spacing(x0, x_measured, spec)
     n_steep = 0  # coarse nodes after z0 where q g is steep
     while x0 + (n_steep + 2) * h_coarse < x_end and _steep(
         x0 + (n_steep + 1) * h_coarse, lam, shift, geometry, mixture, _STEEP

@@ -268,10 +268,15 @@ class PrismModel(RayModel):
         """The least of the rays' floor levels (:meth:`_table_cells`): ``log(eps)`` (:func:`failure_floor`, the least
         failure posterior) or, with a pass-through chance ``m``, ``log m``; ``-inf`` without matcher failures (no
         floor, and tables start at ``near_m``)."""
-        level = self.pass_through if self.pass_through > 0 else failure_floor(self.error_model)
-        if self.error_model.failure_weight == 0 or level <= 0:
+        eps = failure_floor(self.error_model)
+        if self.error_model.failure_weight == 0 or eps <= 0:
             return -np.inf
-        return float(np.log(level))
+        return float(self._floor_levels(np.log([eps]))[0])
+
+    def _floor_levels(self, log_fail):
+        """Each ray's floor level from its ``log(1 - rho)`` ((R,)): that, or ``log m`` with a pass-through chance
+        ``m`` (the thinned ratio at the floor is ``m``; ``_kernels_failure.floor_depth``)."""
+        return log_fail if self.pass_through == 0 else np.full(log_fail.size, np.log(self.pass_through))
 
     # ------------------------------------------------------------------ derived constants
     @property
@@ -462,10 +467,9 @@ class PrismModel(RayModel):
         """Tabulated posteriors and increments of the cells ``[start, end + stretch[rays]]`` from the rays'
         ``tables`` (:meth:`_tables_for`; ``_kernels_lookup.prism_table_cells``: table look-ups, vectorised exp,
         combination, vectorised log), blended by the rays' failure posteriors ``log_failure`` (:meth:`_log_failure`).
-        A cell's thinned ratio at the floor (``_kernels_failure.floor_depth``) is the pass-through chance ``m`` where
-        there is one, so ``log m`` sets the floor's depth then, ``log(1 - rho)`` otherwise."""
+        Each ray's floor depth comes from its floor level (:meth:`_floor_levels`)."""
         log_fail, log_ok = log_failure
-        log_floor = log_fail if self.pass_through == 0 else np.full(log_fail.size, np.log(self.pass_through))
+        log_floor = self._floor_levels(log_fail)
         return _kernels_lookup.prism_table_cells(
             lam,
             stretch,
