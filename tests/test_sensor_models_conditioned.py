@@ -10,10 +10,14 @@ from prismap.gmm import GaussianMixture, MixtureFit
 from prismap.sensor_models import (
     ConditionedModel,
     _conditioned,
+    _kernels_lookup,
+    _prism,
     conditioned_sensor_model,
     make_sensor_model,
 )
+from prismap.sensor_models._kernel_args import Cells, ClassRuns
 from prismap.sensor_models._prism import AUTO_TABLE_FLOOR_MB
+from prismap.sensor_models._prism_cache import KEY_TAG_SPAN
 
 CAMERA = StereoCamera(500.0, 320.0, 240.0, 0.2)
 WHOLE = GaussianMixture([0.8, 0.2], [0.0, -0.5], [0.3, 3.0])
@@ -135,20 +139,109 @@ def test_prism_sub_models_hold_each_class_mixture_and_widen_it():
         np.testing.assert_allclose(sub.error_model.sigmas, np.hypot(mixture.sigmas, 0.2))
 
 
-def test_conditioned_prism_splits_one_table_floor_among_its_sub_models():
-    """Four PRISM models (plain and three classes) keep one automatic floor between them; a fixed budget stays."""
-    floor = int(AUTO_TABLE_FLOOR_MB * 2**20)
+def test_conditioned_prism_sub_models_share_one_table_cache_and_budget():
+    """The plain and class PRISM models keep their tables in one cache (keys apart by class), within one budget:
+    the automatic floor once, or the fixed ``table_memory_mb`` once. A sub-model called by itself finds the tables
+    a fused call built, and a widened copy made twice keeps its cache."""
     model = conditioned_sensor_model("prism", CAMERA, error_model=_error_model(), **SETTINGS)
-    caches = [sub._cache for sub in (model.plain, *model.class_models)]
-    assert [cache.floor_bytes for cache in caches] == [floor // 4] * 4
-    assert sum(cache.limit_bytes for cache in caches) <= floor
-    wide = model.with_extra_noise(0.2)
-    assert [sub._cache.floor_bytes for sub in (wide.plain, *wide.class_models)] == [floor // 4] * 4
-    fixed = conditioned_sensor_model("prism", CAMERA, error_model=_error_model(), table_memory_mb=8.0, **SETTINGS)
-    assert all(sub._cache.limit_bytes == 8 * 2**20 for sub in (fixed.plain, *fixed.class_models))
+    subs = (model.plain, *model.class_models)
+    cache = model.plain._cache
+    assert all(sub._cache is cache for sub in subs) and cache.floor_bytes == int(AUTO_TABLE_FLOOR_MB * 2**20)
+    assert [sub._table_tag for sub in subs] == [k * KEY_TAG_SPAN for k in range(4)]
     disparity, norm, ray_class, *cells = _rays()
-    model.cell_posteriors(disparity, norm, *cells, ray_class=ray_class)  # the classes' tables, then the budget grows
-    assert all(cache.limit_bytes >= 2 * cache.largest_call_bytes for cache in caches)
+    model.cell_posteriors(disparity, norm, *cells, ray_class=ray_class)
+    rate_key = np.floor(np.log(norm) / _prism._LAMBDA_STEP).astype(np.int64)
+    pairs = set(zip(ray_class.tolist(), np.rint(disparity * 16).astype(np.int64).tolist(), rate_key.tolist()))
+    assert len(cache) == cache.builds == len(pairs)  # one table per (class, disparity, rate): none shared by classes
+    np.testing.assert_array_equal(np.unique(cache.keys // KEY_TAG_SPAN), np.unique(ray_class + 1))
+    mine = np.flatnonzero(ray_class == 1)
+    alone = model.class_models[1].influence_depth(disparity[mine], norm[mine])
+    assert cache.builds == len(pairs)  # found, not built again
+    np.testing.assert_array_equal(alone, model.influence_depth(disparity, norm, ray_class=ray_class)[mine])
+    wide = model.with_extra_noise(0.2)
+    wide.cell_posteriors(disparity, norm, *cells, ray_class=ray_class)
+    again = model.with_extra_noise(0.2)
+    assert again.plain._cache is wide.plain._cache and len(again.plain._cache) == len(pairs)
+    fixed = conditioned_sensor_model("prism", CAMERA, error_model=_error_model(), table_memory_mb=0.05, **SETTINGS)
+    assert all(sub._cache is fixed.plain._cache for sub in (fixed.plain, *fixed.class_models))
+    fixed.cell_posteriors(disparity, norm, *cells, ray_class=ray_class)
+    for seed in (1, 2):  # other rays: the least recently used tables go, of whichever class
+        other = _rays(seed=seed)
+        fixed.influence_depth(other[0], other[1], ray_class=other[2])
+        assert fixed.plain._cache.nbytes <= max(fixed.plain._cache.limit_bytes, fixed.plain._cache.largest_call_bytes)
+    assert fixed.plain._cache.limit_bytes == int(0.05 * 2**20) and len(fixed.plain._cache) < fixed.plain._cache.builds
+
+
+def test_fused_classes_with_failures_overhang_and_any_ray_order_equal_each_sub_model():
+    """With matcher failures in every class mixture, voxel overhangs and rays of the classes interleaved, the one
+    look-up gives every cell bit for bit what its class's own model gives; with failures in some classes only,
+    the classes take their own calls."""
+    error = _error_model()
+    failing = [m.with_failure(w, (0.0, 64.0)) for m, w in zip((WHOLE, *CLASS_MIXTURES), (0.05, 0.2, 0.01, 0.1))]
+    mixed = [failing[0], *CLASS_MIXTURES[:2], failing[3]]
+    disparity, norm, ray_class, rays, start, end = _rays(seed=7, n_rays=60)
+    overhang = np.random.default_rng(7).uniform(0.0, 0.3, disparity.size)
+    for mixtures, fused in ((failing, True), (mixed, False)):
+        subs = [
+            make_sensor_model("prism", focal_baseline=CAMERA.focal_baseline, error_model=m, **SETTINGS)
+            for m in mixtures
+        ]
+        model = ConditionedModel(subs[0], tuple(subs[1:]))
+        assert model._classes.fused is fused and error.n_classes == 3
+        posterior, increment = model.cell_posteriors(
+            disparity, norm, rays, start, end, ray_class=ray_class, voxel_overhang_m=overhang
+        )
+        for k, mixture in zip((-1, 0, 1, 2), mixtures):
+            by_hand = make_sensor_model("prism", focal_baseline=CAMERA.focal_baseline, error_model=mixture, **SETTINGS)
+            mine = np.flatnonzero(ray_class == k)
+            local = np.full(disparity.size, -1)
+            local[mine] = np.arange(mine.size)
+            cells = np.flatnonzero(np.isin(rays, mine))
+            p, inc = by_hand.cell_posteriors(
+                disparity[mine],
+                norm[mine],
+                local[rays[cells]],
+                start[cells],
+                end[cells],
+                voxel_overhang_m=overhang[mine],
+            )
+            np.testing.assert_array_equal(posterior[cells], p)
+            np.testing.assert_array_equal(increment[cells], inc)
+
+
+def test_fused_look_up_splits_blocks_at_class_runs():
+    """Runs of one class that begin and end inside a look-up block (a block of 7 cells here) give the cells what a
+    call per run gives."""
+    model = conditioned_sensor_model("prism", CAMERA, error_model=_error_model(), **SETTINGS)
+    disparity, norm, ray_class, rays, start, end = _rays(seed=3, n_rays=12, cells_per_ray=5)
+    order = np.argsort(ray_class[rays], kind="stable")
+    rays, start, end = rays[order], start[order], end[order]
+    classes = model._classes
+    first = classes.models[0]
+    index = ray_class + 1
+    tables = classes.tables_for(disparity, norm, index)
+    lam = first.rate_per_m * norm
+    cell_model = index[rays]
+    bounds = np.flatnonzero(np.diff(cell_model)) + 1
+    runs = ClassRuns(np.concatenate(([0], bounds, [rays.size])), cell_model[np.concatenate(([0], bounds))])
+    assert runs.model.size == 4 and np.any(bounds % 7 != 0)
+    post, inc = _kernels_lookup.prism_table_cells(
+        lam, np.zeros(disparity.size), tables, Cells(rays, start, end), runs, 0.25, 7, 0.0,
+        np.empty(0), np.empty(0), np.empty(0), first._geometry(), classes.mixtures,
+    )  # fmt: skip
+    for k in range(4):
+        cells = np.flatnonzero(cell_model == k)
+        p, i = classes.models[k]._table_cells(
+            lam,
+            rays[cells],
+            start[cells],
+            end[cells],
+            np.zeros(disparity.size),
+            tables,
+            (np.empty(0), np.empty(0)),
+        )
+        np.testing.assert_array_equal(post[cells], p)
+        np.testing.assert_array_equal(inc[cells], i)
 
 
 @pytest.mark.parametrize("name", ["ideal", "hitmiss"])

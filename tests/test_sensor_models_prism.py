@@ -980,9 +980,10 @@ def test_table_keys_match_numpy_unique_of_the_packed_keys():
     disparity = np.round(rng.uniform(0.5, 80.0, 5000), 1)  # repeated disparities: few distinct keys
     log_norm = np.log(rng.choice([1.0, 1.02, 1.3, 1.9], 5000))
     step = _prism._LAMBDA_STEP
-    unique, inverse, delta = _kernels_lookup.table_keys(disparity, log_norm, 1 / 16, step, _prism._KEY_L_SPAN)
+    tag = rng.integers(0, 3, 5000) * _prism_cache.KEY_TAG_SPAN  # three models sharing a cache
+    unique, inverse, delta = _kernels_lookup.table_keys(disparity, log_norm, tag, 1 / 16, step, _prism._KEY_L_SPAN)
     key_l = np.floor(log_norm / step).astype(np.int64)  # bins [k, k + 1) step of log|r|, tables at their centres
-    key = np.rint(disparity * 16).astype(np.int64) * _prism._KEY_L_SPAN + key_l
+    key = tag + np.rint(disparity * 16).astype(np.int64) * _prism._KEY_L_SPAN + key_l
     np.testing.assert_array_equal(unique[inverse], key)
     np.testing.assert_allclose(delta, log_norm - (key_l + 0.5) * step, rtol=0, atol=1e-15)
     assert np.abs(delta).max() <= 0.5 * step

@@ -2,7 +2,7 @@
 
 A conditioned error model (:class:`prismap.characterise.ErrorModel` with classes) gives every pixel a class
 from its confidence features and one error mixture per class. :class:`ConditionedModel` holds one
-inverse sensor model per class (PRISM with that class's mixture, so tables per class; Andert and
+inverse sensor model per class (PRISM with that class's mixture, so tables per class, in one cache; Andert and
 convolution with that class's dominant sigma) and the plain model of the whole-image mixture for pixels
 without a class (``-1``). Each ray is handed to the sub-model of its class, so on those rays the result
 is exactly that sub-model's. Ideal and hit/miss do not use the error model and are never wrapped.
@@ -10,7 +10,7 @@ is exactly that sub-model's. Ideal and hit/miss do not use the error model and a
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 import numpy as np
@@ -25,7 +25,7 @@ from prismap.sensor_models._base import (
     make_sensor_model,
 )
 from prismap.sensor_models._failure import failure_floor
-from prismap.sensor_models._prism import AUTO_TABLE_FLOOR_MB
+from prismap.sensor_models._prism_classes import PrismClasses
 
 CLASS_PASS_THROUGH = "class_pass_through"
 """PRISM parameter of a conditioned run: one ``pass_through`` per class (the plain sub-model keeps ``pass_through``)."""
@@ -70,10 +70,15 @@ class ConditionedModel(InverseSensorModel):
         The model of the whole-image mixture.
     class_models : tuple of InverseSensorModel
         One per class, of ``plain``'s type (same camera, voxel size and prior).
+
+    PRISM sub-models share one table cache, within one budget (the plain model's: ``table_memory_mb``, or the
+    automatic one over the classes' tables together), and take a frame's rays of every class in one call
+    (:class:`~prismap.sensor_models._prism_classes.PrismClasses`).
     """
 
     plain: InverseSensorModel
     class_models: tuple
+    _classes: PrismClasses | None = field(default=None, init=False, repr=False)
 
     def __post_init__(self):
         models = tuple(self.class_models)
@@ -88,7 +93,7 @@ class ConditionedModel(InverseSensorModel):
             if any(getattr(model, name, None) != getattr(self.plain, name, None) for name in shared):
                 raise PrismapInputError(f"ConditionedModel: class model {k} differs from the plain model in {shared}")
         object.__setattr__(self, "class_models", models)
-        share_table_floor((self.plain, *models))
+        object.__setattr__(self, "_classes", PrismClasses.of((self.plain, *models)))
 
     @property
     def name(self) -> str:
@@ -171,6 +176,10 @@ class ConditionedModel(InverseSensorModel):
             disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m
         )
         classes = self._check_classes(ray_class, disparity.size)
+        if self._classes is not None and self._classes.fused:  # every class in one look-up
+            return self._classes.cell_posteriors(
+                disparity, norm, rays, start, end, classes + 1, voxel_overhang_m if use_overhang else None
+            )
         overhang_m = None
         if use_overhang:
             overhang_m = np.asarray(voxel_overhang_m, dtype=np.float64)
@@ -205,6 +214,8 @@ class ConditionedModel(InverseSensorModel):
                 f"`disparity_px` and `ray_norm` must be 1-D of one length; got {disparity.shape} and {norm.shape}"
             )
         classes = self._check_classes(ray_class, disparity.size)
+        if self._classes is not None and self._classes.fused:
+            return self._classes.influence_depth(disparity, norm, classes + 1)
         depth = np.empty(disparity.size)
         for k in np.unique(classes):
             rays = np.flatnonzero(classes == k)
@@ -244,24 +255,6 @@ def _split_by_class(ray_class, ray_of_cell):
 
 def _non_decreasing(values):
     return values.size < 2 or bool(np.all(values[1:] >= values[:-1]))
-
-
-def share_table_floor(models):
-    """Split the table-cache floor of the PRISM models among ``models`` (in place): one budget for all classes.
-
-    A PRISM model with an automatic budget keeps the larger of :data:`~prismap.sensor_models._prism.AUTO_TABLE_FLOOR_MB`
-    and two calls' tables (``_prism_cache.TableCache.limit_bytes``). Each class's calls are a share of the frame,
-    so with a whole floor each, a conditioned model of ``n`` classes would keep up to ``n + 1`` floors of tables
-    it no longer uses; with the floor split, the classes together keep about two frames' tables, like the
-    plain model. Models without tables (not PRISM, or with a fixed ``table_memory_mb``) are left as they are.
-    """
-    caches = [
-        cache
-        for cache in (getattr(model, "_cache", None) for model in models)
-        if cache is not None and cache.budget_bytes is None
-    ]
-    for cache in caches:
-        cache.floor_bytes = min(cache.floor_bytes, int(AUTO_TABLE_FLOOR_MB * 2**20) // len(caches))
 
 
 def model_for_mixture(

@@ -94,11 +94,22 @@ def log_failure_posterior(
         approximate ``Z`` exceeds ``g_max``.
     """
     log_z = as_float_array(log_marginal, "log_marginal", ndim=1)
-    log_floor = np.log(mixture.failure_density)
-    log_good = np.log1p(-mixture.failure_weight) + log_z
-    log_total = np.logaddexp(log_floor, log_good)
+    return failure_posterior_terms(*failure_constants(mixture), log_z)
+
+
+def failure_constants(mixture: GaussianMixture) -> tuple[float, float, float, float]:
+    """What :func:`log_failure_posterior` takes from ``mixture``: ``log(w_f / W)``, ``log(1 - w_f)``, ``log(eps)``
+    and ``log(1 - eps)`` (:func:`failure_floor`)."""
     eps = failure_floor(mixture)
-    return np.maximum(log_floor - log_total, np.log(eps)), np.minimum(log_good - log_total, np.log1p(-eps))
+    return np.log(mixture.failure_density), np.log1p(-mixture.failure_weight), np.log(eps), np.log1p(-eps)
+
+
+def failure_posterior_terms(log_density, log_keep, log_eps, log_keep_eps, log_z):
+    """``log(1 - rho)`` and ``log(rho)`` from :func:`failure_constants` and ``log Z`` (scalars, or arrays of one
+    shape: each ray's own mixture's constants, as a conditioned model's fused look-up takes them)."""
+    log_good = log_keep + log_z
+    log_total = np.logaddexp(log_density, log_good)
+    return np.maximum(log_density - log_total, log_eps), np.minimum(log_good - log_total, log_keep_eps)
 
 
 def blend_increments(

@@ -49,6 +49,53 @@ class Geometry(NamedTuple):
     ku: float
 
 
+class MixtureSet(NamedTuple):
+    """The error mixtures of several PRISM models, one row each, for a look-up over rays of any of them
+    (``_kernels_lookup.prism_table_cells``; a conditioned model's plain and class models).
+
+    Attributes
+    ----------
+    log_wn, means, sigmas : (K, J) float64
+        Row ``k``'s first ``size[k]`` entries are model ``k``'s :class:`Mixture`; the rest is padding, never read.
+    size : (K,) int64
+        Components of each model.
+    ku : (K,) float64, pixel metres
+        Each model's :attr:`Geometry.ku` (the other :class:`Geometry` fields are shared).
+    """
+
+    log_wn: np.ndarray
+    means: np.ndarray
+    sigmas: np.ndarray
+    size: np.ndarray
+    ku: np.ndarray
+
+
+def mixture_set(mixtures, kus):
+    """The :class:`MixtureSet` of :class:`Mixture` s ``mixtures`` and their ``Geometry.ku`` s ``kus``."""
+    width = max(mixture.means.size for mixture in mixtures)
+    rows = [np.zeros((len(mixtures), width)) for _ in range(3)]
+    for k, mixture in enumerate(mixtures):
+        for row, column in zip(rows, mixture):
+            row[k, : column.size] = column
+    size = np.array([mixture.means.size for mixture in mixtures], dtype=np.int64)
+    return MixtureSet(*rows, size, np.asarray(kus, dtype=np.float64))
+
+
+class ClassRuns(NamedTuple):
+    """Runs of consecutive cells whose rays share one model of a :class:`MixtureSet`.
+
+    Attributes
+    ----------
+    first_cell : (n + 1,) int64
+        Run ``i`` holds cells ``first_cell[i]`` to ``first_cell[i + 1] - 1``.
+    model : (n,) int64
+        Each run's row of the :class:`MixtureSet`.
+    """
+
+    first_cell: np.ndarray
+    model: np.ndarray
+
+
 class TableSpec(NamedTuple):
     """How a PRISM table spaces its nodes in ``x`` and where it cuts its march (``_kernels_table.prism_table``).
 

@@ -11,6 +11,7 @@ import math
 import numba as nb
 import numpy as np
 
+from prismap.sensor_models._kernel_args import Geometry, Mixture
 from prismap.sensor_models._kernels_direct import combine, log_tail, pass_through_log
 from prismap.sensor_models._kernels_failure import blend_cell, blend_ratios_into, floor_depth
 from prismap.sensor_models._kernels_march import log_integral
@@ -452,7 +453,9 @@ def _far_in_front(cells, lo, l_a, l_c, side, lam_len, post, increment):
 
 
 @nb.njit(cache=True, nogil=True, error_model="numpy")  # the inlined blend divides
-def prism_table_cells(lam, stretch, tables, cells, hq, block, pass_through, ok, fail, log_floor, geometry, mixture):
+def prism_table_cells(
+    lam, stretch, tables, cells, runs, hq, block, pass_through, ok, fail, log_floor, geometry, models
+):
     """Tabulated PRISM on every cell ``[start[i], end[i] + stretch[r]]``: posterior and increment, (C,) each.
 
     Blocks of ``block`` cells go through :func:`prism_table_lookup`, :func:`exp_into` (both ends),
@@ -463,10 +466,20 @@ def prism_table_cells(lam, stretch, tables, cells, hq, block, pass_through, ok, 
     failure floor depth (``floor_depth`` from ``log_floor``) skip the look-up: their blend is that of a failure-free
     ratio of 0 (a long outdoor ray's first two fifths).
 
+    The cells come in ``runs`` of one model each (:class:`~prismap.sensor_models._kernel_args.ClassRuns`, rows of
+    ``models``, a :class:`~prismap.sensor_models._kernel_args.MixtureSet`: a conditioned model's classes in one
+    call), each looked up with its model's mixture and ``ku``; the tables, failure posteriors and floors are per ray.
+
     Parameters
     ----------
-    lam, stretch, tables, cells, hq, geometry, mixture
+    lam, stretch, tables, cells, hq
         As :func:`prism_table_lookup`'s, for all the cells.
+    runs : ClassRuns
+        The cells' runs and each run's row of ``models``.
+    geometry : Geometry
+        ``z0``, ``z_max`` and ``fb``, shared; its ``ku`` is each run's from ``models``.
+    models : MixtureSet
+        The error mixtures.
     block : int
         Cells per round (their scratch arrays stay in the core's cache).
     pass_through : float in [0, 1)
@@ -499,12 +512,33 @@ def prism_table_cells(lam, stretch, tables, cells, hq, block, pass_through, ok, 
     blend = ok.size > 0
     n_blend = size if blend else 0  # each cell's ray's rate, ok and fail, and its end with the stretch
     rate_cell, ok_cell, fail_cell, end_cell = np.empty(n_blend), np.empty(n_blend), np.empty(n_blend), np.empty(n_blend)
+    run = 0
     for lo in range(0, n, size):
         hi = min(lo + size, n)
         m = hi - lo
-        prism_table_lookup(
-            lam, stretch, tables, cells, lo, hi, hq, geometry, mixture, log_floor, l_a, l_c, side, lam_len
-        )
+        part = lo
+        while part < hi:  # the block's runs, each through the look-up with its model
+            while runs.first_cell[run + 1] <= part:
+                run += 1
+            k, end_part, j = runs.model[run], min(hi, runs.first_cell[run + 1]), part - lo
+            size_k = models.size[k]
+            prism_table_lookup(
+                lam,
+                stretch,
+                tables,
+                cells,
+                part,
+                end_part,
+                hq,
+                Geometry(z0, z_max, geometry.fb, models.ku[k]),
+                Mixture(models.log_wn[k, :size_k], models.means[k, :size_k], models.sigmas[k, :size_k]),
+                log_floor,
+                l_a[j:],
+                l_c[j:],
+                side[j:],
+                lam_len[j:],
+            )
+            part = end_part
         exp_into(l_a, e_a, m)
         exp_into(l_c, e_c, m)
         n_fix = prism_table_combine(
@@ -535,11 +569,12 @@ def rate_key_centre(key_l, lambda_step):
 
 
 @nb.njit(cache=True, nogil=True)
-def table_keys(disparity, log_norm, disparity_step, lambda_step, key_l_span):
+def table_keys(disparity, log_norm, tag, disparity_step, lambda_step, key_l_span):
     """PRISM's table key of every ray, the distinct keys (first-seen order), by open addressing, and every ray's
     ``delta = log(lambda_ray / lambda_table)``.
 
-    ``key = rint(d / disparity_step) * key_l_span + min(floor(log|r| / lambda_step), key_l_span - 1)``: a rate
+    ``key = tag + rint(d / disparity_step) * key_l_span + min(floor(log|r| / lambda_step), key_l_span - 1)``
+    (``tag`` (R,) int64: the ray's model's, for models that share one cache, ``_prism.KEY_TAG_SPAN`` apart): a rate
     key is a bin ``[k, k + 1) lambda_step`` of ``log|r|`` (``>= 0``) and its table sits at the bin's centre, so
     ``|delta| <= lambda_step / 2`` and a camera's rays of norm 1 to ``e^(n lambda_step)`` meet ``n`` rate keys.
     Returns ``unique (K,) int64``, ``inverse (R,) int64`` (``unique[inverse] = key``) and ``delta (R,)``; a hash
@@ -558,7 +593,7 @@ def table_keys(disparity, log_norm, disparity_step, lambda_step, key_l_span):
     for i in range(n):
         key_l = min(np.int64(math.floor(log_norm[i] / lambda_step)), key_l_span - 1)
         delta[i] = log_norm[i] - rate_key_centre(key_l, lambda_step)
-        key = np.int64(np.rint(disparity[i] / disparity_step)) * key_l_span + key_l
+        key = tag[i] + np.int64(np.rint(disparity[i] / disparity_step)) * key_l_span + key_l
         h = np.int64((np.uint64(key) * np.uint64(0x9E3779B97F4A7C15)) >> np.uint64(32)) & mask
         while slots[h] >= 0 and unique[slots[h]] != key:
             h = (h + 1) & mask

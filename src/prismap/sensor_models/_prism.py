@@ -34,10 +34,18 @@ from prismap.sensor_models import (
 )
 from prismap.sensor_models._base import register_model
 from prismap.sensor_models._failure import failure_floor, log_failure_posterior
-from prismap.sensor_models._kernel_args import Cells, Geometry, Mixture, RayTables, TableSpec
+from prismap.sensor_models._kernel_args import (
+    Cells,
+    ClassRuns,
+    Geometry,
+    Mixture,
+    MixtureSet,
+    TableSpec,
+    mixture_set,
+)
 from prismap.sensor_models._kernels_pack import _LENGTH, _LOG_Z, _LOG_Z_1, _LOG_Z_2, _OFFSET, _Z_INFL
 from prismap.sensor_models._params import RayModel
-from prismap.sensor_models._prism_cache import TableCache
+from prismap.sensor_models._prism_cache import _KEY_L_SPAN, _LAMBDA_STEP, TableCache, ray_tables
 from prismap.sensor_models._prism_discrete import log_mean_likelihood
 from prismap.sensor_models._prism_spacing import (
     _COARSE_BELOW,
@@ -69,9 +77,7 @@ MAX_TABLE_NODES = 1 << 20
 """Most nodes one table may need (32 MiB of float32 rows; see ``PrismModel._check_table_size``)."""
 AUTO_TABLE_FLOOR_MB = 64.0
 """Least table cache budget (MiB) of a model with ``table_memory_mb=None``."""
-_LAMBDA_STEP = 0.1  # table grid in log(lambda_z): one table every ~10 % of ray norm, at its bin's centre
 _LAMBDA_SLACK = float(np.expm1(_LAMBDA_STEP / 2))  # relative rate gap a table's influence depth covers
-_KEY_L_SPAN = 1 << 16  # table key = disparity key * span + rate key
 _BUILD_THREADS = min(2, os.cpu_count() or 1)  # threads building one call's missing tables
 _TAIL_STEP = 1.0  # prior="map": x-width of the panels of a ray's tail beyond its last cell
 _TAIL_REST = -20.0  # prior="map": the tail's march stops where the rest is below e^-20 of the evidence before
@@ -109,8 +115,8 @@ class PrismModel(RayModel):
       ``disparity_step_px``, ``lambda_z`` on a 10 % grid), cubic Hermite in
       ``x = lambda_z z - f b / (sigma_min z)`` with a second-order Taylor term in ``log lambda_z``, within
       :data:`TABLE_TOLERANCE` of ``"direct"``; tables are cached on the model (each :meth:`with_extra_noise` copy
-      has its own), least recently used ones dropped beyond ``table_memory_mb``. The grid, the look-up and what
-      a cell costs: docs/SENSOR_MODELS.md, "The tables".
+      has its own; a conditioned model's share one), least recently used ones dropped beyond ``table_memory_mb``.
+      The grid, the look-up and what a cell costs: docs/SENSOR_MODELS.md, "The tables".
     - ``"direct"``: quadrature ray by ray (8-point Gauss-Legendre panels of x-width 0.25) with every cell
       boundary a panel edge.
 
@@ -190,6 +196,8 @@ class PrismModel(RayModel):
     _table_spec: TableSpec = field(default=None, init=False, repr=False, compare=False)
     _kernel_geometry: Geometry = field(default=None, init=False, repr=False, compare=False)
     _kernel_mixture: Mixture = field(default=None, init=False, repr=False, compare=False)
+    _kernel_models: MixtureSet = field(default=None, init=False, repr=False, compare=False)  # _kernel_mixture's set
+    _table_tag: int = field(default=0, init=False, repr=False, compare=False)  # its keys' offset in a shared cache
 
     def __post_init__(self):
         super().__post_init__()
@@ -244,6 +252,7 @@ class PrismModel(RayModel):
         object.__setattr__(
             self, "_kernel_geometry", Geometry(self.near_m, self.far_depth_m, self.focal_baseline, self._ku())
         )
+        object.__setattr__(self, "_kernel_models", mixture_set([self._kernel_mixture], [self._ku()]))
 
     def _check_table_size(self):
         """Refuse, before any table is built, a model whose tables could exceed :data:`MAX_TABLE_NODES`.
@@ -330,18 +339,9 @@ class PrismModel(RayModel):
         ``p0``): the cells' priors when ``prior == "map"``; refused otherwise.
         """
         method = self.method if method is None else method
-        disparity, norm, rays, start, end = self._validated(
-            disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m
+        disparity, norm, rays, start, end, stretch, lam = self._prepared(
+            disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m, voxel_overhang_m
         )
-        stretch = np.zeros(disparity.size)  # depth metres added to the end of each ray's cells
-        if voxel_overhang_m is not None and self.overhang_fraction > 0:
-            overhang = as_float_array(voxel_overhang_m, "voxel_overhang_m", shape=(disparity.size,), allow_nan=False)
-            if overhang.size and overhang.min() < 0:
-                raise PrismapInputError(f"prism: `voxel_overhang_m` must be >= 0; got minimum {overhang.min()!r}")
-            stretch = self.overhang_fraction * overhang / norm
-        lam = self.rate_per_m * norm
-        if self.solid_depth_m > 0:  # the stretch [a - solid / |r|, c'] (cells already before near_m stay as they are)
-            start = np.minimum(start, np.maximum(start - self.solid_depth_m / norm[rays], self.near_m))
         if self.prior == "map":
             result, map_rate = self._map_prior_cells(lam, disparity, norm, rays, start, end, stretch, map_log_odds)
             # each cell's prior rate for the failure blend; without a map every cell is at p0: lam's rate
@@ -384,6 +384,24 @@ class PrismModel(RayModel):
             result[1], rays, start, end + stretch[rays], cell_rate, self.near_m, self.far_depth_m, log_fail, log_ok
         )
 
+    def _prepared(self, disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m, voxel_overhang_m):
+        """The validated arrays of :meth:`cell_posteriors` (``disparity, norm, rays, start, end``), each ray's
+        ``stretch`` (depth metres added to the end of its cells: its overhang share) and rate ``lam`` (per metre of
+        depth); ``start`` moved back by the solid depth."""
+        disparity, norm, rays, start, end = self._validated(
+            disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m
+        )
+        stretch = np.zeros(disparity.size)
+        if voxel_overhang_m is not None and self.overhang_fraction > 0:
+            overhang = as_float_array(voxel_overhang_m, "voxel_overhang_m", shape=(disparity.size,), allow_nan=False)
+            if overhang.size and overhang.min() < 0:
+                raise PrismapInputError(f"prism: `voxel_overhang_m` must be >= 0; got minimum {overhang.min()!r}")
+            stretch = self.overhang_fraction * overhang / norm
+        lam = self.rate_per_m * norm
+        if self.solid_depth_m > 0:  # the stretch [a - solid / |r|, c'] (cells already before near_m stay as they are)
+            start = np.minimum(start, np.maximum(start - self.solid_depth_m / norm[rays], self.near_m))
+        return disparity, norm, rays, start, end, stretch, lam
+
     def _log_failure(self, tables):
         """``log(1 - rho)`` and ``log(rho)`` of each ray, its failure posterior given its tables' ``Z``
         (:meth:`_tables_for`; :func:`~prismap.sensor_models.log_failure_posterior`), or two empty arrays when the
@@ -410,7 +428,11 @@ class PrismModel(RayModel):
         """
         disparity = as_float_array(disparity_px, "disparity_px", ndim=1, allow_nan=False)
         norm = as_float_array(ray_norm, "ray_norm", shape=(disparity.size,))
-        table, _, meta, _ = self._tables_for(disparity, norm)
+        return self._influence_from(self._tables_for(disparity, norm), norm)
+
+    def _influence_from(self, tables, norm):
+        """:meth:`influence_depth` of rays of norms ``norm`` from their ``tables`` (:meth:`_tables_for`)."""
+        table, _, meta, _ = tables
         depth = meta[table, _Z_INFL]
         if self.solid_depth_m > 0:
             depth = np.minimum(depth + self.solid_depth_m / norm, self.far_depth_m)
@@ -463,18 +485,23 @@ class PrismModel(RayModel):
         return result, cell_rate
 
     # ------------------------------------------------------------------ tables
-    def _table_cells(self, lam, rays, start, end, stretch, tables, log_failure):
+    def _table_cells(self, lam, rays, start, end, stretch, tables, log_failure, runs=None, models=None):
         """Tabulated posteriors and increments of the cells ``[start, end + stretch[rays]]`` from the rays'
         ``tables`` (:meth:`_tables_for`; ``_kernels_lookup.prism_table_cells``: table look-ups, vectorised exp,
-        combination, vectorised log), blended by the rays' failure posteriors ``log_failure`` (:meth:`_log_failure`).
-        Each ray's floor depth comes from its floor level (:meth:`_floor_levels`)."""
+        combination, vectorised log), blended by the rays' failure posteriors ``log_failure``
+        (:meth:`_log_failure`). Each ray's floor depth comes from its floor level (:meth:`_floor_levels`). The
+        cells come in ``runs`` of rows of the mixture set ``models`` (``ClassRuns``, ``MixtureSet``: a conditioned
+        model's classes in one call); None: all this model's."""
         log_fail, log_ok = log_failure
         log_floor = self._floor_levels(log_fail)
+        if runs is None:
+            runs, models = ClassRuns(np.array([0, start.size]), np.zeros(1, dtype=np.int64)), self._kernel_models
         return _kernels_lookup.prism_table_cells(
             lam,
             stretch,
             tables,
             Cells(rays, start, end),
+            runs,
             _QUAD_STEP,
             _CHUNK_CELLS,
             self.pass_through,
@@ -482,29 +509,21 @@ class PrismModel(RayModel):
             np.exp(log_fail),
             log_floor,
             self._geometry(),
-            self._mixture(),
+            models,
         )
 
     def _tables_for(self, disparity, norm):
-        """:class:`~prismap.sensor_models._kernel_args.RayTables` of the rays: each one's table row and
-        ``delta = log(lambda_ray / lambda_table)``, building missing tables, and the cache's ``meta`` and ``nodes``
-        arrays those rows index: taken under the cache's lock, so a call in another thread that builds or evicts
-        (new arrays, new rows) leaves this call's view intact."""
-        log_norm = np.log(np.maximum(norm, 1.0))
-        unique, inverse, delta = _kernels_lookup.table_keys(
-            disparity, log_norm, self.disparity_step_px, _LAMBDA_STEP, _KEY_L_SPAN
-        )
-        with self._cache.lock:
-            rows = self._cache.rows(unique, self._build_tables)
-            meta, nodes = self._cache.meta, self._cache.nodes
-        return RayTables(rows[inverse], delta, meta, nodes)
+        """:func:`ray_tables` of the rays (this model's tag on every key)."""
+        tag = np.full(disparity.size, self._table_tag, dtype=np.int64)
+        return ray_tables(self._cache, self._build_tables, disparity, norm, tag, self.disparity_step_px)
 
     def _build_tables(self, keys):
-        """The tables of ``keys`` ((K,) int64): ``nodes`` (N, ``_kernels_pack.TABLE_COLUMNS``) float32 back to back and
-        their ``meta`` rows (K, ``len(_kernels_pack.META_COLUMNS)``), ``offset`` from the first row of ``nodes``
-        (``_kernels_pack.prism_tables``), in :data:`_BUILD_THREADS` threads for a large batch (``nodes`` then a list
-        of each thread's arrays, to be read back to back: :meth:`TableCache.rows` copies them in)."""
-        key_d, key_l = np.divmod(np.asarray(keys, dtype=np.int64), _KEY_L_SPAN)
+        """The tables of ``keys`` ((K,) int64, this model's tag on each): ``nodes`` (N, ``_kernels_pack.TABLE_COLUMNS``)
+        float32 back to back and their ``meta`` rows (K, ``len(_kernels_pack.META_COLUMNS)``), ``offset`` from the
+        first row of ``nodes`` (``_kernels_pack.prism_tables``), in :data:`_BUILD_THREADS` threads for a large batch
+        (``nodes`` then a list of each thread's arrays, to be read back to back: :meth:`TableCache.rows` copies them
+        in)."""
+        key_d, key_l = np.divmod(np.asarray(keys, dtype=np.int64) - self._table_tag, _KEY_L_SPAN)
         disparity = key_d * self.disparity_step_px
         lam = self.rate_per_m * np.exp(_kernels_lookup.rate_key_centre(key_l, _LAMBDA_STEP))
         log_far = self._log_far(disparity)

@@ -1,13 +1,20 @@
 """PRISM's table cache: the tables of every (measured disparity, surface rate) a model has met, packed in one
-node array, least recently used ones dropped beyond a memory budget."""
+node array, least recently used ones dropped beyond a memory budget, and the keys that find them."""
 
 import mmap
 import threading
 
 import numpy as np
 
-from prismap.sensor_models import _kernels_pack
+from prismap.sensor_models import _kernels_lookup, _kernels_pack
+from prismap.sensor_models._kernel_args import RayTables
 from prismap.sensor_models._kernels_pack import _OFFSET, _STORED
+
+_LAMBDA_STEP = 0.1  # table grid in log(lambda_z): one table every ~10 % of ray norm, at its bin's centre
+_KEY_L_SPAN = 1 << 16  # table key = disparity key * span + rate key
+KEY_TAG_SPAN = 1 << 40
+"""Table keys of models sharing one cache (a conditioned model's) are this far apart: model ``i``'s start at
+``i * KEY_TAG_SPAN`` (``PrismModel._table_tag``)."""
 
 AUTO_TABLE_CALLS = 2
 """A model with ``table_memory_mb=None`` keeps this many times the tables of its largest call."""
@@ -172,3 +179,20 @@ def _room_for(n_nodes):
     return np.frombuffer(buffer, dtype=np.float32, count=rows * _kernels_pack.TABLE_COLUMNS).reshape(
         rows, _kernels_pack.TABLE_COLUMNS
     )
+
+
+def ray_tables(cache, build, disparity, norm, tag, disparity_step):
+    """:class:`~prismap.sensor_models._kernel_args.RayTables` of rays of disparities ``disparity`` and norms ``norm``
+    ((R,) each; keys tagged by ``tag`` (R,) int64, ``_kernels_lookup.table_keys``): each one's table row in
+    ``cache`` and ``delta = log(lambda_ray / lambda_table)``, ``build`` making the missing tables
+    (:meth:`PrismModel._build_tables`), and the cache's ``meta`` and ``nodes`` arrays those rows index: taken under
+    the cache's lock, so a call in another thread that builds or evicts (new arrays, new rows) leaves this call's
+    view intact."""
+    log_norm = np.log(np.maximum(norm, 1.0))
+    unique, inverse, delta = _kernels_lookup.table_keys(
+        disparity, log_norm, tag, disparity_step, _LAMBDA_STEP, _KEY_L_SPAN
+    )
+    with cache.lock:
+        rows = cache.rows(unique, build)
+        meta, nodes = cache.meta, cache.nodes
+    return RayTables(rows[inverse], delta, meta, nodes)

@@ -1,0 +1,125 @@
+"""A conditioned model's PRISM models as one: their tables in one cache, and a frame's rays of every class in one
+look-up.
+
+A conditioned PRISM model (:class:`~prismap.sensor_models.ConditionedModel`) holds a plain model and one per
+error class, alike but for the error mixture. Each would keep its own tables within its own budget and take its
+own call per class and chunk (hundreds a frame, each with its Python steps). Here they share one
+:class:`~prismap.sensor_models._prism_cache.TableCache` (each model's keys offset by its ``_table_tag``, so one
+budget and one least-recently-used order hold every class), and rays of any classes go through one key search,
+one failure posterior and one look-up kernel call (``_kernels_lookup.prism_table_cells``, the cells in runs of one
+class). Every table and every cell's value is the one the class's own model gives.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from prismap.sensor_models._failure import failure_constants, failure_posterior_terms
+from prismap.sensor_models._kernel_args import ClassRuns, mixture_set
+from prismap.sensor_models._kernels_pack import _OFFSET
+from prismap.sensor_models._prism import PrismModel
+from prismap.sensor_models._prism_cache import KEY_TAG_SPAN, TableCache, ray_tables
+
+_SHARED_FIELDS = tuple(
+    f.name for f in dataclasses.fields(PrismModel) if f.init and f.name not in ("error_model", "table_memory_mb")
+)
+"""The parameters the models must share (all but the error mixture; the first model's table budget is the shared
+cache's)."""
+
+
+class PrismClasses:
+    """PRISM models (a conditioned model's plain one, then one a class) sharing one table cache, and the fused
+    look-up of rays of any of them.
+
+    Parameters
+    ----------
+    models : sequence of PrismModel
+        Model ``i`` takes the rays of index ``i``. Their caches are replaced by one with the first model's budget
+        (kept if they already share it, as the memoised :meth:`PrismModel.with_extra_noise` copies of an earlier
+        set do).
+    """
+
+    def __init__(self, models):
+        self.models = tuple(models)
+        first = self.models[0]
+        shared = all(
+            model._cache is first._cache and model._table_tag == i * KEY_TAG_SPAN for i, model in enumerate(self.models)
+        )
+        cache = first._cache if shared else TableCache(first._cache.budget_bytes, first._cache.floor_bytes)
+        for i, model in enumerate(self.models):
+            object.__setattr__(model, "_cache", cache)
+            object.__setattr__(model, "_table_tag", i * KEY_TAG_SPAN)
+        self.cache = cache
+        self.mixtures = mixture_set([model._mixture() for model in self.models], [model._ku() for model in self.models])
+        fails = {model.error_model.failure_weight > 0 for model in self.models}
+        self.failures = None  # per model: failure_constants, (4, K)
+        if fails == {True}:
+            self.failures = np.array([failure_constants(model.error_model) for model in self.models]).T
+        # Rays of several models go through influence_depth and cell_posteriors in one call when the models are
+        # alike but for their mixtures, with method "table", prior "p0", and matcher failures in all mixtures or in
+        # none; otherwise each model takes its own calls (on the shared cache).
+        self.fused = (
+            first.method == "table"
+            and first.prior == "p0"
+            and len(fails) == 1
+            and all(getattr(model, name) == getattr(first, name) for model in self.models for name in _SHARED_FIELDS)
+        )
+
+    @classmethod
+    def of(cls, models):
+        """The :class:`PrismClasses` of ``models``, or None unless they are all PRISM models."""
+        return cls(models) if all(type(model) is PrismModel for model in models) else None
+
+    def _build(self, keys):
+        """The tables of tagged ``keys``, each built by its model (:meth:`PrismModel._build_tables`), in the keys'
+        order: ``nodes`` (a list of arrays read back to back) and ``meta``."""
+        index = (keys + KEY_TAG_SPAN // 2) // KEY_TAG_SPAN
+        meta, nodes, first = None, [], 0
+        for i in np.unique(index):
+            mine = np.flatnonzero(index == i)
+            part_nodes, part_meta = self.models[i]._build_tables(keys[mine])
+            if meta is None:
+                meta = np.empty((keys.size, part_meta.shape[1]))
+            part_meta[:, _OFFSET] += first
+            meta[mine] = part_meta
+            for part in part_nodes if isinstance(part_nodes, list) else [part_nodes]:
+                nodes.append(part)
+                first += part.shape[0]
+        return nodes, meta
+
+    def tables_for(self, disparity, norm, index):
+        """:func:`~prismap.sensor_models._prism_cache.ray_tables` of rays of model ``index`` ((R,) int) each, one
+        search and one build call for all."""
+        tag = np.asarray(index, dtype=np.int64) * KEY_TAG_SPAN
+        return ray_tables(self.cache, self._build, disparity, norm, tag, self.models[0].disparity_step_px)
+
+    def influence_depth(self, disparity, norm, index):
+        """:meth:`PrismModel.influence_depth` of each ray by its model ``index``."""
+        return self.models[0]._influence_from(self.tables_for(disparity, norm, index), norm)
+
+    def cell_posteriors(self, disparity_px, ray_norm, ray_of_cell, start, end, index, voxel_overhang_m=None):
+        """:meth:`PrismModel.cell_posteriors` of each cell by its ray's model ``index`` ((R,) int), in one look-up:
+        ``(posterior, increment)``, (C,) each."""
+        first = self.models[0]
+        disparity, norm, rays, start, end, stretch, lam = first._prepared(
+            disparity_px, ray_norm, ray_of_cell, start, end, voxel_overhang_m
+        )
+        tables = self.tables_for(disparity, norm, index)
+        log_failure = (np.empty(0), np.empty(0))
+        if self.failures is not None:
+            log_failure = failure_posterior_terms(*self.failures[:, index], first._ray_log_z(tables))
+        cell_model = np.asarray(index, dtype=np.int64)[rays]
+        order = None
+        if cell_model.size > 1 and np.any(cell_model[1:] < cell_model[:-1]):  # the look-up takes runs of one model
+            order = np.argsort(cell_model, kind="stable")  # a ray's cells stay in their order
+            rays, start, end, cell_model = rays[order], start[order], end[order], cell_model[order]
+        first_cell = np.concatenate(([0], np.flatnonzero(cell_model[1:] != cell_model[:-1]) + 1))[: cell_model.size]
+        runs = ClassRuns(np.append(first_cell, cell_model.size), cell_model[first_cell])
+        posterior, increment = first._table_cells(
+            lam, rays, start, end, stretch, tables, log_failure, runs, self.mixtures
+        )
+        if order is not None:
+            posterior[order], increment[order] = posterior.copy(), increment.copy()
+        return posterior, increment
