@@ -290,11 +290,8 @@ def street_method(name, mode, voxel, scale, n_frames, world=None):
         if len(model_frames) > 1 and model_frames[-1][0] > model_frames[0][0]:  # frames 2-N (hit/miss: no calls)
             cells, model_cpu = (end - first for end, first in zip(model_frames[-1], model_frames[0]))
             out.update(model_cells=cells / (len(model_frames) - 1), model_ns=model_cpu / cells * 1e9)
-        caches = [
-            m._cache
-            for m in getattr(model, "class_models", ()) + (getattr(model, "plain", model),)
-            if hasattr(m, "_cache")
-        ]
+        subs = getattr(model, "class_models", ()) + (getattr(model, "plain", model),)
+        caches = list({id(m._cache): m._cache for m in subs if hasattr(m, "_cache")}.values())  # a shared one once
         if caches:
             out.update(
                 tables=sum(len(c) for c in caches),

@@ -513,17 +513,18 @@ class PrismModel(RayModel):
         )
 
     def _tables_for(self, disparity, norm):
-        """:func:`ray_tables` of the rays (this model's tag on every key)."""
-        tag = np.full(disparity.size, self._table_tag, dtype=np.int64)
-        return ray_tables(self._cache, self._build_tables, disparity, norm, tag, self.disparity_step_px)
+        """:func:`~prismap.sensor_models._prism_cache.ray_tables` of the rays (this model's tag on every key)."""
+        tag, step = self._table_tag, self.disparity_step_px
+        tags = np.full(disparity.size, tag, dtype=np.int64)
+        return ray_tables(self._cache, lambda keys: self._build_tables(keys - tag), disparity, norm, tags, step)
 
     def _build_tables(self, keys):
-        """The tables of ``keys`` ((K,) int64, this model's tag on each): ``nodes`` (N, ``_kernels_pack.TABLE_COLUMNS``)
+        """The tables of ``keys`` ((K,) int64, untagged): ``nodes`` (N, ``_kernels_pack.TABLE_COLUMNS``)
         float32 back to back and their ``meta`` rows (K, ``len(_kernels_pack.META_COLUMNS)``), ``offset`` from the
         first row of ``nodes`` (``_kernels_pack.prism_tables``), in :data:`_BUILD_THREADS` threads for a large batch
         (``nodes`` then a list of each thread's arrays, to be read back to back: :meth:`TableCache.rows` copies them
         in)."""
-        key_d, key_l = np.divmod(np.asarray(keys, dtype=np.int64) - self._table_tag, _KEY_L_SPAN)
+        key_d, key_l = np.divmod(np.asarray(keys, dtype=np.int64), _KEY_L_SPAN)
         disparity = key_d * self.disparity_step_px
         lam = self.rate_per_m * np.exp(_kernels_lookup.rate_key_centre(key_l, _LAMBDA_STEP))
         log_far = self._log_far(disparity)

@@ -73,13 +73,13 @@ class PrismClasses:
         return cls(models) if all(type(model) is PrismModel for model in models) else None
 
     def _build(self, keys):
-        """The tables of tagged ``keys``, each built by its model (:meth:`PrismModel._build_tables`), in the keys'
-        order: ``nodes`` (a list of arrays read back to back) and ``meta``."""
+        """The tables of tagged ``keys``, each built by the model of its tag (:meth:`PrismModel._build_tables`), in
+        the keys' order: ``nodes`` (a list of arrays read back to back) and ``meta``."""
         index = (keys + KEY_TAG_SPAN // 2) // KEY_TAG_SPAN
         meta, nodes, first = None, [], 0
         for i in np.unique(index):
             mine = np.flatnonzero(index == i)
-            part_nodes, part_meta = self.models[i]._build_tables(keys[mine])
+            part_nodes, part_meta = self.models[i]._build_tables(keys[mine] - i * KEY_TAG_SPAN)
             if meta is None:
                 meta = np.empty((keys.size, part_meta.shape[1]))
             part_meta[:, _OFFSET] += first
