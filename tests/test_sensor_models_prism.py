@@ -787,6 +787,40 @@ def test_table_cache_evicts_least_recently_used_beyond_its_budget():
         PrismModel(error_model=MIXTURE, focal_baseline=FB, table_memory_mb=0.0)
 
 
+def test_an_eviction_compacts_the_room_in_place_unless_a_reader_holds_a_view_of_it(monkeypatch):
+    """With no reader's view alive the kept tables move to the front of their room (the same memory); a view held
+    across an eviction keeps its rows (a new room takes the kept tables). The values are the same either way."""
+    edges = np.linspace(0.5, 12.0, 60)
+    cells = _one_ray_cells(edges)
+    depths = (2.0, 3.0, 4.0, 5.0, 2.5, 3.5)
+    fresh = [
+        PrismModel(error_model=MIXTURE, focal_baseline=FB).cell_posteriors(_on_grid([d]), [1.0], *cells) for d in depths
+    ]
+    counts = {"evict": 0, "compact": 0}
+
+    def counted(name, function):
+        def call(*args):
+            counts[name] += 1
+            return function(*args)
+
+        return call
+
+    monkeypatch.setattr(_prism_cache.TableCache, "_evict", counted("evict", _prism_cache.TableCache._evict))
+    monkeypatch.setattr(_prism_cache._kernels_pack, "compact_rows", counted("compact", _kernels_pack.compact_rows))
+    for hold in (False, True):
+        counts.update(evict=0, compact=0)
+        model = PrismModel(error_model=MIXTURE, focal_baseline=FB, table_memory_mb=0.012)  # room for ~2 tables
+        held = model._tables_for(_on_grid([2.0, 3.0]), np.ones(2)) if hold else None  # a reader in another thread
+        before = None if held is None else held.nodes.copy()
+        for depth, want in zip(depths, fresh):
+            np.testing.assert_array_equal(model.cell_posteriors(_on_grid([depth]), [1.0], *cells)[1], want[1])
+            assert model._cache.nbytes <= model._cache.limit_bytes
+        # held: the first eviction copies into a new room, which no reader views, so the later ones compact it
+        assert counts["evict"] >= 2 and counts["compact"] == counts["evict"] - hold
+        if hold:
+            np.testing.assert_array_equal(held.nodes, before)
+
+
 def test_a_pickled_model_arrives_with_its_budget_and_an_empty_cache_and_builds_the_same_tables():
     """What a Dask worker receives (``map_sequence`` scatters the run's model): its tables are rebuilt there, once."""
     model = PrismModel(error_model=MIXTURE, focal_baseline=FB, table_memory_mb=0.5)

@@ -181,3 +181,17 @@ def prism_tables(shifts, lams, log_fars, geometry, spec, mixture):
         meta[k, _STORED] = rows
         total += rows
     return packed[:total], meta
+
+
+@nb.njit(cache=True, nogil=True)
+def compact_rows(nodes, starts, lengths):
+    """Move the runs of rows ``starts[k] : starts[k] + lengths[k]`` (increasing, disjoint) of ``nodes`` to its front,
+    back to back in that order, in place: each row moves to a row no later than its own, so a forward copy reads
+    every row before any write reaches it."""
+    to = 0
+    for k in range(starts.size):
+        first = starts[k]
+        for i in range(lengths[k]):
+            for c in range(nodes.shape[1]):
+                nodes[to + i, c] = nodes[first + i, c]
+        to += lengths[k]

@@ -3,6 +3,7 @@ node array, least recently used ones dropped beyond a memory budget, and the key
 
 import mmap
 import threading
+import weakref
 
 import numpy as np
 
@@ -35,7 +36,10 @@ class TableCache:
     ``meta`` has one row per table (``_kernels_pack.META_COLUMNS``, float64: the grid's positions), ``nodes`` the
     packed rows of every table back to back (``stored`` of them from ``offset``; float32: values and slopes,
     rounded far below ``TABLE_TOLERANCE``).
-    Tables used by the current call are never evicted, so one call may exceed the budget. A budget of
+    Tables used by the current call are never evicted, so one call may exceed the budget. Readers take ``nodes``
+    through :meth:`view`: an eviction while none of those views lives moves the kept tables to the front of their
+    room in place (no new memory, nothing copied into fresh pages); otherwise it copies them into a new room and
+    the readers keep the old one. A budget of
     ``None`` is the larger of ``floor_bytes`` and :data:`AUTO_TABLE_CALLS` times the bytes of the largest
     call's tables so far (:attr:`limit_bytes`). ``hits`` and ``builds`` count the distinct keys of every
     call found in the cache and built (a thrashing cache builds the same keys again and again). Callers
@@ -54,6 +58,7 @@ class TableCache:
         self.meta = np.empty((0, len(_kernels_pack.META_COLUMNS)))
         self.nodes = np.empty((0, _kernels_pack.TABLE_COLUMNS), dtype=np.float32)
         self._node_room = self.nodes  # self.nodes is its head; new tables go in behind
+        self._views = []  # weak references to the views of _node_room handed to readers (view)
         self.last_used = np.empty(0, dtype=np.int64)
         self.clock = 0
         self.hits = 0
@@ -116,6 +121,13 @@ class TableCache:
             rows = self._evict(rows)
         return rows
 
+    def view(self):
+        """``meta`` and a view of ``nodes`` for a reader, who keeps the view while it reads (call under ``lock``)."""
+        nodes = self._node_room[: self.nodes.shape[0]]
+        self._views = [ref for ref in self._views if ref() is not None]
+        self._views.append(weakref.ref(nodes))
+        return self.meta, nodes
+
     def _append_nodes(self, parts):
         """Append the rows of the arrays ``parts``, one after another, to ``nodes``: into the room behind them (rows
         no reader indexes yet), else into a new array with room (:func:`_room_for`), so that a sequence copies its
@@ -124,7 +136,7 @@ class TableCache:
         if n + m > self._node_room.shape[0]:
             room = _room_for(n + m)
             room[:n] = self.nodes
-            self._node_room = room
+            self._node_room, self._views = room, []
         for part in parts:
             self._node_room[n : n + part.shape[0]] = part
             n += part.shape[0]
@@ -143,21 +155,27 @@ class TableCache:
 
     def _evict(self, rows):
         """Drop the least recently used tables (never those of ``rows``) until within :data:`EVICT_TO` of the budget;
-        new rows. The kept tables go into a new array with room behind them (:func:`_room_for`), so that the next
-        call's new tables do not copy them again."""
+        new rows. The kept tables move to the front of their room when no reader's view lives (:meth:`view`), else
+        into a new array with room behind them (:func:`_room_for`), so that the next call's new tables do not copy
+        them again."""
         size = self._table_bytes()
         order = np.argsort(self.last_used, kind="stable")
         order = order[self.last_used[order] < self.clock]
         excess = self.nbytes - EVICT_TO * self.limit_bytes
         drop = order[: np.searchsorted(np.cumsum(size[order]), excess) + 1]
         keep = np.setdiff1d(np.arange(self.keys.size), drop)
+        keep = keep[np.argsort(self.meta[keep, _OFFSET], kind="stable")]  # in the order of their rows
         starts = self.meta[keep, _OFFSET].astype(np.int64)
         lengths = self.meta[keep, _STORED].astype(np.int64)
-        total, kept = int(lengths.sum()), self.nodes
-        self._node_room = _room_for(total)
+        total = int(lengths.sum())
+        if all(ref() is None for ref in self._views):  # nobody reads the room: compact it
+            _kernels_pack.compact_rows(self._node_room, starts, lengths)
+        else:
+            kept = self.nodes
+            self._node_room, self._views = _room_for(total), []
+            if keep.size:
+                np.concatenate([kept[s : s + n] for s, n in zip(starts, lengths)], out=self._node_room[:total])
         self.nodes = self._node_room[:total]
-        if keep.size:
-            np.concatenate([kept[s : s + n] for s, n in zip(starts, lengths)], out=self.nodes)
         self.meta = self.meta[keep]
         self.meta[:, _OFFSET] = np.concatenate(([0], np.cumsum(lengths)[:-1]))
         self.keys = self.keys[keep]
@@ -194,5 +212,5 @@ def ray_tables(cache, build, disparity, norm, tag, disparity_step):
     )
     with cache.lock:
         rows = cache.rows(unique, build)
-        meta, nodes = cache.meta, cache.nodes
+        meta, nodes = cache.view()
     return RayTables(rows[inverse], delta, meta, nodes)
