@@ -110,16 +110,33 @@ class PrismClasses:
         log_failure = (np.empty(0), np.empty(0))
         if self.failures is not None:
             log_failure = failure_posterior_terms(*self.failures[:, index], first._ray_log_z(tables))
-        cell_model = np.asarray(index, dtype=np.int64)[rays]
-        order = None
-        if cell_model.size > 1 and np.any(cell_model[1:] < cell_model[:-1]):  # the look-up takes runs of one model
-            order = np.argsort(cell_model, kind="stable")  # a ray's cells stay in their order
-            rays, start, end, cell_model = rays[order], start[order], end[order], cell_model[order]
-        first_cell = np.concatenate(([0], np.flatnonzero(cell_model[1:] != cell_model[:-1]) + 1))[: cell_model.size]
-        runs = ClassRuns(np.append(first_cell, cell_model.size), cell_model[first_cell])
+        order, runs = _class_runs(np.asarray(index, dtype=np.int64), rays)
+        if order is not None:  # the look-up takes runs of one model
+            rays, start, end = rays[order], start[order], end[order]
         posterior, increment = first._table_cells(
             lam, rays, start, end, stretch, tables, log_failure, runs, self.mixtures
         )
         if order is not None:
             posterior[order], increment[order] = posterior.copy(), increment.copy()
         return posterior, increment
+
+
+def _class_runs(index, rays):
+    """The cells' :class:`ClassRuns` by their rays' models ``index`` ((R,) int64), and the order of the cells that
+    makes them runs (None: as they come). Cells of one model (a ray-mode chunk), or of rays in model order with the
+    cells in ray order (a projective part), are runs as they come, found from the rays; otherwise the cells go in
+    model order (stable: a ray's cells keep their order)."""
+    if not rays.size:
+        return None, ClassRuns(np.zeros(1, dtype=np.int64), np.empty(0, dtype=np.int64))
+    if index.min() == index.max():
+        return None, ClassRuns(np.array([0, rays.size]), index[:1])
+    first_ray = np.concatenate(([0], np.flatnonzero(index[1:] != index[:-1]) + 1))
+    if np.all(index[1:] >= index[:-1]) and np.all(rays[1:] >= rays[:-1]):
+        first_cell = np.searchsorted(rays, first_ray)
+        used = np.flatnonzero(np.diff(np.append(first_cell, rays.size)) > 0)  # models with cells
+        return None, ClassRuns(np.append(first_cell[used], rays.size), index[first_ray[used]])
+    cell_model = index[rays]
+    order = np.argsort(cell_model, kind="stable")
+    cell_model = cell_model[order]
+    first_cell = np.concatenate(([0], np.flatnonzero(cell_model[1:] != cell_model[:-1]) + 1))
+    return order, ClassRuns(np.append(first_cell, rays.size), cell_model[first_cell])
