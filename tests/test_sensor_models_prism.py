@@ -324,7 +324,7 @@ def test_packed_tables_keep_each_side_wherever_a_look_up_may_read_it(mixture):
     offsets = np.linspace(-delta_max, delta_max, 5)
     stored = length = 0
     for d in disparity:
-        lam = model.rate_per_m * np.exp(_kernels_lookup.rate_key_centre(0, _prism._LAMBDA_STEP))
+        lam = model.rate_per_m * np.exp(_kernels_pack.rate_key_centre(0, _prism._LAMBDA_STEP))
         log_far = model._log_far(np.array([d]))[0]
         args = (d + model.doffs_px, lam, log_far, model._geometry(), model._table_spec, model._mixture())
         nodes, table_meta = _kernels_table.prism_table(*args)
@@ -1015,7 +1015,7 @@ def test_table_keys_match_numpy_unique_of_the_packed_keys():
     log_norm = np.log(rng.choice([1.0, 1.02, 1.3, 1.9], 5000))
     step = _prism._LAMBDA_STEP
     tag = rng.integers(0, 3, 5000) * _prism_cache.KEY_TAG_SPAN  # three models sharing a cache
-    unique, inverse, delta = _kernels_lookup.table_keys(disparity, log_norm, tag, 1 / 16, step, _prism._KEY_L_SPAN)
+    unique, inverse, delta = _kernels_pack.table_keys(disparity, log_norm, tag, 1 / 16, step, _prism._KEY_L_SPAN)
     key_l = np.floor(log_norm / step).astype(np.int64)  # bins [k, k + 1) step of log|r|, tables at their centres
     key = tag + np.rint(disparity * 16).astype(np.int64) * _prism._KEY_L_SPAN + key_l
     np.testing.assert_array_equal(unique[inverse], key)

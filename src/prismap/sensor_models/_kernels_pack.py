@@ -1,5 +1,6 @@
 """PRISM's tables as the table cache holds them: each node's one side a look-up may read, packed back to back with
-a row of metadata per table (:func:`prism_tables`, from :func:`~prismap.sensor_models._kernels_table.prism_table`).
+a row of metadata per table (:func:`prism_tables`, from :func:`~prismap.sensor_models._kernels_table.prism_table`),
+and the keys that find them (:func:`table_keys`).
 """
 
 import math
@@ -195,3 +196,47 @@ def compact_rows(nodes, starts, lengths):
             for c in range(nodes.shape[1]):
                 nodes[to + i, c] = nodes[first + i, c]
         to += lengths[k]
+
+
+@nb.njit(cache=True, nogil=True)
+def rate_key_centre(key_l, lambda_step):
+    """``log(lambda_table / lambda)`` of rate key ``key_l`` (a scalar or an int array): the centre of its bin of
+    ``log|r|`` (:func:`table_keys`)."""
+    return (key_l + 0.5) * lambda_step
+
+
+@nb.njit(cache=True, nogil=True)
+def table_keys(disparity, log_norm, tag, disparity_step, lambda_step, key_l_span):
+    """PRISM's table key of every ray, the distinct keys (first-seen order), by open addressing, and every ray's
+    ``delta = log(lambda_ray / lambda_table)``.
+
+    ``key = tag + rint(d / disparity_step) * key_l_span + min(floor(log|r| / lambda_step), key_l_span - 1)``
+    (``tag`` (R,) int64: the ray's model's, for models that share one cache, ``_prism.KEY_TAG_SPAN`` apart): a rate
+    key is a bin ``[k, k + 1) lambda_step`` of ``log|r|`` (``>= 0``) and its table sits at the bin's centre, so
+    ``|delta| <= lambda_step / 2`` and a camera's rays of norm 1 to ``e^(n lambda_step)`` meet ``n`` rate keys.
+    Returns ``unique (K,) int64``, ``inverse (R,) int64`` (``unique[inverse] = key``) and ``delta (R,)``; a hash
+    table instead of a sort: O(R) for the ~300 k rays of a frame and their ~2 k keys.
+    """
+    n = disparity.size
+    size = 64
+    while size < 2 * n:
+        size *= 2
+    mask = size - 1
+    slots = np.full(size, -1, dtype=np.int64)
+    unique = np.empty(n, dtype=np.int64)
+    inverse = np.empty(n, dtype=np.int64)
+    delta = np.empty(n)
+    k = 0
+    for i in range(n):
+        key_l = min(np.int64(math.floor(log_norm[i] / lambda_step)), key_l_span - 1)
+        delta[i] = log_norm[i] - rate_key_centre(key_l, lambda_step)
+        key = tag[i] + np.int64(np.rint(disparity[i] / disparity_step)) * key_l_span + key_l
+        h = np.int64((np.uint64(key) * np.uint64(0x9E3779B97F4A7C15)) >> np.uint64(32)) & mask
+        while slots[h] >= 0 and unique[slots[h]] != key:
+            h = (h + 1) & mask
+        if slots[h] < 0:
+            slots[h] = k
+            unique[k] = key
+            k += 1
+        inverse[i] = slots[h]
+    return unique[:k], inverse, delta

@@ -526,7 +526,7 @@ class PrismModel(RayModel):
         in)."""
         key_d, key_l = np.divmod(np.asarray(keys, dtype=np.int64), _KEY_L_SPAN)
         disparity = key_d * self.disparity_step_px
-        lam = self.rate_per_m * np.exp(_kernels_lookup.rate_key_centre(key_l, _LAMBDA_STEP))
+        lam = self.rate_per_m * np.exp(_kernels_pack.rate_key_centre(key_l, _LAMBDA_STEP))
         log_far = self._log_far(disparity)
         shift = disparity + self.doffs_px
         geometry, mixture, spec = self._geometry(), self._mixture(), self._table_spec

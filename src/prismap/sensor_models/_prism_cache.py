@@ -7,7 +7,7 @@ import weakref
 
 import numpy as np
 
-from prismap.sensor_models import _kernels_lookup, _kernels_pack
+from prismap.sensor_models import _kernels_pack
 from prismap.sensor_models._kernel_args import RayTables
 from prismap.sensor_models._kernels_pack import _OFFSET, _STORED
 
@@ -201,13 +201,13 @@ def _room_for(n_nodes):
 
 def ray_tables(cache, build, disparity, norm, tag, disparity_step):
     """:class:`~prismap.sensor_models._kernel_args.RayTables` of rays of disparities ``disparity`` and norms ``norm``
-    ((R,) each; keys tagged by ``tag`` (R,) int64, ``_kernels_lookup.table_keys``): each one's table row in
+    ((R,) each; keys tagged by ``tag`` (R,) int64, ``_kernels_pack.table_keys``): each one's table row in
     ``cache`` and ``delta = log(lambda_ray / lambda_table)``, ``build`` making the missing tables
     (:meth:`PrismModel._build_tables`), and the cache's ``meta`` and ``nodes`` arrays those rows index: taken under
     the cache's lock, so a call in another thread that builds or evicts (new arrays, new rows) leaves this call's
     view intact."""
     log_norm = np.log(np.maximum(norm, 1.0))
-    unique, inverse, delta = _kernels_lookup.table_keys(
+    unique, inverse, delta = _kernels_pack.table_keys(
         disparity, log_norm, tag, disparity_step, _LAMBDA_STEP, _KEY_L_SPAN
     )
     with cache.lock:
