@@ -1,5 +1,7 @@
 """ConditionedModel: rays by class to per-class sub-models, equal to calling those sub-models by hand."""
 
+import pickle
+
 import numpy as np
 import pytest
 
@@ -207,6 +209,31 @@ def test_fused_classes_with_failures_overhang_and_any_ray_order_equal_each_sub_m
             )
             np.testing.assert_array_equal(posterior[cells], p)
             np.testing.assert_array_equal(increment[cells], inc)
+
+
+def test_a_pickled_conditioned_prism_model_arrives_with_one_empty_shared_cache_and_gives_the_same_cells():
+    """What a Dask worker receives: the sub-models still share one cache (empty, the budget kept), the fused call
+    uses it, and every cell and influence depth is the original's; only -1 rays, and no cells, work too."""
+    model = conditioned_sensor_model("prism", CAMERA, error_model=_error_model(), **SETTINGS)
+    disparity, norm, ray_class, rays, start, end = _rays(seed=5)
+    want = model.cell_posteriors(disparity, norm, rays, start, end, ray_class=ray_class)
+    twin = pickle.loads(pickle.dumps(model))
+    cache = twin.plain._cache
+    assert len(cache) == 0 and cache is not model.plain._cache and cache is twin._classes.cache
+    assert all(sub._cache is cache for sub in twin.class_models) and twin._classes.fused
+    got = twin.cell_posteriors(disparity, norm, rays, start, end, ray_class=ray_class)
+    np.testing.assert_array_equal(got[1], want[1])
+    np.testing.assert_array_equal(
+        twin.influence_depth(disparity, norm, ray_class=ray_class),
+        model.influence_depth(disparity, norm, ray_class=ray_class),
+    )
+    plain_only = np.full(disparity.size, -1)
+    np.testing.assert_array_equal(
+        twin.cell_posteriors(disparity, norm, rays, start, end, ray_class=plain_only)[1],
+        model.plain.cell_posteriors(disparity, norm, rays, start, end)[1],
+    )
+    empty = twin.cell_posteriors(disparity, norm, rays[:0], start[:0], end[:0], ray_class=ray_class)
+    assert empty[0].shape == empty[1].shape == (0,)
 
 
 def test_fused_look_up_splits_blocks_at_class_runs():
