@@ -3,6 +3,7 @@
 import itertools
 import mmap
 import pickle
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -819,6 +820,22 @@ def test_an_eviction_compacts_the_room_in_place_unless_a_reader_holds_a_view_of_
         assert counts["evict"] >= 2 and counts["compact"] == counts["evict"] - hold
         if hold:
             np.testing.assert_array_equal(held.nodes, before)
+
+
+def test_threads_sharing_a_small_cache_that_evicts_get_the_serial_values():
+    """Two threads call one model whose budget holds a few tables, so builds and evictions in one thread land
+    while the other's look-up kernel reads its tables: every call gives what a model of its own gives."""
+    rng = np.random.default_rng(11)
+    edges = np.linspace(0.5, 30.0, 3000)
+    calls = [(_on_grid(rng.uniform(1.0, 25.0, 4)), 1.0 + rng.uniform(0.0, 0.3, 4)) for _ in range(40)]
+    cells = (np.repeat(np.arange(4), edges.size - 1), np.tile(edges[:-1], 4), np.tile(edges[1:], 4))
+    fresh = [PrismModel(error_model=MIXTURE, focal_baseline=FB).cell_posteriors(d, n, *cells)[1] for d, n in calls]
+    shared = PrismModel(error_model=MIXTURE, focal_baseline=FB, table_memory_mb=0.05)
+    with ThreadPoolExecutor(2) as threads:
+        got = list(threads.map(lambda call: shared.cell_posteriors(*call, *cells)[1], calls))
+    assert shared._cache.builds > len(shared._cache)  # it evicted
+    for want, have in zip(fresh, got):
+        np.testing.assert_array_equal(have, want)
 
 
 def test_a_pickled_model_arrives_with_its_budget_and_an_empty_cache_and_builds_the_same_tables():
