@@ -25,6 +25,7 @@ from prismap.sensor_models._base import (
     make_sensor_model,
 )
 from prismap.sensor_models._failure import failure_floor
+from prismap.sensor_models._kernel_args import ClassRuns
 from prismap.sensor_models._prism_classes import PrismClasses
 
 CLASS_PASS_THROUGH = "class_pass_through"
@@ -176,9 +177,17 @@ class ConditionedModel(InverseSensorModel):
             disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m
         )
         classes = self._check_classes(ray_class, disparity.size)
-        if self._classes is not None and self._classes.fused:  # every class in one look-up
+        if self._classes is not None and self._classes.fused:  # every class in one look-up (models: class + 1)
+            index = classes + 1
             return self._classes.cell_posteriors(
-                disparity, norm, rays, start, end, classes + 1, voxel_overhang_m if use_overhang else None
+                disparity,
+                norm,
+                rays,
+                start,
+                end,
+                index,
+                cell_runs(index, rays),
+                voxel_overhang_m if use_overhang else None,
             )
         overhang_m = None
         if use_overhang:
@@ -230,31 +239,44 @@ class ConditionedModel(InverseSensorModel):
         )
 
 
-def _split_by_class(ray_class, ray_of_cell):
-    """For each class present: ``(class, its rays, its cells, each of those cells' ray among the class's rays)``;
-    slices (no copies) when every ray has one class, as a ray-mode chunk has (the integrator chunks by class), or
-    when the rays come in class order and the cells in ray order, as a projective part's do."""
-    if ray_class.size and ray_class.min() == ray_class.max():
-        yield int(ray_class[0]), slice(None), slice(None), ray_of_cell
-        return
-    if _non_decreasing(ray_class) and _non_decreasing(ray_of_cell):
-        ray_bounds = np.concatenate(([0], np.flatnonzero(np.diff(ray_class)) + 1, [ray_class.size]))
-        cell_bounds = np.searchsorted(ray_of_cell, ray_bounds)
-        for r0, r1, c0, c1 in zip(ray_bounds[:-1], ray_bounds[1:], cell_bounds[:-1], cell_bounds[1:]):
-            if c1 > c0:
-                yield int(ray_class[r0]), slice(r0, r1), slice(c0, c1), ray_of_cell[c0:c1] - r0
-        return
+def cell_runs(ray_class, ray_of_cell):
+    """The cells grouped by their ray's class: ``(order, ClassRuns)``, the runs' first cells and classes in the
+    order ``order`` puts the cells in (None: as they come). Cells of one class (a ray-mode chunk), or of rays in
+    class order with the cells in ray order (a projective part), are runs as they come, found from the rays without
+    a pass over the cells; otherwise the cells go in class order (stable: a ray's cells keep their order)."""
+    n = ray_of_cell.size
+    if not n:
+        return None, ClassRuns(np.zeros(1, dtype=np.int64), np.empty(0, dtype=np.int64))
+    if ray_class.min() == ray_class.max():
+        return None, ClassRuns(np.array([0, n]), ray_class[:1])
+    if np.all(ray_class[1:] >= ray_class[:-1]) and np.all(ray_of_cell[1:] >= ray_of_cell[:-1]):
+        first_ray = np.concatenate(([0], np.flatnonzero(ray_class[1:] != ray_class[:-1]) + 1))
+        first_cell = np.searchsorted(ray_of_cell, first_ray)
+        used = np.flatnonzero(np.diff(np.append(first_cell, n)) > 0)  # classes with cells
+        return None, ClassRuns(np.append(first_cell[used], n), ray_class[first_ray[used]])
     cell_class = ray_class[ray_of_cell]
-    local = np.empty(ray_class.size, dtype=np.int64)
-    for k in np.unique(ray_class):
+    order = np.argsort(cell_class, kind="stable")
+    cell_class = cell_class[order]
+    first_cell = np.concatenate(([0], np.flatnonzero(cell_class[1:] != cell_class[:-1]) + 1))
+    return order, ClassRuns(np.append(first_cell, n), cell_class[first_cell])
+
+
+def _split_by_class(ray_class, ray_of_cell):
+    """For each class with cells (:func:`cell_runs`): ``(class, its rays, its cells, each of those cells' ray among
+    the class's rays)``; slices (no copies) when the cells come in runs, whose rays are then in class order."""
+    order, runs = cell_runs(ray_class, ray_of_cell)
+    local = None
+    for c0, c1, k in zip(runs.first_cell[:-1], runs.first_cell[1:], runs.model):
+        if order is None:  # ray_class is sorted: the class's rays are consecutive
+            r0, r1 = np.searchsorted(ray_class, [k, k + 1])
+            yield int(k), slice(r0, r1), slice(c0, c1), ray_of_cell[c0:c1] - r0 if r0 else ray_of_cell[c0:c1]
+            continue
         rays = np.flatnonzero(ray_class == k)
-        cells = np.flatnonzero(cell_class == k)
+        if local is None:
+            local = np.empty(ray_class.size, dtype=np.int64)
         local[rays] = np.arange(rays.size)
+        cells = order[c0:c1]
         yield int(k), rays, cells, local[ray_of_cell[cells]]
-
-
-def _non_decreasing(values):
-    return values.size < 2 or bool(np.all(values[1:] >= values[:-1]))
 
 
 def model_for_mixture(

@@ -417,7 +417,7 @@ def prism_table(shift, lam, log_far, geometry, spec, mixture):
     are the model's, from ``z0``.
     """
     z_near, z_max, fb, ku = geometry
-    h, log_eps_bound, lam_slack, coarse_ratio, coarse_below = spec[:5]
+    h, log_eps_bound, lam_slack, _, coarse_below = spec[:5]
     x_end = x_of_z(z_max, lam, ku)
     # The coarse front ends before the measured depth; at most MAX_COARSE nodes up to there (a class with a
     # 0.01 px component puts the measurement hundreds of thousands of x units after near_m).

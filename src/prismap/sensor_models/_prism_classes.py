@@ -17,7 +17,7 @@ import dataclasses
 import numpy as np
 
 from prismap.sensor_models._failure import failure_constants, failure_posterior_terms
-from prismap.sensor_models._kernel_args import ClassRuns, mixture_set
+from prismap.sensor_models._kernel_args import mixture_set
 from prismap.sensor_models._kernels_pack import _OFFSET
 from prismap.sensor_models._prism import PrismModel
 from prismap.sensor_models._prism_cache import KEY_TAG_SPAN, TableCache, ray_tables
@@ -99,9 +99,10 @@ class PrismClasses:
         """:meth:`PrismModel.influence_depth` of each ray by its model ``index``."""
         return self.models[0]._influence_from(self.tables_for(disparity, norm, index), norm)
 
-    def cell_posteriors(self, disparity_px, ray_norm, ray_of_cell, start, end, index, voxel_overhang_m=None):
+    def cell_posteriors(self, disparity_px, ray_norm, ray_of_cell, start, end, index, runs, voxel_overhang_m=None):
         """:meth:`PrismModel.cell_posteriors` of each cell by its ray's model ``index`` ((R,) int), in one look-up:
-        ``(posterior, increment)``, (C,) each."""
+        ``(posterior, increment)``, (C,) each. ``runs``: ``(order, ClassRuns)`` of the cells by ``index``
+        (``_conditioned.cell_runs``; ``order`` None when the cells already come in runs)."""
         first = self.models[0]
         disparity, norm, rays, start, end, stretch, lam = first._prepared(
             disparity_px, ray_norm, ray_of_cell, start, end, voxel_overhang_m
@@ -110,7 +111,7 @@ class PrismClasses:
         log_failure = (np.empty(0), np.empty(0))
         if self.failures is not None:
             log_failure = failure_posterior_terms(*self.failures[:, index], first._ray_log_z(tables))
-        order, runs = _class_runs(np.asarray(index, dtype=np.int64), rays)
+        order, runs = runs
         if order is not None:  # the look-up takes runs of one model
             rays, start, end = rays[order], start[order], end[order]
         posterior, increment = first._table_cells(
@@ -119,24 +120,3 @@ class PrismClasses:
         if order is not None:
             posterior[order], increment[order] = posterior.copy(), increment.copy()
         return posterior, increment
-
-
-def _class_runs(index, rays):
-    """The cells' :class:`ClassRuns` by their rays' models ``index`` ((R,) int64), and the order of the cells that
-    makes them runs (None: as they come). Cells of one model (a ray-mode chunk), or of rays in model order with the
-    cells in ray order (a projective part), are runs as they come, found from the rays; otherwise the cells go in
-    model order (stable: a ray's cells keep their order)."""
-    if not rays.size:
-        return None, ClassRuns(np.zeros(1, dtype=np.int64), np.empty(0, dtype=np.int64))
-    if index.min() == index.max():
-        return None, ClassRuns(np.array([0, rays.size]), index[:1])
-    first_ray = np.concatenate(([0], np.flatnonzero(index[1:] != index[:-1]) + 1))
-    if np.all(index[1:] >= index[:-1]) and np.all(rays[1:] >= rays[:-1]):
-        first_cell = np.searchsorted(rays, first_ray)
-        used = np.flatnonzero(np.diff(np.append(first_cell, rays.size)) > 0)  # models with cells
-        return None, ClassRuns(np.append(first_cell[used], rays.size), index[first_ray[used]])
-    cell_model = index[rays]
-    order = np.argsort(cell_model, kind="stable")
-    cell_model = cell_model[order]
-    first_cell = np.concatenate(([0], np.flatnonzero(cell_model[1:] != cell_model[:-1]) + 1))
-    return order, ClassRuns(np.append(first_cell, rays.size), cell_model[first_cell])
