@@ -1,0 +1,112 @@
+"""Where a ray-mode frame's CPU goes, on the street of ``bench_grid.py --street --conditioned`` (scene (c)).
+
+Maps the street's SGBM disparities (``bench_grid.sgbm_world``: the world's own characterised error model, each
+pixel's class) with ``prismap map``'s model (conditioned PRISM, or ``--model prism`` for the plain mixture) in ray
+mode, one map, frame after frame, and times the parts of each frame with the CPU clock of the thread that runs them:
+
+- ``cast``: the casting thread's ``_accumulator.cast_into`` (Amanatides & Woo, registering each crossed voxel);
+- ``kernel``: the model threads' PRISM look-up kernel (``_kernels_lookup.prism_table_cells``);
+- ``model rest``: the rest of the model threads' calls (``Integrator.cell_increments``: keys, failure posteriors);
+- ``scatter``: the casting thread adding the increments to the frame's accumulator (``_accumulator.scatter``);
+- ``rest``: process CPU outside those (the batch, stop depths and their table builds, chunking, the map update).
+
+It prints each part's median over the steady frames (the second pass over the sequence, after a first that builds
+the tables) in seconds a frame and nanoseconds a cell. Not a peer benchmark: ``bench_grid.py`` compares the same path
+with OctoMap and UFOMap.
+
+Run: ``.venv/bin/python benchmarks/ray_breakdown.py [--scale 1] [--frames 8] [--model conditioned]
+[--world-dir DIR]``
+"""
+
+import argparse
+import collections
+import statistics
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from bench_grid import load_world, sgbm_world, street_model
+
+from prismap.camera import integrate_disparity
+from prismap.grid import OccupancyMap, _accumulator, _integrators
+from prismap.sensor_models import _kernels_lookup
+
+PARTS = {  # label: (owner, attribute)
+    "cast": (_accumulator, "cast_into"),
+    "kernel": (_kernels_lookup, "prism_table_cells"),
+    "model call": (_integrators.Integrator, "cell_increments"),
+    "scatter": (_accumulator, "scatter"),
+}
+
+
+class PartClock:
+    """Thread CPU seconds spent in each of :data:`PARTS` since :meth:`reset`, and the cells cast."""
+
+    def __init__(self):
+        self.seconds = collections.Counter()
+        self.cells = 0
+        self._lock = threading.Lock()
+        for label, (owner, name) in PARTS.items():
+            setattr(owner, name, self._timed(label, getattr(owner, name)))
+
+    def _timed(self, label, function):
+        def timed(*args, **kwargs):
+            start = time.thread_time()
+            result = function(*args, **kwargs)
+            with self._lock:
+                self.seconds[label] += time.thread_time() - start
+                if label == "cast":
+                    self.cells += result[1].size
+            return result
+
+        return timed
+
+    def reset(self):
+        self.seconds.clear()
+        self.cells = 0
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--scale", type=float, default=1.0, help="rig scale: 1 is 1242x375 px, 0.5 is 621x188")
+    parser.add_argument("--frames", type=int, default=8)
+    parser.add_argument("--model", choices=("conditioned", "prism"), default="conditioned")
+    parser.add_argument("--voxel", type=float, default=0.2, help="metres")
+    parser.add_argument("--world-dir", help="where the street's world is kept (reused when present)")
+    args = parser.parse_args()
+    clock = PartClock()
+    with tempfile.TemporaryDirectory() as tmp:
+        world = sgbm_world(
+            args.scale, args.frames, Path(args.world_dir or tmp) / f"street_{args.scale:g}_{args.frames}"
+        )
+        camera, poses, disparities, classes, error_model = load_world(args.scale, args.frames, world)
+    model = street_model(args.model, camera, args.voxel, error_model)
+    grid = OccupancyMap(args.voxel, p0=getattr(model, "plain", model).p0)
+    frames = list(zip(disparities, poses, classes if args.model == "conditioned" else [None] * len(poses)))
+    rows = []
+    for index, (disparity, pose, ray_class) in enumerate(frames * 2):
+        clock.reset()
+        start, start_cpu = time.perf_counter(), time.process_time()
+        integrate_disparity(grid, disparity, camera, pose, model, mode="ray", max_range_m=80.0, ray_class=ray_class)
+        wall, cpu = time.perf_counter() - start, time.process_time() - start_cpu
+        if index >= len(frames):
+            parts = dict(clock.seconds)
+            parts["model rest"] = parts.pop("model call") - parts["kernel"]
+            parts["rest"] = cpu - sum(parts.values())
+            rows.append({"wall": wall, "CPU": cpu, **parts, "cells": clock.cells})
+    median = {key: statistics.median(row[key] for row in rows) for key in rows[0]}
+    print(
+        f"street {camera.width}x{camera.height} px, {args.frames} frames, {args.voxel:g} m voxels, rays to 80 m, "
+        f"{args.model} PRISM ({error_model.n_classes} classes), ray mode: {median['cells'] / 1e6:.1f} M cells a frame; "
+        "median of the steady frames"
+    )
+    for key in ("wall", "CPU", "cast", "kernel", "model rest", "scatter", "rest"):
+        print(f"{key:11s} {median[key]:7.3f} s  {median[key] / median['cells'] * 1e9:5.1f} ns a cell")
+
+
+if __name__ == "__main__":
+    main()
