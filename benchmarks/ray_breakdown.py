@@ -8,10 +8,13 @@ mode, one map, frame after frame, and times the parts of each frame with the CPU
 - ``kernel``: the model threads' PRISM look-up kernel (``_kernels_lookup.prism_table_cells``);
 - ``model rest``: the rest of the model threads' calls (``Integrator.cell_increments``: keys, failure posteriors);
 - ``scatter``: the casting thread adding the increments to the frame's accumulator (``_accumulator.scatter``);
-- ``rest``: process CPU outside those (the batch, stop depths and their table builds, chunking, the map update).
+- ``table builds``: PRISM's tables built for the frame's new keys (``_kernels_pack.prism_tables``, in every thread;
+  ray mode builds them all for the stop depths, before the cast, so none inside the model calls);
+- ``rest``: process CPU outside those (the batch, the stop depths' key search, chunking, the map update).
 
-It prints each part's median over the steady frames (the second pass over the sequence, after a first that builds
-the tables) in seconds a frame and nanoseconds a cell. Not a peer benchmark: ``bench_grid.py`` compares the same path
+It prints each part's median over the steady frames (all but the first, which loads numba's caches and builds every
+table the frame needs; a steady frame builds the tables of the keys it is the first to meet) in seconds a frame and
+nanoseconds a cell. Not a peer benchmark: ``bench_grid.py`` compares the same path
 with OctoMap and UFOMap.
 
 Run: ``.venv/bin/python benchmarks/ray_breakdown.py [--scale 1] [--frames 8] [--model conditioned]
@@ -33,22 +36,23 @@ from bench_grid import load_world, sgbm_world, street_model
 
 from prismap.camera import integrate_disparity
 from prismap.grid import OccupancyMap, _accumulator, _integrators
-from prismap.sensor_models import _kernels_lookup
+from prismap.sensor_models import _kernels_lookup, _kernels_pack
 
 PARTS = {  # label: (owner, attribute)
     "cast": (_accumulator, "cast_into"),
     "kernel": (_kernels_lookup, "prism_table_cells"),
     "model call": (_integrators.Integrator, "cell_increments"),
     "scatter": (_accumulator, "scatter"),
+    "table builds": (_kernels_pack, "prism_tables"),
 }
 
 
 class PartClock:
-    """Thread CPU seconds spent in each of :data:`PARTS` since :meth:`reset`, and the cells cast."""
+    """Thread CPU seconds spent in each of :data:`PARTS` since :meth:`reset`, the cells cast and the tables built."""
 
     def __init__(self):
         self.seconds = collections.Counter()
-        self.cells = 0
+        self.cells = self.tables = 0
         self._lock = threading.Lock()
         for label, (owner, name) in PARTS.items():
             setattr(owner, name, self._timed(label, getattr(owner, name)))
@@ -61,13 +65,15 @@ class PartClock:
                 self.seconds[label] += time.thread_time() - start
                 if label == "cast":
                     self.cells += result[1].size
+                if label == "table builds":
+                    self.tables += result[1].shape[0]
             return result
 
         return timed
 
     def reset(self):
         self.seconds.clear()
-        self.cells = 0
+        self.cells = self.tables = 0
 
 
 def main():
@@ -88,24 +94,24 @@ def main():
     grid = OccupancyMap(args.voxel, p0=getattr(model, "plain", model).p0)
     frames = list(zip(disparities, poses, classes if args.model == "conditioned" else [None] * len(poses)))
     rows = []
-    for index, (disparity, pose, ray_class) in enumerate(frames * 2):
+    for index, (disparity, pose, ray_class) in enumerate(frames):
         clock.reset()
         start, start_cpu = time.perf_counter(), time.process_time()
         integrate_disparity(grid, disparity, camera, pose, model, mode="ray", max_range_m=80.0, ray_class=ray_class)
         wall, cpu = time.perf_counter() - start, time.process_time() - start_cpu
-        if index >= len(frames):
-            parts = dict(clock.seconds)
+        if index:  # the first frame is cold (numba's caches, every table of the frame)
+            parts = {label: clock.seconds[label] for label in PARTS}
             parts["model rest"] = parts.pop("model call") - parts["kernel"]
             parts["rest"] = cpu - sum(parts.values())
-            rows.append({"wall": wall, "CPU": cpu, **parts, "cells": clock.cells})
+            rows.append({"wall": wall, "CPU": cpu, **parts, "cells": clock.cells, "tables": clock.tables})
     median = {key: statistics.median(row[key] for row in rows) for key in rows[0]}
     print(
         f"street {camera.width}x{camera.height} px, {args.frames} frames, {args.voxel:g} m voxels, rays to 80 m, "
         f"{args.model} PRISM ({error_model.n_classes} classes), ray mode: {median['cells'] / 1e6:.1f} M cells a frame; "
-        "median of the steady frames"
+        f"{median['tables']:.0f} tables built a frame; median of the steady frames"
     )
-    for key in ("wall", "CPU", "cast", "kernel", "model rest", "scatter", "rest"):
-        print(f"{key:11s} {median[key]:7.3f} s  {median[key] / median['cells'] * 1e9:5.1f} ns a cell")
+    for key in ("wall", "CPU", "cast", "kernel", "model rest", "scatter", "table builds", "rest"):
+        print(f"{key:12s} {median[key]:7.3f} s  {median[key] / median['cells'] * 1e9:5.1f} ns a cell")
 
 
 if __name__ == "__main__":
