@@ -1,23 +1,27 @@
-"""Where a ray-mode frame's CPU goes, on the street of ``bench_grid.py --street --conditioned`` (scene (c)).
+"""Where a mapped frame's CPU goes, on the street of ``bench_grid.py --street --conditioned`` (scene (c)).
 
 Maps the street's SGBM disparities (``bench_grid.sgbm_world``: the world's own characterised error model, each
 pixel's class) with ``prismap map``'s model (conditioned PRISM, or ``--model prism`` for the plain mixture) in ray
-mode, one map, frame after frame, and times the parts of each frame with the CPU clock of the thread that runs them:
+mode (the default) or projective mode, one map, frame after frame, and times the parts of each frame with the CPU
+clock of the thread that runs them:
 
-- ``cast``: the casting thread's ``_accumulator.cast_into`` (Amanatides & Woo, registering each crossed voxel);
-- ``kernel``: the model threads' PRISM look-up kernel (``_kernels_lookup.prism_table_cells``);
-- ``model rest``: the rest of the model threads' calls (``Integrator.cell_increments``: keys, failure posteriors);
-- ``scatter``: the casting thread adding the increments to the frame's accumulator (``_accumulator.scatter``);
+- ``cast`` (ray mode): the casting thread's ``_accumulator.cast_into`` (Amanatides & Woo, registering each crossed
+  voxel in the frame's accumulator);
+- ``walk`` (projective mode): the part threads' walk of the frustum's key box (``_kernels_project.project_part``)
+  and ``group by ray``, their cells grouped by ray for the model (``_kernels_project.group_by_ray``);
+- ``kernel``: the PRISM look-up kernel (``_kernels_lookup.prism_table_cells``);
+- ``model rest``: the rest of the model calls (``Integrator.cell_increments``: keys, failure posteriors);
+- ``scatter``: adding the increments to the frame's accumulator (``_accumulator.scatter``; projective:
+  ``scatter_keys``, which also registers the voxels);
 - ``table builds``: PRISM's tables built for the frame's new keys (``_kernels_pack.prism_tables``, in every thread;
-  ray mode builds them all for the stop depths, before the cast, so none inside the model calls);
-- ``rest``: process CPU outside those (the batch, the stop depths' key search, chunking, the map update).
+  both modes build them all for the stop depths, before the cells, so none inside the model calls);
+- ``rest``: process CPU outside those (the batch, the stop depths' key search, chunks and parts, the map update).
 
 It prints each part's median over the steady frames (all but the first, which loads numba's caches and builds every
 table the frame needs; a steady frame builds the tables of the keys it is the first to meet) in seconds a frame and
-nanoseconds a cell. Not a peer benchmark: ``bench_grid.py`` compares the same path
-with OctoMap and UFOMap.
+nanoseconds a cell. Not a peer benchmark: ``bench_grid.py`` compares the same paths with OctoMap and UFOMap.
 
-Run: ``.venv/bin/python benchmarks/ray_breakdown.py [--scale 1] [--frames 8] [--model conditioned]
+Run: ``.venv/bin/python benchmarks/frame_breakdown.py [--mode ray] [--scale 1] [--frames 8] [--model conditioned]
 [--world-dir DIR]``
 """
 
@@ -35,26 +39,36 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_grid import load_world, sgbm_world, street_model
 
 from prismap.camera import integrate_disparity
-from prismap.grid import OccupancyMap, _accumulator, _integrators
+from prismap.grid import OccupancyMap, _accumulator, _integrators, _kernels_project
 from prismap.sensor_models import _kernels_lookup, _kernels_pack
 
-PARTS = {  # label: (owner, attribute)
-    "cast": (_accumulator, "cast_into"),
+MODEL_PARTS = {  # label: (owner, attribute)
     "kernel": (_kernels_lookup, "prism_table_cells"),
     "model call": (_integrators.Integrator, "cell_increments"),
-    "scatter": (_accumulator, "scatter"),
     "table builds": (_kernels_pack, "prism_tables"),
 }
+PARTS = {
+    "ray": {"cast": (_accumulator, "cast_into"), "scatter": (_accumulator, "scatter"), **MODEL_PARTS},
+    "projective": {
+        "walk": (_kernels_project, "project_part"),
+        "group by ray": (_kernels_project, "group_by_ray"),
+        "scatter": (_accumulator, "scatter_keys"),
+        **MODEL_PARTS,
+    },
+}
+"""The parts each mode's frame is timed by."""
 
 
 class PartClock:
-    """Thread CPU seconds spent in each of :data:`PARTS` since :meth:`reset`, the cells cast and the tables built."""
+    """Thread CPU seconds spent in each part of ``parts`` (a value of :data:`PARTS`) since :meth:`reset`, the cells
+    made (cast or walked) and the tables built."""
 
-    def __init__(self):
+    def __init__(self, parts):
+        self.parts = parts
         self.seconds = collections.Counter()
         self.cells = self.tables = 0
         self._lock = threading.Lock()
-        for label, (owner, name) in PARTS.items():
+        for label, (owner, name) in parts.items():
             setattr(owner, name, self._timed(label, getattr(owner, name)))
 
     def _timed(self, label, function):
@@ -65,7 +79,9 @@ class PartClock:
                 self.seconds[label] += time.thread_time() - start
                 if label == "cast":
                     self.cells += result[1].size
-                if label == "table builds":
+                elif label == "walk":
+                    self.cells += result[4]
+                elif label == "table builds":
                     self.tables += result[1].shape[0]
             return result
 
@@ -78,13 +94,14 @@ class PartClock:
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--mode", choices=tuple(PARTS), default="ray")
     parser.add_argument("--scale", type=float, default=1.0, help="rig scale: 1 is 1242x375 px, 0.5 is 621x188")
     parser.add_argument("--frames", type=int, default=8)
     parser.add_argument("--model", choices=("conditioned", "prism"), default="conditioned")
     parser.add_argument("--voxel", type=float, default=0.2, help="metres")
     parser.add_argument("--world-dir", help="where the street's world is kept (reused when present)")
     args = parser.parse_args()
-    clock = PartClock()
+    clock = PartClock(PARTS[args.mode])
     with tempfile.TemporaryDirectory() as tmp:
         world = sgbm_world(
             args.scale, args.frames, Path(args.world_dir or tmp) / f"street_{args.scale:g}_{args.frames}"
@@ -97,20 +114,20 @@ def main():
     for index, (disparity, pose, ray_class) in enumerate(frames):
         clock.reset()
         start, start_cpu = time.perf_counter(), time.process_time()
-        integrate_disparity(grid, disparity, camera, pose, model, mode="ray", max_range_m=80.0, ray_class=ray_class)
+        integrate_disparity(grid, disparity, camera, pose, model, mode=args.mode, max_range_m=80.0, ray_class=ray_class)
         wall, cpu = time.perf_counter() - start, time.process_time() - start_cpu
         if index:  # the first frame is cold (numba's caches, every table of the frame)
-            parts = {label: clock.seconds[label] for label in PARTS}
+            parts = {label: clock.seconds[label] for label in clock.parts}
             parts["model rest"] = parts.pop("model call") - parts["kernel"]
             parts["rest"] = cpu - sum(parts.values())
             rows.append({"wall": wall, "CPU": cpu, **parts, "cells": clock.cells, "tables": clock.tables})
     median = {key: statistics.median(row[key] for row in rows) for key in rows[0]}
     print(
         f"street {camera.width}x{camera.height} px, {args.frames} frames, {args.voxel:g} m voxels, rays to 80 m, "
-        f"{args.model} PRISM ({error_model.n_classes} classes), ray mode: {median['cells'] / 1e6:.1f} M cells a frame; "
-        f"{median['tables']:.0f} tables built a frame; median of the steady frames"
+        f"{args.model} PRISM ({error_model.n_classes} classes), {args.mode} mode: {median['cells'] / 1e6:.1f} M cells "
+        f"a frame; {median['tables']:.0f} tables built a frame; median of the steady frames"
     )
-    for key in ("wall", "CPU", "cast", "kernel", "model rest", "scatter", "table builds", "rest"):
+    for key in ("wall", "CPU", *(label for label in clock.parts if label != "model call"), "model rest", "rest"):
         print(f"{key:12s} {median[key]:7.3f} s  {median[key] / median['cells'] * 1e9:5.1f} ns a cell")
 
 
