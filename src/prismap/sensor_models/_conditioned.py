@@ -25,7 +25,7 @@ from prismap.sensor_models._base import (
     make_sensor_model,
 )
 from prismap.sensor_models._failure import failure_floor
-from prismap.sensor_models._kernel_args import ClassRuns
+from prismap.sensor_models._kernel_args import cell_runs
 from prismap.sensor_models._prism_classes import PrismClasses
 
 CLASS_PASS_THROUGH = "class_pass_through"
@@ -178,16 +178,8 @@ class ConditionedModel(InverseSensorModel):
         )
         classes = self._check_classes(ray_class, disparity.size)
         if self._classes is not None and self._classes.fused:  # every class in one look-up (models: class + 1)
-            index = classes + 1
             return self._classes.cell_posteriors(
-                disparity,
-                norm,
-                rays,
-                start,
-                end,
-                index,
-                cell_runs(index, rays),
-                voxel_overhang_m if use_overhang else None,
+                disparity, norm, rays, start, end, classes + 1, voxel_overhang_m if use_overhang else None
             )
         overhang_m = None
         if use_overhang:
@@ -237,28 +229,6 @@ class ConditionedModel(InverseSensorModel):
             self.plain.with_extra_noise(sigma_px),
             tuple(model.with_extra_noise(sigma_px) for model in self.class_models),
         )
-
-
-def cell_runs(ray_class, ray_of_cell):
-    """The cells grouped by their ray's class: ``(order, ClassRuns)``, the runs' first cells and classes in the
-    order ``order`` puts the cells in (None: as they come). Cells of one class (a ray-mode chunk), or of rays in
-    class order with the cells in ray order (a projective part), are runs as they come, found from the rays without
-    a pass over the cells; otherwise the cells go in class order (stable: a ray's cells keep their order)."""
-    n = ray_of_cell.size
-    if not n:
-        return None, ClassRuns(np.zeros(1, dtype=np.int64), np.empty(0, dtype=np.int64))
-    if ray_class.min() == ray_class.max():
-        return None, ClassRuns(np.array([0, n]), ray_class[:1])
-    if np.all(ray_class[1:] >= ray_class[:-1]) and np.all(ray_of_cell[1:] >= ray_of_cell[:-1]):
-        first_ray = np.concatenate(([0], np.flatnonzero(ray_class[1:] != ray_class[:-1]) + 1))
-        first_cell = np.searchsorted(ray_of_cell, first_ray)
-        used = np.flatnonzero(np.diff(np.append(first_cell, n)) > 0)  # classes with cells
-        return None, ClassRuns(np.append(first_cell[used], n), ray_class[first_ray[used]])
-    cell_class = ray_class[ray_of_cell]
-    order = np.argsort(cell_class, kind="stable")
-    cell_class = cell_class[order]
-    first_cell = np.concatenate(([0], np.flatnonzero(cell_class[1:] != cell_class[:-1]) + 1))
-    return order, ClassRuns(np.append(first_cell, n), cell_class[first_cell])
 
 
 def _split_by_class(ray_class, ray_of_cell):

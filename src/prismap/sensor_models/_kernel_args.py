@@ -1,6 +1,7 @@
 """Argument bundles of PRISM's numba kernels: the error mixture, the depth range with its disparity scales, and
-the node spacing of a table. Each is built once by :class:`~prismap.sensor_models.PrismModel` and passed down
-unchanged; numba compiles a ``NamedTuple`` of scalars or of arrays like separate arguments.
+the node spacing of a table, each built once by :class:`~prismap.sensor_models.PrismModel` and passed down
+unchanged; and a call's cells in runs of one model (:class:`ClassRuns`, from :func:`cell_runs`). numba compiles a
+``NamedTuple`` of scalars or of arrays like separate arguments.
 """
 
 from typing import NamedTuple
@@ -94,6 +95,28 @@ class ClassRuns(NamedTuple):
 
     first_cell: np.ndarray
     model: np.ndarray
+
+
+def cell_runs(ray_class, ray_of_cell):
+    """The cells grouped by their ray's class: ``(order, ClassRuns)``, the runs' first cells and classes in the
+    order ``order`` puts the cells in (None: as they come). Cells of one class (a ray-mode chunk), or of rays in
+    class order with the cells in ray order (a projective part), are runs as they come, found from the rays without
+    a pass over the cells; otherwise the cells go in class order (stable: a ray's cells keep their order)."""
+    n = ray_of_cell.size
+    if not n:
+        return None, ClassRuns(np.zeros(1, dtype=np.int64), np.empty(0, dtype=np.int64))
+    if ray_class.min() == ray_class.max():
+        return None, ClassRuns(np.array([0, n]), ray_class[:1])
+    if np.all(ray_class[1:] >= ray_class[:-1]) and np.all(ray_of_cell[1:] >= ray_of_cell[:-1]):
+        first_ray = np.concatenate(([0], np.flatnonzero(ray_class[1:] != ray_class[:-1]) + 1))
+        first_cell = np.searchsorted(ray_of_cell, first_ray)
+        used = np.flatnonzero(np.diff(np.append(first_cell, n)) > 0)  # classes with cells
+        return None, ClassRuns(np.append(first_cell[used], n), ray_class[first_ray[used]])
+    cell_class = ray_class[ray_of_cell]
+    order = np.argsort(cell_class, kind="stable")
+    cell_class = cell_class[order]
+    first_cell = np.concatenate(([0], np.flatnonzero(cell_class[1:] != cell_class[:-1]) + 1))
+    return order, ClassRuns(np.append(first_cell, n), cell_class[first_cell])
 
 
 class TableSpec(NamedTuple):

@@ -1,5 +1,6 @@
 """numba kernels of PRISM's tabulated cell update: table look-ups (cubic Hermite in x with a Taylor term in the
-rate), the combination in linear space except near underflow, and the table keys of a batch of rays.
+rate) and the combination in linear space except near underflow (the keys that find the tables are
+``_kernels_pack.table_keys``).
 
 The tabulated update exponentiates the smaller of ``log C`` and ``log D`` and combines in linear space; its exp
 and log are the vectorised :func:`~prismap.sensor_models._kernels_math.exp_into` and

@@ -17,7 +17,7 @@ import dataclasses
 import numpy as np
 
 from prismap.sensor_models._failure import failure_constants, failure_posterior_terms
-from prismap.sensor_models._kernel_args import mixture_set
+from prismap.sensor_models._kernel_args import cell_runs, mixture_set
 from prismap.sensor_models._kernels_pack import _OFFSET
 from prismap.sensor_models._prism import PrismModel
 from prismap.sensor_models._prism_cache import KEY_TAG_SPAN, TableCache, ray_tables
@@ -99,10 +99,10 @@ class PrismClasses:
         """:meth:`PrismModel.influence_depth` of each ray by its model ``index``."""
         return self.models[0]._influence_from(self.tables_for(disparity, norm, index), norm)
 
-    def cell_posteriors(self, disparity_px, ray_norm, ray_of_cell, start, end, index, runs, voxel_overhang_m=None):
-        """:meth:`PrismModel.cell_posteriors` of each cell by its ray's model ``index`` ((R,) int), in one look-up:
-        ``(posterior, increment)``, (C,) each. ``runs``: ``(order, ClassRuns)`` of the cells by ``index``
-        (``_conditioned.cell_runs``; ``order`` None when the cells already come in runs)."""
+    def cell_posteriors(self, disparity_px, ray_norm, ray_of_cell, start, end, index, voxel_overhang_m=None):
+        """:meth:`PrismModel.cell_posteriors` of each cell by its ray's model ``index`` ((R,) int), in one look-up
+        of the cells in runs of one model (:func:`~prismap.sensor_models._kernel_args.cell_runs`):
+        ``(posterior, increment)``, (C,) each."""
         first = self.models[0]
         disparity, norm, rays, start, end, stretch, lam = first._prepared(
             disparity_px, ray_norm, ray_of_cell, start, end, voxel_overhang_m
@@ -111,7 +111,7 @@ class PrismClasses:
         log_failure = (np.empty(0), np.empty(0))
         if self.failures is not None:
             log_failure = failure_posterior_terms(*self.failures[:, index], first._ray_log_z(tables))
-        order, runs = runs
+        order, runs = cell_runs(np.asarray(index, dtype=np.int64), rays)
         if order is not None:  # the look-up takes runs of one model
             rays, start, end = rays[order], start[order], end[order]
         posterior, increment = first._table_cells(
