@@ -186,7 +186,7 @@ def test_cast_into_registers_the_cells_of_cast_rays_while_growing_the_accumulato
     exclusive = rng.random(300) < 0.5
     ray_of, keys, t_in, t_out = cast_rays(origin, rays, t_stop, exclusive, 0.1)
     acc = _accumulator.new_accumulator((3, 3, 3))  # empty: the kernel stops short and is resumed many times
-    got_ray, rows, got_in, got_out = _accumulator.cast_into(acc, origin, rays, t_stop, exclusive, 0.1)
+    got_ray, rows, got_in, got_out = _accumulator.cast_into(acc, origin, rays, np.zeros(300), t_stop, exclusive, 0.1)
     np.testing.assert_array_equal(got_ray, ray_of)
     np.testing.assert_array_equal(got_in, t_in)
     np.testing.assert_array_equal(got_out, t_out)

@@ -239,7 +239,7 @@ def test_integrate_disparity_gives_the_overhang_it_fits_to_the_model_as_integrat
         overhang_fraction=0.25,
     )
     fitted, given = OccupancyMap(0.1, p0=0.05), OccupancyMap(0.1, p0=0.05)
-    integrate_disparity(fitted, disparity, camera, pose, model, max_range_m=8.0)
+    integrate_disparity(fitted, disparity, camera, pose, model, max_range_m=8.0, floor_rays=0)  # as integrate_rays
     rays_cam = camera.pixel_rays(disparity.shape).reshape(-1, 3)
     overhang = frame_overhang_m(disparity, camera, pose[:3, :3], 0.1, 1, rays_cam)
     rays_w = rotate_rays(rays_cam, np.ascontiguousarray(pose[:3, :3]))  # as integrate_disparity rotates them

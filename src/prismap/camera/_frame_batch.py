@@ -33,7 +33,7 @@ from prismap._validate import as_float_array, check_classes, check_integer
 from prismap.camera._stereo_camera import StereoCamera
 from prismap.camera._surface import plane_normals
 from prismap.errors import PrismapInputError
-from prismap.grid import OccupancyMap, RayBatch, make_projector
+from prismap.grid import FLOOR_RAYS, OccupancyMap, RayBatch, image_levels, make_projector
 from prismap.grid._sensor_model import SensorModel
 
 OVERHANG_CAP_VOXELS = 8.0
@@ -239,7 +239,8 @@ def disparity_batch(
             )
         rays_w = rotate_rays(np.ascontiguousarray(rays_cam), np.ascontiguousarray(rotation))
         overhang = None if overhang is None else overhang.result()
-    return RayBatch(origin, rays_w, d, None, noise, classes, image, overhang)
+    levels = image_levels(*disparity.shape, step / camera.focal_px)
+    return RayBatch(origin, rays_w, d, None, noise, classes, image, overhang, levels=levels)
 
 
 def integrate_disparity(
@@ -255,6 +256,7 @@ def integrate_disparity(
     subsample: int = 1,
     pose_covariance: npt.ArrayLike | None = None,
     ray_class: npt.ArrayLike | None = None,
+    floor_rays: int = FLOOR_RAYS,
 ) -> None:
     """Integrate one disparity image seen from pose ``T_world_cam`` into ``grid``.
 
@@ -273,7 +275,7 @@ def integrate_disparity(
         ``ray`` casts every pixel's ray through the grid; ``projective`` visits the voxels of the camera frustum
         (up to where the measurements stop influencing), projects each centre into the image and updates it once
         from the pixel it lands on.
-    policy, max_range_m
+    policy, max_range_m, floor_rays
         See :meth:`prismap.grid.OccupancyMap.integrate`.
     """
     if grid.ndim != 3:
@@ -291,4 +293,4 @@ def integrate_disparity(
         overhang_voxel_m=overhang,
         projective=mode == "projective",
     )
-    grid.integrate(batch, model, mode=mode, policy=policy, max_range_m=max_range_m)
+    grid.integrate(batch, model, mode=mode, policy=policy, max_range_m=max_range_m, floor_rays=floor_rays)

@@ -19,7 +19,7 @@ from prismap.errors import PrismapInputError
 
 def register(subparsers):
     """Add the ``map`` parser."""
-    from prismap.grid import MAP_READINGS, POLICIES
+    from prismap.grid import FLOOR_RAYS, MAP_READINGS, POLICIES
     from prismap.sensor_models import model_names
     from prismap.stereo import matcher_names
 
@@ -103,6 +103,14 @@ def register(subparsers):
         help="distance along a ray beyond which nothing is updated (default: none)",
     )
     parser.add_argument("--subsample", type=int, default=1, metavar="S", help="use every S-th pixel (default 1)")
+    parser.add_argument(
+        "--floor-rays",
+        type=int,
+        default=FLOOR_RAYS,
+        metavar="N",
+        help=f"ray mode: at least N rays a voxel each way cast the cells at their ray's failure floor, each counted "
+        f"for the rays it stands for; 0 = every ray casts every cell (default {FLOOR_RAYS})",
+    )
     parser.add_argument("--disparity-dir", type=Path, metavar="DIR", help="precomputed disparities instead of matching")
     parser.add_argument("--frames", default=":", metavar="A:B", help="frames A <= i < B (default all)")
     where = parser.add_mutually_exclusive_group()
@@ -158,6 +166,7 @@ def run(args):
         policy=args.policy,
         max_range_m=args.max_range,
         subsample=args.subsample,
+        floor_rays=args.floor_rays,
         frames=parse_frames(args.frames),
         fusion=args.fusion,
     )
@@ -207,6 +216,7 @@ def map_command(config, *, inputs, error_model, out):
     list of str
         ``argv``, starting ``["prismap", "map"]``; :func:`shlex.join` makes it a shell line.
     """
+    from prismap.grid import FLOOR_RAYS
     from prismap.pipeline._config import default_fusion
 
     argv = ["prismap", "map", *inputs, "--matcher", config.matcher]
@@ -223,6 +233,8 @@ def map_command(config, *, inputs, error_model, out):
     if math.isfinite(config.max_range_m):
         argv += ["--max-range", repr(config.max_range_m)]
     argv += ["--subsample", str(config.subsample)]
+    if config.mode == "ray" and config.floor_rays != FLOOR_RAYS:
+        argv += ["--floor-rays", str(config.floor_rays)]
     if config.disparity_source not in ("matcher", "sequence"):
         argv += ["--disparity-dir", config.disparity_source]
     if config.fusion != default_fusion(config.model, config.error_model):

@@ -22,14 +22,9 @@ Design notes (one owner per concept):
   called only by the wrappers of this package.
 """
 
+from prismap.grid._floor_sampling import FLOOR_RAYS, RayLevels, image_levels
 from prismap.grid._fusion import MAP_READINGS, READINGS, FailureClamp, FailureMixture, MapReading, PersistentFailure
-from prismap.grid._integrators import (
-    INTEGRATOR_NAMES,
-    MEASUREMENT_KINDS,
-    Integrator,
-    RayBatch,
-    make_integrator,
-)
+from prismap.grid._integrators import INTEGRATOR_NAMES, Integrator, make_integrator
 from prismap.grid._keys import (
     KEY_LIMIT,
     PACK_OFFSET,
@@ -44,9 +39,11 @@ from prismap.grid._keys import (
 from prismap.grid._map import FREE, OCCUPIED, OCTOMAP_CLAMP, UNKNOWN, OccupancyMap
 from prismap.grid._policies import POLICIES
 from prismap.grid._projectors import PROJECTOR_NAMES, ImageProjection, make_projector
+from prismap.grid._ray_batch import MEASUREMENT_KINDS, RayBatch
 from prismap.grid._traverse import crossed_voxels
 
 __all__ = [
+    "FLOOR_RAYS",
     "FREE",
     "INTEGRATOR_NAMES",
     "KEY_LIMIT",
@@ -67,7 +64,9 @@ __all__ = [
     "MapReading",
     "PersistentFailure",
     "RayBatch",
+    "RayLevels",
     "crossed_voxels",
+    "image_levels",
     "key_limit_m",
     "key_range_text",
     "key_to_center",

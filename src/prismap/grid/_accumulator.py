@@ -69,8 +69,9 @@ def expect(accumulator, blocks):
         accumulator.reserve(extra, max_blocks=max_blocks)
 
 
-def cast_into(accumulator, origin, rays, t_stop, exclusive, voxel_size):
-    """Cast rays, registering the voxels they cross in the accumulator (grown as needed).
+def cast_into(accumulator, origin, rays, t_start, t_stop, exclusive, voxel_size):
+    """Cast rays from depths ``t_start`` ((R,) metres; 0: from the origin), registering the voxels they cross in the
+    accumulator (grown as needed).
 
     Returns ``[ray_of_cell, cell_index (accumulator rows), t_in, t_out]`` as
     ``_kernels_traverse.cast_rays_into``. It reallocates the accumulator's arrays: nothing else may use
@@ -79,7 +80,7 @@ def cast_into(accumulator, origin, rays, t_stop, exclusive, voxel_size):
     parts, done = [], 0
     while True:
         *cells, n = _kernels_traverse.cast_rays_into(
-            kernel_arrays(accumulator), origin, rays[done:], t_stop[done:], exclusive[done:], voxel_size
+            kernel_arrays(accumulator), origin, rays[done:], t_start[done:], t_stop[done:], exclusive[done:], voxel_size
         )
         if done:
             cells[0] += done
@@ -93,10 +94,12 @@ def cast_into(accumulator, origin, rays, t_stop, exclusive, voxel_size):
     return [np.concatenate(column) for column in zip(*parts)]
 
 
-def scatter(accumulator, cell_index, increment):
-    """Add the cells' increments to their accumulator rows."""
+def scatter(accumulator, cell_index, increment, weight=None):
+    """Add the cells' increments to their accumulator rows, each counted ``weight`` ((C,) float32) times, or once."""
     acc = accumulator.payload["acc"]
-    _kernels_accumulate.scatter(acc.reshape(-1, acc.shape[2]), cell_index, increment)
+    if weight is None:
+        weight = np.ones(0, dtype=np.float32)
+    _kernels_accumulate.scatter(acc.reshape(-1, acc.shape[2]), cell_index, increment, weight)
 
 
 def scatter_keys(accumulator, keys, increment):

@@ -28,15 +28,15 @@ from abc import ABC, abstractmethod
 from collections import deque
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 
 from prismap.errors import PrismapInputError
 from prismap.grid import _accumulator, _kernels_project, _kernels_traverse
+from prismap.grid._floor_sampling import FLOOR_RAYS, cell_weights, check_floor_rays, floor_plan
 from prismap.grid._kernel_args import Projection
-from prismap.grid._projectors import ImageProjection
+from prismap.grid._ray_batch import RayBatch, _rows
 from prismap.grid._sensor_model import SensorModel
 from prismap.grid._storage import BlockTable
 
@@ -72,91 +72,6 @@ NOISE_BIN_RATIO = 1.25
 
 MIN_NOISE_PX = 0.01
 """Pose-induced disparity noise below this (pixels) leaves the model unchanged."""
-
-
-MEASUREMENT_KINDS = ("disparity", "range")
-"""What a :class:`RayBatch` measures along each ray: a stereo disparity (pixels) or a range (metres)."""
-
-
-@dataclass(frozen=True)
-class RayBatch:
-    """One frame's measurements along rays, all from one origin: what the map integrates.
-
-    The map knows nothing of the sensor that made them: a camera's disparity image becomes a batch on the
-    camera side (:func:`prismap.camera.disparity_batch`), a LiDAR scan a batch of ranges.
-
-    Attributes
-    ----------
-    origin_w : (3,) float64, metres, world frame, the sensor's origin
-    rays_w : (R, 3) float64, world frame: the point at ray parameter ``t`` is ``origin_w + t * rays_w``
-        (a camera's rays ``(x/z, y/z, 1)`` rotated into the world, so ``t`` is camera depth; unit vectors
-        for ranges, so ``t`` is the range)
-    measurement : (R,) float64, finite: disparity (pixels) or range (metres), as ``kind`` says
-    ray_norm : (R,) float64, ``|rays_w|`` >= 1
-    extra_noise_px : (R,) float64, pixels, or None; extra disparity noise per ray (pose uncertainty)
-    ray_class : (R,) int32 or None; the error-model class of each ray, -1 = no class
-    image : ImageProjection or None; needed by the projective integrator
-    voxel_overhang_m : (R,) float64, metres along the ray, or None; how far before its surface a voxel the ray
-        crosses can still hold part of that surface (:func:`prismap.camera.voxel_overhang_m`)
-    kind : {"disparity", "range"}
-        What ``measurement`` holds (:data:`MEASUREMENT_KINDS`); a sensor model takes the kinds it lists in
-        its ``measurements``.
-    """
-
-    origin_w: np.ndarray
-    rays_w: np.ndarray
-    measurement: np.ndarray
-    ray_norm: np.ndarray
-    extra_noise_px: np.ndarray | None = None
-    ray_class: np.ndarray | None = None
-    image: ImageProjection | None = None
-    voxel_overhang_m: np.ndarray | None = None
-    kind: str = "disparity"
-
-    def __len__(self):
-        return self.measurement.size
-
-    def subset(self, keep: np.ndarray) -> RayBatch:
-        """The batch of the rays where ``keep`` ((R,) bool) holds; the image's ray index follows."""
-        image = self.image
-        if image is not None:
-            new = np.full(keep.size, -1, dtype=np.int32)
-            new[keep] = np.arange(int(keep.sum()), dtype=np.int32)
-            flat = image.ray_index.reshape(-1)
-            ray_index = (
-                np.where(flat >= 0, new[np.maximum(flat, 0)], -1).astype(np.int32).reshape(image.ray_index.shape)
-            )
-            image = replace(image, ray_index=ray_index)
-        return RayBatch(
-            self.origin_w,
-            np.ascontiguousarray(self.rays_w[keep]),
-            self.measurement[keep],
-            self.ray_norm[keep],
-            _take(self.extra_noise_px, keep),
-            _take(self.ray_class, keep),
-            image,
-            _take(self.voxel_overhang_m, keep),
-            self.kind,
-        )
-
-    def class_kwargs(self, idx: np.ndarray | None, model: SensorModel) -> dict[str, Any]:
-        """``{"ray_class": classes of rays idx}`` for a call of ``model``, or ``{}`` when the batch has no
-        classes or the model is a hit/miss model (those ignore classes)."""
-        if self.ray_class is None or model.hit_miss_increments() is not None:
-            return {}
-        return {"ray_class": self.ray_class if idx is None else self.ray_class[idx]}
-
-    def cell_kwargs(self, idx: np.ndarray | None, model: SensorModel) -> dict[str, Any]:
-        """:meth:`class_kwargs` plus ``{"voxel_overhang_m": ...}`` of rays idx when the batch has overhangs and
-        ``model.takes_voxel_overhang``: the keywords of ``model.cell_posteriors``."""
-        kwargs = self.class_kwargs(idx, model)
-        if self.voxel_overhang_m is not None and model.takes_voxel_overhang:
-            kwargs["voxel_overhang_m"] = _rows(self.voxel_overhang_m, idx)
-        return kwargs
-
-
-def _take(array, idx):
-    return None if array is None else array[idx]
 
 
 def noise_groups(model, extra_noise_px):
@@ -290,10 +205,6 @@ class Integrator(ABC):
             )
 
 
-def _rows(array, idx):
-    return array if idx is None else array[idx]
-
-
 class RayIntegrator(Integrator):
     """Ray casting: every ray is traversed (Amanatides & Woo [1]_) from the origin to
     ``min(model.influence_depth, max range)``, including the voxel that contains the stop depth.
@@ -314,12 +225,19 @@ class RayIntegrator(Integrator):
     name = "ray"
     whole_rays = True
 
+    def __init__(self, *, floor_rays: int = FLOOR_RAYS, **config: Any) -> None:
+        super().__init__(**config)
+        self.floor_rays = check_floor_rays(floor_rays)
+
     def _integrate(self, accumulator, batch, groups):
         origin, voxel = batch.origin_w, self.voxel_size_m
         stops = [(model, members, *self.stop_depths(model, batch, members)) for model, members in groups]
+        plans = [self._floor_plan(model, batch, members, t_stop) for model, members, t_stop, _ in stops]
         limits = [
-            _kernels_traverse.cell_limits(origin, np.ascontiguousarray(_rows(batch.rays_w, members)), t_stop, voxel)
-            for _, members, t_stop, _ in stops
+            _kernels_traverse.cell_limits(
+                origin, np.ascontiguousarray(_rows(batch.rays_w, members)), plan[0], t_stop, voxel
+            )
+            for (_, members, t_stop, _), plan in zip(stops, plans)
         ]
         longest = max((int(lim.max()) for lim in limits if lim.size), default=0)
         if longest > MAX_RAY_CELLS:
@@ -342,46 +260,60 @@ class RayIntegrator(Integrator):
                 )
             return
         chunks = []
-        for (model, members, t_stop, exclusive), limit in zip(stops, limits):
+        for (model, members, t_stop, exclusive), (t_start, floor_end, band_depth), limit in zip(stops, plans, limits):
             idx = np.arange(len(batch)) if members is None else members
             by_class, parts = _class_chunks(batch.class_kwargs(idx, model).get("ray_class"), limit)
-            idx, t_stop, exclusive = idx[by_class], t_stop[by_class], exclusive[by_class]
+            idx, t_start, t_stop, exclusive = idx[by_class], t_start[by_class], t_stop[by_class], exclusive[by_class]
+            floor_end = None if floor_end is None else floor_end[by_class]
             for part in parts:
                 chunk = idx[part]
-                chunks.append(
-                    (
-                        model,
-                        chunk,
-                        np.ascontiguousarray(batch.rays_w[chunk]),
-                        np.ascontiguousarray(t_stop[part]),
-                        np.ascontiguousarray(exclusive[part]),
-                    )
-                )
+                cast = (t_start[part], t_stop[part], exclusive[part])
+                weighting = None if floor_end is None else (floor_end[part], band_depth)
+                rays = batch.rays_w[chunk]
+                chunks.append((model, chunk, weighting, *(np.ascontiguousarray(a) for a in (rays, *cast))))
         # The model runs on chunks k - 1 and k in MODEL_THREADS threads while this thread casts chunk k + 1 and
         # adds finished chunks' increments in chunk order: it alone writes the accumulator (so the cast may grow
         # it), and the map is that of one thread.
         pending = deque()
         with ThreadPoolExecutor(max_workers=MODEL_THREADS) as threads:
-            for model, chunk, *cast in chunks:
+            for model, chunk, weighting, *cast in chunks:
                 ray_of_cell, cell_index, t_in, t_out = _accumulator.cast_into(accumulator, origin, *cast, voxel)
                 if cell_index.size:
                     prior = self.map_log_odds(cell_index) if model.takes_map_prior else None
-                    pending.append(
-                        (
-                            cell_index,
-                            threads.submit(self.cell_increments, model, batch, chunk, ray_of_cell, t_in, t_out, prior),
-                        )
+                    weight = None if weighting is None else cell_weights(ray_of_cell, t_out, *weighting)
+                    increments = threads.submit(
+                        self.cell_increments, model, batch, chunk, ray_of_cell, t_in, t_out, prior
                     )
+                    pending.append((cell_index, weight, increments))
                 while len(pending) > MODEL_THREADS:
                     _scatter_next(accumulator, pending)
             while pending:
                 _scatter_next(accumulator, pending)
 
+    def _floor_plan(self, model, batch, idx, t_stop):
+        """``(t_start, floor_end, band_depth)`` of rays ``idx`` (:func:`~prismap.grid._floor_sampling.floor_plan`)
+        from the model's ``floor_depth``; ``(0, None, 0)``, every cell cast and counted once, without one, without
+        the batch's ``levels`` or with ``floor_rays`` 0."""
+        rule = getattr(model, "floor_depth", None)
+        if not self.floor_rays or batch.levels is None or rule is None or model.takes_map_prior:
+            return np.zeros(t_stop.size), None, 0.0
+        floor_end = rule(_rows(batch.measurement, idx), _rows(batch.ray_norm, idx), **batch.cell_kwargs(idx, model))
+        if floor_end is None:
+            return np.zeros(t_stop.size), None, 0.0
+        floor_end = np.asarray(floor_end, dtype=np.float64)
+        if floor_end.shape != t_stop.shape:
+            raise PrismapInputError(
+                f"sensor model {model.name!r}: floor_depth returned shape {floor_end.shape}; expected {t_stop.shape}"
+            )
+        levels = batch.levels if idx is None else batch.levels.subset(idx)
+        t_start, band_depth = floor_plan(floor_end, levels, self.voxel_size_m, self.floor_rays)
+        return t_start, floor_end, band_depth
+
 
 def _scatter_next(accumulator, pending):
-    """Add the oldest pending chunk's increments (``(cell_index, future of increments)``) to the accumulator."""
-    cell_index, increments = pending.popleft()
-    _accumulator.scatter(accumulator, cell_index, increments.result())
+    """Add the oldest pending chunk's increments (``(cell_index, weight, future of increments)``) to the accumulator."""
+    cell_index, weight, increments = pending.popleft()
+    _accumulator.scatter(accumulator, cell_index, increments.result(), weight)
 
 
 def _class_chunks(ray_class, limits):

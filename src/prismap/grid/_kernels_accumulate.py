@@ -130,13 +130,18 @@ def register_run(accumulator, keys, start, stop, out, last_block, last_slot):
 
 
 @numba.njit(cache=True, nogil=True)
-def scatter(acc, cell_index, increment):
-    """Add each cell's increment to its accumulator row (:func:`add_increment`).
+def scatter(acc, cell_index, increment, weight):
+    """Add each cell's increment to its accumulator row (:func:`add_increment`), counted ``weight[i]`` times (float32;
+    empty: once each: a sampled cell stands for the ``weight`` cells of its rays' subsample, ``_floor_sampling``).
 
     ``acc`` is the accumulator payload seen as (rows, 4); ``cell_index`` from :func:`register_run`.
     """
+    if weight.size == 0:
+        for i in range(cell_index.size):
+            add_increment(acc, cell_index[i], np.float32(increment[i]))
+        return
     for i in range(cell_index.size):
-        add_increment(acc, cell_index[i], np.float32(increment[i]))
+        add_weighted(acc, cell_index[i], np.float32(increment[i]), weight[i])
 
 
 SCATTER_RUN = 1024
@@ -170,6 +175,18 @@ def add_increment(acc, row, x):
     acc[row, 0] += x
     acc[row, 1] += 1.0
     if x > acc[row, 2]:  # a comparison, not max(): a NaN increment leaves the row alone
+        acc[row, 2] = x
+    if x < acc[row, 3]:
+        acc[row, 3] = x
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def add_weighted(acc, row, x, w):
+    """Add float32 increment ``x`` to accumulator row ``row`` counted ``w`` times: ``(sum += w x, count += w, max,
+    min)`` (``w = 1`` adds as :func:`add_increment`)."""
+    acc[row, 0] += w * x
+    acc[row, 1] += w
+    if x > acc[row, 2]:
         acc[row, 2] = x
     if x < acc[row, 3]:
         acc[row, 3] = x

@@ -17,25 +17,36 @@ from prismap.grid._keys import split_key
 
 
 @numba.njit(cache=True, nogil=True)
-def cell_limits(origin, rays, t_stop, voxel_size):
-    """Per ray, a bound on the voxels it visits (0 when it casts nothing); the traversal's length guard."""
+def cell_limits(origin, rays, t_start, t_stop, voxel_size):
+    """Per ray, a bound on the voxels it visits from depth ``t_start`` to ``t_stop`` (0 when it casts nothing); the
+    traversal's length guard."""
     limits = np.zeros(rays.shape[0], dtype=np.int64)
     for i in range(rays.shape[0]):
         if t_stop[i] > 0.0:
-            limits[i] = span(origin, rays[i], t_stop[i], voxel_size, (0, 0, 0))
+            limits[i] = span(origin, rays[i], t_start[i], t_stop[i], voxel_size, (0, 0, 0))
     return limits
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def span(origin, ray, stop, voxel_size, bits):
-    """A bound on the voxels (``bits = (0, 0, 0)``) or blocks a ray visits up to depth ``stop``."""
+def span(origin, ray, start, stop, voxel_size, bits):
+    """A bound on the voxels (``bits = (0, 0, 0)``) or blocks a ray visits from depth ``start`` to ``stop``."""
     inv = 1.0 / voxel_size
     limit = 3
     for ax in range(3):
-        start = np.int64(np.floor(origin[ax] * inv)) >> bits[ax]
-        end = np.int64(np.floor((origin[ax] + ray[ax] * stop) * inv)) >> bits[ax]
-        limit += abs(end - start)
+        first = np.int64(np.floor((origin[ax] + ray[ax] * start) * inv)) >> bits[ax]
+        last = np.int64(np.floor((origin[ax] + ray[ax] * stop) * inv)) >> bits[ax]
+        limit += abs(last - first)
     return limit
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _skip_to(start, k, t, d, s):
+    """One axis's traversal state ``(key, depth of its next border)`` after crossing every border at or before depth
+    ``start``, and the depth of the last border crossed (0 when none)."""
+    if start <= 0.0 or not t <= start:
+        return k, t, 0.0
+    n = np.floor((start - t) / d) + 1.0
+    return k + s * np.int64(n), t + n * d, t + (n - 1.0) * d
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
@@ -50,11 +61,12 @@ def _axis_setup(o, r, voxel_size):
 
 
 @numba.njit(cache=True, nogil=True)
-def _walk(origin, ray, stop, exclusive, voxel_size, limit, keys, t_in_out, t_out_out, m):
+def _walk(origin, ray, start, stop, exclusive, voxel_size, limit, keys, t_in_out, t_out_out, m):
     """Amanatides-Woo traversal of one ray, writing its voxels from row ``m`` on; returns the next free row.
 
-    The rule of :func:`cast_rays`; ``limit`` (from :func:`cell_limits`) bounds the steps. The state is
-    kept in scalars (one per axis) so that it stays in registers.
+    The rule of :func:`cast_rays`, from the voxel that holds depth ``start`` on (its borders before it crossed at
+    once; only voxels ending past ``start`` are kept); ``limit`` (from :func:`cell_limits`) bounds the steps. The
+    state is kept in scalars (one per axis) so that it stays in registers.
 
     Parameters
     ----------
@@ -62,6 +74,8 @@ def _walk(origin, ray, stop, exclusive, voxel_size, limit, keys, t_in_out, t_out
         Where the ray starts.
     ray : (3,) float64, world frame
         Its direction, scaled to unit depth.
+    start : float, metres of depth
+        Where its cast starts (0: at the origin).
     stop : float, metres of depth
         Its stop depth.
     exclusive : bool
@@ -78,14 +92,17 @@ def _walk(origin, ray, stop, exclusive, voxel_size, limit, keys, t_in_out, t_out
     kx, sx, tx, dx = _axis_setup(origin[0], ray[0], voxel_size)
     ky, sy, ty, dy = _axis_setup(origin[1], ray[1], voxel_size)
     kz, sz, tz, dz = _axis_setup(origin[2], ray[2], voxel_size)
+    kx, tx, bx = _skip_to(start, kx, tx, dx, sx)
+    ky, ty, by = _skip_to(start, ky, ty, dy, sy)
+    kz, tz, bz = _skip_to(start, kz, tz, dz, sz)
     min_length = 1e-9 * voxel_size / np.sqrt(ray[0] * ray[0] + ray[1] * ray[1] + ray[2] * ray[2])
-    t_in = 0.0
+    t_in = max(bx, max(by, bz))
     # Step phase; the loop bound is the length guard against floating-point drift.
     for _ in range(limit):
         t_out = min(tx, min(ty, tz))
         if _past_stop(t_in, t_out, stop, exclusive):
             break
-        if t_out - t_in > min_length:
+        if t_out - t_in > min_length and t_out > start:
             m = write_cell(keys, t_in_out, t_out_out, m, kx, ky, kz, t_in, t_out)
         kx, ky, kz, tx, ty, tz = _step(kx, ky, kz, tx, ty, tz, sx, sy, sz, dx, dy, dz)
         t_in = t_out
@@ -137,7 +154,8 @@ def cast_rays(origin, rays, t_stop, exclusive, voxel_size):
     References: J. Amanatides, A. Woo, "A fast voxel traversal algorithm for ray tracing",
     Eurographics 1987.
     """
-    limits = cell_limits(origin, rays, t_stop, voxel_size)
+    t_start = np.zeros(rays.shape[0])
+    limits = cell_limits(origin, rays, t_start, t_stop, voxel_size)
     total = limits.sum()
     ray_of_cell = np.empty(total, dtype=np.int64)
     keys = np.empty((total, 3), dtype=np.int32)
@@ -146,23 +164,23 @@ def cast_rays(origin, rays, t_stop, exclusive, voxel_size):
     m = 0
     for i in range(rays.shape[0]):
         if limits[i] > 0:
-            end = _walk(origin, rays[i], t_stop[i], exclusive[i], voxel_size, limits[i], keys, t_in, t_out, m)
+            end = _walk(origin, rays[i], 0.0, t_stop[i], exclusive[i], voxel_size, limits[i], keys, t_in, t_out, m)
             ray_of_cell[m:end] = i
             m = end
     return ray_of_cell[:m], keys[:m], t_in[:m], t_out[:m]
 
 
 @numba.njit(cache=True, nogil=True)
-def cast_rays_into(accumulator, origin, rays, t_stop, exclusive, voxel_size):
+def cast_rays_into(accumulator, origin, rays, t_start, t_stop, exclusive, voxel_size):
     """:func:`cast_rays` fused with ``register_run``: each crossed voxel's accumulator row, no keys. Parameters
-    as :func:`cast_rays`'s, and ``accumulator`` (:class:`~prismap.grid._kernel_args.AccumulatorArrays`, changed
-    in place).
+    as :func:`cast_rays`'s, ``t_start`` ((R,) metres of depth) where each ray's cast starts (:func:`_walk`), and
+    ``accumulator`` (:class:`~prismap.grid._kernel_args.AccumulatorArrays`, changed in place).
 
     Returns ``ray_of_cell (C,) int64, cell_index (C,) int64, t_in (C,), t_out (C,) float64`` and the
     number of rays done: fewer than ``len(rays)`` when a new block found the accumulator full (that
     ray's cells are left out; grow the accumulator and cast the remaining rays).
     """
-    limits = cell_limits(origin, rays, t_stop, voxel_size)
+    limits = cell_limits(origin, rays, t_start, t_stop, voxel_size)
     total = limits.sum()
     ray_of_cell = np.empty(total, dtype=np.int64)
     cell_index = np.empty(total, dtype=np.int64)
@@ -174,7 +192,9 @@ def cast_rays_into(accumulator, origin, rays, t_stop, exclusive, voxel_size):
     for i in range(rays.shape[0]):
         if limits[i] == 0:
             continue
-        n = _walk(origin, rays[i], t_stop[i], exclusive[i], voxel_size, limits[i], scratch, t_in[m:], t_out[m:], 0)
+        n = _walk(
+            origin, rays[i], t_start[i], t_stop[i], exclusive[i], voxel_size, limits[i], scratch, t_in[m:], t_out[m:], 0
+        )
         done, last_block, last_slot = register_run(accumulator, scratch, 0, n, cell_index[m:], last_block, last_slot)
         if done < n:
             return ray_of_cell[:m], cell_index[:m], t_in[:m], t_out[:m], i
@@ -208,7 +228,7 @@ def cast_hit_miss(accumulator, origin, rays, t_stop, exclusive, z_hit, l_hit, l_
         The model's increments.
     """
     n_blocks, acc, links, bits = accumulator.n_blocks, accumulator.acc, accumulator.links, accumulator.bits
-    limits = cell_limits(origin, rays, t_stop, voxel_size)
+    limits = cell_limits(origin, rays, np.zeros(rays.shape[0]), t_stop, voxel_size)
     capacity = min(accumulator.block_keys.size, accumulator.table.size // 2)
     hit = np.float32(l_hit)
     miss = np.float32(l_miss)
@@ -217,7 +237,7 @@ def cast_hit_miss(accumulator, origin, rays, t_stop, exclusive, z_hit, l_hit, l_
     for i in range(rays.shape[0]):
         if limits[i] == 0:
             continue
-        blocks = span(origin, rays[i], t_stop[i], voxel_size, bits)
+        blocks = span(origin, rays[i], 0.0, t_stop[i], voxel_size, bits)
         if n_blocks[0] + blocks > capacity:
             return i, blocks
         ray = rays[i]

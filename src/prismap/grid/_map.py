@@ -11,12 +11,14 @@ from scipy.special import expit
 from prismap._validate import as_float_array, check_classes, check_positive, check_probability
 from prismap.errors import PrismapInputError
 from prismap.grid import _accumulator, _kernels_accumulate, _kernels_hash
+from prismap.grid._floor_sampling import FLOOR_RAYS, MAX_BAND
 from prismap.grid._fusion import MapReading
-from prismap.grid._integrators import MEASUREMENT_KINDS, RayBatch, make_integrator
+from prismap.grid._integrators import make_integrator
 from prismap.grid._kernel_args import MapStore
 from prismap.grid._keys import BLOCK_BITS, KEY_LIMIT, check_keys, key_range_text, key_to_center, point_to_key
 from prismap.grid._logodds import LOG_ODDS_STEP, Q_DTYPE, Q_MAX, Q_MIN, from_fixed, logit, to_fixed
 from prismap.grid._policies import policy_code, policy_name
+from prismap.grid._ray_batch import MEASUREMENT_KINDS, RayBatch
 from prismap.grid._sensor_model import SensorModel
 from prismap.grid._slice import horizontal_slice
 from prismap.grid._storage import BlockTable
@@ -115,6 +117,7 @@ class OccupancyMap:
         mode: str = "ray",
         policy: str | None = None,
         max_range_m: float = np.inf,
+        floor_rays: int = FLOOR_RAYS,
     ) -> None:
         """Integrate one frame's measurements.
 
@@ -138,6 +141,11 @@ class OccupancyMap:
             Distance along a ray beyond which nothing is updated. A ray whose measurement lies
             beyond it only clears free space up to it, excluding the voxel that contains the
             max-range point (as OctoMap does).
+        floor_rays : int >= 0, default :data:`~prismap.grid.FLOOR_RAYS`
+            Ray mode with a batch that has ``levels`` and a model with a ``floor_depth``: the cells at their ray's
+            failure floor are cast by a nested subsample of the rays, at least this many rays a voxel each way, each
+            counted for the rays it stands for (:mod:`prismap.grid._floor_sampling`); 0 = every ray casts every
+            cell.
 
         Notes
         -----
@@ -148,7 +156,7 @@ class OccupancyMap:
         """
         if not isinstance(batch, RayBatch):
             raise PrismapInputError(f"`batch` must be a RayBatch; got {type(batch).__name__}")
-        self._integrate(self._checked(batch), model, mode, policy, max_range_m)
+        self._integrate(self._checked(batch), model, mode, policy, max_range_m, floor_rays)
 
     def integrate_rays(
         self,
@@ -223,10 +231,17 @@ class OccupancyMap:
             overhang = as_float_array(batch.voxel_overhang_m, "voxel_overhang_m", shape=(n,))
             if not np.all(overhang[valid] >= 0) or not np.all(np.isfinite(overhang[valid])):
                 raise PrismapInputError("`voxel_overhang_m` must be finite and >= 0 at every valid ray")
-        checked = RayBatch(origin, rays, measurement, ray_norm, noise, classes, batch.image, overhang, batch.kind)
+        levels = batch.levels
+        if levels is not None and (
+            np.shape(levels.level) != (n,) or (n and not 0 <= np.min(levels.level) <= np.max(levels.level) <= MAX_BAND)
+        ):
+            raise PrismapInputError(f"`levels.level` must be ({n},) integers in [0, {MAX_BAND}]")
+        checked = RayBatch(
+            origin, rays, measurement, ray_norm, noise, classes, batch.image, overhang, batch.kind, levels
+        )
         return checked if valid.all() else checked.subset(valid)  # a dense frame skips these copies
 
-    def _integrate(self, batch, model, mode, policy, max_range_m):
+    def _integrate(self, batch, model, mode, policy, max_range_m, floor_rays=FLOOR_RAYS):
         """One frame: the model checked against the map, the integrator of ``mode``, one update per voxel."""
         self._check_model(model)
         measurement = getattr(model, "measurement", "disparity")
@@ -245,8 +260,9 @@ class OccupancyMap:
                 f"{key_range_text(self.voxel_size_m)}"
             )
         prior = self._map_log_odds if model.takes_map_prior else None
+        sampling = {"floor_rays": floor_rays} if mode == "ray" else {}
         integrator = make_integrator(
-            mode, voxel_size_m=self.voxel_size_m, max_range_m=max_range, reach_m=reach, map_log_odds=prior
+            mode, voxel_size_m=self.voxel_size_m, max_range_m=max_range, reach_m=reach, map_log_odds=prior, **sampling
         )
         self._accumulator.clear()
         integrator.integrate(self._accumulator, batch, model)

@@ -16,7 +16,8 @@ from prismap.camera import StereoCamera
 from prismap.characterise import ErrorModel, map_reading
 from prismap.errors import PrismapInputError
 from prismap.gmm import GaussianMixture
-from prismap.grid import MAP_READINGS, POLICIES, MapReading
+from prismap.grid import FLOOR_RAYS, MAP_READINGS, POLICIES, MapReading
+from prismap.grid._floor_sampling import check_floor_rays
 from prismap.sensor_models import (
     InverseSensorModel,
     conditioned_sensor_model,
@@ -188,6 +189,9 @@ class MappingConfig:
         Distance along a ray beyond which nothing is updated (inf = no limit).
     subsample : int >= 1
         Use every ``subsample``-th pixel in both directions.
+    floor_rays : int >= 0
+        Ray mode: rays a voxel each way, at least, that cast the cells at their ray's failure floor (the others skip
+        them; :meth:`prismap.grid.OccupancyMap.integrate`); 0 = every ray casts every cell.
     frames : (int, int or None)
         ``(start, stop)``: the frames ``start <= i < stop`` of the sequence (stop None or beyond the
         sequence = to its end).
@@ -219,6 +223,7 @@ class MappingConfig:
     policy: str | None = None
     max_range_m: float = math.inf
     subsample: int = 1
+    floor_rays: int = FLOOR_RAYS
     frames: tuple = (0, None)
     fusion: str | None = None
 
@@ -251,6 +256,7 @@ class MappingConfig:
             "subsample",
             check_integer(self.subsample, "subsample", expected="an integer >= 1", condition=lambda n: n >= 1),
         )
+        set_("floor_rays", check_floor_rays(self.floor_rays))
         set_("frames", _check_frames(self.frames))
         block = getattr(self.error_model, "fusion", None)
         if self.fusion is None:
@@ -359,6 +365,7 @@ class MappingConfig:
             "policy": self.policy,
             "max_range_m": None if math.isinf(self.max_range_m) else self.max_range_m,
             "subsample": self.subsample,
+            **({"floor_rays": self.floor_rays} if self.mode == "ray" else {}),
             "frames": list(self.frames),
             **({} if self.fusion == "independent" else {"fusion": {"reading": self.fusion, **self.error_model.fusion}}),
         }

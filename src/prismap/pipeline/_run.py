@@ -172,6 +172,7 @@ def integrate_frames(
                 max_range_m=config.max_range_m,
                 subsample=config.subsample,
                 ray_class=ray_class,
+                floor_rays=config.floor_rays,
             )
             if on_frame is not None:
                 on_frame(grid)

@@ -223,6 +223,26 @@ class ConditionedModel(InverseSensorModel):
             depth[rays] = self._model(int(k)).influence_depth(disparity[rays], norm[rays])
         return depth
 
+    def floor_depth(
+        self,
+        disparity_px: npt.ArrayLike,
+        ray_norm: npt.ArrayLike,
+        *,
+        ray_class: npt.ArrayLike | None = None,
+        voxel_overhang_m: npt.ArrayLike | None = None,
+    ) -> npt.NDArray[np.float64] | None:
+        """Per ray, by its class's model, the depth (metres) up to which its cells are at its failure floor
+        (:meth:`PrismModel.floor_depth`); None unless the sub-models are PRISM models that share one look-up."""
+        if ray_class is None:
+            rule = getattr(self.plain, "floor_depth", None)
+            return None if rule is None else rule(disparity_px, ray_norm, voxel_overhang_m=voxel_overhang_m)
+        if self._classes is None or not self._classes.fused:
+            return None
+        disparity = np.asarray(disparity_px, dtype=np.float64)
+        norm = np.asarray(ray_norm, dtype=np.float64)
+        overhang = voxel_overhang_m if self.takes_voxel_overhang else None
+        return self._classes.floor_depth(disparity, norm, self._check_classes(ray_class, disparity.size) + 1, overhang)
+
     def with_extra_noise(self, sigma_px: float) -> ConditionedModel:
         """A copy whose every sub-model (the plain one included) is widened by ``N(0, sigma_px^2)``."""
         return ConditionedModel(

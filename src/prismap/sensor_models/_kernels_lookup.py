@@ -163,6 +163,27 @@ _FLOOR = 8
 not looked up, its failure-free likelihood ratio taken as 0 (thinned: the pass-through chance)."""
 
 
+@nb.njit(cache=True, nogil=True)
+def ray_floor_depths(tables, log_floor, model_of_ray, geometry, models):
+    """Per ray, the depth (metres) up to which a cell's end leaves the cell at its ray's failure floor in
+    :func:`prism_table_lookup` (:data:`_FLOOR`: ``floor_depth``, or the table's start if later), at most the
+    influence depth: ``(R,)`` float64. ``tables`` as the look-up's, ``log_floor`` ((R,) log, or (0,): no floor)
+    each ray's floor level, ``model_of_ray`` ((R,) int) each ray's row of ``models`` (a
+    :class:`~prismap.sensor_models._kernel_args.MixtureSet`)."""
+    table, delta, meta, _ = tables
+    depth = np.empty(table.size)
+    for r in range(table.size):
+        t, dl, k = table[r], delta[r], model_of_ray[r]
+        floor = geometry.z0
+        if log_floor.size:
+            log_z = meta[t, _LOG_Z] + dl * (meta[t, _LOG_Z_1] + 0.5 * dl * meta[t, _LOG_Z_2])
+            n = models.size[k]
+            mixture = Mixture(models.log_wn[k, :n], models.means[k, :n], models.sigmas[k, :n])
+            floor = floor_depth(meta[t, _SHIFT], log_z, log_floor[r], geometry.fb, geometry.z0, mixture)
+        depth[r] = min(max(floor, meta[t, _Z_START]), meta[t, _Z_INFL])
+    return depth
+
+
 @nb.njit(cache=True, nogil=True, fastmath=_FASTMATH)
 def prism_table_lookup(lam, stretch, tables, cells, lo, hi, hq, geometry, mixture, log_floor, l_a, l_c, side, lam_len):
     """First stage of tabulated PRISM on cells ``lo:hi``: per cell end, the log of the smaller of C/Z, D/Z.

@@ -29,7 +29,6 @@ from prismap.sensor_models import (
     _kernels_direct,
     _kernels_failure,
     _kernels_lookup,
-    _kernels_map_prior,
     _kernels_pack,
 )
 from prismap.sensor_models._base import register_model
@@ -47,6 +46,7 @@ from prismap.sensor_models._kernels_pack import _LENGTH, _LOG_Z, _LOG_Z_1, _LOG_
 from prismap.sensor_models._params import RayModel
 from prismap.sensor_models._prism_cache import _KEY_L_SPAN, _LAMBDA_STEP, TableCache, ray_tables
 from prismap.sensor_models._prism_discrete import log_mean_likelihood
+from prismap.sensor_models._prism_map_prior import map_prior_cells
 from prismap.sensor_models._prism_spacing import (
     _COARSE_BELOW,
     _TABLE_STEP,
@@ -79,8 +79,6 @@ AUTO_TABLE_FLOOR_MB = 64.0
 """Least table cache budget (MiB) of a model with ``table_memory_mb=None``."""
 _LAMBDA_SLACK = float(np.expm1(_LAMBDA_STEP / 2))  # relative rate gap a table's influence depth covers
 _BUILD_THREADS = min(2, os.cpu_count() or 1)  # threads building one call's missing tables
-_TAIL_STEP = 1.0  # prior="map": x-width of the panels of a ray's tail beyond its last cell
-_TAIL_REST = -20.0  # prior="map": the tail's march stops where the rest is below e^-20 of the evidence before
 _CHUNK_CELLS = 4096  # cells per look-up/exp/combine/log round: its 8 scratch arrays (228 KiB) stay in L2
 
 PRIORS = ("p0", "map")
@@ -172,7 +170,7 @@ class PrismModel(RayModel):
         grid hands it over as ``map_log_odds`` because :attr:`takes_map_prior`), so a frame's evidence is
         weighed against what earlier frames found. Each ray's cells must then tile it from the camera (ray
         casting; projective integration has no whole rays). The exact discrete posterior
-        (``_kernels_map_prior.prism_map_prior_cells``: ``g`` averaged uniformly in disparity over each cell, the
+        (:func:`~prismap.sensor_models._prism_map_prior.map_prior_cells`: ``g`` averaged uniformly in disparity over each cell, the
         prior rate beyond the ray's last cell); ``method`` and the tables are not used.
         docs/SENSOR_MODELS.md, "The map as prior".
     """
@@ -343,7 +341,7 @@ class PrismModel(RayModel):
             disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m, voxel_overhang_m
         )
         if self.prior == "map":
-            result, map_rate = self._map_prior_cells(lam, disparity, norm, rays, start, end, stretch, map_log_odds)
+            result, map_rate = map_prior_cells(self, lam, disparity, norm, rays, start, end, stretch, map_log_odds)
             # each cell's prior rate for the failure blend; without a map every cell is at p0: lam's rate
             cell_rate = map_rate if map_log_odds is not None else lam[rays]
             method = "table"
@@ -391,16 +389,44 @@ class PrismModel(RayModel):
         disparity, norm, rays, start, end = self._validated(
             disparity_px, ray_norm, ray_of_cell, depth_start_m, depth_end_m
         )
-        stretch = np.zeros(disparity.size)
-        if voxel_overhang_m is not None and self.overhang_fraction > 0:
-            overhang = as_float_array(voxel_overhang_m, "voxel_overhang_m", shape=(disparity.size,), allow_nan=False)
-            if overhang.size and overhang.min() < 0:
-                raise PrismapInputError(f"prism: `voxel_overhang_m` must be >= 0; got minimum {overhang.min()!r}")
-            stretch = self.overhang_fraction * overhang / norm
+        stretch = self._stretch(norm, voxel_overhang_m)
         lam = self.rate_per_m * norm
         if self.solid_depth_m > 0:  # the stretch [a - solid / |r|, c'] (cells already before near_m stay as they are)
             start = np.minimum(start, np.maximum(start - self.solid_depth_m / norm[rays], self.near_m))
         return disparity, norm, rays, start, end, stretch, lam
+
+    def _stretch(self, norm, voxel_overhang_m):
+        """Each ray's stretch: depth metres added to the end of its cells, its share of its voxel overhang."""
+        if voxel_overhang_m is None or self.overhang_fraction == 0:
+            return np.zeros(norm.size)
+        overhang = as_float_array(voxel_overhang_m, "voxel_overhang_m", shape=(norm.size,), allow_nan=False)
+        if overhang.size and overhang.min() < 0:
+            raise PrismapInputError(f"prism: `voxel_overhang_m` must be >= 0; got minimum {overhang.min()!r}")
+        return self.overhang_fraction * overhang / norm
+
+    def floor_depth(
+        self, disparity_px: npt.ArrayLike, ray_norm: npt.ArrayLike, *, voxel_overhang_m: npt.ArrayLike | None = None
+    ) -> npt.NDArray[np.float64] | None:
+        """Per ray, the depth (metres) up to which a cell ending there is at the ray's failure floor: its increment
+        is the floor's, a function of the ray and the cell's length alone, so the grid may sample such cells
+        (``grid.SensorModel.floor_depth``); None when the look-up has no floor (``method="direct"``, ``prior="map"``).
+        """
+        if self.method != "table" or self.prior != "p0":
+            return None
+        disparity = as_float_array(disparity_px, "disparity_px", ndim=1, allow_nan=False)
+        norm = as_float_array(ray_norm, "ray_norm", shape=(disparity.size,))
+        tables = self._tables_for(disparity, norm)
+        ray_model = np.zeros(disparity.size, dtype=np.int64)
+        return self._floor_from(
+            tables, self._log_failure(tables)[0], ray_model, self._kernel_models, norm, voxel_overhang_m
+        )
+
+    def _floor_from(self, tables, log_fail, ray_model, models, norm, voxel_overhang_m):
+        """:meth:`floor_depth` of rays of ``tables``, ``log(1 - rho)`` ``log_fail`` (empty: no failures), each of
+        model ``ray_model`` of ``models`` (``MixtureSet``), norms ``norm`` and overhangs ``voxel_overhang_m``."""
+        log_floor = self._floor_levels(log_fail) if log_fail.size else log_fail
+        depth = _kernels_lookup.ray_floor_depths(tables, log_floor, ray_model, self._geometry(), models)
+        return depth - self._stretch(norm, voxel_overhang_m)
 
     def _log_failure(self, tables):
         """``log(1 - rho)`` and ``log(rho)`` of each ray, its failure posterior given its tables' ``Z``
@@ -447,42 +473,6 @@ class PrismModel(RayModel):
         if extra not in self._widened:
             self._widened[extra] = dataclasses.replace(self, error_model=self.error_model.widened(extra))
         return self._widened[extra]
-
-    def _map_prior_cells(self, lam, disparity, norm, rays, start, end, stretch, map_log_odds):
-        """:meth:`cell_posteriors` with the map as prior (``_kernels_map_prior.prism_map_prior_cells``), and each
-        cell's prior surface rate (per metre of depth) that it took from the map.
-
-        A voxel of probability ``P_v`` has surface rate ``-log(1 - P_v) / voxel_size_m`` per metre of ray
-        (``log1p(e^l)``, softplus of its log-odds ``l``), so a ray's stretch of length ``s`` in it has prior
-        ``1 - (1 - P_v)^(s / voxel_size_m)``: the voxel's own probability across a whole voxel, and the
-        ``p0`` model's rate in an unknown voxel.
-        """
-        if map_log_odds is None:
-            log_odds = np.full(start.size, float(np.log(self.p0) - np.log1p(-self.p0)))
-        else:
-            log_odds = as_float_array(map_log_odds, "map_log_odds", shape=(start.size,), allow_nan=False)
-        order = np.lexsort((start, rays))
-        ray_start = np.searchsorted(rays[order], np.arange(disparity.size + 1))
-        _check_tiling(rays[order], start[order], end[order], ray_start, self.near_m)
-        cell_rate = np.logaddexp(0.0, log_odds) / self.voxel_size_m * norm[rays]  # per metre of depth
-        result = _kernels_map_prior.prism_map_prior_cells(
-            disparity + self.doffs_px,
-            lam,
-            self._log_far(disparity),
-            order,
-            ray_start,
-            start,
-            end,
-            stretch,
-            cell_rate,
-            _TAIL_STEP,
-            _TAIL_REST,
-            self.pass_through,
-            np.log(self.error_model.weights),
-            self._geometry(),
-            self._mixture(),
-        )
-        return result, cell_rate
 
     # ------------------------------------------------------------------ tables
     def _table_cells(self, lam, rays, start, end, stretch, tables, log_failure, runs=None, models=None):
@@ -569,23 +559,6 @@ def _build_pool():
             _POOL.clear()
             _POOL[pid] = ThreadPoolExecutor(_BUILD_THREADS - 1, thread_name_prefix="prismap-tables")
         return _POOL[pid]
-
-
-def _check_tiling(rays, start, end, ray_start, near_m):
-    """Refuse cells (sorted by ray, then start) that do not tile each ray from at most ``near_m`` without gaps."""
-    first = ray_start[:-1][np.diff(ray_start) > 0]
-    if first.size and start[first].max() > near_m:
-        raise PrismapInputError(
-            f"prism prior='map': each ray's cells must start at or before near_m = {near_m:g} m (ray casting from "
-            f"the camera); a ray's first cell starts at {start[first].max():.6g} m"
-        )
-    same = rays[1:] == rays[:-1]
-    gap = np.abs(start[1:] - end[:-1])[same]
-    if gap.size and gap.max() > 1e-9 * max(1.0, float(np.abs(end).max())):
-        raise PrismapInputError(
-            "prism prior='map': each ray's cells must follow one another without gaps or overlaps (ray casting "
-            f"gives such cells, projective integration does not); found a gap of {gap.max():.3g} m"
-        )
 
 
 def _share(value, name, *, one):

@@ -99,6 +99,17 @@ class PrismClasses:
         """:meth:`PrismModel.influence_depth` of each ray by its model ``index``."""
         return self.models[0]._influence_from(self.tables_for(disparity, norm, index), norm)
 
+    def floor_depth(self, disparity, norm, index, voxel_overhang_m=None):
+        """:meth:`PrismModel.floor_depth` of each ray by its model ``index`` ((R,) int)."""
+        first = self.models[0]
+        tables = self.tables_for(disparity, norm, index)
+        log_fail = np.empty(0)
+        if self.failures is not None:
+            log_fail = failure_posterior_terms(*self.failures[:, index], first._ray_log_z(tables))[0]
+        return first._floor_from(
+            tables, log_fail, np.asarray(index, dtype=np.int64), self.mixtures, norm, voxel_overhang_m
+        )
+
     def cell_posteriors(self, disparity_px, ray_norm, ray_of_cell, start, end, index, voxel_overhang_m=None):
         """:meth:`PrismModel.cell_posteriors` of each cell by its ray's model ``index`` ((R,) int), in one look-up
         of the cells in runs of one model (:func:`~prismap.sensor_models._kernel_args.cell_runs`):
