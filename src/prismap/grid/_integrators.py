@@ -280,15 +280,20 @@ class RayIntegrator(Integrator):
                 ray_of_cell, cell_index, t_in, t_out = _accumulator.cast_into(accumulator, origin, *cast, voxel)
                 if cell_index.size:
                     prior = self.map_log_odds(cell_index) if model.takes_map_prior else None
-                    weight = None if weighting is None else cell_weights(ray_of_cell, t_out, *weighting)
-                    increments = threads.submit(
-                        self.cell_increments, model, batch, chunk, ray_of_cell, t_in, t_out, prior
+                    update = threads.submit(
+                        self._chunk_update, model, batch, chunk, ray_of_cell, t_in, t_out, prior, weighting
                     )
-                    pending.append((cell_index, weight, increments))
+                    pending.append((cell_index, update))
                 while len(pending) > MODEL_THREADS:
                     _scatter_next(accumulator, pending)
             while pending:
                 _scatter_next(accumulator, pending)
+
+    def _chunk_update(self, model, batch, chunk, ray_of_cell, t_in, t_out, prior, weighting):
+        """A chunk's cell increments (:meth:`cell_increments`) and weights (``_floor_sampling.cell_weights`` of
+        ``weighting``, ``(floor_end, band_depth)``; None: every cell once), in a model thread."""
+        increments = self.cell_increments(model, batch, chunk, ray_of_cell, t_in, t_out, prior)
+        return increments, None if weighting is None else cell_weights(ray_of_cell, t_out, *weighting)
 
     def _floor_plan(self, model, batch, idx, t_stop):
         """``(t_start, floor_end, band_depth)`` of rays ``idx`` (:func:`~prismap.grid._floor_sampling.floor_plan`)
@@ -311,9 +316,10 @@ class RayIntegrator(Integrator):
 
 
 def _scatter_next(accumulator, pending):
-    """Add the oldest pending chunk's increments (``(cell_index, weight, future of increments)``) to the accumulator."""
-    cell_index, weight, increments = pending.popleft()
-    _accumulator.scatter(accumulator, cell_index, increments.result(), weight)
+    """Add the oldest pending chunk's increments (``(cell_index, future of (increments, weights))``) to the
+    accumulator."""
+    cell_index, update = pending.popleft()
+    _accumulator.scatter(accumulator, cell_index, *update.result())
 
 
 def _class_chunks(ray_class, limits):
