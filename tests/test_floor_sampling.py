@@ -6,7 +6,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from prismap.camera import disparity_batch, integrate_disparity
+from prismap.camera import StereoCamera, disparity_batch, integrate_disparity
+from prismap.errors import PrismapInputError
 from prismap.gmm import GaussianMixture
 from prismap.grid import OccupancyMap, _accumulator, image_levels, pack_keys
 from prismap.grid._floor_sampling import MAX_BAND, cell_weights, floor_plan
@@ -35,7 +36,10 @@ def test_image_levels_are_the_trailing_zero_bits_of_row_and_column():
     np.testing.assert_array_equal(levels.level, expected)
     for k in range(MAX_BAND + 1):  # level >= k: every 2^k-th row and column
         assert np.sum(levels.level >= k) == len(range(0, 37, 1 << k)) * len(range(0, 53, 1 << k))
-    with pytest.raises(Exception, match="spacing_rad"):
+    line = image_levels(1, 40, 0.01)  # one row: every 2^k-th ray along it, a share 2^-k
+    assert line.base == 2 and line.level.tolist() == [trailing_zeros(c) for c in range(40)]
+    assert image_levels(37, 53, 0.01).base == 4
+    with pytest.raises(PrismapInputError, match="spacing_rad"):
         image_levels(4, 4, 0.0)
 
 
@@ -45,7 +49,7 @@ def test_cell_weights_are_four_to_the_band_before_the_floor_and_one_after():
     ray_of_cell = rng.integers(0, 50, 2000)
     floor_end = rng.uniform(0.0, 40.0, 50)
     band_depth = 24.0
-    got = cell_weights(ray_of_cell, t_out, floor_end, band_depth)
+    got = cell_weights(ray_of_cell, t_out, floor_end, band_depth, 4)
     for z, r, w in zip(t_out, ray_of_cell, got):
         band = max(j for j in range(MAX_BAND + 1) if j == 0 or z <= band_depth / 2**j)
         assert w == (4.0**band if z <= floor_end[r] else 1.0)
@@ -131,25 +135,30 @@ def test_a_conditioned_model_takes_each_class_models_floor_depth():
         np.testing.assert_allclose(got[mine], sub.floor_depth(disparity[mine], norm[mine]), rtol=1e-12)
 
 
-def test_sampled_and_exact_ray_maps_agree_and_keep_the_expected_counts(monkeypatch):
-    camera, pose, depth = planes_frame(320, 240)
-    disparity = camera.focal_baseline / depth
-    model = prism()
-    maps, counts = {}, {}
+def mapped_both_ways(monkeypatch, camera, pose, disparity):
+    """``{floor_rays: (map, cells cast, weighted cells)}`` of one frame mapped exactly (0) and sampled (4)."""
+    out = {}
     for floor_rays in (0, 4):
-        scattered = []
+        cast, weighted = [], []
         real = _accumulator.scatter
 
-        def counting(acc, rows, inc, weight=None, real=real, scattered=scattered):
-            scattered.append(rows.size if weight is None else float(weight.sum()))
+        def counting(acc, rows, inc, weight=None, real=real, cast=cast, weighted=weighted):
+            cast.append(rows.size)
+            weighted.append(rows.size if weight is None else float(weight.sum()))
             real(acc, rows, inc, weight)
 
         monkeypatch.setattr(_accumulator, "scatter", counting)
         grid = OccupancyMap(0.1, p0=0.05)
-        integrate_disparity(grid, disparity, camera, pose, model, max_range_m=12.0, floor_rays=floor_rays)
-        maps[floor_rays], counts[floor_rays] = grid, sum(scattered)
-    exact, sampled = maps[0], maps[4]
-    assert counts[4] == pytest.approx(counts[0], rel=0.02)  # weighted counts: the cells' expectation
+        integrate_disparity(grid, disparity, camera, pose, prism(), max_range_m=12.0, floor_rays=floor_rays)
+        out[floor_rays] = grid, sum(cast), sum(weighted)
+    return out
+
+
+def test_sampled_and_exact_ray_maps_agree_and_keep_the_expected_counts(monkeypatch):
+    camera, pose, depth = planes_frame(320, 240)
+    both = mapped_both_ways(monkeypatch, camera, pose, camera.focal_baseline / depth)
+    (exact, cells, _), (sampled, sampled_cells, weighted) = both[0], both[4]
+    assert sampled_cells < 0.8 * cells and weighted == pytest.approx(cells, rel=0.02)  # fewer, weighed back
     keys_e, log_e, _ = exact.known_voxels()
     keys_s, log_s, _ = sampled.known_voxels()
     seen = pack_keys(keys_s)
@@ -159,6 +168,14 @@ def test_sampled_and_exact_ray_maps_agree_and_keep_the_expected_counts(monkeypat
     diff = np.abs(log_s[at] - log_e[common])
     assert np.mean(diff) < 1e-3 and np.quantile(diff, 0.99) < 0.01 and diff.max() < 0.2  # 6e-5, 1.4e-3, 0.058
     np.testing.assert_array_equal(log_s[at] > 0, log_e[common] > 0)  # the same voxels called occupied
+
+
+def test_a_single_line_of_rays_weighs_its_sampled_cells_by_powers_of_two(monkeypatch):
+    camera, pose, depth = planes_frame(1280, 240)
+    line = StereoCamera(camera.focal_px, camera.cx_px, 0.0, camera.baseline_m, width=1280, height=1)
+    both = mapped_both_ways(monkeypatch, line, pose, line.focal_baseline / depth[120:121])
+    (_, cells, _), (_, sampled_cells, weighted) = both[0], both[4]
+    assert sampled_cells < 0.9 * cells and weighted == pytest.approx(cells, rel=0.02)
 
 
 def test_batches_without_levels_and_a_disabled_sampling_give_the_exact_map():

@@ -260,7 +260,7 @@ class RayIntegrator(Integrator):
                 )
             return
         chunks = []
-        for (model, members, t_stop, exclusive), (t_start, floor_end, band_depth), limit in zip(stops, plans, limits):
+        for (model, members, t_stop, exclusive), (t_start, floor_end, bands), limit in zip(stops, plans, limits):
             idx = np.arange(len(batch)) if members is None else members
             by_class, parts = _class_chunks(batch.class_kwargs(idx, model).get("ray_class"), limit)
             idx, t_start, t_stop, exclusive = idx[by_class], t_start[by_class], t_stop[by_class], exclusive[by_class]
@@ -268,7 +268,7 @@ class RayIntegrator(Integrator):
             for part in parts:
                 chunk = idx[part]
                 cast = (t_start[part], t_stop[part], exclusive[part])
-                weighting = None if floor_end is None else (floor_end[part], band_depth)
+                weighting = None if floor_end is None else (floor_end[part], *bands)
                 rays = batch.rays_w[chunk]
                 chunks.append((model, chunk, weighting, *(np.ascontiguousarray(a) for a in (rays, *cast))))
         # The model runs on chunks k - 1 and k in MODEL_THREADS threads while this thread casts chunk k + 1 and
@@ -291,20 +291,20 @@ class RayIntegrator(Integrator):
 
     def _chunk_update(self, model, batch, chunk, ray_of_cell, t_in, t_out, prior, weighting):
         """A chunk's cell increments (:meth:`cell_increments`) and weights (``_floor_sampling.cell_weights`` of
-        ``weighting``, ``(floor_end, band_depth)``; None: every cell once), in a model thread."""
+        ``weighting``, ``(floor_end, band_depth, base)``; None: every cell once), in a model thread."""
         increments = self.cell_increments(model, batch, chunk, ray_of_cell, t_in, t_out, prior)
         return increments, None if weighting is None else cell_weights(ray_of_cell, t_out, *weighting)
 
     def _floor_plan(self, model, batch, idx, t_stop):
-        """``(t_start, floor_end, band_depth)`` of rays ``idx`` (:func:`~prismap.grid._floor_sampling.floor_plan`)
-        from the model's ``floor_depth``; ``(0, None, 0)``, every cell cast and counted once, without one, without
+        """``(t_start, floor_end, (band_depth, base))`` of rays ``idx`` (:func:`~prismap.grid._floor_sampling.floor_plan`)
+        from the model's ``floor_depth``; ``(0, None, None)``, every cell cast and counted once, without one, without
         the batch's ``levels`` or with ``floor_rays`` 0."""
         rule = getattr(model, "floor_depth", None)
         if not self.floor_rays or batch.levels is None or rule is None or model.takes_map_prior:
-            return np.zeros(t_stop.size), None, 0.0
+            return np.zeros(t_stop.size), None, None
         floor_end = rule(_rows(batch.measurement, idx), _rows(batch.ray_norm, idx), **batch.cell_kwargs(idx, model))
         if floor_end is None:
-            return np.zeros(t_stop.size), None, 0.0
+            return np.zeros(t_stop.size), None, None
         floor_end = np.asarray(floor_end, dtype=np.float64)
         if floor_end.shape != t_stop.shape:
             raise PrismapInputError(
@@ -312,7 +312,7 @@ class RayIntegrator(Integrator):
             )
         levels = batch.levels if idx is None else batch.levels.subset(idx)
         t_start, band_depth = floor_plan(floor_end, levels, self.voxel_size_m, self.floor_rays)
-        return t_start, floor_end, band_depth
+        return t_start, floor_end, (band_depth, levels.base)
 
 
 def _scatter_next(accumulator, pending):
