@@ -11,7 +11,6 @@ from prismap.errors import PrismapInputError
 from prismap.gmm import GaussianMixture
 from prismap.grid import OccupancyMap, _accumulator, image_levels, pack_keys
 from prismap.grid._floor_sampling import MAX_BAND, cell_weights, floor_plan
-from prismap.grid._kernels_traverse import cast_rays
 from prismap.sensor_models import ConditionedModel, make_sensor_model
 from support import assert_same_map, planes_frame
 
@@ -71,23 +70,6 @@ def test_each_ray_casts_exactly_the_floor_bands_of_its_level():
         # before its floor a ray casts the cells of the bands up to its level; after it, every cell
         np.testing.assert_array_equal(cast[sampled], band[sampled] <= levels.level[r])
         assert cast[~sampled].all()
-
-
-def test_a_cast_from_a_start_depth_keeps_the_cells_ending_past_it():
-    rng = np.random.default_rng(2)
-    origin = rng.uniform(-1, 1, 3)
-    rays = rng.normal(size=(300, 3))
-    t_stop = rng.uniform(0.01, 3.0, 300)
-    exclusive = rng.random(300) < 0.5
-    t_start = np.where(rng.random(300) < 0.7, rng.uniform(0.0, 3.5, 300), 0.0)
-    ray_of, keys, t_in, t_out = cast_rays(origin, rays, t_stop, exclusive, 0.1)
-    acc = _accumulator.new_accumulator((2, 2, 2))
-    got_ray, rows, got_in, got_out = _accumulator.cast_into(acc, origin, rays, t_start, t_stop, exclusive, 0.1)
-    keep = t_out > t_start[ray_of]
-    np.testing.assert_array_equal(got_ray, ray_of[keep])
-    np.testing.assert_array_equal(acc.voxel_keys().reshape(-1, 3)[rows], keys[keep])
-    np.testing.assert_allclose(got_in, t_in[keep], rtol=1e-12, atol=1e-12)
-    np.testing.assert_allclose(got_out, t_out[keep], rtol=1e-12, atol=1e-12)
 
 
 def test_a_weighted_scatter_counts_each_cell_its_weight():

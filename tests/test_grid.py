@@ -176,7 +176,10 @@ def test_unknown_policy_is_an_error():
         one_ray([0.05, 0.05, 0.05], [1.0, 0.0, 0.0], 0.5, policy="median")
 
 
-def test_cast_into_registers_the_cells_of_cast_rays_while_growing_the_accumulator():
+@pytest.mark.parametrize("from_start", [False, True])
+def test_cast_into_registers_the_cells_of_cast_rays_while_growing_the_accumulator(from_start):
+    """From the origin, the cells of cast_rays bit for bit; from a start depth (floor sampling's casts), the cells of
+    cast_rays ending past it, their borders before it crossed at once (depths to rounding)."""
     from prismap.grid import _accumulator
 
     rng = np.random.default_rng(2)
@@ -184,15 +187,18 @@ def test_cast_into_registers_the_cells_of_cast_rays_while_growing_the_accumulato
     rays = rng.normal(size=(300, 3))
     t_stop = rng.uniform(0.01, 3.0, 300)
     exclusive = rng.random(300) < 0.5
+    t_start = np.where(rng.random(300) < 0.7, rng.uniform(0.0, 3.5, 300), 0.0) if from_start else np.zeros(300)
     ray_of, keys, t_in, t_out = cast_rays(origin, rays, t_stop, exclusive, 0.1)
+    keep = t_out > t_start[ray_of]
+    assert keep.all() != from_start
     acc = _accumulator.new_accumulator((3, 3, 3))  # empty: the kernel stops short and is resumed many times
-    got_ray, rows, got_in, got_out = _accumulator.cast_into(acc, origin, rays, np.zeros(300), t_stop, exclusive, 0.1)
-    np.testing.assert_array_equal(got_ray, ray_of)
-    np.testing.assert_array_equal(got_in, t_in)
-    np.testing.assert_array_equal(got_out, t_out)
+    got_ray, rows, got_in, got_out = _accumulator.cast_into(acc, origin, rays, t_start, t_stop, exclusive, 0.1)
+    np.testing.assert_array_equal(got_ray, ray_of[keep])
+    np.testing.assert_allclose(got_in, t_in[keep], rtol=1e-12 * from_start, atol=1e-12 * from_start)
+    np.testing.assert_allclose(got_out, t_out[keep], rtol=1e-12 * from_start, atol=1e-12 * from_start)
     # Row -> key through the accumulator's blocks: the same voxel keys as cast_rays.
     voxel_keys = acc.voxel_keys().reshape(-1, 3)
-    np.testing.assert_array_equal(voxel_keys[rows], keys)
+    np.testing.assert_array_equal(voxel_keys[rows], keys[keep])
     # Scattered increments land on their voxel: (sum, count, max, min) per row.
     _accumulator.scatter(acc, rows, np.arange(rows.size, dtype=np.float64))
     flat = acc.payload["acc"][: len(acc)].reshape(-1, 4)  # the rows of the blocks in use (spare capacity is garbage)
