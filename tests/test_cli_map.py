@@ -168,6 +168,7 @@ def test_evaluate_with_out_writes_json_and_reliability_figure(sequence_dir, tmp_
         (["--model", "hitmiss", "--model-param", "eta=3"], "sensor model 'hitmiss': bad parameter(s) ['eta']"),
         (["--disparity-dir", "/nonexistent/disp"], "--disparity-dir /nonexistent/disp: directory not found"),
         (["--workers", "0"], "--workers must lie in [1, "),
+        (["--floor-rays", "-2"], "`floor_rays` must be an integer >= 0 (0: every ray); got -2"),
     ],
 )
 def test_map_errors_exit_2_with_a_one_line_message(sequence_dir, tmp_path, capsys, argv, message):
@@ -460,6 +461,8 @@ def test_map_writes_the_command_that_reproduces_it(sequence_dir, conditioned_mod
                 "pass_through=0.05",
                 "--p0",
                 "0.08",
+                "--floor-rays",
+                "2",
             )
         )
         == 0
@@ -475,6 +478,7 @@ def test_map_writes_the_command_that_reproduces_it(sequence_dir, conditioned_mod
         ("--frames", "1:3"),
         ("--subsample", "1"),
         ("--mode", "ray"),
+        ("--floor-rays", "2"),
         ("--out", str(out)),
     ):
         assert argv[argv.index(option) + 1] == value, option
@@ -482,6 +486,7 @@ def test_map_writes_the_command_that_reproduces_it(sequence_dir, conditioned_mod
         "--plain" in argv and "--model-param=pass_through=0.05" in argv and "--matcher-param=num_disparities=16" in argv
     )
     assert record["settings"]["p0"] == 0.08 and record["settings"]["conditioned"] is False
+    assert record["settings"]["floor_rays"] == 2
     again = tmp_path / "again.npz"
     assert main(argv[1:-1] + [str(again)]) == 0  # the recorded command, writing elsewhere
     assert_same_map(load_map(again), load_map(out))

@@ -107,6 +107,9 @@ def test_config_is_hashable_picklable_and_fingerprinted_by_content():
     assert a.model_options == {"alpha_m": 0.3, "p_occ": 0.9}
     assert config(voxel_size_m=0.25).fingerprint() != a.fingerprint()
     assert config(error_model=GaussianMixture.gaussian(0.41)).fingerprint() != config().fingerprint()
+    # floor sampling changes a ray-mode map (a checkpoint of another floor_rays is not resumed), not a projective one
+    assert config(floor_rays=0).fingerprint() != config().fingerprint()
+    assert config(mode="projective", floor_rays=0) == config(mode="projective")
 
 
 @pytest.mark.parametrize(
@@ -119,6 +122,8 @@ def test_config_is_hashable_picklable_and_fingerprinted_by_content():
         ({"subsample": 0}, "`subsample` must be an integer >= 1"),
         ({"subsample": "a"}, "`subsample` must be an integer >= 1; got 'a'"),
         ({"subsample": 1.5}, "`subsample` must be an integer >= 1; got 1.5"),
+        ({"floor_rays": -1}, r"`floor_rays` must be an integer >= 0 \(0: every ray\); got -1"),
+        ({"floor_rays": 2.5}, "`floor_rays` must be an integer >= 0"),
         ({"frames": (3, 3)}, "`frames` 3:3 is empty"),
         ({"frames": (-1, None)}, "`frames` must hold integers >= 0"),
         ({"matcher": "census"}, "unknown matcher 'census'"),
