@@ -205,7 +205,8 @@ def disparity_batch(
     Returns
     -------
     RayBatch
-        Kind ``"disparity"``, one ray per used pixel in row-major order, from the camera's optical centre.
+        Kind ``"disparity"``, one ray per used pixel in row-major order, from the camera's optical centre, with each
+        ray's level in the image's nested sampling (:func:`prismap.grid.image_levels`, for ray mode's floor sampling).
     """
     disparity = as_float_array(disparity_px, "disparity_px", ndim=2)
     pose = as_float_array(T_world_cam, "T_world_cam", shape=(4, 4), allow_nan=False)
@@ -272,7 +273,8 @@ def integrate_disparity(
         See :func:`disparity_batch`.
     model : InverseSensorModel
     mode : {"ray", "projective"}
-        ``ray`` casts every pixel's ray through the grid; ``projective`` visits the voxels of the camera frustum
+        ``ray`` casts every pixel's ray through the grid (the cells at a ray's failure floor by a nested subsample of
+        the pixels, ``floor_rays``); ``projective`` visits the voxels of the camera frustum
         (up to where the measurements stop influencing), projects each centre into the image and updates it once
         from the pixel it lands on.
     policy, max_range_m, floor_rays

@@ -3,7 +3,9 @@
 Two variants behind one base class, built by :func:`make_integrator`:
 
 - ``"ray"`` (:class:`RayIntegrator`): casts every ray through the grid (Amanatides & Woo); exact per ray,
-  costs per crossed voxel and ray, so near voxels crossed by many rays are visited many times.
+  costs per crossed voxel and ray, so near voxels crossed by many rays are visited many times (in front of their
+  rays' failure floors, by a nested subsample of the rays, each cell weighed for the rays it stands for:
+  :mod:`prismap.grid._floor_sampling`).
 - ``"projective"`` (:class:`ProjectiveIntegrator`): visits each voxel of the frustum once, projects its
   centre into the image and takes the ray of that pixel; one visit per voxel, needs the frame's image
   geometry (:class:`ImageProjection`).

@@ -131,7 +131,8 @@ class OccupancyMap:
             Built for this map: its ``p0`` and ``voxel_size_m`` (when it has them) must equal the map's, and
             it must take the batch's kind of measurement (its ``measurements``).
         mode : {"ray", "projective"}
-            ``ray`` casts every ray through the grid; ``projective`` visits the voxels of the frustum (up to
+            ``ray`` casts every ray through the grid (the cells at a ray's failure floor sampled, ``floor_rays``);
+            ``projective`` visits the voxels of the frustum (up to
             where the measurements stop influencing), projects each centre into the batch's image
             (``batch.image``) and updates it once from the ray of the pixel it lands on.
         policy : str or None
