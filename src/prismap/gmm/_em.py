@@ -21,7 +21,6 @@ from typing import Any
 
 import numpy as np
 import numpy.typing as npt
-from scipy.optimize import minimize_scalar
 
 from prismap._validate import as_float_array, check_integer, check_positive
 from prismap.errors import PrismapInputError
@@ -289,6 +288,8 @@ def fit_outlier_weight(
     centres = 0.5 * (edges[occupied] + edges[occupied + 1])
     weights = values[occupied]
     inlier, outside = mixture.logpdf(centres), outlier.logpdf(centres)
+
+    from scipy.optimize import minimize_scalar  # here, not above: slow to import, and few commands need it
 
     def cost(log_w):  # concave in w: one bounded 1-D search over ln w finds its maximum
         return -(weights @ np.logaddexp(np.log1p(-np.exp(log_w)) + inlier, log_w + outside) + prior * log_w)

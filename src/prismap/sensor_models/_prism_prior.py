@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import numpy as np
 import numpy.typing as npt
-from scipy.optimize import minimize_scalar
 
 from prismap._validate import as_float_array, check_probability
 from prismap.errors import PrismapInputError
@@ -97,6 +96,8 @@ def estimate_prior_from_likelihood(
         lam = -np.log1p(-np.exp(log_p0)) / model.voxel_size_m * norm
         log_z = _kernels_direct.prism_log_evidence(shift, lam, log_far, _QUAD_STEP, geometry, mixture)
         return -with_floor(log_z, error_model).sum()
+
+    from scipy.optimize import minimize_scalar  # here, not above: slow to import, and few commands need it
 
     result = minimize_scalar(
         negative_log_likelihood, bounds=(np.log(lo), np.log(hi)), method="bounded", options={"xatol": 1e-3}
