@@ -31,7 +31,7 @@ about ``FLOOR_RAYS^2`` rays a voxel where all rays would cross ``(FLOOR_RAYS 2^j
 cell."""
 
 MAX_BAND = 4
-"""Deepest band: a floor cell counts at most ``4^MAX_BAND`` times (the rays of level ``MAX_BAND`` cast it all)."""
+"""Deepest band: a floor cell counts at most ``base^MAX_BAND`` times (the rays of level ``MAX_BAND`` cast it all)."""
 
 
 @dataclass(frozen=True)

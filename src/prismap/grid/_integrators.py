@@ -38,7 +38,7 @@ from prismap.errors import PrismapInputError
 from prismap.grid import _accumulator, _kernels_project, _kernels_traverse
 from prismap.grid._floor_sampling import FLOOR_RAYS, cell_weights, check_floor_rays, floor_plan
 from prismap.grid._kernel_args import Projection
-from prismap.grid._ray_batch import RayBatch, _rows
+from prismap.grid._ray_batch import RayBatch, take_rows
 from prismap.grid._sensor_model import SensorModel
 from prismap.grid._storage import BlockTable
 
@@ -154,7 +154,7 @@ class Integrator(ABC):
 
     def stop_depths(self, model: SensorModel, batch: RayBatch, idx: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
         """Depth at which each ray of ``idx`` stops and whether that stop excludes its voxel (cut by max range)."""
-        measurement, ray_norm = _rows(batch.measurement, idx), _rows(batch.ray_norm, idx)
+        measurement, ray_norm = take_rows(batch.measurement, idx), take_rows(batch.ray_norm, idx)
         influence = np.asarray(
             model.influence_depth(measurement, ray_norm, **batch.class_kwargs(idx, model)), dtype=np.float64
         )
@@ -189,7 +189,7 @@ class Integrator(ABC):
         if map_log_odds is not None:
             kwargs["map_log_odds"] = map_log_odds
         _, increment = model.cell_posteriors(
-            _rows(batch.measurement, idx), _rows(batch.ray_norm, idx), ray_of_cell, t_in, t_out, **kwargs
+            take_rows(batch.measurement, idx), take_rows(batch.ray_norm, idx), ray_of_cell, t_in, t_out, **kwargs
         )
         increment = np.asarray(increment, dtype=np.float64)
         if increment.shape != t_in.shape:
@@ -217,7 +217,10 @@ class RayIntegrator(Integrator):
     run the model on chunks k - 1 and k (the model costs several times the cast); this thread then adds the
     increments of finished chunks in chunk order, so only it writes the accumulator. A model that
     ``takes_map_prior`` gets each chunk's cells' map log-odds, looked up by this thread right after the chunk's
-    cast (the map changes only after the frame).
+    cast (the map changes only after the frame). With ``floor_rays`` > 0, a batch with ``levels`` and a model with a
+    ``floor_depth``, the cells at a ray's failure floor are cast by a nested subsample of the rays and weighed for
+    the rays each stands for (:mod:`prismap.grid._floor_sampling`): each ray's cast starts where its level's bands
+    begin, and the model threads weigh its cells beside their increments.
 
     References
     ----------
@@ -237,7 +240,7 @@ class RayIntegrator(Integrator):
         plans = [self._floor_plan(model, batch, members, t_stop) for model, members, t_stop, _ in stops]
         limits = [
             _kernels_traverse.cell_limits(
-                origin, np.ascontiguousarray(_rows(batch.rays_w, members)), plan[0], t_stop, voxel
+                origin, np.ascontiguousarray(take_rows(batch.rays_w, members)), plan[0], t_stop, voxel
             )
             for (_, members, t_stop, _), plan in zip(stops, plans)
         ]
@@ -254,7 +257,7 @@ class RayIntegrator(Integrator):
                 _cast_hit_miss(
                     accumulator,
                     origin,
-                    np.ascontiguousarray(_rows(batch.rays_w, members)),
+                    np.ascontiguousarray(take_rows(batch.rays_w, members)),
                     t_stop,
                     exclusive,
                     model,
@@ -304,7 +307,9 @@ class RayIntegrator(Integrator):
         rule = getattr(model, "floor_depth", None)
         if not self.floor_rays or batch.levels is None or rule is None or model.takes_map_prior:
             return np.zeros(t_stop.size), None, None
-        floor_end = rule(_rows(batch.measurement, idx), _rows(batch.ray_norm, idx), **batch.cell_kwargs(idx, model))
+        floor_end = rule(
+            take_rows(batch.measurement, idx), take_rows(batch.ray_norm, idx), **batch.cell_kwargs(idx, model)
+        )
         if floor_end is None:
             return np.zeros(t_stop.size), None, None
         floor_end = np.asarray(floor_end, dtype=np.float64)

@@ -92,7 +92,7 @@ class RayBatch:
         ``model.takes_voxel_overhang``: the keywords of ``model.cell_posteriors``."""
         kwargs = self.class_kwargs(idx, model)
         if self.voxel_overhang_m is not None and model.takes_voxel_overhang:
-            kwargs["voxel_overhang_m"] = _rows(self.voxel_overhang_m, idx)
+            kwargs["voxel_overhang_m"] = take_rows(self.voxel_overhang_m, idx)
         return kwargs
 
 
@@ -100,5 +100,6 @@ def _take(array, idx):
     return None if array is None else array[idx]
 
 
-def _rows(array, idx):
+def take_rows(array, idx):
+    """Rows ``idx`` of ``array``, or all of it when ``idx`` is None (every ray of the batch)."""
     return array if idx is None else array[idx]
