@@ -29,23 +29,10 @@ def map_prior_cells(model, lam, disparity, norm, rays, start, end, stretch, map_
     ray_start = np.searchsorted(rays[order], np.arange(disparity.size + 1))
     _check_tiling(rays[order], start[order], end[order], ray_start, model.near_m)
     cell_rate = np.logaddexp(0.0, log_odds) / model.voxel_size_m * norm[rays]  # per metre of depth
-    result = _kernels_map_prior.prism_map_prior_cells(
-        disparity + model.doffs_px,
-        lam,
-        model._log_far(disparity),
-        order,
-        ray_start,
-        start,
-        end,
-        stretch,
-        cell_rate,
-        _TAIL_STEP,
-        _TAIL_REST,
-        model.pass_through,
-        np.log(model.error_model.weights),
-        model._geometry(),
-        model._mixture(),
-    )
+    per_ray = (disparity + model.doffs_px, lam, model._log_far(disparity))
+    cells = (order, ray_start, start, end, stretch, cell_rate)
+    tail = (_TAIL_STEP, _TAIL_REST, model.pass_through, np.log(model.error_model.weights))
+    result = _kernels_map_prior.prism_map_prior_cells(*per_ray, *cells, *tail, model._geometry(), model._mixture())
     return result, cell_rate
 
 
