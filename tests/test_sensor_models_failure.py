@@ -153,7 +153,7 @@ def test_table_cells_blend_as_the_ray_cell_blend_does():
     lam = model.rate_per_m * norm
     tables = model._tables_for(disparity, norm)
     _, unblended = model._table_cells(lam, rays, start, end, stretch, tables, (np.empty(0), np.empty(0)))
-    log_fail, log_ok = model._log_failure(tables)
+    log_fail, log_ok = model._log_failure(model._ray_log_z(tables))
     expected_posterior, expected = _kernels_failure.blend_ray_cells(
         unblended, rays, start, end + stretch[rays], lam[rays], model.near_m, model.far_depth_m, log_fail, log_ok
     )
@@ -328,7 +328,7 @@ def test_cells_before_the_floor_depth_skip_the_look_up_and_blend_as_a_zero_ratio
     disparity, norm, rays, start, end = _street_rays(0.0)
     lam, stretch = model.rate_per_m * norm, np.zeros(disparity.size)
     tables = model._tables_for(disparity, norm)
-    log_fail, log_ok = model._log_failure(tables)
+    log_fail, log_ok = model._log_failure(model._ray_log_z(tables))
     n = start.size
     l_a, l_c, lam_len, side = np.empty(n), np.empty(n), np.empty(n), np.empty(n, dtype=np.int8)
     _kernels_lookup.prism_table_lookup(
@@ -362,7 +362,7 @@ def test_with_pass_through_the_floor_blends_the_pass_through_chance():
     disparity, norm, rays, start, end = _street_rays(0.5)
     lam = model.rate_per_m * norm
     tables = model._tables_for(disparity, norm)
-    log_fail, log_ok = model._log_failure(tables)
+    log_fail, log_ok = model._log_failure(model._ray_log_z(tables))
     depth = [
         _kernels_failure.floor_depth(d, lz, np.log(m), STREET_FB, model.near_m, model._mixture())
         for d, lz in zip(disparity, model._ray_log_z(tables))

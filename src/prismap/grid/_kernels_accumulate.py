@@ -136,12 +136,9 @@ def scatter(acc, cell_index, increment, weight):
 
     ``acc`` is the accumulator payload seen as (rows, 4); ``cell_index`` from :func:`register_run`.
     """
-    if weight.size == 0:
-        for i in range(cell_index.size):
-            add_increment(acc, cell_index[i], np.float32(increment[i]))
-        return
+    weighted, once = weight.size > 0, np.float32(1.0)
     for i in range(cell_index.size):
-        add_weighted(acc, cell_index[i], np.float32(increment[i]), weight[i])
+        add_increment(acc, cell_index[i], np.float32(increment[i]), weight[i] if weighted else once)
 
 
 SCATTER_RUN = 1024
@@ -158,35 +155,25 @@ def scatter_keys(accumulator, keys, increment, start):
     rows = acc.reshape((acc.shape[0] * acc.shape[1], acc.shape[2]))
     scratch = np.empty(SCATTER_RUN, dtype=np.int64)
     last_block, last_slot = EMPTY, np.int64(-1)
+    once = np.float32(1.0)
     n = keys.shape[0]
     for lo in range(start, n, SCATTER_RUN):
         hi = min(lo + SCATTER_RUN, n)
         done, last_block, last_slot = register_run(accumulator, keys, lo, hi, scratch, last_block, last_slot)
         for i in range(lo, done):
-            add_increment(rows, scratch[i - lo], np.float32(increment[i]))
+            add_increment(rows, scratch[i - lo], np.float32(increment[i]), once)
         if done < hi:
             return done
     return n
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def add_increment(acc, row, x):
-    """Add float32 increment ``x`` to accumulator row ``row``: ``(sum, count, max, min)``."""
-    acc[row, 0] += x
-    acc[row, 1] += 1.0
-    if x > acc[row, 2]:  # a comparison, not max(): a NaN increment leaves the row alone
-        acc[row, 2] = x
-    if x < acc[row, 3]:
-        acc[row, 3] = x
-
-
-@numba.njit(cache=True, nogil=True, inline="always")
-def add_weighted(acc, row, x, w):
-    """Add float32 increment ``x`` to accumulator row ``row`` counted ``w`` times: ``(sum += w x, count += w, max,
-    min)`` (``w = 1`` adds as :func:`add_increment`)."""
+def add_increment(acc, row, x, w):
+    """Add float32 increment ``x`` to accumulator row ``row`` counted float32 ``w`` times: ``(sum += w x,
+    count += w, max, min)`` (``w`` 1 but for a floor-sampled cell, exact in float32 then)."""
     acc[row, 0] += w * x
     acc[row, 1] += w
-    if x > acc[row, 2]:
+    if x > acc[row, 2]:  # a comparison, not max(): a NaN increment leaves the row alone
         acc[row, 2] = x
     if x < acc[row, 3]:
         acc[row, 3] = x

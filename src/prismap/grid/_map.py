@@ -242,7 +242,7 @@ class OccupancyMap:
         )
         return checked if valid.all() else checked.subset(valid)  # a dense frame skips these copies
 
-    def _integrate(self, batch, model, mode, policy, max_range_m, floor_rays=FLOOR_RAYS):
+    def _integrate(self, batch, model, mode, policy, max_range_m, floor_rays):
         """One frame: the model checked against the map, the integrator of ``mode``, one update per voxel."""
         self._check_model(model)
         measurement = getattr(model, "measurement", "disparity")

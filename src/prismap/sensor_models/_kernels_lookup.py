@@ -163,24 +163,29 @@ _FLOOR = 8
 not looked up, its failure-free likelihood ratio taken as 0 (thinned: the pass-through chance)."""
 
 
+@nb.njit(cache=True, nogil=True, inline="always")
+def _ray_floor(shift, log_z, log_floor, z_start, geometry, mixture):
+    """Depth (metres) up to which a cell's end leaves the cell at its ray's failure floor (:data:`_FLOOR`):
+    ``floor_depth`` (``z0`` for a ``log_floor`` of ``-inf``: no floor), or the table's start ``z_start`` if later."""
+    return max(floor_depth(shift, log_z, log_floor, geometry.fb, geometry.z0, mixture), z_start)
+
+
 @nb.njit(cache=True, nogil=True)
-def ray_floor_depths(tables, log_floor, model_of_ray, geometry, models):
-    """Per ray, the depth (metres) up to which a cell's end leaves the cell at its ray's failure floor in
-    :func:`prism_table_lookup` (:data:`_FLOOR`: ``floor_depth``, or the table's start if later), at most the
-    influence depth: ``(R,)`` float64. ``tables`` as the look-up's, ``log_floor`` ((R,) log, or (0,): no floor)
-    each ray's floor level, ``model_of_ray`` ((R,) int) each ray's row of ``models`` (a
+def ray_floor_depths(tables, log_z, log_floor, model_of_ray, geometry, models):
+    """Per ray, :func:`_ray_floor` as :func:`prism_table_lookup` finds it, at most the influence depth: ``(R,)``
+    float64. ``tables`` as the look-up's, ``log_z`` ((R,) log) each ray's ``Z`` (``PrismModel._ray_log_z``),
+    ``log_floor`` ((R,) log, or (0,): no floor) its floor level, ``model_of_ray`` ((R,) int) its row of ``models`` (a
     :class:`~prismap.sensor_models._kernel_args.MixtureSet`)."""
-    table, delta, meta, _ = tables
+    table, _, meta, _ = tables
     depth = np.empty(table.size)
     for r in range(table.size):
-        t, dl, k = table[r], delta[r], model_of_ray[r]
-        floor = geometry.z0
-        if log_floor.size:
-            log_z = meta[t, _LOG_Z] + dl * (meta[t, _LOG_Z_1] + 0.5 * dl * meta[t, _LOG_Z_2])
-            n = models.size[k]
-            mixture = Mixture(models.log_wn[k, :n], models.means[k, :n], models.sigmas[k, :n])
-            floor = floor_depth(meta[t, _SHIFT], log_z, log_floor[r], geometry.fb, geometry.z0, mixture)
-        depth[r] = min(max(floor, meta[t, _Z_START]), meta[t, _Z_INFL])
+        t, k = table[r], model_of_ray[r]
+        n = models.size[k]
+        mixture = Mixture(models.log_wn[k, :n], models.means[k, :n], models.sigmas[k, :n])
+        level = log_floor[r] if log_floor.size else -np.inf
+        depth[r] = min(
+            _ray_floor(meta[t, _SHIFT], log_z[r], level, meta[t, _Z_START], geometry, mixture), meta[t, _Z_INFL]
+        )
     return depth
 
 
@@ -291,7 +296,7 @@ def prism_table_lookup(lam, stretch, tables, cells, lo, hi, hq, geometry, mixtur
             c_end = int(meta[t, _C_END])
             stretch_r = stretch[r]
             z_start = meta[t, _Z_START]  # cells ending before it are at the floor (the table has no nodes there)
-            z_floor = max(floor_depth(shift, log_z, log_floor[r], fb, z0, mixture) if floors else z0, z_start)
+            z_floor = _ray_floor(shift, log_z, log_floor[r] if floors else -np.inf, z_start, geometry, mixture)
         a = max(start[i], z0)
         c = min(end[i] + stretch_r, z_max)
         if c <= a or a >= z_infl:

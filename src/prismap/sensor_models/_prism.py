@@ -366,13 +366,13 @@ class PrismModel(RayModel):
             cell_rate = lam[rays]
         elif method == "table":  # the failure blend, if any, inside the look-up's blocks
             tables = self._tables_for(disparity, norm)
-            return self._table_cells(lam, rays, start, end, stretch, tables, self._log_failure(tables))
+            return self._table_cells(lam, rays, start, end, stretch, tables, self._log_failure(self._ray_log_z(tables)))
         else:
             raise PrismapInputError(f"prism: `method` must be 'table' or 'direct'; got {method!r}")
         if self.error_model.failure_weight == 0:
             return result
         if method == "table":  # prior="map": Z is the tables' marginal under p0
-            log_fail, log_ok = self._log_failure(self._tables_for(disparity, norm))
+            log_fail, log_ok = self._log_failure(self._ray_log_z(self._tables_for(disparity, norm)))
         else:
             log_z = _kernels_direct.prism_log_evidence(
                 disparity + self.doffs_px, lam, self._log_far(disparity), _QUAD_STEP, self._geometry(), self._mixture()
@@ -416,27 +416,28 @@ class PrismModel(RayModel):
         disparity = as_float_array(disparity_px, "disparity_px", ndim=1, allow_nan=False)
         norm = as_float_array(ray_norm, "ray_norm", shape=(disparity.size,))
         tables = self._tables_for(disparity, norm)
+        log_z = self._ray_log_z(tables)
         ray_model = np.zeros(disparity.size, dtype=np.int64)
-        return self._floor_from(
-            tables, self._log_failure(tables)[0], ray_model, self._kernel_models, norm, voxel_overhang_m
-        )
+        log_fail = self._log_failure(log_z)[0]
+        return self._floor_from(tables, log_z, log_fail, ray_model, self._kernel_models, norm, voxel_overhang_m)
 
-    def _floor_from(self, tables, log_fail, ray_model, models, norm, voxel_overhang_m):
-        """:meth:`floor_depth` of rays of ``tables``, ``log(1 - rho)`` ``log_fail`` (empty: no failures), each of
-        model ``ray_model`` of ``models`` (``MixtureSet``), norms ``norm`` and overhangs ``voxel_overhang_m``."""
+    def _floor_from(self, tables, log_z, log_fail, ray_model, models, norm, voxel_overhang_m):
+        """:meth:`floor_depth` of rays of ``tables``, ``log Z`` ``log_z`` (:meth:`_ray_log_z`) and ``log(1 - rho)``
+        ``log_fail`` (empty: no failures), each of model ``ray_model`` of ``models`` (``MixtureSet``), norms ``norm``
+        and overhangs ``voxel_overhang_m``."""
         log_floor = self._floor_levels(log_fail) if log_fail.size else log_fail
-        depth = _kernels_lookup.ray_floor_depths(tables, log_floor, ray_model, self._geometry(), models)
+        depth = _kernels_lookup.ray_floor_depths(tables, log_z, log_floor, ray_model, self._geometry(), models)
         return depth - self._stretch(norm, voxel_overhang_m)
 
-    def _log_failure(self, tables):
-        """``log(1 - rho)`` and ``log(rho)`` of each ray, its failure posterior given its tables' ``Z``
-        (:meth:`_tables_for`; :func:`~prismap.sensor_models.log_failure_posterior`), or two empty arrays when the
+    def _log_failure(self, log_z):
+        """``log(1 - rho)`` and ``log(rho)`` of each ray, its failure posterior given its ``Z`` (``log_z``, from its
+        table: :meth:`_ray_log_z`; :func:`~prismap.sensor_models.log_failure_posterior`), or two empty arrays when the
         error model has no failures. A cell's ``(posterior, increment)`` is then the Gaussians' PRISM blended with
         its prior by its ray's (:func:`prismap.sensor_models.blend_increments`; docs/SENSOR_MODELS.md, "Matcher
         failures")."""
         if self.error_model.failure_weight == 0:
             return np.empty(0), np.empty(0)
-        return log_failure_posterior(self.error_model, self._ray_log_z(tables))
+        return log_failure_posterior(self.error_model, log_z)
 
     @staticmethod
     def _ray_log_z(tables):

@@ -101,14 +101,17 @@ class PrismClasses:
 
     def floor_depth(self, disparity, norm, index, voxel_overhang_m=None):
         """:meth:`PrismModel.floor_depth` of each ray by its model ``index`` ((R,) int)."""
-        first = self.models[0]
         tables = self.tables_for(disparity, norm, index)
-        log_fail = np.empty(0)
-        if self.failures is not None:
-            log_fail = failure_posterior_terms(*self.failures[:, index], first._ray_log_z(tables))[0]
-        return first._floor_from(
-            tables, log_fail, np.asarray(index, dtype=np.int64), self.mixtures, norm, voxel_overhang_m
-        )
+        log_z = self.models[0]._ray_log_z(tables)
+        log_fail = self._log_failure(log_z, index)[0]
+        index = np.asarray(index, dtype=np.int64)
+        return self.models[0]._floor_from(tables, log_z, log_fail, index, self.mixtures, norm, voxel_overhang_m)
+
+    def _log_failure(self, log_z, index):
+        """:meth:`PrismModel._log_failure` of rays of ``log Z`` ``log_z``, each by its model ``index``."""
+        if self.failures is None:
+            return np.empty(0), np.empty(0)
+        return failure_posterior_terms(*self.failures[:, index], log_z)
 
     def cell_posteriors(self, disparity_px, ray_norm, ray_of_cell, start, end, index, voxel_overhang_m=None):
         """:meth:`PrismModel.cell_posteriors` of each cell by its ray's model ``index`` ((R,) int), in one look-up
@@ -119,9 +122,7 @@ class PrismClasses:
             disparity_px, ray_norm, ray_of_cell, start, end, voxel_overhang_m
         )
         tables = self.tables_for(disparity, norm, index)
-        log_failure = (np.empty(0), np.empty(0))
-        if self.failures is not None:
-            log_failure = failure_posterior_terms(*self.failures[:, index], first._ray_log_z(tables))
+        log_failure = self._log_failure(first._ray_log_z(tables), index)
         order, runs = cell_runs(np.asarray(index, dtype=np.int64), rays)
         if order is not None:  # the look-up takes runs of one model
             rays, start, end = rays[order], start[order], end[order]
