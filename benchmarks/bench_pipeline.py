@@ -20,7 +20,8 @@ library's calls wrapped here to time them: matching (the matcher's ``compute_wit
 and rays and the rest (what is left of the frame). Stage seconds add up over threads: in ray mode the model runs
 in two threads while the next chunk is cast, in projective mode on one part of the walk while the next is walked,
 so the shares may add up past 100 % of the wall time (then "rays and rest" is 0). ``cold`` is the first run in
-this process (numba caches loaded, PRISM's tables built), ``warm`` the median of --repeat more runs (the
+this process (numba caches loaded, PRISM's tables built and written to an empty table store, a temporary
+``PRISMAP_TABLE_CACHE``), ``warm`` the median of --repeat more runs (the
 pipeline keeps the model, so its tables, between runs of one config). The pipeline computes the next frame's
 disparity in a background thread while it integrates this one (``pipeline._prefetch.Prefetch``), so matching
 overlaps the other stages; a second line gives warm runs without that look-ahead (each frame's disparity computed
@@ -61,6 +62,7 @@ from prismap.characterise import characterise_matcher, load_error_model
 from prismap.cli import main as prismap_main
 from prismap.io import read_sequence, write_sequence
 from prismap.pipeline import MappingConfig, map_sequence
+from prismap.sensor_models._table_store import STORE_ENV
 from prismap.stereo import make_matcher
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -240,6 +242,7 @@ def main():
     parser.add_argument("--cv-threads", type=int, default=None, help="cv2.setNumThreads before any run")
     parser.add_argument("--dask", action="store_true", help="the Dask comparison instead of the stages")
     args = parser.parse_args()
+    os.environ[STORE_ENV] = tempfile.mkdtemp(prefix="prismap-tables-")  # a rig's first run: an empty table store
     os.environ.setdefault("PRISMAP_PROGRESS", "0")
     if args.cv_threads is not None:
         cv2.setNumThreads(args.cv_threads)

@@ -20,7 +20,7 @@ from prismap.io import BagSequence, Sequence, read_kitti_disparity, read_sequenc
 from prismap.pipeline._checkpoint import open_checkpoint, run_fingerprint, save_checkpoint
 from prismap.pipeline._config import DISPARITY_FROM_MATCHER, DISPARITY_FROM_SEQUENCE, MappingConfig
 from prismap.pipeline._prefetch import Prefetch
-from prismap.sensor_models import ConditionedModel, InverseSensorModel
+from prismap.sensor_models import ConditionedModel, InverseSensorModel, flush_table_stores
 from prismap.stereo import make_matcher
 
 
@@ -176,6 +176,7 @@ def integrate_frames(
             )
             if on_frame is not None:
                 on_frame(grid)
+    flush_table_stores()
     return grid
 
 

@@ -24,6 +24,7 @@ from prismap.sensor_models._failure import (
 from prismap.sensor_models._prism import PrismModel
 from prismap.sensor_models._prism_discrete import log_mean_likelihood, prism_discrete_posteriors
 from prismap.sensor_models._prism_prior import estimate_prior_from_likelihood, prior_from_ground_truth
+from prismap.sensor_models._table_store import STORE_ENV, flush_table_stores, store_directory
 
 __all__ = [
     "CLASS_PASS_THROUGH",
@@ -33,6 +34,7 @@ __all__ = [
     "HitMissModel",
     "IdealModel",
     "InverseSensorModel",
+    "STORE_ENV",
     "PrismModel",
     "blend_increments",
     "conditioned_sensor_model",
@@ -40,6 +42,7 @@ __all__ = [
     "estimate_prior_from_likelihood",
     "evidence_bound",
     "failure_floor",
+    "flush_table_stores",
     "log_failure_posterior",
     "log_mean_likelihood",
     "make_sensor_model",
@@ -49,4 +52,5 @@ __all__ = [
     "prior_from_ground_truth",
     "prism_discrete_posteriors",
     "register_model",
+    "store_directory",
 ]

@@ -53,6 +53,7 @@ from prismap.sensor_models._prism_spacing import (
     coarse_ratio,
     spacing_profile,
 )
+from prismap.sensor_models._table_store import model_fingerprint, table_store
 
 INFLUENCE_EPSILON = 1e-3
 """Default log-odds bound beyond the influence depth: every later cell has ``|increment| < epsilon``."""
@@ -196,6 +197,7 @@ class PrismModel(RayModel):
     _kernel_mixture: Mixture = field(default=None, init=False, repr=False, compare=False)
     _kernel_models: MixtureSet = field(default=None, init=False, repr=False, compare=False)  # _kernel_mixture's set
     _table_tag: int = field(default=0, init=False, repr=False, compare=False)  # its keys' offset in a shared cache
+    _store_fingerprint: int = field(default=0, init=False, repr=False, compare=False)  # its tables' in the store
 
     def __post_init__(self):
         super().__post_init__()
@@ -251,6 +253,9 @@ class PrismModel(RayModel):
             self, "_kernel_geometry", Geometry(self.near_m, self.far_depth_m, self.focal_baseline, self._ku())
         )
         object.__setattr__(self, "_kernel_models", mixture_set([self._kernel_mixture], [self._ku()]))
+        key_inputs = (self.rate_per_m, self.doffs_px, self.disparity_step_px, _LAMBDA_STEP, self.far_depth_m)
+        fingerprint = model_fingerprint(self._kernel_geometry, spec, self._kernel_mixture, key_inputs, m.to_dict())
+        object.__setattr__(self, "_store_fingerprint", fingerprint)
 
     def _check_table_size(self):
         """Refuse, before any table is built, a model whose tables could exceed :data:`MAX_TABLE_NODES`.
@@ -511,15 +516,37 @@ class PrismModel(RayModel):
 
     def _build_tables(self, keys):
         """The tables of ``keys`` ((K,) int64, untagged): ``nodes`` (N, ``_kernels_pack.TABLE_COLUMNS``)
-        float32 back to back and their ``meta`` rows (K, ``len(_kernels_pack.META_COLUMNS)``), ``offset`` from the
-        first row of ``nodes`` (``_kernels_pack.prism_tables``), in :data:`_BUILD_THREADS` threads for a large batch
-        (``nodes`` then a list of each thread's arrays, to be read back to back: :meth:`TableCache.rows` copies them
-        in)."""
-        key_d, key_l = np.divmod(np.asarray(keys, dtype=np.int64), _KEY_L_SPAN)
+        float32 back to back (an array, or a list of arrays read back to back: :meth:`TableCache.rows` copies them
+        in) and their ``meta`` rows (K, ``len(_kernels_pack.META_COLUMNS)``), ``offset`` from the first row of
+        ``nodes``: read from the table store where it has them (``_table_store``: tables of earlier runs), the others
+        built (:meth:`_new_tables`) and handed to the store."""
+        keys = np.asarray(keys, dtype=np.int64)
+        key_d, key_l = np.divmod(keys, _KEY_L_SPAN)
         disparity = key_d * self.disparity_step_px
         lam = self.rate_per_m * np.exp(_kernels_pack.rate_key_centre(key_l, _LAMBDA_STEP))
         log_far = self._log_far(disparity)
         shift = disparity + self.doffs_px
+        store = table_store()
+        if store is None:
+            return self._new_tables(shift, lam, log_far)
+        fingerprint = self._store_fingerprint
+        found, stored_nodes, stored_meta = store.fetch(fingerprint, keys, lam, shift, log_far)
+        if found.all():
+            return stored_nodes, stored_meta
+        new = ~found
+        nodes, meta = self._new_tables(shift[new], lam[new], log_far[new])
+        store.add(fingerprint, keys[new], nodes, meta)
+        if not found.any():
+            return nodes, meta
+        meta[:, _OFFSET] += stored_nodes.shape[0]
+        both = np.empty((keys.size, meta.shape[1]))
+        both[found], both[new] = stored_meta, meta
+        return [stored_nodes, *(nodes if isinstance(nodes, list) else [nodes])], both
+
+    def _new_tables(self, shift, lam, log_far):
+        """Build the tables of ``(shift, lam, log_far)`` ((K,) each; ``_kernels_pack.prism_tables``), in
+        :data:`_BUILD_THREADS` threads for a large batch (``nodes`` then a list of each thread's arrays); as
+        :meth:`_build_tables` returns them."""
         geometry, mixture, spec = self._geometry(), self._mixture(), self._table_spec
 
         def build(share):
