@@ -13,6 +13,8 @@ a truncated or foreign file) is built again. Segments are mapped read-only and t
 :data:`STORE_BUDGET_BYTES`.
 """
 
+from __future__ import annotations
+
 import atexit
 import hashlib
 import json
@@ -41,7 +43,7 @@ _NODE_BYTES = np.dtype(np.float32).itemsize * _kernels_pack.TABLE_COLUMNS
 _KERNEL_SOURCES = ("_kernel_args.py", *(p.name for p in Path(__file__).parent.glob("_kernels_*.py")))
 
 
-def store_directory():
+def store_directory() -> Path | None:
     """The store's directory from ``PRISMAP_TABLE_CACHE`` and the XDG convention, or None when it is off."""
     value = os.environ.get(STORE_ENV)
     if value is not None:
@@ -271,7 +273,7 @@ def table_store():
         return _STORES[key]
 
 
-def flush_table_stores():
+def flush_table_stores() -> None:
     """Write the PRISM tables this process has built and not yet stored (done at exit, and after each run of
     ``pipeline.integrate_frames``: a sequence, or a Dask worker's chunk)."""
     with _STORES_LOCK:
