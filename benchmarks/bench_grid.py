@@ -18,7 +18,9 @@ medians over the repeats of the first frame and of the median steady frame (fram
 ratios to OctoMap's, the process's peak RSS over the sequence above its RSS before it (the peak reset after the
 world is loaded), the map's own bytes, for the models with calls the cells they evaluate in a steady frame and their
 CPU per cell (the calling threads' CPU: the floor of ray mode, which evaluates every cell of every ray), and for PRISM
-the table cache's size and hit rate (distinct keys found / looked up per call).
+the table cache's size and hit rate (distinct keys found / looked up per call). PRISM's rows start with an empty table
+store on disk (a rig's first run: every table built, and written); the rows "tables stored" with the store an untimed
+run of the same method filled (the rig's later runs: tables read, not built).
 Run: .venv/bin/python benchmarks/bench_grid.py [--repeat 3] [--street [--scale 1.0] [--frames 10] [--voxels 0.2 0.1]
 [--methods OctoMap PRISM]]
 """

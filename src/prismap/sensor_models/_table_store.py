@@ -57,13 +57,19 @@ _SOURCE_DIGEST = None
 
 
 def _source_digest():
-    """sha256 of the sources of the kernels that build tables: a changed kernel finds none of the old tables."""
+    """sha256 of the sources of the kernels that build tables (a changed kernel finds none of the old tables), or of
+    prismap's version where they are not on disk."""
     global _SOURCE_DIGEST
     if _SOURCE_DIGEST is None:
         digest = hashlib.sha256(str(_VERSION).encode())
-        for name in sorted(_KERNEL_SOURCES):
-            digest.update(name.encode())
-            digest.update((Path(__file__).parent / name).read_bytes())
+        try:
+            for name in sorted(_KERNEL_SOURCES):
+                digest.update(name.encode())
+                digest.update((Path(__file__).parent / name).read_bytes())
+        except OSError:
+            from prismap import __version__
+
+            digest.update(f"prismap {__version__}".encode())
         _SOURCE_DIGEST = digest.digest()
     return _SOURCE_DIGEST
 
@@ -185,6 +191,8 @@ class TableStore:
             self._write()
 
     def _write(self):
+        """Write the held tables as one segment, under a temporary name then renamed (readers never see a part of
+        one); past the budget, or where the directory cannot be written, hold and write no more."""
         pending, self._pending, self._pending_bytes = self._pending, [], 0
         if not pending or self._full:
             return
