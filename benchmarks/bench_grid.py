@@ -52,7 +52,7 @@ from prismap.gmm import GaussianMixture
 from prismap.grid import OccupancyMap
 from prismap.pipeline import MappingConfig
 from prismap.sensor_models import ConditionedModel, make_sensor_model
-from prismap.sensor_models._table_store import STORE_ENV
+from prismap.sensor_models._table_store import STORE_ENV, table_store
 from prismap.stereo import make_matcher
 from support import planes_frame, world_points
 
@@ -304,11 +304,13 @@ def street_method(name, mode, voxel, scale, n_frames, world=None):
         subs = getattr(model, "class_models", ()) + (getattr(model, "plain", model),)
         caches = list({id(m._cache): m._cache for m in subs if hasattr(m, "_cache")}.values())  # a shared one once
         if caches:
+            store = table_store()
             out.update(
                 tables=sum(len(c) for c in caches),
                 table_bytes=sum(c.nbytes for c in caches),
                 table_hits=sum(c.hits for c in caches),
-                table_builds=sum(c.builds for c in caches),
+                table_builds=sum(c.builds for c in caches) - (store.found if store else 0),
+                table_reads=store.found if store else 0,
             )
     out.update(wall=wall, cpu=cpu, rss_rise=_meminfo_bytes("VmHWM", "/proc/self/status") - rss_before)
     return out
@@ -376,7 +378,7 @@ def street(args):
         "conditioned / plain PRISM of the same mode: time and peak RSS rise highest"
     )
     for label, figures in worst.items():
-        print(f"{label:<30} " + "  ".join(f"{key} {value:.2f}" for key, value in figures.items()))
+        print(f"{label:<44} " + "  ".join(f"{key} {value:.2f}" for key, value in figures.items()))
 
 
 def _street_table(runs, worst):
@@ -389,7 +391,7 @@ def _street_table(runs, worst):
         default=None,
     )
     print(
-        f"{'method':<30} {'cold s':>7} {'CPU':>6} {'steady s':>8} {'CPU':>6} {'x Octo':>6} {'x CPU':>6} {'x UFO':>6} "
+        f"{'method':<44} {'cold s':>7} {'CPU':>6} {'steady s':>8} {'CPU':>6} {'x Octo':>6} {'x CPU':>6} {'x UFO':>6} "
         f"{'cold/st':>7} {'RSS MB':>7} {'map MB':>7}  model calls and tables"
     )
     for label, row in summary.items():
@@ -398,10 +400,10 @@ def _street_table(runs, worst):
         if "model_cells" in last:
             tables = f"{last['model_cells'] / 1e6:.1f} M cells a frame, {last['model_ns']:.0f} ns a cell; "
         if "tables" in last:
-            hit_rate = last["table_hits"] / max(last["table_hits"] + last["table_builds"], 1)
+            hit_rate = last["table_hits"] / max(last["table_hits"] + last["table_builds"] + last["table_reads"], 1)
             tables += (
                 f"{last['tables']} tables, {last['table_bytes'] / 2**20:.1f} MB, {last['table_builds']} built, "
-                f"hit rate {hit_rate:.3f}"
+                f"{last['table_reads']} read from the store, hit rate {hit_rate:.3f}"
             )
         figures = {"x Octo": octo["steady"] / row["steady"]}
         if ufo is not None:
@@ -414,7 +416,7 @@ def _street_table(runs, worst):
             kept = worst.setdefault(label, {}).get(key, value)
             worst[label][key] = max(kept, value) if "plain" in key else min(kept, value)
         print(
-            f"{label:<30} {row['cold']:7.2f} {row['cold_cpu']:6.2f} {row['steady']:8.3f} {row['steady_cpu']:6.3f} "
+            f"{label:<44} {row['cold']:7.2f} {row['cold_cpu']:6.2f} {row['steady']:8.3f} {row['steady_cpu']:6.3f} "
             f"{figures['x Octo']:6.2f} {octo['steady_cpu'] / row['steady_cpu']:6.2f} {figures.get('x UFO', np.nan):6.2f} "
             f"{row['cold'] / row['steady']:7.2f} {row['rss'] / 2**20:7.0f} {row['map'] / 2**20:7.1f}  {tables}",
             flush=True,

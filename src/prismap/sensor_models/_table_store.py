@@ -133,7 +133,7 @@ _EMPTY_INDEX = (np.empty(0, np.int64), np.empty(0, dtype=object), np.empty(0, np
 
 class TableStore:
     """The segments of one store directory, indexed by (fingerprint, key), and the tables this process has built
-    and not yet written. Thread-safe."""
+    and not yet written; ``found`` and ``written`` count the tables this process has read and written. Thread-safe."""
 
     def __init__(self, directory):
         self.directory = Path(directory)
@@ -144,6 +144,7 @@ class TableStore:
         self._seen = None  # the directory's mtime at the last scan
         self._full = False
         self._lock = threading.Lock()
+        self.found = self.written = 0
 
     def fetch(self, fingerprint, keys, lam, shift, log_far):
         """The stored tables of ``keys`` ((K,) int64) of the model ``fingerprint`` whose rate, shift and far density
@@ -171,6 +172,7 @@ class TableStore:
             if not metas:
                 return found, np.empty((0, _kernels_pack.TABLE_COLUMNS), np.float32), np.empty((0, _META_COLUMNS))
             rank = np.argsort(np.concatenate(order), kind="stable")  # the found tables in the order of keys
+            self.found += rank.size
             return found, np.concatenate(parts), np.concatenate(metas)[rank]
 
     def add(self, fingerprint, keys, nodes, meta):
@@ -220,6 +222,7 @@ class TableStore:
                     for part in parts:
                         f.write(np.ascontiguousarray(part, dtype=np.float32).tobytes())
             os.replace(temporary, self.directory / name)
+            self.written += keys.size
         except OSError:  # a read-only or full disk: the tables are built again next time
             temporary.unlink(missing_ok=True)
             self._full = True
