@@ -93,10 +93,11 @@ def test_tables_read_back_equal_the_built_ones_byte_for_byte(store_dir, monkeypa
     assert tables_by_key(*first) == built
     _table_store.flush_table_stores()
     assert len(list(store_dir.glob("seg-*.bin"))) == 1 and not list(store_dir.glob(".*"))
-    fresh_store()
+    assert _table_store.table_store().written == KEYS.size
+    store = fresh_store()
     builds = counted_builds(monkeypatch)
     again = model._build_tables(KEYS[::-1])  # another order, read
-    assert builds[0] == 0
+    assert builds[0] == 0 and store.found == KEYS.size
     assert tables_by_key(*again) == built[::-1]
     mixed = np.concatenate([KEYS[:3], KEYS[:3] + 16 * (1 << 16)])  # three stored, three new
     tables = model._build_tables(mixed)
