@@ -251,3 +251,21 @@ def test_held_tables_are_written_once_they_reach_the_flush_size(store_dir, monke
     nodes, meta = model._new_tables(*inputs(model, KEYS))
     store.add(model._store_fingerprint, KEYS, nodes, meta)
     assert len(list(store_dir.glob("seg-*.bin"))) == 1
+
+
+def test_a_cache_backed_by_the_store_keeps_less_and_reads_what_it_dropped(store_dir, monkeypatch):
+    from prismap.sensor_models import _prism_cache
+
+    monkeypatch.setattr(_prism_cache, "STORED_FLOOR_BYTES", 1)
+    model = prism()
+    first, second = KEYS[:4], KEYS[4:]
+    model._tables_for(first // (1 << 16) / 16.0, np.exp((first % (1 << 16) + 0.5) * 0.1))
+    cache = model._cache
+    assert cache.limit_bytes == int(_prism_cache.STORED_TABLE_CALLS * cache.largest_call_bytes)
+    model._tables_for(second // (1 << 16) / 16.0, np.exp((second % (1 << 16) + 0.5) * 0.1))
+    assert len(cache) < KEYS.size  # the first call's tables dropped, and written to disk before
+    builds = counted_builds(monkeypatch)
+    model._tables_for(first // (1 << 16) / 16.0, np.exp((first % (1 << 16) + 0.5) * 0.1))
+    assert builds[0] == 0  # read back from the store
+    monkeypatch.setenv("PRISMAP_TABLE_CACHE", "off")
+    assert cache.limit_bytes == max(cache.floor_bytes, _prism_cache.AUTO_TABLE_CALLS * cache.largest_call_bytes)
