@@ -253,19 +253,17 @@ def test_held_tables_are_written_once_they_reach_the_flush_size(store_dir, monke
     assert len(list(store_dir.glob("seg-*.bin"))) == 1
 
 
-def test_a_cache_backed_by_the_store_keeps_less_and_reads_what_it_dropped(store_dir, monkeypatch):
-    from prismap.sensor_models import _prism_cache
-
-    monkeypatch.setattr(_prism_cache, "STORED_FLOOR_BYTES", 1)
-    model = prism()
+def test_tables_a_full_cache_drops_are_written_first_and_read_back(store_dir, monkeypatch):
+    model = prism(table_memory_mb=0.001)  # a budget below one table: each call drops the one before's
     first, second = KEYS[:4], KEYS[4:]
-    model._tables_for(first // (1 << 16) / 16.0, np.exp((first % (1 << 16) + 0.5) * 0.1))
-    cache = model._cache
-    assert cache.limit_bytes == int(_prism_cache.STORED_TABLE_CALLS * cache.largest_call_bytes)
-    model._tables_for(second // (1 << 16) / 16.0, np.exp((second % (1 << 16) + 0.5) * 0.1))
-    assert len(cache) < KEYS.size  # the first call's tables dropped, and written to disk before
+
+    def ask(keys):
+        return model._tables_for(keys // (1 << 16) / 16.0, np.exp((keys % (1 << 16) + 0.5) * 0.1))
+
+    ask(first)
     builds = counted_builds(monkeypatch)
-    model._tables_for(first // (1 << 16) / 16.0, np.exp((first % (1 << 16) + 0.5) * 0.1))
-    assert builds[0] == 0  # read back from the store
-    monkeypatch.setenv("PRISMAP_TABLE_CACHE", "off")
-    assert cache.limit_bytes == max(cache.floor_bytes, _prism_cache.AUTO_TABLE_CALLS * cache.largest_call_bytes)
+    ask(second)
+    assert builds[0] == second.size and len(model._cache) == second.size  # the first call's tables dropped
+    assert _table_store.table_store().written == KEYS.size  # written to disk before the eviction, both calls' tables
+    ask(first)
+    assert builds[0] == second.size  # read back, not built

@@ -139,10 +139,8 @@ class PrismModel(RayModel):
     table_memory_mb : float or None, MiB, default None
         Table cache budget; the tables one call needs are kept even beyond it. ``None``: the larger of
         :data:`AUTO_TABLE_FLOOR_MB` and :data:`AUTO_TABLE_CALLS` times the tables of the largest call so
-        far, or 16 MiB and 1.25 times them while the table store on disk keeps the dropped tables
-        (``PRISMAP_TABLE_CACHE``; ``_prism_cache.STORED_TABLE_CALLS``). The integrators ask for a whole frame's
-        rays at once (``influence_depth``) and then in chunks, so the cache then holds about a frame's tables and
-        more: a fixed budget below one frame's tables (tens to
+        far. The integrators ask for a whole frame's rays at once (``influence_depth``) and then in chunks,
+        so the cache then holds two frames' tables: a fixed budget below one frame's tables (tens to
         hundreds of MB on a street, 5-30 KB a table) rebuilds them chunk after chunk. A model whose
         tables could exceed :data:`MAX_TABLE_NODES` nodes (an error sigma far below the matcher's sub-pixel
         step, or a tiny ``near_m``) is refused on construction.

@@ -20,11 +20,6 @@ KEY_TAG_SPAN = 1 << 40
 
 AUTO_TABLE_CALLS = 2
 """A model with ``table_memory_mb=None`` keeps this many times the tables of its largest call."""
-STORED_TABLE_CALLS = 1.25
-"""As :data:`AUTO_TABLE_CALLS` while a table store on disk holds what the cache drops (``_table_store``): an
-evicted table then costs a read, not a build."""
-STORED_FLOOR_BYTES = 16 << 20
-"""The least automatic budget while a table store backs the cache (the model's own floor otherwise)."""
 EVICT_TO = 0.75
 """Share of its budget a cache holds after an eviction: the least recently used tables go until it is reached, so
 the next frames' tables fit without another eviction (each one copies every kept table into new memory)."""
@@ -47,10 +42,9 @@ class TableCache:
     room in place (no new memory, nothing copied into fresh pages); otherwise it copies them into a new room and
     the readers keep the old one. A budget of
     ``None`` is the larger of ``floor_bytes`` and :data:`AUTO_TABLE_CALLS` times the bytes of the largest
-    call's tables so far, or of :data:`STORED_FLOOR_BYTES` and :data:`STORED_TABLE_CALLS` times them while a table
-    store on disk keeps the dropped tables (:attr:`limit_bytes`). ``hits`` and ``builds`` count the distinct keys of
-    every call found in the cache and not (built, or read from the store; a thrashing cache asks for the same keys
-    again and again). Callers
+    call's tables so far (:attr:`limit_bytes`). ``hits`` and ``builds`` count the distinct keys of every call found
+    in the cache and not (built, or read from the table store on disk, to which the tables an eviction drops are
+    written first; a thrashing cache asks for the same keys again and again). Callers
     hold ``lock`` around :meth:`rows` and their reads of ``meta`` and ``nodes``: a build replaces them by
     longer ones (it writes new nodes only behind the rows an earlier ``nodes`` holds, into room kept for them,
     resident only once written), an eviction by new arrays with rows renumbered.
@@ -92,13 +86,9 @@ class TableCache:
 
     @property
     def limit_bytes(self):
-        """Bytes beyond which least recently used tables are dropped: the budget, else an automatic one, lower
-        while a writable table store on disk backs the cache (:data:`STORED_TABLE_CALLS`)."""
+        """Bytes beyond which least recently used tables are dropped."""
         if self.budget_bytes is not None:
             return self.budget_bytes
-        store = table_store()
-        if store is not None and store.writable:
-            return max(STORED_FLOOR_BYTES, int(STORED_TABLE_CALLS * self.largest_call_bytes))
         return max(self.floor_bytes, AUTO_TABLE_CALLS * self.largest_call_bytes)
 
     def _table_bytes(self, rows=slice(None)):

@@ -175,11 +175,6 @@ class TableStore:
             self.found += rank.size
             return found, np.concatenate(parts), np.concatenate(metas)[rank]
 
-    @property
-    def writable(self):
-        """Whether tables built now are still kept (False once the budget is reached or a write failed)."""
-        return not self._full
-
     def add(self, fingerprint, keys, nodes, meta):
         """Hold newly built tables (``nodes`` an array or a list read back to back, ``meta`` with offsets into them)
         for the next write, and write when :data:`FLUSH_BYTES` are held."""
