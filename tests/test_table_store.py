@@ -187,7 +187,7 @@ def test_fingerprints_change_with_every_table_input_and_the_kernels_sources(monk
     assert model_fingerprint(geometry, spec, mixture, key_inputs, errors) != base
 
 
-def test_a_table_whose_rate_shift_or_far_density_differs_is_built_again(store_dir, monkeypatch):
+def test_a_table_whose_rate_or_shift_differs_is_built_again(store_dir, monkeypatch):
     first = prism()
     first._build_tables(KEYS)
     _table_store.flush_table_stores()
@@ -232,8 +232,8 @@ def test_processes_writing_at_once_keep_every_segment(store_dir):
     store = fresh_store()
     for p0 in (0.05, 0.2):
         model = prism(p0=p0)
-        shift, lam, log_far = inputs(model, KEYS)
-        found, _, _ = store.fetch(model._store_fingerprint, KEYS, lam, shift, log_far)
+        shift, lam, _ = inputs(model, KEYS)
+        found, _, _ = store.fetch(model._store_fingerprint, KEYS, lam, shift)
         assert found.all()
 
 

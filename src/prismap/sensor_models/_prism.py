@@ -524,17 +524,16 @@ class PrismModel(RayModel):
         key_d, key_l = np.divmod(keys, _KEY_L_SPAN)
         disparity = key_d * self.disparity_step_px
         lam = self.rate_per_m * np.exp(_kernels_pack.rate_key_centre(key_l, _LAMBDA_STEP))
-        log_far = self._log_far(disparity)
         shift = disparity + self.doffs_px
         store = table_store()
         if store is None:
-            return self._new_tables(shift, lam, log_far)
+            return self._new_tables(shift, lam, self._log_far(disparity))
         fingerprint = self._store_fingerprint
-        found, stored_nodes, stored_meta = store.fetch(fingerprint, keys, lam, shift, log_far)
+        found, stored_nodes, stored_meta = store.fetch(fingerprint, keys, lam, shift)
         if found.all():
             return stored_nodes, stored_meta
         new = ~found
-        nodes, meta = self._new_tables(shift[new], lam[new], log_far[new])
+        nodes, meta = self._new_tables(shift[new], lam[new], self._log_far(disparity[new]))
         store.add(fingerprint, keys[new], nodes, meta)
         if not found.any():
             return nodes, meta

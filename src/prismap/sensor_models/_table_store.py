@@ -7,7 +7,7 @@ The store is a directory (``PRISMAP_TABLE_CACHE``; default ``$XDG_CACHE_HOME/pri
 ``~/.cache/prismap/tables``; ``off`` or ``0`` turns it off) of segment files, each written whole under a temporary
 name and renamed, so that processes mapping at once (Dask workers) share it without locks. A table is found by
 its model's fingerprint (:func:`model_fingerprint`: the kernels' sources and every parameter its tables depend on)
-and its key, and taken only when its rate, shift and far density equal the caller's; anything else (another version,
+and its key, and taken only when its rate and shift equal the caller's; anything else (another version,
 a truncated or foreign file) is built again. Segments are mapped read-only and their pages let go after each read
 (they would count in the process's resident memory). Writing stops once the directory holds
 :data:`STORE_BUDGET_BYTES`.
@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from prismap.sensor_models import _kernels_pack
-from prismap.sensor_models._kernels_pack import _LAM, _LOG_FAR, _OFFSET, _SHIFT, _STORED
+from prismap.sensor_models._kernels_pack import _LAM, _OFFSET, _SHIFT, _STORED
 
 STORE_ENV = "PRISMAP_TABLE_CACHE"
 """Environment variable naming the store's directory; ``off`` or ``0`` (or empty) turns the store off."""
@@ -110,15 +110,15 @@ class _Segment:
             self._map, dtype="<f4", count=rows * _kernels_pack.TABLE_COLUMNS, offset=nodes_at
         ).reshape(rows, _kernels_pack.TABLE_COLUMNS)
 
-    def read(self, rows, lam, shift, log_far):
-        """The tables at ``rows`` whose rate, shift and far density equal ``lam``, ``shift``, ``log_far`` (each
+    def read(self, rows, lam, shift):
+        """The tables at ``rows`` whose rate and shift equal ``lam`` and ``shift`` (each
         ``rows``' size) and whose nodes lie in the file: ``(ok, meta, nodes)``, ``meta`` the ok ones' rows with
         offsets into ``nodes``, copies; the mapping's pages are then let go (they would count in the process's
         resident memory)."""
         meta = self.meta[rows]
         start, stored = meta[:, _OFFSET].astype(np.int64), meta[:, _STORED].astype(np.int64)
         ok = (stored > 0) & (start >= 0) & (start + stored <= self.nodes.shape[0])
-        ok &= (meta[:, _LAM] == lam) & (meta[:, _SHIFT] == shift) & (meta[:, _LOG_FAR] == log_far)
+        ok &= (meta[:, _LAM] == lam) & (meta[:, _SHIFT] == shift)
         meta, start, stored = meta[ok], start[ok], stored[ok]
         first = np.concatenate(([0], np.cumsum(stored)))
         nodes = self.nodes[np.repeat(start - first[:-1], stored) + np.arange(first[-1])]
@@ -146,9 +146,10 @@ class TableStore:
         self._lock = threading.Lock()
         self.found = self.written = 0
 
-    def fetch(self, fingerprint, keys, lam, shift, log_far):
-        """The stored tables of ``keys`` ((K,) int64) of the model ``fingerprint`` whose rate, shift and far density
-        equal ``lam``, ``shift``, ``log_far`` ((K,) float64 each): ``(found (K,) bool, nodes, meta)``, ``meta`` the
+    def fetch(self, fingerprint, keys, lam, shift):
+        """The stored tables of ``keys`` ((K,) int64) of the model ``fingerprint`` whose rate and shift equal ``lam``
+        and ``shift`` ((K,) float64 each; the far density, a function of the shift and the error model, comes with
+        the fingerprint): ``(found (K,) bool, nodes, meta)``, ``meta`` the
         found tables' rows in the order of ``keys``, offsets into ``nodes`` (their rows back to back)."""
         with self._lock:
             self._scan()
@@ -162,7 +163,7 @@ class TableStore:
             where = names[at[candidates]] if candidates.size else np.empty(0, dtype=object)
             for name in set(where):
                 mine = candidates[where == name]
-                ok, meta, nodes = self._segments[name].read(rows[at[mine]], lam[mine], shift[mine], log_far[mine])
+                ok, meta, nodes = self._segments[name].read(rows[at[mine]], lam[mine], shift[mine])
                 found[mine[~ok]] = False  # a colliding fingerprint's, or out of the file: built again
                 meta[:, _OFFSET] += first
                 first += nodes.shape[0]
