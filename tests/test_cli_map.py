@@ -490,3 +490,27 @@ def test_map_writes_the_command_that_reproduces_it(sequence_dir, conditioned_mod
     again = tmp_path / "again.npz"
     assert main(argv[1:-1] + [str(again)]) == 0  # the recorded command, writing elsewhere
     assert_same_map(load_map(again), load_map(out))
+
+
+def test_a_second_map_run_reads_the_tables_the_first_built(
+    sequence_dir, conditioned_model_path, tmp_path, capsys, monkeypatch
+):
+    from prismap.sensor_models import _table_store
+
+    monkeypatch.setenv("PRISMAP_TABLE_CACHE", str(tmp_path / "tables"))
+    monkeypatch.setattr(_table_store, "_STORES", {})  # a fresh process's store object
+    argv = ["--model", "prism", "--error-model", str(conditioned_model_path), "--frames", "0:3"]
+    assert main(map_args(sequence_dir, tmp_path / "first.npz", *argv)) == 0
+    first = capsys.readouterr().out.splitlines()[-1]
+    built = int(first.split(", ")[1].split()[0])
+    assert built > 0 and first.startswith(f"PRISM tables: 0 read from {tmp_path / 'tables'}")
+    monkeypatch.setattr(_table_store, "_STORES", {})
+    assert main(map_args(sequence_dir, tmp_path / "second.npz", *argv)) == 0
+    assert capsys.readouterr().out.splitlines()[-1] == (
+        f"PRISM tables: {built} read from {tmp_path / 'tables'}, 0 built and written there"
+    )
+    assert_same_map(load_map(tmp_path / "second.npz"), load_map(tmp_path / "first.npz"))
+    monkeypatch.setenv("PRISMAP_TABLE_CACHE", "off")
+    assert main(map_args(sequence_dir, tmp_path / "off.npz", *argv)) == 0
+    assert "PRISM tables" not in capsys.readouterr().out
+    assert_same_map(load_map(tmp_path / "off.npz"), load_map(tmp_path / "first.npz"))

@@ -133,7 +133,7 @@ def run(args):
     from prismap.io import read_sequence, save_map
     from prismap.pipeline import MappingConfig, map_sequence, remove_checkpoint
     from prismap.pipeline._config import needs_error_model
-    from prismap.sensor_models import model_names
+    from prismap.sensor_models import model_names, table_store
 
     if args.checkpoint_every < 0:
         raise PrismapInputError(f"--checkpoint-every must be >= 0; got {args.checkpoint_every}")
@@ -195,6 +195,9 @@ def run(args):
         f"({config.model}, {model_text}, voxel {config.voxel_size_m} m); wrote {args.out}"
     )
     print(f"reproduce with: {shlex.join(command)}  (settings in {record})")
+    store = table_store()
+    if store is not None and (store.found or store.written):  # this process's PRISM tables (Dask workers keep theirs)
+        print(f"PRISM tables: {store.found} read from {store.directory}, {store.written} built and written there")
     return 0
 
 

@@ -24,7 +24,7 @@ from prismap.sensor_models._failure import (
 from prismap.sensor_models._prism import PrismModel
 from prismap.sensor_models._prism_discrete import log_mean_likelihood, prism_discrete_posteriors
 from prismap.sensor_models._prism_prior import estimate_prior_from_likelihood, prior_from_ground_truth
-from prismap.sensor_models._table_store import STORE_ENV, flush_table_stores, store_directory
+from prismap.sensor_models._table_store import STORE_ENV, TableStore, flush_table_stores, store_directory, table_store
 
 __all__ = [
     "CLASS_PASS_THROUGH",
@@ -36,6 +36,7 @@ __all__ = [
     "InverseSensorModel",
     "STORE_ENV",
     "PrismModel",
+    "TableStore",
     "blend_increments",
     "conditioned_sensor_model",
     "error_model_use",
@@ -53,4 +54,5 @@ __all__ = [
     "prism_discrete_posteriors",
     "register_model",
     "store_directory",
+    "table_store",
 ]
