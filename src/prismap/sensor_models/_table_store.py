@@ -135,7 +135,7 @@ class TableStore:
     """The segments of one store directory, indexed by (fingerprint, key), and the tables this process has built
     and not yet written; ``found`` and ``written`` count the tables this process has read and written. Thread-safe."""
 
-    def __init__(self, directory):
+    def __init__(self, directory: str | os.PathLike) -> None:
         self.directory = Path(directory)
         self._segments = {}  # file name -> _Segment
         self._index = {}  # fingerprint -> (sorted keys, their segment names, their rows in the segment)
@@ -146,7 +146,9 @@ class TableStore:
         self._lock = threading.Lock()
         self.found = self.written = 0
 
-    def fetch(self, fingerprint, keys, lam, shift):
+    def fetch(
+        self, fingerprint: int, keys: np.ndarray, lam: np.ndarray, shift: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The stored tables of ``keys`` ((K,) int64) of the model ``fingerprint`` whose rate and shift equal ``lam``
         and ``shift`` ((K,) float64 each; the far density, a function of the shift and the error model, comes with
         the fingerprint): ``(found (K,) bool, nodes, meta)``, ``meta`` the
@@ -176,7 +178,7 @@ class TableStore:
             self.found += rank.size
             return found, np.concatenate(parts), np.concatenate(metas)[rank]
 
-    def add(self, fingerprint, keys, nodes, meta):
+    def add(self, fingerprint: int, keys: np.ndarray, nodes: np.ndarray | list[np.ndarray], meta: np.ndarray) -> None:
         """Hold newly built tables (``nodes`` an array or a list read back to back, ``meta`` with offsets into them)
         for the next write, and write when :data:`FLUSH_BYTES` are held."""
         parts = nodes if isinstance(nodes, list) else [nodes]
@@ -188,7 +190,7 @@ class TableStore:
             if self._pending_bytes >= FLUSH_BYTES:
                 self._write()
 
-    def flush(self):
+    def flush(self) -> None:
         """Write the held tables as one segment."""
         with self._lock:
             self._write()
@@ -273,7 +275,7 @@ _STORES: dict = {}
 _STORES_LOCK = threading.Lock()
 
 
-def table_store():
+def table_store() -> TableStore | None:
     """The :class:`TableStore` of the directory :func:`store_directory` names (one per process), or None when off."""
     directory = store_directory()
     if directory is None:
