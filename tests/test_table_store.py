@@ -267,3 +267,21 @@ def test_tables_a_full_cache_drops_are_written_first_and_read_back(store_dir, mo
     assert _table_store.table_store().written == KEYS.size  # written to disk before the eviction, both calls' tables
     ask(first)
     assert builds[0] == second.size  # read back, not built
+
+
+def test_a_store_that_cannot_be_written_maps_all_the_same(tmp_path, monkeypatch):
+    blocker = tmp_path / "a_file"
+    blocker.write_text("not a directory")
+    monkeypatch.setenv("PRISMAP_TABLE_CACHE", str(blocker / "tables"))  # under a file: mkdir fails
+    monkeypatch.setattr(_table_store, "_STORES", {})
+    monkeypatch.setattr(_table_store, "FLUSH_BYTES", 1)  # every build tries to write
+    model = prism()
+    tables = model._build_tables(KEYS)
+    assert tables_by_key(*tables) == tables_by_key(*model._new_tables(*inputs(model, KEYS)))
+    store = _table_store.table_store()
+    assert store.written == 0 and not list(tmp_path.glob("**/seg-*"))
+    model._build_tables(KEYS + 16 * (1 << 16))  # and it stops trying
+    assert store._pending == []
+    monkeypatch.setenv("PRISMAP_TABLE_CACHE", str(blocker))  # the file itself
+    assert tables_by_key(*prism()._build_tables(KEYS)) == tables_by_key(*tables)
+    assert blocker.read_text() == "not a directory"

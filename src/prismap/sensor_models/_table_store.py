@@ -16,6 +16,7 @@ a truncated or foreign file) is built again. Segments are mapped read-only and t
 from __future__ import annotations
 
 import atexit
+import contextlib
 import hashlib
 import json
 import mmap
@@ -226,9 +227,10 @@ class TableStore:
                         f.write(np.ascontiguousarray(part, dtype=np.float32).tobytes())
             os.replace(temporary, self.directory / name)
             self.written += keys.size
-        except OSError:  # a read-only or full disk: the tables are built again next time
-            temporary.unlink(missing_ok=True)
+        except OSError:  # a read-only or full disk, or no directory there: the tables are built again next time
             self._full = True
+            with contextlib.suppress(OSError):
+                temporary.unlink(missing_ok=True)
 
     def _stored_bytes(self):
         """Bytes of the directory's files (segments of every process, and their temporaries)."""
@@ -253,7 +255,11 @@ class TableStore:
             return
         self._seen = seen
         new = []
-        for entry in os.scandir(self.directory):
+        try:
+            entries = list(os.scandir(self.directory))
+        except OSError:  # not a directory: nothing to read
+            return
+        for entry in entries:
             if entry.name.startswith("seg-") and entry.name.endswith(".bin") and entry.name not in self._segments:
                 try:
                     self._segments[entry.name] = segment = _Segment(entry.path)
