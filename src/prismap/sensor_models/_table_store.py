@@ -50,7 +50,12 @@ def store_directory() -> Path | None:
     if value is not None:
         value = value.strip()
         return None if value.lower() in ("", "0", "off") else Path(value).expanduser()
-    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
+    base = os.environ.get("XDG_CACHE_HOME")
+    if not base:
+        try:
+            base = Path.home() / ".cache"
+        except (RuntimeError, KeyError):  # no home directory to be found: no store
+            return None
     return Path(base) / "prismap" / "tables"
 
 
