@@ -169,7 +169,7 @@ class TableStore:
             metas, parts, first, order = [], [], 0, []
             candidates = np.flatnonzero(found)
             where = names[at[candidates]] if candidates.size else np.empty(0, dtype=object)
-            for name in set(where):
+            for name in sorted(set(where)):  # a fixed order: the same layout every run
                 mine = candidates[where == name]
                 ok, meta, nodes = self._segments[name].read(rows[at[mine]], lam[mine], shift[mine])
                 found[mine[~ok]] = False  # a colliding fingerprint's, or out of the file: built again
