@@ -329,15 +329,13 @@ def test_blocks_expected_by_a_frame_are_reserved_within_the_frame_budget(monkeyp
 
 
 def test_projective_hit_miss_increments_follow_the_rule_cell_by_cell():
-    from prismap.grid import _kernels_project
-
     rng = np.random.default_rng(3)
     z_hit = np.concatenate([rng.uniform(1.0, 9.0, 40), [np.inf] * 10])  # the last rays end in misses
     ray_of_cell = rng.integers(0, z_hit.size, 5000)
     t_in = np.round(rng.uniform(0.0, 10.0, 5000), 1)  # on a 0.1 m grid: cells that end or start at the hit too
     t_out = t_in + 0.1
     t_in[:50], t_out[:50] = z_hit[ray_of_cell[:50]], z_hit[ray_of_cell[:50]] + 0.1  # starting exactly at the hit
-    got = _kernels_project.hit_miss_increments(ray_of_cell, t_in, t_out, z_hit, 0.85, -0.4)
+    got = _integrators._hit_miss_increments(ray_of_cell, t_in, t_out, z_hit, 0.85, -0.4)
     expected = [
         -0.4 if b <= z_hit[r] else (0.85 if a <= z_hit[r] else 0.0) for r, a, b in zip(ray_of_cell, t_in, t_out)
     ]

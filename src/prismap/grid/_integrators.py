@@ -455,7 +455,7 @@ class ProjectiveIntegrator(Integrator):
                 return keys, None, m
             cells = (ray_of_cell[:m], t_in[:m], t_out[:m])
             if hit_miss is not None:
-                return keys[:m], _kernels_project.hit_miss_increments(*cells, z_hit, *hit_miss), m
+                return keys[:m], _hit_miss_increments(*cells, z_hit, *hit_miss), m
             return keys[:m], self._part_increments(batch, groups, group_of_ray, ray_key, *cells), m
 
         with ThreadPoolExecutor(max_workers=PROJECTIVE_THREADS) as threads:
@@ -513,6 +513,14 @@ def _hit_depths(t_stop, exclusive):
     """Each ray's hit depth for the hit/miss rule: its stop depth, inf for a ray cut at max range (it ends in
     misses)."""
     return np.where(exclusive, np.inf, t_stop)
+
+
+def _hit_miss_increments(ray_of_cell, t_in, t_out, z_hit, l_hit, l_miss):
+    """Hit/miss increments ((C,) float64) of cells ``[t_in, t_out)`` on rays ``ray_of_cell``: ``l_hit`` where the
+    cell holds its ray's ``z_hit``, ``l_miss`` where it ends at or before it, 0 beyond (the rule of
+    ``sensor_models._kernels_classic.hitmiss_cells``), without grouping the cells by ray."""
+    z = z_hit[ray_of_cell]
+    return np.where(t_out <= z, l_miss, np.where(t_in <= z, l_hit, 0.0))
 
 
 def _frustum_voxels(t_stop, focal_px, subsample, voxel_size):

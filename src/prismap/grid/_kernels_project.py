@@ -432,16 +432,3 @@ def group_by_ray(ray_of_cell, n_rays, t_in, t_out, ray_key):
         grouped_in[j] = t_in[i]
         grouped_out[j] = t_out[i]
     return order, grouped_in, grouped_out, used, local
-
-
-@numba.njit(cache=True, nogil=True)
-def hit_miss_increments(ray_of_cell, t_in, t_out, z_hit, l_hit, l_miss):
-    """Hit/miss increments ((C,) float64) of cells ``[t_in, t_out)`` on rays ``ray_of_cell``: ``l_hit`` where the
-    cell holds its ray's hit depth ``z_hit`` (inf: the ray ends in misses), ``l_miss`` where it ends at or before
-    it, 0 beyond (the rule of ``sensor_models._kernels_classic.hitmiss_cells``), in one pass over the cells without
-    grouping them by ray."""
-    increment = np.empty(t_in.size)
-    for i in range(t_in.size):
-        z = z_hit[ray_of_cell[i]]
-        increment[i] = l_miss if t_out[i] <= z else (l_hit if t_in[i] <= z else 0.0)
-    return increment

@@ -537,10 +537,10 @@ class PrismModel(RayModel):
         store.add(fingerprint, keys[new], nodes, meta)
         if not found.any():
             return nodes, meta
-        meta[:, _OFFSET] += stored_nodes.shape[0]
+        meta[:, _OFFSET] += sum(part.shape[0] for part in stored_nodes)
         both = np.empty((keys.size, meta.shape[1]))
         both[found], both[new] = stored_meta, meta
-        return [stored_nodes, *(nodes if isinstance(nodes, list) else [nodes])], both
+        return [*stored_nodes, *(nodes if isinstance(nodes, list) else [nodes])], both
 
     def _new_tables(self, shift, lam, log_far):
         """Build the tables of ``(shift, lam, log_far)`` ((K,) each; ``_kernels_pack.prism_tables``), in

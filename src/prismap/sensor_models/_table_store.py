@@ -95,7 +95,6 @@ class _Segment:
     """One segment file, mapped read-only: its fingerprints and keys copied out, meta rows and nodes read on demand."""
 
     def __init__(self, path):
-        self.path = path
         with open(path, "rb") as f:
             size = os.fstat(f.fileno()).st_size
             if size < _HEADER.itemsize:
@@ -110,7 +109,7 @@ class _Segment:
         if columns != _META_COLUMNS or n < 0 or rows < 0 or size != nodes_at + _NODE_BYTES * rows:
             raise ValueError("another table layout, or truncated")
         ids = np.frombuffer(self._map, dtype="<i8", count=2 * n, offset=_HEADER.itemsize).copy()
-        self.fingerprints, self.keys, self.nbytes = ids[:n], ids[n:], size
+        self.fingerprints, self.keys = ids[:n], ids[n:]
         self.meta = np.frombuffer(self._map, dtype="<f8", count=columns * n, offset=meta_at).reshape(n, columns)
         self.nodes = np.frombuffer(
             self._map, dtype="<f4", count=rows * _kernels_pack.TABLE_COLUMNS, offset=nodes_at
@@ -157,18 +156,19 @@ class TableStore:
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The stored tables of ``keys`` ((K,) int64) of the model ``fingerprint`` whose rate and shift equal ``lam``
         and ``shift`` ((K,) float64 each; the far density, a function of the shift and the error model, comes with
-        the fingerprint): ``(found (K,) bool, nodes, meta)``, ``meta`` the
-        found tables' rows in the order of ``keys``, offsets into ``nodes`` (their rows back to back)."""
+        the fingerprint): ``(found (K,) bool, nodes, meta)``, ``nodes`` a list of arrays read back to back (as
+        ``TableCache.rows`` takes them: no copy here), ``meta`` the found tables' rows in the order of ``keys``,
+        offsets into those rows."""
         with self._lock:
             self._scan()
             sorted_keys, names, rows = self._index.get(fingerprint, _EMPTY_INDEX)
-            found = np.zeros(keys.size, dtype=bool)
-            if sorted_keys.size:
-                at = np.minimum(np.searchsorted(sorted_keys, keys), sorted_keys.size - 1)
-                found = sorted_keys[at] == keys
-            metas, parts, first, order = [], [], 0, []
+            if not sorted_keys.size:
+                return np.zeros(keys.size, dtype=bool), [], np.empty((0, _META_COLUMNS))
+            at = np.minimum(np.searchsorted(sorted_keys, keys), sorted_keys.size - 1)
+            found = sorted_keys[at] == keys
             candidates = np.flatnonzero(found)
-            where = names[at[candidates]] if candidates.size else np.empty(0, dtype=object)
+            where = names[at[candidates]]
+            metas, parts, first, order = [], [], 0, []
             for name in sorted(set(where)):  # a fixed order: the same layout every run
                 mine = candidates[where == name]
                 ok, meta, nodes = self._segments[name].read(rows[at[mine]], lam[mine], shift[mine])
@@ -179,10 +179,10 @@ class TableStore:
                 parts.append(nodes)
                 order.append(mine[ok])
             if not metas:
-                return found, np.empty((0, _kernels_pack.TABLE_COLUMNS), np.float32), np.empty((0, _META_COLUMNS))
+                return found, [], np.empty((0, _META_COLUMNS))
             rank = np.argsort(np.concatenate(order), kind="stable")  # the found tables in the order of keys
             self.found += rank.size
-            return found, np.concatenate(parts), np.concatenate(metas)[rank]
+            return found, parts, np.concatenate(metas)[rank]
 
     def add(self, fingerprint: int, keys: np.ndarray, nodes: np.ndarray | list[np.ndarray], meta: np.ndarray) -> None:
         """Hold newly built tables (``nodes`` an array or a list read back to back, ``meta`` with offsets into them)
