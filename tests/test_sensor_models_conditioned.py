@@ -35,20 +35,20 @@ def _fit(mixture):
     return MixtureFit(mixture, -1.0, 1.0, 1.0, 100.0, 3, True)
 
 
-def _error_model():
+def _error_model(whole=WHOLE, class_mixtures=CLASS_MIXTURES):
     inf = np.inf
     classes = ErrorClasses(("edge_distance_px",), [[-inf], [2.5], [10.0]], [[2.5], [10.0], [inf]])
     class_models = tuple(
         ClassModel((_fit(m),), m.n_components, share, {"n_errors": 100})
-        for m, share in zip(CLASS_MIXTURES, (0.2, 0.5, 0.3))
+        for m, share in zip(class_mixtures, (0.2, 0.5, 0.3))
     )
     return ErrorModel(
         "sgbm",
         {},
         "test",
         1 / 32,
-        (_fit(WHOLE),),
-        2,
+        (_fit(whole),),
+        whole.n_components,
         classes=classes,
         class_models=class_models,
         feature_settings={"edge_threshold_px": 1.0, "texture_window_px": 7},
@@ -391,3 +391,29 @@ def test_bad_class_pass_through_is_named():
         conditioned_sensor_model(
             "prism", CAMERA, error_model=_error_model(), class_pass_through=(0.1, 1.0, 0.2), **SETTINGS
         )
+
+
+def test_silent_rays_are_those_of_each_rays_class_model():
+    """With matcher failures, a far ray is silent (influence depth 0: ``PrismModel.influence_depth``) by its own
+    class's mixture: the fused look-up of the classes gives each ray its class model's influence depth, overhang
+    included, and far rays of some classes are silent while those of others are not."""
+    failing = [m.with_failure(0.1, (0.0, 64.0)) for m in (WHOLE, *CLASS_MIXTURES)]
+    model = conditioned_sensor_model(
+        "prism", CAMERA, error_model=_error_model(failing[0], failing[1:]), far_depth_m=150.0, **SETTINGS
+    )
+    assert model._classes.fused
+    rng = np.random.default_rng(11)
+    disparity = CAMERA.focal_baseline / np.geomspace(5.0, 140.0, 64)
+    norm = 1.0 + rng.uniform(0.0, 0.2, disparity.size)
+    ray_class = rng.integers(-1, 3, disparity.size)
+    overhang = rng.uniform(0.0, 1.6, disparity.size)
+    depth = model.influence_depth(disparity, norm, ray_class=ray_class, voxel_overhang_m=overhang)
+    for k in (-1, 0, 1, 2):
+        mine = np.flatnonzero(ray_class == k)
+        own = model._model(k).influence_depth(disparity[mine], norm[mine], voxel_overhang_m=overhang[mine])
+        np.testing.assert_array_equal(depth[mine], own)
+    silent_classes = {int(k) for k in ray_class[depth == 0]}
+    assert 0 < len(silent_classes) and np.any(depth[disparity < 1.0] > 0)
+    with pytest.raises(PrismapInputError, match="voxel_overhang_m"):
+        model._classes.fused = False
+        model.influence_depth(disparity, norm, ray_class=ray_class, voxel_overhang_m=overhang[:3])

@@ -464,3 +464,68 @@ def _direct_log_z(model, disparity, norm):
         disparity + model.doffs_px, model.rate_per_m * norm, model._log_far(disparity), _QUAD_STEP,
         model._geometry(), model._mixture(),
     )  # fmt: skip
+
+
+OFTEN_FAILING = GaussianMixture([0.9, 0.1], [0.1, -0.5], [0.3, 3.0]).with_failure(0.1, SEARCH)
+
+
+@pytest.mark.parametrize("pass_through", [0.0, 0.05])
+def test_a_silent_ray_moves_no_cell_by_epsilon_and_has_no_influence(pass_through):
+    """A ray measured far along a street (a few pixels, under a mixture with a wide outlier component) is likely a
+    failure there: its failure posterior leaves every cell near its prior. ``influence_depth`` gives such a silent ray
+    0 (``_kernels_failure.silent_rays``), and the grid casts none of its cells. By brute force with
+    ``method="direct"``, over cells of every length up to a voxel's diagonal at every position from ``near_m`` to
+    ``far_depth_m`` (each stretched by its ray's overhang share), no silent ray moves a cell by ``influence_epsilon``;
+    the rule finds most rays that move none by half of it, and leaves the others their influence depth."""
+    fb = 2 * STREET_FB  # the full-size street rig
+    model = PrismModel(
+        error_model=OFTEN_FAILING, focal_baseline=fb, voxel_size_m=0.2, p0=0.05, near_m=0.5, far_depth_m=150.0,
+        pass_through=pass_through,
+    )  # fmt: skip
+    eps = model.influence_epsilon
+    disparity = fb / np.geomspace(20.0, 140.0, 12)
+    norm = np.linspace(1.0, 1.3, disparity.size)
+    overhang = np.linspace(1.6, 0.0, disparity.size)  # metres along the ray: up to 8 voxels
+    depth = model.influence_depth(disparity, norm, voxel_overhang_m=overhang)
+    silent = depth == 0
+    largest = np.zeros(disparity.size)
+    for r in range(disparity.size):
+        longest = np.sqrt(3.0) * 0.2 / norm[r]
+        for length in (longest, 0.02):
+            for offset in (0.0, 0.5):
+                edges = np.arange(model.near_m + offset * length, model.far_depth_m, length)
+                cells = np.zeros(edges.size - 1, dtype=np.int64)
+                _, increment = model.cell_posteriors(
+                    disparity[r : r + 1], norm[r : r + 1], cells, edges[:-1], edges[1:], method="direct",
+                    voxel_overhang_m=overhang[r : r + 1],
+                )  # fmt: skip
+                largest[r] = max(largest[r], np.abs(increment).max())
+    assert 0 < silent.sum() < disparity.size
+    assert np.all(largest[silent] < eps)
+    assert silent.sum() >= 0.75 * np.sum(largest < eps / 2)
+    assert np.all(depth[~silent] > model.near_m)
+    without_overhang = model.influence_depth(disparity, norm)
+    assert np.all(without_overhang[silent] == 0)  # a shorter longest cell: silent all the same
+    assert np.all(without_overhang[~silent] == depth[~silent])
+
+
+@pytest.mark.parametrize("mode", ["ray", "projective"])
+def test_the_map_casts_no_cell_of_a_silent_ray(mode):
+    """A frame's silent rays (``influence_depth`` 0) reach no voxel in either mode: the rays of a far wall leave the
+    map as it was, and the same wall nearer, its rays not silent, does not."""
+    from prismap.camera import StereoCamera, integrate_disparity
+    from prismap.grid import OccupancyMap
+
+    camera = StereoCamera(720.0, 31.5, 23.5, 0.54, width=64, height=48)
+    model = PrismModel(
+        error_model=OFTEN_FAILING, focal_baseline=camera.focal_baseline, voxel_size_m=0.2, p0=0.05, near_m=0.5,
+        far_depth_m=150.0,
+    )  # fmt: skip
+    known = {}
+    for wall_m in (130.0, 25.0):
+        disparity = np.full((camera.height, camera.width), camera.focal_baseline / wall_m)
+        silent = model.influence_depth(disparity.reshape(-1)[:1], np.ones(1)) == 0
+        grid = OccupancyMap(0.2, p0=0.05)
+        integrate_disparity(grid, disparity, camera, np.eye(4), model, mode=mode, max_range_m=140.0)
+        known[wall_m] = (bool(silent[0]), len(grid.known_voxels()[0]))
+    assert known == {130.0: (True, 0), 25.0: (False, known[25.0][1])} and known[25.0][1] > 1000

@@ -156,7 +156,7 @@ class Integrator(ABC):
         """Depth at which each ray of ``idx`` stops and whether that stop excludes its voxel (cut by max range)."""
         measurement, ray_norm = take_rows(batch.measurement, idx), take_rows(batch.ray_norm, idx)
         influence = np.asarray(
-            model.influence_depth(measurement, ray_norm, **batch.class_kwargs(idx, model)), dtype=np.float64
+            model.influence_depth(measurement, ray_norm, **batch.cell_kwargs(idx, model)), dtype=np.float64
         )
         if influence.shape != measurement.shape:
             raise PrismapInputError(

@@ -12,7 +12,7 @@ class SensorModel(Protocol):
     """An inverse sensor model as the integrators and :class:`~prismap.grid.OccupancyMap` use it.
 
     The grid also passes the keywords ``ray_class``, ``voxel_overhang_m`` and ``map_log_odds`` to
-    :meth:`cell_posteriors` (and ``ray_class`` to :meth:`influence_depth`) when the frame has them and the
+    :meth:`cell_posteriors` (and ``ray_class`` and ``voxel_overhang_m`` to :meth:`influence_depth`) when the frame has them and the
     model's flags ask for them; it reads ``measurement``, ``p0`` and ``voxel_size_m`` where a model has them.
     Ray mode also calls ``floor_depth(disparity_px, ray_norm, **keywords)`` where a model has it (the keywords of
     :meth:`cell_posteriors`): per ray the depth (metres) up to which a cell ending there gets the increment of its

@@ -34,8 +34,9 @@ class InverseSensorModel(ABC):
     :meth:`influence_depth`; the grid passes it only when the frame has classes, and never to a hit/miss
     model. A model with ``takes_voxel_overhang`` accepts the keyword ``voxel_overhang_m`` ((R,) float64,
     metres along each ray: how far before its surface a voxel can still hold part of it, see
-    ``prismap.camera.voxel_overhang_m``) in :meth:`cell_posteriors`. A model with ``takes_map_prior`` accepts the keyword
-    ``map_log_odds`` ((C,) float64: each cell's voxel's log-odds in the map before this frame) there; only
+    ``prismap.camera.voxel_overhang_m``) in :meth:`cell_posteriors` and :meth:`influence_depth`. A model with
+    ``takes_map_prior`` accepts the keyword ``map_log_odds`` ((C,) float64: each cell's voxel's log-odds in the map
+    before this frame) in :meth:`cell_posteriors`; only
     integrators that cast whole rays (ray mode) give it. The grid may call :meth:`cell_posteriors` from
     two threads at once (on different rays), so a model that caches must guard its cache.
     """

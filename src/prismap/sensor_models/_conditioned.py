@@ -203,11 +203,20 @@ class ConditionedModel(InverseSensorModel):
         return posterior, increment
 
     def influence_depth(
-        self, disparity_px: npt.ArrayLike, ray_norm: npt.ArrayLike, *, ray_class: npt.ArrayLike | None = None
+        self,
+        disparity_px: npt.ArrayLike,
+        ray_norm: npt.ArrayLike,
+        *,
+        ray_class: npt.ArrayLike | None = None,
+        voxel_overhang_m: npt.ArrayLike | None = None,
     ) -> npt.NDArray[np.float64]:
-        """Depth (metres) beyond which a ray's measurement changes no cell, by its class's model: (R,) float64."""
+        """Depth (metres) beyond which a ray's measurement changes no cell, by its class's model: (R,) float64
+        (``voxel_overhang_m`` as :meth:`cell_posteriors` takes it)."""
+        extra = (
+            {} if voxel_overhang_m is None or not self.takes_voxel_overhang else {"voxel_overhang_m": voxel_overhang_m}
+        )
         if ray_class is None:
-            return self.plain.influence_depth(disparity_px, ray_norm)
+            return self.plain.influence_depth(disparity_px, ray_norm, **extra)
         disparity = np.asarray(disparity_px, dtype=np.float64)
         norm = np.asarray(ray_norm, dtype=np.float64)
         if disparity.ndim != 1 or norm.shape != disparity.shape:
@@ -216,11 +225,15 @@ class ConditionedModel(InverseSensorModel):
             )
         classes = self._check_classes(ray_class, disparity.size)
         if self._classes is not None and self._classes.fused:
-            return self._classes.influence_depth(disparity, norm, classes + 1)
+            return self._classes.influence_depth(disparity, norm, classes + 1, extra.get("voxel_overhang_m"))
+        overhang = None if not extra else np.asarray(voxel_overhang_m, dtype=np.float64)
+        if overhang is not None and overhang.shape != disparity.shape:
+            raise PrismapInputError(f"`voxel_overhang_m` must have shape {disparity.shape}; got {overhang.shape}")
         depth = np.empty(disparity.size)
         for k in np.unique(classes):
             rays = np.flatnonzero(classes == k)
-            depth[rays] = self._model(int(k)).influence_depth(disparity[rays], norm[rays])
+            own = {} if overhang is None else {"voxel_overhang_m": overhang[rays]}
+            depth[rays] = self._model(int(k)).influence_depth(disparity[rays], norm[rays], **own)
         return depth
 
     def floor_depth(

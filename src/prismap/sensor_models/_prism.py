@@ -42,11 +42,12 @@ from prismap.sensor_models._kernel_args import (
     TableSpec,
     mixture_set,
 )
-from prismap.sensor_models._kernels_pack import _LENGTH, _LOG_Z, _LOG_Z_1, _LOG_Z_2, _OFFSET, _Z_INFL
+from prismap.sensor_models._kernels_pack import _LENGTH, _LOG_Z, _LOG_Z_1, _LOG_Z_2, _OFFSET
 from prismap.sensor_models._params import RayModel
 from prismap.sensor_models._prism_cache import _KEY_L_SPAN, _LAMBDA_STEP, TableCache, ray_tables
 from prismap.sensor_models._prism_discrete import log_mean_likelihood
 from prismap.sensor_models._prism_map_prior import map_prior_cells
+from prismap.sensor_models._prism_reach import floor_depths, influence_depths
 from prismap.sensor_models._prism_spacing import (
     _COARSE_BELOW,
     _TABLE_STEP,
@@ -424,15 +425,7 @@ class PrismModel(RayModel):
         log_z = self._ray_log_z(tables)
         ray_model = np.zeros(disparity.size, dtype=np.int64)
         log_fail = self._log_failure(log_z)[0]
-        return self._floor_from(tables, log_z, log_fail, ray_model, self._kernel_models, norm, voxel_overhang_m)
-
-    def _floor_from(self, tables, log_z, log_fail, ray_model, models, norm, voxel_overhang_m):
-        """:meth:`floor_depth` of rays of ``tables``, ``log Z`` ``log_z`` (:meth:`_ray_log_z`) and ``log(1 - rho)``
-        ``log_fail`` (empty: no failures), each of model ``ray_model`` of ``models`` (``MixtureSet``), norms ``norm``
-        and overhangs ``voxel_overhang_m``."""
-        log_floor = self._floor_levels(log_fail) if log_fail.size else log_fail
-        depth = _kernels_lookup.ray_floor_depths(tables, log_z, log_floor, ray_model, self._geometry(), models)
-        return depth - self._stretch(norm, voxel_overhang_m)
+        return floor_depths(self, tables, log_z, log_fail, ray_model, self._kernel_models, norm, voxel_overhang_m)
 
     def _log_failure(self, log_z):
         """``log(1 - rho)`` and ``log(rho)`` of each ray, its failure posterior given its ``Z`` (``log_z``, from its
@@ -451,24 +444,24 @@ class PrismModel(RayModel):
         table, delta, meta, _ = tables
         return meta[table, _LOG_Z] + delta * (meta[table, _LOG_Z_1] + 0.5 * delta * meta[table, _LOG_Z_2])
 
-    def influence_depth(self, disparity_px: npt.ArrayLike, ray_norm: npt.ArrayLike) -> npt.NDArray[np.float64]:
+    def influence_depth(
+        self, disparity_px: npt.ArrayLike, ray_norm: npt.ArrayLike, *, voxel_overhang_m: npt.ArrayLike | None = None
+    ) -> npt.NDArray[np.float64]:
         """Depth beyond which every cell's ``|logit(P) - logit(p_c)| < influence_epsilon`` (metres), per ray.
 
         From the bound ``|increment(a)| <= log(1 + e^{-lambda (a - z0)} sup_{t >= a} g(t) / C(a))``, which
         holds for a cell of any length starting at ``a``; a cell's evaluated stretch starts ``solid_depth_m / |r|``
-        before it, so the depth moves back by that much; capped at ``far_depth_m``.
+        before it, so the depth moves back by that much; capped at ``far_depth_m``. 0 for a silent ray, one whose
+        failure posterior leaves every cell of at most a voxel's diagonal (plus its stretch; ``voxel_overhang_m`` as
+        :meth:`cell_posteriors` takes it) within ``influence_epsilon`` of its prior (``_kernels_failure.silent_rays``;
+        docs/SENSOR_MODELS.md, "Silent rays").
         """
         disparity = as_float_array(disparity_px, "disparity_px", ndim=1, allow_nan=False)
         norm = as_float_array(ray_norm, "ray_norm", shape=(disparity.size,))
-        return self._influence_from(self._tables_for(disparity, norm), norm)
-
-    def _influence_from(self, tables, norm):
-        """:meth:`influence_depth` of rays of norms ``norm`` from their ``tables`` (:meth:`_tables_for`)."""
-        table, _, meta, _ = tables
-        depth = meta[table, _Z_INFL]
-        if self.solid_depth_m > 0:
-            depth = np.minimum(depth + self.solid_depth_m / norm, self.far_depth_m)
-        return depth
+        tables = self._tables_for(disparity, norm)
+        log_z, ray_model = self._ray_log_z(tables), np.zeros(disparity.size, dtype=np.int64)
+        failure = self._log_failure(log_z)
+        return influence_depths(self, tables, log_z, failure, ray_model, self._kernel_models, norm, voxel_overhang_m)
 
     def with_extra_noise(self, sigma_px: float) -> PrismModel:
         """A copy whose error model is ``error_model.widened(sigma_px)``.

@@ -21,6 +21,7 @@ from prismap.sensor_models._kernel_args import cell_runs, mixture_set
 from prismap.sensor_models._kernels_pack import _OFFSET
 from prismap.sensor_models._prism import PrismModel
 from prismap.sensor_models._prism_cache import KEY_TAG_SPAN, TableCache, ray_tables
+from prismap.sensor_models._prism_reach import floor_depths, influence_depths
 
 _SHARED_FIELDS = tuple(
     f.name for f in dataclasses.fields(PrismModel) if f.init and f.name not in ("error_model", "table_memory_mb")
@@ -95,9 +96,14 @@ class PrismClasses:
         tag = np.asarray(index, dtype=np.int64) * KEY_TAG_SPAN
         return ray_tables(self.cache, self._build, disparity, norm, tag, self.models[0].disparity_step_px)
 
-    def influence_depth(self, disparity, norm, index):
-        """:meth:`PrismModel.influence_depth` of each ray by its model ``index``."""
-        return self.models[0]._influence_from(self.tables_for(disparity, norm, index), norm)
+    def influence_depth(self, disparity, norm, index, voxel_overhang_m=None):
+        """:meth:`PrismModel.influence_depth` of each ray by its model ``index`` ((R,) int)."""
+        tables = self.tables_for(disparity, norm, index)
+        log_z = self.models[0]._ray_log_z(tables)
+        index = np.asarray(index, dtype=np.int64)
+        return influence_depths(
+            self.models[0], tables, log_z, self._log_failure(log_z, index), index, self.mixtures, norm, voxel_overhang_m
+        )
 
     def floor_depth(self, disparity, norm, index, voxel_overhang_m=None):
         """:meth:`PrismModel.floor_depth` of each ray by its model ``index`` ((R,) int)."""
@@ -105,7 +111,7 @@ class PrismClasses:
         log_z = self.models[0]._ray_log_z(tables)
         log_fail = self._log_failure(log_z, index)[0]
         index = np.asarray(index, dtype=np.int64)
-        return self.models[0]._floor_from(tables, log_z, log_fail, index, self.mixtures, norm, voxel_overhang_m)
+        return floor_depths(self.models[0], tables, log_z, log_fail, index, self.mixtures, norm, voxel_overhang_m)
 
     def _log_failure(self, log_z, index):
         """:meth:`PrismModel._log_failure` of rays of ``log Z`` ``log_z``, each by its model ``index``."""

@@ -1,0 +1,43 @@
+"""Where a PRISM ray's cells matter, ray by ray from its table: the floor depth up to which its cells take the
+failure floor's increment (the grid samples those), and the influence depth beyond which no cell moves by
+``influence_epsilon`` (the grid casts none of them), 0 for a silent ray, one that moves no cell by that much
+(docs/SENSOR_MODELS.md, "The failure floor along a ray" and "Silent rays").
+
+Functions of a :class:`~prismap.sensor_models.PrismModel` and its rays' ``tables`` (``PrismModel._tables_for``),
+``log Z`` (``PrismModel._ray_log_z``), model rows ``ray_model`` of ``models`` (a
+:class:`~prismap.sensor_models._kernel_args.MixtureSet`: one model's, or a conditioned model's classes'), norms
+``norm`` and overhangs ``voxel_overhang_m`` ((R,) metres along each ray, or None), shared by the model and the
+fused look-up of a conditioned model's classes (:class:`~prismap.sensor_models._prism_classes.PrismClasses`).
+"""
+
+import numpy as np
+
+from prismap.sensor_models import _kernels_failure, _kernels_lookup
+from prismap.sensor_models._kernels_pack import _SHIFT, _Z_INFL
+
+
+def floor_depths(model, tables, log_z, log_fail, ray_model, models, norm, voxel_overhang_m):
+    """``PrismModel.floor_depth`` of the rays, from their ``log(1 - rho)`` ``log_fail`` (empty: no failures)."""
+    log_floor = model._floor_levels(log_fail) if log_fail.size else log_fail
+    depth = _kernels_lookup.ray_floor_depths(tables, log_z, log_floor, ray_model, model._geometry(), models)
+    return depth - model._stretch(norm, voxel_overhang_m)
+
+
+def influence_depths(model, tables, log_z, log_failure, ray_model, models, norm, voxel_overhang_m):
+    """``PrismModel.influence_depth`` of the rays, from their failure terms ``log_failure``
+    (``PrismModel._log_failure``: ``log(1 - rho)``, ``log(rho)``; empty: no failures, no silent ray)."""
+    table, _, meta, _ = tables
+    depth = meta[table, _Z_INFL]
+    if model.solid_depth_m > 0:
+        depth = np.minimum(depth + model.solid_depth_m / norm, model.far_depth_m)
+    log_fail, log_ok = log_failure
+    if not log_ok.size or model.prior != "p0":
+        return depth
+    # the longest cell: a voxel's diagonal, the solid depth and the ray's overhang share (metres along the ray)
+    longest = np.sqrt(3.0) * model.voxel_size_m + model.solid_depth_m + model._stretch(norm, voxel_overhang_m) * norm
+    rate = model.rate_per_m
+    silent = _kernels_failure.silent_rays(
+        meta[table, _SHIFT], rate * norm, rate * longest, log_z, log_fail, log_ok, ray_model,
+        model.focal_baseline, model.near_m, models, model.influence_epsilon,
+    )  # fmt: skip
+    return np.where(silent, 0.0, depth)
