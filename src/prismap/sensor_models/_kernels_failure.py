@@ -227,20 +227,20 @@ def blend_ratios_into(posterior, ratio, rate, start, end, near, far, ok, fail, c
         ratio[j] = numerator / denominator
 
 
-SILENT_STEP = 0.25
+SILENT_STEP = 0.125
 """Sigmas between the points at which :func:`silent_rays` bounds a component's density times the prior's survival."""
 
 
 @nb.njit(cache=True, nogil=True, error_model="numpy")
 def silent_rays(shift, lam, lam_len, log_z, log_fail, log_ok, model_of_ray, fb, z0, models, epsilon):
-    """Whether each ray changes every cell it may meet by less than ``epsilon`` (log-odds): (R,) bool.
+    """Whether every cell a ray may meet changes by less than ``epsilon`` (log-odds): (R,) bool.
 
     A cell ``[a, c]`` of prior ``p_c`` has ``P = rho P_G + (1 - rho) p_c`` (docs/SENSOR_MODELS.md, "Silent rays").
     From ``P_G >= 0``, ``P >= (1 - rho) p_c``; from ``C(a) <= Z`` and ``int_a^c q g <= p_c e^{lam L} M`` (``M =
     sup_t e^{-lam (t - z0)} g(t)``, ``L`` the longest cell), ``P <= p_c (1 + K)`` with ``K = rho e^{lam L} M / Z``.
-    Both bounds on the increment stay below ``epsilon`` when the longest cell's prior ``p`` gives ``-log(1 - rho) +
-    log1p(rho p / (1 - p)) < epsilon`` and ``K <= 0.45 epsilon (1 - p)``. ``M`` is bounded component by component
-    (:func:`_component_below`).
+    With ``p`` the longest cell's prior the increment lies in ``[log(1 - rho) - log1p(rho p / (1 - p)), log1p(K) -
+    log1p(-K p / (1 - p))]``; a ray is silent when both ends are within ``epsilon`` of 0. ``M`` is bounded component
+    by component (:func:`_log_component_sup`).
 
     Parameters
     ----------
@@ -260,38 +260,32 @@ def silent_rays(shift, lam, lam_len, log_z, log_fail, log_ok, model_of_ray, fb, 
     """
     silent = np.zeros(shift.size, dtype=np.bool_)
     for r in range(shift.size):
-        p = -math.expm1(-lam_len[r])
-        ok = math.exp(log_ok[r])
-        if not -log_fail[r] + math.log1p(ok * p / (1.0 - p)) < epsilon:
+        odds = math.expm1(lam_len[r])  # p / (1 - p) of the longest cell
+        if not -log_fail[r] + math.log1p(math.exp(log_ok[r]) * odds) < epsilon:
             continue
         k = model_of_ray[r]
-        size = models.size[k]
-        log_bound = math.log(0.45 * epsilon * (1.0 - p)) - log_ok[r] - lam_len[r] + log_z[r] - math.log(size)
-        if not math.isfinite(log_bound):
-            continue
-        silent[r] = True
-        for j in range(size):
+        log_m = -np.inf
+        for j in range(models.size[k]):
             centre = shift[r] + models.means[k, j]
-            if not _component_below(centre, models.sigmas[k, j], log_bound - models.log_wn[k, j], lam[r], fb, z0):
-                silent[r] = False
-                break
+            term = models.log_wn[k, j] + _log_component_sup(centre, models.sigmas[k, j], lam[r], fb, z0)
+            log_m = max(log_m, term) + math.log1p(math.exp(-abs(log_m - term)))  # log(e^log_m + e^term)
+        ratio = math.exp(log_ok[r] + lam_len[r] + log_m - log_z[r])  # K
+        silent[r] = ratio * odds < 0.5 and math.log1p(ratio) - math.log1p(-ratio * odds) < epsilon
     return silent
 
 
 @nb.njit(cache=True, nogil=True, inline="always", error_model="numpy")
-def _component_below(centre, sigma, log_bound, lam, fb, z0):
-    """Whether ``e^{-x^2 / 2} e^{-lam (t - z0)} < e^log_bound`` at every depth ``t >= z0``, ``x = (fb / t - centre) /
-    sigma``: beyond the peak (``x <= 0``) by the survival at the peak's depth; in front, on each step of
-    :data:`SILENT_STEP` sigmas ``x in [k, k + step]``, by ``e^{-k^2 / 2}`` times the survival at the step's nearer
-    end, until ``e^{-k^2 / 2}`` alone is below the bound."""
-    if not _log_survival(centre, fb, z0, lam) < log_bound:
-        return False
+def _log_component_sup(centre, sigma, lam, fb, z0):
+    """A bound on ``log sup_{t >= z0} e^{-x^2 / 2} e^{-lam (t - z0)}``, ``x = (fb / t - centre) / sigma``: beyond the
+    peak (``x <= 0``) the survival at the peak's depth; in front, on each step of :data:`SILENT_STEP` sigmas ``x in
+    [k, k + step]``, ``e^{-k^2 / 2}`` times the survival at the step's nearer end, until ``e^{-k^2 / 2}`` alone is
+    below the bound so far."""
+    best = _log_survival(centre, fb, z0, lam)
     k = 0.0
-    while not 0.5 * k * k > -log_bound:
-        if not -0.5 * k * k + _log_survival(centre + (k + SILENT_STEP) * sigma, fb, z0, lam) < log_bound:
-            return False
+    while -0.5 * k * k > best:
+        best = max(best, -0.5 * k * k + _log_survival(centre + (k + SILENT_STEP) * sigma, fb, z0, lam))
         k += SILENT_STEP
-    return True
+    return best
 
 
 @nb.njit(cache=True, nogil=True, inline="always", error_model="numpy")
