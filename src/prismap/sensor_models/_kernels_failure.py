@@ -264,25 +264,30 @@ def silent_rays(shift, lam, lam_len, log_z, log_fail, log_ok, model_of_ray, fb, 
         if not -log_fail[r] + math.log1p(math.exp(log_ok[r]) * odds) < epsilon:
             continue
         k = model_of_ray[r]
+        log_scale = log_ok[r] + lam_len[r] - log_z[r]  # log K = log_scale + log M
+        cap = math.log(math.expm1(epsilon)) - log_scale  # log M past which log1p(K) alone reaches epsilon
         log_m = -np.inf
         for j in range(models.size[k]):
             centre = shift[r] + models.means[k, j]
-            term = models.log_wn[k, j] + _log_component_sup(centre, models.sigmas[k, j], lam[r], fb, z0)
+            term = models.log_wn[k, j]
+            term += _log_component_sup(centre, models.sigmas[k, j], lam[r], fb, z0, cap - term)
             log_m = max(log_m, term) + math.log1p(math.exp(-abs(log_m - term)))  # log(e^log_m + e^term)
-        ratio = math.exp(log_ok[r] + lam_len[r] + log_m - log_z[r])  # K
+            if not log_m < cap:
+                break
+        ratio = math.exp(log_scale + log_m)  # K
         silent[r] = ratio * odds < 0.5 and math.log1p(ratio) - math.log1p(-ratio * odds) < epsilon
     return silent
 
 
 @nb.njit(cache=True, nogil=True, inline="always", error_model="numpy")
-def _log_component_sup(centre, sigma, lam, fb, z0):
+def _log_component_sup(centre, sigma, lam, fb, z0, cap):
     """A bound on ``log sup_{t >= z0} e^{-x^2 / 2} e^{-lam (t - z0)}``, ``x = (fb / t - centre) / sigma``: beyond the
     peak (``x <= 0``) the survival at the peak's depth; in front, on each step of :data:`SILENT_STEP` sigmas ``x in
     [k, k + step]``, ``e^{-k^2 / 2}`` times the survival at the step's nearer end, until ``e^{-k^2 / 2}`` alone is
-    below the bound so far."""
+    below the bound so far, or the bound has reached ``cap`` (the caller's answer then is known)."""
     best = _log_survival(centre, fb, z0, lam)
     k = 0.0
-    while -0.5 * k * k > best:
+    while -0.5 * k * k > best and best < cap:
         best = max(best, -0.5 * k * k + _log_survival(centre + (k + SILENT_STEP) * sigma, fb, z0, lam))
         k += SILENT_STEP
     return best
