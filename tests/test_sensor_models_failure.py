@@ -469,10 +469,11 @@ def _direct_log_z(model, disparity, norm):
 OFTEN_FAILING = GaussianMixture([0.9, 0.1], [0.1, -0.5], [0.3, 3.0]).with_failure(0.1, SEARCH)
 
 
-@pytest.mark.parametrize("pass_through", [0.0, 0.05])
-def test_a_silent_ray_moves_no_cell_by_epsilon_and_has_no_influence(pass_through):
-    """A ray measured far along a street (a few pixels, under a mixture with a wide outlier component) is likely a
-    failure there: its failure posterior leaves every cell near its prior. ``influence_depth`` gives such a silent ray
+@pytest.mark.parametrize(("pass_through", "solid_depth_m"), [(0.0, 0.0), (0.05, 0.0), (0.0, 1.1)])
+def test_a_silent_ray_moves_no_cell_by_epsilon_and_has_no_influence(pass_through, solid_depth_m):
+    """A ray measured far along a street (a few pixels, under a mixture that fails often) is likely a failure there:
+    its failure posterior leaves every cell near its prior (with a pass-through chance, and with a solid depth that
+    lengthens every cell). ``influence_depth`` gives such a silent ray
     0 (``_kernels_failure.silent_rays``), and the grid casts none of its cells. By brute force with
     ``method="direct"``, over cells of every length up to a voxel's diagonal at every position from ``near_m`` to
     ``far_depth_m`` (each stretched by its ray's overhang share), no silent ray moves a cell by ``influence_epsilon``;
@@ -480,7 +481,7 @@ def test_a_silent_ray_moves_no_cell_by_epsilon_and_has_no_influence(pass_through
     fb = 2 * STREET_FB  # the full-size street rig
     model = PrismModel(
         error_model=OFTEN_FAILING, focal_baseline=fb, voxel_size_m=0.2, p0=0.05, near_m=0.5, far_depth_m=150.0,
-        pass_through=pass_through,
+        pass_through=pass_through, solid_depth_m=solid_depth_m,
     )  # fmt: skip
     eps = model.influence_epsilon
     disparity = fb / np.geomspace(20.0, 140.0, 12)
