@@ -181,11 +181,7 @@ class ConditionedModel(InverseSensorModel):
             return self._classes.cell_posteriors(
                 disparity, norm, rays, start, end, classes + 1, voxel_overhang_m if use_overhang else None
             )
-        overhang_m = None
-        if use_overhang:
-            overhang_m = np.asarray(voxel_overhang_m, dtype=np.float64)
-            if overhang_m.shape != disparity.shape:
-                raise PrismapInputError(f"`voxel_overhang_m` must have shape {disparity.shape}; got {overhang_m.shape}")
+        overhang_m = _ray_overhang(voxel_overhang_m if use_overhang else None, disparity.shape)
         prior_log = None
         if use_prior:
             prior_log = np.asarray(map_log_odds, dtype=np.float64)
@@ -212,10 +208,9 @@ class ConditionedModel(InverseSensorModel):
     ) -> npt.NDArray[np.float64]:
         """Depth (metres) beyond which a ray's measurement changes no cell, by its class's model: (R,) float64
         (``voxel_overhang_m`` as :meth:`cell_posteriors` takes it)."""
-        extra = (
-            {} if voxel_overhang_m is None or not self.takes_voxel_overhang else {"voxel_overhang_m": voxel_overhang_m}
-        )
+        overhang = voxel_overhang_m if self.takes_voxel_overhang else None
         if ray_class is None:
+            extra = {} if overhang is None else {"voxel_overhang_m": overhang}
             return self.plain.influence_depth(disparity_px, ray_norm, **extra)
         disparity = np.asarray(disparity_px, dtype=np.float64)
         norm = np.asarray(ray_norm, dtype=np.float64)
@@ -225,10 +220,8 @@ class ConditionedModel(InverseSensorModel):
             )
         classes = self._check_classes(ray_class, disparity.size)
         if self._classes is not None and self._classes.fused:
-            return self._classes.influence_depth(disparity, norm, classes + 1, extra.get("voxel_overhang_m"))
-        overhang = None if not extra else np.asarray(voxel_overhang_m, dtype=np.float64)
-        if overhang is not None and overhang.shape != disparity.shape:
-            raise PrismapInputError(f"`voxel_overhang_m` must have shape {disparity.shape}; got {overhang.shape}")
+            return self._classes.influence_depth(disparity, norm, classes + 1, overhang)
+        overhang = _ray_overhang(overhang, disparity.shape)
         depth = np.empty(disparity.size)
         for k in np.unique(classes):
             rays = np.flatnonzero(classes == k)
@@ -262,6 +255,16 @@ class ConditionedModel(InverseSensorModel):
             self.plain.with_extra_noise(sigma_px),
             tuple(model.with_extra_noise(sigma_px) for model in self.class_models),
         )
+
+
+def _ray_overhang(voxel_overhang_m, shape):
+    """``voxel_overhang_m`` as float64 of the rays' ``shape`` (checked), or None."""
+    if voxel_overhang_m is None:
+        return None
+    overhang = np.asarray(voxel_overhang_m, dtype=np.float64)
+    if overhang.shape != shape:
+        raise PrismapInputError(f"`voxel_overhang_m` must have shape {shape}; got {overhang.shape}")
+    return overhang
 
 
 def _split_by_class(ray_class, ray_of_cell):

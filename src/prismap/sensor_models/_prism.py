@@ -421,11 +421,15 @@ class PrismModel(RayModel):
             return None
         disparity = as_float_array(disparity_px, "disparity_px", ndim=1, allow_nan=False)
         norm = as_float_array(ray_norm, "ray_norm", shape=(disparity.size,))
+        tables, log_z, (log_fail, _), ray_model = self._ray_terms(disparity, norm)
+        return floor_depths(self, tables, log_z, log_fail, ray_model, self._kernel_models, norm, voxel_overhang_m)
+
+    def _ray_terms(self, disparity, norm):
+        """What the floor and influence depths of the rays take (``_prism_reach``): their tables
+        (:meth:`_tables_for`), ``log Z`` (:meth:`_ray_log_z`), failure terms (:meth:`_log_failure`) and model rows (0)."""
         tables = self._tables_for(disparity, norm)
         log_z = self._ray_log_z(tables)
-        ray_model = np.zeros(disparity.size, dtype=np.int64)
-        log_fail = self._log_failure(log_z)[0]
-        return floor_depths(self, tables, log_z, log_fail, ray_model, self._kernel_models, norm, voxel_overhang_m)
+        return tables, log_z, self._log_failure(log_z), np.zeros(disparity.size, dtype=np.int64)
 
     def _log_failure(self, log_z):
         """``log(1 - rho)`` and ``log(rho)`` of each ray, its failure posterior given its ``Z`` (``log_z``, from its
@@ -458,9 +462,7 @@ class PrismModel(RayModel):
         """
         disparity = as_float_array(disparity_px, "disparity_px", ndim=1, allow_nan=False)
         norm = as_float_array(ray_norm, "ray_norm", shape=(disparity.size,))
-        tables = self._tables_for(disparity, norm)
-        log_z, ray_model = self._ray_log_z(tables), np.zeros(disparity.size, dtype=np.int64)
-        failure = self._log_failure(log_z)
+        tables, log_z, failure, ray_model = self._ray_terms(disparity, norm)
         return influence_depths(self, tables, log_z, failure, ray_model, self._kernel_models, norm, voxel_overhang_m)
 
     def with_extra_noise(self, sigma_px: float) -> PrismModel:

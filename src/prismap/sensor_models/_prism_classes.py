@@ -98,20 +98,21 @@ class PrismClasses:
 
     def influence_depth(self, disparity, norm, index, voxel_overhang_m=None):
         """:meth:`PrismModel.influence_depth` of each ray by its model ``index`` ((R,) int)."""
-        tables = self.tables_for(disparity, norm, index)
-        log_z = self.models[0]._ray_log_z(tables)
-        index = np.asarray(index, dtype=np.int64)
-        return influence_depths(
-            self.models[0], tables, log_z, self._log_failure(log_z, index), index, self.mixtures, norm, voxel_overhang_m
-        )
+        tables, log_z, failure, index = self._ray_terms(disparity, norm, index)
+        return influence_depths(self.models[0], tables, log_z, failure, index, self.mixtures, norm, voxel_overhang_m)
 
     def floor_depth(self, disparity, norm, index, voxel_overhang_m=None):
         """:meth:`PrismModel.floor_depth` of each ray by its model ``index`` ((R,) int)."""
+        tables, log_z, (log_fail, _), index = self._ray_terms(disparity, norm, index)
+        return floor_depths(self.models[0], tables, log_z, log_fail, index, self.mixtures, norm, voxel_overhang_m)
+
+    def _ray_terms(self, disparity, norm, index):
+        """:meth:`PrismModel._ray_terms` of rays of model ``index`` each: tables, ``log Z``, failure terms, ``index``
+        as int64."""
         tables = self.tables_for(disparity, norm, index)
         log_z = self.models[0]._ray_log_z(tables)
-        log_fail = self._log_failure(log_z, index)[0]
         index = np.asarray(index, dtype=np.int64)
-        return floor_depths(self.models[0], tables, log_z, log_fail, index, self.mixtures, norm, voxel_overhang_m)
+        return tables, log_z, self._log_failure(log_z, index), index
 
     def _log_failure(self, log_z, index):
         """:meth:`PrismModel._log_failure` of rays of ``log Z`` ``log_z``, each by its model ``index``."""
