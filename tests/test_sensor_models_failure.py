@@ -530,3 +530,53 @@ def test_the_map_casts_no_cell_of_a_silent_ray(mode):
         integrate_disparity(grid, disparity, camera, np.eye(4), model, mode=mode, max_range_m=140.0)
         known[wall_m] = (bool(silent[0]), len(grid.known_voxels()[0]))
     assert known == {130.0: (True, 0), 25.0: (False, known[25.0][1])} and known[25.0][1] > 1000
+
+
+def test_a_blended_increment_is_within_rho_of_the_failure_free_ratio():
+    """The influence levels' premise (docs/SENSOR_MODELS.md, "The influence depth of a blended ray"): blended by
+    its success posterior ``rho``, a cell whose failure-free ratio is ``R`` moves by at most
+    ``log(1 + rho max(R - 1, 1/R - 1))``, and the bound is reached to first order near ``R = 1``."""
+    rng = np.random.default_rng(21)
+    n = 20_000
+    increment = rng.uniform(-3.0, 3.0, n)
+    prior = logit(rng.uniform(1e-4, 0.6, n))
+    rho = np.exp(rng.uniform(np.log(1e-4), 0.0, n))
+    _, blended = blend_increments(increment, prior, np.log1p(-rho), np.log(rho))
+    ratio = np.exp(increment)
+    bound = np.log1p(rho * np.maximum(ratio - 1.0, 1.0 / ratio - 1.0))
+    assert np.all(np.abs(blended) <= bound * (1 + 1e-9) + 1e-15)
+    small = np.abs(increment) < 1e-3
+    assert np.abs(blended[small]) == pytest.approx(rho[small] * np.abs(increment[small]), rel=2e-3)
+
+
+def test_a_blended_rays_influence_depth_bounds_every_later_cell():
+    """A ray that fails often stops at the influence level of its success posterior ``rho`` (the largest ``k`` with
+    ``rho <= 4^-k``): before the failure-free influence depth when ``rho <= 1/4``, at it otherwise. By brute force
+    with ``method="direct"``, no cell beyond it (a voxel's diagonal long or a sliver, stretched by the ray's overhang
+    share) moves by ``influence_epsilon``."""
+    from prismap.sensor_models._kernels_pack import _Z_INFL
+
+    fb = 2 * STREET_FB
+    model = PrismModel(
+        error_model=OFTEN_FAILING, focal_baseline=fb, voxel_size_m=0.2, p0=0.05, near_m=0.5, far_depth_m=150.0
+    )
+    disparity = fb / np.geomspace(4.0, 45.0, 16)
+    norm = np.linspace(1.0, 1.3, disparity.size)
+    overhang = np.linspace(0.0, 0.8, disparity.size)
+    depth = model.influence_depth(disparity, norm, voxel_overhang_m=overhang)
+    tables, _, (_, log_ok), _ = model._ray_terms(disparity, norm)
+    failure_free = tables[2][tables[0], _Z_INFL]
+    rho = np.exp(log_ok)
+    likely_failed = rho <= 0.25
+    assert 3 <= likely_failed.sum() <= disparity.size - 3 and np.all(depth > 0)  # no ray silent here
+    assert np.all(depth[likely_failed] < failure_free[likely_failed])
+    assert np.all(depth[~likely_failed] == failure_free[~likely_failed])
+    rng = np.random.default_rng(22)
+    for r in range(disparity.size):
+        start = depth[r] + rng.uniform(0.0, 30.0, 200)
+        length = np.where(rng.random(200) < 0.5, np.sqrt(3.0) * 0.2 / norm[r], rng.uniform(1e-4, 0.02, 200))
+        _, increment = model.cell_posteriors(
+            disparity[r : r + 1], norm[r : r + 1], np.zeros(200, dtype=np.int64), start, start + length,
+            method="direct", voxel_overhang_m=overhang[r : r + 1],
+        )  # fmt: skip
+        assert np.abs(increment).max() < model.influence_epsilon, r

@@ -15,6 +15,13 @@ from prismap.sensor_models._kernels_math import _EXP_NORMAL, fast_exp, fast_log,
 _GL_X, _GL_W = np.polynomial.legendre.leggauss(8)
 _GL_LOG_W = np.log(_GL_W)
 
+INFLUENCE_LEVELS = 6
+"""Influence nodes a march finds: level ``k`` bounds the failure-free increment's ``R - 1`` by
+``4^k (e^epsilon - 1)``, so a ray whose success posterior ``rho <= 4^-k`` stays within epsilon once blended with its
+prior (docs/SENSOR_MODELS.md, "Silent rays")."""
+INFLUENCE_LEVEL_STEP = math.log(4.0)
+"""Log of the factor between the bounds of successive influence levels."""
+
 # ---------------------------------------------------------------------------------------------- PRISM
 # A ray is described by ``shift = d^ + doffs`` (pixels) and its surface rate ``lam`` (per metre of depth).
 # The integration coordinate ``x(z) = lam*z - ku/z`` with ``ku = f*b / sigma_min`` grows by one unit per
@@ -222,9 +229,10 @@ def prism_march(shift, lam, log_far, hq, log_eps_bound, lam_slack, i_min, geomet
         ``log Z``.
     log_far_w : float, log(1/pixel)
         The far term ``e^{-lam (z_max - z0)} g_far`` (-inf when the march stopped early).
-    i_infl : int
-        The first node from which every later cell's increment is bounded by epsilon. The march stops (not
-        before node ``i_min``) once the remaining evidence is below e^-40 of ``C``.
+    i_infl : (INFLUENCE_LEVELS,) int64
+        Per level ``k``, the first node from which every later cell's ``R - 1`` is bounded by ``4^k`` times
+        ``e^epsilon - 1`` (level 0: the increment by epsilon). The march stops (not before node ``i_min``) once the
+        remaining evidence is below e^-40 of ``C``.
     """
     return _march(
         shift,
@@ -534,7 +542,7 @@ def _march(
     inv_sigmas = 1.0 / mixture.sigmas
     scratch = np.empty((mixture.means.size + 5, _MARCH_GL * _MARCH_BLOCK))
     z[0] = z_start
-    i_infl = -1
+    i_infl = np.full(INFLUENCE_LEVELS, -1, dtype=np.int64)
     i_far = -1
     x_far = h_far = hq
     n = n_max
@@ -557,14 +565,16 @@ def _march(
         following = first + count
         for i in range(first, first + count):
             bound = -lam * (z[i] - z0) + max(sup[i], log_far)
-            if i_infl < 0 and bound + lam_slack * lam * (z[i] - z0) + slack - log_c[i, 0] < log_eps_bound:
-                i_infl = i
+            excess = bound + lam_slack * lam * (z[i] - z0) + slack - log_c[i, 0] - log_eps_bound
+            for k in range(INFLUENCE_LEVELS):
+                if i_infl[k] < 0 and excess < k * INFLUENCE_LEVEL_STEP:
+                    i_infl[k] = i
             if i < n_max and i >= i_min and (i_far < 0 or (i - i_far) % 4 == 0) and bound - log_c[i, 0] < -40.0:
                 n = i
                 tail = bound
                 stopped = True
                 break
-            if far_ratio > 1 and i_far < 0 and 0 <= i_infl < i and i >= fine_run:
+            if far_ratio > 1 and i_far < 0 and 0 <= i_infl[0] < i and i >= fine_run:
                 x_i = _march_x(i, x0, counts, widths, hq)
                 if x_end - x_i >= 8.0 * far_ratio * hq:  # room to spare in the arrays
                     i_far = i
@@ -578,8 +588,9 @@ def _march(
     log_far_w = -np.inf
     if not stopped:
         tail = log_far_w = -lam * (z_max - z0) + log_far
-        if i_infl < 0:
-            i_infl = n_max
+    for k in range(INFLUENCE_LEVELS):  # a level not reached holds from the last node on
+        if i_infl[k] < 0:
+            i_infl[k] = n
     log_d = np.empty((n + 1, 3))
     log_s = math.log(z[n] - z0)
     for k in range(3):

@@ -9,6 +9,7 @@ import numpy as np
 from prismap.sensor_models._kernel_args import Geometry
 from prismap.sensor_models._kernels_failure import table_start
 from prismap.sensor_models._kernels_march import (
+    INFLUENCE_LEVELS,
     _exp_term,
     _march,
     _march_x,
@@ -404,8 +405,9 @@ def prism_table(shift, lam, log_far, geometry, spec, mixture):
     Returns
     -------
     nodes : (N, NODE_COLUMNS) float64, log and its derivatives in x and log lam
-    meta : (3 N_SEGMENTS + 6,) float64
-        Per segment its first x, its first row and its spacing; then ``z_end`` (last node), ``z_infl``,
+    meta : (3 N_SEGMENTS + 5 + INFLUENCE_LEVELS,) float64
+        Per segment its first x, its first row and its spacing; then ``z_end`` (last node), the influence depth
+        of each level (``_kernels_march.INFLUENCE_LEVELS``; level 0 is ``z_infl``),
         ``log Z`` and its first and second derivatives in ``log lam`` (a ray's ``log Z`` by the Taylor
         term of the nodes, for the look-ups that integrate on the spot at the ray's own rate), and ``z_start``.
 
@@ -511,7 +513,7 @@ def prism_table(shift, lam, log_far, geometry, spec, mixture):
                 break
             uniform = starts[r]
     # fine up to a node past the influence depth, then 4 equal intervals to the end (on the march's nodes)
-    first_back = max(min(i_infl + 1, n), uniform)
+    first_back = max(min(i_infl[0] + 1, n), uniform)
     back_width = widths[last]
     if i_far >= 0:  # the march's far panels: 4 equal intervals of them from i_far
         first_back = i_far
@@ -560,7 +562,7 @@ def prism_table(shift, lam, log_far, geometry, spec, mixture):
     )
     nodes = columns.T
     nodes[0, 2:_D_COLUMN] = nodes[1, 2:_D_COLUMN]
-    meta = np.empty(3 * N_SEGMENTS + 6)
+    meta = np.empty(3 * N_SEGMENTS + 5 + INFLUENCE_LEVELS)
     x_march = x_of_z(z[0], lam, ku)
     meta[0], meta[N_SEGMENTS], meta[2 * N_SEGMENTS] = x0, 0, h_coarse
     for r in range(MAX_RUNS + 1):
@@ -572,5 +574,7 @@ def prism_table(shift, lam, log_far, geometry, spec, mixture):
     meta[2 * N_SEGMENTS - 1] = n_coarse + i_back
     meta[3 * N_SEGMENTS - 1] = max(back, 1) * back_width
     cut = lam * (z0 - z_near)  # Z from z_near: e^-cut times the table's (C(z0) is below its floor)
-    meta[3 * N_SEGMENTS :] = z[n], z[i_infl], log_z - cut, z_1 - cut, z_2 - cut, z0
+    meta[3 * N_SEGMENTS] = z[n]
+    meta[3 * N_SEGMENTS + 1 : 3 * N_SEGMENTS + 1 + INFLUENCE_LEVELS] = z[i_infl]
+    meta[3 * N_SEGMENTS + 1 + INFLUENCE_LEVELS :] = log_z - cut, z_1 - cut, z_2 - cut, z0
     return nodes, meta

@@ -13,6 +13,7 @@ fused look-up of a conditioned model's classes (:class:`~prismap.sensor_models._
 import numpy as np
 
 from prismap.sensor_models import _kernels_failure, _kernels_lookup
+from prismap.sensor_models._kernels_march import INFLUENCE_LEVEL_STEP, INFLUENCE_LEVELS
 from prismap.sensor_models._kernels_pack import _SHIFT, _Z_INFL
 
 
@@ -27,11 +28,12 @@ def influence_depths(model, tables, log_z, log_failure, ray_model, models, norm,
     """``PrismModel.influence_depth`` of the rays, from their failure terms ``log_failure``
     (``PrismModel._log_failure``: ``log(1 - rho)``, ``log(rho)``; empty: no failures, no silent ray)."""
     table, _, meta, _ = tables
-    depth = meta[table, _Z_INFL]
+    log_fail, log_ok = log_failure
+    blended = log_ok.size and model.prior == "p0"
+    depth = meta[table, _Z_INFL + (_influence_level(log_ok) if blended else 0)]
     if model.solid_depth_m > 0:
         depth = np.minimum(depth + model.solid_depth_m / norm, model.far_depth_m)
-    log_fail, log_ok = log_failure
-    if not log_ok.size or model.prior != "p0":
+    if not blended:
         return depth
     # the longest cell: a voxel's diagonal, the solid depth and the ray's overhang share (metres along the ray)
     longest = np.sqrt(3.0) * model.voxel_size_m + model.solid_depth_m + model._stretch(norm, voxel_overhang_m) * norm
@@ -41,3 +43,12 @@ def influence_depths(model, tables, log_z, log_failure, ray_model, models, norm,
         model.focal_baseline, model.near_m, models, model.influence_epsilon,
     )  # fmt: skip
     return np.where(silent, 0.0, depth)
+
+
+def _influence_level(log_ok):
+    """Each ray's influence level from its ``log(rho)``: the largest ``k`` with ``rho <= 4^-k``
+    (``_kernels_march.INFLUENCE_LEVELS``). Blended with its prior by ``rho``, a cell whose failure-free ratio has
+    ``|R - 1| <= B`` moves by at most ``log(1 + rho B)`` (docs/SENSOR_MODELS.md, "Silent rays"), so the ray's cells
+    stay within epsilon from the depth where ``B`` first falls below ``4^k (e^epsilon - 1)``."""
+    level = np.floor(-log_ok / INFLUENCE_LEVEL_STEP)
+    return np.clip(np.nan_to_num(level, nan=0.0), 0, INFLUENCE_LEVELS - 1).astype(np.int64)
