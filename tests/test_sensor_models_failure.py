@@ -549,18 +549,23 @@ def test_a_blended_increment_is_within_rho_of_the_failure_free_ratio():
     assert np.abs(blended[small]) == pytest.approx(rho[small] * np.abs(increment[small]), rel=2e-3)
 
 
-def test_a_blended_rays_influence_depth_bounds_every_later_cell():
-    """A ray that fails often stops at the influence level of its success posterior ``rho`` (the largest ``k`` with
-    ``rho <= 4^-k``): before the failure-free influence depth when ``rho <= 1/4``, at it otherwise. By brute force
-    with ``method="direct"``, no cell beyond it (a voxel's diagonal long or a sliver, stretched by the ray's overhang
-    share) moves by ``influence_epsilon``."""
+@pytest.mark.parametrize(
+    ("fb", "measured_m"),
+    [(2 * STREET_FB, np.geomspace(4.0, 45.0, 16)), (STREET_FB, STREET_FB / np.linspace(1.5, 4.0, 8))],
+    ids=["full-size rig", "half-size rig, distant measurements"],
+)
+def test_a_blended_rays_influence_depth_bounds_every_later_cell(fb, measured_m):
+    """A ray that fails often stops where its success posterior ``rho`` lets it
+    (``_prism_reach.influence_depths``): before the failure-free influence depth once ``rho <= 1/4``, and in front of
+    a distant measurement, where the bound for cells of at most a voxel's diagonal (plus the ray's overhang share)
+    takes the prior behind each cell rather than at it. By brute force with ``method="direct"``, no cell beyond it (a
+    voxel's diagonal long or a sliver, stretched by the overhang share) moves by ``influence_epsilon``."""
     from prismap.sensor_models._kernels_pack import _Z_INFL
 
-    fb = 2 * STREET_FB
     model = PrismModel(
         error_model=OFTEN_FAILING, focal_baseline=fb, voxel_size_m=0.2, p0=0.05, near_m=0.5, far_depth_m=150.0
     )
-    disparity = fb / np.geomspace(4.0, 45.0, 16)
+    disparity = fb / measured_m
     norm = np.linspace(1.0, 1.3, disparity.size)
     overhang = np.linspace(0.0, 0.8, disparity.size)
     depth = model.influence_depth(disparity, norm, voxel_overhang_m=overhang)
@@ -568,9 +573,10 @@ def test_a_blended_rays_influence_depth_bounds_every_later_cell():
     failure_free = tables[2][tables[0], _Z_INFL]
     rho = np.exp(log_ok)
     likely_failed = rho <= 0.25
-    assert 3 <= likely_failed.sum() <= disparity.size - 3 and np.all(depth > 0)  # no ray silent here
-    assert np.all(depth[likely_failed] < failure_free[likely_failed])
-    assert np.all(depth[~likely_failed] == failure_free[~likely_failed])
+    assert likely_failed.sum() >= 3 and np.all(depth > 0)  # no ray silent here
+    assert np.all(depth <= failure_free) and np.all(depth[likely_failed] < failure_free[likely_failed])
+    if measured_m.max() > 100.0:
+        assert np.sum(depth < 0.6 * measured_m) >= 3  # cut well in front of the measurement
     rng = np.random.default_rng(22)
     for r in range(disparity.size):
         start = depth[r] + rng.uniform(0.0, 30.0, 200)

@@ -10,17 +10,12 @@ import math
 import numba as nb
 import numpy as np
 
+from prismap.sensor_models._kernels_influence import INFLUENCE_LEVEL_STEP, INFLUENCE_LEVELS, tight_influence_nodes
 from prismap.sensor_models._kernels_math import _EXP_NORMAL, fast_exp, fast_log, logaddexp
 
 _GL_X, _GL_W = np.polynomial.legendre.leggauss(8)
 _GL_LOG_W = np.log(_GL_W)
 
-INFLUENCE_LEVELS = 6
-"""Influence nodes a march finds: level ``k`` bounds the failure-free increment's ``R - 1`` by
-``4^k (e^epsilon - 1)``, so a ray whose success posterior ``rho <= 4^-k`` stays within epsilon once blended with its
-prior (docs/SENSOR_MODELS.md, "Silent rays")."""
-INFLUENCE_LEVEL_STEP = math.log(4.0)
-"""Log of the factor between the bounds of successive influence levels."""
 
 # ---------------------------------------------------------------------------------------------- PRISM
 # A ray is described by ``shift = d^ + doffs`` (pixels) and its surface rate ``lam`` (per metre of depth).
@@ -519,6 +514,8 @@ def _march(
     -------
     z, log_c, log_d, log_z, log_far_w, i_infl
         As :func:`prism_march`'s.
+    i_tight : (INFLUENCE_LEVELS,) int64
+        The influence nodes of cells of bounded length (``_kernels_influence.tight_influence_nodes``).
     i_far : int
         First node of the far panels, -1 if none.
     h_far : float, x units
@@ -588,9 +585,7 @@ def _march(
     log_far_w = -np.inf
     if not stopped:
         tail = log_far_w = -lam * (z_max - z0) + log_far
-    for k in range(INFLUENCE_LEVELS):  # a level not reached holds from the last node on
-        if i_infl[k] < 0:
-            i_infl[k] = n
+    i_infl[i_infl < 0] = n  # a level not reached holds from the last node on
     log_d = np.empty((n + 1, 3))
     log_s = math.log(z[n] - z0)
     for k in range(3):
@@ -598,4 +593,8 @@ def _march(
     for last_row in range(n - 1, -1, -_MARCH_BLOCK):
         _log_cumsum_block(panel, log_d, last_row, min(_MARCH_BLOCK, last_row + 1), -1, scratch[0])
     log_z = logaddexp(log_c[n, 0], tail)
-    return z[: n + 1], log_c[: n + 1], log_d, log_z, log_far_w, i_infl, i_far, h_far
+    log_tail = -lam * (1.0 - lam_slack) * (z[n] - z0) + max(sup[n], log_far)
+    i_tight = tight_influence_nodes(
+        z[: n + 1], log_c, log_tail, lam, lam_slack, log_eps_bound, shift, geometry, mixture
+    )
+    return z[: n + 1], log_c[: n + 1], log_d, log_z, log_far_w, i_infl, i_tight, i_far, h_far

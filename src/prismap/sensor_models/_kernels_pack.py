@@ -8,7 +8,7 @@ import math
 import numba as nb
 import numpy as np
 
-from prismap.sensor_models._kernels_march import INFLUENCE_LEVELS
+from prismap.sensor_models._kernels_influence import INFLUENCE_LEVELS
 from prismap.sensor_models._kernels_table import _D_COLUMN, N_SEGMENTS, prism_table
 
 TABLE_COLUMNS = _D_COLUMN
@@ -34,6 +34,7 @@ META_COLUMNS = (
     *(f"h_{k}" for k in range(N_SEGMENTS)),
     "z_end",
     *(f"z_infl_{k}" for k in range(INFLUENCE_LEVELS)),
+    *(f"z_tight_{k}" for k in range(INFLUENCE_LEVELS)),
     "log_z",
     "log_z_1",
     "log_z_2",
@@ -48,13 +49,14 @@ META_COLUMNS = (
 )
 """Columns of the per-table metadata matrix that :func:`prism_table_lookup` reads (one row per table): the
 rate, :func:`prism_table`'s meta (per segment its first x, first row and spacing, then ``z_end``, the influence
-depth of each level (``z_infl_k``: ``_kernels_march.INFLUENCE_LEVELS``), ``log Z`` and its two derivatives in ``log lam``, ``z_start``), then the shift, far term, the first row of its
-packed rows in the cache's ``nodes``, its node count, the first interval where only D is kept (C's rows
-``0..c_end`` come first), the place of D's rows (node ``k``'s at ``offset + d_shift + k``) and the rows it packs
-(:data:`TABLE_COLUMNS`)."""
+depths of each level (``z_infl_k``, ``z_tight_k``: ``_kernels_influence``), ``log Z`` and its two derivatives in
+``log lam``, ``z_start``), then the shift, far term, the first row of its packed rows in the cache's ``nodes``,
+its node count, the first interval where only D is kept (C's rows ``0..c_end`` come first), the place of D's rows
+(node ``k``'s at ``offset + d_shift + k``) and the rows it packs (:data:`TABLE_COLUMNS`)."""
 _LAM, _X, _ROW, _SPACING = 0, 1, 1 + N_SEGMENTS, 1 + 2 * N_SEGMENTS
 _Z_END = 1 + 3 * N_SEGMENTS
-_Z_INFL = _Z_END + 1  # level k's influence depth at _Z_INFL + k
+_Z_INFL = _Z_END + 1  # level k's influence depths at _Z_INFL + k (cells of any length), _Z_TIGHT + k (short cells)
+_Z_TIGHT = _Z_INFL + INFLUENCE_LEVELS
 (
     _LOG_Z,
     _LOG_Z_1,
@@ -67,7 +69,7 @@ _Z_INFL = _Z_END + 1  # level k's influence depth at _Z_INFL + k
     _C_END,
     _D_SHIFT,
     _STORED,
-) = range(_Z_INFL + INFLUENCE_LEVELS, _Z_INFL + INFLUENCE_LEVELS + 11)
+) = range(_Z_TIGHT + INFLUENCE_LEVELS, _Z_TIGHT + INFLUENCE_LEVELS + 11)
 
 
 _SIDE_PIECES = 8

@@ -8,8 +8,8 @@ import numpy as np
 
 from prismap.sensor_models._kernel_args import Geometry
 from prismap.sensor_models._kernels_failure import table_start
+from prismap.sensor_models._kernels_influence import INFLUENCE_LEVELS
 from prismap.sensor_models._kernels_march import (
-    INFLUENCE_LEVELS,
     _exp_term,
     _march,
     _march_x,
@@ -405,9 +405,10 @@ def prism_table(shift, lam, log_far, geometry, spec, mixture):
     Returns
     -------
     nodes : (N, NODE_COLUMNS) float64, log and its derivatives in x and log lam
-    meta : (3 N_SEGMENTS + 5 + INFLUENCE_LEVELS,) float64
-        Per segment its first x, its first row and its spacing; then ``z_end`` (last node), the influence depth
-        of each level (``_kernels_march.INFLUENCE_LEVELS``; level 0 is ``z_infl``),
+    meta : (3 N_SEGMENTS + 5 + 2 INFLUENCE_LEVELS,) float64
+        Per segment its first x, its first row and its spacing; then ``z_end`` (last node), the influence depths
+        of each level for cells of any length and of bounded length (``_kernels_influence``; level 0 of the
+        first is ``z_infl``),
         ``log Z`` and its first and second derivatives in ``log lam`` (a ray's ``log Z`` by the Taylor
         term of the nodes, for the look-ups that integrate on the spot at the ray's own rate), and ``z_start``.
 
@@ -461,7 +462,7 @@ def prism_table(shift, lam, log_far, geometry, spec, mixture):
             for k in range(3):
                 log_c_start[k] = log_c + k * log_s
         counts, widths = _march_runs(x_split, shift, lam, geometry, spec)
-        z, log_c, log_d, log_z, log_far_w, i_infl, i_far, h_far = _march(
+        z, log_c, log_d, log_z, log_far_w, i_infl, i_tight, i_far, h_far = _march(
             shift,
             lam,
             log_far,
@@ -562,7 +563,7 @@ def prism_table(shift, lam, log_far, geometry, spec, mixture):
     )
     nodes = columns.T
     nodes[0, 2:_D_COLUMN] = nodes[1, 2:_D_COLUMN]
-    meta = np.empty(3 * N_SEGMENTS + 5 + INFLUENCE_LEVELS)
+    meta = np.empty(3 * N_SEGMENTS + 5 + 2 * INFLUENCE_LEVELS)
     x_march = x_of_z(z[0], lam, ku)
     meta[0], meta[N_SEGMENTS], meta[2 * N_SEGMENTS] = x0, 0, h_coarse
     for r in range(MAX_RUNS + 1):
@@ -576,5 +577,6 @@ def prism_table(shift, lam, log_far, geometry, spec, mixture):
     cut = lam * (z0 - z_near)  # Z from z_near: e^-cut times the table's (C(z0) is below its floor)
     meta[3 * N_SEGMENTS] = z[n]
     meta[3 * N_SEGMENTS + 1 : 3 * N_SEGMENTS + 1 + INFLUENCE_LEVELS] = z[i_infl]
-    meta[3 * N_SEGMENTS + 1 + INFLUENCE_LEVELS :] = log_z - cut, z_1 - cut, z_2 - cut, z0
+    meta[3 * N_SEGMENTS + 1 + INFLUENCE_LEVELS : 3 * N_SEGMENTS + 1 + 2 * INFLUENCE_LEVELS] = z[i_tight]
+    meta[3 * N_SEGMENTS + 1 + 2 * INFLUENCE_LEVELS :] = log_z - cut, z_1 - cut, z_2 - cut, z0
     return nodes, meta

@@ -13,8 +13,8 @@ fused look-up of a conditioned model's classes (:class:`~prismap.sensor_models._
 import numpy as np
 
 from prismap.sensor_models import _kernels_failure, _kernels_lookup
-from prismap.sensor_models._kernels_march import INFLUENCE_LEVEL_STEP, INFLUENCE_LEVELS
-from prismap.sensor_models._kernels_pack import _SHIFT, _Z_INFL
+from prismap.sensor_models._kernels_influence import INFLUENCE_LEVEL_STEP, INFLUENCE_LEVELS
+from prismap.sensor_models._kernels_pack import _SHIFT, _Z_INFL, _Z_TIGHT
 
 
 def floor_depths(model, tables, log_z, log_fail, ray_model, models, norm, voxel_overhang_m):
@@ -28,16 +28,21 @@ def influence_depths(model, tables, log_z, log_failure, ray_model, models, norm,
     """``PrismModel.influence_depth`` of the rays, from their failure terms ``log_failure``
     (``PrismModel._log_failure``: ``log(1 - rho)``, ``log(rho)``; empty: no failures, no silent ray)."""
     table, _, meta, _ = tables
+    if model.prior != "p0":
+        depth = meta[table, _Z_INFL]
+        return depth if model.solid_depth_m == 0 else np.minimum(depth + model.solid_depth_m / norm, model.far_depth_m)
     log_fail, log_ok = log_failure
-    blended = log_ok.size and model.prior == "p0"
-    depth = meta[table, _Z_INFL + (_influence_level(log_ok) if blended else 0)]
-    if model.solid_depth_m > 0:
-        depth = np.minimum(depth + model.solid_depth_m / norm, model.far_depth_m)
-    if not blended:
-        return depth
     # the longest cell: a voxel's diagonal, the solid depth and the ray's overhang share (metres along the ray)
     longest = np.sqrt(3.0) * model.voxel_size_m + model.solid_depth_m + model._stretch(norm, voxel_overhang_m) * norm
     rate = model.rate_per_m
+    log_rho = log_ok if log_ok.size else np.zeros(table.size)
+    depth = meta[table, _Z_INFL + _influence_level(log_rho, 0.0)]
+    short = _influence_level(log_rho + rate * longest, 1.0)  # below 0: rho e^{lam L} > 4, no level holds
+    depth = np.where(short >= 0, np.minimum(depth, meta[table, _Z_TIGHT + np.maximum(short, 0)]), depth)
+    if model.solid_depth_m > 0:
+        depth = np.minimum(depth + model.solid_depth_m / norm, model.far_depth_m)
+    if not log_ok.size:
+        return depth
     silent = _kernels_failure.silent_rays(
         meta[table, _SHIFT], rate * norm, rate * longest, log_z, log_fail, log_ok, ray_model,
         model.focal_baseline, model.near_m, models, model.influence_epsilon,
@@ -45,10 +50,9 @@ def influence_depths(model, tables, log_z, log_failure, ray_model, models, norm,
     return np.where(silent, 0.0, depth)
 
 
-def _influence_level(log_ok):
-    """Each ray's influence level from its ``log(rho)``: the largest ``k`` with ``rho <= 4^-k``
-    (``_kernels_march.INFLUENCE_LEVELS``). Blended with its prior by ``rho``, a cell whose failure-free ratio has
-    ``|R - 1| <= B`` moves by at most ``log(1 + rho B)`` (docs/SENSOR_MODELS.md, "Silent rays"), so the ray's cells
-    stay within epsilon from the depth where ``B`` first falls below ``4^k (e^epsilon - 1)``."""
-    level = np.floor(-log_ok / INFLUENCE_LEVEL_STEP)
-    return np.clip(np.nan_to_num(level, nan=0.0), 0, INFLUENCE_LEVELS - 1).astype(np.int64)
+def _influence_level(log_factor, shift):
+    """Each ray's influence level of one bound (``_kernels_influence``): the largest ``k < INFLUENCE_LEVELS`` with
+    ``log_factor <= (shift - k) log 4``, ``log_factor`` the log of what multiplies the bound (``rho``, or
+    ``rho e^{lam L}``); negative where no level holds."""
+    level = np.floor(shift - np.nan_to_num(log_factor, nan=0.0) / INFLUENCE_LEVEL_STEP)
+    return np.minimum(level, INFLUENCE_LEVELS - 1).astype(np.int64)
