@@ -1,5 +1,6 @@
 """Confidence features of a computed disparity against brute-force numpy references on small images."""
 
+import cv2
 import numpy as np
 import pytest
 from scipy import ndimage
@@ -152,3 +153,36 @@ def test_features_carry_names_units_validity_and_the_optional_lr_disagreement():
 def test_bad_input_names_the_argument(call, message):
     with pytest.raises(PrismapInputError, match=message):
         call(_disparity())
+
+
+def test_only_the_features_asked_for_are_computed_and_they_are_the_full_ones():
+    """A mapping run computes only the features its classes use (``ErrorModel.classify_frame``): the same values as
+    when every feature is computed, ``disparity_px`` always, settings checked all the same, unknown names refused."""
+    d = _disparity()
+    grey = np.random.default_rng(3).integers(0, 255, d.shape).astype(np.uint8)
+    full = compute_features(grey, None, d)
+    some = compute_features(grey, None, d, names=("texture",))
+    assert some.names == ("texture", "disparity_px")
+    np.testing.assert_array_equal(some.values["texture"], full.values["texture"])
+    assert compute_features(grey, None, d, np.ones(d.shape), names=()).names == ("disparity_px",)
+    with pytest.raises(PrismapInputError, match=r"unknown feature\(s\) \['slant'\]"):
+        compute_features(grey, None, d, names=("texture", "slant"))
+    with pytest.raises(PrismapInputError, match="texture_window_px"):
+        compute_features(grey, None, d, names=("edge_distance_px",), texture_window_px=4)
+
+
+@pytest.mark.parametrize("feature", ["edge_distance_px", "texture", "disparity_gradient"])
+def test_a_frames_classes_are_those_of_all_its_features(feature):
+    """``ErrorModel.classify_frame`` computes only its classes' feature and labels every pixel as the classes do
+    with every feature computed."""
+    from support import conditioned_error_model
+
+    d = _disparity()
+    left = np.random.default_rng(5).integers(0, 255, (*d.shape, 3)).astype(np.uint8)
+    grey = cv2.cvtColor(left, cv2.COLOR_RGB2GRAY)
+    every = compute_features(grey, grey, d)
+    values = every.values[feature][every.valid & np.isfinite(every.values[feature])]
+    model = conditioned_error_model(feature=feature, edges=tuple(np.quantile(values, [0.3, 0.7])))
+    labels = model.classify_frame(left, left, d)
+    np.testing.assert_array_equal(labels, model.classify(every))
+    assert len(np.unique(labels[labels >= 0])) == 3

@@ -24,6 +24,7 @@ so a mapping run can compute it for each frame and pick the error mixture of eac
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 
 import cv2
@@ -166,6 +167,7 @@ def compute_features(
     *,
     edge_threshold_px: float = DEFAULT_EDGE_THRESHOLD_PX,
     texture_window_px: int = DEFAULT_TEXTURE_WINDOW_PX,
+    names: Iterable[str] | None = None,
 ) -> PixelFeatures:
     """The confidence features of one frame (see the module docstring for each).
 
@@ -182,6 +184,9 @@ def compute_features(
         ran no left-right check (the feature is then absent).
     edge_threshold_px : float, pixels
     texture_window_px : int, pixels, odd
+    names : iterable of str or None
+        Only these features (of :data:`FEATURE_UNITS`; a mapping run's classes use two or three), besides
+        ``disparity_px``; None: every feature the inputs allow.
 
     Returns
     -------
@@ -193,12 +198,19 @@ def compute_features(
         raise PrismapInputError(f"`left_grey` must be 2-D of the disparity's shape {d.shape}; got {left.shape}")
     if right_grey is not None and np.shape(right_grey) != d.shape:
         raise PrismapInputError(f"`right_grey` must have the disparity's shape {d.shape}; got {np.shape(right_grey)}")
-    values = {
-        "edge_distance_px": edge_distance(d, edge_threshold_px=edge_threshold_px),
-        "texture": texture_strength(left, window_px=texture_window_px),
-        "disparity_gradient": disparity_gradient(d, window_px=texture_window_px),
+    check_positive(edge_threshold_px, "edge_threshold_px")
+    _odd_window(texture_window_px)
+    wanted = set(FEATURE_UNITS) if names is None else set(names)
+    unknown = sorted(wanted - set(FEATURE_UNITS))
+    if unknown:
+        raise PrismapInputError(f"unknown feature(s) {unknown}; the features are {list(FEATURE_UNITS)}")
+    computed = {
+        "edge_distance_px": lambda: edge_distance(d, edge_threshold_px=edge_threshold_px),
+        "texture": lambda: texture_strength(left, window_px=texture_window_px),
+        "disparity_gradient": lambda: disparity_gradient(d, window_px=texture_window_px),
     }
-    if lr_disagreement is not None:
+    values = {name: compute() for name, compute in computed.items() if name in wanted}
+    if lr_disagreement is not None and LR_FEATURE in wanted:
         values[LR_FEATURE] = as_float_array(lr_disagreement, "lr_disagreement", shape=d.shape)
     values["disparity_px"] = d
     settings = {"edge_threshold_px": float(edge_threshold_px), "texture_window_px": int(texture_window_px)}

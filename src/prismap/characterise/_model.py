@@ -254,8 +254,8 @@ class ErrorModel:
         disparity: npt.ArrayLike,
         lr_disagreement: npt.ArrayLike | None = None,
     ) -> npt.NDArray[np.int32]:
-        """Class of each pixel of a stereo frame: its features (this model's :attr:`feature_settings`) from the
-        images and the computed disparity, then :meth:`classify`.
+        """Class of each pixel of a stereo frame: the features its classes use (this model's
+        :attr:`feature_settings`) from the images and the computed disparity, then :meth:`classify`.
 
         Parameters
         ----------
@@ -267,7 +267,14 @@ class ErrorModel:
         -------
         (H, W) int32, as :meth:`classify`.
         """
-        features = compute_features(to_grey(left), to_grey(right), disparity, lr_disagreement, **self.feature_settings)
+        features = compute_features(
+            to_grey(left),
+            to_grey(right),
+            disparity,
+            lr_disagreement,
+            names=self.classes.features,
+            **self.feature_settings,
+        )  # only what the classes use
         return self.classify(features)
 
     def to_dict(self) -> dict[str, Any]:
