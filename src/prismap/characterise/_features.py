@@ -208,12 +208,13 @@ def compute_features(
     unknown = sorted(wanted - set(FEATURE_UNITS))
     if unknown:
         raise PrismapInputError(f"unknown feature(s) {unknown}; the features are {list(FEATURE_UNITS)}")
-    computed = {
-        "edge_distance_px": lambda: edge_distance(d, edge_threshold_px=edge_threshold_px),
-        "texture": lambda: texture_strength(left, window_px=texture_window_px),
-        "disparity_gradient": lambda: disparity_gradient(d, window_px=texture_window_px),
-    }
-    values = {name: compute() for name, compute in computed.items() if name in wanted}
+    values = {}
+    if "edge_distance_px" in wanted:
+        values["edge_distance_px"] = edge_distance(d, edge_threshold_px=edge_threshold_px)
+    if "texture" in wanted:
+        values["texture"] = texture_strength(left, window_px=texture_window_px)
+    if "disparity_gradient" in wanted:
+        values["disparity_gradient"] = disparity_gradient(d, window_px=texture_window_px)
     if lr_disagreement is not None and LR_FEATURE in wanted:
         values[LR_FEATURE] = as_float_array(lr_disagreement, "lr_disagreement", shape=d.shape)
     values["disparity_px"] = d

@@ -15,6 +15,9 @@ import math
 import numba as nb
 import numpy as np
 
+from prismap.sensor_models._kernel_args import Geometry
+from prismap.sensor_models._kernels_march import _log_sup_tail
+
 INFLUENCE_LEVELS = 6
 """Influence nodes a table keeps of each bound: level ``k`` of the bound for cells of any length has ``B`` below
 ``4^k (e^epsilon - 1)`` (a ray with ``rho <= 4^-k``), level ``k`` of the bound for short cells
@@ -24,16 +27,24 @@ INFLUENCE_LEVEL_STEP = math.log(4.0)
 
 
 @nb.njit(cache=True, nogil=True)
-def tight_influence_nodes(z, log_c, log_tail, lam, lam_slack, log_eps_bound, shift, geometry, mixture):
+def level_bounds(log_eps_bound):
+    """Bounds on a later cell's ``log |R - 1|`` of each level of the bound for cells of any length (the march's
+    ``log_eps_bounds``: ``_kernels_march._march``), from ``log(expm1(epsilon))``."""
+    return log_eps_bound + INFLUENCE_LEVEL_STEP * np.arange(INFLUENCE_LEVELS)
+
+
+@nb.njit(cache=True, nogil=True)
+def tight_influence_nodes(z, log_c, log_far, lam, lam_slack, log_eps_bound, shift, geometry, mixture):
     """Per level ``k`` (:data:`INFLUENCE_LEVELS`), the first node ``i`` of a march such that every cell starting at
     ``a >= z[i]`` has ``M(a) / C(a) < 4^(k - 1) (e^epsilon - 1)`` for every rate the table serves; the last node
     when none has.
 
     ``M`` takes the slowest such rate, ``lam (1 - lam_slack)`` (the largest prior anywhere behind ``a``), and
     ``C`` the table's, lowered by the rate gap as the march's bound is (``C(a)`` of a rate ``lam (1 +- s)`` is at
-    least ``min(1 - s, e^{-lam s (a - z0)})`` times it). On the panel ``[z_i, z_i+1]`` ``g`` is at most the sum
-    of each component's largest value there, the prior at most its value at ``z_i``; a running maximum from the
-    back makes the condition hold at every later node, and each panel takes its far end's rate gap.
+    least ``min(1 - s, e^{-lam s (a - z0)})`` times it). On the panel ``[z_i, z_i+1]`` ``g`` is at most
+    ``_kernels_march._log_sup_tail`` of the panel, the prior at most its value at ``z_i``, and past the last node
+    ``g`` at most that of ``[z_n, z_max]`` or the far measurement's; a running maximum from the back makes the
+    condition hold at every later node, and each panel takes its far end's rate gap.
 
     Parameters
     ----------
@@ -41,36 +52,23 @@ def tight_influence_nodes(z, log_c, log_tail, lam, lam_slack, log_eps_bound, shi
         The march's nodes.
     log_c : (n + 1, 3) float64, log
         ``log C`` and its moments at the nodes (column 0 is read).
-    log_tail : float, log
-        Bound on ``log M(z[n])``, the far measurement included.
-    lam, lam_slack, log_eps_bound, shift, geometry, mixture
+    log_far, lam, lam_slack, log_eps_bound, shift, geometry, mixture
         As ``_kernels_march.prism_march``'s.
 
     Returns
     -------
     (INFLUENCE_LEVELS,) int64, node indices
     """
-    z0, z_max, fb, _ = geometry
-    log_wn, means, sigmas = mixture
+    z0, z_max, fb, ku = geometry
     n = z.size - 1
     lam_lo = lam * (1.0 - lam_slack)
     slack = -math.log1p(-lam_slack)
     excess = np.empty(n + 1)
-    suffix = log_tail
+    suffix = -lam_lo * (z[n] - z0) + max(_log_sup_tail(z[n], shift, geometry, mixture), log_far)
     excess[n] = suffix + lam_slack * lam * (z_max - z0) + slack - log_c[n, 0] - log_eps_bound
     for i in range(n - 1, -1, -1):
-        u_far, u_near = fb / z[i + 1], fb / z[i]
-        best = -np.inf
-        total = 0.0
-        for j in range(means.size):  # a log-sum-exp of each component's largest value on the panel
-            t = (min(max(shift + means[j], u_far), u_near) - shift - means[j]) / sigmas[j]
-            v = log_wn[j] - 0.5 * t * t
-            if v > best:
-                total = total * math.exp(best - v) + 1.0
-                best = v
-            else:
-                total += math.exp(v - best)
-        suffix = max(suffix, -lam_lo * (z[i] - z0) + best + math.log(total))
+        panel = _log_sup_tail(z[i], shift, Geometry(z0, z[i + 1], fb, ku), mixture)
+        suffix = max(suffix, -lam_lo * (z[i] - z0) + panel)
         here = suffix + lam_slack * lam * (z[i + 1] - z0) + slack - log_c[i, 0] - log_eps_bound
         excess[i] = max(here, excess[i + 1])
     nodes = np.full(INFLUENCE_LEVELS, n, dtype=np.int64)

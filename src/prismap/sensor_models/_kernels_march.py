@@ -10,12 +10,10 @@ import math
 import numba as nb
 import numpy as np
 
-from prismap.sensor_models._kernels_influence import INFLUENCE_LEVEL_STEP, INFLUENCE_LEVELS, tight_influence_nodes
 from prismap.sensor_models._kernels_math import _EXP_NORMAL, fast_exp, fast_log, logaddexp
 
 _GL_X, _GL_W = np.polynomial.legendre.leggauss(8)
 _GL_LOG_W = np.log(_GL_W)
-
 
 # ---------------------------------------------------------------------------------------------- PRISM
 # A ray is described by ``shift = d^ + doffs`` (pixels) and its surface rate ``lam`` (per metre of depth).
@@ -224,10 +222,9 @@ def prism_march(shift, lam, log_far, hq, log_eps_bound, lam_slack, i_min, geomet
         ``log Z``.
     log_far_w : float, log(1/pixel)
         The far term ``e^{-lam (z_max - z0)} g_far`` (-inf when the march stopped early).
-    i_infl : (INFLUENCE_LEVELS,) int64
-        Per level ``k``, the first node from which every later cell's ``R - 1`` is bounded by ``4^k`` times
-        ``e^epsilon - 1`` (level 0: the increment by epsilon). The march stops (not before node ``i_min``) once the
-        remaining evidence is below e^-40 of ``C``.
+    i_infl : (1,) int64
+        The first node from which every later cell's increment is bounded by epsilon. The march stops (not
+        before node ``i_min``) once the remaining evidence is below e^-40 of ``C``.
     """
     return _march(
         shift,
@@ -238,7 +235,7 @@ def prism_march(shift, lam, log_far, hq, log_eps_bound, lam_slack, i_min, geomet
         np.zeros(1, dtype=np.int64),
         np.full(1, hq),
         hq,
-        log_eps_bound,
+        np.full(1, log_eps_bound),
         lam_slack,
         i_min,
         1,
@@ -475,7 +472,7 @@ def _march(
     counts,
     widths,
     hq,
-    log_eps_bound,
+    log_eps_bounds,
     lam_slack,
     i_min,
     far_ratio,
@@ -495,8 +492,10 @@ def _march(
 
     Parameters
     ----------
-    shift, lam, log_far, log_eps_bound, lam_slack, i_min, geometry, mixture
+    shift, lam, log_far, lam_slack, i_min, geometry, mixture
         As :func:`prism_march`'s.
+    log_eps_bounds : (K,) float64, log
+        Bounds on a later cell's ``log |R - 1|``, the first ``log(expm1(epsilon))`` (:func:`prism_march`'s).
     z_start : float, metres of depth
         First node, at or after ``z0``.
     log_c_start : (3,) float64, log
@@ -512,10 +511,11 @@ def _march(
 
     Returns
     -------
-    z, log_c, log_d, log_z, log_far_w, i_infl
+    z, log_c, log_d, log_z
         As :func:`prism_march`'s.
-    i_tight : (INFLUENCE_LEVELS,) int64
-        The influence nodes of cells of bounded length (``_kernels_influence.tight_influence_nodes``).
+    i_infl : (K,) int64
+        Per bound of ``log_eps_bounds``, the first node from which every later cell's ``|R - 1|`` and
+        ``|1/R - 1|`` are below it.
     i_far : int
         First node of the far panels, -1 if none.
     h_far : float, x units
@@ -539,7 +539,7 @@ def _march(
     inv_sigmas = 1.0 / mixture.sigmas
     scratch = np.empty((mixture.means.size + 5, _MARCH_GL * _MARCH_BLOCK))
     z[0] = z_start
-    i_infl = np.full(INFLUENCE_LEVELS, -1, dtype=np.int64)
+    i_infl = np.full(log_eps_bounds.size, -1, dtype=np.int64)
     i_far = -1
     x_far = h_far = hq
     n = n_max
@@ -562,9 +562,9 @@ def _march(
         following = first + count
         for i in range(first, first + count):
             bound = -lam * (z[i] - z0) + max(sup[i], log_far)
-            excess = bound + lam_slack * lam * (z[i] - z0) + slack - log_c[i, 0] - log_eps_bound
-            for k in range(INFLUENCE_LEVELS):
-                if i_infl[k] < 0 and excess < k * INFLUENCE_LEVEL_STEP:
+            excess = bound + lam_slack * lam * (z[i] - z0) + slack - log_c[i, 0]
+            for k in range(log_eps_bounds.size):
+                if i_infl[k] < 0 and excess < log_eps_bounds[k]:
                     i_infl[k] = i
             if i < n_max and i >= i_min and (i_far < 0 or (i - i_far) % 4 == 0) and bound - log_c[i, 0] < -40.0:
                 n = i
@@ -593,8 +593,4 @@ def _march(
     for last_row in range(n - 1, -1, -_MARCH_BLOCK):
         _log_cumsum_block(panel, log_d, last_row, min(_MARCH_BLOCK, last_row + 1), -1, scratch[0])
     log_z = logaddexp(log_c[n, 0], tail)
-    log_tail = -lam * (1.0 - lam_slack) * (z[n] - z0) + max(sup[n], log_far)
-    i_tight = tight_influence_nodes(
-        z[: n + 1], log_c, log_tail, lam, lam_slack, log_eps_bound, shift, geometry, mixture
-    )
-    return z[: n + 1], log_c[: n + 1], log_d, log_z, log_far_w, i_infl, i_tight, i_far, h_far
+    return z[: n + 1], log_c[: n + 1], log_d, log_z, log_far_w, i_infl, i_far, h_far

@@ -8,7 +8,7 @@ import numpy as np
 
 from prismap.sensor_models._kernel_args import Geometry
 from prismap.sensor_models._kernels_failure import table_start
-from prismap.sensor_models._kernels_influence import INFLUENCE_LEVELS
+from prismap.sensor_models._kernels_influence import INFLUENCE_LEVELS, level_bounds, tight_influence_nodes
 from prismap.sensor_models._kernels_march import (
     _exp_term,
     _march,
@@ -462,7 +462,7 @@ def prism_table(shift, lam, log_far, geometry, spec, mixture):
             for k in range(3):
                 log_c_start[k] = log_c + k * log_s
         counts, widths = _march_runs(x_split, shift, lam, geometry, spec)
-        z, log_c, log_d, log_z, log_far_w, i_infl, i_tight, i_far, h_far = _march(
+        z, log_c, log_d, log_z, log_far_w, i_infl, i_far, h_far = _march(
             shift,
             lam,
             log_far,
@@ -471,7 +471,7 @@ def prism_table(shift, lam, log_far, geometry, spec, mixture):
             counts,
             widths,
             h,
-            log_eps_bound,
+            level_bounds(log_eps_bound),
             lam_slack,
             (counts[0] if widths[0] != h else 0) + 2,  # not within a coarse first run
             _FAR_RATIO,
@@ -577,6 +577,7 @@ def prism_table(shift, lam, log_far, geometry, spec, mixture):
     cut = lam * (z0 - z_near)  # Z from z_near: e^-cut times the table's (C(z0) is below its floor)
     meta[3 * N_SEGMENTS] = z[n]
     meta[3 * N_SEGMENTS + 1 : 3 * N_SEGMENTS + 1 + INFLUENCE_LEVELS] = z[i_infl]
+    i_tight = tight_influence_nodes(z, log_c, log_far, lam, lam_slack, log_eps_bound, shift, geometry, mixture)
     meta[3 * N_SEGMENTS + 1 + INFLUENCE_LEVELS : 3 * N_SEGMENTS + 1 + 2 * INFLUENCE_LEVELS] = z[i_tight]
     meta[3 * N_SEGMENTS + 1 + 2 * INFLUENCE_LEVELS :] = log_z - cut, z_1 - cut, z_2 - cut, z0
     return nodes, meta

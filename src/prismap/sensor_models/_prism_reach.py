@@ -28,20 +28,22 @@ def influence_depths(model, tables, log_z, log_failure, ray_model, models, norm,
     """``PrismModel.influence_depth`` of the rays, from their failure terms ``log_failure``
     (``PrismModel._log_failure``: ``log(1 - rho)``, ``log(rho)``; empty: no failures, no silent ray)."""
     table, _, meta, _ = tables
-    if model.prior != "p0":
-        depth = meta[table, _Z_INFL]
-        return depth if model.solid_depth_m == 0 else np.minimum(depth + model.solid_depth_m / norm, model.far_depth_m)
     log_fail, log_ok = log_failure
-    # the longest cell: a voxel's diagonal, the solid depth and the ray's overhang share (metres along the ray)
-    longest = np.sqrt(3.0) * model.voxel_size_m + model.solid_depth_m + model._stretch(norm, voxel_overhang_m) * norm
-    rate = model.rate_per_m
-    log_rho = log_ok if log_ok.size else np.zeros(table.size)
-    depth = meta[table, _Z_INFL + _influence_level(log_rho, 0.0)]
-    short = _influence_level(log_rho + rate * longest, 1.0)  # below 0: rho e^{lam L} > 4, no level holds
-    depth = np.where(short >= 0, np.minimum(depth, meta[table, _Z_TIGHT + np.maximum(short, 0)]), depth)
+    blended = model.prior == "p0"  # cells blended with p0 by rho (1 without failures)
+    depth = meta[table, _Z_INFL]
+    if blended:
+        # the longest cell: a voxel's diagonal, the solid depth and the ray's overhang share (metres along the ray)
+        longest = (
+            np.sqrt(3.0) * model.voxel_size_m + model.solid_depth_m + model._stretch(norm, voxel_overhang_m) * norm
+        )
+        rate = model.rate_per_m
+        log_rho = log_ok if log_ok.size else np.zeros(table.size)
+        depth = meta[table, _Z_INFL + _influence_level(log_rho, 0.0)]
+        short = _influence_level(log_rho + rate * longest, 1.0)  # below 0: rho e^{lam L} > 4, no level holds
+        depth = np.where(short >= 0, np.minimum(depth, meta[table, _Z_TIGHT + np.maximum(short, 0)]), depth)
     if model.solid_depth_m > 0:
         depth = np.minimum(depth + model.solid_depth_m / norm, model.far_depth_m)
-    if not log_ok.size:
+    if not (blended and log_ok.size):
         return depth
     silent = _kernels_failure.silent_rays(
         meta[table, _SHIFT], rate * norm, rate * longest, log_z, log_fail, log_ok, ray_model,
