@@ -27,9 +27,7 @@ accumulator's memory while it runs (``_accumulator.frame_budget_bytes``); docs/e
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from collections import deque
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 import numpy as np
@@ -40,13 +38,18 @@ from prismap.grid._floor_sampling import FLOOR_RAYS, cell_weights, check_floor_r
 from prismap.grid._kernel_args import Projection
 from prismap.grid._ray_batch import RayBatch, take_rows
 from prismap.grid._sensor_model import SensorModel
+from prismap.grid._shared_jobs import SharedJobs
 from prismap.grid._storage import BlockTable
 
 RAYS_PER_CHUNK = 4096
 """Rays cast per model call in ray mode (fewer when they cross more than :data:`CELLS_PER_CHUNK` voxels)."""
 
-MODEL_THREADS = 2
-"""Threads running the model on ray-mode chunks beside the casting thread."""
+MODEL_THREADS = 1
+"""Threads running the model on ray-mode chunks beside the casting thread (which runs chunks too while it would
+wait: ``_shared_jobs``)."""
+
+CHUNKS_AHEAD = 3
+"""Ray-mode chunks cast and queued for the model before the casting thread adds the oldest one's increments."""
 
 CELLS_PER_CHUNK = 1 << 17
 """Voxel visits per ray-mode chunk (~950 street rays): its arrays, about 90 bytes a cell, stay small (12 MiB)."""
@@ -60,7 +63,8 @@ PROJECTIVE_PARTS = 16
 :data:`PROJECTIVE_THREADS` threads while the others take the next parts."""
 
 PROJECTIVE_THREADS = 2
-"""Threads walking the parts of a projective frame and running their cells through the model."""
+"""Threads walking the parts of a projective frame and running their cells through the model (beside the thread
+that adds them to the accumulator, which walks parts too while it would wait)."""
 
 BLOCK_FILL = 0.5
 """Share of the voxels of the accumulator blocks a projective frame touches that it is assumed to keep, to reserve
@@ -214,8 +218,10 @@ class RayIntegrator(Integrator):
     Hit/miss models go through ``cast_hit_miss`` (increments added while casting). For the others, rays go
     in chunks (:data:`RAYS_PER_CHUNK`, :data:`CELLS_PER_CHUNK`; with per-ray classes, one class a chunk) through
     a pipeline: this thread casts chunk k + 1 (the kernel releases the GIL) while :data:`MODEL_THREADS` threads
-    run the model on chunks k - 1 and k (the model costs several times the cast); this thread then adds the
-    increments of finished chunks in chunk order, so only it writes the accumulator. A model that
+    run the model on the :data:`CHUNKS_AHEAD` chunks before it (the model costs several times the cast); this
+    thread then adds the increments of finished chunks in chunk order, so only it writes the accumulator, and while
+    the oldest is unfinished it runs the model on a queued chunk itself (:class:`~prismap.grid._shared_jobs.SharedJobs`:
+    on two cores, one model thread and this one keep both busy without a third thread taking turns). A model that
     ``takes_map_prior`` gets each chunk's cells' map log-odds, looked up by this thread right after the chunk's
     cast (the map changes only after the frame). With ``floor_rays`` > 0, a batch with ``levels`` and a model with a
     ``floor_depth``, the cells at a ray's failure floor are cast by a nested subsample of the rays and weighed for
@@ -276,29 +282,28 @@ class RayIntegrator(Integrator):
                 weighting = None if floor_end is None else (floor_end[part], *bands)
                 rays = batch.rays_w[chunk]
                 chunks.append((model, chunk, weighting, *(np.ascontiguousarray(a) for a in (rays, *cast))))
-        # The model runs on chunks k - 1 and k in MODEL_THREADS threads while this thread casts chunk k + 1 and
-        # adds finished chunks' increments in chunk order: it alone writes the accumulator (so the cast may grow
-        # it), and the map is that of one thread.
-        pending = deque()
-        with ThreadPoolExecutor(max_workers=MODEL_THREADS) as threads:
+        # The model runs on the chunks cast before in MODEL_THREADS threads (and in this one while it would wait)
+        # while this thread casts the next and adds finished chunks' increments in chunk order: it alone writes
+        # the accumulator (so the cast may grow it), and the map is that of one thread.
+        with SharedJobs(MODEL_THREADS) as jobs:
             for model, chunk, weighting, *cast in chunks:
                 ray_of_cell, cell_index, t_in, t_out = _accumulator.cast_into(accumulator, origin, *cast, voxel)
                 if cell_index.size:
                     prior = self.map_log_odds(cell_index) if model.takes_map_prior else None
-                    update = threads.submit(
-                        self._chunk_update, model, batch, chunk, ray_of_cell, t_in, t_out, prior, weighting
+                    jobs.submit(
+                        self._chunk_update, model, batch, chunk, cell_index, ray_of_cell, t_in, t_out, prior, weighting
                     )
-                    pending.append((cell_index, update))
-                while len(pending) > MODEL_THREADS:
-                    _scatter_next(accumulator, pending)
-            while pending:
-                _scatter_next(accumulator, pending)
+                while len(jobs) > CHUNKS_AHEAD:
+                    _accumulator.scatter(accumulator, *jobs.next_result())
+            while jobs:
+                _accumulator.scatter(accumulator, *jobs.next_result())
 
-    def _chunk_update(self, model, batch, chunk, ray_of_cell, t_in, t_out, prior, weighting):
-        """A chunk's cell increments (:meth:`cell_increments`) and weights (``_floor_sampling.cell_weights`` of
-        ``weighting``, ``(floor_end, band_depth, base)``; None: every cell once), in a model thread."""
+    def _chunk_update(self, model, batch, chunk, cell_index, ray_of_cell, t_in, t_out, prior, weighting):
+        """A chunk's accumulator rows ``cell_index``, its cell increments (:meth:`cell_increments`) and weights
+        (``_floor_sampling.cell_weights`` of ``weighting``, ``(floor_end, band_depth, base)``; None: every cell
+        once): the arguments of ``_accumulator.scatter``."""
         increments = self.cell_increments(model, batch, chunk, ray_of_cell, t_in, t_out, prior)
-        return increments, None if weighting is None else cell_weights(ray_of_cell, t_out, *weighting)
+        return cell_index, increments, None if weighting is None else cell_weights(ray_of_cell, t_out, *weighting)
 
     def _floor_plan(self, model, batch, idx, t_stop):
         """``(t_start, floor_end, (band_depth, base))`` of rays ``idx`` (:func:`~prismap.grid._floor_sampling.floor_plan`)
@@ -320,13 +325,6 @@ class RayIntegrator(Integrator):
         levels = batch.levels if idx is None else batch.levels.subset(idx)
         t_start, band_depth = floor_plan(floor_end, levels, self.voxel_size_m, self.floor_rays)
         return t_start, floor_end, (band_depth, levels.base)
-
-
-def _scatter_next(accumulator, pending):
-    """Add the oldest pending chunk's increments (``(cell_index, future of (increments, weights))``) to the
-    accumulator."""
-    cell_index, update = pending.popleft()
-    _accumulator.scatter(accumulator, cell_index, *update.result())
 
 
 def _class_chunks(ray_class, limits):
@@ -391,7 +389,8 @@ class ProjectiveIntegrator(Integrator):
     The key box is walked in lines along the image rows (``_kernels_project.project_part``), in
     :data:`PROJECTIVE_PARTS` parts of the lines; :data:`PROJECTIVE_THREADS` threads take the parts in turn and run
     each part's cells, grouped by ray (the rays in error-class order), through the model. This thread registers
-    every part's voxels in the accumulator and adds their increments, in part order (``_accumulator.scatter_keys``):
+    every part's voxels in the accumulator and adds their increments, in part order (``_accumulator.scatter_keys``),
+    and walks queued parts itself while the next one in order is unfinished (:class:`~prismap.grid._shared_jobs.SharedJobs`):
     the accumulator has one writer and its blocks the order of a walk in one thread. A voxel is visited once per
     frame, so the map depends neither on the parts nor on the threads. A hit/miss model's increments are computed in
     the walking threads from the cells' intervals, without grouping by ray or a model call."""
@@ -458,24 +457,21 @@ class ProjectiveIntegrator(Integrator):
                 return keys[:m], _hit_miss_increments(*cells, z_hit, *hit_miss), m
             return keys[:m], self._part_increments(batch, groups, group_of_ray, ray_key, *cells), m
 
-        with ThreadPoolExecutor(max_workers=PROJECTIVE_THREADS) as threads:
-            parts = [threads.submit(part, start, stop) for start, stop in zip(cuts[:-1], cuts[1:])]
-            try:
-                cells = 0
-                for future in parts:
-                    keys, increment, m = future.result()
-                    cells += m
-                    if cells > max_cells:
-                        raise PrismapInputError(
-                            f"the frame projects onto at least {cells} voxels, more than {max_cells} (docs/errors.md) "
-                            f"at `voxel_size_m`={self.voxel_size_m:g}: lower `max_range_m` (now {self.max_range_m:g} m) "
-                            "or raise the voxel size"
-                        )
-                    if m:
-                        _accumulator.scatter_keys(accumulator, keys, increment)
-            finally:
-                for future in parts:
-                    future.cancel()
+        with SharedJobs(PROJECTIVE_THREADS) as parts:
+            for start, stop in zip(cuts[:-1], cuts[1:]):
+                parts.submit(part, start, stop)
+            cells = 0
+            while parts:
+                keys, increment, m = parts.next_result()
+                cells += m
+                if cells > max_cells:
+                    raise PrismapInputError(
+                        f"the frame projects onto at least {cells} voxels, more than {max_cells} (docs/errors.md) "
+                        f"at `voxel_size_m`={self.voxel_size_m:g}: lower `max_range_m` (now {self.max_range_m:g} m) "
+                        "or raise the voxel size"
+                    )
+                if m:
+                    _accumulator.scatter_keys(accumulator, keys, increment)
 
     def _part_increments(self, batch, groups, group_of_ray, ray_key, ray_of_cell, t_in, t_out):
         """The model's increments of one part's cells ((C,) float64, in the walk's order): the cells go through
