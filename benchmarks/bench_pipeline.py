@@ -18,7 +18,8 @@ library's calls wrapped here to time them: matching (the matcher's ``compute_wit
 ``cell_posteriors`` and ``influence_depth``), casting (``grid._accumulator.cast_into`` in ray mode,
 ``grid._kernels_project.project_voxels`` in projective mode), merge (``grid._kernels_accumulate.apply_frame``)
 and rays and the rest (what is left of the frame). Stage seconds add up over threads: in ray mode the model runs
-in two threads while the next chunk is cast, in projective mode on one part of the walk while the next is walked,
+in a thread while the next chunk is cast (and in the casting thread while it would wait), in projective mode on one
+part of the walk while the next is walked,
 so the shares may add up past 100 % of the wall time (then "rays and rest" is 0). ``cold`` is the first run in
 this process (numba caches loaded, PRISM's tables built and written to an empty table store, a temporary
 ``PRISMAP_TABLE_CACHE``), ``warm`` the median of --repeat more runs (the

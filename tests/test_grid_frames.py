@@ -350,9 +350,10 @@ def test_a_frame_projecting_onto_more_cells_than_the_memory_bound_is_refused(mon
 
 
 def test_ray_mode_models_in_threads_give_the_map_of_one_thread(monkeypatch):
-    """Ray mode runs the model on chunks in MODEL_THREADS threads beside the cast and adds the increments in
-    chunk order; the map equals the one of one model thread, voxel for voxel (PRISM with the overhang's
-    stretch, small chunks of odd sizes, an accumulator grown from empty while models run)."""
+    """Ray mode runs the model on chunks in MODEL_THREADS threads beside the cast (and in the casting thread while
+    it would wait) and adds the increments in chunk order; the map is the same voxel for voxel whatever the threads
+    and the chunks queued ahead (none: the casting thread runs most chunks itself), with PRISM's overhang stretch,
+    small chunks of odd sizes and an accumulator grown from empty while models run."""
     from prismap.gmm import GaussianMixture
     from prismap.grid import _integrators
     from prismap.sensor_models import make_sensor_model
@@ -364,8 +365,9 @@ def test_ray_mode_models_in_threads_give_the_map_of_one_thread(monkeypatch):
     )
     monkeypatch.setattr(_integrators, "RAYS_PER_CHUNK", 301)
     maps = []
-    for threads in (1, 2, 3):
+    for threads, ahead in ((1, 0), (1, 3), (2, 1), (3, 5)):
         monkeypatch.setattr(_integrators, "MODEL_THREADS", threads)
+        monkeypatch.setattr(_integrators, "CHUNKS_AHEAD", ahead)
         grid = OccupancyMap(0.1, p0=0.1)
         integrate_disparity(grid, disparity, camera, pose, model, mode="ray", max_range_m=6.0, subsample=3)
         maps.append(grid)

@@ -5,11 +5,11 @@ import contextlib
 import json
 import logging
 import math
-import os
 import shlex
 import sys
 from pathlib import Path
 
+from prismap._cores import usable_cores
 from prismap._files import write_text_atomic
 from prismap._validate import check_positive, check_probability, parse_frame_range
 from prismap.cli._args import add_out
@@ -298,14 +298,6 @@ def _open_input(args, read_sequence):
     if args.workers is not None or args.scheduler is not None or args.checkpoint_every:
         raise PrismapInputError("--bag runs here, without checkpoints: drop --workers/--scheduler/--checkpoint-every")
     return open_bag_argument(args)
-
-
-def usable_cores():
-    """Cores this process may run on (its CPU affinity): the most ``--workers`` a local cluster gets."""
-    try:
-        return len(os.sched_getaffinity(0))
-    except (AttributeError, OSError):
-        return os.cpu_count() or 1
 
 
 def parse_params(items, option):

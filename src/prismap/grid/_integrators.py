@@ -32,6 +32,7 @@ from typing import Any
 
 import numpy as np
 
+from prismap._cores import usable_cores
 from prismap.errors import PrismapInputError
 from prismap.grid import _accumulator, _kernels_project, _kernels_traverse
 from prismap.grid._floor_sampling import FLOOR_RAYS, cell_weights, check_floor_rays, floor_plan
@@ -44,11 +45,12 @@ from prismap.grid._storage import BlockTable
 RAYS_PER_CHUNK = 4096
 """Rays cast per model call in ray mode (fewer when they cross more than :data:`CELLS_PER_CHUNK` voxels)."""
 
-MODEL_THREADS = 1
-"""Threads running the model on ray-mode chunks beside the casting thread (which runs chunks too while it would
-wait: ``_shared_jobs``)."""
+MODEL_THREADS = min(max(usable_cores() - 1, 1), 3)
+"""Threads running the model on ray-mode chunks beside the casting thread, which runs chunks too while it would wait
+(``_shared_jobs``): one on two cores, so that two threads keep both busy; at most 3, beyond which the casting
+thread, the accumulator's only writer, is the limit."""
 
-CHUNKS_AHEAD = 3
+CHUNKS_AHEAD = MODEL_THREADS + 2
 """Ray-mode chunks cast and queued for the model before the casting thread adds the oldest one's increments."""
 
 CELLS_PER_CHUNK = 1 << 17
@@ -226,7 +228,7 @@ class RayIntegrator(Integrator):
     cast (the map changes only after the frame). With ``floor_rays`` > 0, a batch with ``levels`` and a model with a
     ``floor_depth``, the cells at a ray's failure floor are cast by a nested subsample of the rays and weighed for
     the rays each stands for (:mod:`prismap.grid._floor_sampling`): each ray's cast starts where its level's bands
-    begin, and the model threads weigh its cells beside their increments.
+    begin, and the threads that run the model weigh its cells beside their increments.
 
     References
     ----------
