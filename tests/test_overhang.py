@@ -43,6 +43,47 @@ def test_plane_normals_recover_the_plane_facing_the_camera(normal):
     assert np.all(np.einsum("...i,...i->...", got[fitted], rays[fitted]) < 0)
 
 
+def _brute_force_normals(disparity, camera, window, step):
+    """Each fitted pixel's normal from a least-squares plane over the valid pixels of its window, by numpy."""
+    d = disparity + camera.doffs_px
+    half, (height, width) = window // 2, d.shape
+    out = np.full((-(-height // step), -(-width // step), 3), np.nan)
+    for i, y in enumerate(range(0, height, step)):
+        for j, x in enumerate(range(0, width, step)):
+            if not d[y, x] > 0:
+                continue
+            y0, y1, x0, x1 = max(y - half, 0), min(y + half + 1, height), max(x - half, 0), min(x + half + 1, width)
+            v, u = np.mgrid[y0:y1, x0:x1]
+            valid = d[y0:y1, x0:x1] > 0
+            if valid.sum() < 0.5 * valid.size:
+                continue
+            coords = np.stack([u[valid], v[valid]], axis=1).astype(float)
+            cov = np.cov(np.column_stack([coords, d[y0:y1, x0:x1][valid]]).T, bias=True)
+            if np.linalg.det(cov[:2, :2]) <= 1e-6:
+                continue
+            alpha, beta = np.linalg.solve(cov[:2, :2], cov[:2, 2])
+            gamma = (d[y, x] - alpha * (x - camera.cx_px) - beta * (y - camera.cy_px)) / camera.focal_px
+            normal = np.array([alpha, beta, gamma])
+            out[i, j] = -normal / np.linalg.norm(normal)
+    return out
+
+
+@pytest.mark.parametrize(("window", "step"), [(7, 1), (5, 3), (3, 2)])
+def test_plane_normals_equal_a_least_squares_fit_on_each_window(window, step):
+    """Rough disparities with holes (every window's own fit, edges and subsampled rows included) against numpy's
+    fit of the window's valid pixels."""
+    rng = np.random.default_rng(7)
+    camera = StereoCamera(300.0, 20.0, 15.0, 0.1, width=41, height=29)
+    disparity = 20.0 + 0.3 * np.arange(41)[None, :] - 0.2 * np.arange(29)[:, None] + rng.normal(0, 0.5, (29, 41))
+    disparity[rng.random((29, 41)) < 0.2] = np.nan
+    disparity[5:9, 10:30] = np.nan
+    got = plane_normals(disparity, camera, window_px=window, subsample=step)
+    want = _brute_force_normals(disparity, camera, window, step)
+    assert np.isfinite(want[..., 0]).mean() > 0.5
+    np.testing.assert_array_equal(np.isnan(got), np.isnan(want))
+    np.testing.assert_allclose(got[np.isfinite(got)], want[np.isfinite(want)], atol=1e-8)
+
+
 def test_plane_normals_refuse_what_they_cannot_fit():
     disparity = _plane_disparity(np.array([0.0, 0.0, 1.0]), 4.0)
     disparity[50, 50] = np.nan

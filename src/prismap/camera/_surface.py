@@ -77,33 +77,41 @@ def _plane_normals(disparity, f, cx, cy, doffs, half, step, min_share):
 
     The window sums (count, u, v, d', u^2, v^2, u v, u d', v d' of the valid pixels) come from summed-area
     tables, so a fit costs the same whatever the window; the (co)variances are differences of means, which do
-    not depend on where the coordinates start.
+    not depend on where the coordinates start. The tables' rows are made as the fits reach them and kept for one
+    window (row ``r`` at ``r % depth``, a pixel's nine sums side by side), so they stay in the cache.
     """
     height, width = disparity.shape
-    table = np.zeros((9, height + 1, width + 1))
+    depth = 2 * half + 2  # a window's rows y0..y1 of the table, y1 - y0 <= 2 half + 1
+    table = np.empty((depth, width + 1, 9))
+    table[0] = 0.0
+    made = 0  # table rows 0..made are made
     row = np.empty(9)
-    for y in range(height):
-        row[:] = 0.0
-        for x in range(width):
-            d = disparity[y, x] + doffs
-            if d > 0:  # False for NaN
-                row[0] += 1.0
-                row[1] += x
-                row[2] += y
-                row[3] += d
-                row[4] += x * x
-                row[5] += y * y
-                row[6] += x * y
-                row[7] += x * d
-                row[8] += y * d
-            for k in range(9):
-                table[k, y + 1, x + 1] = table[k, y, x + 1] + row[k]
     rows, cols = (height + step - 1) // step, (width + step - 1) // step
     out = np.full((rows, cols, 3), np.nan)
     s = np.empty(9)
     for i in range(rows):
         y = i * step
         y0, y1 = max(y - half, 0), min(y + half + 1, height)
+        while made < y1:
+            above, below = table[made % depth], table[(made + 1) % depth]
+            below[0] = 0.0
+            row[:] = 0.0
+            for x in range(width):
+                d = disparity[made, x] + doffs
+                if d > 0:  # False for NaN
+                    row[0] += 1.0
+                    row[1] += x
+                    row[2] += made
+                    row[3] += d
+                    row[4] += x * x
+                    row[5] += made * made
+                    row[6] += x * made
+                    row[7] += x * d
+                    row[8] += made * d
+                for k in range(9):
+                    below[x + 1, k] = above[x + 1, k] + row[k]
+            made += 1
+        top, bottom = table[y0 % depth], table[y1 % depth]
         for j in range(cols):
             x = j * step
             d0 = disparity[y, x] + doffs
@@ -111,7 +119,7 @@ def _plane_normals(disparity, f, cx, cy, doffs, half, step, min_share):
                 continue
             x0, x1 = max(x - half, 0), min(x + half + 1, width)
             for k in range(9):
-                s[k] = table[k, y1, x1] - table[k, y0, x1] - table[k, y1, x0] + table[k, y0, x0]
+                s[k] = bottom[x1, k] - top[x1, k] - bottom[x0, k] + top[x0, k]
             n = s[0]
             if n < min_share * (y1 - y0) * (x1 - x0):
                 continue
