@@ -19,7 +19,10 @@ clock of the thread that runs them:
 
 It prints each part's median over the steady frames (all but the first, which loads numba's caches and builds every
 table the frame needs; a steady frame builds the tables of the keys it is the first to meet) in seconds a frame and
-nanoseconds a cell. Not a peer benchmark: ``bench_grid.py`` compares the same paths with OctoMap and UFOMap.
+nanoseconds a cell, then the frame's wall-clock phases: the set-up before the first cell (the batch, the stop
+depths and the table builds, in the calling thread and the table builders), the cells (cast or walk, model and
+scatter, on every thread: with both cores busy about half the CPU of their parts) and the map update. Not a peer
+benchmark: ``bench_grid.py`` compares the same paths with OctoMap and UFOMap.
 
 Run: ``.venv/bin/python benchmarks/frame_breakdown.py [--mode ray] [--scale 1] [--frames 8] [--model conditioned]
 [--world-dir DIR]``
@@ -61,21 +64,24 @@ PARTS = {
 
 class PartClock:
     """Thread CPU seconds spent in each part of ``parts`` (a value of :data:`PARTS`) since :meth:`reset`, the cells
-    made (cast or walked) and the tables built."""
+    made (cast or walked) and the tables built, and each part's first start and last end (``perf_counter``)."""
 
     def __init__(self, parts):
         self.parts = parts
         self.seconds = collections.Counter()
         self.cells = self.tables = 0
+        self.first, self.last = {}, {}
         self._lock = threading.Lock()
         for label, (owner, name) in parts.items():
             setattr(owner, name, self._timed(label, getattr(owner, name)))
 
     def _timed(self, label, function):
         def timed(*args, **kwargs):
-            start = time.thread_time()
+            start, begun = time.thread_time(), time.perf_counter()
             result = function(*args, **kwargs)
             with self._lock:
+                self.first[label] = min(self.first.get(label, begun), begun)
+                self.last[label] = max(self.last.get(label, 0.0), time.perf_counter())
                 self.seconds[label] += time.thread_time() - start
                 if label == "cast":
                     self.cells += result[1].size
@@ -89,7 +95,15 @@ class PartClock:
 
     def reset(self):
         self.seconds.clear()
+        self.first.clear()
+        self.last.clear()
         self.cells = self.tables = 0
+
+    def phases(self, start, end, cells_part):
+        """Wall seconds of the frame's phases: ``set-up`` (batch, stop depths, table builds: up to the first
+        ``cells_part``, the cast or the walk), ``cells`` (from there to the last scatter) and ``map update``."""
+        first, last = self.first[cells_part], self.last["scatter"]
+        return {"set-up": first - start, "cells": last - first, "map update": end - last}
 
 
 def main():
@@ -120,7 +134,8 @@ def main():
             parts = {label: clock.seconds[label] for label in clock.parts}
             parts["model rest"] = parts.pop("model call") - parts["kernel"]
             parts["rest"] = cpu - sum(parts.values())
-            rows.append({"wall": wall, "CPU": cpu, **parts, "cells": clock.cells, "tables": clock.tables})
+            phases = clock.phases(start, start + wall, "cast" if args.mode == "ray" else "walk")
+            rows.append({"wall": wall, "CPU": cpu, **parts, **phases, "cells": clock.cells, "tables": clock.tables})
     median = {key: statistics.median(row[key] for row in rows) for key in rows[0]}
     print(
         f"street {camera.width}x{camera.height} px, {args.frames} frames, {args.voxel:g} m voxels, rays to 80 m, "
@@ -129,6 +144,7 @@ def main():
     )
     for key in ("wall", "CPU", *(label for label in clock.parts if label != "model call"), "model rest", "rest"):
         print(f"{key:12s} {median[key]:7.3f} s  {median[key] / median['cells'] * 1e9:5.1f} ns a cell")
+    print("wall clock: " + ", ".join(f"{key} {median[key]:.3f} s" for key in ("set-up", "cells", "map update")))
 
 
 if __name__ == "__main__":

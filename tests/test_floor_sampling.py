@@ -117,6 +117,41 @@ def test_a_conditioned_model_takes_each_class_models_floor_depth():
         np.testing.assert_allclose(got[mine], sub.floor_depth(disparity[mine], norm[mine]), rtol=1e-12)
 
 
+def model_cache_keys(model):
+    """Keys the model's table cache has been asked for (found or not)."""
+    cache = getattr(model, "plain", model)._cache
+    return cache.hits + cache.builds
+
+
+def test_influence_and_floor_depths_are_the_two_methods_of_one_look_up():
+    """Ray mode's one call gives each ray's ``influence_depth`` and ``floor_depth`` as the two methods do, for a PRISM
+    model (with its overhang stretch), a conditioned one (classes, and none), and no floor where the look-up has none;
+    it looks the rays' tables up once where the two methods look them up twice."""
+    mixtures = [STREET, GaussianMixture([1.0], [0.0], [0.6], failure_weight=0.2, search_range_px=(0.0, 64.0))]
+    plain, *classes = [prism(m, overhang_fraction=0.5) for m in (STREET, *mixtures)]
+    conditioned = ConditionedModel(plain, tuple(classes))
+    rng = np.random.default_rng(5)
+    disparity, norm = rng.uniform(1.0, 40.0, 300), rng.uniform(1.0, 1.3, 300)
+    overhang = rng.uniform(0.0, 0.2, 300)
+    ray_class = rng.integers(-1, 2, 300).astype(np.int32)
+    for model, kwargs in [
+        (plain, {"voxel_overhang_m": overhang}),
+        (conditioned, {"ray_class": ray_class, "voxel_overhang_m": overhang}),
+        (conditioned, {"voxel_overhang_m": overhang}),
+    ]:
+        searched = model_cache_keys(model)
+        influence, floor = model.influence_and_floor_depths(disparity, norm, **kwargs)
+        one_call = model_cache_keys(model) - searched
+        np.testing.assert_array_equal(influence, model.influence_depth(disparity, norm, **kwargs))
+        np.testing.assert_array_equal(floor, model.floor_depth(disparity, norm, **kwargs))
+        assert model_cache_keys(model) - searched == 3 * one_call > 0  # the two methods search twice as many keys
+        assert np.any(floor > 0) and np.any(influence > floor)
+    direct = prism(method="direct")
+    influence, floor = direct.influence_and_floor_depths(disparity[:5], norm[:5])
+    assert floor is None and direct.floor_depth(disparity[:5], norm[:5]) is None
+    np.testing.assert_array_equal(influence, direct.influence_depth(disparity[:5], norm[:5]))
+
+
 def mapped_both_ways(monkeypatch, camera, pose, disparity):
     """``{floor_rays: (map, cells cast, weighted cells)}`` of one frame mapped exactly (0) and sampled (4)."""
     out = {}

@@ -158,16 +158,15 @@ class Integrator(ABC):
     def _integrate(self, accumulator, batch, groups):
         """Fill ``accumulator`` from ``batch``; ``groups`` from :func:`noise_groups`."""
 
-    def stop_depths(self, model: SensorModel, batch: RayBatch, idx: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
-        """Depth at which each ray of ``idx`` stops and whether that stop excludes its voxel (cut by max range)."""
+    def stop_depths(
+        self, model: SensorModel, batch: RayBatch, idx: np.ndarray | None, influence: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Depth at which each ray of ``idx`` stops and whether that stop excludes its voxel (cut by max range), from
+        the rays' influence depths (None: the model's ``influence_depth``)."""
         measurement, ray_norm = take_rows(batch.measurement, idx), take_rows(batch.ray_norm, idx)
-        influence = np.asarray(
-            model.influence_depth(measurement, ray_norm, **batch.cell_kwargs(idx, model)), dtype=np.float64
-        )
-        if influence.shape != measurement.shape:
-            raise PrismapInputError(
-                f"sensor model {model.name!r}: influence_depth returned shape {influence.shape}; expected {measurement.shape}"
-            )
+        if influence is None:
+            influence = model.influence_depth(measurement, ray_norm, **batch.cell_kwargs(idx, model))
+        influence = _per_ray(influence, measurement.size, model, "influence_depth")
         range_depth = self.max_range_m / ray_norm
         exclusive = range_depth < influence
         t_stop = np.where(exclusive, range_depth, influence)
@@ -226,9 +225,10 @@ class RayIntegrator(Integrator):
     on two cores, one model thread and this one keep both busy without a third thread taking turns). A model that
     ``takes_map_prior`` gets each chunk's cells' map log-odds, looked up by this thread right after the chunk's
     cast (the map changes only after the frame). With ``floor_rays`` > 0, a batch with ``levels`` and a model with a
-    ``floor_depth``, the cells at a ray's failure floor are cast by a nested subsample of the rays and weighed for
-    the rays each stands for (:mod:`prismap.grid._floor_sampling`): each ray's cast starts where its level's bands
-    begin, and the threads that run the model weigh its cells beside their increments.
+    floor depth (``influence_and_floor_depths``), the cells at a ray's failure floor are cast by a nested subsample
+    of the rays and weighed for the rays each stands for (:mod:`prismap.grid._floor_sampling`): each ray's cast
+    starts where its level's bands begin, and the threads that run the model weigh its cells beside their
+    increments.
 
     References
     ----------
@@ -244,8 +244,15 @@ class RayIntegrator(Integrator):
 
     def _integrate(self, accumulator, batch, groups):
         origin, voxel = batch.origin_w, self.voxel_size_m
-        stops = [(model, members, *self.stop_depths(model, batch, members)) for model, members in groups]
-        plans = [self._floor_plan(model, batch, members, t_stop) for model, members, t_stop, _ in stops]
+        depths = [self._model_depths(model, batch, members) for model, members in groups]
+        stops = [
+            (model, members, *self.stop_depths(model, batch, members, influence))
+            for (model, members), (influence, _) in zip(groups, depths)
+        ]
+        plans = [
+            self._floor_plan(batch, members, t_stop, floor_end)
+            for (_, members, t_stop, _), (_, floor_end) in zip(stops, depths)
+        ]
         limits = [
             _kernels_traverse.cell_limits(
                 origin, np.ascontiguousarray(take_rows(batch.rays_w, members)), plan[0], t_stop, voxel
@@ -307,26 +314,36 @@ class RayIntegrator(Integrator):
         increments = self.cell_increments(model, batch, chunk, ray_of_cell, t_in, t_out, prior)
         return cell_index, increments, None if weighting is None else cell_weights(ray_of_cell, t_out, *weighting)
 
-    def _floor_plan(self, model, batch, idx, t_stop):
+    def _model_depths(self, model, batch, idx):
+        """Each ray's influence depth and floor depth (None: no floor sampling) of rays ``idx``: from the model's
+        ``influence_and_floor_depths`` (one look-up for both) when the frame samples floors (``floor_rays`` > 0, a batch
+        with ``levels``, a model with that method and without the map as prior), else its ``influence_depth``."""
+        measurement, ray_norm = take_rows(batch.measurement, idx), take_rows(batch.ray_norm, idx)
+        kwargs = batch.cell_kwargs(idx, model)
+        both = getattr(model, "influence_and_floor_depths", None)
+        if not self.floor_rays or batch.levels is None or both is None or model.takes_map_prior:
+            return model.influence_depth(measurement, ray_norm, **kwargs), None
+        influence, floor_end = both(measurement, ray_norm, **kwargs)
+        if floor_end is not None:
+            floor_end = _per_ray(floor_end, measurement.size, model, "the floor depth of influence_and_floor_depths")
+        return influence, floor_end
+
+    def _floor_plan(self, batch, idx, t_stop, floor_end):
         """``(t_start, floor_end, (band_depth, base))`` of rays ``idx`` (:func:`~prismap.grid._floor_sampling.floor_plan`)
-        from the model's ``floor_depth``; ``(0, None, None)``, every cell cast and counted once, without one, without
-        the batch's ``levels`` or with ``floor_rays`` 0."""
-        rule = getattr(model, "floor_depth", None)
-        if not self.floor_rays or batch.levels is None or rule is None or model.takes_map_prior:
-            return np.zeros(t_stop.size), None, None
-        floor_end = rule(
-            take_rows(batch.measurement, idx), take_rows(batch.ray_norm, idx), **batch.cell_kwargs(idx, model)
-        )
+        from their floor depths ``floor_end``; ``(0, None, None)``, every cell cast and counted once, when it is None."""
         if floor_end is None:
             return np.zeros(t_stop.size), None, None
-        floor_end = np.asarray(floor_end, dtype=np.float64)
-        if floor_end.shape != t_stop.shape:
-            raise PrismapInputError(
-                f"sensor model {model.name!r}: floor_depth returned shape {floor_end.shape}; expected {t_stop.shape}"
-            )
         levels = batch.levels if idx is None else batch.levels.subset(idx)
         t_start, band_depth = floor_plan(floor_end, levels, self.voxel_size_m, self.floor_rays)
         return t_start, floor_end, (band_depth, levels.base)
+
+
+def _per_ray(depth, n, model, what):
+    """``depth`` as (n,) float64, else raise naming the model and ``what`` returned it."""
+    depth = np.asarray(depth, dtype=np.float64)
+    if depth.shape != (n,):
+        raise PrismapInputError(f"sensor model {model.name!r}: {what} returned shape {depth.shape}; expected ({n},)")
+    return depth
 
 
 def _class_chunks(ray_class, limits):

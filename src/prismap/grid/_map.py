@@ -143,7 +143,7 @@ class OccupancyMap:
             beyond it only clears free space up to it, excluding the voxel that contains the
             max-range point (as OctoMap does).
         floor_rays : int >= 0, default :data:`~prismap.grid.FLOOR_RAYS`
-            Ray mode with a batch that has ``levels`` and a model with a ``floor_depth``: the cells at their ray's
+            Ray mode with a batch that has ``levels`` and a model with ``influence_and_floor_depths``: the cells at their ray's
             failure floor are cast by a nested subsample of the rays, at least this many rays a voxel each way, each
             counted for the rays it stands for (:mod:`prismap.grid._floor_sampling`); 0 = every ray casts every
             cell.

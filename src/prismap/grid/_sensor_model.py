@@ -14,9 +14,10 @@ class SensorModel(Protocol):
     The grid also passes the keywords ``ray_class``, ``voxel_overhang_m`` and ``map_log_odds`` to
     :meth:`cell_posteriors` (and ``ray_class`` and ``voxel_overhang_m`` to :meth:`influence_depth`) when the frame has them and the
     model's flags ask for them; it reads ``measurement``, ``p0`` and ``voxel_size_m`` where a model has them.
-    Ray mode also calls ``floor_depth(disparity_px, ray_norm, **keywords)`` where a model has it (the keywords of
-    :meth:`cell_posteriors`): per ray the depth (metres) up to which a cell ending there gets the increment of its
-    ray's failure floor, a function of the ray and the cell's length alone, or None; those cells it samples
+    Ray mode calls ``influence_and_floor_depths(disparity_px, ray_norm, **keywords)`` instead of
+    :meth:`influence_depth` where a model has it (the keywords of :meth:`cell_posteriors`): per ray the influence
+    depth and the depth (metres) up to which a cell ending there gets the increment of its ray's failure floor, a
+    function of the ray and the cell's length alone (or None for no floor), from one look-up; those cells it samples
     (:mod:`prismap.grid._floor_sampling`).
     """
 

@@ -239,15 +239,31 @@ class ConditionedModel(InverseSensorModel):
     ) -> npt.NDArray[np.float64] | None:
         """Per ray, by its class's model, the depth (metres) up to which its cells are at its failure floor
         (:meth:`PrismModel.floor_depth`); None unless the sub-models are PRISM models that share one look-up."""
-        if ray_class is None:
-            rule = getattr(self.plain, "floor_depth", None)
-            return None if rule is None else rule(disparity_px, ray_norm, voxel_overhang_m=voxel_overhang_m)
-        if self._classes is None or not self._classes.fused:
-            return None
-        disparity = np.asarray(disparity_px, dtype=np.float64)
-        norm = np.asarray(ray_norm, dtype=np.float64)
+        return self.influence_and_floor_depths(
+            disparity_px, ray_norm, ray_class=ray_class, voxel_overhang_m=voxel_overhang_m
+        )[1]
+
+    def influence_and_floor_depths(
+        self,
+        disparity_px: npt.ArrayLike,
+        ray_norm: npt.ArrayLike,
+        *,
+        ray_class: npt.ArrayLike | None = None,
+        voxel_overhang_m: npt.ArrayLike | None = None,
+    ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64] | None]:
+        """:meth:`influence_depth` and :meth:`floor_depth` of the rays, from one look-up of their tables where the
+        classes share one (what ray mode asks: ``grid.SensorModel``)."""
         overhang = voxel_overhang_m if self.takes_voxel_overhang else None
-        return self._classes.floor_depth(disparity, norm, self._check_classes(ray_class, disparity.size) + 1, overhang)
+        if ray_class is None:
+            rule = getattr(self.plain, "influence_and_floor_depths", None)
+            if rule is not None:
+                return rule(disparity_px, ray_norm, voxel_overhang_m=overhang)
+        elif self._classes is not None and self._classes.fused:
+            disparity = np.asarray(disparity_px, dtype=np.float64)
+            norm = np.asarray(ray_norm, dtype=np.float64)
+            index = self._check_classes(ray_class, disparity.size) + 1
+            return self._classes.influence_and_floor_depths(disparity, norm, index, overhang)
+        return self.influence_depth(disparity_px, ray_norm, ray_class=ray_class, voxel_overhang_m=overhang), None
 
     def with_extra_noise(self, sigma_px: float) -> ConditionedModel:
         """A copy whose every sub-model (the plain one included) is widened by ``N(0, sigma_px^2)``."""

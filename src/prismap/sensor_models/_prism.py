@@ -415,14 +415,23 @@ class PrismModel(RayModel):
     ) -> npt.NDArray[np.float64] | None:
         """Per ray, the depth (metres) up to which a cell ending there is at the ray's failure floor: its increment
         is the floor's, a function of the ray and the cell's length alone, so the grid may sample such cells
-        (``grid.SensorModel.floor_depth``); None when the look-up has no floor (``method="direct"``, ``prior="map"``).
+        (what :meth:`influence_and_floor_depths` gives beside the influence depth, for ray mode); None when the
+        look-up has no floor (``method="direct"``, ``prior="map"``).
         """
-        if self.method != "table" or self.prior != "p0":
-            return None
+        return self.influence_and_floor_depths(disparity_px, ray_norm, voxel_overhang_m=voxel_overhang_m)[1]
+
+    def influence_and_floor_depths(
+        self, disparity_px: npt.ArrayLike, ray_norm: npt.ArrayLike, *, voxel_overhang_m: npt.ArrayLike | None = None
+    ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64] | None]:
+        """:meth:`influence_depth` and :meth:`floor_depth` of the rays from one look-up of their tables (what ray
+        mode asks: ``grid.SensorModel``)."""
         disparity = as_float_array(disparity_px, "disparity_px", ndim=1, allow_nan=False)
         norm = as_float_array(ray_norm, "ray_norm", shape=(disparity.size,))
-        tables, log_z, (log_fail, _), ray_model = self._ray_terms(disparity, norm)
-        return floor_depths(self, tables, log_z, log_fail, ray_model, self._kernel_models, norm, voxel_overhang_m)
+        terms = self._ray_terms(disparity, norm)
+        floor = None
+        if self.method == "table" and self.prior == "p0":
+            floor = floor_depths(self, terms, self._kernel_models, norm, voxel_overhang_m)
+        return influence_depths(self, terms, self._kernel_models, norm, voxel_overhang_m), floor
 
     def _ray_terms(self, disparity, norm):
         """What the floor and influence depths of the rays take (``_prism_reach``): their tables
@@ -462,8 +471,7 @@ class PrismModel(RayModel):
         """
         disparity = as_float_array(disparity_px, "disparity_px", ndim=1, allow_nan=False)
         norm = as_float_array(ray_norm, "ray_norm", shape=(disparity.size,))
-        tables, log_z, failure, ray_model = self._ray_terms(disparity, norm)
-        return influence_depths(self, tables, log_z, failure, ray_model, self._kernel_models, norm, voxel_overhang_m)
+        return influence_depths(self, self._ray_terms(disparity, norm), self._kernel_models, norm, voxel_overhang_m)
 
     def with_extra_noise(self, sigma_px: float) -> PrismModel:
         """A copy whose error model is ``error_model.widened(sigma_px)``.

@@ -98,13 +98,16 @@ class PrismClasses:
 
     def influence_depth(self, disparity, norm, index, voxel_overhang_m=None):
         """:meth:`PrismModel.influence_depth` of each ray by its model ``index`` ((R,) int)."""
-        tables, log_z, failure, index = self._ray_terms(disparity, norm, index)
-        return influence_depths(self.models[0], tables, log_z, failure, index, self.mixtures, norm, voxel_overhang_m)
+        terms = self._ray_terms(disparity, norm, index)
+        return influence_depths(self.models[0], terms, self.mixtures, norm, voxel_overhang_m)
 
-    def floor_depth(self, disparity, norm, index, voxel_overhang_m=None):
-        """:meth:`PrismModel.floor_depth` of each ray by its model ``index`` ((R,) int)."""
-        tables, log_z, (log_fail, _), index = self._ray_terms(disparity, norm, index)
-        return floor_depths(self.models[0], tables, log_z, log_fail, index, self.mixtures, norm, voxel_overhang_m)
+    def influence_and_floor_depths(self, disparity, norm, index, voxel_overhang_m=None):
+        """:meth:`PrismModel.influence_and_floor_depths` of each ray by its model ``index`` ((R,) int)."""
+        terms, first = self._ray_terms(disparity, norm, index), self.models[0]
+        return (
+            influence_depths(first, terms, self.mixtures, norm, voxel_overhang_m),
+            floor_depths(first, terms, self.mixtures, norm, voxel_overhang_m),
+        )
 
     def _ray_terms(self, disparity, norm, index):
         """:meth:`PrismModel._ray_terms` of rays of model ``index`` each: tables, ``log Z``, failure terms, ``index``

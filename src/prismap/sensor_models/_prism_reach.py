@@ -3,11 +3,12 @@ failure floor's increment (the grid samples those), and the influence depth beyo
 ``influence_epsilon`` (the grid casts none of them), 0 for a silent ray, one that moves no cell by that much
 (docs/SENSOR_MODELS.md, "The failure floor along a ray" and "Silent rays").
 
-Functions of a :class:`~prismap.sensor_models.PrismModel` and its rays' ``tables`` (``PrismModel._tables_for``),
-``log Z`` (``PrismModel._ray_log_z``), model rows ``ray_model`` of ``models`` (a
-:class:`~prismap.sensor_models._kernel_args.MixtureSet`: one model's, or a conditioned model's classes'), norms
-``norm`` and overhangs ``voxel_overhang_m`` ((R,) metres along each ray, or None), shared by the model and the
-fused look-up of a conditioned model's classes (:class:`~prismap.sensor_models._prism_classes.PrismClasses`).
+Functions of a :class:`~prismap.sensor_models.PrismModel` and its rays' ``terms`` (``PrismModel._ray_terms``: their
+``tables``, ``log Z``, failure terms ``log(1 - rho)``, ``log(rho)`` (empty: no failures) and model rows ``ray_model``
+of ``models``, a :class:`~prismap.sensor_models._kernel_args.MixtureSet`: one model's, or a conditioned model's
+classes'), norms ``norm`` and overhangs ``voxel_overhang_m`` ((R,) metres along each ray, or None), shared by the
+model and the fused look-up of a conditioned model's classes
+(:class:`~prismap.sensor_models._prism_classes.PrismClasses`); one look-up of the terms serves both.
 """
 
 import numpy as np
@@ -17,18 +18,18 @@ from prismap.sensor_models._kernels_influence import INFLUENCE_LEVEL_STEP, INFLU
 from prismap.sensor_models._kernels_pack import _SHIFT, _Z_INFL, _Z_TIGHT
 
 
-def floor_depths(model, tables, log_z, log_fail, ray_model, models, norm, voxel_overhang_m):
-    """``PrismModel.floor_depth`` of the rays, from their ``log(1 - rho)`` ``log_fail`` (empty: no failures)."""
+def floor_depths(model, terms, models, norm, voxel_overhang_m):
+    """``PrismModel.floor_depth`` of the rays."""
+    tables, log_z, (log_fail, _), ray_model = terms
     log_floor = model._floor_levels(log_fail) if log_fail.size else log_fail
     depth = _kernels_lookup.ray_floor_depths(tables, log_z, log_floor, ray_model, model._geometry(), models)
     return depth - model._stretch(norm, voxel_overhang_m)
 
 
-def influence_depths(model, tables, log_z, log_failure, ray_model, models, norm, voxel_overhang_m):
-    """``PrismModel.influence_depth`` of the rays, from their failure terms ``log_failure``
-    (``PrismModel._log_failure``: ``log(1 - rho)``, ``log(rho)``; empty: no failures, no silent ray)."""
+def influence_depths(model, terms, models, norm, voxel_overhang_m):
+    """``PrismModel.influence_depth`` of the rays (without failures, no silent ray)."""
+    tables, log_z, (log_fail, log_ok), ray_model = terms
     table, _, meta, _ = tables
-    log_fail, log_ok = log_failure
     blended = model.prior == "p0"  # cells blended with p0 by rho (1 without failures)
     depth = meta[table, _Z_INFL]
     if blended:
