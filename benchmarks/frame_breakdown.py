@@ -20,8 +20,8 @@ clock of the thread that runs them:
 It prints each part's median over the steady frames (all but the first, which loads numba's caches and builds every
 table the frame needs; a steady frame builds the tables of the keys it is the first to meet) in seconds a frame and
 nanoseconds a cell, then the frame's wall-clock phases: the set-up before the first cell (the batch, the stop
-depths and the table builds, in the calling thread and the table builders), the cells (cast or walk, model and
-scatter, on every thread: with both cores busy about half the CPU of their parts) and the map update. Not a peer
+depths and the table builds, in the calling thread and the table builders), the per-cell work (cast or walk, model
+and scatter, on every thread: with both cores busy about half the CPU of their parts) and the map update. Not a peer
 benchmark: ``bench_grid.py`` compares the same paths with OctoMap and UFOMap.
 
 Run: ``.venv/bin/python benchmarks/frame_breakdown.py [--mode ray] [--scale 1] [--frames 8] [--model conditioned]
@@ -101,9 +101,9 @@ class PartClock:
 
     def phases(self, start, end, cells_part):
         """Wall seconds of the frame's phases: ``set-up`` (batch, stop depths, table builds: up to the first
-        ``cells_part``, the cast or the walk), ``cells`` (from there to the last scatter) and ``map update``."""
+        ``cells_part``, the cast or the walk), ``per-cell work`` (from there to the last scatter) and ``map update``."""
         first, last = self.first[cells_part], self.last["scatter"]
-        return {"set-up": first - start, "cells": last - first, "map update": end - last}
+        return {"set-up": first - start, "per-cell work": last - first, "map update": end - last}
 
 
 def main():
@@ -144,7 +144,7 @@ def main():
     )
     for key in ("wall", "CPU", *(label for label in clock.parts if label != "model call"), "model rest", "rest"):
         print(f"{key:12s} {median[key]:7.3f} s  {median[key] / median['cells'] * 1e9:5.1f} ns a cell")
-    print("wall clock: " + ", ".join(f"{key} {median[key]:.3f} s" for key in ("set-up", "cells", "map update")))
+    print("wall clock: " + ", ".join(f"{key} {median[key]:.3f} s" for key in ("set-up", "per-cell work", "map update")))
 
 
 if __name__ == "__main__":
