@@ -47,7 +47,7 @@ from prismap.sensor_models._params import RayModel
 from prismap.sensor_models._prism_cache import _KEY_L_SPAN, _LAMBDA_STEP, TableCache, ray_tables
 from prismap.sensor_models._prism_discrete import log_mean_likelihood
 from prismap.sensor_models._prism_map_prior import map_prior_cells
-from prismap.sensor_models._prism_reach import floor_depths, influence_depths
+from prismap.sensor_models._prism_reach import floor_depths, has_floor, influence_depths
 from prismap.sensor_models._prism_spacing import (
     _COARSE_BELOW,
     _TABLE_STEP,
@@ -418,7 +418,9 @@ class PrismModel(RayModel):
         (what :meth:`influence_and_floor_depths` gives beside the influence depth, for ray mode); None when the
         look-up has no floor (``method="direct"``, ``prior="map"``).
         """
-        return self.influence_and_floor_depths(disparity_px, ray_norm, voxel_overhang_m=voxel_overhang_m)[1]
+        if has_floor(self):
+            return self.influence_and_floor_depths(disparity_px, ray_norm, voxel_overhang_m=voxel_overhang_m)[1]
+        return None
 
     def influence_and_floor_depths(
         self, disparity_px: npt.ArrayLike, ray_norm: npt.ArrayLike, *, voxel_overhang_m: npt.ArrayLike | None = None
@@ -428,9 +430,7 @@ class PrismModel(RayModel):
         disparity = as_float_array(disparity_px, "disparity_px", ndim=1, allow_nan=False)
         norm = as_float_array(ray_norm, "ray_norm", shape=(disparity.size,))
         terms = self._ray_terms(disparity, norm)
-        floor = None
-        if self.method == "table" and self.prior == "p0":
-            floor = floor_depths(self, terms, self._kernel_models, norm, voxel_overhang_m)
+        floor = floor_depths(self, terms, self._kernel_models, norm, voxel_overhang_m)
         return influence_depths(self, terms, self._kernel_models, norm, voxel_overhang_m), floor
 
     def _ray_terms(self, disparity, norm):

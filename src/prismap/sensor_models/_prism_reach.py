@@ -18,8 +18,15 @@ from prismap.sensor_models._kernels_influence import INFLUENCE_LEVEL_STEP, INFLU
 from prismap.sensor_models._kernels_pack import _SHIFT, _Z_INFL, _Z_TIGHT
 
 
+def has_floor(model):
+    """Whether a PRISM model's look-up has a failure floor (``method="table"``, ``prior="p0"``)."""
+    return model.method == "table" and model.prior == "p0"
+
+
 def floor_depths(model, terms, models, norm, voxel_overhang_m):
-    """``PrismModel.floor_depth`` of the rays."""
+    """``PrismModel.floor_depth`` of the rays; None without a floor (:func:`has_floor`)."""
+    if not has_floor(model):
+        return None
     tables, log_z, (log_fail, _), ray_model = terms
     log_floor = model._floor_levels(log_fail) if log_fail.size else log_fail
     depth = _kernels_lookup.ray_floor_depths(tables, log_z, log_floor, ray_model, model._geometry(), models)
