@@ -244,15 +244,12 @@ class RayIntegrator(Integrator):
 
     def _integrate(self, accumulator, batch, groups):
         origin, voxel = batch.origin_w, self.voxel_size_m
-        depths = [self._model_depths(model, batch, members) for model, members in groups]
-        stops = [
-            (model, members, *self.stop_depths(model, batch, members, influence))
-            for (model, members), (influence, _) in zip(groups, depths)
-        ]
-        plans = [
-            self._floor_plan(batch, members, t_stop, floor_end)
-            for (_, members, t_stop, _), (_, floor_end) in zip(stops, depths)
-        ]
+        stops, plans = [], []
+        for model, members in groups:
+            influence, floor_end = self._model_depths(model, batch, members)
+            t_stop, exclusive = self.stop_depths(model, batch, members, influence)
+            stops.append((model, members, t_stop, exclusive))
+            plans.append(self._floor_plan(batch, members, t_stop, floor_end))
         limits = [
             _kernels_traverse.cell_limits(
                 origin, np.ascontiguousarray(take_rows(batch.rays_w, members)), plan[0], t_stop, voxel

@@ -141,6 +141,16 @@ class ConditionedModel(InverseSensorModel):
             )
         return classes.astype(np.int64)
 
+    def _class_rays(self, disparity_px, ray_norm, ray_class):
+        """The rays' disparities and norms ((R,) float64) and classes ((R,) int64), checked."""
+        disparity = np.asarray(disparity_px, dtype=np.float64)
+        norm = np.asarray(ray_norm, dtype=np.float64)
+        if disparity.ndim != 1 or norm.shape != disparity.shape:
+            raise PrismapInputError(
+                f"`disparity_px` and `ray_norm` must be 1-D of one length; got {disparity.shape} and {norm.shape}"
+            )
+        return disparity, norm, self._check_classes(ray_class, disparity.size)
+
     def cell_posteriors(
         self,
         disparity_px: npt.ArrayLike,
@@ -212,13 +222,7 @@ class ConditionedModel(InverseSensorModel):
         if ray_class is None:
             extra = {} if overhang is None else {"voxel_overhang_m": overhang}
             return self.plain.influence_depth(disparity_px, ray_norm, **extra)
-        disparity = np.asarray(disparity_px, dtype=np.float64)
-        norm = np.asarray(ray_norm, dtype=np.float64)
-        if disparity.ndim != 1 or norm.shape != disparity.shape:
-            raise PrismapInputError(
-                f"`disparity_px` and `ray_norm` must be 1-D of one length; got {disparity.shape} and {norm.shape}"
-            )
-        classes = self._check_classes(ray_class, disparity.size)
+        disparity, norm, classes = self._class_rays(disparity_px, ray_norm, ray_class)
         if self._classes is not None and self._classes.fused:
             return self._classes.influence_depth(disparity, norm, classes + 1, overhang)
         overhang = _ray_overhang(overhang, disparity.shape)
@@ -259,10 +263,8 @@ class ConditionedModel(InverseSensorModel):
             if rule is not None:
                 return rule(disparity_px, ray_norm, voxel_overhang_m=overhang)
         elif self._classes is not None and self._classes.fused:
-            disparity = np.asarray(disparity_px, dtype=np.float64)
-            norm = np.asarray(ray_norm, dtype=np.float64)
-            index = self._check_classes(ray_class, disparity.size) + 1
-            return self._classes.influence_and_floor_depths(disparity, norm, index, overhang)
+            disparity, norm, classes = self._class_rays(disparity_px, ray_norm, ray_class)
+            return self._classes.influence_and_floor_depths(disparity, norm, classes + 1, overhang)
         return self.influence_depth(disparity_px, ray_norm, ray_class=ray_class, voxel_overhang_m=overhang), None
 
     def with_extra_noise(self, sigma_px: float) -> ConditionedModel:
